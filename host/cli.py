@@ -1,0 +1,209 @@
+"""`skel`: the operator's command line (check, up, down, push, run, status, report).
+
+Exit codes: 0 fine, 1 an operation failed (a DPU did not answer...), 2 bad
+input (the one-line message names the file and field), 3 a fatal flaw (lockout
+or jam) was measured.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+from skeleton.host import spawn
+from skeleton.host.system import DEFAULT_URL, SystemFileError, load
+
+EXIT_FAILED, EXIT_BAD_INPUT = 1, 2
+
+
+def _system_args(parser: argparse.ArgumentParser, optional: bool = False) -> None:
+    if optional:
+        parser.add_argument("file", type=Path, nargs="?",
+                            help="the system file (YAML); default: the one `skel push` applied last")
+    else:
+        parser.add_argument("file", type=Path, help="the system file (YAML)")
+    parser.add_argument("-s", "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="change one descriptor, e.g. process.executor.compute_us=3000 (repeatable)")
+    parser.add_argument("--url", help="LCM URL of the system's default link (overrides the file)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="skel", description="Run the skeleton of a distributed "
+                                     "real-time control system and measure it (NIST skeleton approach).")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("check", help="validate a system file and print its static load")
+    _system_args(p)
+    p.add_argument("--json", action="store_true")
+
+    p = sub.add_parser("up", help="start the local skel-dpu daemons of a system and leave them running")
+    _system_args(p)
+
+    p = sub.add_parser("down", help="stop the daemons `skel up` started")
+    p.add_argument("--url", help="only those on this LCM URL")
+
+    p = sub.add_parser("push", help="broadcast a (changed) system to running DPUs, without restarting them")
+    _system_args(p)
+
+    p = sub.add_parser("run", help="push, run at one shared instant, record, and print the tables")
+    _system_args(p, optional=True)
+    p.add_argument("--spawn", action="store_true", help="start local DPUs for this run and stop them after")
+    length = p.add_mutually_exclusive_group()
+    length.add_argument("--cycles", type=int, help="run length in cycles of the shortest period")
+    length.add_argument("--duration", type=float, metavar="S", help="run length in seconds")
+    p.add_argument("--out", type=Path, help="run directory (default runs/<system>-<time>/)")
+    p.add_argument("--json", action="store_true", help="print report.json instead of tables")
+    p.add_argument("--compare-paper", action="store_true",
+                   help="print the system file's reference values (the paper's Table 1) beside ours")
+
+    p = sub.add_parser("status", help="the DPUs heard on the control channel")
+    p.add_argument("--url", default=DEFAULT_URL)
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--wait", type=float, default=1.0, metavar="S", help="how long to listen (default 1 s)")
+
+    p = sub.add_parser("report", help="the tables of a recorded run, from its log alone")
+    p.add_argument("log", type=Path, help="run.lcm (or a run directory)")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--run-id", type=int, help="which run, when the log holds several (default the last)")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return COMMANDS[args.command](args)
+    except SystemFileError as error:
+        print(error, file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except spawn.SpawnError as error:
+        print(f"skel: {error}", file=sys.stderr)
+        return EXIT_FAILED
+    except KeyboardInterrupt:
+        return 130
+
+
+def _load(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    system = load(args.file, args.overrides)
+    return system.with_url(args.url) if args.url else system
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    from skeleton.host.check import check
+
+    return check(args.file, args.overrides, as_json=args.json)
+
+
+def cmd_up(args: argparse.Namespace) -> int:
+    from skeleton.host.run import control_url
+
+    system = _load(args)
+    url = control_url(system)
+    local = [d.id for d in system.dpus if spawn.is_local(d.host)]
+    started = spawn.up(local, url)
+    print(f"DPUs up on {url}: started {started or 'none'}, already running "
+          f"{sorted(set(local) - set(started)) or 'none'}")
+    return 0
+
+
+def cmd_down(args: argparse.Namespace) -> int:
+    stopped = spawn.down(args.url)
+    print(f"stopped DPU {', '.join(map(str, stopped))}" if stopped else "no DPU was up")
+    return 0
+
+
+def cmd_push(args: argparse.Namespace) -> int:
+    from skeleton.host.control import Control
+    from skeleton.host.run import HEAR_TIMEOUT_S, control_url
+
+    system = _load(args)
+    control = Control(control_url(system))
+    try:
+        ids = sorted(d.id for d in system.dpus)
+        control.wait_heard(ids, HEAR_TIMEOUT_S)
+        generation = control.next_generation()
+        result = control.push(system.to_config(generation, 0, committed=False), ids)
+    finally:
+        control.close()
+    for dpu_id in result.applied:
+        print(f"DPU {dpu_id}: applied generation {generation}")
+    for dpu_id, reason in sorted(result.rejected.items()):
+        print(f"DPU {dpu_id}: rejected generation {generation}: {reason}", file=sys.stderr)
+    for dpu_id in result.silent:
+        print(f"DPU {dpu_id}: did not answer (is it up? `skel status`)", file=sys.stderr)
+    if not result.ok:
+        print("nothing was committed: every DPU keeps its previous configuration", file=sys.stderr)
+        return EXIT_FAILED
+    spawn.remember_push(control_url(system), system.source_text, generation)
+    return 0
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from skeleton.host.run import RunOptions, run
+
+    pushed_generation = None
+    if args.file is None:
+        url = args.url or DEFAULT_URL
+        remembered = spawn.last_push(url)
+        if remembered is None:
+            print(f"skel run: no system file given and nothing pushed on {url} yet", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        args.file, pushed_generation = remembered
+    system = _load(args)
+    options = RunOptions(spawn=args.spawn, cycles=args.cycles, duration_s=args.duration, out=args.out,
+                         as_json=args.json, compare_paper=args.compare_paper,
+                         pushed_generation=pushed_generation)
+    return run(system, options)
+
+
+def cmd_status(args: argparse.Namespace) -> int:
+    import time
+
+    from skeleton.host.control import Control
+
+    control = Control(args.url)
+    time.sleep(args.wait)
+    views = control.snapshot()
+    control.close()
+    rows = [{"dpu": i, "host": v.status.host, "pid": v.status.pid, "state": v.state,
+             "generation": v.status.generation, "staged": v.status.staged_generation,
+             "run_id": v.status.run_id, "minor_cycles": v.status.minor_cycles,
+             "faults": v.status.faults, "rejected_messages": v.status.rejected_messages,
+             "reject_reason": v.status.reject_reason}
+            for i, v in sorted(views.items())]
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    if not rows:
+        print(f"no DPU heard on {args.url} in {args.wait:g} s")
+        return EXIT_FAILED
+    table = Table(title=f"DPUs on {args.url}")
+    for column in ("dpu", "host", "pid", "state", "generation", "run_id", "minor_cycles", "faults",
+                   "rejected_messages", "reject_reason"):
+        table.add_column(column)
+    for row in rows:
+        table.add_row(*(str(row[c]) for c in (
+            "dpu", "host", "pid", "state", "generation", "run_id", "minor_cycles", "faults",
+            "rejected_messages", "reject_reason")))
+    Console().print(table)
+    return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from skeleton.analysis.report import report_command
+
+    log = args.log / "run.lcm" if args.log.is_dir() else args.log
+    return report_command(log, as_json=args.json, run_id=args.run_id)
+
+
+COMMANDS = {"check": cmd_check, "up": cmd_up, "down": cmd_down, "push": cmd_push, "run": cmd_run,
+            "status": cmd_status, "report": cmd_report}
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,216 @@
+"""Talking to the DPUs: config broadcast, commands, and what their heartbeats say.
+
+One `Control` owns one LCM instance on the control URL and a thread that drains
+it. Everything the host knows about the DPUs comes from their status_t
+heartbeats and report_t messages; everything it asks goes out as config_t and
+command_t. Commands are repeated a few times (multicast may lose one) and the
+DPUs act on each command sequence number once.
+"""
+
+from __future__ import annotations
+
+import struct
+import threading
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+import lcm
+
+import skelmsg
+
+CONFIG, COMMAND, STATUS, REPORT, CLOCK = (
+    "SKEL_CONFIG", "SKEL_COMMAND", "SKEL_STATUS", "SKEL_REPORT", "SKEL_CLOCK",
+)
+STATE_NAMES = {
+    skelmsg.status_t.STATE_UNCONFIGURED: "unconfigured",
+    skelmsg.status_t.STATE_READY: "ready",
+    skelmsg.status_t.STATE_ARMED: "armed",
+    skelmsg.status_t.STATE_RUNNING: "running",
+}
+COMMAND_REPEATS = 3
+# A DPU heartbeats at 5 Hz: three missed beats and it is reported lost.
+LOST_AFTER_S = 0.6
+
+
+@dataclass
+class DpuView:
+    """The latest heartbeat of one DPU, and when it came."""
+
+    status: skelmsg.status_t
+    heard_mono: float
+
+    @property
+    def state(self) -> str:
+        return STATE_NAMES.get(self.status.state, f"state {self.status.state}")
+
+
+@dataclass
+class PushResult:
+    generation: int
+    applied: list[int] = field(default_factory=list)
+    rejected: dict[int, str] = field(default_factory=dict)
+    silent: list[int] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.rejected and not self.silent
+
+
+class Control:
+    """The host's side of the control channels."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self._lcm = lcm.LCM(url)
+        self._lock = threading.Lock()
+        self._changed = threading.Condition(self._lock)
+        self.dpus: dict[int, DpuView] = {}
+        self.reports: dict[tuple[int, int], skelmsg.report_t] = {}
+        self.rejected_messages = 0
+        self.on_status: Callable[[skelmsg.status_t], None] | None = None
+        for channel, handler in ((STATUS, self._handle_status), (REPORT, self._handle_report)):
+            self._lcm.subscribe(channel, handler).set_queue_capacity(0)
+        self._running = True
+        self._thread = threading.Thread(target=self._drain, name="lcm-control", daemon=True)
+        self._thread.start()
+
+    # --- receiving ----------------------------------------------------------------
+    def _drain(self) -> None:
+        while self._running:
+            self._lcm.handle_timeout(50)
+
+    def _decode(self, cls: type, data: bytes) -> object | None:
+        """Decode, or count a malformed/foreign message and return None: never crash."""
+        try:
+            return cls.decode(data)
+        except (ValueError, struct.error, UnicodeDecodeError, IndexError):
+            with self._lock:
+                self.rejected_messages += 1
+            return None
+
+    def _handle_status(self, _channel: str, data: bytes) -> None:
+        status = self._decode(skelmsg.status_t, data)
+        if not isinstance(status, skelmsg.status_t):
+            return
+        with self._changed:
+            self.dpus[status.dpu] = DpuView(status, time.monotonic())
+            self._changed.notify_all()
+        if self.on_status is not None:
+            self.on_status(status)
+
+    def _handle_report(self, _channel: str, data: bytes) -> None:
+        report = self._decode(skelmsg.report_t, data)
+        if not isinstance(report, skelmsg.report_t):
+            return
+        with self._changed:
+            self.reports[(report.dpu, report.run_id)] = report
+            self._changed.notify_all()
+
+    def wait_for(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
+        """Wait until predicate() (evaluated under the lock) holds, or time out."""
+        deadline = time.monotonic() + timeout_s
+        with self._changed:
+            while not predicate():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._changed.wait(min(left, 0.1))
+        return True
+
+    def snapshot(self) -> dict[int, DpuView]:
+        with self._lock:
+            return dict(self.dpus)
+
+    def lost(self, ids: Iterable[int]) -> list[int]:
+        """DPUs among `ids` not heard for LOST_AFTER_S (or never)."""
+        now = time.monotonic()
+        with self._lock:
+            return [i for i in ids if i not in self.dpus or now - self.dpus[i].heard_mono > LOST_AFTER_S]
+
+    def wait_heard(self, ids: Iterable[int], timeout_s: float) -> list[int]:
+        """Wait until every DPU in `ids` has sent a heartbeat; return the silent ones."""
+        wanted = set(ids)
+        self.wait_for(lambda: wanted <= self.dpus.keys(), timeout_s)
+        with self._lock:
+            return sorted(wanted - self.dpus.keys())
+
+    def next_generation(self) -> int:
+        """One above any generation a DPU has heard of, so every push is new to all."""
+        with self._lock:
+            seen = [max(v.status.generation, v.status.staged_generation, v.status.rejected_generation)
+                    for v in self.dpus.values()]
+        return max(seen, default=0) + 1
+
+    # --- sending --------------------------------------------------------------------
+    def publish_config(self, config: skelmsg.config_t) -> None:
+        config.sent_utc_ns = time.time_ns()
+        self._lcm.publish(CONFIG, config.encode())
+
+    def command(self, kind: int, dpu: int = -1, **fields: int) -> int:
+        """Send one command (repeated, same seq); return its seq."""
+        cmd = skelmsg.command_t()
+        # Wall-clock sequence numbers stay increasing across separate `skel` invocations.
+        cmd.seq = time.time_ns()
+        cmd.kind = kind
+        cmd.dpu = dpu
+        for name, value in fields.items():
+            setattr(cmd, name, value)
+        data = cmd.encode()
+        for i in range(COMMAND_REPEATS):
+            if i:
+                time.sleep(0.01)
+            self._lcm.publish(COMMAND, data)
+        return cmd.seq
+
+    def push(self, config: skelmsg.config_t, dpus: Iterable[int], timeout_s: float = 3.0) -> PushResult:
+        """Stage a config on every DPU, then commit it only if all of them accepted it."""
+        wanted = sorted(set(dpus))
+        generation = config.generation
+        result = PushResult(generation)
+
+        def settled() -> bool:
+            return all(
+                i in self.dpus and (self.dpus[i].status.staged_generation >= generation
+                                    or self.dpus[i].status.generation >= generation
+                                    or self.dpus[i].status.rejected_generation == generation)
+                for i in wanted)
+
+        config.committed = 0
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and not settled():
+            self.publish_config(config)
+            self.wait_for(settled, 0.25)
+        snapshot = self.snapshot()
+        for i in wanted:
+            view = snapshot.get(i)
+            if view is None:
+                result.silent.append(i)
+            elif view.status.rejected_generation == generation:
+                result.rejected[i] = view.status.reject_reason or "rejected"
+            elif view.status.staged_generation < generation and view.status.generation < generation:
+                result.silent.append(i)
+        if not result.ok:
+            return result
+        self.command(skelmsg.command_t.COMMIT, generation=generation)
+        applied = self.wait_for(
+            lambda: all(self.dpus[i].status.generation >= generation for i in wanted), timeout_s)
+        snapshot = self.snapshot()
+        result.applied = [i for i in wanted if snapshot[i].status.generation >= generation]
+        if not applied:
+            result.silent = [i for i in wanted if i not in result.applied]
+        return result
+
+    def start(self, generation: int, run_id: int, at_utc_ns: int, duration_ns: int) -> None:
+        self.command(skelmsg.command_t.START, generation=generation, run_id=run_id,
+                     at_utc_ns=at_utc_ns, duration_ns=duration_ns)
+
+    def stop(self) -> None:
+        self.command(skelmsg.command_t.STOP)
+
+    def shutdown(self, dpu: int = -1) -> None:
+        self.command(skelmsg.command_t.SHUTDOWN, dpu=dpu)
+
+    def close(self) -> None:
+        self._running = False
+        self._thread.join(timeout=1.0)

@@ -1,0 +1,186 @@
+"""Local daemons: the skel-dpu processes of this machine and the lcm-logger.
+
+`skel up` leaves DPUs running between runs (their pids go to a small state
+file so `skel down` finds them); `skel run --spawn` starts and stops them
+around one run. The logger is always ours for the length of a run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import lcm
+
+REPO = Path(__file__).resolve().parent.parent
+LOCAL_HOSTS = {"", "localhost", "127.0.0.1", "::1"}
+# What the logger records by default: everything but the dummy buffers themselves.
+LOGGED_CHANNELS = "SKEL_(CONFIG|COMMAND|STATUS|TIMING|REPORT|CLOCK)"
+
+
+class SpawnError(RuntimeError):
+    """A local daemon could not be started; the message says what to do."""
+
+
+def is_local(host: str) -> bool:
+    return host in LOCAL_HOSTS or host == socket.gethostname()
+
+
+def dpu_binary() -> Path:
+    """$SKEL_DPU, else the build in this checkout, else skel-dpu on PATH."""
+    candidates = [os.environ.get("SKEL_DPU"), str(REPO / "build" / "skel-dpu"), shutil.which("skel-dpu")]
+    for candidate in candidates:
+        if candidate and os.access(candidate, os.X_OK):
+            return Path(candidate)
+    raise SpawnError("skel-dpu not found: run `make` in the skeleton checkout or set SKEL_DPU")
+
+
+def logger_binary() -> Path:
+    # The venv's lcm-logger is a Python wrapper: a signal to it leaves the real
+    # logger running, so start the wheel's binary directly.
+    path = Path(lcm.__file__).resolve().parent.parent / "bin" / "lcm-logger"
+    if not os.access(path, os.X_OK):
+        raise SpawnError(f"lcm-logger not found at {path}: reinstall the lcm wheel (make)")
+    return path
+
+
+def state_dir() -> Path:
+    base = os.environ.get("SKEL_STATE_DIR") or os.environ.get("XDG_RUNTIME_DIR")
+    path = Path(base) / "skeleton" if base else Path(f"/tmp/skeleton-{os.getuid()}")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def _state_file(url: str) -> Path:
+    return state_dir() / f"up-{hashlib.sha1(url.encode()).hexdigest()[:10]}.json"
+
+
+@dataclass
+class Daemon:
+    name: str
+    process: subprocess.Popen[bytes]
+    log_path: Path
+
+    def alive(self) -> bool:
+        return self.process.poll() is None
+
+
+def start_dpu(dpu_id: int, url: str, log_dir: Path, extra: list[str] | None = None,
+              detach: bool = False) -> Daemon:
+    log_dir.mkdir(parents=True, exist_ok=True)
+    log_path = log_dir / f"dpu{dpu_id}.log"
+    with open(log_path, "ab") as log:
+        process = subprocess.Popen(
+            [str(dpu_binary()), "--id", str(dpu_id), "--url", url, *(extra or [])],
+            stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+            start_new_session=detach)
+    return Daemon(f"dpu {dpu_id}", process, log_path)
+
+
+def start_logger(url: str, path: Path, channels: str = LOGGED_CHANNELS) -> Daemon:
+    """Start lcm-logger on `url` writing `path`, and wait until it has opened the file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    log_path = path.with_suffix(".logger.txt")
+    with open(log_path, "ab") as log:
+        process = subprocess.Popen(
+            [str(logger_binary()), "-f", "-q", "-l", url, "-c", channels, "--flush-interval=50", str(path)],
+            stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT)
+    deadline = time.monotonic() + 5.0
+    while not path.exists():
+        if process.poll() is not None or time.monotonic() > deadline:
+            stop(Daemon("lcm-logger", process, log_path))
+            raise SpawnError(f"lcm-logger did not start: see {log_path}")
+        time.sleep(0.02)
+    return Daemon("lcm-logger", process, log_path)
+
+
+def stop(daemon: Daemon, timeout_s: float = 3.0) -> int | None:
+    """SIGINT (the logger flushes on it, the DPU exits cleanly), then SIGKILL."""
+    if daemon.alive():
+        daemon.process.send_signal(signal.SIGINT)
+        try:
+            daemon.process.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            daemon.process.kill()
+            daemon.process.wait()
+    return daemon.process.returncode
+
+
+# --- skel up / skel down -------------------------------------------------------------
+def up(dpu_ids: list[int], url: str) -> list[int]:
+    """Start detached DPUs for `dpu_ids` unless already up; return the ids started."""
+    state = _read_state(url)
+    running = {int(k): v for k, v in state.items() if _is_dpu_pid(v)}
+    started = []
+    for dpu_id in dpu_ids:
+        if dpu_id in running:
+            continue
+        daemon = start_dpu(dpu_id, url, state_dir() / "logs", detach=True)
+        running[dpu_id] = daemon.process.pid
+        started.append(dpu_id)
+    _state_file(url).write_text(json.dumps({"url": url, "dpus": running}))
+    return started
+
+
+def down(url: str | None) -> list[int]:
+    """Stop the DPUs `skel up` started (for `url`, or for every URL); return their ids."""
+    files = [_state_file(url)] if url else sorted(state_dir().glob("up-*.json"))
+    stopped = []
+    for path in files:
+        if not path.exists():
+            continue
+        pids = json.loads(path.read_text()).get("dpus", {})
+        for dpu_id, pid in pids.items():
+            if _is_dpu_pid(pid):
+                os.kill(pid, signal.SIGTERM)
+                stopped.append(int(dpu_id))
+        for pid in pids.values():
+            _wait_gone(pid)
+        path.unlink()
+    return sorted(stopped)
+
+
+def remember_push(url: str, source_text: str, generation: int) -> None:
+    """Keep what `skel push` applied, so `skel run` without a file runs exactly that."""
+    stem = _state_file(url).stem.replace("up-", "pushed-")
+    (state_dir() / f"{stem}.yaml").write_text(source_text)
+    (state_dir() / f"{stem}.json").write_text(json.dumps({"url": url, "generation": generation}))
+
+
+def last_push(url: str) -> tuple[Path, int] | None:
+    stem = _state_file(url).stem.replace("up-", "pushed-")
+    meta = state_dir() / f"{stem}.json"
+    if not meta.exists():
+        return None
+    return state_dir() / f"{stem}.yaml", int(json.loads(meta.read_text())["generation"])
+
+
+def _read_state(url: str) -> dict[str, int]:
+    path = _state_file(url)
+    return json.loads(path.read_text()).get("dpus", {}) if path.exists() else {}
+
+
+def _is_dpu_pid(pid: int) -> bool:
+    """True when pid is still a skel-dpu (pids are reused)."""
+    try:
+        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return False
+    return b"skel-dpu" in cmdline.split(b"\0")[0]
+
+
+def _wait_gone(pid: int, timeout_s: float = 3.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while _is_dpu_pid(pid):
+        if time.monotonic() > deadline:
+            os.kill(pid, signal.SIGKILL)
+            return
+        time.sleep(0.02)

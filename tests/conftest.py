@@ -1,0 +1,88 @@
+"""Shared fixtures: real skel-dpu daemons (under ASan/UBSan) on a private multicast port.
+
+Every test gets its own LCM port with ttl=0, so multicast never leaves the host
+and tests never hear each other's DPUs.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import re
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from skeleton.host import spawn
+
+REPO = Path(__file__).resolve().parent.parent
+ASAN_DPU = REPO / "build" / "asan" / "skel-dpu"
+EXAMPLES = REPO / "examples"
+_ports = itertools.count(7700 + (os.getpid() % 400) * 4)
+SANITIZER_ERROR = re.compile(rb"ERROR: AddressSanitizer|runtime error:|ERROR: LeakSanitizer")
+
+
+@pytest.fixture(autouse=True)
+def _asan_dpu(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every daemon a test starts is the sanitizer build."""
+    if not ASAN_DPU.exists():
+        pytest.fail(f"{ASAN_DPU} missing: run `make test` (it builds it)")
+    monkeypatch.setenv("SKEL_DPU", str(ASAN_DPU))
+    monkeypatch.setenv("ASAN_OPTIONS", "detect_leaks=1:abort_on_error=0:exitcode=66")
+    monkeypatch.setenv("UBSAN_OPTIONS", "print_stacktrace=1:halt_on_error=1:exitcode=67")
+
+
+@pytest.fixture
+def url() -> str:
+    return f"udpm://239.255.76.67:{next(_ports)}?ttl=0"
+
+
+@pytest.fixture
+def state_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    path = tmp_path / "state"
+    monkeypatch.setenv("SKEL_STATE_DIR", str(path))
+    return path
+
+
+class DpuFarm:
+    """Starts DPUs for a test and checks, at the end, that each exited cleanly."""
+
+    def __init__(self, url: str, log_dir: Path) -> None:
+        self.url = url
+        self.log_dir = log_dir
+        self.daemons: dict[int, spawn.Daemon] = {}
+
+    def start(self, *ids: int, extra: list[str] | None = None) -> None:
+        for dpu_id in ids:
+            self.daemons[dpu_id] = spawn.start_dpu(dpu_id, self.url, self.log_dir, extra)
+
+    def kill(self, dpu_id: int) -> None:
+        self.daemons[dpu_id].process.kill()
+        self.daemons[dpu_id].process.wait()
+
+    def log(self, dpu_id: int) -> str:
+        return self.daemons[dpu_id].log_path.read_text(errors="replace")
+
+    def stop_all(self) -> dict[int, int | None]:
+        return {i: spawn.stop(d) for i, d in self.daemons.items()}
+
+
+@pytest.fixture
+def dpus(url: str, tmp_path: Path) -> Iterator[DpuFarm]:
+    farm = DpuFarm(url, tmp_path / "dpu-logs")
+    yield farm
+    codes = farm.stop_all()
+    for dpu_id, daemon in farm.daemons.items():
+        log = daemon.log_path.read_bytes()
+        assert not SANITIZER_ERROR.search(log), f"DPU {dpu_id} sanitizer report:\n{log.decode(errors='replace')}"
+        if codes[dpu_id] is not None and codes[dpu_id] != -9:
+            assert codes[dpu_id] == 0, f"DPU {dpu_id} exited {codes[dpu_id]}:\n{log.decode(errors='replace')}"
+
+
+def skel(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    """Run the real `skel` command line, as a user would."""
+    return subprocess.run([sys.executable, "-m", "skeleton.host.cli", *args], capture_output=True, text=True,
+                          timeout=timeout, cwd=REPO, env={**os.environ, "COLUMNS": "160"})

@@ -1,0 +1,94 @@
+"""The DPU daemon seen from the wire: self-configuration, and hostile input."""
+
+from __future__ import annotations
+
+import struct
+import time
+
+import lcm
+
+import skelmsg
+from conftest import EXAMPLES, DpuFarm
+from skeleton.host.control import CONFIG, Control
+from skeleton.host.system import load
+
+
+def _servo(url: str):  # type: ignore[no-untyped-def]
+    return load(EXAMPLES / "servo.yaml", ["run.warmup_cycles=5"]).with_url(url)
+
+
+def test_dpus_configure_themselves_from_one_broadcast(dpus: DpuFarm, url: str) -> None:
+    system = _servo(url)
+    dpus.start(1, 2, 3, 4)
+    control = Control(url)
+    try:
+        assert control.wait_heard([1, 2, 3, 4], 5.0) == []
+        generation = control.next_generation()
+        result = control.push(system.to_config(generation, 0, committed=False), [1, 2, 3, 4])
+        assert result.ok and result.applied == [1, 2, 3, 4], result
+        run_id = 4242
+        control.start(generation, run_id, time.time_ns() + 200_000_000, 300_000_000)
+        assert control.wait_for(lambda: all((d, run_id) in control.reports for d in (1, 2, 3, 4)), 5.0)
+        for dpu in system.dpus:
+            report = control.reports[(dpu.id, run_id)]
+            own = sorted(p.id for p in system.processes if p.dpu == dpu.id)
+            assert sorted(p.process for p in report.processes) == own
+            assert report.generation == generation
+            assert all(p.cycles > 0 for p in report.processes)
+    finally:
+        control.close()
+
+
+def _negative_length_buffer() -> bytes:
+    msg = skelmsg.buffer_t()
+    msg.nbytes, msg.payload = 4, b"\0" * 4
+    data = bytearray(msg.encode())
+    # fingerprint 8, run_id 8, writer 2, buffer 2, seq 8, send_ns 8 -> nbytes at 36
+    struct.pack_into(">i", data, 36, -5)
+    return bytes(data)
+
+
+def _huge_length_config(system) -> bytes:  # type: ignore[no-untyped-def]
+    data = bytearray(system.to_config(99, 0, committed=False).encode())
+    # fingerprint, generation, run_id, sent_utc_ns, committed, system string, four int32 -> nlinks
+    name_len = struct.unpack_from(">i", data, 33)[0]
+    offset = 33 + 4 + name_len + 16
+    struct.pack_into(">h", data, offset, -1)
+    negative = bytes(data)
+    struct.pack_into(">h", data, offset, 32767)
+    return negative + b"|" + bytes(data)
+
+
+def test_dpu_ignores_undecodable_messages(dpus: DpuFarm, url: str) -> None:
+    system = _servo(url)
+    dpus.start(2)
+    control = Control(url)
+    sender = lcm.LCM(url)
+    try:
+        assert control.wait_heard([2], 5.0) == []
+        negative_config, huge_config = _huge_length_config(system).split(b"|", 1)
+        hostile = [
+            (CONFIG, b""), (CONFIG, b"\x01\x02\x03"), (CONFIG, negative_config), (CONFIG, huge_config),
+            ("SKEL_COMMAND", b"\xff" * 40), ("SKEL_COMMAND", skelmsg.status_t().encode()),
+        ]
+        buffer_channels = [b.channel for b in system.buffers if b.id in (3, 5, 6, 7, 8)]
+        hostile += [(ch, _negative_length_buffer()) for ch in buffer_channels]
+        hostile += [(ch, b"garbage") for ch in buffer_channels]
+        generation = control.next_generation()
+        assert control.push(system.to_config(generation, 0, committed=False), [2]).ok
+        # During a run the DPU drains its buffer channels too: send everything then.
+        control.start(generation, 6, time.time_ns() + 100_000_000, 1_000_000_000)
+        assert control.wait_for(lambda: control.dpus[2].status.run_id == 6
+                                and control.dpus[2].status.minor_cycles > 10, 5.0)
+        for channel, data in hostile:
+            sender.publish(channel, data)
+        assert control.wait_for(lambda: (2, 6) in control.reports, 5.0)
+        assert control.reports[(2, 6)].rejected_messages >= len(hostile), control.reports[(2, 6)]
+        assert dpus.daemons[2].alive()
+        # Still fully working: a new generation is applied and a run completes.
+        result = control.push(system.to_config(generation + 1, 0, committed=False), [2])
+        assert result.ok, result
+        control.start(generation + 1, 7, time.time_ns() + 100_000_000, 200_000_000)
+        assert control.wait_for(lambda: (2, 7) in control.reports, 5.0)
+    finally:
+        control.close()
