@@ -1,0 +1,446 @@
+"""The system file: its schema (the only one), its rules, and its wire form.
+
+A system file (YAML) describes links, DPUs, buffers, processes, the run and
+optional latency chains (DESIGN.md). load() validates one into a System, which
+the rest of the host uses, and System.to_config() turns it into the config_t
+every DPU configures itself from. The *Spec models are the file's schema; the
+cross-reference rules (rules.py) resolve them into the plain records below.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import skelmsg
+import yaml
+from pydantic import AfterValidator, BaseModel, ConfigDict, PlainValidator, ValidationError, field_validator
+from pydantic import model_validator as _model_validator
+
+from .overrides import OverrideError, apply_overrides
+from .yamlfile import SystemFileError, describe, field_path, read_yaml, show
+
+__all__ = ["Buffer", "Chain", "Dpu", "Link", "Process", "Reference", "Run", "System", "SystemFileError",
+           "dump_yaml", "load"]
+
+DEFAULT_LINK = "bus"
+DEFAULT_URL = "udpm://239.255.76.67:7667?ttl=0"
+MAX_ID = 32767                      # ids travel as int16
+MAX_US = 2**31 - 1                  # periods and compute times travel as int32
+MAX_BYTES = 4 * 1024 * 1024         # beyond this a "buffer" is a file transfer
+MIN_MINOR_CYCLE_US = 100            # below this the OS timer, not the design, is measured
+MAX_PROCESSES_PER_DPU = 64
+MAX_PORTS = 16                      # inputs or outputs per process
+ABSURD_COMPUTE_PERIODS = 100        # compute_us beyond this many periods is a units mistake
+DEFAULT_RUN_CYCLES = 1000
+
+
+# --- field types ---------------------------------------------------------------------------
+
+def _id(v: int) -> int:
+    if not 1 <= v <= MAX_ID:
+        raise ValueError(f"must be an id from 1 to {MAX_ID}, got {v}")
+    return v
+
+
+def _micros(v: int) -> int:
+    if v <= 0:
+        raise ValueError(f"must be a positive number of microseconds, got {v}")
+    if v > MAX_US:
+        raise ValueError(f"must be at most {MAX_US} microseconds, got {v}")
+    return v
+
+
+def _bytes(v: int) -> int:
+    if v <= 0:
+        raise ValueError(f"must be a positive number of bytes, got {v}")
+    if v > MAX_BYTES:
+        raise ValueError(f"{v} bytes is absurd for one buffer (limit 4 MiB = {MAX_BYTES})")
+    return v
+
+
+def _name(v: str) -> str:
+    # Names become LCM channels (SKEL_BUF_<name>) and -s targets (dots, '=').
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,63}", v):
+        raise ValueError(f"must be a name of letters, digits and _ not starting with a digit, got {show(v)}")
+    return v
+
+
+def _ref(v: Any) -> int | str:
+    if isinstance(v, bool) or not isinstance(v, int | str):
+        raise ValueError(f"must be a buffer id or name, got {show(v)}")
+    return v
+
+
+def _at_least(low: float, what: str = "") -> Any:
+    def check(v: float) -> float:
+        if not (math.isfinite(v) and v >= low):
+            raise ValueError(f"must be at least {low}{what}, got {show(v)}")
+        return v
+    return AfterValidator(check)
+
+
+def _at_least_items(n: int) -> Any:
+    def check(v: list[Any]) -> list[Any]:
+        if len(v) < n:
+            raise ValueError(f"needs at least {n} item(s)")
+        return v
+    return AfterValidator(check)
+
+
+def _nonempty(v: str) -> str:
+    if not v.strip():
+        raise ValueError("must not be empty")
+    return v
+
+
+def _positive(v: float) -> float:
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"must be a positive number, got {show(v)}")
+    return v
+
+
+Id = Annotated[int, AfterValidator(_id)]
+Name = Annotated[str, AfterValidator(_name)]
+Micros = Annotated[int, AfterValidator(_micros)]
+Bytes = Annotated[int, AfterValidator(_bytes)]
+Ref = Annotated[int | str, PlainValidator(_ref)]
+Positive = Annotated[float, AfterValidator(_positive)]
+NonEmpty = Annotated[str, AfterValidator(_nonempty)]
+
+
+class _Spec(BaseModel):
+    # strict: a quoted "5000" or a `yes` is a mistake to report, not to coerce.
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+
+# --- the schema ----------------------------------------------------------------------------
+
+class LinkSpec(_Spec):
+    name: Name
+    url: str
+
+    @field_validator("url")
+    @classmethod
+    def _url(cls, v: str) -> str:
+        if v != "local" and not re.fullmatch(r"udpm://[^\s]*", v):
+            raise ValueError(f"must be `local` or an udpm:// URL, got {show(v)}")
+        return v
+
+
+class DpuSpec(_Spec):
+    id: Id
+    host: NonEmpty = "localhost"
+    cpu: Annotated[int, _at_least(0)] | None = None
+    compute: Literal["sleep", "wall", "cpu", "work"] = "sleep"
+    executive: Literal["cyclic", "threads"] = "cyclic"
+    speed: Positive = 1.0
+    minor_cycle_us: Micros | None = None
+    links: list[Name] | None = None
+
+
+class BufferSpec(_Spec):
+    id: Id
+    name: Name
+    bytes: Bytes
+    link: Name | None = None
+
+
+class ProcessSpec(_Spec):
+    id: Id
+    name: Name
+    dpu: Id
+    period_us: Micros
+    compute_us: Micros
+    sync: Literal["periodic", "data"] = "periodic"
+    inputs: list[Ref] = []
+    required: list[Ref] | None = None
+    outputs: list[Ref] = []
+    order: Annotated[int, _at_least(1)] | None = None
+
+
+class Run(_Spec):
+    """The run: its length, warm-up, lockout rule and when to stop early."""
+    cycles: Annotated[int, _at_least(1, " cycle")] | None = None   # of the critical period
+    duration_s: Positive | None = None
+    warmup_cycles: Annotated[int, _at_least(0)] = 50
+    lockout_cycles: Annotated[int, _at_least(1, " cycle")] = 10
+    stop_on: list[Literal["lockout", "jam", "dpu_lost"]] = ["lockout"]
+    late_pct: Annotated[int, _at_least(1, " %")] = 20
+    too_late_pct: Annotated[int, _at_least(1, " %")] = 100
+
+    @_model_validator(mode="after")
+    def _consistent(self) -> Run:
+        if self.cycles is not None and self.duration_s is not None:
+            raise ValueError("give cycles or duration_s, not both")
+        if self.too_late_pct < self.late_pct:
+            raise ValueError(f"too_late_pct ({self.too_late_pct}) must be at least "
+                             f"late_pct ({self.late_pct})")
+        return self
+
+
+class ChainSpec(_Spec):
+    name: NonEmpty | None = None
+    processes: list[Name]
+
+    @_model_validator(mode="before")
+    @classmethod
+    def _plain_list(cls, data: Any) -> Any:
+        return {"processes": data} if isinstance(data, list) else data
+
+
+class ReferenceDpu(_Spec):
+    """One DPU's row of a published measurement (e.g. the paper's Table 1)."""
+    compute_pct: float
+    communicate_pct: float
+    wait_pct: float
+    cycle_ms: float | None = None            # measured cycle
+    modeled_cycle_ms: float | None = None
+
+
+class Reference(_Spec):
+    """Published results to compare a run with (`skel run --compare-paper`); not sent to DPUs."""
+    source: str
+    dpus: dict[int, ReferenceDpu] = {}
+
+
+class SystemSpec(_Spec):
+    system: NonEmpty
+    links: list[LinkSpec] | None = None
+    dpus: Annotated[list[DpuSpec], _at_least_items(1)]
+    buffers: list[BufferSpec] = []
+    processes: Annotated[list[ProcessSpec], _at_least_items(1)]
+    run: Run = Run()
+    chains: list[ChainSpec] = []
+    reference: Reference | None = None
+
+    @field_validator("buffers", "chains", "run", mode="before")
+    @classmethod
+    def _empty_section(cls, v: Any, info: Any) -> Any:
+        # `run:` with every line commented out is an empty section, not an error.
+        if v is None:
+            return {} if info.field_name == "run" else []
+        return v
+
+
+# --- the validated system ------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Link:
+    id: int                 # position in the file, from 1
+    name: str
+    url: str                # "local" or an udpm:// URL
+
+    @property
+    def local(self) -> bool:
+        return self.url == "local"
+
+
+@dataclass(frozen=True)
+class Dpu:
+    id: int
+    host: str
+    cpu: int | None
+    compute: str            # sleep | wall | cpu | work
+    executive: str          # cyclic | threads
+    speed: float
+    minor_cycle_us: int     # resolved: given, or the gcd of its processes' periods
+    links: tuple[int, ...]  # link ids it can reach
+
+
+@dataclass(frozen=True)
+class Buffer:
+    id: int
+    name: str
+    bytes: int
+    link: int               # link id
+    writer: int             # process id
+
+    @property
+    def channel(self) -> str:
+        return f"SKEL_BUF_{self.name}"
+
+
+@dataclass(frozen=True)
+class Process:
+    id: int
+    name: str
+    dpu: int
+    order: int              # 1.. within its DPU's minor cycle
+    period_us: int
+    compute_us: int
+    sync: str               # periodic | data
+    inputs: tuple[int, ...]     # buffer ids
+    required: tuple[int, ...]   # buffer ids a data-synchronised cycle waits for
+    outputs: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class Chain:
+    name: str
+    processes: tuple[int, ...]  # process ids, head first
+
+
+@dataclass(frozen=True)
+class System:
+    """A validated system file: what the host broadcasts, runs and reports on."""
+    name: str
+    path: Path
+    source_text: str                # the YAML used: the file, or its re-dump after overrides
+    links: tuple[Link, ...]
+    dpus: tuple[Dpu, ...]
+    buffers: tuple[Buffer, ...]
+    processes: tuple[Process, ...]
+    run: Run
+    chains: tuple[Chain, ...]
+    reference: Reference | None
+    overrides: tuple[str, ...] = ()
+    document: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    # Lookups raise KeyError: after validation a missing id is the caller's bug.
+    def link(self, key: int | str) -> Link:
+        return _lookup(self.links, key, "link")
+
+    def dpu(self, dpu_id: int) -> Dpu:
+        return _lookup(self.dpus, dpu_id, "DPU")
+
+    def buffer(self, key: int | str) -> Buffer:
+        return _lookup(self.buffers, key, "buffer")
+
+    def process(self, key: int | str) -> Process:
+        return _lookup(self.processes, key, "process")
+
+    def processes_on(self, dpu_id: int) -> list[Process]:
+        """The DPU's processes in the order its minor cycle runs them."""
+        return sorted((p for p in self.processes if p.dpu == dpu_id), key=lambda p: p.order)
+
+    def readers(self, buffer_id: int) -> list[Process]:
+        return [p for p in self.processes if buffer_id in p.inputs]
+
+    @property
+    def default_link(self) -> Link:
+        """The first udpm link: buffers without a `link:` use it, and so does control traffic."""
+        return next(link for link in self.links if not link.local)
+
+    @property
+    def critical_period_us(self) -> int:
+        return min(p.period_us for p in self.processes)
+
+    def static_load(self) -> dict[int, float]:
+        """Per DPU, the fraction of its time its processes compute: Σ compute/period / speed."""
+        return {
+            d.id: sum(p.compute_us / p.period_us for p in self.processes if p.dpu == d.id) / d.speed
+            for d in self.dpus
+        }
+
+    def run_duration_ns(self, cycles: int | None = None, duration_s: float | None = None) -> int:
+        """The run's length; arguments (the command line) beat the file's `run:` section.
+        Cycles count the critical (shortest) period and include the warm-up."""
+        if cycles is not None and duration_s is not None:
+            raise ValueError("give cycles or a duration, not both")
+        if cycles is None and duration_s is None:
+            cycles, duration_s = self.run.cycles, self.run.duration_s
+        if cycles is not None:
+            if cycles < 1:
+                raise ValueError(f"cycles must be at least 1, got {cycles}")
+            return cycles * self.critical_period_us * 1000
+        if duration_s is None or not duration_s > 0:
+            raise ValueError(f"duration must be positive, got {duration_s}")
+        return round(duration_s * 1e9)
+
+    def with_url(self, url: str) -> System:
+        """A copy whose default link uses `url` (tests give each run its own port)."""
+        if url == self.default_link.url:
+            return self  # keeps source_text exactly as written
+        return _build(self.path, self.document, (*self.overrides, f"link.{self.default_link.name}.url={url}"))
+
+    def to_config(self, generation: int, run_id: int, committed: bool) -> skelmsg.config_t:
+        from .wire import config_message  # wire needs the finished System type
+        return config_message(self, generation, run_id, committed)
+
+
+def _lookup(items: Sequence[Any], key: int | str, noun: str) -> Any:
+    for item in items:
+        if (item.id if isinstance(key, int) else item.name) == key:
+            return item
+    raise KeyError(f"no {noun} {key!r}")
+
+
+# --- loading -------------------------------------------------------------------------------
+
+def load(path: str | Path, overrides: Sequence[str] = ()) -> System:
+    """Read, override (`-s TARGET=VALUE`) and validate a system file."""
+    text, doc = read_yaml(path)
+    if overrides:
+        return _build(path, doc, tuple(overrides))
+    return _build(path, doc, (), text)
+
+
+def _build(path: str | Path, doc: Any, overrides: tuple[str, ...], text: str | None = None) -> System:
+    from .rules import Invalid, resolve
+
+    origin: dict[str, str] = {}
+    if overrides:
+        fields = {"processes": ProcessSpec.model_fields.keys(), "dpus": DpuSpec.model_fields.keys(),
+                  "buffers": BufferSpec.model_fields.keys(), "links": LinkSpec.model_fields.keys(),
+                  "run": Run.model_fields.keys()}
+        try:
+            default_links = [{"name": DEFAULT_LINK, "url": DEFAULT_URL}]
+            doc, origin = apply_overrides(doc, overrides, fields, default_links)
+        except OverrideError as e:
+            raise SystemFileError(path, f"-s {e.override}", str(e)) from None
+        header = "".join(f"# -s {o}\n" for o in overrides)
+        text = f"# {path} with overrides:\n{header}" + yaml.safe_dump(doc, sort_keys=False)
+    try:
+        spec = SystemSpec.model_validate(doc)
+        parts = resolve(spec)
+    except ValidationError as e:
+        error = e.errors()[0]
+        where = field_path(tuple(error["loc"]), doc)
+        raise SystemFileError(path, where, describe(error, SystemSpec) + _blame(where, origin)) from None
+    except Invalid as e:
+        raise SystemFileError(path, e.path, e.problem + _blame(e.path, origin)) from None
+    run = spec.run
+    if run.cycles is None and run.duration_s is None:
+        run = run.model_copy(update={"cycles": DEFAULT_RUN_CYCLES})
+    return System(
+        name=spec.system, path=Path(path), source_text=text or "", links=parts.links, dpus=parts.dpus,
+        buffers=parts.buffers, processes=parts.processes, run=run, chains=parts.chains,
+        reference=spec.reference, overrides=overrides, document=doc,
+    )
+
+
+def _blame(where: str, origin: dict[str, str]) -> str:
+    for target, override in origin.items():
+        if where == target or where.startswith((target + ".", target + "[")):
+            return f" (set by -s {override})"
+    return ""
+
+
+def dump_yaml(system: System) -> str:
+    """The system with every default made explicit; loading it gives the same system."""
+    names = {b.id: b.name for b in system.buffers}
+    links = {link.id: link.name for link in system.links}
+    doc: dict[str, Any] = {
+        "system": system.name,
+        "links": [{"name": link.name, "url": link.url} for link in system.links],
+        "dpus": [{"id": d.id, "host": d.host, "cpu": d.cpu, "compute": d.compute, "executive": d.executive,
+                  "speed": d.speed, "minor_cycle_us": d.minor_cycle_us, "links": [links[i] for i in d.links]}
+                 for d in system.dpus],
+        "buffers": [{"id": b.id, "name": b.name, "bytes": b.bytes, "link": links[b.link]}
+                    for b in system.buffers],
+        "processes": [{"id": p.id, "name": p.name, "dpu": p.dpu, "order": p.order, "period_us": p.period_us,
+                       "compute_us": p.compute_us, "sync": p.sync, "inputs": [names[b] for b in p.inputs],
+                       **({"required": [names[b] for b in p.required]} if p.sync == "data" else {}),
+                       "outputs": [names[b] for b in p.outputs]} for p in system.processes],
+        "run": system.run.model_dump(exclude_none=True),
+        "chains": [{"name": c.name, "processes": [system.process(i).name for i in c.processes]}
+                   for c in system.chains],
+    }
+    if system.reference is not None:
+        doc["reference"] = system.reference.model_dump(exclude_none=True)
+    return yaml.safe_dump(doc, sort_keys=False)

@@ -1,0 +1,82 @@
+"""A validated System as the config_t every DPU configures itself from.
+
+The only place that knows how the system file maps onto lcmtypes/config_t.lcm;
+DPUs see ids and enums only, never names they would have to resolve.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING
+
+import skelmsg
+
+if TYPE_CHECKING:
+    from .system import System
+
+COMPUTE = {
+    "sleep": skelmsg.dpu_t.COMPUTE_SLEEP,
+    "wall": skelmsg.dpu_t.COMPUTE_WALL,
+    "cpu": skelmsg.dpu_t.COMPUTE_CPU,
+    "work": skelmsg.dpu_t.COMPUTE_WORK,
+}
+EXECUTIVE = {"cyclic": skelmsg.dpu_t.EXECUTIVE_CYCLIC, "threads": skelmsg.dpu_t.EXECUTIVE_THREADS}
+SYNC = {"periodic": skelmsg.process_t.SYNC_PERIODIC, "data": skelmsg.process_t.SYNC_DATA}
+
+
+def config_message(system: System, generation: int, run_id: int, committed: bool) -> skelmsg.config_t:
+    msg = skelmsg.config_t()
+    msg.generation = generation
+    msg.run_id = run_id
+    msg.sent_utc_ns = time.time_ns()
+    msg.committed = 1 if committed else 0
+    msg.system = system.name
+    msg.warmup_cycles = system.run.warmup_cycles
+    msg.lockout_cycles = system.run.lockout_cycles
+    msg.late_pct = system.run.late_pct
+    msg.too_late_pct = system.run.too_late_pct
+    msg.links = [_link(link.id, link.name, "" if link.local else link.url) for link in system.links]
+    msg.nlinks = len(msg.links)
+    msg.dpus = []
+    for d in system.dpus:
+        dpu = skelmsg.dpu_t()
+        dpu.id, dpu.host, dpu.cpu = d.id, d.host, -1 if d.cpu is None else d.cpu
+        dpu.compute, dpu.executive, dpu.speed = COMPUTE[d.compute], EXECUTIVE[d.executive], d.speed
+        dpu.minor_cycle_us = d.minor_cycle_us
+        dpu.links = list(d.links)
+        dpu.nlinks = len(dpu.links)
+        msg.dpus.append(dpu)
+    msg.ndpus = len(msg.dpus)
+    msg.buffers = []
+    for b in system.buffers:
+        buf = skelmsg.buffer_desc_t()
+        buf.id, buf.name, buf.bytes, buf.link, buf.writer, buf.channel = (
+            b.id, b.name, b.bytes, b.link, b.writer, b.channel)
+        msg.buffers.append(buf)
+    msg.nbuffers = len(msg.buffers)
+    msg.processes = []
+    for p in system.processes:
+        proc = skelmsg.process_t()
+        proc.id, proc.name, proc.dpu, proc.order = p.id, p.name, p.dpu, p.order
+        proc.period_us, proc.compute_us, proc.sync = p.period_us, p.compute_us, SYNC[p.sync]
+        proc.inputs = list(p.inputs)
+        proc.required = [1 if b in p.required else 0 for b in p.inputs]
+        proc.ninputs = len(proc.inputs)
+        proc.outputs = list(p.outputs)
+        proc.noutputs = len(proc.outputs)
+        msg.processes.append(proc)
+    msg.nprocesses = len(msg.processes)
+    msg.chains = []
+    for c in system.chains:
+        chain = skelmsg.chain_t()
+        chain.name, chain.processes, chain.nprocesses = c.name, list(c.processes), len(c.processes)
+        msg.chains.append(chain)
+    msg.nchains = len(msg.chains)
+    msg.source = system.source_text
+    return msg
+
+
+def _link(link_id: int, name: str, url: str) -> skelmsg.link_t:
+    link = skelmsg.link_t()
+    link.id, link.name, link.url = link_id, name, url
+    return link
