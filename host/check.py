@@ -1,0 +1,132 @@
+"""`skel check`: validate a system file and show what it asks of each DPU.
+
+Static analysis only (nothing is started): per DPU its host, minor cycle,
+processes and static load Σ compute/period, with warnings for what a run would
+suffer from: an overloaded DPU, more busy DPUs than cores, a warm-up longer
+than the run.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, TextIO
+
+from rich.console import Console
+from rich.table import Table
+
+from .system import System, SystemFileError, load
+
+# sleep mode models a dedicated processor by sleeping, so it needs no core of its own.
+CORE_HUNGRY = ("cpu", "wall", "work")
+
+
+def check(path: str | Path, overrides: Sequence[str] = (), as_json: bool = False,
+          out: TextIO | None = None) -> int:
+    """0 when the file is valid (warnings included), 2 when it is not."""
+    out = out or sys.stdout
+    try:
+        system = load(path, overrides)
+    except SystemFileError as e:
+        print(e, file=sys.stderr)
+        return 2
+    summary = summarize(system)
+    if as_json:
+        json.dump(summary, out, indent=2)
+        out.write("\n")
+    else:
+        _print(system, summary, out)
+    return 0
+
+
+def summarize(system: System) -> dict[str, Any]:
+    load_by_dpu = system.static_load()
+    dpus = [
+        {
+            "id": d.id,
+            "host": d.host,
+            "compute": d.compute,
+            "minor_cycle_ms": d.minor_cycle_us / 1000,
+            "processes": [p.name for p in system.processes_on(d.id)],
+            "static_load_pct": round(100 * load_by_dpu[d.id], 1),
+        }
+        for d in system.dpus
+    ]
+    return {"system": system.name, "dpus": dpus, "warnings": warnings(system)}
+
+
+def warnings(system: System) -> list[str]:
+    out: list[str] = []
+    load_by_dpu = system.static_load()
+    for d in system.dpus:
+        if load_by_dpu[d.id] > 1.0:
+            out.append(f"DPU {d.id}: static load {100 * load_by_dpu[d.id]:.1f} % exceeds 100 %: "
+                       "it will overrun every cycle; a lockout is likely")
+    out += _core_warnings(system, load_by_dpu)
+    out += _warmup_warnings(system)
+    return out
+
+
+def _core_warnings(system: System, load_by_dpu: dict[int, float]) -> list[str]:
+    """Busy DPUs that need a core each, on this machine (other hosts' cores are unknown here)."""
+    cores = os.cpu_count() or 1
+    busy = [d for d in system.dpus
+            if _is_this_machine(d.host) and d.compute in CORE_HUNGRY and load_by_dpu[d.id] > 0]
+    out: list[str] = []
+    for host in sorted({d.host for d in busy}):
+        mine = [d.id for d in busy if d.host == host]
+        if len(mine) > cores:
+            out.append(f"host {host}: {len(mine)} busy DPUs ({', '.join(map(str, mine))}) compute in "
+                       f"cpu/wall/work mode but this machine has {cores} cores: they will preempt each "
+                       "other; use compute: sleep or fewer DPUs")
+        pinned: dict[int, int] = {}
+        for d in (d for d in busy if d.host == host and d.cpu is not None):
+            if d.cpu >= cores:
+                out.append(f"DPU {d.id}: cpu {d.cpu} does not exist on this machine ({cores} cores)")
+            elif d.cpu in pinned:
+                out.append(f"DPU {d.id}: pinned to cpu {d.cpu} like DPU {pinned[d.cpu]}: they share one core")
+            pinned.setdefault(d.cpu, d.id)
+    return out
+
+
+def _warmup_warnings(system: System) -> list[str]:
+    run_ns = system.run_duration_ns()
+    out: list[str] = []
+    for p in system.processes:
+        warmup_ns = system.run.warmup_cycles * p.period_us * 1000
+        if warmup_ns >= run_ns:
+            out.append(f"process {p.name}: its warm-up ({system.run.warmup_cycles} cycles of "
+                       f"{p.period_us / 1000:g} ms = {warmup_ns / 1e9:g} s) is not shorter than the run "
+                       f"({run_ns / 1e9:g} s): none of its cycles would be measured")
+    return out
+
+
+def _is_this_machine(host: str) -> bool:
+    names = {"localhost", "127.0.0.1", "::1", socket.gethostname(), socket.gethostname().split(".")[0]}
+    return host in names
+
+
+def _print(system: System, summary: dict[str, Any], out: TextIO) -> None:
+    console = Console(file=out, highlight=False, width=max(100, Console(file=out).width))
+    run = (f"{system.run.cycles} cycles of {system.critical_period_us / 1000:g} ms"
+           if system.run.cycles is not None else f"{system.run.duration_s:g} s")
+    console.print(f"system [bold]{system.name}[/] ({system.path}): {len(system.dpus)} DPUs, "
+                  f"{len(system.processes)} processes, {len(system.buffers)} buffers; run {run}",
+                  soft_wrap=True)
+    table = Table(box=None, pad_edge=False)
+    for title, justify in (("DPU", "right"), ("host", "left"), ("compute", "left"),
+                           ("minor cycle ms", "right"), ("processes", "left"), ("static load %", "right")):
+        table.add_column(title, justify=justify)  # type: ignore[arg-type]
+    for d in summary["dpus"]:
+        pct = d["static_load_pct"]
+        table.add_row(str(d["id"]), d["host"], d["compute"], f"{d['minor_cycle_ms']:g}",
+                      ", ".join(d["processes"]), f"[red]{pct:.1f}[/]" if pct > 100 else f"{pct:.1f}")
+    console.print(table)
+    for w in summary["warnings"]:
+        console.print(f"[yellow]WARN[/] {w}", soft_wrap=True)
+    if not summary["warnings"]:
+        console.print("valid, no warnings")
