@@ -12,17 +12,25 @@ Multi-host tests carry `netns` in their names so `pytest -k netns` selects them.
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable, Iterator
 from typing import Any
 
-from .hosts import HarnessError, Hosts, cleanup_stale, require_root
-
 __all__ = ["HarnessError", "Hosts", "cleanup_stale", "hosts_fixture", "require_root"]
+
+
+def __getattr__(name: str) -> Any:
+    # Imported on first use, so `python -m tests.netns.hosts` does not load hosts.py twice.
+    if name in __all__:
+        return getattr(importlib.import_module(f"{__name__}.hosts"), name)
+    raise AttributeError(name)
 
 
 def hosts_fixture(n: int, prefix: str = "skel") -> Callable[..., Any]:
     """A pytest fixture giving a fresh `Hosts(n)` per test, removed after it, pass or fail."""
     import pytest  # here, so the command line (python -m tests.netns.hosts) runs without pytest
+
+    from .hosts import Hosts, cleanup_stale, require_root
 
     @pytest.fixture
     def _hosts() -> Iterator[Hosts]:
