@@ -1,0 +1,282 @@
+/* command.c: what the control thread does with a config or a command. A config
+ * is checked, decoded, our part found and validated, then staged; it is applied
+ * (plan built, links opened, swapped in) on COMMIT or when it arrives already
+ * committed, and only between runs. Commands act once per seq: the host repeats
+ * them over lossy multicast. */
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "dpu.h"
+
+static void command_free_config(skelmsg_config_t *cfg)
+{
+    if (cfg == NULL) return;
+    skelmsg_config_t_decode_cleanup(cfg);
+    free(cfg);
+}
+
+static void command_reject(skel_control_t *c, int64_t generation, const char *reason, int fault)
+{
+    skel_server_t *s = c->s;
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    if (generation >= 0) s->rejected_generation = generation;
+    snprintf(s->reject_reason, sizeof s->reject_reason, "%s", reason);
+    pthread_mutex_unlock(&s->lock);
+    if (fault) server_fault(s, SKELMSG_STATUS_T_FAULT_CONFIG_REJECTED);
+    skel_log("DPU %d: %s", s->dpu_id, reason);
+    c->status_due = 1;
+}
+
+/* Applies the staged config if no run holds the plan; otherwise it waits for
+ * the end of the run (control_finish_run calls again). A future "switch at a
+ * cycle boundary mid-run" goes here: hand the built plan to the executive as
+ * s->next_plan and let it swap at the first release at or after COMMIT's at. */
+void control_apply(skel_control_t *c)
+{
+    skel_server_t *s = c->s;
+    char reason[SKEL_REASON_LEN];
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    if (s->staged == NULL || s->run_active) {
+        s->apply_pending = s->staged != NULL;
+        pthread_mutex_unlock(&s->lock);
+        return;
+    }
+    skelmsg_config_t *cfg = s->staged;
+    int index = s->staged_dpu_index;
+    s->staged = NULL;
+    pthread_mutex_unlock(&s->lock);
+    skel_plan_t *plan = plan_build(cfg, index, reason, sizeof reason);
+    if (plan != NULL && plan_open_links(plan, &s->rejected, reason, sizeof reason) != 0) {
+        plan_free(plan);
+        plan = NULL;
+    }
+    if (plan == NULL) {
+        command_reject(c, cfg->generation, reason, 1);
+        command_free_config(cfg);
+        return;
+    }
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    skel_plan_t *old = s->plan;
+    s->plan = plan;
+    s->generation = plan->generation;
+    s->applied_any = 1;
+    s->state = SKELMSG_STATUS_T_STATE_READY;
+    pthread_mutex_unlock(&s->lock);
+    plan_free(old); /* the executive drains links only under the lock: old is unused */
+    skel_log("DPU %d: applied generation %lld: %d processes, %d links, minor cycle %lld us",
+             plan->dpu, (long long)plan->generation, plan->nprocesses, plan->nlinks,
+             (long long)(plan->minor_ns / SKEL_NS_PER_US));
+    command_free_config(cfg);
+    c->status_due = 1;
+}
+
+/* Our id is absent (or ambiguous for --id auto): keep waiting, unconfigured. */
+static void command_absent(skel_control_t *c, const skelmsg_config_t *cfg, const char *reason)
+{
+    skel_server_t *s = c->s;
+    skel_plan_t *old = NULL;
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    if (!s->run_active) {
+        old = s->plan;
+        s->plan = NULL;
+        s->state = SKELMSG_STATUS_T_STATE_UNCONFIGURED;
+    }
+    pthread_mutex_unlock(&s->lock);
+    plan_free(old);
+    command_reject(c, cfg->generation, reason, 0);
+}
+
+/* Re-sends of a generation we already applied, staged or refused change nothing. */
+static int command_config_known(skel_control_t *c, const skelmsg_config_t *cfg)
+{
+    skel_server_t *s = c->s;
+    int known = 0, apply = 0;
+    if (pthread_mutex_lock(&s->lock) != 0) return 1;
+    if (s->applied_any && cfg->generation <= s->generation) known = 1;
+    else if (cfg->generation == s->rejected_generation && s->reject_reason[0] != '\0') known = 1;
+    else if (s->staged != NULL && cfg->generation == s->staged_generation) {
+        known = 1;
+        apply = cfg->committed;
+    }
+    pthread_mutex_unlock(&s->lock);
+    if (apply) control_apply(c);
+    return known;
+}
+
+void control_handle_config(skel_control_t *c, const void *data, int len)
+{
+    skel_server_t *s = c->s;
+    skelmsg_config_t *cfg = malloc(sizeof *cfg);
+    if (cfg == NULL) return;
+    if (wire_decode_config(data, len, cfg) != 0) {
+        free(cfg);
+        atomic_fetch_add(&s->rejected, 1);
+        server_fault(s, SKELMSG_STATUS_T_FAULT_REJECTED_MESSAGES);
+        return;
+    }
+    if (command_config_known(c, cfg)) {
+        command_free_config(cfg);
+        return;
+    }
+    skel_self_t self;
+    char reason[SKEL_REASON_LEN];
+    if (config_find_self(cfg, s->id_arg, s->hostname, &self) != 0) {
+        command_absent(c, cfg, self.reason);
+        command_free_config(cfg);
+        return;
+    }
+    if (config_validate(cfg, self.dpu_index, reason, sizeof reason) != 0) {
+        char line[SKEL_REASON_LEN];
+        snprintf(line, sizeof line, "generation %lld rejected: %.200s", (long long)cfg->generation,
+                 reason);
+        command_reject(c, cfg->generation, line, 1);
+        command_free_config(cfg);
+        return;
+    }
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    command_free_config(s->staged);
+    s->staged = cfg;
+    s->staged_generation = cfg->generation;
+    s->staged_dpu_index = self.dpu_index;
+    if (!s->run_active) s->dpu_id = self.dpu_id;
+    s->reject_reason[0] = '\0';
+    int committed = cfg->committed;
+    pthread_mutex_unlock(&s->lock);
+    atomic_fetch_and(&s->faults, ~SKELMSG_STATUS_T_FAULT_CONFIG_REJECTED);
+    skel_log("DPU %d: staged generation %lld%s", self.dpu_id, (long long)cfg->generation,
+             committed ? " (committed)" : "");
+    c->status_due = 1;
+    if (committed) control_apply(c);
+}
+
+/* 1 when this exact command was acted on already. The whole command is
+ * compared, not just seq, so a restarted host reusing small seqs still works. */
+int control_seen(skel_control_t *c, const skelmsg_command_t *cmd)
+{
+    skel_seen_t now = { cmd->seq, cmd->generation, cmd->run_id, cmd->at_utc_ns, cmd->ping_t1_ns,
+                        cmd->kind };
+    int n = c->nseen < SKEL_SEEN_COMMANDS ? c->nseen : SKEL_SEEN_COMMANDS;
+    for (int i = 0; i < n; i++) {
+        const skel_seen_t *o = &c->seen[i];
+        if (o->seq == now.seq && o->kind == now.kind && o->generation == now.generation &&
+            o->run_id == now.run_id && o->at_utc_ns == now.at_utc_ns &&
+            o->ping_t1_ns == now.ping_t1_ns)
+            return 1;
+    }
+    c->seen[c->nseen % SKEL_SEEN_COMMANDS] = now;
+    c->nseen++;
+    return 0;
+}
+
+static const char *command_state_name(int8_t state)
+{
+    static const char *names[] = { "UNCONFIGURED", "READY", "ARMED", "RUNNING" };
+    return state >= 0 && state <= 3 ? names[state] : "?";
+}
+
+static void command_start(skel_control_t *c, const skelmsg_command_t *cmd)
+{
+    skel_server_t *s = c->s;
+    char reason[SKEL_REASON_LEN] = "";
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    if (!s->applied_any || s->generation != cmd->generation)
+        snprintf(reason, sizeof reason, "START for generation %lld but applied %lld",
+                 (long long)cmd->generation, (long long)s->generation);
+    else if (s->state != SKELMSG_STATUS_T_STATE_READY)
+        snprintf(reason, sizeof reason, "START of run %lld while %s (run %lld)",
+                 (long long)cmd->run_id, command_state_name(s->state), (long long)s->run_id);
+    if (reason[0] != '\0') {
+        pthread_mutex_unlock(&s->lock);
+        command_reject(c, -1, reason, 0);
+        return;
+    }
+    int64_t now_mono = clock_mono_ns(), now_utc = clock_utc_ns();
+    int64_t start = clock_utc_to_mono(cmd->at_utc_ns, now_mono, now_utc);
+    if (cmd->at_utc_ns <= 0 || start < now_mono) start = now_mono; /* in the past: start now */
+    s->run = (skel_run_t){ 1, cmd->run_id, cmd->generation, start,
+                           cmd->duration_ns > 0 ? start + cmd->duration_ns : INT64_MAX };
+    s->run_id = cmd->run_id;
+    s->run_generation = cmd->generation;
+    s->run_active = 1;
+    s->run_ended = 0;
+    s->nlockouts = 0;
+    s->state = SKELMSG_STATUS_T_STATE_ARMED;
+    s->reject_reason[0] = '\0';
+    atomic_store(&s->stop, 0);
+    atomic_store(&s->minor_cycles, 0);
+    atomic_store(&s->overruns, 0);
+    atomic_store(&s->timing_batches, 0);
+    atomic_store(&s->ring.lost, 0);
+    /* Run-scoped faults restart; a rejected config or message stays visible. */
+    atomic_fetch_and(&s->faults, SKELMSG_STATUS_T_FAULT_CONFIG_REJECTED |
+                                     SKELMSG_STATUS_T_FAULT_REJECTED_MESSAGES);
+    s->rejected_at_start = atomic_load(&s->rejected);
+    pthread_cond_signal(&s->cond);
+    pthread_mutex_unlock(&s->lock);
+    c->batch_seq = 0;
+    timing_batch_clear(&c->batch);
+    skel_log("DPU %d: run %lld armed: start in %.3f ms, duration %.3f s", s->dpu_id,
+             (long long)cmd->run_id, (double)(start - now_mono) / 1e6,
+             (double)cmd->duration_ns / 1e9);
+    c->status_due = 1;
+}
+
+static void command_stop(skel_control_t *c)
+{
+    skel_server_t *s = c->s;
+    atomic_store(&s->stop, 1);
+    server_wake(s->wake_fd); /* interrupts a data-synchronised wait */
+    skel_log("DPU %d: STOP", s->dpu_id);
+}
+
+static void command_commit(skel_control_t *c, const skelmsg_command_t *cmd)
+{
+    skel_server_t *s = c->s;
+    char reason[SKEL_REASON_LEN] = "";
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    int applied = s->applied_any && s->generation == cmd->generation;
+    int staged = s->staged != NULL && s->staged_generation == cmd->generation;
+    if (!applied && !staged)
+        snprintf(reason, sizeof reason, "COMMIT for generation %lld but staged %lld",
+                 (long long)cmd->generation, (long long)s->staged_generation);
+    pthread_mutex_unlock(&s->lock);
+    if (reason[0] != '\0') command_reject(c, -1, reason, 0);
+    else if (staged) control_apply(c);
+}
+
+void control_handle_command(skel_control_t *c, const void *data, int len)
+{
+    skel_server_t *s = c->s;
+    int64_t received = server_now(s);
+    skelmsg_command_t cmd;
+    if (wire_decode_command(data, len, &cmd) != 0) {
+        atomic_fetch_add(&s->rejected, 1);
+        server_fault(s, SKELMSG_STATUS_T_FAULT_REJECTED_MESSAGES);
+        return;
+    }
+    if (cmd.dpu != -1 && cmd.dpu != s->dpu_id) return;
+    if (control_seen(c, &cmd)) return;
+    switch (cmd.kind) {
+    case SKELMSG_COMMAND_T_START: command_start(c, &cmd); break;
+    case SKELMSG_COMMAND_T_STOP: command_stop(c); break;
+    case SKELMSG_COMMAND_T_COMMIT: command_commit(c, &cmd); break;
+    case SKELMSG_COMMAND_T_PING:
+        c->ping_seq = cmd.seq;
+        c->ping_t1_ns = cmd.ping_t1_ns;
+        c->ping_t2_ns = received;
+        if (control_publish_status(c) != 0) skel_log("cannot answer ping %lld", (long long)cmd.seq);
+        break;
+    case SKELMSG_COMMAND_T_SHUTDOWN:
+        skel_log("DPU %d: SHUTDOWN", s->dpu_id);
+        /* main() waits for SIGTERM in sigwait: the same clean path as a signal. */
+        if (kill(getpid(), SIGTERM) != 0) skel_log("cannot signal shutdown");
+        break;
+    default:
+        atomic_fetch_add(&s->rejected, 1);
+        server_fault(s, SKELMSG_STATUS_T_FAULT_REJECTED_MESSAGES);
+        break;
+    }
+}

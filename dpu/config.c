@@ -1,0 +1,259 @@
+/* config.c: the self-configuring DPU's first step. A config_t describes the
+ * whole system; this file finds which DPU we are in it (--id N, or the host name
+ * for --id auto) and validates our own part against the daemon's fixed limits.
+ * A config that fails gets one clear line saying what, where and why, and the
+ * old config stays in force. Nothing here allocates or touches the network. */
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "dpu.h"
+
+static int config_fail(char *reason, size_t len, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+
+static int config_fail(char *reason, size_t len, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(reason, len, fmt, ap);
+    va_end(ap);
+    return -1;
+}
+
+int config_find_self(const skelmsg_config_t *cfg, int id_arg, const char *hostname,
+                     skel_self_t *self)
+{
+    int found = -1, count = 0;
+    memset(self, 0, sizeof *self);
+    self->dpu_index = -1;
+    self->dpu_id = -1;
+    for (int i = 0; i < cfg->ndpus; i++) {
+        const skelmsg_dpu_t *d = &cfg->dpus[i];
+        int match = id_arg >= 0 ? d->id == id_arg : strcmp(d->host, hostname) == 0;
+        if (!match) continue;
+        if (found < 0) found = i;
+        count++;
+    }
+    if (count == 1) {
+        self->dpu_index = found;
+        self->dpu_id = cfg->dpus[found].id;
+        return 0;
+    }
+    if (id_arg >= 0 && count == 0)
+        snprintf(self->reason, sizeof self->reason, "DPU %d is not in generation %lld",
+                 id_arg, (long long)cfg->generation);
+    else if (id_arg >= 0)
+        snprintf(self->reason, sizeof self->reason, "DPU id %d appears %d times in generation %lld",
+                 id_arg, count, (long long)cfg->generation);
+    else if (count == 0)
+        snprintf(self->reason, sizeof self->reason, "no DPU for host '%s' in generation %lld",
+                 hostname, (long long)cfg->generation);
+    else
+        snprintf(self->reason, sizeof self->reason,
+                 "%d DPUs for host '%s' in generation %lld: start each with --id N", count,
+                 hostname, (long long)cfg->generation);
+    return -1;
+}
+
+static const skelmsg_buffer_desc_t *config_buffer(const skelmsg_config_t *cfg, int16_t id)
+{
+    for (int i = 0; i < cfg->nbuffers; i++)
+        if (cfg->buffers[i].id == id) return &cfg->buffers[i];
+    return NULL;
+}
+
+static const skelmsg_link_t *config_link(const skelmsg_config_t *cfg, int16_t id)
+{
+    for (int i = 0; i < cfg->nlinks; i++)
+        if (cfg->links[i].id == id) return &cfg->links[i];
+    return NULL;
+}
+
+static int config_dpu_reaches(const skelmsg_dpu_t *d, int16_t link)
+{
+    for (int i = 0; i < d->nlinks; i++)
+        if (d->links[i] == link) return 1;
+    return 0;
+}
+
+static int config_is_control_channel(const char *ch)
+{
+    return strcmp(ch, SKEL_CH_CONFIG) == 0 || strcmp(ch, SKEL_CH_COMMAND) == 0 ||
+           strcmp(ch, SKEL_CH_STATUS) == 0 || strcmp(ch, SKEL_CH_TIMING) == 0 ||
+           strcmp(ch, SKEL_CH_REPORT) == 0;
+}
+
+/* A local buffer lives in one DPU's memory: its writer and every reader must be there. */
+static int config_check_local(const skelmsg_config_t *cfg, const skelmsg_buffer_desc_t *b,
+                              int16_t dpu, char *reason, size_t len)
+{
+    for (int i = 0; i < cfg->nprocesses; i++) {
+        const skelmsg_process_t *p = &cfg->processes[i];
+        int uses = p->id == b->writer;
+        for (int q = 0; q < p->ninputs; q++) uses |= p->inputs[q] == b->id;
+        if (uses && p->dpu != dpu)
+            return config_fail(reason, len,
+                               "buffer %d is on a local link but process %d uses it from DPU %d",
+                               b->id, p->id, p->dpu);
+    }
+    return 0;
+}
+
+/* One buffer a process of ours reads or writes: known, sized, on a reachable link. */
+static int config_check_buffer(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d,
+                               const skelmsg_process_t *p, int16_t id, char *reason, size_t len)
+{
+    const skelmsg_buffer_desc_t *b = config_buffer(cfg, id);
+    if (b == NULL)
+        return config_fail(reason, len, "process %d uses unknown buffer %d", p->id, id);
+    if (b->bytes < 0 || b->bytes > SKEL_MAX_BUFFER_BYTES)
+        return config_fail(reason, len, "buffer %d: bytes %d outside 0..%d", b->id, b->bytes,
+                           SKEL_MAX_BUFFER_BYTES);
+    const skelmsg_link_t *l = config_link(cfg, b->link);
+    if (l == NULL) return config_fail(reason, len, "buffer %d: unknown link %d", b->id, b->link);
+    if (l->url[0] == '\0') return config_check_local(cfg, b, d->id, reason, len);
+    if (!config_dpu_reaches(d, b->link))
+        return config_fail(reason, len, "buffer %d: link %d (%s) is not in DPU %d's links",
+                           b->id, b->link, l->name, d->id);
+    if (b->channel[0] == '\0' || config_is_control_channel(b->channel))
+        return config_fail(reason, len, "buffer %d: channel '%s' is empty or a SKEL_ control channel",
+                           b->id, b->channel);
+    return 0;
+}
+
+static int config_check_process(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d,
+                                int64_t minor_us, const skelmsg_process_t *p, char *reason,
+                                size_t len)
+{
+    if (p->period_us < SKEL_MIN_PERIOD_US || p->period_us > SKEL_MAX_PERIOD_US)
+        return config_fail(reason, len, "process %d: period_us %d outside %d..%d", p->id,
+                           p->period_us, SKEL_MIN_PERIOD_US, SKEL_MAX_PERIOD_US);
+    if (p->period_us % minor_us != 0)
+        return config_fail(reason, len, "process %d: period_us %d is not a multiple of DPU %d's minor cycle %lld us",
+                           p->id, p->period_us, d->id, (long long)minor_us);
+    if (p->compute_us < 0)
+        return config_fail(reason, len, "process %d: compute_us %d < 0", p->id, p->compute_us);
+    if (p->sync != SKELMSG_PROCESS_T_SYNC_PERIODIC && p->sync != SKELMSG_PROCESS_T_SYNC_DATA)
+        return config_fail(reason, len, "process %d: unknown sync %d", p->id, p->sync);
+    if (p->ninputs > SKEL_MAX_IO || p->noutputs > SKEL_MAX_IO)
+        return config_fail(reason, len, "process %d: %d inputs / %d outputs, limit %d each",
+                           p->id, p->ninputs, p->noutputs, SKEL_MAX_IO);
+    for (int q = 0; q < p->ninputs; q++) {
+        if (config_check_buffer(cfg, d, p, p->inputs[q], reason, len) != 0) return -1;
+        for (int r = 0; r < q; r++)
+            if (p->inputs[r] == p->inputs[q])
+                return config_fail(reason, len, "process %d reads buffer %d twice", p->id,
+                                   p->inputs[q]);
+    }
+    for (int q = 0; q < p->noutputs; q++) {
+        if (config_check_buffer(cfg, d, p, p->outputs[q], reason, len) != 0) return -1;
+        const skelmsg_buffer_desc_t *b = config_buffer(cfg, p->outputs[q]);
+        if (b->writer != p->id)
+            return config_fail(reason, len, "buffer %d is written by process %d, not by process %d",
+                               b->id, b->writer, p->id);
+    }
+    return 0;
+}
+
+/* The gcd of our periods: the minor cycle when the config leaves it at 0. */
+int64_t config_minor_us(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d)
+{
+    if (d->minor_cycle_us > 0) return d->minor_cycle_us;
+    int64_t g = 0;
+    for (int i = 0; i < cfg->nprocesses; i++) {
+        if (cfg->processes[i].dpu != d->id || cfg->processes[i].period_us <= 0) continue;
+        int64_t a = cfg->processes[i].period_us, b = g;
+        while (b != 0) {
+            int64_t t = a % b;
+            a = b;
+            b = t;
+        }
+        g = a;
+    }
+    return g;
+}
+
+static int config_check_ids(const skelmsg_config_t *cfg, char *reason, size_t len)
+{
+    for (int i = 0; i < cfg->nbuffers; i++)
+        for (int j = 0; j < i; j++)
+            if (cfg->buffers[i].id == cfg->buffers[j].id)
+                return config_fail(reason, len, "buffer id %d appears twice", cfg->buffers[i].id);
+    for (int i = 0; i < cfg->nprocesses; i++)
+        for (int j = 0; j < i; j++)
+            if (cfg->processes[i].id == cfg->processes[j].id)
+                return config_fail(reason, len, "process id %d appears twice",
+                                   cfg->processes[i].id);
+    return 0;
+}
+
+/* Distinct URLs we need stay within SKEL_MAX_LINKS; buffers we read must not
+ * share a channel on one URL (a reader could not tell them apart). */
+static int config_check_links(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d, char *reason,
+                              size_t len)
+{
+    const char *urls[SKEL_MAX_LINKS];
+    int nurls = 0;
+    for (int i = 0; i < cfg->nprocesses; i++) {
+        const skelmsg_process_t *p = &cfg->processes[i];
+        if (p->dpu != d->id) continue;
+        for (int q = 0; q < p->ninputs + p->noutputs; q++) {
+            int16_t id = q < p->ninputs ? p->inputs[q] : p->outputs[q - p->ninputs];
+            const skelmsg_buffer_desc_t *b = config_buffer(cfg, id);
+            const char *url = config_link(cfg, b->link)->url;
+            if (url[0] == '\0') continue;
+            int u = 0;
+            while (u < nurls && strcmp(urls[u], url) != 0) u++;
+            if (u == nurls && nurls == SKEL_MAX_LINKS)
+                return config_fail(reason, len, "DPU %d: more than %d distinct link URLs", d->id,
+                                   SKEL_MAX_LINKS);
+            if (u == nurls) urls[nurls++] = url;
+            for (int j = 0; j < cfg->nbuffers; j++) {
+                const skelmsg_buffer_desc_t *o = &cfg->buffers[j];
+                const skelmsg_link_t *ol = config_link(cfg, o->link);
+                if (o->id != b->id && ol != NULL && strcmp(ol->url, url) == 0 &&
+                    strcmp(o->channel, b->channel) == 0)
+                    return config_fail(reason, len, "buffers %d and %d share channel '%s' on %s",
+                                       b->id, o->id, b->channel, url);
+            }
+        }
+    }
+    return 0;
+}
+
+int config_validate(const skelmsg_config_t *cfg, int dpu_index, char *reason, size_t len)
+{
+    const skelmsg_dpu_t *d = &cfg->dpus[dpu_index];
+    if (d->executive == SKELMSG_DPU_T_EXECUTIVE_THREADS)
+        return config_fail(reason, len, "executive 'threads' is not implemented yet");
+    if (d->executive != SKELMSG_DPU_T_EXECUTIVE_CYCLIC)
+        return config_fail(reason, len, "DPU %d: unknown executive %d", d->id, d->executive);
+    if (d->compute < SKELMSG_DPU_T_COMPUTE_SLEEP || d->compute > SKELMSG_DPU_T_COMPUTE_WORK)
+        return config_fail(reason, len, "DPU %d: unknown compute mode %d", d->id, d->compute);
+    if (!isfinite(d->speed) || d->speed <= 0.0)
+        return config_fail(reason, len, "DPU %d: speed %g must be > 0", d->id, d->speed);
+    if (cfg->warmup_cycles < 0)
+        return config_fail(reason, len, "warmup_cycles %d < 0", cfg->warmup_cycles);
+    if (config_check_ids(cfg, reason, len) != 0) return -1;
+    int64_t minor_us = config_minor_us(cfg, d);
+    int nown = 0;
+    int64_t out_bytes = 0;
+    for (int i = 0; i < cfg->nprocesses; i++) {
+        const skelmsg_process_t *p = &cfg->processes[i];
+        if (p->dpu != d->id) continue;
+        if (++nown > SKEL_MAX_PROCESSES)
+            return config_fail(reason, len, "DPU %d: more than %d processes", d->id,
+                               SKEL_MAX_PROCESSES);
+        if (minor_us < SKEL_MIN_PERIOD_US)
+            return config_fail(reason, len, "DPU %d: minor_cycle_us %lld < %d", d->id,
+                               (long long)minor_us, SKEL_MIN_PERIOD_US);
+        if (config_check_process(cfg, d, minor_us, p, reason, len) != 0) return -1;
+        for (int q = 0; q < p->noutputs; q++) out_bytes += config_buffer(cfg, p->outputs[q])->bytes;
+    }
+    if (out_bytes > SKEL_MAX_DPU_BYTES)
+        return config_fail(reason, len, "DPU %d: outputs total %lld bytes, limit %d", d->id,
+                           (long long)out_bytes, SKEL_MAX_DPU_BYTES);
+    return config_check_links(cfg, d, reason, len);
+}

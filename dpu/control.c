@@ -1,0 +1,153 @@
+/* control.c: the control thread. It owns the lcm_t on the control URL: it
+ * receives configs and commands (command.c), publishes status at >= 5 Hz and
+ * at once on every event, turns the executive's timing records into timing_t
+ * batches, and closes each run (flush the records, publish the report, READY). */
+#include <errno.h>
+#include <poll.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "dpu.h"
+#include "skelmsg_check.h"
+
+int control_init(skel_control_t *c, skel_server_t *s)
+{
+    memset(c, 0, sizeof *c);
+    c->s = s;
+    c->ping_seq = -1;
+    return timing_batch_init(&c->batch);
+}
+
+void control_free(skel_control_t *c)
+{
+    timing_batch_free(&c->batch);
+}
+
+int control_publish_status(skel_control_t *c)
+{
+    skelmsg_status_t st;
+    skelmsg_lockout_t lockouts[SKEL_MAX_LOCKOUTS];
+    char reason[SKEL_REASON_LEN];
+    report_status_fill(c->s, &st, lockouts, reason);
+    st.ping_seq = c->ping_seq;
+    st.ping_t1_ns = c->ping_t1_ns;
+    st.ping_t2_ns = c->ping_t2_ns;
+    st.ping_t3_ns = server_now(c->s);
+    c->last_status_ns = clock_mono_ns();
+    c->status_due = 0;
+    return skelmsg_status_t_publish(c->s->ctl, SKEL_CH_STATUS, &st);
+}
+
+static void control_publish_batch(skel_control_t *c)
+{
+    skel_server_t *s = c->s;
+    if (c->batch.msg.n == 0) return;
+    c->batch.msg.dpu = s->dpu_id;
+    c->batch.msg.run_id = s->run_id;
+    c->batch.msg.generation = s->run_generation;
+    c->batch.msg.batch_seq = c->batch_seq++;
+    if (skelmsg_timing_t_publish(s->ctl, SKEL_CH_TIMING, &c->batch.msg) != 0)
+        skel_log("cannot publish timing batch %lld", (long long)c->batch.msg.batch_seq);
+    atomic_fetch_add(&s->timing_batches, 1);
+    timing_batch_clear(&c->batch);
+}
+
+/* Full batches go at once; a partial one waits at most SKEL_BATCH_NS, or FLUSH. */
+static void control_drain_timing(skel_control_t *c, int flush)
+{
+    skel_rec_t rec;
+    while (timing_ring_pop(&c->s->ring, &rec) == 1) {
+        if (c->batch.msg.n == 0) c->batch.first_add_ns = clock_mono_ns();
+        timing_batch_add(&c->batch, &rec);
+        if (timing_batch_full(&c->batch)) control_publish_batch(c);
+    }
+    if (c->batch.msg.n > 0 && (flush || clock_mono_ns() - c->batch.first_add_ns >= SKEL_BATCH_NS))
+        control_publish_batch(c);
+}
+
+/* The executive has left the run: every record is in the ring (the mutex that
+ * carried run_ended orders them), so flush, report, and become READY. */
+static void control_finish_run(skel_control_t *c)
+{
+    skel_server_t *s = c->s;
+    control_drain_timing(c, 1);
+    if (report_publish(s, s->plan) != 0) skel_log("cannot publish the report of run %lld",
+                                                  (long long)s->run_id);
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    s->run_ended = 0;
+    s->run_active = 0;
+    s->state = SKELMSG_STATUS_T_STATE_READY;
+    int apply = s->apply_pending;
+    s->apply_pending = 0;
+    pthread_mutex_unlock(&s->lock);
+    skel_log("DPU %d: run %lld ended: %lld minor cycles, %lld overruns, %d lockouts, %lld timing lost",
+             s->dpu_id, (long long)s->run_id, (long long)atomic_load(&s->minor_cycles),
+             (long long)atomic_load(&s->overruns), s->nlockouts,
+             (long long)atomic_load(&s->ring.lost));
+    c->status_due = 1;
+    if (apply) control_apply(c);
+}
+
+static void control_on_config(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+{
+    (void)channel;
+    control_handle_config(user, rbuf->data, (int)rbuf->data_size);
+}
+
+static void control_on_command(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+{
+    (void)channel;
+    control_handle_command(user, rbuf->data, (int)rbuf->data_size);
+}
+
+static int control_subscribe(skel_control_t *c)
+{
+    lcm_subscription_t *cfg = lcm_subscribe(c->s->ctl, SKEL_CH_CONFIG, control_on_config, c);
+    lcm_subscription_t *cmd = lcm_subscribe(c->s->ctl, SKEL_CH_COMMAND, control_on_command, c);
+    if (cfg == NULL || cmd == NULL) return -1;
+    /* Unlimited queues: a burst of commands must not silently lose the newest. */
+    if (lcm_subscription_set_queue_capacity(cfg, 0) != 0) return -1;
+    return lcm_subscription_set_queue_capacity(cmd, 0);
+}
+
+static int control_poll(skel_control_t *c)
+{
+    struct pollfd fds[2] = {
+        { .fd = lcm_get_fileno(c->s->ctl), .events = POLLIN },
+        { .fd = c->s->notify_fd, .events = POLLIN },
+    };
+    int rc = poll(fds, 2, 10);
+    if (rc < 0) return errno == EINTR ? 0 : -1;
+    if (fds[0].revents & POLLIN)
+        for (int n = 0; n < 1000 && lcm_handle_timeout(c->s->ctl, 0) > 0; n++) {
+        }
+    if (fds[1].revents & POLLIN) {
+        uint64_t v;
+        if (read(c->s->notify_fd, &v, sizeof v) > 0) c->status_due = 1;
+    }
+    return 0;
+}
+
+void *control_main(void *arg)
+{
+    skel_control_t *c = arg;
+    skel_server_t *s = c->s;
+    if (control_subscribe(c) != 0) {
+        skel_log("cannot subscribe to %s/%s on %s", SKEL_CH_CONFIG, SKEL_CH_COMMAND, s->url);
+        return NULL;
+    }
+    c->status_due = 1;
+    for (;;) {
+        if (control_poll(c) != 0) skel_log("control poll failed: %s", strerror(errno));
+        control_drain_timing(c, 0);
+        if (pthread_mutex_lock(&s->lock) != 0) break;
+        int ended = s->run_ended, done = s->exec_done;
+        pthread_mutex_unlock(&s->lock);
+        if (ended) control_finish_run(c);
+        if (c->status_due || clock_mono_ns() - c->last_status_ns >= SKEL_STATUS_NS)
+            if (control_publish_status(c) != 0) skel_log("cannot publish status");
+        if (done) break;
+    }
+    return NULL;
+}

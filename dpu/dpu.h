@@ -1,0 +1,374 @@
+/* dpu.h: the types, limits and module interfaces of skel-dpu, the DPU daemon.
+ *
+ * One skel_server_t holds everything the daemon knows (Redis-style: one server
+ * struct, no hidden globals). A configuration becomes a skel_plan_t: every
+ * piece of memory a run needs, allocated when the config is applied, so the
+ * cycle loop never allocates. Two threads share the server: the control thread
+ * (config, commands, status, timing batches, reports) and the executive thread
+ * (the cycles). They hand data over through the server mutex (plan swap, run
+ * requests, lockouts) and a lock-free SPSC ring (timing records). */
+#ifndef SKEL_DPU_H
+#define SKEL_DPU_H
+
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include <lcm/lcm.h>
+
+#include "skelmsg_buffer_t.h"
+#include "skelmsg_command_t.h"
+#include "skelmsg_config_t.h"
+#include "skelmsg_report_t.h"
+#include "skelmsg_status_t.h"
+#include "skelmsg_timing_t.h"
+
+/* ---- channels of the control URL (the wire contract's names) ---------------- */
+#define SKEL_CH_CONFIG  "SKEL_CONFIG"
+#define SKEL_CH_COMMAND "SKEL_COMMAND"
+#define SKEL_CH_STATUS  "SKEL_STATUS"
+#define SKEL_CH_TIMING  "SKEL_TIMING"
+#define SKEL_CH_REPORT  "SKEL_REPORT"
+#define SKEL_DEFAULT_URL "udpm://239.255.76.67:7667?ttl=0"
+
+/* ---- limits: a config beyond them is rejected with a reason, never truncated */
+#define SKEL_MAX_PROCESSES   64                 /* per DPU */
+#define SKEL_MAX_IO          16                 /* inputs or outputs per process */
+#define SKEL_MAX_BUFFER_BYTES (4 * 1024 * 1024) /* one buffer's payload */
+#define SKEL_MAX_DPU_BYTES   (64 * 1024 * 1024) /* all output payloads of one DPU */
+#define SKEL_MIN_PERIOD_US   100
+#define SKEL_MAX_PERIOD_US   (60 * 1000 * 1000)
+#define SKEL_MAX_LINKS       16                 /* distinct link URLs per DPU */
+#define SKEL_MAX_SLOTS       (SKEL_MAX_PROCESSES * SKEL_MAX_IO)
+#define SKEL_MAX_LOCKOUTS    SKEL_MAX_PROCESSES /* once per process per run */
+#define SKEL_RING_RECORDS    8192               /* timing records in flight */
+#define SKEL_BATCH_RECORDS   64                 /* records per timing_t */
+#define SKEL_BATCH_NS        (50 * 1000 * 1000LL)
+#define SKEL_STATUS_NS       (200 * 1000 * 1000LL)
+#define SKEL_REASON_LEN      256
+#define SKEL_SEEN_COMMANDS   64
+
+#define SKEL_NS_PER_US 1000LL
+#define SKEL_NS_PER_S  1000000000LL
+
+/* ---- logging (log.c) --------------------------------------------------------- */
+void skel_log(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+
+/* ---- clock (clock.c): CLOCK_MONOTONIC ns inside the DPU ------------------------ */
+int64_t clock_mono_ns(void);
+int64_t clock_utc_ns(void);
+int64_t clock_thread_cpu_ns(void);
+/* The monotonic instant of UTC instant AT, given one simultaneous reading of both clocks. */
+int64_t clock_utc_to_mono(int64_t at_utc_ns, int64_t now_mono_ns, int64_t now_utc_ns);
+int64_t clock_mono_to_utc(int64_t at_mono_ns, int64_t now_mono_ns, int64_t now_utc_ns);
+/* Absolute sleep on CLOCK_MONOTONIC; returns early (1) when *stop becomes set. */
+int clock_sleep_until(int64_t mono_ns, atomic_int *stop);
+
+/* ---- wire (wire.c): every received message is checked before it is decoded ---- */
+typedef struct {
+    int64_t run_id;
+    int16_t writer;
+    int16_t buffer;
+    int64_t seq;
+    int64_t send_ns;
+    int32_t nbytes;
+} wire_buffer_hdr_t;
+
+int wire_buffer_header(const void *buf, int len, wire_buffer_hdr_t *hdr);
+int wire_decode_config(const void *buf, int len, skelmsg_config_t *cfg);
+int wire_decode_command(const void *buf, int len, skelmsg_command_t *cmd);
+int wire_buffer_encoded_size(int32_t nbytes);
+
+/* ---- buffers (buffers.c): what a DPU holds of each buffer it reads ------------- */
+struct skel_plan;
+
+/* One buffer this DPU reads (shared by all its readers on this DPU). Written by
+ * the link handler or by a local writer; read by process cycles; one thread. */
+typedef struct skel_slot {
+    int16_t buffer;
+    int16_t writer;
+    int link;                  /* index into plan->links, -1: local memory */
+    char *channel;
+    int64_t newest_seq;        /* -1: nothing yet in this run */
+    int64_t newest_send_ns;
+    int64_t newest_recv_ns;
+    int64_t received;          /* messages accepted in this run */
+    int64_t foreign;           /* messages of another run (ignored) */
+    struct skel_plan *plan;
+} skel_slot_t;
+
+/* One input of one process: what it last used, and its measured-window sums. */
+typedef struct {
+    int slot;
+    int16_t buffer;
+    int8_t required;
+    int64_t last_used;         /* -1: nothing used yet */
+    int64_t received_seen;     /* slot->received at the previous cycle */
+    int64_t n_new, n_stale, n_dropped;
+} skel_input_t;
+
+/* What one cycle saw on one input. */
+typedef struct {
+    int16_t buffer;
+    int8_t new_data;
+    int32_t dropped;
+    int32_t received;
+    int64_t seq;
+    int64_t sent_ns;
+    int64_t recv_ns;
+} skel_in_rec_t;
+
+typedef struct {
+    int16_t buffer;
+    int link;                  /* -1: local */
+    int local_slot;            /* local: the slot readers on this DPU use, -1: none */
+    char *channel;
+    int32_t bytes;
+    uint8_t *enc;              /* preallocated encoded buffer_t */
+    int enc_len;
+} skel_output_t;
+
+enum { BUFFERS_ACCEPTED = 0, BUFFERS_FOREIGN_RUN = 1, BUFFERS_MISMATCH = -1 };
+
+void buffers_slot_reset(skel_slot_t *slot);
+int buffers_slot_receive(skel_slot_t *slot, int64_t run_id, const wire_buffer_hdr_t *hdr,
+                         int64_t recv_ns);
+void buffers_input_reset(skel_input_t *in);
+void buffers_input_peek(const skel_input_t *in, const skel_slot_t *slot, skel_in_rec_t *rec);
+void buffers_input_commit(skel_input_t *in, const skel_slot_t *slot, const skel_in_rec_t *rec,
+                          int measured);
+int buffers_output_encode(skel_output_t *out, int64_t run_id, int16_t writer, int64_t seq,
+                          int64_t send_ns, const uint8_t *dummy);
+
+/* ---- compute (compute.c): the emulated computation ----------------------------- */
+typedef struct {
+    double work_iters_per_us;  /* this CPU's calibration of the WORK kernel */
+    int64_t spin_ns;           /* SLEEP: spin this last stretch */
+} skel_compute_t;
+
+int compute_calibrate(skel_compute_t *c);
+int64_t compute_run(const skel_compute_t *c, int mode, int64_t ns);
+uint64_t compute_work_kernel(uint64_t iterations);
+
+/* ---- timing (timing.c): per-cycle records, SPSC ring, timing_t batches ---------- */
+typedef struct {
+    int16_t process;
+    int8_t flags;
+    int8_t ninputs;
+    int64_t cycle, minor, release_ns, start_ns, comm_in_ns, blocked_ns, compute_ns,
+        comm_out_ns, idle_ns, slack_ns;
+    skel_in_rec_t in[SKEL_MAX_IO];
+} skel_rec_t;
+
+typedef struct {
+    skel_rec_t *recs;
+    uint64_t cap;              /* a power of two */
+    _Alignas(64) atomic_uint_fast64_t head;  /* next write (producer) */
+    _Alignas(64) atomic_uint_fast64_t tail;  /* next read (consumer) */
+    _Alignas(64) atomic_int_fast64_t lost;
+} skel_ring_t;
+
+int timing_ring_init(skel_ring_t *ring, uint64_t cap);
+void timing_ring_free(skel_ring_t *ring);
+int timing_ring_push(skel_ring_t *ring, const skel_rec_t *rec);
+int timing_ring_pop(skel_ring_t *ring, skel_rec_t *rec);
+
+/* A timing_t whose arrays are preallocated for SKEL_BATCH_RECORDS records. */
+typedef struct {
+    skelmsg_timing_t msg;
+    int64_t first_add_ns;
+} skel_batch_t;
+
+int timing_batch_init(skel_batch_t *b);
+void timing_batch_free(skel_batch_t *b);
+void timing_batch_clear(skel_batch_t *b);
+int timing_batch_full(const skel_batch_t *b);
+void timing_batch_add(skel_batch_t *b, const skel_rec_t *rec);
+
+/* ---- link (link.c): one lcm_t per distinct link URL ----------------------------- */
+typedef struct {
+    char *url;
+    lcm_t *lcm;
+    int fd;
+} skel_link_t;
+
+int link_open(skel_link_t *link);
+void link_close(skel_link_t *link);
+int link_subscribe(skel_link_t *link, skel_slot_t *slot);
+int link_drain(skel_link_t *links, int nlinks);
+int link_wait(skel_link_t *links, int nlinks, int wake_fd, int timeout_ms);
+
+/* ---- plan (plan.c, config.c): one DPU's part of a config, ready to run ---------- */
+typedef struct {
+    int16_t id;
+    int16_t order;
+    int8_t sync;
+    int64_t period_ns;
+    int64_t compute_ns;
+    int64_t ratio;             /* period / minor cycle */
+    int ninputs, noutputs;
+    skel_input_t inputs[SKEL_MAX_IO];
+    skel_output_t outputs[SKEL_MAX_IO];
+    /* run state and measured-window sums */
+    int8_t locked_out;
+    int64_t cycles, overruns, compute_sum, communicate_sum, wait_sum, max_latency_ns;
+} skel_process_t;
+
+typedef struct {
+    int64_t first_release_ns;  /* -1 until the measured window starts */
+    int64_t end_ns;
+    int64_t minor_cycles;
+    int64_t compute_ns, communicate_ns, wait_ns;
+} skel_dpu_sums_t;
+
+typedef struct skel_plan {
+    int64_t generation;
+    int16_t dpu;
+    int16_t cpu;
+    int8_t compute;
+    double speed;
+    int64_t minor_ns;
+    int32_t warmup_cycles;
+    int32_t lockout_cycles;
+    int nprocesses;
+    skel_process_t *processes;  /* sorted by (order, id) */
+    int nslots;
+    skel_slot_t *slots;
+    int nlinks;
+    skel_link_t links[SKEL_MAX_LINKS];
+    uint8_t *dummy;             /* the payload every output sends */
+    /* run context read by the link handler (executive thread only) */
+    int64_t run_id;
+    int running;
+    int64_t clock_offset_ns;
+    atomic_int_fast64_t *rejected;
+    int64_t publish_errors;
+    int64_t measure_from_ns;    /* DPU window: every process past its warm-up */
+    skel_dpu_sums_t sums;
+} skel_plan_t;
+
+typedef struct {
+    int dpu_index;             /* index into cfg->dpus, -1 when absent */
+    int16_t dpu_id;
+    char reason[SKEL_REASON_LEN];
+} skel_self_t;
+
+int config_find_self(const skelmsg_config_t *cfg, int id_arg, const char *hostname,
+                     skel_self_t *self);
+int config_validate(const skelmsg_config_t *cfg, int dpu_index, char *reason, size_t len);
+int64_t config_minor_us(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d);
+skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason, size_t len);
+int plan_open_links(skel_plan_t *plan, atomic_int_fast64_t *rejected, char *reason, size_t len);
+void plan_free(skel_plan_t *plan);
+void plan_reset_run(skel_plan_t *plan, int64_t run_id);
+int plan_process_index(const skel_plan_t *plan, int16_t id);
+
+/* ---- the server: everything the daemon knows --------------------------------- */
+typedef struct {
+    int requested;             /* a START is waiting for the executive */
+    int64_t run_id;
+    int64_t generation;
+    int64_t start_mono_ns;
+    int64_t end_mono_ns;       /* INT64_MAX: until STOP */
+} skel_run_t;
+
+typedef struct skel_server {
+    /* arguments */
+    int id_arg;                /* -1: --id auto */
+    const char *url;
+    int64_t clock_offset_ns;
+    int verbose;
+    char hostname[256];
+    int32_t pid;
+    skel_compute_t compute;
+
+    lcm_t *ctl;                /* control thread's lcm_t on the control URL */
+    int wake_fd;               /* eventfd: anything -> executive (stop, quit) */
+    int notify_fd;             /* eventfd: executive -> control (events) */
+
+    pthread_mutex_t lock;      /* guards everything down to the atomics */
+    pthread_cond_t cond;
+    int16_t dpu_id;            /* -1: not known yet (--id auto) */
+    int8_t state;
+    int64_t generation, staged_generation, rejected_generation;
+    char reject_reason[SKEL_REASON_LEN];
+    skelmsg_config_t *staged;  /* decoded, validated, waiting for COMMIT */
+    int staged_dpu_index;
+    int apply_pending;         /* staged config committed, apply when the run ends */
+    skel_plan_t *plan;
+    skel_run_t run;
+    int run_active;            /* ARMED or RUNNING: the executive owns the plan */
+    int run_ended;             /* executive finished; control finalises */
+    int64_t run_id;            /* current/last run */
+    int64_t run_generation;
+    int64_t rejected_at_start;
+    int applied_any;
+    int nlockouts;
+    skelmsg_lockout_t lockouts[SKEL_MAX_LOCKOUTS];
+    int exec_done;             /* executive thread has exited */
+
+    atomic_int stop;           /* end the run at the next boundary */
+    atomic_int quit;           /* daemon is shutting down */
+    atomic_int_fast64_t minor_cycles, overruns, rejected, timing_batches;
+    atomic_int faults;
+
+    skel_ring_t ring;
+} skel_server_t;
+
+int server_init(skel_server_t *s);
+void server_free(skel_server_t *s);
+void server_wake(int fd);
+void server_fault(skel_server_t *s, int fault);
+int64_t server_now(const skel_server_t *s); /* reported time: monotonic + test offset */
+
+/* ---- process (process.c): one process's cycle ---------------------------------- */
+typedef struct {
+    skel_server_t *s;
+    skel_plan_t *plan;
+    int64_t end_mono_ns;       /* the run's end: a blocked wait gives up after it */
+} skel_exec_t;
+
+enum { PROCESS_DONE = 0, PROCESS_STOPPED = 1 };
+int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t j, int64_t release_ns,
+                  skel_rec_t *rec);
+void process_lockout(skel_exec_t *x, skel_process_t *p, int16_t buffer, int64_t k,
+                     int64_t release_ns);
+
+/* ---- executive (executive.c): the cyclic loop and its thread -------------------- */
+void *executive_main(void *arg);
+int64_t executive_next_release(const skel_plan_t *plan, int64_t j);
+void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run);
+
+/* ---- report (report.c): status_t and report_t --------------------------------- */
+void report_status_fill(skel_server_t *s, skelmsg_status_t *st, skelmsg_lockout_t *lockouts,
+                        char *reason);
+int report_publish(skel_server_t *s, const skel_plan_t *plan);
+
+/* ---- control (control.c): the control thread ------------------------------------ */
+typedef struct {
+    int64_t seq, generation, run_id, at_utc_ns, ping_t1_ns;
+    int8_t kind;
+} skel_seen_t;
+
+typedef struct {
+    skel_server_t *s;
+    skel_batch_t batch;
+    int64_t batch_seq;
+    int64_t last_status_ns;
+    skel_seen_t seen[SKEL_SEEN_COMMANDS];
+    int nseen;
+    int64_t ping_seq, ping_t1_ns, ping_t2_ns;
+    int status_due;
+} skel_control_t;
+
+int control_init(skel_control_t *c, skel_server_t *s);
+void control_free(skel_control_t *c);
+void *control_main(void *arg);
+void control_handle_config(skel_control_t *c, const void *data, int len);
+void control_handle_command(skel_control_t *c, const void *data, int len);
+int control_seen(skel_control_t *c, const skelmsg_command_t *cmd);
+int control_publish_status(skel_control_t *c);
+void control_apply(skel_control_t *c);
+
+#endif

@@ -1,0 +1,110 @@
+/* link.c: the DPU's side of its communication links. One lcm_t per distinct
+ * link URL its processes read or write, created when a config is applied (never
+ * during a run) and used by the executive thread only. Buffer messages are
+ * subscribed raw: the handler checks and reads the header in place (wire.c),
+ * so nothing is allocated per message. */
+#include <errno.h>
+#include <limits.h>
+#include <poll.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "dpu.h"
+
+/* Handled messages per link per drain: a flood cannot hold a cycle forever. */
+#define LINK_DRAIN_MAX 100000
+
+/* LINK->url was set when the plan was built; the lcm_t is made at apply time. */
+int link_open(skel_link_t *link)
+{
+    link->lcm = lcm_create(link->url);
+    if (link->lcm == NULL) return -1;
+    link->fd = lcm_get_fileno(link->lcm);
+    return link->fd >= 0 ? 0 : -1;
+}
+
+void link_close(skel_link_t *link)
+{
+    if (link->lcm != NULL) lcm_destroy(link->lcm);
+    free(link->url);
+    memset(link, 0, sizeof *link);
+}
+
+static void link_on_buffer(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+{
+    skel_slot_t *slot = user;
+    skel_plan_t *plan = slot->plan;
+    wire_buffer_hdr_t hdr;
+    /* The subscription regex is anchored and escaped; this is belt and braces. */
+    if (strcmp(channel, slot->channel) != 0) return;
+    if (rbuf->data_size > INT_MAX ||
+        wire_buffer_header(rbuf->data, (int)rbuf->data_size, &hdr) != 0) {
+        atomic_fetch_add(plan->rejected, 1);
+        return;
+    }
+    if (!plan->running) return; /* between runs: drained only to keep queues short */
+    /* The kernel's receive stamp (UTC, us) tells when it arrived, not when we drained it. */
+    int64_t now_mono = clock_mono_ns();
+    int64_t recv = clock_utc_to_mono(rbuf->recv_utime * 1000, now_mono, clock_utc_ns());
+    if (rbuf->recv_utime <= 0 || recv > now_mono) recv = now_mono;
+    if (buffers_slot_receive(slot, plan->run_id, &hdr, recv + plan->clock_offset_ns) ==
+        BUFFERS_MISMATCH)
+        atomic_fetch_add(plan->rejected, 1);
+}
+
+/* lcm_subscribe takes a regular expression: escape everything but [A-Za-z0-9_]. */
+static int link_channel_regex(const char *channel, char *out, size_t len)
+{
+    size_t w = 0;
+    for (const char *p = channel; *p; p++) {
+        int plain = (*p >= 'a' && *p <= 'z') || (*p >= 'A' && *p <= 'Z') ||
+                    (*p >= '0' && *p <= '9') || *p == '_';
+        if (w + 3 >= len) return -1;
+        if (!plain) out[w++] = '\\';
+        out[w++] = *p;
+    }
+    out[w] = '\0';
+    return 0;
+}
+
+int link_subscribe(skel_link_t *link, skel_slot_t *slot)
+{
+    char regex[512];
+    if (link_channel_regex(slot->channel, regex, sizeof regex) != 0) return -1;
+    lcm_subscription_t *sub = lcm_subscribe(link->lcm, regex, link_on_buffer, slot);
+    if (sub == NULL) return -1;
+    /* LCM's default queue drops the newest past 30 messages: nothing may be lost here. */
+    return lcm_subscription_set_queue_capacity(sub, 0) == 0 ? 0 : -1;
+}
+
+int link_drain(skel_link_t *links, int nlinks)
+{
+    int handled = 0;
+    for (int i = 0; i < nlinks; i++) {
+        for (int n = 0; n < LINK_DRAIN_MAX; n++) {
+            int rc = lcm_handle_timeout(links[i].lcm, 0);
+            if (rc < 0) return -1;
+            if (rc == 0) break;
+            handled++;
+        }
+    }
+    return handled;
+}
+
+/* Waits until a link has a message or WAKE_FD is signalled: >0 ready, 0 timeout. */
+int link_wait(skel_link_t *links, int nlinks, int wake_fd, int timeout_ms)
+{
+    struct pollfd fds[SKEL_MAX_LINKS + 1];
+    int n = 0;
+    for (int i = 0; i < nlinks; i++) fds[n++] = (struct pollfd){ .fd = links[i].fd, .events = POLLIN };
+    if (wake_fd >= 0) fds[n++] = (struct pollfd){ .fd = wake_fd, .events = POLLIN };
+    int rc = poll(fds, (nfds_t)n, timeout_ms);
+    if (rc < 0) return errno == EINTR ? 0 : -1;
+    if (wake_fd >= 0 && (fds[n - 1].revents & POLLIN)) {
+        uint64_t v;
+        /* Consumed here; the stop/quit flags are what the caller checks. */
+        if (read(wake_fd, &v, sizeof v) < 0 && errno != EAGAIN) return -1;
+    }
+    return rc;
+}

@@ -1,0 +1,206 @@
+/* plan.c: one DPU's part of a validated config, turned into everything a run
+ * needs: processes in run order, one slot per buffer read, a preallocated
+ * encode buffer per output, the dummy payload, and one lcm_t per link URL.
+ * All allocation happens here, when a config is applied, never in a cycle. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "dpu.h"
+
+static const skelmsg_buffer_desc_t *plan_cfg_buffer(const skelmsg_config_t *cfg, int16_t id)
+{
+    for (int i = 0; i < cfg->nbuffers; i++)
+        if (cfg->buffers[i].id == id) return &cfg->buffers[i];
+    return NULL;
+}
+
+static const char *plan_cfg_url(const skelmsg_config_t *cfg, int16_t link)
+{
+    for (int i = 0; i < cfg->nlinks; i++)
+        if (cfg->links[i].id == link) return cfg->links[i].url;
+    return NULL;
+}
+
+/* Index of URL in plan->links (registered once); -1 for local or when full. */
+static int plan_link_index(skel_plan_t *plan, const char *url)
+{
+    if (url[0] == '\0') return -1;
+    for (int i = 0; i < plan->nlinks; i++)
+        if (strcmp(plan->links[i].url, url) == 0) return i;
+    if (plan->nlinks >= SKEL_MAX_LINKS) return -2;
+    plan->links[plan->nlinks].url = strdup(url);
+    if (plan->links[plan->nlinks].url == NULL) return -2;
+    plan->links[plan->nlinks].fd = -1;
+    return plan->nlinks++;
+}
+
+int plan_process_index(const skel_plan_t *plan, int16_t id)
+{
+    for (int i = 0; i < plan->nprocesses; i++)
+        if (plan->processes[i].id == id) return i;
+    return -1;
+}
+
+static int plan_slot_index(skel_plan_t *plan, const skelmsg_config_t *cfg, int16_t id)
+{
+    for (int i = 0; i < plan->nslots; i++)
+        if (plan->slots[i].buffer == id) return i;
+    const skelmsg_buffer_desc_t *b = plan_cfg_buffer(cfg, id);
+    skel_slot_t *slot = &plan->slots[plan->nslots];
+    slot->buffer = id;
+    slot->writer = b->writer;
+    slot->link = plan_link_index(plan, plan_cfg_url(cfg, b->link));
+    slot->channel = strdup(b->channel);
+    slot->plan = plan;
+    if (slot->link == -2 || slot->channel == NULL) return -1;
+    buffers_slot_reset(slot);
+    return plan->nslots++;
+}
+
+static int plan_cmp_order(const void *a, const void *b)
+{
+    const skel_process_t *p = a, *q = b;
+    if (p->order != q->order) return p->order < q->order ? -1 : 1;
+    return (p->id > q->id) - (p->id < q->id);
+}
+
+static int plan_add_output(skel_plan_t *plan, const skelmsg_config_t *cfg, skel_output_t *out,
+                           int16_t id)
+{
+    const skelmsg_buffer_desc_t *b = plan_cfg_buffer(cfg, id);
+    out->buffer = id;
+    out->bytes = b->bytes;
+    out->link = plan_link_index(plan, plan_cfg_url(cfg, b->link));
+    out->local_slot = -1;
+    out->channel = strdup(b->channel);
+    out->enc_len = wire_buffer_encoded_size(b->bytes);
+    out->enc = malloc((size_t)out->enc_len);
+    return out->link == -2 || out->channel == NULL || out->enc == NULL ? -1 : 0;
+}
+
+/* Processes first (their inputs make the slots), then local outputs find their slot. */
+static int plan_add_processes(skel_plan_t *plan, const skelmsg_config_t *cfg, int16_t dpu)
+{
+    for (int i = 0; i < cfg->nprocesses; i++) {
+        const skelmsg_process_t *src = &cfg->processes[i];
+        if (src->dpu != dpu) continue;
+        skel_process_t *p = &plan->processes[plan->nprocesses++];
+        p->id = src->id;
+        p->order = src->order;
+        p->sync = src->sync;
+        p->period_ns = (int64_t)src->period_us * SKEL_NS_PER_US;
+        p->compute_ns = (int64_t)((double)src->compute_us * SKEL_NS_PER_US / plan->speed);
+        p->ratio = p->period_ns / plan->minor_ns;
+        p->ninputs = src->ninputs;
+        for (int q = 0; q < src->ninputs; q++) {
+            skel_input_t *in = &p->inputs[q];
+            in->buffer = src->inputs[q];
+            in->required = src->required[q];
+            in->slot = plan_slot_index(plan, cfg, src->inputs[q]);
+            if (in->slot < 0) return -1;
+            buffers_input_reset(in);
+        }
+        p->noutputs = src->noutputs;
+        for (int q = 0; q < src->noutputs; q++)
+            if (plan_add_output(plan, cfg, &p->outputs[q], src->outputs[q]) != 0) return -1;
+    }
+    for (int i = 0; i < plan->nprocesses; i++)
+        for (int q = 0; q < plan->processes[i].noutputs; q++) {
+            skel_output_t *out = &plan->processes[i].outputs[q];
+            for (int s = 0; out->link == -1 && s < plan->nslots; s++)
+                if (plan->slots[s].buffer == out->buffer) out->local_slot = s;
+        }
+    qsort(plan->processes, (size_t)plan->nprocesses, sizeof *plan->processes, plan_cmp_order);
+    return 0;
+}
+
+/* CFG must have passed config_validate for DPU_INDEX. */
+skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason, size_t len)
+{
+    const skelmsg_dpu_t *d = &cfg->dpus[dpu_index];
+    skel_plan_t *plan = calloc(1, sizeof *plan);
+    if (plan == NULL) goto oom;
+    plan->generation = cfg->generation;
+    plan->dpu = d->id;
+    plan->cpu = d->cpu;
+    plan->compute = d->compute;
+    plan->speed = d->speed;
+    plan->minor_ns = config_minor_us(cfg, d) * SKEL_NS_PER_US;
+    plan->warmup_cycles = cfg->warmup_cycles;
+    plan->lockout_cycles = cfg->lockout_cycles;
+    plan->processes = calloc(SKEL_MAX_PROCESSES, sizeof *plan->processes);
+    plan->slots = calloc(SKEL_MAX_SLOTS, sizeof *plan->slots);
+    if (plan->processes == NULL || plan->slots == NULL) goto oom;
+    if (plan_add_processes(plan, cfg, d->id) != 0) goto oom;
+    int32_t max_bytes = 1;
+    for (int i = 0; i < cfg->nbuffers; i++)
+        if (cfg->buffers[i].bytes > max_bytes && cfg->buffers[i].bytes <= SKEL_MAX_BUFFER_BYTES)
+            max_bytes = cfg->buffers[i].bytes;
+    plan->dummy = malloc((size_t)max_bytes);
+    if (plan->dummy == NULL) goto oom;
+    /* A recognisable, non-zero pattern: a capture shows the dummy payload for what it is. */
+    for (int32_t i = 0; i < max_bytes; i++) plan->dummy[i] = (uint8_t)(0xA5 ^ (i & 0xff));
+    return plan;
+oom:
+    snprintf(reason, len, "DPU %d: out of memory building the plan for generation %lld", d->id,
+             (long long)cfg->generation);
+    plan_free(plan);
+    return NULL;
+}
+
+/* The network side of applying: lcm_t per URL, a subscription per slot read
+ * over a link. Made by the control thread, used afterwards by the executive. */
+int plan_open_links(skel_plan_t *plan, atomic_int_fast64_t *rejected, char *reason, size_t len)
+{
+    plan->rejected = rejected;
+    for (int i = 0; i < plan->nlinks; i++)
+        if (link_open(&plan->links[i]) != 0) {
+            snprintf(reason, len, "DPU %d: cannot open link %s (multicast route?)", plan->dpu,
+                     plan->links[i].url);
+            return -1;
+        }
+    for (int s = 0; s < plan->nslots; s++) {
+        skel_slot_t *slot = &plan->slots[s];
+        if (slot->link >= 0 && link_subscribe(&plan->links[slot->link], slot) != 0) {
+            snprintf(reason, len, "DPU %d: cannot subscribe to %s on %s", plan->dpu,
+                     slot->channel, plan->links[slot->link].url);
+            return -1;
+        }
+    }
+    return 0;
+}
+
+void plan_free(skel_plan_t *plan)
+{
+    if (plan == NULL) return;
+    for (int i = 0; i < plan->nlinks; i++) link_close(&plan->links[i]);
+    for (int s = 0; plan->slots != NULL && s < plan->nslots; s++) free(plan->slots[s].channel);
+    for (int i = 0; plan->processes != NULL && i < SKEL_MAX_PROCESSES; i++)
+        for (int q = 0; q < SKEL_MAX_IO; q++) {
+            free(plan->processes[i].outputs[q].channel);
+            free(plan->processes[i].outputs[q].enc);
+        }
+    free(plan->processes);
+    free(plan->slots);
+    free(plan->dummy);
+    free(plan);
+}
+
+/* Everything a run counts starts from zero; the allocations stay. */
+void plan_reset_run(skel_plan_t *plan, int64_t run_id)
+{
+    plan->run_id = run_id;
+    for (int s = 0; s < plan->nslots; s++) buffers_slot_reset(&plan->slots[s]);
+    for (int i = 0; i < plan->nprocesses; i++) {
+        skel_process_t *p = &plan->processes[i];
+        for (int q = 0; q < p->ninputs; q++) buffers_input_reset(&p->inputs[q]);
+        p->locked_out = 0;
+        p->cycles = p->overruns = p->compute_sum = p->communicate_sum = p->wait_sum = 0;
+        p->max_latency_ns = 0;
+    }
+    plan->publish_errors = 0;
+    plan->measure_from_ns = 0;
+    memset(&plan->sums, 0, sizeof plan->sums);
+    plan->sums.first_release_ns = -1;
+}

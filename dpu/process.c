@@ -1,0 +1,166 @@
+/* process.c: one cycle of one process, the paper's GCCP/SCCP: read inputs ->
+ * (wait for required new data) -> compute -> write outputs, each step timed
+ * into a timing record. A data-synchronised wait blocks the whole DPU thread
+ * (the procedural model), and is where lockouts show up. */
+#include <string.h>
+
+#include "dpu.h"
+
+static int64_t process_lockout_ns(const skel_plan_t *plan, const skel_process_t *p)
+{
+    return plan->lockout_cycles > 0 ? plan->lockout_cycles * p->period_ns : INT64_MAX;
+}
+
+/* Recorded once per process per run; the process keeps trying and may recover. */
+void process_lockout(skel_exec_t *x, skel_process_t *p, int16_t buffer, int64_t k,
+                     int64_t release_ns)
+{
+    skel_server_t *s = x->s;
+    if (p->locked_out) return;
+    p->locked_out = 1;
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    if (s->nlockouts < SKEL_MAX_LOCKOUTS) {
+        skelmsg_lockout_t *l = &s->lockouts[s->nlockouts++];
+        l->process = p->id;
+        l->buffer = buffer;
+        l->cycle = k;
+        l->release_ns = release_ns + s->clock_offset_ns;
+    }
+    pthread_mutex_unlock(&s->lock);
+    server_fault(s, SKELMSG_STATUS_T_FAULT_LOCKOUT);
+    server_wake(s->notify_fd);
+    skel_log("DPU %d: LOCKOUT process %d cycle %lld (waiting on buffer %d)", x->plan->dpu, p->id,
+             (long long)k, buffer);
+}
+
+static void process_peek_inputs(const skel_plan_t *plan, const skel_process_t *p, skel_rec_t *rec)
+{
+    rec->ninputs = (int8_t)p->ninputs;
+    for (int q = 0; q < p->ninputs; q++)
+        buffers_input_peek(&p->inputs[q], &plan->slots[p->inputs[q].slot], &rec->in[q]);
+}
+
+/* The first required input without new data, or -1 when all have it. */
+static int process_missing(const skel_process_t *p, const skel_rec_t *rec)
+{
+    for (int q = 0; q < p->ninputs; q++)
+        if (p->inputs[q].required && !rec->in[q].new_data) return q;
+    return -1;
+}
+
+static int process_should_stop(const skel_exec_t *x, const skel_process_t *p, int64_t now)
+{
+    if (atomic_load(&x->s->stop) || atomic_load(&x->s->quit)) return 1;
+    /* A jammed pipeline must not hold a timed run open forever. */
+    int64_t grace = x->plan->lockout_cycles > 0 ? process_lockout_ns(x->plan, p) : p->period_ns;
+    return x->end_mono_ns != INT64_MAX && now >= x->end_mono_ns + grace;
+}
+
+/* Waits for new data on every required input: 1 when the run stopped first. */
+static int process_wait_data(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t release,
+                             skel_rec_t *rec)
+{
+    skel_plan_t *plan = x->plan;
+    int64_t lockout_at = release + process_lockout_ns(plan, p);
+    for (;;) {
+        int missing = process_missing(p, rec);
+        if (missing < 0) return 0;
+        int64_t now = clock_mono_ns();
+        if (now - release >= process_lockout_ns(plan, p)) {
+            process_lockout(x, p, p->inputs[missing].buffer, k, release);
+            rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
+        }
+        if (process_should_stop(x, p, now)) return 1;
+        int timeout_ms = 10;
+        if (!p->locked_out && lockout_at > now && (lockout_at - now) / 1000000 + 1 < timeout_ms)
+            timeout_ms = (int)((lockout_at - now) / 1000000 + 1);
+        if (link_wait(plan->links, plan->nlinks, x->s->wake_fd, timeout_ms) < 0) return 1;
+        if (link_drain(plan->links, plan->nlinks) < 0) return 1;
+        process_peek_inputs(plan, p, rec);
+    }
+}
+
+static void process_write_outputs(skel_exec_t *x, skel_process_t *p, int64_t k)
+{
+    skel_plan_t *plan = x->plan;
+    for (int q = 0; q < p->noutputs; q++) {
+        skel_output_t *out = &p->outputs[q];
+        int64_t send_ns = server_now(x->s);
+        int len = buffers_output_encode(out, plan->run_id, p->id, k, send_ns, plan->dummy);
+        int rc = len < 0 ? -1 : 0;
+        if (rc == 0 && out->link >= 0)
+            rc = lcm_publish(plan->links[out->link].lcm, out->channel, out->enc, (unsigned)len);
+        else if (rc == 0 && out->local_slot >= 0) {
+            /* Local memory: the readers' slot is written directly, as common memory was. */
+            wire_buffer_hdr_t hdr = { plan->run_id, p->id, out->buffer, k, send_ns, out->bytes };
+            rc = buffers_slot_receive(&plan->slots[out->local_slot], plan->run_id, &hdr,
+                                      server_now(x->s));
+        }
+        if (rc != 0 && plan->publish_errors++ == 0)
+            skel_log("DPU %d: process %d cannot publish buffer %d on %s", plan->dpu, p->id,
+                     out->buffer, out->channel);
+    }
+}
+
+static void process_commit(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec,
+                           int measured)
+{
+    for (int q = 0; q < p->ninputs; q++)
+        buffers_input_commit(&p->inputs[q], &plan->slots[p->inputs[q].slot], &rec->in[q],
+                             measured);
+}
+
+/* Runs cycle K of P released at RELEASE (monotonic ns) in minor cycle J and
+ * fills REC (times reported with the clock offset). The executive adds idle. */
+int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t j, int64_t release,
+                  skel_rec_t *rec)
+{
+    skel_plan_t *plan = x->plan;
+    const int64_t off = x->s->clock_offset_ns;
+    const int measured = k >= plan->warmup_cycles;
+    memset(rec, 0, offsetof(skel_rec_t, in));
+    rec->process = p->id;
+    rec->cycle = k;
+    rec->minor = j;
+    rec->release_ns = release + off;
+    int64_t start = clock_mono_ns();
+    rec->start_ns = start + off;
+    if (start - release >= process_lockout_ns(plan, p)) {
+        process_lockout(x, p, -1, k, release);
+        rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
+    }
+    (void)link_drain(plan->links, plan->nlinks); /* an lcm error shows as stale inputs */
+    process_peek_inputs(plan, p, rec);
+    int64_t t_in = clock_mono_ns();
+    rec->comm_in_ns = t_in - start;
+    int stopped = p->sync == SKELMSG_PROCESS_T_SYNC_DATA && process_wait_data(x, p, k, release, rec);
+    int64_t t_blocked = clock_mono_ns();
+    rec->blocked_ns = t_blocked - t_in;
+    if (stopped) {
+        /* The partial cycle is recorded so its blocked time is not lost. */
+        rec->flags |= SKELMSG_TIMING_T_FLAG_SKIPPED;
+        rec->slack_ns = release + p->period_ns - t_blocked;
+        return PROCESS_STOPPED;
+    }
+    process_commit(plan, p, rec, measured);
+    rec->compute_ns = compute_run(&x->s->compute, plan->compute, p->compute_ns);
+    int64_t t_out = clock_mono_ns();
+    process_write_outputs(x, p, k);
+    int64_t end = clock_mono_ns();
+    rec->comm_out_ns = end - t_out;
+    rec->slack_ns = release + p->period_ns - end;
+    if (rec->slack_ns < 0) {
+        rec->flags |= SKELMSG_TIMING_T_FLAG_OVERRUN;
+        atomic_fetch_add(&x->s->overruns, 1);
+        server_fault(x->s, SKELMSG_STATUS_T_FAULT_OVERRUN);
+    }
+    if (measured) {
+        p->cycles++;
+        p->overruns += rec->slack_ns < 0;
+        p->compute_sum += rec->compute_ns;
+        p->communicate_sum += rec->comm_in_ns + rec->comm_out_ns;
+        p->wait_sum += rec->blocked_ns;
+        if (start - release > p->max_latency_ns) p->max_latency_ns = start - release;
+    }
+    return PROCESS_DONE;
+}

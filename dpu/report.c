@@ -1,0 +1,108 @@
+/* report.c: what the DPU tells the host. status_t is the heartbeat (state,
+ * generations, counters, faults, lockouts); report_t is the end-of-run sums
+ * over the measured window, a cross-check of the analysis of timing records.
+ * Both are built by the control thread; a run's plan is read only after the
+ * executive has finished with it. */
+#include <stdlib.h>
+#include <string.h>
+
+#include "dpu.h"
+
+/* LOCKOUTS (SKEL_MAX_LOCKOUTS) and REASON (SKEL_REASON_LEN) are the caller's
+ * storage, so the message stays valid after the lock is released. */
+void report_status_fill(skel_server_t *s, skelmsg_status_t *st, skelmsg_lockout_t *lockouts,
+                        char *reason)
+{
+    memset(st, 0, sizeof *st);
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    st->dpu = s->dpu_id;
+    st->state = s->state;
+    st->generation = s->generation;
+    st->staged_generation = s->staged_generation;
+    st->rejected_generation = s->rejected_generation;
+    memcpy(reason, s->reject_reason, SKEL_REASON_LEN);
+    st->run_id = s->run_id;
+    st->nlockouts = (int16_t)s->nlockouts;
+    memcpy(lockouts, s->lockouts, sizeof(skelmsg_lockout_t) * (size_t)s->nlockouts);
+    pthread_mutex_unlock(&s->lock);
+    reason[SKEL_REASON_LEN - 1] = '\0';
+    st->reject_reason = reason;
+    st->lockouts = lockouts;
+    st->host = s->hostname;
+    st->pid = s->pid;
+    st->minor_cycles = atomic_load(&s->minor_cycles);
+    st->faults = atomic_load(&s->faults);
+    st->overruns = atomic_load(&s->overruns);
+    st->rejected_messages = atomic_load(&s->rejected);
+    st->timing_batches = atomic_load(&s->timing_batches);
+    st->timing_lost = atomic_load(&s->ring.lost);
+    st->utc_ns = clock_utc_ns();
+    st->mono_ns = server_now(s);
+}
+
+static void report_fill_process(skelmsg_process_report_t *r, const skel_process_t *p)
+{
+    r->process = p->id;
+    r->cycles = p->cycles;
+    r->overruns = p->overruns;
+    r->compute_ns = p->compute_sum;
+    r->communicate_ns = p->communicate_sum;
+    r->wait_ns = p->wait_sum;
+    r->max_latency_ns = p->max_latency_ns;
+    r->locked_out = p->locked_out;
+    r->ninputs = (int16_t)p->ninputs;
+    for (int q = 0; q < p->ninputs; q++) {
+        r->input_buffer[q] = p->inputs[q].buffer;
+        r->input_new[q] = p->inputs[q].n_new;
+        r->input_stale[q] = p->inputs[q].n_stale;
+        r->input_dropped[q] = p->inputs[q].n_dropped;
+    }
+}
+
+/* Input arrays point into one block sized for the limits: no per-field frees. */
+typedef struct {
+    int16_t buffer[SKEL_MAX_IO];
+    int64_t n_new[SKEL_MAX_IO], stale[SKEL_MAX_IO], dropped[SKEL_MAX_IO];
+} report_inputs_t;
+
+int report_publish(skel_server_t *s, const skel_plan_t *plan)
+{
+    skelmsg_report_t r;
+    memset(&r, 0, sizeof r);
+    int n = plan->nprocesses;
+    skelmsg_process_report_t *procs = calloc((size_t)(n > 0 ? n : 1), sizeof *procs);
+    report_inputs_t *ins = calloc((size_t)(n > 0 ? n : 1), sizeof *ins);
+    if (procs == NULL || ins == NULL) {
+        free(procs);
+        free(ins);
+        return -1;
+    }
+    for (int i = 0; i < n; i++) {
+        procs[i].input_buffer = ins[i].buffer;
+        procs[i].input_new = ins[i].n_new;
+        procs[i].input_stale = ins[i].stale;
+        procs[i].input_dropped = ins[i].dropped;
+        report_fill_process(&procs[i], &plan->processes[i]);
+    }
+    const skel_dpu_sums_t *d = &plan->sums;
+    r.dpu = plan->dpu;
+    r.run_id = plan->run_id;
+    r.generation = plan->generation;
+    r.compute = plan->compute;
+    r.speed = plan->speed;
+    r.elapsed_ns = d->first_release_ns >= 0 ? d->end_ns - d->first_release_ns : 0;
+    r.minor_cycles = d->minor_cycles;
+    r.compute_ns = d->compute_ns;
+    r.communicate_ns = d->communicate_ns;
+    r.wait_ns = d->wait_ns;
+    r.timing_batches = atomic_load(&s->timing_batches);
+    r.timing_lost = atomic_load(&s->ring.lost);
+    r.rejected_messages = atomic_load(&s->rejected) - s->rejected_at_start;
+    r.faults = atomic_load(&s->faults);
+    r.nprocesses = (int16_t)n;
+    r.processes = procs;
+    int rc = skelmsg_report_t_publish(s->ctl, SKEL_CH_REPORT, &r);
+    free(procs);
+    free(ins);
+    return rc;
+}
