@@ -104,8 +104,8 @@ def _locate(
         raise OverrideError(text, f"the system file has no {section} list")
     item = _find(section, items, key)
     if item is None:
-        how = "with id" if section == "dpus" else "named"
-        raise OverrideError(text, f"no {_NOUN[section]} {how} '{key}'")
+        how = f"with id {key}" if section == "dpus" else f"named '{key}'"
+        raise OverrideError(text, f"no {_NOUN[section]} {how}")
     label = item.get("id") if section == "dpus" else item.get("name")
     return f"{section}.{label}", item, field
 

@@ -268,8 +268,9 @@ def _orders(spec: SystemSpec) -> dict[int, int]:
                               f"order {p.order} is already taken on DPU {d.id} by {show(taken[p.order])}")
             if p.order is not None:
                 taken[p.order] = p.name
-        # Explicit orders place a process; the others keep their place in the file.
-        ranked = sorted(enumerate(mine), key=lambda ip: (ip[1].order or ip[0] + 1, ip[0]))
+        # Explicit orders place a process (first among equals); the others keep their place in the file.
+        ranked = sorted(enumerate(mine),
+                        key=lambda ip: (ip[1].order or ip[0] + 1, ip[1].order is None, ip[0]))
         out.update({p.id: rank + 1 for rank, (_, p) in enumerate(ranked)})
     return out
 

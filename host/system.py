@@ -383,6 +383,9 @@ def load(path: str | Path, overrides: Sequence[str] = ()) -> System:
 def _build(path: str | Path, doc: Any, overrides: tuple[str, ...], text: str | None = None) -> System:
     from .rules import Invalid, resolve
 
+    if doc is None:
+        raise SystemFileError(path, "top level", "the file is empty; a system file needs at least "
+                              "system, dpus and processes")
     origin: dict[str, str] = {}
     if overrides:
         fields = {"processes": ProcessSpec.model_fields.keys(), "dpus": DpuSpec.model_fields.keys(),
@@ -399,7 +402,7 @@ def _build(path: str | Path, doc: Any, overrides: tuple[str, ...], text: str | N
         spec = SystemSpec.model_validate(doc)
         parts = resolve(spec)
     except ValidationError as e:
-        error = e.errors()[0]
+        error = _first(e.errors())
         where = field_path(tuple(error["loc"]), doc)
         raise SystemFileError(path, where, describe(error, SystemSpec) + _blame(where, origin)) from None
     except Invalid as e:
@@ -412,6 +415,17 @@ def _build(path: str | Path, doc: Any, overrides: tuple[str, ...], text: str | N
         buffers=parts.buffers, processes=parts.processes, run=run, chains=parts.chains,
         reference=spec.reference, overrides=overrides, document=doc,
     )
+
+
+def _first(errors: Sequence[Any]) -> Any:
+    """The first error, except that a typo beats the missing key it causes (`period:` for `period_us:`)."""
+    first = errors[0]
+    if first["type"] == "missing":
+        parent = tuple(first["loc"][:-1])
+        for error in errors:
+            if error["type"] == "extra_forbidden" and tuple(error["loc"][:-1]) == parent:
+                return error
+    return first
 
 
 def _blame(where: str, origin: dict[str, str]) -> str:
