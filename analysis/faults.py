@@ -1,0 +1,184 @@
+"""Fatal flaws: process lockouts, pipeline jams (with the chain back to the root
+cause), overruns and lost DPUs. Definitions only; inputs are decoded messages,
+record arrays and a config_t, as in metrics.py."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .metrics import ProcessMetrics, static_load_pct
+from .records import FLAG_LOCKOUT
+
+
+@dataclass
+class Fault:
+    kind: str  # "lockout" | "jam" | "overrun" | "dpu_lost"
+    process: str | None = None
+    dpu: int | None = None
+    buffer: str | None = None
+    writer: str | None = None
+    cycle: int | None = None
+    chain: list[str] = field(default_factory=list)  # jam: head ... root cause
+    detail: str = ""
+    count: int | None = None  # overrun: how many
+    static_load_pct: float | None = None  # jam: the root cause's DPU
+
+
+@dataclass(frozen=True)
+class Lockout:
+    process: int
+    buffer: int | None  # the required input it waits on; None when not waiting for data
+    cycle: int
+    known_wait: bool = True  # False when only a timing record's flag told us
+
+
+def lockouts_from_status(statuses: Iterable[Any], run_id: int) -> dict[int, Lockout]:
+    """status_t.lockouts[] of one run, first report of each process kept."""
+    out: dict[int, Lockout] = {}
+    for status in statuses:
+        if status.run_id != run_id:
+            continue
+        for lock in status.lockouts:
+            if lock.process not in out:
+                buffer = None if lock.buffer < 0 else int(lock.buffer)
+                out[int(lock.process)] = Lockout(int(lock.process), buffer, int(lock.cycle))
+    return out
+
+
+def lockouts_from_records(records: np.ndarray, known: dict[int, Lockout]) -> dict[int, Lockout]:
+    """Add processes whose timing records carry FLAG_LOCKOUT but no status_t said so
+    (status heartbeats lost): what they waited on is then unknown."""
+    out = dict(known)
+    flagged = records[(records["flags"] & FLAG_LOCKOUT) != 0]
+    for proc in np.unique(flagged["process"]).tolist():
+        if proc not in out:
+            first = int(flagged["cycle"][flagged["process"] == proc].min())
+            out[proc] = Lockout(proc, None, first, known_wait=False)
+    return out
+
+
+def lockout_faults(lockouts: dict[int, Lockout], config: Any) -> list[Fault]:
+    names, dpus, buffers = _index(config)
+    faults = []
+    for proc in sorted(lockouts):
+        lock = lockouts[proc]
+        buf = buffers.get(lock.buffer) if lock.buffer is not None else None
+        if lock.buffer is not None:
+            detail = f"waits on {_bname(buffers, lock.buffer)}"
+        elif lock.known_wait:
+            detail = "not waiting for data: its DPU cannot run it"
+        else:
+            detail = "flagged in the timing records (no status_t)"
+        faults.append(
+            Fault(
+                kind="lockout",
+                process=names.get(proc, f"process {proc}"),
+                dpu=dpus.get(proc),
+                buffer=None if lock.buffer is None else _bname(buffers, lock.buffer),
+                writer=None if buf is None else names.get(buf.writer, f"process {buf.writer}"),
+                cycle=lock.cycle,
+                detail=detail,
+            )
+        )
+    return faults
+
+
+def jam_faults(lockouts: dict[int, Lockout], config: Any) -> list[Fault]:
+    """A jam: a locked-out process waits on a buffer whose writer is locked out too.
+
+    One fault per chain, reported from its head (a jammed process nobody jammed
+    waits on) back to the root cause: a locked-out process not waiting for data (its
+    DPU is overloaded), a writer that is not locked out, or a circular wait."""
+    names, dpus, buffers = _index(config)
+
+    def writer_of(proc: int) -> int | None:
+        lock = lockouts[proc]
+        if lock.buffer is None or lock.buffer not in buffers:
+            return None
+        return int(buffers[lock.buffer].writer)
+
+    jammed = {p for p in lockouts if (w := writer_of(p)) is not None and w in lockouts}
+    waited_on = {writer_of(p) for p in jammed}
+    heads = sorted(p for p in jammed if p not in waited_on)
+    covered: set[int] = set()
+    faults = []
+    for head in heads + sorted(jammed):  # then circular waits, which have no head
+        if head in covered:
+            continue
+        chain = [head]
+        while (w := writer_of(chain[-1])) is not None and w in lockouts and w not in chain:
+            chain.append(w)
+        covered.update(chain)
+        root = chain[-1]
+        w = writer_of(root)
+        load = None
+        if w is not None and w in chain:
+            chain.append(w)
+            cause = "circular wait: " + " -> ".join(names.get(p, str(p)) for p in chain[chain.index(w) :])
+        elif w is not None:
+            cause = f"{names.get(root)} waits on {names.get(w, str(w))}, which is not locked out"
+        elif not lockouts[root].known_wait:
+            cause = f"{names.get(root)} is locked out; what it waits on is unknown (no status_t)"
+        else:
+            load = static_load_pct(config, dpus.get(root, -1))
+            cause = f"DPU {dpus.get(root)} overloaded (static load {load:.1f} %): {names.get(root)} cannot run"
+        lock = lockouts[head]
+        buf = buffers[lock.buffer] if lock.buffer is not None else None
+        faults.append(
+            Fault(
+                kind="jam",
+                process=names.get(head, f"process {head}"),
+                dpu=dpus.get(root),
+                buffer=None if lock.buffer is None else _bname(buffers, lock.buffer),
+                writer=None if buf is None else names.get(buf.writer),
+                cycle=lock.cycle,
+                chain=[names.get(p, f"process {p}") for p in chain],
+                detail=cause,
+                static_load_pct=load,
+            )
+        )
+    return faults
+
+
+def overrun_faults(processes: list[ProcessMetrics]) -> list[Fault]:
+    return [
+        Fault(
+            kind="overrun",
+            process=p.name,
+            dpu=p.dpu,
+            cycle=p.first_overrun_cycle,
+            count=p.overruns,
+            detail=f"{p.overruns} of {p.cycles} cycles ended after the next release",
+        )
+        for p in processes
+        if p.overruns > 0
+    ]
+
+
+def dpu_lost_faults(config: Any, records: np.ndarray, reported: set[int] | None = None) -> list[Fault]:
+    """A DPU with processes but no timing record in the run, or (when any DPU sent its
+    end-of-run report_t) one that sent none."""
+    with_records = set(np.unique(records["dpu"]).tolist())
+    faults = []
+    for dpu in sorted({p.dpu for p in config.processes}):
+        if dpu not in with_records:
+            faults.append(Fault(kind="dpu_lost", dpu=dpu, detail="no timing records in this run"))
+        elif reported and dpu not in reported:
+            faults.append(Fault(kind="dpu_lost", dpu=dpu, detail="no end-of-run report_t"))
+    return faults
+
+
+def _index(config: Any) -> tuple[dict[int, str], dict[int, int], dict[int, Any]]:
+    names = {p.id: p.name for p in config.processes}
+    dpus = {p.id: p.dpu for p in config.processes}
+    buffers = {b.id: b for b in config.buffers}
+    return names, dpus, buffers
+
+
+def _bname(buffers: dict[int, Any], buffer_id: int) -> str:
+    desc = buffers.get(buffer_id)
+    return desc.name if desc is not None else f"buffer {buffer_id}"

@@ -1,0 +1,221 @@
+"""THE metric definitions: per-DPU utilization and per-process cycle statistics.
+
+Everything here takes record arrays (records.RECORD_DTYPE / INPUT_DTYPE) and a
+config_t, never a file, so a post-mortem report, a replay and a live view compute
+the same numbers with the same code. Warm-up cycles (cycle < warmup_cycles) are
+excluded from every measure.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .records import FLAG_OVERRUN, FLAG_SKIPPED
+
+
+@dataclass
+class InputMetrics:
+    buffer: str
+    buffer_id: int
+    new: int  # completed cycles that found a newer sequence
+    stale: int  # completed cycles that found nothing new (in_new == 0)
+    dropped: int  # sequences skipped (writer faster than reader, or loss)
+    received: int  # messages received
+
+
+@dataclass
+class LatencyUs:
+    p50: float | None
+    p99: float | None
+    max: float | None
+
+
+@dataclass
+class ProcessMetrics:
+    id: int
+    name: str
+    dpu: int
+    period_us: int
+    cycles: int  # completed cycles in the measured window (FLAG_SKIPPED excluded)
+    skipped: int  # partial cycles (a run stopped during a data wait)
+    overruns: int
+    latency_us: LatencyUs  # release latency: start - release
+    compute_mean_us: float | None
+    slack_min_us: float | None
+    late: int  # latency > late_pct % of the period (includes the too-late ones)
+    too_late: int  # latency > too_late_pct % of the period
+    first_overrun_cycle: int | None = None
+    inputs: list[InputMetrics] = field(default_factory=list)
+
+
+@dataclass
+class DpuMetrics:
+    id: int
+    processes: list[str]
+    configured_cycle_ms: float
+    measured_cycle_ms: float | None
+    compute_pct: float | None
+    communicate_pct: float | None
+    wait_pct: float | None
+    overhead_pct: float | None  # 100 - the three others, so the four sum to 100
+    static_load_pct: float
+    overruns: int
+    elapsed_ms: float | None
+    records: int  # measured records
+
+
+def measured(records: np.ndarray, warmup_cycles: int) -> np.ndarray:
+    """Mask of the records in the measured window."""
+    return records["cycle"] >= warmup_cycles
+
+
+def cycle_end_ns(records: np.ndarray) -> np.ndarray:
+    """When a cycle's work ended: start + comm_in + blocked + compute + comm_out."""
+    return (
+        records["start_ns"]
+        + records["comm_in_ns"]
+        + records["blocked_ns"]
+        + records["compute_ns"]
+        + records["comm_out_ns"]
+    )
+
+
+def static_load_pct(config: Any, dpu_id: int) -> float:
+    """Configured load of a DPU: 100 * sum(compute_us / period_us) of its processes.
+
+    Compute is divided by the DPU's speed factor, as the emulation divides it."""
+    speed = next((d.speed for d in config.dpus if d.id == dpu_id), 1.0) or 1.0
+    load = sum(p.compute_us / p.period_us for p in config.processes if p.dpu == dpu_id and p.period_us > 0)
+    return 100.0 * load / speed
+
+
+def dpu_metrics(records: np.ndarray, config: Any) -> list[DpuMetrics]:
+    """Per DPU (config order by id) over the measured window."""
+    window = records[measured(records, config.warmup_cycles)]
+    out = []
+    for dpu in sorted(config.dpus, key=lambda d: d.id):
+        procs = sorted((p for p in config.processes if p.dpu == dpu.id), key=lambda p: (p.order, p.id))
+        mine = window[window["dpu"] == dpu.id]
+        completed = mine[(mine["flags"] & FLAG_SKIPPED) == 0]
+        overruns = int(np.count_nonzero(_overran(completed)))
+        shares = _utilization(mine)
+        elapsed = _elapsed_ns(mine)
+        out.append(
+            DpuMetrics(
+                id=dpu.id,
+                processes=[p.name for p in procs],
+                configured_cycle_ms=dpu.minor_cycle_us / 1000.0,
+                measured_cycle_ms=_measured_cycle_ms(mine),
+                compute_pct=shares[0],
+                communicate_pct=shares[1],
+                wait_pct=shares[2],
+                overhead_pct=shares[3],
+                static_load_pct=static_load_pct(config, dpu.id),
+                overruns=overruns,
+                elapsed_ms=None if elapsed is None else elapsed / 1e6,
+                records=len(mine),
+            )
+        )
+    return out
+
+
+def _elapsed_ns(mine: np.ndarray) -> int | None:
+    """From the first measured release to the end of the last measured work plus its idle."""
+    if len(mine) == 0:
+        return None
+    return int((cycle_end_ns(mine) + mine["idle_ns"]).max() - mine["release_ns"].min())
+
+
+def _utilization(mine: np.ndarray) -> tuple[float | None, float | None, float | None, float | None]:
+    """(% compute, % communicate, % wait, % overhead) of one DPU's measured records.
+
+    Partial (skipped) cycles count: the DPU really spent that time."""
+    elapsed = _elapsed_ns(mine)
+    if elapsed is None or elapsed <= 0:
+        return None, None, None, None
+    compute = 100.0 * int(mine["compute_ns"].sum()) / elapsed
+    communicate = 100.0 * int(mine["comm_in_ns"].sum() + mine["comm_out_ns"].sum()) / elapsed
+    wait = 100.0 * int(mine["blocked_ns"].sum() + mine["idle_ns"].sum()) / elapsed
+    return compute, communicate, wait, 100.0 - compute - communicate - wait
+
+
+def _measured_cycle_ms(mine: np.ndarray) -> float | None:
+    """Mean interval between consecutive minor-cycle starts (earliest start per minor index)."""
+    if len(mine) == 0:
+        return None
+    order = np.argsort(mine["minor"], kind="stable")
+    minor = mine["minor"][order]
+    first = np.flatnonzero(np.r_[True, minor[1:] != minor[:-1]])
+    if len(first) < 2:
+        return None
+    starts = np.minimum.reduceat(mine["start_ns"][order], first)
+    return float(starts[-1] - starts[0]) / (len(starts) - 1) / 1e6
+
+
+def _overran(records: np.ndarray) -> np.ndarray:
+    return ((records["flags"] & FLAG_OVERRUN) != 0) | (records["slack_ns"] < 0)
+
+
+def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> list[ProcessMetrics]:
+    """Per process (config order by id) over the measured window."""
+    buffers = {b.id: b for b in config.buffers}
+    in_window = measured(records, config.warmup_cycles)
+    window = records[in_window]
+    # An input record belongs to the window when its cycle record does, and counts
+    # only for completed cycles, so new + stale == cycles for every input.
+    completed_idx = in_window & ((records["flags"] & FLAG_SKIPPED) == 0)
+    in_mask = completed_idx[inputs["record"]] if len(inputs) else np.zeros(0, dtype=bool)
+    counted_inputs = inputs[in_mask]
+    out = []
+    for proc in sorted(config.processes, key=lambda p: p.id):
+        mine = window[window["process"] == proc.id]
+        skipped = (mine["flags"] & FLAG_SKIPPED) != 0
+        done = mine[~skipped]
+        latency = (done["start_ns"] - done["release_ns"]).astype(np.float64) / 1000.0
+        overran = _overran(done)
+        late_us = proc.period_us * config.late_pct / 100.0
+        too_late_us = proc.period_us * config.too_late_pct / 100.0
+        my_inputs = counted_inputs[counted_inputs["process"] == proc.id]
+        out.append(
+            ProcessMetrics(
+                id=proc.id,
+                name=proc.name,
+                dpu=proc.dpu,
+                period_us=proc.period_us,
+                cycles=len(done),
+                skipped=int(np.count_nonzero(skipped)),
+                overruns=int(np.count_nonzero(overran)),
+                latency_us=_latency(latency),
+                compute_mean_us=float(done["compute_ns"].mean()) / 1000.0 if len(done) else None,
+                slack_min_us=float(done["slack_ns"].min()) / 1000.0 if len(done) else None,
+                late=int(np.count_nonzero(latency > late_us)),
+                too_late=int(np.count_nonzero(latency > too_late_us)),
+                first_overrun_cycle=int(done["cycle"][overran].min()) if overran.any() else None,
+                inputs=[_input(my_inputs, b, buffers) for b in proc.inputs],
+            )
+        )
+    return out
+
+
+def _latency(latency_us: np.ndarray) -> LatencyUs:
+    if len(latency_us) == 0:
+        return LatencyUs(None, None, None)
+    p50, p99 = np.percentile(latency_us, [50, 99])
+    return LatencyUs(float(p50), float(p99), float(latency_us.max()))
+
+
+def _input(my_inputs: np.ndarray, buffer_id: int, buffers: dict[int, Any]) -> InputMetrics:
+    rows = my_inputs[my_inputs["buffer"] == buffer_id]
+    new = int(np.count_nonzero(rows["new"]))
+    desc = buffers.get(buffer_id)
+    return InputMetrics(
+        buffer=desc.name if desc is not None else f"buffer {buffer_id}",
+        buffer_id=int(buffer_id),
+        new=new,
+        stale=len(rows) - new,
+        dropped=int(rows["dropped"].sum()),
+        received=int(rows["received"].sum()),
+    )

@@ -1,0 +1,233 @@
+"""One run's report from an LCM log alone: `analyze(path)` -> RunReport, and the
+`skel report` command (`report_command`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import struct
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+import numpy as np
+
+import skelmsg
+
+from .faults import (
+    Fault,
+    dpu_lost_faults,
+    jam_faults,
+    lockout_faults,
+    lockouts_from_records,
+    lockouts_from_status,
+    overrun_faults,
+)
+from .logreader import Integrity, Log, read_log
+from .metrics import DpuMetrics, ProcessMetrics, dpu_metrics, measured, process_metrics
+from .records import RunRecords, load_run, run_ids
+
+CONFIG_CHANNEL = "SKEL_CONFIG"
+STATUS_CHANNEL = "SKEL_STATUS"
+REPORT_CHANNEL = "SKEL_REPORT"
+COMPUTE_MODES = {0: "sleep", 1: "wall", 2: "cpu", 3: "work"}
+EXIT_OK, EXIT_UNREADABLE, EXIT_FATAL = 0, 2, 3
+
+T = TypeVar("T")
+
+
+class LogError(Exception):
+    """The file cannot be analysed (unreadable, not an LCM log, no run in it)."""
+
+
+@dataclass
+class IntegrityReport:
+    events: int
+    corrupt_ranges: list[tuple[int, int]]
+    corrupt_bytes: int
+    truncated_tail: bool
+    lost_batches: list[dict[str, int]]
+    malformed: dict[str, int]  # channel -> messages that failed to decode (skipped)
+    duplicate_batches: int = 0
+
+    @property
+    def damaged(self) -> bool:
+        return bool(self.corrupt_ranges or self.lost_batches or any(self.malformed.values()))
+
+
+@dataclass
+class RunReport:
+    run_id: int
+    system: str
+    generation: int
+    generations: list[int]  # every generation with timing records in the run
+    warmup_cycles: int
+    integrity: IntegrityReport
+    dpus: list[DpuMetrics]
+    processes: list[ProcessMetrics]
+    faults: list[Fault]
+    compute_modes: dict[int, str] = field(default_factory=dict)
+    cross_check: list[dict[str, Any]] = field(default_factory=list)  # report_t vs records, per DPU
+
+    @property
+    def fatal(self) -> bool:
+        """A lockout or a jam: the architecture does not work."""
+        return any(f.kind in ("lockout", "jam") for f in self.faults)
+
+    def to_json(self) -> dict[str, Any]:
+        out = dataclasses.asdict(self)
+        out["integrity"]["corrupt_ranges"] = [list(r) for r in self.integrity.corrupt_ranges]
+        modes = out.pop("compute_modes")
+        for dpu in out["dpus"]:
+            dpu["compute_mode"] = modes.get(dpu["id"])
+        out["fatal"] = self.fatal
+        return out
+
+
+def build_report(
+    config: Any,
+    run: RunRecords,
+    statuses: Sequence[Any] = (),
+    reports: Sequence[Any] = (),
+    integrity: Integrity | None = None,
+    malformed: dict[str, int] | None = None,
+) -> RunReport:
+    """The report of one run from decoded messages: shared by `analyze` and live views."""
+    records = run.records[run.records["generation"] == config.generation]
+    keep = np.flatnonzero(run.records["generation"] == config.generation)
+    inputs = run.inputs[np.isin(run.inputs["record"], keep)].copy()
+    inputs["record"] = np.searchsorted(keep, inputs["record"])
+    dpus = dpu_metrics(records, config)
+    processes = process_metrics(records, inputs, config)
+    lockouts = lockouts_from_records(records, lockouts_from_status(statuses, run.run_id))
+    mine = [r for r in reports if r.run_id == run.run_id]
+    faults = (
+        lockout_faults(lockouts, config)
+        + jam_faults(lockouts, config)
+        + overrun_faults(processes)
+        + dpu_lost_faults(config, records, {r.dpu for r in mine})
+    )
+    modes = {d.id: COMPUTE_MODES.get(d.compute, str(d.compute)) for d in config.dpus}
+    modes.update({r.dpu: COMPUTE_MODES.get(r.compute, str(r.compute)) for r in mine})
+    integ = integrity or Integrity(events=0)
+    return RunReport(
+        run_id=run.run_id,
+        system=config.system,
+        generation=config.generation,
+        generations=run.generations,
+        warmup_cycles=config.warmup_cycles,
+        integrity=IntegrityReport(
+            events=integ.events,
+            corrupt_ranges=list(integ.corrupt_ranges),
+            corrupt_bytes=integ.corrupt_bytes,
+            truncated_tail=integ.truncated_tail,
+            lost_batches=run.lost_batches,
+            malformed={k: v for k, v in sorted((malformed or {}).items()) if v},
+            duplicate_batches=run.duplicates,
+        ),
+        dpus=dpus,
+        processes=processes,
+        faults=faults,
+        compute_modes=modes,
+        cross_check=_cross_check(records, config, mine),
+    )
+
+
+def _cross_check(records: np.ndarray, config: Any, reports: Sequence[Any]) -> list[dict[str, Any]]:
+    """The DPU's own running sums (report_t) beside ours: they should agree."""
+    window = records[measured(records, config.warmup_cycles)]
+    out = []
+    for rep in sorted(reports, key=lambda r: r.dpu):
+        mine = window[window["dpu"] == rep.dpu]
+        out.append(
+            {
+                "dpu": rep.dpu,
+                "compute_ms": [rep.compute_ns / 1e6, int(mine["compute_ns"].sum()) / 1e6],
+                "communicate_ms": [
+                    rep.communicate_ns / 1e6,
+                    int(mine["comm_in_ns"].sum() + mine["comm_out_ns"].sum()) / 1e6,
+                ],
+                "wait_ms": [rep.wait_ns / 1e6, int(mine["blocked_ns"].sum() + mine["idle_ns"].sum()) / 1e6],
+            }
+        )
+    return out
+
+
+def analyze(log_path: str, run_id: int | None = None) -> RunReport:
+    """Analyse one run (default: the last run with timing records) from the log alone."""
+    try:
+        log = read_log(log_path)
+    except OSError as e:
+        raise LogError(e.strerror or str(e)) from e
+    return analyze_log(log, run_id)
+
+
+def analyze_log(log: Log, run_id: int | None = None) -> RunReport:
+    if log.size == 0:
+        raise LogError("empty file")
+    if len(log) == 0:
+        raise LogError("not an LCM log (no event found)")
+    runs = run_ids(log)
+    if not runs:
+        raise LogError("no timing records (channel SKEL_TIMING) in this log")
+    if run_id is None:
+        run_id = runs[-1]
+    elif run_id not in runs:
+        raise LogError(f"no timing records for run {run_id} (runs in this log: {', '.join(map(str, runs))})")
+    malformed: dict[str, int] = {}
+    reports = _decode_all(log, REPORT_CHANNEL, skelmsg.report_t.decode, malformed)
+    expected = {r.dpu: r.timing_batches for r in reports if r.run_id == run_id}
+    run = load_run(log, run_id, expected_batches=expected)
+    malformed["SKEL_TIMING"] = run.malformed
+    config = _config_for(log, max(run.generations), malformed)
+    statuses = _decode_all(log, STATUS_CHANNEL, skelmsg.status_t.decode, malformed)
+    return build_report(config, run, statuses, reports, log.integrity, malformed)
+
+
+def _decode_all(log: Log, channel: str, decode: Callable[[bytes], T], malformed: dict[str, int]) -> list[T]:
+    """Decode every message on a channel; malformed ones are counted and skipped."""
+    out = []
+    for _, data in log.messages(channel):
+        try:
+            out.append(decode(bytes(data)))
+        except Exception:  # any decoder failure means "malformed", never a crash
+            malformed[channel] = malformed.get(channel, 0) + 1
+    return out
+
+
+_CONFIG_HEAD = struct.Struct(">q")  # config_t starts with its generation
+
+
+def _config_for(log: Log, generation: int, malformed: dict[str, int]) -> Any:
+    """The last config_t of a generation. Only its header is read for the others: a
+    config (with the system file text) is re-sent periodically and is slow to decode."""
+    fingerprint = skelmsg.config_t._get_packed_fingerprint()
+    for _, data in reversed(log.messages(CONFIG_CHANNEL)):
+        if len(data) < 16 or data[:8] != fingerprint:
+            malformed[CONFIG_CHANNEL] = malformed.get(CONFIG_CHANNEL, 0) + 1
+            continue
+        if _CONFIG_HEAD.unpack_from(data, 8)[0] != generation:
+            continue
+        try:
+            return skelmsg.config_t.decode(bytes(data))
+        except Exception:
+            malformed[CONFIG_CHANNEL] = malformed.get(CONFIG_CHANNEL, 0) + 1
+    raise LogError(f"no config_t (channel SKEL_CONFIG) for generation {generation}: cannot name anything")
+
+
+def report_command(path: str, as_json: bool, run_id: int | None) -> int:
+    """`skel report RUN.lcm [--json] [--run N]`: 0, 3 on a lockout/jam, 2 when unreadable."""
+    try:
+        report = analyze(path, run_id)
+    except LogError as e:
+        print(f"{path}: {e}", file=sys.stderr)
+        return EXIT_UNREADABLE
+    if as_json:
+        json.dump(report.to_json(), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        from .tables import print_report  # rich is only needed for tables
+
+        print_report(report)
+    return EXIT_FATAL if report.fatal else EXIT_OK

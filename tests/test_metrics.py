@@ -1,0 +1,148 @@
+"""metrics.py and faults.py on hand-computed synthetic runs (real LCM encoding)."""
+
+from __future__ import annotations
+
+from fractions import Fraction
+
+import pytest
+
+import skelmsg
+from skeleton.analysis.faults import jam_faults, lockout_faults, lockouts_from_status
+from skeleton.analysis.metrics import dpu_metrics, process_metrics, static_load_pct
+from skeleton.analysis.records import RunRecords, decode_run, lost_batches
+from analysis_synth import MS, RUN_ID, US, Rec, batches, small_config, small_run, status
+
+
+def _run(dpu1: list[Rec], dpu2: list[Rec], size: int = 4) -> RunRecords:
+    msgs = [t.encode() for t in batches(1, dpu1, size) + batches(2, dpu2, size)]
+    return decode_run(msgs, RUN_ID)
+
+
+def _exact(value: float | None, fraction: Fraction) -> None:
+    assert value is not None
+    assert abs(Fraction(value) - fraction) < Fraction(1, 10**12)
+
+
+def test_dpu_utilization_matches_hand_computation() -> None:
+    config = small_config(warmup_cycles=2)
+    run = _run(*small_run(warmup=2, cycles=10))
+    d1, d2 = dpu_metrics(run.records, config)
+    # Measured cycles 2..9 of DPU 1: elapsed = r9 + 10 ms - r2 = 80 ms.
+    assert d1.elapsed_ms == 80.0
+    _exact(d1.compute_pct, Fraction(100 * 8 * 6000, 80_000))  # A 4 ms + B 2 ms per cycle = 60 %
+    _exact(d1.communicate_pct, Fraction(100 * 8 * 800, 80_000))  # 200+300+100+200 µs = 8 %
+    # wait: B blocked 500 µs + idle (2500 - 10k) µs, k = 2..9
+    _exact(d1.wait_pct, Fraction(100 * (8 * 3000 - 10 * sum(range(2, 10))), 80_000))
+    _exact(d1.overhead_pct, Fraction(100) - Fraction(60) - Fraction(8) - Fraction(2356, 80))
+    for d in (d1, d2):
+        total = d.compute_pct + d.communicate_pct + d.wait_pct + d.overhead_pct  # type: ignore[operator]
+        assert abs(total - 100.0) < 1e-9
+    assert d1.configured_cycle_ms == 10.0 and d2.configured_cycle_ms == 20.0
+    # Earliest start in each minor cycle is A's: r + (100 + 10k) µs, so 10.01 ms apart.
+    assert d1.measured_cycle_ms == pytest.approx(10.01, abs=1e-12)
+    assert d1.processes == ["A", "B"] and d2.processes == ["C"]
+    assert d1.static_load_pct == pytest.approx(60.0) and d2.static_load_pct == pytest.approx(25.0)
+    assert (d1.overruns, d2.overruns) == (0, 1)
+
+
+def test_process_metrics_counts_latency_and_inputs() -> None:
+    config = small_config(warmup_cycles=2)
+    run = _run(*small_run(warmup=2, cycles=10))
+    a, b, c = process_metrics(run.records, run.inputs, config)
+    assert (a.name, a.cycles, a.overruns) == ("A", 8, 0)
+    assert a.latency_us.p50 == pytest.approx(155.0) and a.latency_us.max == pytest.approx(190.0)
+    assert a.latency_us.p99 == pytest.approx(120 + 0.99 * 70)
+    assert a.compute_mean_us == pytest.approx(4000.0)
+    assert (a.late, a.too_late) == (0, 0)
+    # B starts 4.72..4.79 ms after its release: late (> 40 % of 10 ms), not too late (> 80 %).
+    assert (b.late, b.too_late) == (8, 0)
+    (b_in,) = b.inputs
+    assert (b_in.buffer, b_in.buffer_id, b_in.new, b_in.stale, b_in.dropped, b_in.received) == (
+        "a_out", 0, 6, 2, 2, 6
+    )  # fmt: skip
+    assert [(i.new, i.stale, i.dropped) for i in a.inputs] == [(8, 0, 0)]
+    assert (c.cycles, c.overruns, c.first_overrun_cycle) == (3, 1, 4)
+    assert c.slack_min_us is not None and c.slack_min_us < 0
+    assert [(i.buffer, i.new, i.dropped, i.received) for i in c.inputs] == [("b_out", 3, 3, 6)]
+
+
+def test_warmup_cycles_are_excluded_from_every_measure() -> None:
+    recs = small_run(warmup=2, cycles=10)
+    with_warm = process_metrics(_run(*recs).records, _run(*recs).inputs, small_config(warmup_cycles=0))
+    without = process_metrics(_run(*recs).records, _run(*recs).inputs, small_config(warmup_cycles=2))
+    assert with_warm[0].cycles == 10 and without[0].cycles == 8
+    assert with_warm[0].compute_mean_us == pytest.approx((2 * 9000 + 8 * 4000) / 10)
+    assert without[0].compute_mean_us == pytest.approx(4000.0)
+    d_warm = dpu_metrics(_run(*recs).records, small_config(warmup_cycles=0))[0]
+    assert d_warm.elapsed_ms == 100.0
+
+
+def test_skipped_partial_cycle_counts_time_but_not_cycles() -> None:
+    dpu1, dpu2 = small_run(warmup=2, cycles=10)
+    r10 = 5_000 * MS + 10 * 10 * MS
+    dpu1.append(Rec(1, 10, 10, r10, r10 + 100 * US, 100 * US, 3 * MS, flags=skelmsg.timing_t.FLAG_SKIPPED,
+                    inputs=[(0, 9, 0, 0, 0)]))  # fmt: skip
+    run = _run(dpu1, dpu2)
+    config = small_config(warmup_cycles=2)
+    d1 = dpu_metrics(run.records, config)[0]
+    b = process_metrics(run.records, run.inputs, config)[1]
+    assert (b.cycles, b.skipped) == (8, 1)
+    assert (b.inputs[0].new + b.inputs[0].stale) == 8
+    elapsed_us = 80_000 + 3_200  # the partial cycle ends 3.2 ms after r10
+    _exact(d1.wait_pct, Fraction(100 * (8 * 3000 - 440 + 3000), elapsed_us))
+
+
+def test_static_load_divides_by_speed() -> None:
+    config = small_config()
+    config.dpus[0].speed = 2.0
+    assert static_load_pct(config, 1) == pytest.approx(30.0)
+
+
+def test_lost_batches_from_batch_seq_gaps() -> None:
+    dpu1, dpu2 = small_run()
+    msgs = batches(1, dpu1, 2)  # 10 batches, seq 0..9
+    kept = [m.encode() for m in msgs if m.batch_seq not in (2, 5, 6)]
+    run = decode_run(kept + [msgs[0].encode()], RUN_ID, expected_batches={1: 12})
+    assert run.lost_batches == [
+        {"dpu": 1, "from_seq": 2, "to_seq": 2},
+        {"dpu": 1, "from_seq": 5, "to_seq": 6},
+        {"dpu": 1, "from_seq": 10, "to_seq": 11},  # report_t says 12 were published
+    ]
+    assert run.duplicates == 1 and run.batches == 7
+    import numpy as np
+
+    assert lost_batches(np.array([3, 3]), np.array([1, 2])) == [{"dpu": 3, "from_seq": 0, "to_seq": 0}]
+
+
+def test_jam_chain_back_to_overloaded_dpu() -> None:
+    config = small_config()
+    # A (DPU 1) cannot run: not waiting for data. B waits on A's a_out, C on B's b_out.
+    statuses = [status(1, [(0, -1, 7), (1, 0, 7)]), status(2, [(2, 1, 4)]), status(1, [(1, 0, 9)])]
+    locks = lockouts_from_status(statuses, RUN_ID)
+    assert locks[1].cycle == 7  # first report kept
+    lockouts = lockout_faults(locks, config)
+    assert [(f.kind, f.process, f.dpu, f.buffer, f.writer, f.cycle) for f in lockouts] == [
+        ("lockout", "A", 1, None, None, 7),
+        ("lockout", "B", 1, "a_out", "A", 7),
+        ("lockout", "C", 2, "b_out", "B", 4),
+    ]
+    (jam,) = jam_faults(locks, config)
+    assert jam.kind == "jam" and jam.chain == ["C", "B", "A"]
+    assert (jam.process, jam.buffer, jam.writer, jam.cycle) == ("C", "b_out", "B", 4)
+    assert jam.dpu == 1 and jam.static_load_pct == pytest.approx(60.0)
+    assert "overloaded" in jam.detail
+
+
+def test_circular_wait_is_one_jam_and_other_runs_are_ignored() -> None:
+    config = small_config()
+    config.buffers[2].writer = 2  # c_out from C, read by A: A <- C <- B <- A
+    statuses = [status(1, [(0, 2, 5), (1, 0, 5)]), status(2, [(2, 1, 3)]), status(1, [(0, -1, 1)], run_id=7)]
+    (jam,) = jam_faults(lockouts_from_status(statuses, RUN_ID), config)
+    assert jam.chain == ["A", "C", "B", "A"]
+    assert jam.detail.startswith("circular wait")
+
+
+def test_lockout_without_locked_writer_is_not_a_jam() -> None:
+    locks = lockouts_from_status([status(1, [(1, 0, 5)])], RUN_ID)
+    assert jam_faults(locks, small_config()) == []
+    assert [f.kind for f in lockout_faults(locks, small_config())] == ["lockout"]
