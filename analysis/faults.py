@@ -125,7 +125,7 @@ def jam_faults(lockouts: dict[int, Lockout], config: Any) -> list[Fault]:
             cause = f"{names.get(root)} is locked out; what it waits on is unknown (no status_t)"
         else:
             load = static_load_pct(config, dpus.get(root, -1))
-            cause = f"DPU {dpus.get(root)} overloaded (static load {load:.1f} %): {names.get(root)} cannot run"
+            cause = f"DPU {dpus.get(root)} overloaded (static load {load:.1f} %): {names.get(root)} can't run"
         lock = lockouts[head]
         buf = buffers[lock.buffer] if lock.buffer is not None else None
         faults.append(

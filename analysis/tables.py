@@ -120,7 +120,9 @@ def damage_line(report: RunReport) -> str | None:
     return line + "; the tables use everything else"
 
 
-def print_report(report: RunReport, console: Console | None = None, paper: dict[Any, Any] | None = None) -> None:
+def print_report(
+    report: RunReport, console: Console | None = None, paper: dict[Any, Any] | None = None
+) -> None:
     console = console or Console()
     console.print(dpu_table(report, paper))
     console.print(process_table(report))

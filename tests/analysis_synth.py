@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Any
 
 import lcm
-
 import skelmsg
 
 RUN_ID = 42
@@ -42,7 +41,8 @@ def small_config(warmup_cycles: int = 2, generation: int = GENERATION) -> skelms
     dpus = []
     for did, minor in ((1, 10_000), (2, 20_000)):
         d = skelmsg.dpu_t()
-        d.id, d.host, d.cpu, d.compute, d.executive, d.speed, d.minor_cycle_us = did, "h", -1, 0, 0, 1.0, minor
+        d.id, d.host, d.cpu, d.compute, d.executive = did, "h", -1, 0, 0
+        d.speed, d.minor_cycle_us = 1.0, minor
         d.nlinks, d.links = 1, [0]
         dpus.append(d)
     c.ndpus, c.dpus = 2, dpus

@@ -5,12 +5,11 @@ from __future__ import annotations
 from fractions import Fraction
 
 import pytest
-
 import skelmsg
+from analysis_synth import MS, RUN_ID, US, Rec, batches, small_config, small_run, status
 from skeleton.analysis.faults import jam_faults, lockout_faults, lockouts_from_status
 from skeleton.analysis.metrics import dpu_metrics, process_metrics, static_load_pct
 from skeleton.analysis.records import RunRecords, decode_run, lost_batches
-from analysis_synth import MS, RUN_ID, US, Rec, batches, small_config, small_run, status
 
 
 def _run(dpu1: list[Rec], dpu2: list[Rec], size: int = 4) -> RunRecords:
@@ -99,10 +98,10 @@ def test_static_load_divides_by_speed() -> None:
 
 
 def test_lost_batches_from_batch_seq_gaps() -> None:
-    dpu1, dpu2 = small_run()
+    dpu1, _dpu2 = small_run()
     msgs = batches(1, dpu1, 2)  # 10 batches, seq 0..9
     kept = [m.encode() for m in msgs if m.batch_seq not in (2, 5, 6)]
-    run = decode_run(kept + [msgs[0].encode()], RUN_ID, expected_batches={1: 12})
+    run = decode_run([*kept, msgs[0].encode()], RUN_ID, expected_batches={1: 12})
     assert run.lost_batches == [
         {"dpu": 1, "from_seq": 2, "to_seq": 2},
         {"dpu": 1, "from_seq": 5, "to_seq": 6},

@@ -1,0 +1,166 @@
+"""logreader.py (the LCM log format, damage), flatdecode.py and records.py (timing_t fast path)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import lcm
+import numpy as np
+import pytest
+import skelmsg
+from analysis_synth import RUN_ID, batches, small_config, small_run, status, write_log
+from skeleton.analysis.flatdecode import FlatLayout, MalformedMessage, decode_flat
+from skeleton.analysis.logreader import SYNC_BYTES, read_log
+from skeleton.analysis.records import TIMING, decode_run, load_run, run_ids
+
+
+def _reference(path: Path) -> list[tuple[int, int, str, bytes]]:
+    return [(e.eventnum, e.timestamp, e.channel, e.data) for e in lcm.EventLog(str(path))]
+
+
+def _sample_log(path: Path) -> Path:
+    dpu1, dpu2 = small_run()
+    events: list[tuple[str, object]] = [("SKEL_CONFIG", small_config())]
+    for t in batches(1, dpu1, 3) + batches(2, dpu2, 2):
+        events.append(("SKEL_TIMING", t))
+        events.append(("SKEL_BUF_a_out", bytes(range(7))))
+        events.append(("SKEL_STATUS", status(t.dpu, [])))
+    events.append(("X", b""))  # an empty message is a valid event
+    return write_log(path, events)
+
+
+def _garbage(n: int) -> bytes:
+    data = np.random.default_rng(7).integers(0, 256, n, dtype=np.uint8).tobytes()
+    assert SYNC_BYTES not in data
+    return data
+
+
+def test_events_equal_lcm_eventlog(tmp_path: Path) -> None:
+    path = _sample_log(tmp_path / "a.lcm")
+    log = read_log(path)
+    assert [tuple(e) for e in log.events] == _reference(path)
+    assert log.integrity.events == len(_reference(path))
+    assert log.integrity.corrupt_ranges == [] and not log.integrity.truncated_tail
+    assert log.channel_names("SKEL_") == ["SKEL_BUF_a_out", "SKEL_CONFIG", "SKEL_STATUS", "SKEL_TIMING"]
+    timing = log.messages("SKEL_TIMING")
+    assert [bytes(d) for _, d in timing] == [e[3] for e in _reference(path) if e[2] == "SKEL_TIMING"]
+    assert log.messages("nope") == []
+
+
+def test_garbage_in_the_middle_is_reported_and_skipped(tmp_path: Path) -> None:
+    path = _sample_log(tmp_path / "a.lcm")
+    good = _reference(path)
+    offsets = read_log(path).offset.tolist()
+    raw = path.read_bytes()
+    cut = offsets[10]
+    junk = _garbage(333)
+    damaged = tmp_path / "damaged.lcm"
+    damaged.write_bytes(raw[:cut] + junk + raw[cut:])
+    log = read_log(damaged)
+    assert [tuple(e) for e in log.events] == good  # nothing lost before or after
+    assert log.integrity.corrupt_ranges == [(cut, cut + len(junk))]
+    assert not log.integrity.truncated_tail
+    # lcm.EventLog stops at the damage (the reason we have our own reader)
+    assert len(_reference(damaged)) < len(good)
+
+
+def test_overwritten_header_loses_exactly_that_event(tmp_path: Path) -> None:
+    path = _sample_log(tmp_path / "a.lcm")
+    good = _reference(path)
+    offsets = read_log(path).offset.tolist()
+    raw = bytearray(path.read_bytes())
+    raw[offsets[5] : offsets[5] + 20] = _garbage(20)
+    damaged = tmp_path / "damaged.lcm"
+    damaged.write_bytes(bytes(raw))
+    log = read_log(damaged)
+    assert [tuple(e) for e in log.events] == good[:5] + good[6:]
+    assert log.integrity.corrupt_ranges == [(offsets[5], offsets[6])]
+
+
+@pytest.mark.parametrize("keep", [1, 3, 20, 27, 40])
+def test_truncated_tail(tmp_path: Path, keep: int) -> None:
+    path = _sample_log(tmp_path / "a.lcm")
+    good = _reference(path)
+    offsets = read_log(path).offset.tolist()
+    raw = path.read_bytes()
+    last = offsets[-2]  # cut inside the second-to-last event (the last one is empty)
+    cut = tmp_path / "cut.lcm"
+    cut.write_bytes(raw[: last + keep])
+    log = read_log(cut)
+    assert [tuple(e) for e in log.events] == good[:-2]
+    assert log.integrity.corrupt_ranges == [(last, last + keep)]
+    assert log.integrity.truncated_tail
+
+
+def test_garbage_file_and_empty_file(tmp_path: Path) -> None:
+    junk = tmp_path / "junk.lcm"
+    junk.write_bytes(_garbage(1000))
+    log = read_log(junk)
+    assert len(log) == 0 and log.integrity.corrupt_ranges == [(0, 1000)]
+    assert not log.integrity.truncated_tail
+    empty = tmp_path / "empty.lcm"
+    empty.write_bytes(b"")
+    assert len(read_log(empty)) == 0 and read_log(empty).integrity.corrupt_ranges == []
+
+
+def test_flat_layout_is_derived_from_the_generated_class() -> None:
+    assert TIMING.fingerprint == skelmsg.timing_t._get_packed_fingerprint()
+    assert set(TIMING.arrays) == {
+        n for n, d in zip(skelmsg.timing_t.__slots__, skelmsg.timing_t.__dimensions__, strict=True) if d
+    }
+    with pytest.raises(TypeError):
+        FlatLayout.of(skelmsg.config_t)  # nested structs and strings are not flat
+
+
+def test_fast_timing_decode_equals_generated_decoder() -> None:
+    rng = np.random.default_rng(3)
+    msgs = []
+    for seq in range(4):
+        t = skelmsg.timing_t()
+        n, m = int(rng.integers(0, 9)), int(rng.integers(0, 20))
+        t.dpu, t.run_id, t.generation, t.batch_seq, t.n, t.ninputs = 5, RUN_ID, 2, seq, n, m if n else 0
+        for name, kind, dims in zip(t.__slots__, t.__typenames__, t.__dimensions__, strict=True):
+            if dims is None:
+                continue
+            bits = {"int8_t": 7, "int16_t": 15, "int32_t": 31, "int64_t": 63}[kind]
+            size = n if dims == ["n"] else t.ninputs
+            setattr(t, name, rng.integers(-(2**bits), 2**bits - 1, size).tolist())
+        t.in_record = rng.integers(0, max(n, 1), t.ninputs).tolist()
+        msgs.append(t.encode())
+    run = decode_run(msgs, RUN_ID)
+    ref = [skelmsg.timing_t.decode(d) for d in msgs]
+    for name in ("process", "cycle", "minor", "release_ns", "start_ns", "comm_in_ns", "blocked_ns",
+                 "compute_ns", "comm_out_ns", "idle_ns", "slack_ns", "flags"):  # fmt: skip
+        assert run.records[name].tolist() == [v for r in ref for v in getattr(r, name)], name
+    pairs = {"buffer": "in_buffer", "seq": "in_seq", "new": "in_new", "dropped": "in_dropped",
+             "received": "in_received", "sent_ns": "in_sent_ns", "recv_ns": "in_recv_ns"}  # fmt: skip
+    for ours, theirs in pairs.items():
+        assert run.inputs[ours].tolist() == [v for r in ref for v in getattr(r, theirs)], ours
+    base = np.cumsum([0] + [r.n for r in ref])
+    assert run.inputs["record"].tolist() == [base[i] + v for i, r in enumerate(ref) for v in r.in_record]
+
+
+def test_malformed_timing_messages_are_counted_not_fatal() -> None:
+    good = batches(1, small_run()[0], 4)
+    data = good[0].encode()
+    bad_len = bytearray(data)
+    bad_len[8 + 26 : 8 + 30] = (-5).to_bytes(4, "big", signed=True)  # n < 0
+    bad_record = good[1]
+    bad_record.in_record = [99] * bad_record.ninputs  # points outside its batch
+    msgs = [data[:50], b"\x00" * 40, bytes(bad_len), bad_record.encode(), *(t.encode() for t in good[2:])]
+    run = decode_run(msgs, RUN_ID)
+    assert run.malformed == 4 and run.batches == len(good) - 2
+    with pytest.raises(MalformedMessage):
+        decode_flat(TIMING, np.frombuffer(data[:-1], dtype=np.uint8), 0, len(data) - 1)
+
+
+def test_run_selection_default_is_last_run(tmp_path: Path) -> None:
+    dpu1, _ = small_run()
+    events = [("SKEL_TIMING", t) for t in batches(1, dpu1, 5, run_id=9)]
+    events += [("SKEL_TIMING", t) for t in batches(1, dpu1, 5, run_id=RUN_ID)]
+    events += [("SKEL_TIMING", b"garbage")]
+    log = read_log(write_log(tmp_path / "runs.lcm", events))
+    assert run_ids(log) == [9, RUN_ID]
+    assert load_run(log).run_id == RUN_ID
+    first = load_run(log, 9)
+    assert first.run_id == 9 and len(first.records) == 20 and first.malformed == 1
