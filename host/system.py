@@ -9,8 +9,10 @@ cross-reference rules (rules.py) resolve them into the plain records below.
 
 from __future__ import annotations
 
+import ipaddress
 import math
 import re
+import urllib.parse
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,10 +20,18 @@ from typing import Annotated, Any, Literal
 
 import skelmsg
 import yaml
-from pydantic import AfterValidator, BaseModel, ConfigDict, PlainValidator, ValidationError, field_validator
-from pydantic import model_validator as _model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    PlainValidator,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from .overrides import OverrideError, apply_overrides
+from .wire import config_message, dump_yaml
 from .yamlfile import SystemFileError, describe, field_path, read_yaml, show
 
 __all__ = ["Buffer", "Chain", "Dpu", "Link", "Process", "Reference", "Run", "System", "SystemFileError",
@@ -30,7 +40,7 @@ __all__ = ["Buffer", "Chain", "Dpu", "Link", "Process", "Reference", "Run", "Sys
 DEFAULT_LINK = "bus"
 DEFAULT_URL = "udpm://239.255.76.67:7667?ttl=0"
 MAX_ID = 32767                      # ids travel as int16
-MAX_US = 2**31 - 1                  # periods and compute times travel as int32
+MAX_INT32 = 2**31 - 1               # periods, compute times and run counts travel as int32
 MAX_BYTES = 4 * 1024 * 1024         # beyond this a "buffer" is a file transfer
 MIN_MINOR_CYCLE_US = 100            # below this the OS timer, not the design, is measured
 MAX_PROCESSES_PER_DPU = 64
@@ -50,8 +60,8 @@ def _id(v: int) -> int:
 def _micros(v: int) -> int:
     if v <= 0:
         raise ValueError(f"must be a positive number of microseconds, got {v}")
-    if v > MAX_US:
-        raise ValueError(f"must be at most {MAX_US} microseconds, got {v}")
+    if v > MAX_INT32:
+        raise ValueError(f"must be at most {MAX_INT32} microseconds, got {v}")
     return v
 
 
@@ -76,10 +86,13 @@ def _ref(v: Any) -> int | str:
     return v
 
 
-def _at_least(low: float, what: str = "") -> Any:
-    def check(v: float) -> float:
-        if not (math.isfinite(v) and v >= low):
-            raise ValueError(f"must be at least {low}{what}, got {show(v)}")
+def _between(low: int, high: int, unit: str = "") -> Any:
+    """An int in [low, high]; `high` is the wire field's limit, so encoding never overflows."""
+    def check(v: int) -> int:
+        if v < low:
+            raise ValueError(f"must be at least {low}{unit}, got {v}")
+        if v > high:
+            raise ValueError(f"must be at most {high}{unit}, got {v}")
         return v
     return AfterValidator(check)
 
@@ -127,15 +140,26 @@ class LinkSpec(_Spec):
     @field_validator("url")
     @classmethod
     def _url(cls, v: str) -> str:
-        if v != "local" and not re.fullmatch(r"udpm://[^\s]*", v):
+        if v == "local":
+            return v
+        if not re.fullmatch(r"udpm://\S*", v):
             raise ValueError(f"must be `local` or an udpm:// URL, got {show(v)}")
+        try:  # LCM would only fail later, on every DPU at once
+            where = urllib.parse.urlsplit(v)
+            port, group = where.port, where.hostname
+            if group and not ipaddress.ip_address(group).is_multicast:
+                raise ValueError(f"{group} is not a multicast group (224.0.0.0 to 239.255.255.255)")
+        except ValueError as e:
+            raise ValueError(f"{v}: {e}") from None
+        if port == 0:
+            raise ValueError(f"{v}: port 0 cannot be joined")
         return v
 
 
 class DpuSpec(_Spec):
     id: Id
     host: NonEmpty = "localhost"
-    cpu: Annotated[int, _at_least(0)] | None = None
+    cpu: Annotated[int, _between(0, MAX_ID)] | None = None
     compute: Literal["sleep", "wall", "cpu", "work"] = "sleep"
     executive: Literal["cyclic", "threads"] = "cyclic"
     speed: Positive = 1.0
@@ -160,20 +184,20 @@ class ProcessSpec(_Spec):
     inputs: list[Ref] = []
     required: list[Ref] | None = None
     outputs: list[Ref] = []
-    order: Annotated[int, _at_least(1)] | None = None
+    order: Annotated[int, _between(1, MAX_ID)] | None = None
 
 
 class Run(_Spec):
     """The run: its length, warm-up, lockout rule and when to stop early."""
-    cycles: Annotated[int, _at_least(1, " cycle")] | None = None   # of the critical period
+    cycles: Annotated[int, _between(1, MAX_INT32, " cycle")] | None = None   # of the critical period
     duration_s: Positive | None = None
-    warmup_cycles: Annotated[int, _at_least(0)] = 50
-    lockout_cycles: Annotated[int, _at_least(1, " cycle")] = 10
+    warmup_cycles: Annotated[int, _between(0, MAX_INT32)] = 50
+    lockout_cycles: Annotated[int, _between(1, MAX_INT32, " cycle")] = 10
     stop_on: list[Literal["lockout", "jam", "dpu_lost"]] = ["lockout"]
-    late_pct: Annotated[int, _at_least(1, " %")] = 20
-    too_late_pct: Annotated[int, _at_least(1, " %")] = 100
+    late_pct: Annotated[int, _between(1, MAX_INT32, " %")] = 20
+    too_late_pct: Annotated[int, _between(1, MAX_INT32, " %")] = 100
 
-    @_model_validator(mode="after")
+    @model_validator(mode="after")
     def _consistent(self) -> Run:
         if self.cycles is not None and self.duration_s is not None:
             raise ValueError("give cycles or duration_s, not both")
@@ -187,7 +211,7 @@ class ChainSpec(_Spec):
     name: NonEmpty | None = None
     processes: list[Name]
 
-    @_model_validator(mode="before")
+    @model_validator(mode="before")
     @classmethod
     def _plain_list(cls, data: Any) -> Any:
         return {"processes": data} if isinstance(data, list) else data
@@ -359,7 +383,6 @@ class System:
         return _build(self.path, self.document, (*self.overrides, f"link.{self.default_link.name}.url={url}"))
 
     def to_config(self, generation: int, run_id: int, committed: bool) -> skelmsg.config_t:
-        from .wire import config_message  # wire needs the finished System type
         return config_message(self, generation, run_id, committed)
 
 
@@ -433,28 +456,3 @@ def _blame(where: str, origin: dict[str, str]) -> str:
         if where == target or where.startswith((target + ".", target + "[")):
             return f" (set by -s {override})"
     return ""
-
-
-def dump_yaml(system: System) -> str:
-    """The system with every default made explicit; loading it gives the same system."""
-    names = {b.id: b.name for b in system.buffers}
-    links = {link.id: link.name for link in system.links}
-    doc: dict[str, Any] = {
-        "system": system.name,
-        "links": [{"name": link.name, "url": link.url} for link in system.links],
-        "dpus": [{"id": d.id, "host": d.host, "cpu": d.cpu, "compute": d.compute, "executive": d.executive,
-                  "speed": d.speed, "minor_cycle_us": d.minor_cycle_us, "links": [links[i] for i in d.links]}
-                 for d in system.dpus],
-        "buffers": [{"id": b.id, "name": b.name, "bytes": b.bytes, "link": links[b.link]}
-                    for b in system.buffers],
-        "processes": [{"id": p.id, "name": p.name, "dpu": p.dpu, "order": p.order, "period_us": p.period_us,
-                       "compute_us": p.compute_us, "sync": p.sync, "inputs": [names[b] for b in p.inputs],
-                       **({"required": [names[b] for b in p.required]} if p.sync == "data" else {}),
-                       "outputs": [names[b] for b in p.outputs]} for p in system.processes],
-        "run": system.run.model_dump(exclude_none=True),
-        "chains": [{"name": c.name, "processes": [system.process(i).name for i in c.processes]}
-                   for c in system.chains],
-    }
-    if system.reference is not None:
-        doc["reference"] = system.reference.model_dump(exclude_none=True)
-    return yaml.safe_dump(doc, sort_keys=False)

@@ -1,4 +1,5 @@
-"""A validated System as the config_t every DPU configures itself from.
+"""A validated System in its outward forms: the config_t every DPU configures
+itself from, and a YAML file with every default made explicit.
 
 The only place that knows how the system file maps onto lcmtypes/config_t.lcm;
 DPUs see ids and enums only, never names they would have to resolve.
@@ -7,9 +8,10 @@ DPUs see ids and enums only, never names they would have to resolve.
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import skelmsg
+import yaml
 
 if TYPE_CHECKING:
     from .system import System
@@ -80,3 +82,28 @@ def _link(link_id: int, name: str, url: str) -> skelmsg.link_t:
     link = skelmsg.link_t()
     link.id, link.name, link.url = link_id, name, url
     return link
+
+
+def dump_yaml(system: System) -> str:
+    """The system with every default made explicit; loading it gives the same system."""
+    names = {b.id: b.name for b in system.buffers}
+    links = {link.id: link.name for link in system.links}
+    doc: dict[str, Any] = {
+        "system": system.name,
+        "links": [{"name": link.name, "url": link.url} for link in system.links],
+        "dpus": [{"id": d.id, "host": d.host, "cpu": d.cpu, "compute": d.compute, "executive": d.executive,
+                  "speed": d.speed, "minor_cycle_us": d.minor_cycle_us, "links": [links[i] for i in d.links]}
+                 for d in system.dpus],
+        "buffers": [{"id": b.id, "name": b.name, "bytes": b.bytes, "link": links[b.link]}
+                    for b in system.buffers],
+        "processes": [{"id": p.id, "name": p.name, "dpu": p.dpu, "order": p.order, "period_us": p.period_us,
+                       "compute_us": p.compute_us, "sync": p.sync, "inputs": [names[b] for b in p.inputs],
+                       **({"required": [names[b] for b in p.required]} if p.sync == "data" else {}),
+                       "outputs": [names[b] for b in p.outputs]} for p in system.processes],
+        "run": system.run.model_dump(exclude_none=True),
+        "chains": [{"name": c.name, "processes": [system.process(i).name for i in c.processes]}
+                   for c in system.chains],
+    }
+    if system.reference is not None:
+        doc["reference"] = system.reference.model_dump(exclude_none=True)
+    return yaml.safe_dump(doc, sort_keys=False)
