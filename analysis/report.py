@@ -52,7 +52,7 @@ class IntegrityReport:
 
     @property
     def damaged(self) -> bool:
-        return bool(self.corrupt_ranges or self.lost_batches or any(self.malformed.values()))
+        return bool(self.corrupt_ranges or self.lost_batches)
 
 
 @dataclass

@@ -105,19 +105,20 @@ def fault_table(report: RunReport) -> Table:
     return table
 
 
-def damage_line(report: RunReport) -> str | None:
+def damage_lines(report: RunReport) -> list[str]:
+    """What the reader could not use, in one line each (none for a clean log)."""
     integ = report.integrity
-    if not integ.damaged:
-        return None
-    lost = sum(b["to_seq"] - b["from_seq"] + 1 for b in integ.lost_batches)
-    line = (
-        f"log damaged: {len(integ.corrupt_ranges)} corrupt ranges ({integ.corrupt_bytes} bytes), "
-        f"{lost} timing batches lost"
-    )
-    malformed = sum(integ.malformed.values())
-    if malformed:
-        line += f", {malformed} malformed messages skipped"
-    return line + "; the tables use everything else"
+    lines = []
+    if integ.damaged:
+        lost = sum(b["to_seq"] - b["from_seq"] + 1 for b in integ.lost_batches)
+        lines.append(
+            f"log damaged: {len(integ.corrupt_ranges)} corrupt ranges ({integ.corrupt_bytes} bytes), "
+            f"{lost} timing batches lost; the tables use everything else"
+        )
+    if integ.malformed:
+        per_channel = ", ".join(f"{c}: {n}" for c, n in integ.malformed.items())
+        lines.append(f"malformed messages skipped: {per_channel}")
+    return lines
 
 
 def print_report(
@@ -128,6 +129,5 @@ def print_report(
     console.print(process_table(report))
     if report.faults:
         console.print(fault_table(report))
-    line = damage_line(report)
-    if line:
+    for line in damage_lines(report):
         console.print(line, style="yellow", markup=False, highlight=False)

@@ -1,0 +1,110 @@
+"""report.py (analyze, JSON, report_command) and tables.py on synthetic logs."""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import pytest
+from analysis_synth import GENERATION, RUN_ID, batches, report, small_config, small_run, status, write_log
+from rich.console import Console
+from skeleton.analysis.report import analyze, report_command
+from skeleton.analysis.tables import print_report
+
+
+def _log(path: Path, lockouts: bool = False, drop_batch: int | None = None) -> Path:
+    dpu1, dpu2 = small_run()
+    old = small_config(generation=GENERATION - 1)
+    old.system = "stale"
+    events: list[tuple[str, object]] = [("SKEL_CONFIG", old), ("SKEL_CONFIG", small_config())]
+    t1, t2 = batches(1, dpu1, 4), batches(2, dpu2, 2)
+    events += [("SKEL_TIMING", t) for t in batches(1, dpu1, 4, run_id=7)]  # an earlier run
+    events += [("SKEL_TIMING", t) for t in t1 + t2 if not (t.dpu == 1 and t.batch_seq == drop_batch)]
+    events += [("SKEL_STATUS", status(1, [(0, -1, 8), (1, 0, 8)] if lockouts else []))]
+    events += [("SKEL_STATUS", status(2, [(2, 1, 4)] if lockouts else []))]
+    events += [("SKEL_STATUS", b"not a status"), ("SKEL_CONFIG", small_config())]
+    events += [("SKEL_REPORT", report(1, len(t1))), ("SKEL_REPORT", report(2, len(t2)))]
+    return write_log(path, events)
+
+
+def _render(rep: object, paper: dict | None = None) -> str:
+    console = Console(file=io.StringIO(), width=140, record=True, color_system=None)
+    print_report(rep, console=console, paper=paper)  # type: ignore[arg-type]
+    return console.export_text()
+
+
+def test_analyze_json_fields(tmp_path: Path) -> None:
+    rep = analyze(str(_log(tmp_path / "run.lcm")), None)
+    out = rep.to_json()
+    json.dumps(out)  # serialisable as is
+    assert (out["run_id"], out["system"], out["generation"]) == (RUN_ID, "small", GENERATION)
+    assert out["integrity"]["events"] > 0 and out["integrity"]["corrupt_ranges"] == []
+    assert out["integrity"]["lost_batches"] == [] and out["integrity"]["malformed"] == {"SKEL_STATUS": 1}
+    d1 = out["dpus"][0]
+    for key in ("id", "processes", "configured_cycle_ms", "measured_cycle_ms", "compute_pct",
+                "communicate_pct", "wait_pct", "overhead_pct", "static_load_pct", "overruns"):  # fmt: skip
+        assert key in d1
+    assert d1["processes"] == ["A", "B"] and d1["compute_pct"] == pytest.approx(60.0)
+    assert d1["compute_mode"] == "sleep"
+    b = out["processes"][1]
+    assert (b["id"], b["name"], b["dpu"], b["cycles"], b["overruns"]) == (1, "B", 1, 8, 0)
+    assert set(b["latency_us"]) == {"p50", "p99", "max"} and b["late"] == 8 and b["too_late"] == 0
+    assert b["inputs"] == [
+        {"buffer": "a_out", "buffer_id": 0, "new": 6, "stale": 2, "dropped": 2, "received": 6}
+    ]
+    assert [f["kind"] for f in out["faults"]] == ["overrun"]
+    assert out["faults"][0]["process"] == "C" and out["faults"][0]["count"] == 1
+    assert out["cross_check"][0]["dpu"] == 1
+    assert analyze(str(tmp_path / "run.lcm"), 7).run_id == 7
+
+
+def test_jam_report_and_exit_code(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = _log(tmp_path / "jam.lcm", lockouts=True)
+    rep = analyze(str(path))
+    jam = [f for f in rep.to_json()["faults"] if f["kind"] == "jam"]
+    assert len(jam) == 1 and jam[0]["chain"] == ["C", "B", "A"]
+    assert rep.fatal
+    assert report_command(str(path), as_json=True, run_id=None) == 3
+    assert json.loads(capsys.readouterr().out)["fatal"] is True
+    assert report_command(str(_log(tmp_path / "ok.lcm")), as_json=True, run_id=None) == 0
+
+
+def test_unreadable_files_give_one_line_and_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    junk = tmp_path / "junk.lcm"
+    junk.write_bytes(b"hello, this is not a log" * 10)
+    assert report_command(str(junk), as_json=False, run_id=None) == 2
+    assert capsys.readouterr().err.strip() == f"{junk}: not an LCM log (no event found)"
+    missing = tmp_path / "missing.lcm"
+    assert report_command(str(missing), as_json=False, run_id=None) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"{missing}: ") and "\n" not in err
+    assert report_command(str(_log(tmp_path / "r.lcm")), as_json=False, run_id=99) == 2
+    assert "no timing records for run 99" in capsys.readouterr().err
+
+
+def test_damaged_log_still_reports_and_says_so(tmp_path: Path) -> None:
+    path = _log(tmp_path / "run.lcm", drop_batch=1)
+    raw = path.read_bytes()
+    mid = raw.index(b"SKEL_STATUS") - 28  # a header: garbage goes right before it
+    path.write_bytes(raw[:mid] + b"\x00" * 100 + raw[mid:])
+    rep = analyze(str(path))
+    assert rep.integrity.corrupt_ranges == [(mid, mid + 100)]
+    assert rep.integrity.lost_batches == [{"dpu": 1, "from_seq": 1, "to_seq": 1}]
+    text = _render(rep)
+    assert "log damaged: 1 corrupt ranges (100 bytes), 1 timing batches lost" in text
+    assert "the tables use everything else" in text
+
+
+def test_tables_are_deterministic_and_show_the_paper(tmp_path: Path) -> None:
+    path = _log(tmp_path / "jam.lcm", lockouts=True)
+    paper = {1: {"compute_pct": 90.3, "communicate_pct": 9.0, "wait_pct": 0.0, "cycle_ms": 5.0}}
+    first, second = _render(analyze(str(path)), paper), _render(analyze(str(path)), paper)
+    assert first == second
+    assert "60.0 (90.3)" in first and "10.01 (5.00)" in first
+    assert "C -> B -> A" in first and "overloaded" in first
+    assert "a_out: 6 / 2 / 2" in first
+    clean = _render(analyze(str(_log(tmp_path / "ok.lcm"))))
+    assert "log damaged" not in clean and "malformed messages skipped: SKEL_STATUS: 1" in clean
