@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
-from rich.console import Console
+from rich.console import Console, JustifyMethod
 from rich.table import Table
 
 from .system import System, SystemFileError, load
@@ -118,9 +118,11 @@ def _print(system: System, summary: dict[str, Any], out: TextIO) -> None:
                   f"{len(system.processes)} processes, {len(system.buffers)} buffers; run {run}",
                   soft_wrap=True)
     table = Table(box=None, pad_edge=False)
-    for title, justify in (("DPU", "right"), ("host", "left"), ("compute", "left"),
-                           ("minor cycle ms", "right"), ("processes", "left"), ("static load %", "right")):
-        table.add_column(title, justify=justify)  # type: ignore[arg-type]
+    columns: tuple[tuple[str, JustifyMethod], ...] = (
+        ("DPU", "right"), ("host", "left"), ("compute", "left"), ("minor cycle ms", "right"),
+        ("processes", "left"), ("static load %", "right"))
+    for title, justify in columns:
+        table.add_column(title, justify=justify)
     for d in summary["dpus"]:
         pct = d["static_load_pct"]
         table.add_row(str(d["id"]), d["host"], d["compute"], f"{d['minor_cycle_ms']:g}",

@@ -26,6 +26,7 @@ from pydantic import (
     ConfigDict,
     PlainValidator,
     ValidationError,
+    ValidationInfo,
     field_validator,
     model_validator,
 )
@@ -46,7 +47,7 @@ MIN_MINOR_CYCLE_US = 100            # below this the OS timer, not the design, i
 MAX_PROCESSES_PER_DPU = 64
 MAX_PORTS = 16                      # inputs or outputs per process
 ABSURD_COMPUTE_PERIODS = 100        # compute_us beyond this many periods is a units mistake
-DEFAULT_RUN_CYCLES = 1000
+DEFAULT_RUN_CYCLES = 2000               # when the file gives neither cycles nor duration_s
 
 
 # --- field types ---------------------------------------------------------------------------
@@ -244,7 +245,7 @@ class SystemSpec(_Spec):
 
     @field_validator("buffers", "chains", "run", mode="before")
     @classmethod
-    def _empty_section(cls, v: Any, info: Any) -> Any:
+    def _empty_section(cls, v: Any, info: ValidationInfo) -> Any:
         # `run:` with every line commented out is an empty section, not an error.
         if v is None:
             return {} if info.field_name == "run" else []

@@ -225,7 +225,7 @@ def test_base_is_valid(tmp_path: Path) -> None:
     assert system.process("c").inputs == (1, 2)
     assert system.buffer("b_out").writer == 2
     assert system.default_link.url == DEFAULT_URL
-    assert system.run.cycles == 1000  # neither cycles nor duration_s: the default
+    assert system.run.cycles == 2000  # neither cycles nor duration_s: the default
 
 
 def test_local_link_inside_one_dpu(tmp_path: Path) -> None:
@@ -365,6 +365,14 @@ def test_run_duration() -> None:
     assert system.run_duration_ns(duration_s=1.5) == 1_500_000_000
     with pytest.raises(ValueError):
         system.run_duration_ns(cycles=10, duration_s=1.0)
+
+
+def test_command_line_beats_the_run_section(tmp_path: Path) -> None:
+    doc = base()
+    doc["run"] = {"duration_s": 3.0}
+    system = load(write(tmp_path, doc))
+    assert system.run_duration_ns() == 3 * 10**9
+    assert system.run_duration_ns(cycles=4) == 4 * 5000 * 1000
 
 
 def test_with_url() -> None:
