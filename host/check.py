@@ -36,8 +36,7 @@ def check(path: str | Path, overrides: Sequence[str] = (), as_json: bool = False
         return 2
     summary = summarize(system)
     if as_json:
-        json.dump(summary, out, indent=2)
-        out.write("\n")
+        out.write(json.dumps(summary, indent=2) + "\n")  # one write: `| head` is no broken pipe
     else:
         _print(system, summary, out)
     return 0

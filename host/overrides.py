@@ -13,6 +13,7 @@ removes the key, so its default applies.
 from __future__ import annotations
 
 import copy
+import difflib
 from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
@@ -125,4 +126,6 @@ def _check_field(text: str, section: str, field: str, fields: Mapping[str, Colle
     known = fields[section]
     if field not in known:
         noun = "run" if section == "run" else f"a {_NOUN[section]}"
-        raise OverrideError(text, f"{noun} has no field '{field}'; fields: {', '.join(sorted(known))}")
+        near = difflib.get_close_matches(field, list(known), n=1)
+        hint = f"did you mean '{near[0]}'?" if near else f"fields: {', '.join(sorted(known))}"
+        raise OverrideError(text, f"{noun} has no field '{field}'; {hint}")

@@ -305,10 +305,11 @@ def test_override_empty_value_restores_default(tmp_path: Path) -> None:
     ("dpu.9.compute=wall", "-s dpu.9.compute=wall: no DPU with id 9"),
     ("buffer.x.bytes=1", "-s buffer.x.bytes=1: no buffer named 'x'"),
     ("link.can.url=local", "-s link.can.url=local: no link named 'can'"),
-    ("process.a.compute=1", "-s process.a.compute=1: a process has no field 'compute'; fields: compute_us, "
-                            "dpu, id, inputs, name, order, outputs, period_us, required, sync"),
-    ("run.cycle=1", "-s run.cycle=1: run has no field 'cycle'; fields: cycles, duration_s, late_pct, "
-                    "lockout_cycles, stop_on, too_late_pct, warmup_cycles"),
+    ("process.a.compute=1",
+     "-s process.a.compute=1: a process has no field 'compute'; did you mean 'compute_us'?"),
+    ("run.cycle=1", "-s run.cycle=1: run has no field 'cycle'; did you mean 'cycles'?"),
+    ("dpu.1.xyz=1", "-s dpu.1.xyz=1: a DPU has no field 'xyz'; fields: compute, cpu, executive, host, id, "
+                    "links, minor_cycle_us, speed"),
     ("foo.bar=1", "-s foo.bar=1: unknown target 'foo.bar'; use process.NAME.FIELD, dpu.ID.FIELD, "
                   "buffer.NAME.FIELD, link.NAME.FIELD, run.FIELD or system"),
     ("run.cycles", "-s run.cycles: expected TARGET=VALUE"),
