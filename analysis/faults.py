@@ -25,7 +25,8 @@ class Fault:
     chain: list[str] = field(default_factory=list)  # jam: head ... root cause
     detail: str = ""
     count: int | None = None  # overrun: how many
-    static_load_pct: float | None = None  # jam: the root cause's DPU
+    static_load_pct: float | None = None  # jam: static load of the root cause's DPU
+    root_dpu: int | None = None  # jam: the DPU of the chain's last process
 
 
 @dataclass(frozen=True)
@@ -132,13 +133,14 @@ def jam_faults(lockouts: dict[int, Lockout], config: Any) -> list[Fault]:
             Fault(
                 kind="jam",
                 process=names.get(head, f"process {head}"),
-                dpu=dpus.get(root),
+                dpu=dpus.get(head),
                 buffer=None if lock.buffer is None else _bname(buffers, lock.buffer),
                 writer=None if buf is None else names.get(buf.writer),
                 cycle=lock.cycle,
                 chain=[names.get(p, f"process {p}") for p in chain],
                 detail=cause,
                 static_load_pct=load,
+                root_dpu=dpus.get(root),
             )
         )
     return faults

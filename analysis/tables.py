@@ -15,7 +15,27 @@ from .report import RunReport
 
 
 def _num(value: float | None, digits: int = 1) -> str:
-    return "-" if value is None else f"{value:.{digits}f}"
+    if value is None:
+        return "-"
+    if abs(value) >= 1000:
+        digits = 0  # the decimals of a large figure are noise and cost width
+    return f"{value:.{digits}f}"
+
+
+def _table(title: str, columns: list[tuple[str, bool]], rows: list[list[str]]) -> Table:
+    """A table that never cuts a figure or a word: a number column (flag True) is as
+    wide as its widest cell, a text column as its longest word (wrapped between words)."""
+    table = Table(title=title)
+    for i, (name, numeric) in enumerate(columns):
+        words = [w for text in [name, *(r[i] for r in rows)] for w in text.split()]
+        if numeric:
+            widest = max([len(line) for r in rows for line in r[i].split("\n")] + [len(w) for w in words])
+            table.add_column(name, justify="right", no_wrap=True, min_width=widest)
+        else:
+            table.add_column(name, overflow="fold", min_width=min(24, max(len(w) for w in words)))
+    for row in rows:
+        table.add_row(*row)
+    return table
 
 
 def _paper(paper: dict[Any, Any] | None, dpu: int) -> dict[str, Any] | None:
@@ -25,16 +45,7 @@ def _paper(paper: dict[Any, Any] | None, dpu: int) -> dict[str, Any] | None:
 
 
 def dpu_table(report: RunReport, paper: dict[Any, Any] | None = None) -> Table:
-    table = Table(title=f"{report.system}: run {report.run_id}, generation {report.generation} — per DPU")
-    table.add_column("DPU", justify="right")
-    table.add_column("cycle ms\nconfigured", justify="right")
-    table.add_column("cycle ms\nmeasured", justify="right")
-    table.add_column("processes")
-    for name in ("% compute", "% communicate", "% wait"):
-        table.add_column(name, justify="right")
-    table.add_column("% overhead", justify="right")
-    table.add_column("static\nload %", justify="right")
-    table.add_column("overruns", justify="right")
+    rows = []
     for d in report.dpus:
         ref = _paper(paper, d.id)
 
@@ -44,65 +55,89 @@ def dpu_table(report: RunReport, paper: dict[Any, Any] | None = None) -> Table:
                 text += f" ({ref[key]:.{digits}f})"
             return text
 
-        table.add_row(
-            str(d.id),
-            _num(d.configured_cycle_ms, 2),
-            pair(d.measured_cycle_ms, "cycle_ms", 2),
-            ", ".join(d.processes),
-            pair(d.compute_pct, "compute_pct"),
-            pair(d.communicate_pct, "communicate_pct"),
-            pair(d.wait_pct, "wait_pct"),
-            _num(d.overhead_pct),
-            _num(d.static_load_pct),
-            str(d.overruns),
+        rows.append(
+            [
+                str(d.id),
+                _num(d.configured_cycle_ms, 2),
+                pair(d.measured_cycle_ms, "cycle_ms", 2),
+                ", ".join(d.processes),
+                pair(d.compute_pct, "compute_pct"),
+                pair(d.communicate_pct, "communicate_pct"),
+                pair(d.wait_pct, "wait_pct"),
+                _num(d.overhead_pct),
+                _num(d.static_load_pct),
+                str(d.overruns),
+            ]
         )
+    columns = [
+        ("DPU", True), ("cycle\nms", True), ("meas.\nms", True), ("processes", False),
+        ("%\ncomp", True), ("%\ncomm", True), ("%\nwait", True), ("%\novhd", True),
+        ("static\nload\n%", True), ("ovr", True),
+    ]  # fmt: skip
+    title = f"{report.system}: run {report.run_id}, generation {report.generation}: per DPU (ovr = overruns)"
+    table = _table(title, columns, rows)
     if paper:
         table.caption = "(in brackets: the paper's Table 1)"
     return table
 
 
 def process_table(report: RunReport) -> Table:
-    table = Table(title=f"per process (warm-up: first {report.warmup_cycles} cycles excluded)")
-    table.add_column("process")
-    table.add_column("DPU", justify="right")
-    table.add_column("cycles", justify="right")
-    table.add_column("overruns", justify="right")
-    table.add_column("latency µs\np50 / p99 / max", justify="right")
-    table.add_column("compute\nmean µs", justify="right")
-    table.add_column("late /\ntoo late", justify="right")
-    table.add_column("inputs: new / stale / dropped")
+    rows = []
     for p in report.processes:
         lat = p.latency_us
-        inputs = "\n".join(f"{i.buffer}: {i.new} / {i.stale} / {i.dropped}" for i in p.inputs) or "-"
-        table.add_row(
-            p.name,
-            str(p.dpu),
-            str(p.cycles),
-            str(p.overruns),
-            f"{_num(lat.p50)} / {_num(lat.p99)} / {_num(lat.max)}",
-            _num(p.compute_mean_us),
-            f"{p.late} / {p.too_late}",
-            inputs,
+        rows.append(
+            [
+                p.name,
+                str(p.dpu),
+                str(p.cycles),
+                str(p.overruns),
+                _num(lat.p50),
+                _num(lat.p99),
+                _num(lat.max),
+                _num(p.compute_mean_us),
+                f"{p.late}/{p.too_late}",
+            ]
         )
-    return table
+    columns = [
+        ("process", False), ("DPU", True), ("cycles", True), ("ovr", True), ("p50", True),
+        ("p99", True), ("max", True), ("compute\nmean", True), ("late/\ntoo late", True),
+    ]  # fmt: skip
+    title = (
+        f"per process: release latency and compute in µs; "
+        f"first {report.warmup_cycles} cycles (warm-up) excluded"
+    )
+    return _table(title, columns, rows)
+
+
+def input_table(report: RunReport) -> Table:
+    rows = [
+        [p.name, i.buffer, str(i.new), str(i.stale), str(i.dropped), str(i.received)]
+        for p in report.processes
+        for i in p.inputs
+    ]
+    columns = [("process", False), ("input buffer", False), ("new", True), ("stale", True),
+               ("dropped", True), ("received", True)]  # fmt: skip
+    return _table("per input buffer: cycles with new / stale data, sequences dropped", columns, rows)
 
 
 def fault_table(report: RunReport) -> Table:
-    table = Table(title="faults")
-    for name in ("kind", "process", "DPU", "buffer", "writer", "cycle", "chain / detail"):
-        table.add_column(name)
+    rows = []
     for f in report.faults:
         chain = " -> ".join(f.chain)
-        table.add_row(
-            f.kind,
-            f.process or "-",
-            "-" if f.dpu is None else str(f.dpu),
-            f.buffer or "-",
-            f.writer or "-",
-            "-" if f.cycle is None else str(f.cycle),
-            f"{chain}\n{f.detail}" if chain else f.detail,
+        rows.append(
+            [
+                f.kind,
+                f.process or "-",
+                "-" if f.dpu is None else str(f.dpu),
+                f.buffer or "-",
+                f.writer or "-",
+                "-" if f.cycle is None else str(f.cycle),
+                f"{chain}\n{f.detail}" if chain else f.detail,
+            ]
         )
-    return table
+    columns = [("kind", False), ("process", False), ("DPU", True), ("buffer", False), ("writer", False),
+               ("cycle", True), ("chain / detail", False)]  # fmt: skip
+    return _table("faults", columns, rows)
 
 
 def damage_lines(report: RunReport) -> list[str]:
@@ -127,6 +162,8 @@ def print_report(
     console = console or Console()
     console.print(dpu_table(report, paper))
     console.print(process_table(report))
+    if any(p.inputs for p in report.processes):
+        console.print(input_table(report))
     if report.faults:
         console.print(fault_table(report))
     for line in damage_lines(report):

@@ -128,7 +128,7 @@ def test_jam_chain_back_to_overloaded_dpu() -> None:
     (jam,) = jam_faults(locks, config)
     assert jam.kind == "jam" and jam.chain == ["C", "B", "A"]
     assert (jam.process, jam.buffer, jam.writer, jam.cycle) == ("C", "b_out", "B", 4)
-    assert jam.dpu == 1 and jam.static_load_pct == pytest.approx(60.0)
+    assert jam.dpu == 2 and jam.root_dpu == 1 and jam.static_load_pct == pytest.approx(60.0)
     assert "overloaded" in jam.detail
 
 
