@@ -27,9 +27,7 @@ SANITIZER_ERROR = re.compile(rb"ERROR: AddressSanitizer|runtime error:|ERROR: Le
 
 @pytest.fixture(autouse=True)
 def _asan_dpu(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Every daemon a test starts is the sanitizer build."""
-    if not ASAN_DPU.exists():
-        pytest.fail(f"{ASAN_DPU} missing: run `make test` (it builds it)")
+    """Every daemon a test starts is the sanitizer build (`make test` builds it first)."""
     monkeypatch.setenv("SKEL_DPU", str(ASAN_DPU))
     monkeypatch.setenv("ASAN_OPTIONS", "detect_leaks=1:abort_on_error=0:exitcode=66")
     monkeypatch.setenv("UBSAN_OPTIONS", "print_stacktrace=1:halt_on_error=1:exitcode=67")
@@ -72,6 +70,7 @@ class DpuFarm:
 
 @pytest.fixture
 def dpus(url: str, tmp_path: Path) -> Iterator[DpuFarm]:
+    assert ASAN_DPU.exists(), f"{ASAN_DPU} missing: run `make test` (it builds it)"
     farm = DpuFarm(url, tmp_path / "dpu-logs")
     yield farm
     codes = farm.stop_all()
@@ -84,5 +83,6 @@ def dpus(url: str, tmp_path: Path) -> Iterator[DpuFarm]:
 
 def skel(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     """Run the real `skel` command line, as a user would."""
+    assert ASAN_DPU.exists(), f"{ASAN_DPU} missing: run `make test` (it builds it)"
     return subprocess.run([sys.executable, "-m", "skeleton.host.cli", *args], capture_output=True, text=True,
                           timeout=timeout, cwd=REPO, env={**os.environ, "COLUMNS": "160"})

@@ -17,9 +17,6 @@ EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 SERVO = EXAMPLES / "servo.yaml"
 
 
-@pytest.fixture(autouse=True)
-def _asan_dpu() -> None:
-    """These tests start no daemon: they need no sanitizer build (overrides conftest's)."""
 
 
 def run_json(path: Path, overrides: tuple[str, ...] = ()) -> dict[str, Any]:

@@ -18,9 +18,6 @@ SERVO = EXAMPLES / "servo.yaml"
 Doc = dict[str, Any]
 
 
-@pytest.fixture(autouse=True)
-def _asan_dpu() -> None:
-    """These tests start no daemon: they need no sanitizer build (overrides conftest's)."""
 
 
 def base() -> Doc:
