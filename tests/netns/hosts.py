@@ -231,7 +231,7 @@ class Hosts:
 
     # --- loss injection --------------------------------------------------------------
     def drop_inbound(self, host: str, percent: int, udp_port: int | None = None) -> None:
-        """Drop `percent` % of UDP arriving on the host's wire (its own loopback is untouched).
+        """Drop `percent` % of the UDP other hosts send to this one (what it sends itself is untouched).
 
         nftables, since this kernel has no netem. A datagram larger than one frame is
         fragmented and each fragment is dropped on its own chance when no port is given;
@@ -239,15 +239,20 @@ class Hosts:
         """
         if not 0 <= percent <= 100:
             raise ValueError(f"drop_inbound: percent={percent}, expected 0..100")
+        if percent == 0:
+            self.clear_drop(host)
+            return
         port = f"udp dport {udp_port} " if udp_port is not None else ""
-        match = f"iifname {HOST_IF} meta l4proto udp {port}"
+        chance = f"numgen random mod 100 < {percent} " if percent < 100 else ""  # nft refuses `< 100`
+        # Multicast the host loops back to itself also arrives "on" eth0: only others' is lost.
+        match = f"iifname {HOST_IF} ip saddr != {self.address(host)} meta l4proto udp {port}{chance}"
         script = (
             f"table inet {NFT_TABLE}\n"
             f"delete table inet {NFT_TABLE}\n"
             f"table inet {NFT_TABLE} {{\n"
             "  chain input {\n"
             "    type filter hook input priority -10; policy accept;\n"
-            f"    {match}numgen random mod 100 < {percent} drop\n"
+            f"    {match}drop\n"
             "  }\n"
             "}\n"
         )
