@@ -267,6 +267,7 @@ void control_handle_command(skel_control_t *c, const void *data, int len)
         c->ping_seq = cmd.seq;
         c->ping_t1_ns = cmd.ping_t1_ns;
         c->ping_t2_ns = received;
+        c->ping_t3_ns = server_now(s); /* as late as possible: just before the publish */
         if (control_publish_status(c) != 0) skel_log("cannot answer ping %lld", (long long)cmd.seq);
         break;
     case SKELMSG_COMMAND_T_SHUTDOWN:

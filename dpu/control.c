@@ -33,7 +33,7 @@ int control_publish_status(skel_control_t *c)
     st.ping_seq = c->ping_seq;
     st.ping_t1_ns = c->ping_t1_ns;
     st.ping_t2_ns = c->ping_t2_ns;
-    st.ping_t3_ns = server_now(c->s);
+    st.ping_t3_ns = c->ping_t3_ns;
     c->last_status_ns = clock_mono_ns();
     c->status_due = 0;
     return skelmsg_status_t_publish(c->s->ctl, SKEL_CH_STATUS, &st);

@@ -358,7 +358,7 @@ typedef struct {
     int64_t last_status_ns;
     skel_seen_t seen[SKEL_SEEN_COMMANDS];
     int nseen;
-    int64_t ping_seq, ping_t1_ns, ping_t2_ns;
+    int64_t ping_seq, ping_t1_ns, ping_t2_ns, ping_t3_ns; /* repeated by later statuses */
     int status_due;
 } skel_control_t;
 
