@@ -306,6 +306,13 @@ def run_checks(url: str) -> list[Check]:
         return [*checks, check_self_test(url, False)]
     checks = [Check("url", True, f"group {parsed.group}, port {parsed.port}, ttl {parsed.ttl}"),
               check_ttl(parsed)]
+    if shutil.which("ip") is None:
+        checks.append(Check("route", False, "no `ip` command: route and interface not checked",
+                            "apt-get install iproute2", "warn"))
+        checks.append(check_socket_buffers(_sysctl("net/core/rmem_max"), _sysctl("net/core/rmem_default"),
+                                           parsed.recv_buf_size))
+        checks += check_firewall(parsed)
+        return [*checks, check_self_test(url, False)]
     dev = _route_dev(parsed.group)
     suggested = _suggested_iface(parsed.ttl) if dev is None or dev == "lo" else dev
     checks.append(check_route(parsed, dev, suggested))
