@@ -296,6 +296,22 @@ def check_self_test(url: str, earlier_failed: bool) -> Check:
     return Check("self-test", False, f"LCM could not start on the URL: {why}", fix)
 
 
+def _route_checks(url: LcmUrl) -> list[Check]:
+    """Route, the interface it leaves by, and that interface's reverse-path filter."""
+    if shutil.which("ip") is None:
+        return [Check("route", False, "no `ip` command: route and interface not checked",
+                      "apt-get install iproute2", "warn")]
+    dev = _route_dev(url.group)
+    suggested = _suggested_iface(url.ttl) if dev is None or dev == "lo" else dev
+    checks = [check_route(url, dev, suggested)]
+    iface = dev or suggested
+    if iface != "IFACE":
+        checks.append(check_interface(iface, _link(iface)))
+        checks.append(check_rp_filter(url, iface, _sysctl("net/ipv4/conf/all/rp_filter"),
+                                      _sysctl(f"net/ipv4/conf/{iface}/rp_filter")))
+    return checks
+
+
 def run_checks(url: str) -> list[Check]:
     try:
         parsed = parse_url(url)
@@ -305,28 +321,12 @@ def run_checks(url: str) -> list[Check]:
         checks = [Check("url", True, f"{parsed.provider}:// does not use the network")]
         return [*checks, check_self_test(url, False)]
     checks = [Check("url", True, f"group {parsed.group}, port {parsed.port}, ttl {parsed.ttl}"),
-              check_ttl(parsed)]
-    if shutil.which("ip") is None:
-        checks.append(Check("route", False, "no `ip` command: route and interface not checked",
-                            "apt-get install iproute2", "warn"))
-        checks.append(check_socket_buffers(_sysctl("net/core/rmem_max"), _sysctl("net/core/rmem_default"),
-                                           parsed.recv_buf_size))
-        checks += check_firewall(parsed)
-        return [*checks, check_self_test(url, False)]
-    dev = _route_dev(parsed.group)
-    suggested = _suggested_iface(parsed.ttl) if dev is None or dev == "lo" else dev
-    checks.append(check_route(parsed, dev, suggested))
-    iface = dev or suggested
-    if iface != "IFACE":
-        checks.append(check_interface(iface, _link(iface)))
-        checks.append(check_rp_filter(parsed, iface, _sysctl("net/ipv4/conf/all/rp_filter"),
-                                      _sysctl(f"net/ipv4/conf/{iface}/rp_filter")))
-    checks.append(check_socket_buffers(_sysctl("net/core/rmem_max"), _sysctl("net/core/rmem_default"),
-                                       parsed.recv_buf_size))
-    checks += check_firewall(parsed)
+              check_ttl(parsed), *_route_checks(parsed),
+              check_socket_buffers(_sysctl("net/core/rmem_max"), _sysctl("net/core/rmem_default"),
+                                   parsed.recv_buf_size),
+              *check_firewall(parsed)]
     failed = any(not c.ok and c.severity == "fail" for c in checks)
-    checks.append(check_self_test(url, failed))
-    return checks
+    return [*checks, check_self_test(url, failed)]
 
 
 STYLE = {"OK": "green", "WARN": "yellow", "FAIL": "bold red"}
