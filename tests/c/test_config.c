@@ -1,0 +1,153 @@
+/* test_config.c: finding our DPU in a config, the validation of our part (one
+ * clear reason per refusal), and the plan built from a valid config. No
+ * network: plan_open_links is not called. */
+#include "check.h"
+#include "dpu.h"
+#include "fixture.h"
+
+static char reason[SKEL_REASON_LEN];
+
+static int validate(fixture_t *f, int dpu_index)
+{
+    reason[0] = '\0';
+    return config_validate(&f->cfg, dpu_index, reason, sizeof reason);
+}
+
+static void test_find_self(void)
+{
+    fixture_t f;
+    fixture_init(&f);
+    skel_self_t self;
+    CHECK_EQ(config_find_self(&f.cfg, 2, "whatever", &self), 0);
+    CHECK_EQ(self.dpu_index, 1);
+    CHECK_EQ(self.dpu_id, 2);
+    CHECK(config_find_self(&f.cfg, 9, "alpha", &self) != 0);
+    CHECK_HAS(self.reason, "DPU 9 is not in generation 7");
+    CHECK_EQ(config_find_self(&f.cfg, -1, "beta", &self), 0);
+    CHECK_EQ(self.dpu_id, 2);
+    CHECK(config_find_self(&f.cfg, -1, "gamma", &self) != 0);
+    CHECK_HAS(self.reason, "no DPU for host 'gamma'");
+    f.dpus[1].host = (char *)"alpha";
+    CHECK(config_find_self(&f.cfg, -1, "alpha", &self) != 0);
+    CHECK_HAS(self.reason, "2 DPUs for host 'alpha'");
+}
+
+static void test_valid(void)
+{
+    fixture_t f;
+    fixture_init(&f);
+    CHECK_EQ(validate(&f, 0), 0);
+    CHECK_EQ(validate(&f, 1), 0);
+    /* minor_cycle_us 0: the gcd of our periods. */
+    f.dpus[0].minor_cycle_us = 0;
+    CHECK_EQ(validate(&f, 0), 0);
+    CHECK_EQ(config_minor_us(&f.cfg, &f.dpus[0]), 10000);
+}
+
+#define REJECTS(setup, dpu_index, words)                 \
+    do {                                                 \
+        fixture_t f;                                     \
+        fixture_init(&f);                                \
+        setup;                                           \
+        CHECK(validate(&f, dpu_index) != 0);             \
+        CHECK_HAS(reason, words);                        \
+    } while (0)
+
+static void test_rejections(void)
+{
+    REJECTS(f.dpus[0].executive = SKELMSG_DPU_T_EXECUTIVE_THREADS, 0,
+            "executive 'threads' is not implemented yet");
+    REJECTS(f.dpus[0].compute = 9, 0, "unknown compute mode 9");
+    REJECTS(f.dpus[0].speed = 0.0, 0, "speed 0 must be > 0");
+    REJECTS(f.procs[0].period_us = 50, 0, "process 1: period_us 50 outside");
+    REJECTS(f.procs[0].period_us = 12000, 0, "not a multiple of DPU 1's minor cycle 5000 us");
+    REJECTS(f.out[0][0] = 77, 0, "process 1 uses unknown buffer 77");
+    REJECTS(f.buffers[0].bytes = 5 * 1024 * 1024, 0, "buffer 1: bytes 5242880 outside");
+    REJECTS(f.buffers[0].bytes = -1, 0, "buffer 1: bytes -1 outside");
+    REJECTS(f.dpus[0].nlinks = 0, 0, "link 1 (net) is not in DPU 1's links");
+    REJECTS(f.buffers[0].link = 5, 0, "buffer 1: unknown link 5");
+    REJECTS(f.buffers[0].writer = 2, 0, "buffer 1 is written by process 2, not by process 1");
+    REJECTS(f.procs[3].ninputs = 17, 0, "17 inputs");
+    REJECTS(f.procs[1].dpu = 1; f.buffers[2].link = 2; f.in[1][0] = 3; f.procs[4].dpu = 2, 0,
+            "buffer 3 is on a local link but process 5 uses it from DPU 2");
+    REJECTS(f.procs[4].id = 1, 0, "process id 1 appears twice");
+    REJECTS(f.buffers[1].id = 1, 0, "buffer id 1 appears twice");
+    REJECTS(f.buffers[1].channel = (char *)"SKEL_BUF_b1", 0, "share channel 'SKEL_BUF_b1'");
+    REJECTS(f.buffers[0].channel = (char *)"SKEL_STATUS", 0, "SKEL_ control channel");
+    REJECTS(f.in[3][1] = 2, 0, "process 4 reads buffer 2 twice");
+    REJECTS(f.procs[1].sync = 3, 1, "process 2: unknown sync 3");
+    REJECTS(f.procs[1].compute_us = -1, 1, "compute_us -1 < 0");
+    REJECTS(f.cfg.warmup_cycles = -1, 1, "warmup_cycles -1 < 0");
+    REJECTS(f.dpus[1].minor_cycle_us = 50; f.procs[1].period_us = 100; f.procs[2].period_us = 100,
+            1, "minor_cycle_us 50 < 100");
+    /* Too many processes on one DPU. */
+    {
+        fixture_t f;
+        fixture_init(&f);
+        static skelmsg_process_t many[SKEL_MAX_PROCESSES + 1];
+        for (int i = 0; i <= SKEL_MAX_PROCESSES; i++) {
+            many[i] = f.procs[4];
+            many[i].id = (int16_t)(100 + i);
+            many[i].noutputs = 0;
+        }
+        f.cfg.processes = many;
+        f.cfg.nprocesses = SKEL_MAX_PROCESSES + 1;
+        CHECK(validate(&f, 0) != 0);
+        CHECK_HAS(reason, "more than 64 processes");
+    }
+    /* Another DPU's mistakes are not ours: DPU 2 ignores a bad process of DPU 1. */
+    {
+        fixture_t f;
+        fixture_init(&f);
+        f.procs[4].period_us = 7;
+        CHECK(validate(&f, 0) != 0);
+        CHECK_EQ(validate(&f, 1), 0);
+    }
+}
+
+static void test_plan(void)
+{
+    fixture_t f;
+    fixture_init(&f);
+    f.dpus[0].speed = 2.0;
+    CHECK_EQ(validate(&f, 0), 0);
+    skel_plan_t *plan = plan_build(&f.cfg, 0, reason, sizeof reason);
+    CHECK(plan != NULL);
+    if (plan == NULL) return;
+    CHECK_EQ(plan->dpu, 1);
+    CHECK_EQ(plan->nprocesses, 3);
+    /* Run order: p1 (order 0), p5 (order 1), p4 (order 2). */
+    CHECK_EQ(plan->processes[0].id, 1);
+    CHECK_EQ(plan->processes[1].id, 5);
+    CHECK_EQ(plan->processes[2].id, 4);
+    CHECK_EQ(plan->processes[0].ratio, 2);
+    CHECK_EQ(plan->processes[1].ratio, 4);
+    CHECK_EQ(plan->processes[0].compute_ns, 1000000); /* 2000 us at speed 2 */
+    CHECK_EQ(plan->nslots, 2);
+    CHECK_EQ(plan->nlinks, 1);
+    CHECK_HAS(plan->links[0].url, "7799");
+    skel_process_t *p5 = &plan->processes[1], *p4 = &plan->processes[2];
+    CHECK_EQ(p5->outputs[0].link, -1);
+    CHECK(p5->outputs[0].local_slot >= 0);
+    CHECK_EQ(plan->slots[p5->outputs[0].local_slot].buffer, 3);
+    CHECK_EQ(plan->slots[p4->inputs[0].slot].link, 0);
+    CHECK_EQ(plan->processes[0].outputs[0].enc_len, wire_buffer_encoded_size(1000));
+    /* Minor cycles with work: 0 (p1 p5 p4), 2 (p1 p4), 4 (all), ... never 1 or 3. */
+    CHECK_EQ(executive_next_release(plan, 0), 0);
+    CHECK_EQ(executive_next_release(plan, 1), 2);
+    CHECK_EQ(executive_next_release(plan, 3), 4);
+    plan_reset_run(plan, 9);
+    CHECK_EQ(plan->run_id, 9);
+    CHECK_EQ(plan->slots[0].newest_seq, -1);
+    CHECK_EQ(plan->sums.first_release_ns, -1);
+    plan_free(plan);
+}
+
+int main(void)
+{
+    test_find_self();
+    test_valid();
+    test_rejections();
+    test_plan();
+    return CHECK_DONE();
+}
