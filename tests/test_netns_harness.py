@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import secrets
 import subprocess
 import sys
 
@@ -124,13 +125,15 @@ def test_netns_cleanup_when_the_body_raises() -> None:
 
 def test_netns_cleanup_stale_removes_a_crashed_runs_namespaces() -> None:
     require_root()
+    # A prefix of its own: a parallel run's cleanup_stale() must not take the fake crashed run mid-build.
+    prefix = f"skt{secrets.token_hex(2)}"
     dead = subprocess.Popen(["true"])
     dead.wait()
-    crashed = Hosts(2, tag=f"{dead.pid}-dead")
+    crashed = Hosts(2, prefix, tag=f"{dead.pid}-dead")
     crashed.detach()  # as if its process had been killed before close()
     ours = [crashed.bridge_netns, *(crashed.netns(h) for h in crashed.names)]
-    with Hosts(1) as alive:  # a live run's namespaces are never touched
-        removed = cleanup_stale()
+    with Hosts(1, prefix) as alive:  # a live run's namespaces are never touched
+        removed = cleanup_stale(prefix)
         assert set(ours) <= set(removed)
         assert alive.bridge_netns in _netns_list()
     assert not set(ours) & set(_netns_list())
