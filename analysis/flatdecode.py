@@ -2,9 +2,9 @@
 
 The wire contract is lcmtypes/ only: the layout here is derived at import time from
 the lcm-gen Python class (its __slots__, __typenames__, __dimensions__ and packed
-fingerprint), never written by hand. Arrays stay big-endian views of the log's
-memory map until they are concatenated, so one batch costs a handful of numpy calls
-instead of one Python object per value.
+fingerprint), never written by hand. Every message of a kind is decoded at
+once, straight from the log's memory map: the cost is a few numpy operations per
+field, not per message, and never one Python object per value.
 """
 
 from __future__ import annotations
@@ -27,10 +27,6 @@ _PRIMITIVES = {
     "float": (">f4", "f"),
     "double": (">f8", "d"),
 }
-
-
-class MalformedMessage(ValueError):
-    """A message whose bytes do not match its type (fingerprint, lengths, size)."""
 
 
 @dataclass(frozen=True)
@@ -91,49 +87,122 @@ class FlatLayout:
         return cls(msg_class.__name__, msg_class._get_packed_fingerprint(), tuple(steps), arrays)
 
 
-def decode_flat(
-    layout: FlatLayout, buf: np.ndarray, start: int, length: int
-) -> tuple[dict[str, int], list[tuple[tuple[str, ...], np.ndarray]]]:
-    """Decode one message at buf[start:start+length].
+@dataclass
+class Decoded:
+    """Many messages of one flat type, decoded together."""
 
-    Returns its scalars and, per array run, the run's names with a (len(names), n)
-    big-endian view. Raises MalformedMessage instead of reading past the message.
+    ok: np.ndarray  # bool per message: fingerprint, lengths and size all valid
+    scalars: dict[str, np.ndarray]  # int64/float64 per message (0 where not ok)
+    counts: dict[str, np.ndarray]  # length field -> elements per *ok* message
+    columns: dict[str, np.ndarray]  # array field -> native-endian values of the ok messages
+
+
+def decode_many(layout: FlatLayout, buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> Decoded:
+    """Decode the messages at buf[starts[i] : starts[i] + lengths[i]] in bulk.
+
+    Every step is one numpy operation over all messages, never a Python loop per
+    message: positions follow from the length fields, and each array element is read
+    with one fancy index over the whole buffer. A message whose fingerprint, lengths
+    or size do not fit is marked not ok (malformed) and contributes nothing.
     """
-    end = start + length
-    if length < 8 or bytes(buf[start : start + 8]) != layout.fingerprint:
-        raise MalformedMessage(f"{layout.name}: wrong fingerprint")
-    pos = start + 8
-    scalars: dict[str, int] = {}
-    arrays: list[tuple[tuple[str, ...], np.ndarray]] = []
+    starts = np.asarray(starts, dtype=np.int64)
+    end = starts + np.asarray(lengths, dtype=np.int64)
+    fp = int.from_bytes(layout.fingerprint, "big")
+    ok = end - starts >= 8
+    ok &= _gather(buf, np.where(ok, starts, 0), np.dtype(">u8")) == fp
+    pos = starts + 8
+    scalars: dict[str, np.ndarray] = {}
+    placed: list[tuple[_Arrays, np.ndarray]] = []
     for step in layout.steps:
         if isinstance(step, _Scalars):
-            if pos + step.fmt.size > end:
-                raise MalformedMessage(f"{layout.name}: message too short")
-            scalars.update(zip(step.names, step.fmt.unpack_from(buf, pos), strict=True))
-            pos += step.fmt.size
+            ok &= pos + step.fmt.size <= end
+            values = _gather(buf, np.where(ok, pos, 0), _record_dtype(step))
+            for name in step.names:
+                scalars[name] = np.where(ok, values[name], 0)
+            pos = pos + step.fmt.size
         else:
             n = scalars[step.length]
-            count = n * len(step.names)
-            nbytes = count * step.dtype.itemsize
-            if n < 0 or pos + nbytes > end:
-                raise MalformedMessage(f"{layout.name}: bad length {step.length}={n}")
-            view = buf[pos : pos + nbytes].view(step.dtype).reshape(len(step.names), n)
-            arrays.append((step.names, view))
-            pos += nbytes
-    return scalars, arrays
+            ok &= n >= 0
+            n = np.where(ok, n, 0)
+            placed.append((step, pos))
+            pos = pos + n * step.dtype.itemsize * len(step.names)
+            ok &= pos <= end
+    good = np.flatnonzero(ok)
+    counts = {step.length: scalars[step.length][good].astype(np.int64) for step, _ in placed}
+    columns: dict[str, np.ndarray] = {}
+    groups: dict[str, list[tuple[np.ndarray, int, np.ndarray | None]]] = {}
+    for step, at in placed:
+        n = counts[step.length]
+        if step.length not in groups:
+            groups[step.length] = _equal_length_groups(n)
+        starts_ok = at[good]
+        out = {name: np.empty(int(n.sum()), dtype=step.dtype.newbyteorder("=")) for name in step.names}
+        k, size = len(step.names), step.dtype.itemsize
+        for members, count, dest in groups[step.length]:
+            # One opaque row per message (its whole run of arrays), then one strided
+            # slice per array: memcpy speed, no per-element index arithmetic.
+            row = np.dtype((np.void, k * count * size))
+            view = np.ndarray(shape=(len(buf) - row.itemsize + 1,), dtype=row, buffer=buf, strides=(1,))
+            block = view[starts_ok[members]].view(step.dtype).reshape(len(members), k, count)
+            for j, name in enumerate(step.names):
+                if dest is None:
+                    out[name][:] = block[:, j, :].ravel()
+                else:
+                    out[name][dest] = block[:, j, :].ravel()
+        columns.update(out)
+    return Decoded(ok=ok, scalars=scalars, counts=counts, columns=columns)
 
 
-def concat_columns(
-    parts: list[list[tuple[tuple[str, ...], np.ndarray]]], names: tuple[str, ...]
-) -> dict[str, np.ndarray]:
-    """Concatenate the array runs of many decoded messages into native-endian columns."""
-    out: dict[str, np.ndarray] = {}
-    if not parts:
-        return out
-    for run_index, (run_names, first) in enumerate(parts[0]):
-        joined = np.concatenate([p[run_index][1] for p in parts], axis=1) if len(parts) > 1 else first
-        native = joined.astype(first.dtype.newbyteorder("="))
-        for row, name in enumerate(run_names):
-            if name in names:
-                out[name] = native[row]
+def _equal_length_groups(n: np.ndarray) -> list[tuple[np.ndarray, int, np.ndarray | None]]:
+    """Messages grouped by their array length: (members, length, where their elements
+    go in the concatenated output, or None when the group is every message in order).
+    Batches are mostly full, so there are few groups."""
+    first = np.cumsum(n) - n
+    values, inverse = np.unique(n, return_inverse=True)
+    out: list[tuple[np.ndarray, int, np.ndarray | None]] = []
+    for g, count in enumerate(values.tolist()):
+        if count == 0:
+            continue
+        members = np.flatnonzero(inverse == g)
+        if len(values) == 1:
+            out.append((members, count, None))
+        else:
+            out.append((members, count, (first[members][:, None] + np.arange(count)).ravel()))
+    return out
+
+
+def decode_heads(
+    layout: FlatLayout, buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Only the scalars in front of the first array (fingerprint checked): enough to
+    choose messages (a run, a DPU) before decoding their arrays."""
+    starts = np.asarray(starts, dtype=np.int64)
+    first = layout.steps[0]
+    if not isinstance(first, _Scalars):
+        raise TypeError(f"{layout.name} starts with an array")
+    ok = np.asarray(lengths, dtype=np.int64) >= 8 + first.fmt.size
+    ok &= _gather(buf, np.where(ok, starts, 0), np.dtype(">u8")) == int.from_bytes(layout.fingerprint, "big")
+    values = _gather(buf, np.where(ok, starts + 8, 0), _record_dtype(first))
+    return ok, {name: np.where(ok, values[name], 0) for name in first.names}
+
+
+def _record_dtype(step: _Scalars) -> np.dtype[Any]:
+    codes = {"b": "i1", "B": "u1", "h": ">i2", "i": ">i4", "q": ">i8", "f": ">f4", "d": ">f8"}
+    return np.dtype([(name, codes[c]) for name, c in zip(step.names, step.fmt.format[1:], strict=True)])
+
+
+def _gather(buf: np.ndarray, at: np.ndarray, dtype: np.dtype[Any]) -> np.ndarray:
+    """The (unaligned, big-endian) value of `dtype` starting at each byte offset in `at`.
+
+    A stride-1 view of opaque items makes "the bytes starting at i" element i, so one
+    fancy index reads every value; viewing the result as `dtype` then costs nothing.
+    """
+    size = dtype.itemsize
+    if len(at) == 0 or len(buf) < size:
+        return np.zeros(len(at), dtype=dtype).astype(dtype.newbyteorder("="))
+    opaque = np.dtype((np.void, size))
+    items = np.ndarray(shape=(len(buf) - size + 1,), dtype=opaque, buffer=buf, strides=(1,))
+    out = items[at].view(dtype)
+    if dtype.names is None:
+        return out.astype(dtype.newbyteorder("="))
     return out

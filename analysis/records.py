@@ -6,13 +6,13 @@ Works on raw message bytes, so a log, a replay and a live subscription all use i
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
 import skelmsg
 
-from .flatdecode import FlatLayout, MalformedMessage, concat_columns, decode_flat
+from .flatdecode import FlatLayout, decode_heads, decode_many
 from .logreader import Log
 
 TIMING_CHANNEL = "SKEL_TIMING"
@@ -22,9 +22,8 @@ FLAG_SKIPPED = skelmsg.timing_t.FLAG_SKIPPED
 FLAG_LOCKOUT = skelmsg.timing_t.FLAG_LOCKOUT
 
 # The scalars in front of the first array: enough to pick a run without decoding arrays.
-_HEAD_NAMES, _HEAD = TIMING.head
-if _HEAD_NAMES[:4] != ("dpu", "run_id", "generation", "batch_seq"):
-    raise ImportError(f"timing_t changed: its header is now {_HEAD_NAMES}; update analysis/records.py")
+if TIMING.head[0][:4] != ("dpu", "run_id", "generation", "batch_seq"):
+    raise ImportError(f"timing_t changed: its header is now {TIMING.head[0]}; update analysis/records.py")
 
 _CYCLE_FIELDS = (
     "cycle", "minor", "release_ns", "start_ns", "comm_in_ns", "blocked_ns",
@@ -66,25 +65,16 @@ class RunRecords:
     duplicates: int = 0  # batches seen twice (same dpu, batch_seq)
 
 
-def batch_heads(messages: Sequence[memoryview | bytes]) -> tuple[np.ndarray, np.ndarray]:
-    """(dpu, run_id, generation, batch_seq) of each message as an (N, 4) int64 array,
-    and a mask of the messages whose fingerprint and header are readable."""
-    fmt = _HEAD
-    heads = np.zeros((len(messages), 4), dtype=np.int64)
-    ok = np.zeros(len(messages), dtype=bool)
-    fp = TIMING.fingerprint
-    for i, data in enumerate(messages):
-        if len(data) >= 8 + fmt.size and data[:8] == fp:
-            heads[i] = fmt.unpack_from(data, 8)[:4]
-            ok[i] = True
-    return heads, ok
+def _timing_events(log: Log) -> tuple[np.ndarray, np.ndarray]:
+    idx = log.indices(TIMING_CHANNEL)
+    return log.data_offset[idx], log.data_len[idx]
 
 
 def run_ids(log: Log) -> list[int]:
     """Run ids with timing records, ordered by their last batch in the log."""
-    heads, ok = batch_heads([d for _, d in log.messages(TIMING_CHANNEL)])
+    ok, heads = decode_heads(TIMING, log.buf, *_timing_events(log))
     order: dict[int, None] = {}
-    for run in heads[ok, 1].tolist():
+    for run in heads["run_id"][ok].tolist():
         order.pop(run, None)
         order[run] = None
     return list(order)
@@ -93,16 +83,12 @@ def run_ids(log: Log) -> list[int]:
 def load_run(
     log: Log, run_id: int | None = None, expected_batches: dict[int, int] | None = None
 ) -> RunRecords:
-    """The records of one run (default: the last run with timing records)."""
-    messages = [d for _, d in log.messages(TIMING_CHANNEL)]
-    heads, ok = batch_heads(messages)
+    """The records of one run (default: the last run with timing records), straight
+    from the log's memory map."""
     if run_id is None:
-        runs = heads[ok, 1]
-        if len(runs) == 0:
-            return decode_run([], run_id=0, malformed=int((~ok).sum()))
-        run_id = int(runs[-1])
-    chosen = [messages[i] for i in np.flatnonzero(ok & (heads[:, 1] == run_id)).tolist()]
-    return decode_run(chosen, run_id, malformed=int((~ok).sum()), expected_batches=expected_batches)
+        runs = run_ids(log)
+        run_id = runs[-1] if runs else 0
+    return decode_timing(log.buf, *_timing_events(log), run_id=run_id, expected_batches=expected_batches)
 
 
 def decode_run(
@@ -111,31 +97,48 @@ def decode_run(
     malformed: int = 0,
     expected_batches: dict[int, int] | None = None,
 ) -> RunRecords:
-    """Decode timing_t messages of one run. `expected_batches` (dpu -> batches the DPU
-    says it published, from report_t) lets us see batches lost at the end of a run."""
-    parts = []
-    heads: list[tuple[int, int, int, int, int]] = []  # dpu, generation, batch_seq, n, ninputs
-    seen: set[tuple[int, int]] = set()
-    duplicates = 0
-    for data in messages:
-        buf = np.frombuffer(data, dtype=np.uint8)
-        try:
-            scalars, arrays = decode_flat(TIMING, buf, 0, len(buf))
-            _check_inputs(scalars, arrays)
-        except MalformedMessage:
-            malformed += 1
-            continue
-        if scalars["run_id"] != run_id:
-            continue
-        key = (scalars["dpu"], scalars["batch_seq"])
-        if key in seen:
-            duplicates += 1  # a re-sent or twice-logged batch must not count twice
-            continue
-        seen.add(key)
-        parts.append(arrays)
-        heads.append((key[0], scalars["generation"], key[1], scalars["n"], scalars["ninputs"]))
-    cols = concat_columns(parts, TIMING.arrays)
-    table = np.array(heads, dtype=np.int64).reshape(-1, 5)
+    """Decode timing_t messages (raw bytes, e.g. from a live subscription) of one run."""
+    datas = [bytes(m) for m in messages]
+    lengths = np.array([len(d) for d in datas], dtype=np.int64)
+    starts = np.cumsum(lengths) - lengths
+    buf = np.frombuffer(b"".join(datas), dtype=np.uint8)
+    run = decode_timing(buf, starts, lengths, run_id, expected_batches)
+    run.malformed += malformed
+    return run
+
+
+def decode_timing(
+    buf: np.ndarray,
+    starts: np.ndarray,
+    lengths: np.ndarray,
+    run_id: int,
+    expected_batches: dict[int, int] | None = None,
+) -> RunRecords:
+    """The timing_t messages at buf[starts[i]:+lengths[i]] that belong to `run_id`.
+    `expected_batches` (dpu -> batches the DPU says it published, from report_t)
+    reveals batches lost at the end of a run."""
+    ok, heads = decode_heads(TIMING, buf, starts, lengths)
+    malformed = int(np.count_nonzero(~ok))
+    chosen = np.flatnonzero(ok & (heads["run_id"] == run_id))
+    dec = decode_many(TIMING, buf, np.asarray(starts)[chosen], np.asarray(lengths)[chosen])
+    malformed += int(np.count_nonzero(~dec.ok))
+    good = np.flatnonzero(dec.ok)
+    table = np.stack(
+        [dec.scalars[k][good] for k in ("dpu", "generation", "batch_seq")]
+        + [dec.counts["n"], dec.counts["ninputs"]],
+        axis=1,
+    ).astype(np.int64).reshape(-1, 5)
+    cols = dec.columns
+    # An input record must point at a cycle record of its own batch.
+    bad = _bad_inputs(cols, table)
+    malformed += len(bad)
+    # A re-sent or twice-logged batch must not count twice: keep the first good copy.
+    keep = np.setdiff1d(np.arange(len(table)), bad)
+    _, first = np.unique(table[keep][:, [0, 2]], axis=0, return_index=True)
+    keep = keep[np.sort(first)]
+    duplicates = len(table) - len(bad) - len(keep)
+    if len(keep) < len(table):
+        cols, table = _select(cols, table, keep)
     records = _records(cols, table)
     inputs = _inputs(cols, table, records)
     return RunRecords(
@@ -150,18 +153,29 @@ def decode_run(
     )
 
 
-def _check_inputs(scalars: dict[str, int], arrays: list[tuple[tuple[str, ...], np.ndarray]]) -> None:
-    """An input record must point at a cycle record of its own batch."""
-    for names, view in arrays:
-        if "in_record" in names:
-            rec = view[names.index("in_record")]
-            if len(rec) and (rec.min() < 0 or rec.max() >= scalars["n"]):
-                raise MalformedMessage("timing_t: in_record out of range")
+def _select(
+    cols: dict[str, np.ndarray], table: np.ndarray, keep: np.ndarray
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Only the batches `keep` (indices into table), with their records and inputs."""
+    wanted = np.zeros(len(table), dtype=bool)
+    wanted[keep] = True
+    rec_keep = np.repeat(wanted, table[:, 3])
+    in_keep = np.repeat(wanted, table[:, 4])
+    return {k: v[in_keep] if k.startswith("in_") else v[rec_keep] for k, v in cols.items()}, table[wanted]
+
+
+def _bad_inputs(cols: dict[str, np.ndarray], table: np.ndarray) -> np.ndarray:
+    """Batches with an in_record outside their own records."""
+    if not len(table):
+        return np.zeros(0, dtype=np.int64)
+    batch = np.repeat(np.arange(len(table)), table[:, 4])
+    rec = cols["in_record"]
+    return np.unique(batch[(rec < 0) | (rec >= table[batch, 3])])
 
 
 def _records(cols: dict[str, np.ndarray], table: np.ndarray) -> np.ndarray:
     total = int(table[:, 3].sum()) if len(table) else 0
-    records = np.zeros(total, dtype=RECORD_DTYPE)
+    records = np.empty(total, dtype=RECORD_DTYPE)
     if total == 0:
         return records
     counts = table[:, 3]
@@ -177,16 +191,17 @@ def _records(cols: dict[str, np.ndarray], table: np.ndarray) -> np.ndarray:
 
 def _inputs(cols: dict[str, np.ndarray], table: np.ndarray, records: np.ndarray) -> np.ndarray:
     total = int(table[:, 4].sum()) if len(table) else 0
-    inputs = np.zeros(total, dtype=INPUT_DTYPE)
+    inputs = np.empty(total, dtype=INPUT_DTYPE)
     if total == 0:
         return inputs
     # in_record is relative to its batch: add the batch's first record index.
     first_record = np.concatenate([[0], np.cumsum(table[:, 3])[:-1]])
     index = np.repeat(first_record, table[:, 4]) + cols["in_record"]
     inputs["record"] = index
-    inputs["dpu"] = records["dpu"][index]
-    inputs["process"] = records["process"][index]
-    inputs["cycle"] = records["cycle"][index]
+    # From the contiguous columns, not the structured records (strided, slower to index).
+    inputs["dpu"] = np.repeat(table[:, 0], table[:, 4])
+    inputs["process"] = cols["process"][index]
+    inputs["cycle"] = cols["cycle"][index]
     inputs["buffer"] = cols["in_buffer"]
     inputs["seq"] = cols["in_seq"]
     inputs["new"] = cols["in_new"]

@@ -1,0 +1,132 @@
+"""Throughput of analysis/logreader.py + records.py against lcm.EventLog with the
+generated decoders, on synthetic SERVO-like logs (9 processes on 4 DPUs, 5 ms).
+
+Two logs: "timing" (what a logger restricted to SKEL_TIMING/STATUS/CONFIG holds)
+and "full" (also one 256-byte buffer_t per process cycle, as the default logger
+records every channel). Both sides produce the same numpy record columns.
+
+Usage: .venv/bin/python bench/logreader_bench.py [records]   (writes bench/results/logreader.txt)
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import lcm
+import numpy as np
+import skelmsg
+from skeleton.analysis.logreader import read_log
+from skeleton.analysis.records import load_run
+
+RESULTS = Path(__file__).resolve().parent / "results" / "logreader.txt"
+BATCH = 64  # records per timing_t batch
+ARRAYS = ("process", "cycle", "minor", "release_ns", "start_ns", "comm_in_ns", "blocked_ns",
+          "compute_ns", "comm_out_ns", "idle_ns", "slack_ns", "flags")  # fmt: skip
+INPUTS = ("in_record", "in_buffer", "in_seq", "in_new", "in_dropped", "in_received",
+          "in_sent_ns", "in_recv_ns")  # fmt: skip
+
+
+def write_log(path: Path, records: int, with_buffers: bool) -> None:
+    rng = np.random.default_rng(1)
+    log = lcm.EventLog(str(path), "w", overwrite=True)
+    buf = skelmsg.buffer_t()
+    buf.run_id, buf.nbytes, buf.payload = 1, 256, bytes(256)
+    buf_data = buf.encode()
+    status = skelmsg.status_t()
+    status.host, status.reject_reason, status.run_id = "h", "", 1
+    status_data = status.encode()
+    utime, seq = 0, {d: 0 for d in range(1, 5)}
+    for first in range(0, records, BATCH):
+        dpu = 1 + (first // BATCH) % 4
+        t = skelmsg.timing_t()
+        t.dpu, t.run_id, t.generation, t.batch_seq, t.n = dpu, 1, 1, seq[dpu], BATCH
+        seq[dpu] += 1
+        for name in ARRAYS:
+            setattr(t, name, rng.integers(0, 10**9, BATCH).tolist() if name != "flags" else [0] * BATCH)
+        t.process = rng.integers(0, 9, BATCH).tolist()
+        # inputs per batch vary with the mix of processes in it (0..5 inputs each)
+        t.ninputs = int(rng.integers(BATCH, 3 * BATCH))
+        for name in INPUTS:
+            setattr(t, name, rng.integers(0, 100 if name != "in_record" else BATCH, t.ninputs).tolist())
+        if with_buffers:
+            for i in range(BATCH):
+                log.write_event(utime, f"SKEL_BUF_{i % 9}", buf_data)
+                utime += 555
+        log.write_event(utime, "SKEL_TIMING", t.encode())
+        if first % (BATCH * 16) == 0:
+            log.write_event(utime, "SKEL_STATUS", status_data)
+    log.close()
+
+
+def ours(path: Path) -> dict[str, np.ndarray]:
+    run = load_run(read_log(path))
+    return {"start_ns": run.records["start_ns"], "in_seq": run.inputs["seq"]}
+
+
+COLUMNS = ARRAYS + INPUTS
+
+
+def baseline(decode_all: bool) -> Callable[[Path], dict[str, np.ndarray]]:
+    """lcm.EventLog + the generated decoder per event, then every timing column as
+    numpy (what the analysis needs; ours also builds the structured arrays)."""
+    types = {"SKEL_STATUS": skelmsg.status_t, "SKEL_TIMING": skelmsg.timing_t}
+
+    def run(path: Path) -> dict[str, np.ndarray]:
+        cols: dict[str, list[np.ndarray]] = {name: [] for name in COLUMNS}
+        for event in lcm.EventLog(str(path)):
+            if event.channel == "SKEL_TIMING":
+                t = skelmsg.timing_t.decode(event.data)
+                for name in COLUMNS:
+                    cols[name].append(np.asarray(getattr(t, name), dtype=np.int64))
+            elif decode_all:
+                types.get(event.channel, skelmsg.buffer_t).decode(event.data)
+        out = {k: np.concatenate(v) for k, v in cols.items()}
+        return {"start_ns": out["start_ns"], "in_seq": out["in_seq"]}
+
+    return run
+
+
+def best_of(fn: Callable[[Path], dict[str, np.ndarray]], path: Path, repeat: int = 3) -> tuple[float, dict]:
+    best, out = float("inf"), {}
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn(path)
+        best = min(best, time.perf_counter() - t0)
+    return best, out
+
+
+def main() -> None:
+    records = int(sys.argv[1]) if len(sys.argv) > 1 else 500_000
+    lines = [f"# {records} process-cycle records, {BATCH} per timing_t batch, 1-3 inputs per record"]
+    headline = ""
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, with_buffers in (("timing", False), ("full", True)):
+            path = Path(tmp) / f"{name}.lcm"
+            write_log(path, records, with_buffers)
+            t_ours, a = best_of(ours, path)
+            t_all, b = best_of(baseline(True), path)
+            t_timing, c = best_of(baseline(False), path)
+            for key in a:
+                assert np.array_equal(a[key], b[key]) and np.array_equal(a[key], c[key]), key
+            events = len(read_log(path))
+            lines.append(
+                f"{name} log: {path.stat().st_size / 1e6:.0f} MB, {events} events; ours {t_ours:.3f} s "
+                f"({records / t_ours / 1e6:.1f} M records/s); lcm.EventLog + decode every event "
+                f"{t_all:.3f} s ({t_all / t_ours:.1f}x); lcm.EventLog + decode timing_t only "
+                f"{t_timing:.3f} s ({t_timing / t_ours:.1f}x)"
+            )
+            if name == "timing":
+                rate = records / t_ours / 1e6
+                headline = f"log reader: {t_all / t_ours:.1f}x lcm.EventLog ({rate:.1f} M records/s)"
+    text = "\n".join([headline, *lines]) + "\n"
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(text)
+    print(text, end="")
+
+
+if __name__ == "__main__":
+    main()
