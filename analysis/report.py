@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import struct
 import sys
 from collections.abc import Callable, Sequence
@@ -153,7 +154,7 @@ def _cross_check(records: np.ndarray, config: Any, reports: Sequence[Any]) -> li
     return out
 
 
-def analyze(log_path: str, run_id: int | None = None) -> RunReport:
+def analyze(log_path: str | os.PathLike[str], run_id: int | None = None) -> RunReport:
     """Analyse one run (default: the last run with timing records) from the log alone."""
     try:
         log = read_log(log_path)
@@ -215,7 +216,7 @@ def _config_for(log: Log, generation: int, malformed: dict[str, int]) -> Any:
     raise LogError(f"no config_t (channel SKEL_CONFIG) for generation {generation}: cannot name anything")
 
 
-def report_command(path: str, as_json: bool, run_id: int | None) -> int:
+def report_command(path: str | os.PathLike[str], as_json: bool, run_id: int | None) -> int:
     """`skel report RUN.lcm [--json] [--run N]`: 0, 3 on a lockout/jam, 2 when unreadable."""
     try:
         report = analyze(path, run_id)
