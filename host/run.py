@@ -11,20 +11,20 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import skelmsg
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
-import skelmsg
 from skeleton.analysis.report import analyze
 from skeleton.analysis.tables import print_report
 from skeleton.host import spawn
-from skeleton.host.control import Control
+from skeleton.host.control import Control, PushResult
 from skeleton.host.system import System
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_FATAL_FLAW = 0, 1, 2, 3
 START_LEAD_S = 0.5          # time for START to reach every DPU before cycle 0
 REPORT_GRACE_S = 5.0        # how long after the end we wait for the DPUs' reports
 HEAR_TIMEOUT_S = 5.0
+CONFIG_RESEND_S = 1.0
 
 
 @dataclass
@@ -41,7 +41,7 @@ class RunOptions:
 
 
 def control_url(system: System) -> str:
-    return next(link.url for link in system.links if link.url != "local")
+    return system.default_link.url
 
 
 def default_out(system: System) -> Path:
@@ -55,8 +55,7 @@ class RunFollower:
         self.system = system
         self.control = control
         self.console = console
-        self.writer = {b.id: p for p in system.processes for b_id in p.outputs
-                       for b in system.buffers if b.id == b_id}
+        self.writer = {b.id: system.process(b.writer) for b in system.buffers}
         self.names = {p.id: p.name for p in system.processes}
         self.lockouts: dict[int, skelmsg.lockout_t] = {}
         self.lost: set[int] = set()
@@ -120,7 +119,8 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
                 return EXIT_FAILED
         duration_ns = system.run_duration_ns(options.cycles, options.duration_s)
         follower = RunFollower(system, control, console)
-        _follow(control, follower, console, generation, run_id, duration_ns, dpu_ids)
+        committed = system.to_config(generation, run_id, committed=True)
+        _follow(control, follower, console, committed, duration_ns, dpu_ids)
         control.wait_for(lambda: all((d, run_id) in control.reports for d in dpu_ids
                                      if d not in follower.lost), REPORT_GRACE_S)
         # The DPUs flush their last timing batches before the report: give the logger a moment.
@@ -135,17 +135,24 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
     if options.as_json:
         print(json.dumps(report.to_json(), indent=2))
     else:
-        paper = getattr(system, "reference", None) if options.compare_paper else None
-        print_report(report, console=console, paper=_paper_columns(paper))
+        paper = None
+        if options.compare_paper and system.reference is not None:
+            paper = {i: row.model_dump() for i, row in system.reference.dpus.items()}
+        print_report(report, console=console, paper=paper)
         console.print(f"run written to {out}/ (system.yaml, run.lcm, report.json)")
     fatal = any(f["kind"] in ("lockout", "jam") for f in report.to_json()["faults"])
     return EXIT_FATAL_FLAW if fatal else EXIT_OK
 
 
-def _follow(control: Control, follower: RunFollower, console: Console, generation: int,
-            run_id: int, duration_ns: int, dpu_ids: list[int]) -> None:
+def _follow(control: Control, follower: RunFollower, console: Console, config: skelmsg.config_t,
+            duration_ns: int, dpu_ids: list[int]) -> None:
+    """Start the run and follow it; re-send the committed config every second meanwhile, so
+    a late or restarted DPU catches up and the log holds the configuration of the run."""
+    run_id = config.run_id
+    control.publish_config(config)
     start_utc = time.time_ns() + int(START_LEAD_S * 1e9)
-    control.start(generation, run_id, start_utc, duration_ns)
+    control.start(config.generation, run_id, start_utc, duration_ns)
+    resent = time.monotonic()
     end_utc = start_utc + duration_ns
     columns = [TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                TimeRemainingColumn()]
@@ -158,24 +165,16 @@ def _follow(control: Control, follower: RunFollower, console: Console, generatio
                 control.stop()
                 break
             progress.update(task, completed=max(0.0, (time.time_ns() - start_utc) / 1e9))
+            if time.monotonic() - resent >= CONFIG_RESEND_S:
+                control.publish_config(config)
+                resent = time.monotonic()
             time.sleep(0.1)
     follower.poll(run_id, dpu_ids)
 
 
-def _print_push_failure(console: Console, pushed) -> None:  # type: ignore[no-untyped-def]
+def _print_push_failure(console: Console, pushed: PushResult) -> None:
     for dpu_id, reason in sorted(pushed.rejected.items()):
         console.print(f"[red]DPU {dpu_id} rejected generation {pushed.generation}[/]: {reason}")
     for dpu_id in pushed.silent:
         console.print(f"[red]DPU {dpu_id} did not answer generation {pushed.generation}[/]")
     console.print("nothing was committed: every DPU keeps its previous configuration")
-
-
-def _paper_columns(reference: object) -> dict | None:
-    if reference is None:
-        return None
-    dpus = getattr(reference, "dpus", None)
-    if dpus is None and isinstance(reference, dict):
-        dpus = reference.get("dpus")
-    if not dpus:
-        return None
-    return {int(k): (v if isinstance(v, dict) else v.model_dump()) for k, v in dpus.items()}
