@@ -10,6 +10,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
+
 import skelmsg
 
 from .flatdecode import FlatLayout, decode_heads, decode_many

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import lcm
 import numpy as np
+
 import skelmsg
 from skeleton.analysis.logreader import read_log
 from skeleton.analysis.records import load_run

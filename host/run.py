@@ -11,9 +11,10 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import skelmsg
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+import skelmsg
 from skeleton.analysis.report import analyze
 from skeleton.analysis.tables import print_report
 from skeleton.host import spawn

@@ -18,7 +18,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import skelmsg
 import yaml
 from pydantic import (
     AfterValidator,
@@ -30,6 +29,8 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+
+import skelmsg
 
 from .overrides import OverrideError, apply_overrides
 from .wire import config_message, dump_yaml

@@ -10,8 +10,9 @@ from __future__ import annotations
 import time
 from typing import TYPE_CHECKING, Any
 
-import skelmsg
 import yaml
+
+import skelmsg
 
 if TYPE_CHECKING:
     from .system import System

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import lcm
+
 import skelmsg
 
 RUN_ID = 42

@@ -75,10 +75,10 @@ def dpus(url: str, tmp_path: Path) -> Iterator[DpuFarm]:
     yield farm
     codes = farm.stop_all()
     for dpu_id, daemon in farm.daemons.items():
-        log = daemon.log_path.read_bytes()
-        assert not SANITIZER_ERROR.search(log), f"DPU {dpu_id} sanitizer report:\n{log.decode(errors='replace')}"
+        log = daemon.log_path.read_bytes().decode(errors="replace")
+        assert not SANITIZER_ERROR.search(log.encode()), f"DPU {dpu_id} sanitizer report:\n{log}"
         if codes[dpu_id] is not None and codes[dpu_id] != -9:
-            assert codes[dpu_id] == 0, f"DPU {dpu_id} exited {codes[dpu_id]}:\n{log.decode(errors='replace')}"
+            assert codes[dpu_id] == 0, f"DPU {dpu_id} exited {codes[dpu_id]}:\n{log}"
 
 
 def skel(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:

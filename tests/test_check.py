@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+
 from skeleton.host import check as check_module
 from skeleton.host.check import check
 

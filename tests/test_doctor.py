@@ -10,6 +10,7 @@ import sys
 
 import pytest
 from netns import Hosts, hosts_fixture
+
 from skeleton.host.doctor import (
     Check,
     check_route,

@@ -6,9 +6,9 @@ import struct
 import time
 
 import lcm
+from conftest import EXAMPLES, DpuFarm
 
 import skelmsg
-from conftest import EXAMPLES, DpuFarm
 from skeleton.host.control import CONFIG, Control
 from skeleton.host.system import load
 

@@ -7,8 +7,9 @@ from pathlib import Path
 import lcm
 import numpy as np
 import pytest
-import skelmsg
 from analysis_synth import RUN_ID, batches, small_config, small_run, status, write_log
+
+import skelmsg
 from skeleton.analysis.flatdecode import FlatLayout
 from skeleton.analysis.logreader import SYNC_BYTES, read_log
 from skeleton.analysis.records import TIMING, decode_run, load_run, run_ids

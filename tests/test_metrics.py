@@ -5,8 +5,9 @@ from __future__ import annotations
 from fractions import Fraction
 
 import pytest
-import skelmsg
 from analysis_synth import MS, RUN_ID, US, Rec, batches, small_config, small_run, status
+
+import skelmsg
 from skeleton.analysis.faults import jam_faults, lockout_faults, lockouts_from_status
 from skeleton.analysis.metrics import dpu_metrics, process_metrics, static_load_pct
 from skeleton.analysis.records import RunRecords, decode_run, lost_batches

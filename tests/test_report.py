@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 from analysis_synth import GENERATION, RUN_ID, batches, report, small_config, small_run, status, write_log
 from rich.console import Console
+
 from skeleton.analysis.report import analyze, report_command
 from skeleton.analysis.tables import print_report
 

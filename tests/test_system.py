@@ -8,8 +8,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import skelmsg
 import yaml
+
+import skelmsg
 from skeleton.host.system import DEFAULT_URL, System, SystemFileError, dump_yaml, load
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
