@@ -68,9 +68,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--wait", type=float, default=1.0, metavar="S", help="how long to listen (default 1 s)")
 
     p = sub.add_parser("report", help="the tables of a recorded run, from its log alone")
-    p.add_argument("log", type=Path, help="run.lcm (or a run directory)")
+    p.add_argument("log", type=Path, help="run.lcm, run.mcap, or a run directory")
     p.add_argument("--json", action="store_true")
     p.add_argument("--run-id", type=int, help="which run, when the log holds several (default the last)")
+    p.add_argument("--plots", type=Path, metavar="DIR", help="also write PNG plots and report.html to DIR")
+
+    p = sub.add_parser("diff", help="two runs' tables side by side, with deltas")
+    p.add_argument("run_a", type=Path)
+    p.add_argument("run_b", type=Path)
+    p.add_argument("--json", action="store_true")
+
+    p = sub.add_parser("export", help="convert a run log to MCAP for Foxglove")
+    p.add_argument("log", type=Path)
+    p.add_argument("mcap", type=Path)
+    p.add_argument("--run-id", type=int)
+
+    p = sub.add_parser("watch", help="live view of a run (or of lcm-logplayer replaying one)")
+    p.add_argument("--url", default=DEFAULT_URL)
+    p.add_argument("--once", action="store_true", help="print the final table when the run ends, then exit")
+    p.add_argument("--duration", type=float, metavar="S", help="stop watching after S seconds")
+
+    p = sub.add_parser("doctor", help="check what would break LCM multicast here, with the fix for each")
+    p.add_argument("--url", default=DEFAULT_URL)
+    p.add_argument("--json", action="store_true")
     return parser
 
 
@@ -194,15 +214,49 @@ def cmd_status(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_log(path: Path) -> Path:
+    return path / "run.lcm" if path.is_dir() else path
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     from skeleton.analysis.report import report_command
 
-    log = args.log / "run.lcm" if args.log.is_dir() else args.log
-    return report_command(log, as_json=args.json, run_id=args.run_id)
+    log = _run_log(args.log)
+    code = report_command(log, as_json=args.json, run_id=args.run_id)
+    if args.plots is not None and code != EXIT_BAD_INPUT:
+        from skeleton.analysis.plots import plots_command
+
+        plots_command(log, args.plots, run_id=args.run_id)
+    return code
+
+
+def cmd_diff(args: argparse.Namespace) -> int:
+    from skeleton.analysis.diff import diff_command
+
+    return diff_command(_run_log(args.run_a), _run_log(args.run_b), as_json=args.json)
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from skeleton.analysis.export_mcap import export_command
+
+    return export_command(_run_log(args.log), args.mcap, run_id=args.run_id)
+
+
+def cmd_watch(args: argparse.Namespace) -> int:
+    from skeleton.analysis.watch import watch_command
+
+    return watch_command(args.url, once=args.once, duration_s=args.duration)
+
+
+def cmd_doctor(args: argparse.Namespace) -> int:
+    from skeleton.host.doctor import doctor
+
+    return doctor(args.url, as_json=args.json)
 
 
 COMMANDS = {"check": cmd_check, "up": cmd_up, "down": cmd_down, "push": cmd_push, "run": cmd_run,
-            "status": cmd_status, "report": cmd_report}
+            "status": cmd_status, "report": cmd_report, "diff": cmd_diff, "export": cmd_export,
+            "watch": cmd_watch, "doctor": cmd_doctor}
 
 
 if __name__ == "__main__":
