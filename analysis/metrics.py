@@ -1,4 +1,5 @@
-"""THE metric definitions: per-DPU utilization and per-process cycle statistics.
+"""THE metric definitions: per-DPU utilization and per-process cycle statistics
+(per-buffer transport latency and loss: latency.py; chain latency: chains.py).
 
 Everything here takes record arrays (records.RECORD_DTYPE / INPUT_DTYPE) and a
 config_t, never a file, so a post-mortem report, a replay and a live view compute
@@ -13,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from .latency import Histogram, LatencyUs, histogram
+from .latency import latency_us as _latency
 from .records import FLAG_OVERRUN, FLAG_SKIPPED
 
 
@@ -27,10 +30,9 @@ class InputMetrics:
 
 
 @dataclass
-class LatencyUs:
-    p50: float | None
-    p99: float | None
-    max: float | None
+class SlackUs:
+    min: float | None
+    mean: float | None
 
 
 @dataclass
@@ -49,6 +51,10 @@ class ProcessMetrics:
     too_late: int  # latency > too_late_pct % of the period
     first_overrun_cycle: int | None = None
     inputs: list[InputMetrics] = field(default_factory=list)
+    response_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))  # end - release
+    slack_us: SlackUs = field(default_factory=lambda: SlackUs(None, None))
+    # "release_latency_us" and "response_us": HISTOGRAM_BINS equal bins each
+    histograms: dict[str, Histogram] = field(default_factory=dict)
 
 
 @dataclass
@@ -175,6 +181,7 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
         skipped = (mine["flags"] & FLAG_SKIPPED) != 0
         done = mine[~skipped]
         latency = (done["start_ns"] - done["release_ns"]).astype(np.float64) / 1000.0
+        response = (cycle_end_ns(done) - done["release_ns"]).astype(np.float64) / 1000.0
         overran = _overran(done)
         late_us = proc.period_us * config.late_pct / 100.0
         too_late_us = proc.period_us * config.too_late_pct / 100.0
@@ -195,16 +202,15 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
                 too_late=int(np.count_nonzero(latency > too_late_us)),
                 first_overrun_cycle=int(done["cycle"][overran].min()) if overran.any() else None,
                 inputs=[_input(my_inputs, b, buffers) for b in proc.inputs],
+                response_us=_latency(response),
+                slack_us=SlackUs(
+                    float(done["slack_ns"].min()) / 1000.0 if len(done) else None,
+                    float(done["slack_ns"].mean()) / 1000.0 if len(done) else None,
+                ),
+                histograms={"release_latency_us": histogram(latency), "response_us": histogram(response)},
             )
         )
     return out
-
-
-def _latency(latency_us: np.ndarray) -> LatencyUs:
-    if len(latency_us) == 0:
-        return LatencyUs(None, None, None)
-    p50, p99 = np.percentile(latency_us, [50, 99])
-    return LatencyUs(float(p50), float(p99), float(latency_us.max()))
 
 
 def _input(my_inputs: np.ndarray, buffer_id: int, buffers: dict[int, Any]) -> InputMetrics:

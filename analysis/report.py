@@ -8,7 +8,7 @@ import json
 import os
 import struct
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
@@ -16,22 +16,18 @@ import numpy as np
 
 import skelmsg
 
-from .faults import (
-    Fault,
-    dpu_lost_faults,
-    jam_faults,
-    lockout_faults,
-    lockouts_from_records,
-    lockouts_from_status,
-    overrun_faults,
-)
+from .chains import ChainMetrics
+from .faults import Fault, lockouts_from_status
+from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets
 from .logreader import Integrity, Log, read_log
-from .metrics import DpuMetrics, ProcessMetrics, dpu_metrics, measured, process_metrics
+from .metrics import DpuMetrics, ProcessMetrics, measured
 from .records import RunRecords, load_run, run_ids
+from .windows import WindowReport, build_window, split_lockouts, window_records
 
 CONFIG_CHANNEL = "SKEL_CONFIG"
 STATUS_CHANNEL = "SKEL_STATUS"
 REPORT_CHANNEL = "SKEL_REPORT"
+CLOCK_CHANNEL = "SKEL_CLOCK"
 COMPUTE_MODES = {0: "sleep", 1: "wall", 2: "cpu", 3: "work"}
 EXIT_OK, EXIT_UNREADABLE, EXIT_FATAL = 0, 2, 3
 
@@ -59,6 +55,10 @@ class IntegrityReport:
 
 @dataclass
 class RunReport:
+    """One run. With one config generation, dpus/processes/buffers/chains/faults are
+    the whole run; when the config changed mid-run they are the LAST generation
+    window's, and `windows` holds every window (one entry for a single generation)."""
+
     run_id: int
     system: str
     generation: int
@@ -70,6 +70,10 @@ class RunReport:
     faults: list[Fault]
     compute_modes: dict[int, str] = field(default_factory=dict)
     cross_check: list[dict[str, Any]] = field(default_factory=list)  # report_t vs records, per DPU
+    buffers: list[BufferMetrics] = field(default_factory=list)
+    chains: list[ChainMetrics] = field(default_factory=list)
+    windows: list[WindowReport] = field(default_factory=list)
+    clock_offsets: dict[int, int] = field(default_factory=dict)  # DPU -> last offset estimate (ns)
 
     @property
     def fatal(self) -> bool:
@@ -77,13 +81,32 @@ class RunReport:
         return any(f.kind in ("lockout", "jam") for f in self.faults)
 
     def to_json(self) -> dict[str, Any]:
-        out = dataclasses.asdict(self)
+        # The chain series (one sample per cycle) stay in the API: report.json keeps
+        # their summary and histogram.
+        out = dataclasses.asdict(dataclasses.replace(self, chains=_no_series(self.chains), windows=[]))
         out["integrity"]["corrupt_ranges"] = [list(r) for r in self.integrity.corrupt_ranges]
+        for chain in out["chains"]:
+            chain.pop("series")
         modes = out.pop("compute_modes")
         for dpu in out["dpus"]:
             dpu["compute_mode"] = modes.get(dpu["id"])
+        out["windows"] = [_window_json(w, modes) for w in self.windows]
         out["fatal"] = self.fatal
         return out
+
+
+def _no_series(chains: list[ChainMetrics]) -> list[ChainMetrics]:
+    return [dataclasses.replace(c, series=None) for c in chains]
+
+
+def _window_json(window: WindowReport, modes: dict[int, str]) -> dict[str, Any]:
+    out = dataclasses.asdict(dataclasses.replace(window, chains=_no_series(window.chains)))
+    for chain in out["chains"]:
+        chain.pop("series")
+    for dpu in out["dpus"]:
+        dpu["compute_mode"] = modes.get(dpu["id"])
+    out["duration_ms"] = window.duration_ms
+    return out
 
 
 def build_report(
@@ -93,22 +116,29 @@ def build_report(
     reports: Sequence[Any] = (),
     integrity: Integrity | None = None,
     malformed: dict[str, int] | None = None,
+    configs: Mapping[int, Any] | None = None,
+    clock: ClockOffsets | None = None,
 ) -> RunReport:
-    """The report of one run from decoded messages: shared by `analyze` and live views."""
-    records = run.records[run.records["generation"] == config.generation]
-    keep = np.flatnonzero(run.records["generation"] == config.generation)
-    inputs = run.inputs[np.isin(run.inputs["record"], keep)].copy()
-    inputs["record"] = np.searchsorted(keep, inputs["record"])
-    dpus = dpu_metrics(records, config)
-    processes = process_metrics(records, inputs, config)
-    lockouts = lockouts_from_records(records, lockouts_from_status(statuses, run.run_id))
+    """The report of one run from decoded messages: shared by `analyze` and live views.
+
+    `config` is the run's last generation; `configs` (generation -> config_t) adds a
+    window for every earlier generation with timing records; `clock` holds the
+    clock-offset estimates (none: every DPU on the host's clock)."""
+    clock = clock or NO_OFFSETS
+    earlier = (configs or {}).items()
+    by_generation = {g: c for g, c in earlier if g in run.generations and g < config.generation}
+    by_generation[config.generation] = config
+    generations = sorted(by_generation)
+    parts = [window_records(run, g) for g in generations]
     mine = [r for r in reports if r.run_id == run.run_id]
-    faults = (
-        lockout_faults(lockouts, config)
-        + jam_faults(lockouts, config)
-        + overrun_faults(processes)
-        + dpu_lost_faults(config, records, {r.dpu for r in mine})
-    )
+    locks = split_lockouts(lockouts_from_status(statuses, run.run_id), [p[0] for p in parts])
+    # Only the last window can miss an end-of-run report_t.
+    reported: list[set[int] | None] = [None] * (len(generations) - 1) + [{r.dpu for r in mine}]
+    windows = [
+        build_window(by_generation[g], records, inputs, locks[i], reported[i], clock)
+        for i, (g, (records, inputs)) in enumerate(zip(generations, parts, strict=True))
+    ]
+    last = windows[-1]
     modes = {d.id: COMPUTE_MODES.get(d.compute, str(d.compute)) for d in config.dpus}
     modes.update({r.dpu: COMPUTE_MODES.get(r.compute, str(r.compute)) for r in mine})
     integ = integrity or Integrity(events=0)
@@ -127,11 +157,15 @@ def build_report(
             malformed={k: v for k, v in sorted((malformed or {}).items()) if v},
             duplicate_batches=run.duplicates,
         ),
-        dpus=dpus,
-        processes=processes,
-        faults=faults,
+        dpus=last.dpus,
+        processes=last.processes,
+        faults=last.faults,
         compute_modes=modes,
-        cross_check=_cross_check(records, config, mine),
+        cross_check=_cross_check(parts[-1][0], config, mine),
+        buffers=last.buffers,
+        chains=last.chains,
+        windows=windows,
+        clock_offsets=clock.latest(),
     )
 
 
@@ -182,8 +216,16 @@ def analyze_log(log: Log, run_id: int | None = None) -> RunReport:
     run = load_run(log, run_id, expected_batches=expected)
     malformed["SKEL_TIMING"] = run.malformed
     config = _config_for(log, max(run.generations), malformed)
+    configs = {}
+    for g in run.generations[:-1]:
+        try:
+            configs[g] = _config_for(log, g, malformed)
+        except LogError:
+            pass  # a window without its config cannot be named: only the others are reported
     statuses = _decode_all(log, STATUS_CHANNEL, skelmsg.status_t.decode, malformed)
-    return build_report(config, run, statuses, reports, log.integrity, malformed)
+    offsets = _decode_all(log, CLOCK_CHANNEL, skelmsg.clock_offset_t.decode, malformed)
+    clock = ClockOffsets.from_messages(offsets)
+    return build_report(config, run, statuses, reports, log.integrity, malformed, configs, clock)
 
 
 def _decode_all(log: Log, channel: str, decode: Callable[[bytes], T], malformed: dict[str, int]) -> list[T]:

@@ -1,4 +1,6 @@
-"""The report as rich tables: per DPU (the paper's Table 1), per process, faults.
+"""The report as rich tables: per DPU (the paper's Table 1), per process, per input,
+per buffer (transport latency and loss), per chain, faults; one set per generation
+window when the config changed mid-run.
 
 Rendering is deterministic (no clock, no terminal-dependent content beyond the
 console's width), so `skel run` and `skel report` print the same tables for one run.
@@ -12,6 +14,7 @@ from rich.console import Console
 from rich.table import Table
 
 from .report import RunReport
+from .windows import WindowReport
 
 
 def _num(value: float | None, digits: int = 1) -> str:
@@ -44,9 +47,13 @@ def _paper(paper: dict[Any, Any] | None, dpu: int) -> dict[str, Any] | None:
     return paper.get(dpu) or paper.get(str(dpu))
 
 
-def dpu_table(report: RunReport, paper: dict[Any, Any] | None = None) -> Table:
+def dpu_table(
+    report: RunReport, paper: dict[Any, Any] | None = None, window: WindowReport | None = None
+) -> Table:
+    """Per DPU of the report (or of one of its generation windows)."""
+    part = window or report
     rows = []
-    for d in report.dpus:
+    for d in part.dpus:
         ref = _paper(paper, d.id)
 
         def pair(ours: float | None, key: str, digits: int = 1, ref: dict[str, Any] | None = ref) -> str:
@@ -74,16 +81,16 @@ def dpu_table(report: RunReport, paper: dict[Any, Any] | None = None) -> Table:
         ("%\ncomp", True), ("%\ncomm", True), ("%\nwait", True), ("%\novhd", True),
         ("static\nload\n%", True), ("ovr", True),
     ]  # fmt: skip
-    title = f"{report.system}: run {report.run_id}, generation {report.generation}: per DPU (ovr = overruns)"
+    title = f"{report.system}: run {report.run_id}, generation {part.generation}: per DPU (ovr = overruns)"
     table = _table(title, columns, rows)
     if paper:
         table.caption = "(in brackets: the paper's Table 1)"
     return table
 
 
-def process_table(report: RunReport) -> Table:
+def process_table(report: RunReport, window: WindowReport | None = None) -> Table:
     rows = []
-    for p in report.processes:
+    for p in (window or report).processes:
         lat = p.latency_us
         rows.append(
             [
@@ -94,25 +101,28 @@ def process_table(report: RunReport) -> Table:
                 _num(lat.p50),
                 _num(lat.p99),
                 _num(lat.max),
+                _num(p.response_us.p99),
+                _num(p.slack_us.min),
                 _num(p.compute_mean_us),
                 f"{p.late}/{p.too_late}",
             ]
         )
     columns = [
         ("process", False), ("DPU", True), ("cycles", True), ("ovr", True), ("p50", True),
-        ("p99", True), ("max", True), ("compute\nmean", True), ("late/\ntoo late", True),
+        ("p99", True), ("max", True), ("resp.\np99", True), ("slack\nmin", True), ("compute\nmean", True),
+        ("late/\ntoo late", True),
     ]  # fmt: skip
     title = (
-        f"per process: release latency and compute in µs; "
+        f"per process: release latency (p50/p99/max), response (end - release), slack and compute in µs; "
         f"first {report.warmup_cycles} cycles (warm-up) excluded"
     )
     return _table(title, columns, rows)
 
 
-def input_table(report: RunReport) -> Table:
+def input_table(report: RunReport, window: WindowReport | None = None) -> Table:
     rows = [
         [p.name, i.buffer, str(i.new), str(i.stale), str(i.dropped), str(i.received)]
-        for p in report.processes
+        for p in (window or report).processes
         for i in p.inputs
     ]
     columns = [("process", False), ("input buffer", False), ("new", True), ("stale", True),
@@ -120,9 +130,43 @@ def input_table(report: RunReport) -> Table:
     return _table("per input buffer: cycles with new / stale data, sequences dropped", columns, rows)
 
 
-def fault_table(report: RunReport) -> Table:
+def buffer_table(report: RunReport, window: WindowReport | None = None) -> Table:
+    """Per buffer and reader: transport latency (send -> receive) and loss."""
     rows = []
-    for f in report.faults:
+    for b in (window or report).buffers:
+        for r in b.readers:
+            lat = r.latency_us
+            rows.append(
+                [b.buffer, b.writer, r.process, str(b.published), str(r.new), _num(lat.p50), _num(lat.p99),
+                 _num(lat.max), str(r.dropped), str(r.superseded), str(r.lost)]
+            )  # fmt: skip
+    columns = [("buffer", False), ("writer", False), ("reader", False), ("publ.", True), ("new", True),
+               ("p50", True), ("p99", True), ("max", True), ("dropped", True), ("super-\nseded", True),
+               ("lost", True)]  # fmt: skip
+    title = (
+        "per buffer: transport latency in µs (send -> receive, clock offsets removed); "
+        "lost = dropped - superseded"
+    )
+    return _table(title, columns, rows)
+
+
+def chain_table(report: RunReport, window: WindowReport | None = None) -> Table:
+    """Per chain: from the head's send to the start of the tail's computation."""
+    rows = []
+    for c in (window or report).chains:
+        lat = c.latency_us
+        rows.append(
+            [c.name, " -> ".join(c.processes), str(c.samples), _num(lat.p50), _num(lat.p99), _num(lat.max),
+             str(c.broken)]
+        )  # fmt: skip
+    columns = [("chain", False), ("processes", False), ("samples", True), ("p50", True), ("p99", True),
+               ("max", True), ("broken", True)]  # fmt: skip
+    return _table("per chain: end-to-end latency in µs (head's send -> tail's first use)", columns, rows)
+
+
+def fault_table(report: RunReport, window: WindowReport | None = None) -> Table:
+    rows = []
+    for f in (window or report).faults:
         chain = " -> ".join(f.chain)
         rows.append(
             [
@@ -138,6 +182,12 @@ def fault_table(report: RunReport) -> Table:
     columns = [("kind", False), ("process", False), ("DPU", True), ("buffer", False), ("writer", False),
                ("cycle", True), ("chain / detail", False)]  # fmt: skip
     return _table("faults", columns, rows)
+
+
+def window_header(window: WindowReport) -> str:
+    duration = window.duration_ms
+    span = "no measured cycle" if duration is None else f"{duration / 1000:.3f} s"
+    return f"== generation {window.generation} window: {span} =="
 
 
 def damage_lines(report: RunReport) -> list[str]:
@@ -160,11 +210,20 @@ def print_report(
     report: RunReport, console: Console | None = None, paper: dict[Any, Any] | None = None
 ) -> None:
     console = console or Console()
-    console.print(dpu_table(report, paper))
-    console.print(process_table(report))
-    if any(p.inputs for p in report.processes):
-        console.print(input_table(report))
-    if report.faults:
-        console.print(fault_table(report))
+    windows: list[WindowReport | None] = list(report.windows) if len(report.windows) > 1 else [None]
+    for window in windows:
+        if window is not None:
+            console.print(window_header(window), style="bold", markup=False, highlight=False)
+        part = window or report
+        console.print(dpu_table(report, paper, window))
+        console.print(process_table(report, window))
+        if any(p.inputs for p in part.processes):
+            console.print(input_table(report, window))
+        if any(b.readers for b in part.buffers):
+            console.print(buffer_table(report, window))
+        if part.chains:
+            console.print(chain_table(report, window))
+        if part.faults:
+            console.print(fault_table(report, window))
     for line in damage_lines(report):
         console.print(line, style="yellow", markup=False, highlight=False)

@@ -1,0 +1,171 @@
+"""End-to-end latency along the chains of the system file (config_t.chains, head first).
+
+Lineage: a process's cycle k publishes sequence k on every output, and each input
+record says which sequence of that input was current (in_seq). Between two
+consecutive chain steps P[i-1] -> P[i] the value travels on the buffer P[i-1]
+writes and P[i] reads (the first such in P[i]'s inputs; validation guarantees one).
+From a tail cycle, in_seq on that buffer names the cycle of P[n-1] whose output
+it used; that cycle's own input from P[n-2] names P[n-2]'s cycle; and so on to
+the head's cycle c0, whose value the tail cycle carries.
+
+One sample per value: a tail cycle counts when the value it carries arrives there
+for the first time (its c0 is newer than every earlier tail cycle's), and only
+when that tail cycle is completed and in the measured window.
+
+- birth: the head's send time of sequence c0 (send_ns of the message, as the
+  second step received it: exact, on the head's DPU clock);
+- first use: the start of the tail cycle's computation (start + comm_in +
+  blocked): the moment the tail has the value in hand. A data-synchronised tail
+  may receive it while blocked, after its cycle started, so the cycle start would
+  be too early;
+- latency = first use - birth, both moved to the host clock with the clock
+  offsets (latency.ClockOffsets).
+
+A tail cycle whose lineage cannot be followed (an upstream record lost with its
+timing batch, or no data yet) is counted as `broken`, not as a sample.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .latency import NO_OFFSETS, ClockOffsets, Histogram, LatencyUs, histogram, latency_us
+from .records import FLAG_SKIPPED
+
+_CYCLE_BITS = 40  # (process, cycle) -> one int64 key; cycles stay far below 2**40
+
+
+@dataclass
+class ChainSeries:
+    """One sample per value reaching the tail, in tail-cycle order."""
+
+    tail_cycle: np.ndarray  # int64
+    head_cycle: np.ndarray  # int64: c0
+    use_ns: np.ndarray  # int64, host clock: first use at the tail
+    latency_ns: np.ndarray  # int64
+
+
+@dataclass
+class ChainMetrics:
+    name: str
+    processes: list[str]
+    buffers: list[str]  # the buffer of each step, head -> tail
+    latency_us: LatencyUs
+    samples: int
+    broken: int
+    histogram: Histogram = field(default_factory=Histogram)
+    series: ChainSeries | None = field(default=None, repr=False)  # API only, not in report.json
+
+
+def _empty_series() -> ChainSeries:
+    z = np.zeros(0, dtype=np.int64)
+    return ChainSeries(z, z.copy(), z.copy(), z.copy())
+
+
+class _Lookup:
+    """(process, cycle) -> record index and (record, buffer) -> input row, by binary search."""
+
+    def __init__(self, records: np.ndarray, inputs: np.ndarray) -> None:
+        done = np.flatnonzero((records["flags"] & FLAG_SKIPPED) == 0)
+        keys = (records["process"][done].astype(np.int64) << _CYCLE_BITS) + records["cycle"][done]
+        order = np.argsort(keys, kind="stable")
+        self.rec_keys, self.rec_index = keys[order], done[order]
+        ikeys = (inputs["record"].astype(np.int64) << 16) + (inputs["buffer"].astype(np.int64) & 0xFFFF)
+        iorder = np.argsort(ikeys, kind="stable")
+        self.in_keys, self.in_index = ikeys[iorder], iorder
+
+    @staticmethod
+    def _find(keys: np.ndarray, index: np.ndarray, wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        at = np.searchsorted(keys, wanted)
+        clipped = np.minimum(at, max(len(keys) - 1, 0))
+        found = (at < len(keys)) & (keys[clipped] == wanted) if len(keys) else np.zeros(len(wanted), bool)
+        return (index[clipped] if len(keys) else np.zeros(len(wanted), np.int64)), found
+
+    def record(self, process: int, cycles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self._find(self.rec_keys, self.rec_index, (np.int64(process) << _CYCLE_BITS) + cycles)
+
+    def input(self, records: np.ndarray, buffer: int) -> tuple[np.ndarray, np.ndarray]:
+        return self._find(self.in_keys, self.in_index, (records.astype(np.int64) << 16) + (buffer & 0xFFFF))
+
+
+def chain_buffers(chain: Any, config: Any) -> list[int] | None:
+    """The buffer of each step (len = processes - 1), None when a step has none."""
+    procs = {p.id: p for p in config.processes}
+    out = []
+    for up, down in zip(chain.processes[:-1], chain.processes[1:], strict=True):
+        if up not in procs or down not in procs:
+            return None
+        written = set(procs[up].outputs)
+        step = next((b for b in procs[down].inputs if b in written), None)
+        if step is None:
+            return None
+        out.append(int(step))
+    return out
+
+
+def chain_series(
+    records: np.ndarray, inputs: np.ndarray, config: Any, chain: Any, clock: ClockOffsets = NO_OFFSETS
+) -> tuple[ChainSeries, int]:
+    """The samples of one chain and the number of broken tail cycles."""
+    steps = chain_buffers(chain, config)
+    procs = {p.id: p for p in config.processes}
+    pids = [int(p) for p in chain.processes]
+    if steps is None or len(inputs) == 0:
+        return _empty_series(), 0
+    look = _Lookup(records, inputs)
+    tail = pids[-1]
+    # Every completed tail cycle's row on the last buffer (warm-up too: it tells
+    # which values the measured window saw before).
+    rec_done = (records["flags"] & FLAG_SKIPPED) == 0
+    tail_rows = np.flatnonzero(
+        (inputs["process"] == tail) & (inputs["buffer"] == steps[-1]) & rec_done[inputs["record"]]
+    )
+    tail_rows = tail_rows[np.argsort(inputs["cycle"][tail_rows], kind="stable")]
+    rows, ok = tail_rows, inputs["seq"][tail_rows] >= 0
+    for i in range(len(steps) - 1, 0, -1):  # step i: pids[i] reads steps[i-1] from pids[i-1]
+        rec, found = look.record(pids[i], np.where(ok, inputs["seq"][rows], 0))
+        ok &= found
+        rows, found = look.input(rec, steps[i - 1])
+        ok &= found & (inputs["seq"][rows] >= 0)
+    head_cycle = np.where(ok, inputs["seq"][rows] if len(rows) else 0, -1)
+    born = inputs["sent_ns"][rows] if len(rows) else np.zeros(0, np.int64)
+    # First arrival of each value: c0 newer than every earlier tail cycle's.
+    earlier = np.maximum.accumulate(np.r_[-1, head_cycle[:-1]]) if len(head_cycle) else head_cycle
+    first = ok & (head_cycle > earlier)
+    tail_rec = inputs["record"][tail_rows]
+    measured = records["cycle"][tail_rec] >= config.warmup_cycles
+    broken = int(np.count_nonzero(measured & ~ok & (inputs["new"][tail_rows] != 0)))
+    keep = first & measured
+    rec = records[tail_rec[keep]]
+    use = clock.to_host(procs[tail].dpu, rec["start_ns"] + rec["comm_in_ns"] + rec["blocked_ns"])
+    birth = clock.to_host(procs[pids[0]].dpu, born[keep])
+    return ChainSeries(rec["cycle"].astype(np.int64), head_cycle[keep], use, use - birth), broken
+
+
+def chain_metrics(
+    records: np.ndarray, inputs: np.ndarray, config: Any, clock: ClockOffsets = NO_OFFSETS
+) -> list[ChainMetrics]:
+    """Per chain of the config, in config order."""
+    names = {p.id: p.name for p in config.processes}
+    buffers = {b.id: b.name for b in config.buffers}
+    out = []
+    for chain in config.chains:
+        series, broken = chain_series(records, inputs, config, chain, clock)
+        lat_us = series.latency_ns.astype(np.float64) / 1000.0
+        steps = chain_buffers(chain, config) or []
+        out.append(
+            ChainMetrics(
+                name=chain.name,
+                processes=[names.get(p, f"process {p}") for p in chain.processes],
+                buffers=[buffers.get(b, f"buffer {b}") for b in steps],
+                latency_us=latency_us(lat_us),
+                samples=len(lat_us),
+                broken=broken,
+                histogram=histogram(lat_us),
+                series=series,
+            )
+        )
+    return out

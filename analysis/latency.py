@@ -1,0 +1,229 @@
+"""Per-buffer transport latency and loss, and the clock offsets that make
+cross-host times comparable.
+
+Transport latency of a buffer at one reader: for every reader cycle that found a
+new sequence (in_new = 1), the newest message's receive time (reader's DPU clock)
+minus its send time (writer's DPU clock), both moved to the host clock with the
+clock-offset estimates in the log (channel SKEL_CLOCK, clock_offset_t: offset_ns =
+DPU clock - host clock). A time t on DPU d is taken as t - offset, with the latest
+estimate for d made at or before t (its host_mono_ns + offset_ns on d's clock);
+before d's first estimate, the first one; a DPU with no estimate has offset 0 (one
+machine, one clock). Stale cycles hold the same message as before and are not
+counted again, so each sequence contributes at most one sample per reader.
+
+Loss at one reader, over the measured window (completed cycles):
+- new: cycles that found a newer sequence; each such cycle uses exactly one message.
+- dropped: sequences skipped between two used ones (Σ in_dropped). A skipped
+  sequence was either received and superseded before the reader ran (the writer is
+  faster than the reader) or never received (lost on the link).
+- received: messages received (Σ in_received), including superseded ones.
+- superseded = received - new: received but never used (overwritten by a newer one
+  before the reader's next cycle, or arriving late and out of order).
+- lost = max(0, dropped - superseded): sequences never received.
+A buffer's `published` is the number of its writer's completed measured cycles (a
+cycle k publishes sequence k on every output).
+
+Like metrics.py, everything here takes record arrays and a config_t, never a file.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .records import FLAG_SKIPPED
+
+
+@dataclass
+class LatencyUs:
+    p50: float | None
+    p99: float | None
+    max: float | None
+
+
+@dataclass
+class Histogram:
+    """Counts of samples in len(bins) - 1 equal bins; bins are the edges."""
+
+    bins: list[float] = field(default_factory=list)
+    counts: list[int] = field(default_factory=list)
+
+
+HISTOGRAM_BINS = 40
+
+
+def latency_us(samples_us: np.ndarray) -> LatencyUs:
+    """p50 / p99 (linear interpolation) / max of samples in µs; None when empty."""
+    if len(samples_us) == 0:
+        return LatencyUs(None, None, None)
+    p50, p99 = np.percentile(samples_us, [50, 99])
+    return LatencyUs(float(p50), float(p99), float(samples_us.max()))
+
+
+def histogram(samples: np.ndarray, bins: int = HISTOGRAM_BINS) -> Histogram:
+    """An equal-width histogram from the smallest to the largest sample (a 1-wide
+    range around the value when they are all equal)."""
+    if len(samples) == 0:
+        return Histogram()
+    low, high = float(samples.min()), float(samples.max())
+    if high <= low:
+        low, high = low - 0.5, high + 0.5
+    counts, edges = np.histogram(samples, bins=bins, range=(low, high))
+    return Histogram([round(float(e), 3) for e in edges], [int(c) for c in counts])
+
+
+class ClockOffsets:
+    """Per-DPU clock-offset estimates (offset_ns = DPU clock - host clock)."""
+
+    def __init__(self, estimates: Iterable[tuple[int, int, int]] = ()) -> None:
+        """`estimates`: (dpu, host_mono_ns, offset_ns) in any order."""
+        by_dpu: dict[int, list[tuple[int, int]]] = {}
+        for dpu, host_ns, offset_ns in estimates:
+            by_dpu.setdefault(int(dpu), []).append((int(host_ns) + int(offset_ns), int(offset_ns)))
+        self._at: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        for dpu, rows in by_dpu.items():
+            rows.sort()
+            self._at[dpu] = (
+                np.array([r[0] for r in rows], dtype=np.int64),
+                np.array([r[1] for r in rows], dtype=np.int64),
+            )
+
+    @classmethod
+    def from_messages(cls, messages: Iterable[Any]) -> ClockOffsets:
+        """From decoded clock_offset_t messages."""
+        return cls((m.dpu, m.host_mono_ns, m.offset_ns) for m in messages)
+
+    @property
+    def dpus(self) -> list[int]:
+        return sorted(self._at)
+
+    def latest(self) -> dict[int, int]:
+        """DPU -> its last estimate (ns)."""
+        return {dpu: int(offset[-1]) for dpu, (_, offset) in sorted(self._at.items())}
+
+    def offset_ns(self, dpu: int, t_dpu_ns: np.ndarray) -> np.ndarray:
+        """The offset in force at each time (on the DPU's clock)."""
+        t = np.asarray(t_dpu_ns, dtype=np.int64)
+        if dpu not in self._at:
+            return np.zeros(t.shape, dtype=np.int64)
+        when, offset = self._at[dpu]
+        i = np.searchsorted(when, t, side="right") - 1
+        return offset[np.maximum(i, 0)]
+
+    def to_host(self, dpu: int, t_dpu_ns: np.ndarray) -> np.ndarray:
+        t = np.asarray(t_dpu_ns, dtype=np.int64)
+        return t - self.offset_ns(dpu, t)
+
+    def to_host_many(self, dpus: np.ndarray, t_dpu_ns: np.ndarray) -> np.ndarray:
+        """Times of several DPUs (dpus[i] is the clock of t_dpu_ns[i])."""
+        t = np.asarray(t_dpu_ns, dtype=np.int64)
+        if not self._at:
+            return t.copy()
+        out = t.copy()
+        for dpu in np.unique(dpus).tolist():
+            mask = dpus == dpu
+            out[mask] = self.to_host(dpu, t[mask])
+        return out
+
+
+NO_OFFSETS = ClockOffsets()
+
+
+@dataclass
+class ReaderMetrics:
+    process: str
+    latency_us: LatencyUs
+    samples: int  # new cycles with a send and a receive time
+    new: int
+    dropped: int
+    received: int
+    superseded: int
+    lost: int
+    histogram: Histogram = field(default_factory=Histogram)
+
+
+@dataclass
+class BufferMetrics:
+    buffer: str
+    buffer_id: int
+    writer: str
+    published: int
+    latency_us: LatencyUs  # over all readers' samples
+    dropped: int  # over all readers
+    lost: int  # over all readers
+    readers: list[ReaderMetrics] = field(default_factory=list)
+
+
+def counted_inputs(records: np.ndarray, inputs: np.ndarray, warmup_cycles: int) -> np.ndarray:
+    """Mask of the input records that count: those of completed, measured cycles."""
+    if len(inputs) == 0:
+        return np.zeros(0, dtype=bool)
+    ok = (records["cycle"] >= warmup_cycles) & ((records["flags"] & FLAG_SKIPPED) == 0)
+    return ok[inputs["record"]]
+
+
+def transport_latency_ns(
+    rows: np.ndarray, reader_dpu: int, writer_dpu: int, clock: ClockOffsets
+) -> np.ndarray:
+    """Receive minus send (host clock) of the new input records among `rows`."""
+    used = rows[(rows["new"] != 0) & (rows["seq"] >= 0) & (rows["sent_ns"] != 0) & (rows["recv_ns"] != 0)]
+    recv = clock.to_host(reader_dpu, used["recv_ns"])
+    sent = clock.to_host(writer_dpu, used["sent_ns"])
+    return recv - sent
+
+
+def buffer_metrics(
+    records: np.ndarray, inputs: np.ndarray, config: Any, clock: ClockOffsets = NO_OFFSETS
+) -> list[BufferMetrics]:
+    """Per buffer (config order by id) that has a reader, over the measured window."""
+    procs = {p.id: p for p in config.processes}
+    counted = inputs[counted_inputs(records, inputs, config.warmup_cycles)]
+    completed = records[(records["cycle"] >= config.warmup_cycles) & ((records["flags"] & FLAG_SKIPPED) == 0)]
+    out = []
+    for buf in sorted(config.buffers, key=lambda b: b.id):
+        readers = sorted((p for p in config.processes if buf.id in p.inputs), key=lambda p: p.id)
+        if not readers:
+            continue
+        writer = procs.get(buf.writer)
+        writer_dpu = writer.dpu if writer is not None else -1
+        rows_of_buffer = counted[counted["buffer"] == buf.id]
+        pooled: list[np.ndarray] = []
+        reader_metrics = []
+        for reader in readers:
+            rows = rows_of_buffer[rows_of_buffer["process"] == reader.id]
+            lat_us = transport_latency_ns(rows, reader.dpu, writer_dpu, clock).astype(np.float64) / 1000.0
+            pooled.append(lat_us)
+            new = int(np.count_nonzero(rows["new"]))
+            dropped = int(rows["dropped"].sum())
+            received = int(rows["received"].sum())
+            superseded = max(0, received - new)
+            reader_metrics.append(
+                ReaderMetrics(
+                    process=reader.name,
+                    latency_us=latency_us(lat_us),
+                    samples=len(lat_us),
+                    new=new,
+                    dropped=dropped,
+                    received=received,
+                    superseded=superseded,
+                    lost=max(0, dropped - superseded),
+                    histogram=histogram(lat_us),
+                )
+            )
+        everything = np.concatenate(pooled) if pooled else np.zeros(0)
+        out.append(
+            BufferMetrics(
+                buffer=buf.name,
+                buffer_id=int(buf.id),
+                writer=writer.name if writer is not None else f"process {buf.writer}",
+                published=int(np.count_nonzero(completed["process"] == buf.writer)),
+                latency_us=latency_us(everything),
+                dropped=sum(r.dropped for r in reader_metrics),
+                lost=sum(r.lost for r in reader_metrics),
+                readers=reader_metrics,
+            )
+        )
+    return out

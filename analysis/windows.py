@@ -1,0 +1,112 @@
+"""Generation windows: the part of a run that ran one config generation.
+
+When the config changes mid-run (a live `skel push`), every timing record carries
+the generation its cycle ran under, and the log holds every generation's config_t:
+each window is measured with its own config (its own processes, periods,
+allocation), so a table never mixes two systems.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .chains import ChainMetrics, chain_metrics
+from .faults import (
+    Fault,
+    Lockout,
+    dpu_lost_faults,
+    jam_faults,
+    lockout_faults,
+    lockouts_from_records,
+    overrun_faults,
+)
+from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets, buffer_metrics
+from .metrics import DpuMetrics, ProcessMetrics, cycle_end_ns, dpu_metrics, measured, process_metrics
+from .records import RunRecords
+
+
+@dataclass
+class WindowReport:
+    generation: int
+    start_ns: int | None  # host clock: the window's first measured release
+    end_ns: int | None  # host clock: the end of its last measured cycle (work + idle)
+    dpus: list[DpuMetrics]
+    processes: list[ProcessMetrics]
+    buffers: list[BufferMetrics] = field(default_factory=list)
+    chains: list[ChainMetrics] = field(default_factory=list)
+    faults: list[Fault] = field(default_factory=list)
+
+    @property
+    def duration_ms(self) -> float | None:
+        if self.start_ns is None or self.end_ns is None:
+            return None
+        return (self.end_ns - self.start_ns) / 1e6
+
+
+def window_records(run: RunRecords, generation: int) -> tuple[np.ndarray, np.ndarray]:
+    """The records of one generation and their input records (re-indexed to them)."""
+    keep = np.flatnonzero(run.records["generation"] == generation)
+    inputs = run.inputs[np.isin(run.inputs["record"], keep)].copy()
+    inputs["record"] = np.searchsorted(keep, inputs["record"])
+    return run.records[keep], inputs
+
+
+def _span(records: np.ndarray, warmup_cycles: int, clock: ClockOffsets) -> tuple[int | None, int | None]:
+    mine = records[measured(records, warmup_cycles)]
+    if len(mine) == 0:
+        mine = records
+    if len(mine) == 0:
+        return None, None
+    start = clock.to_host_many(mine["dpu"], mine["release_ns"])
+    end = clock.to_host_many(mine["dpu"], cycle_end_ns(mine) + mine["idle_ns"])
+    return int(start.min()), int(end.max())
+
+
+def build_window(
+    config: Any,
+    records: np.ndarray,
+    inputs: np.ndarray,
+    lockouts: dict[int, Lockout] | None = None,
+    reported: set[int] | None = None,
+    clock: ClockOffsets = NO_OFFSETS,
+) -> WindowReport:
+    """Every table of one generation window. `lockouts`: the ones status_t reported in
+    this window; `reported`: DPUs that sent their end-of-run report_t (last window only)."""
+    processes = process_metrics(records, inputs, config)
+    locks = lockouts_from_records(records, lockouts or {})
+    start, end = _span(records, config.warmup_cycles, clock)
+    return WindowReport(
+        generation=int(config.generation),
+        start_ns=start,
+        end_ns=end,
+        dpus=dpu_metrics(records, config),
+        processes=processes,
+        buffers=buffer_metrics(records, inputs, config, clock),
+        chains=chain_metrics(records, inputs, config, clock),
+        faults=(
+            lockout_faults(locks, config)
+            + jam_faults(locks, config)
+            + overrun_faults(processes)
+            + dpu_lost_faults(config, records, reported)
+        ),
+    )
+
+
+def split_lockouts(lockouts: dict[int, Lockout], windows: Sequence[np.ndarray]) -> list[dict[int, Lockout]]:
+    """Each lockout goes to the last window (records per window, in order) in which its
+    process had run a cycle at or before the locked cycle; the last window otherwise."""
+    out: list[dict[int, Lockout]] = [{} for _ in windows]
+    for proc, lock in lockouts.items():
+        chosen = len(windows) - 1
+        for i in range(len(windows) - 1, -1, -1):
+            cycles = windows[i]["cycle"][windows[i]["process"] == proc]
+            if len(cycles) and int(cycles.min()) <= lock.cycle:
+                chosen = i
+                break
+        if chosen >= 0:
+            out[chosen][proc] = lock
+    return out
