@@ -1,0 +1,107 @@
+"""LCM messages <-> JSON, and a JSON Schema for every lcm-gen type.
+
+MCAP has no LCM encoding and Foxglove cannot decode LCM, so `skel export` writes
+JSON messages with jsonschema schemas. Both directions are derived from the lcm-gen
+Python class (__slots__, __typenames__, __dimensions__), never written by hand, so a
+field added to lcmtypes/ appears in the export and survives the round trip that
+`skel report RUN.mcap` relies on.
+"""
+
+from __future__ import annotations
+
+import base64
+import importlib
+from typing import Any
+
+_JSON_TYPES = {
+    "int8_t": "integer",
+    "int16_t": "integer",
+    "int32_t": "integer",
+    "int64_t": "integer",
+    "boolean": "boolean",
+    "float": "number",
+    "double": "number",
+    "string": "string",
+}
+
+
+def lcm_class(typename: str) -> type:
+    """The generated class of a nested type name such as 'skelmsg.link_t'."""
+    module, _, name = typename.rpartition(".")
+    return getattr(importlib.import_module(module or "skelmsg"), name)  # type: ignore[no-any-return]
+
+
+def type_name(cls: type) -> str:
+    return f"{cls.__module__.rsplit('.', 1)[0]}.{cls.__name__}"
+
+
+def _fields(cls: type) -> list[tuple[str, str, list[Any] | None]]:
+    dims = cls.__dimensions__  # type: ignore[attr-defined]
+    for slot, d in zip(cls.__slots__, dims, strict=True):  # type: ignore[attr-defined]
+        if d is not None and len(d) != 1:
+            raise TypeError(f"{cls.__name__}.{slot}: only 1-D arrays are supported")
+    return list(zip(cls.__slots__, cls.__typenames__, dims, strict=True))  # type: ignore[attr-defined]
+
+
+def _item_schema(typename: str) -> dict[str, Any]:
+    if typename == "byte":
+        return {"type": "integer", "minimum": 0, "maximum": 255}
+    if typename in _JSON_TYPES:
+        return {"type": _JSON_TYPES[typename]}
+    return schema_of(lcm_class(typename), top=False)
+
+
+def schema_of(cls: type, top: bool = True) -> dict[str, Any]:
+    """A JSON Schema (draft 2020-12) describing `to_json(msg)` of a `cls` message."""
+    properties: dict[str, Any] = {}
+    for slot, typename, dims in _fields(cls):
+        if dims is None:
+            properties[slot] = _item_schema(typename)
+        elif typename == "byte":
+            # Foxglove's convention for bytes inside JSON messages.
+            properties[slot] = {"type": "string", "contentEncoding": "base64"}
+        else:
+            properties[slot] = {"type": "array", "items": _item_schema(typename)}
+    schema: dict[str, Any] = {
+        "title": type_name(cls),
+        "type": "object",
+        "properties": properties,
+        "required": list(properties),
+    }
+    if top:
+        schema = {"$schema": "https://json-schema.org/draft/2020-12/schema", **schema}
+    return schema
+
+
+def to_json(msg: Any) -> dict[str, Any]:
+    """Every field of a decoded LCM message, as JSON-ready values (nested types as objects)."""
+    out: dict[str, Any] = {}
+    for slot, typename, dims in _fields(type(msg)):
+        value = getattr(msg, slot)
+        if dims is None:
+            out[slot] = value if typename in _JSON_TYPES or typename == "byte" else to_json(value)
+        elif typename == "byte":
+            out[slot] = base64.b64encode(bytes(value)).decode("ascii")
+        elif typename in _JSON_TYPES:
+            out[slot] = list(value)
+        else:
+            out[slot] = [to_json(v) for v in value]
+    return out
+
+
+def from_json(cls: type, data: dict[str, Any]) -> Any:
+    """The message `to_json` came from: `from_json(type(m), to_json(m)).encode() == m.encode()`."""
+    msg = cls()
+    for slot, typename, dims in _fields(cls):
+        value = data[slot]
+        if dims is None:
+            setattr(msg, slot, value if typename in _JSON_TYPES or typename == "byte" else
+                    from_json(lcm_class(typename), value))
+        elif typename == "byte":
+            setattr(msg, slot, base64.b64decode(value))
+        elif typename in _JSON_TYPES:
+            setattr(msg, slot, list(value))
+        else:
+            item = lcm_class(typename)
+            setattr(msg, slot, [from_json(item, v) for v in value])
+    return msg
