@@ -16,7 +16,7 @@ from __future__ import annotations
 import mmap
 import os
 import struct
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -120,6 +120,26 @@ def read_log(path: str | os.PathLike[str]) -> Log:
     with open(path, "rb") as f:
         size = os.fstat(f.fileno()).st_size
         raw: mmap.mmap | bytes = b"" if size == 0 else mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+    return _read(path, raw, size)
+
+
+def read_bytes(data: bytes, name: str = "<memory>") -> Log:
+    """Read an LCM log held in memory (e.g. what a live subscription heard, see encode_events)."""
+    return _read(name, data, len(data))
+
+
+def encode_events(events: Iterable[tuple[int, str, bytes]]) -> bytes:
+    """(utime_us, channel, data) events in the LCM log format, numbered from 0 as lcm-logger does."""
+    parts: list[bytes] = []
+    for number, (utime_us, channel, data) in enumerate(events):
+        name = channel.encode()
+        parts.append(_HEADER.pack(SYNC, number, utime_us, len(name), len(data)))
+        parts.append(name)
+        parts.append(data)
+    return b"".join(parts)
+
+
+def _read(path: str, raw: mmap.mmap | bytes, size: int) -> Log:
     buf = np.frombuffer(raw, dtype=np.uint8)
     offsets, head, corrupt, truncated = _walk(raw, buf, size)
     return _table(path, buf, size, offsets, head, corrupt, truncated)

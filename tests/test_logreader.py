@@ -11,7 +11,7 @@ from analysis_synth import RUN_ID, batches, small_config, small_run, status, wri
 
 import skelmsg
 from skeleton.analysis.flatdecode import FlatLayout
-from skeleton.analysis.logreader import SYNC_BYTES, read_log
+from skeleton.analysis.logreader import SYNC_BYTES, encode_events, read_bytes, read_log
 from skeleton.analysis.records import TIMING, decode_run, load_run, run_ids
 
 
@@ -164,3 +164,14 @@ def test_run_selection_default_is_last_run(tmp_path: Path) -> None:
     assert load_run(log).run_id == RUN_ID
     first = load_run(log, 9)
     assert first.run_id == 9 and len(first.records) == 20 and first.malformed == 1
+
+
+def test_encoded_events_read_back_by_both_readers(tmp_path: Path) -> None:
+    path = _sample_log(tmp_path / "a.lcm")
+    events = [(t, c, d) for _, t, c, d in _reference(path)]
+    data = encode_events(events)
+    assert data == path.read_bytes()  # lcm-logger's format, byte for byte (events numbered from 0)
+    log = read_bytes(data)
+    assert [tuple(e) for e in log.events] == _reference(path)
+    assert log.integrity.events == len(events) and not log.integrity.damaged
+    assert len(read_bytes(b"")) == 0

@@ -1,0 +1,147 @@
+"""skel watch: a replayed run's final table equals `skel report`'s, the live view shows a live
+run and its faults, and the incremental record store equals the one-shot decode."""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import lcm
+import numpy as np
+from analysis_synth import RUN_ID, batches, small_config, small_run, status
+from conftest import EXAMPLES, REPO, skel
+from rich.console import Console
+
+from skeleton.analysis.records import decode_run
+from skeleton.analysis.report import build_report
+from skeleton.analysis.watch import Heard, RecordStore, render
+
+LOGPLAYER = Path(lcm.__file__).parent.parent / "bin" / "lcm-logplayer"
+ENV = {**os.environ, "COLUMNS": "160"}
+
+LOCKOUT_SYSTEM = """\
+system: lockout
+links: [{name: bus, url: "udpm://239.255.76.67:7667?ttl=0"}]
+dpus: [{id: 1}, {id: 2}]
+buffers: [{id: 1, name: slow_data, bytes: 64}]
+processes:
+  - {id: 1, name: slow_writer, dpu: 1, period_us: 100000, compute_us: 1000, outputs: [1]}
+  - {id: 2, name: hungry_reader, dpu: 2, period_us: 5000, compute_us: 500, sync: data, inputs: [1]}
+run: {duration_s: 3, warmup_cycles: 0, lockout_cycles: 5, stop_on: [lockout]}
+"""
+
+
+def _other_url(url: str) -> str:
+    """A second private ttl=0 URL: the same group, the port moved by 1000."""
+    match = re.fullmatch(r"udpm://([\d.]+):(\d+)\?ttl=0", url)
+    assert match, url
+    return f"udpm://{match.group(1)}:{int(match.group(2)) + 1000}?ttl=0"
+
+
+def _watch(*args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, "-m", "skeleton.host.cli", "watch", *args], cwd=REPO, env=ENV,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _replay_and_compare(log: Path, url: str) -> tuple[subprocess.CompletedProcess[str], str, str]:
+    """Replay `log` on a private URL while `skel watch --once` listens there."""
+    replay_url = _other_url(url)
+    watch = _watch("--once", "--url", replay_url, "--duration", "60")
+    assert watch.stderr is not None
+    ready = watch.stderr.readline()  # printed once subscribed: nothing of the replay is missed
+    assert "waiting for a run" in ready, ready
+    player = subprocess.run([str(LOGPLAYER), "-s", "1", "-l", replay_url, str(log)], capture_output=True,
+                            text=True, timeout=60)
+    assert player.returncode == 0, player.stderr
+    out, err = watch.communicate(timeout=60)
+    report = skel("report", str(log))
+    return report, out, ready + err + f"\n(exit {watch.returncode})"
+
+
+def test_replayed_run_gives_report_tables(tmp_path: Path, url: str) -> None:
+    out = tmp_path / "pair"
+    run = skel("run", str(EXAMPLES / "pair-10ms-5ms.yaml"), "--spawn", "--url", url, "--duration", "1.5",
+               "-s", "run.warmup_cycles=10", "--out", str(out))
+    assert run.returncode == 0, run.stdout + run.stderr
+    report, watched, err = _replay_and_compare(out / "run.lcm", url)
+    assert report.returncode == 0, report.stderr
+    assert "following run" in err, err
+    assert "(exit 0)" in err, err
+    assert "slow_writer" in watched and "per DPU" in watched, watched + err
+    assert watched == report.stdout, err
+
+
+def test_replayed_lockout_exits_3_with_the_same_tables(tmp_path: Path, url: str) -> None:
+    system = tmp_path / "lockout.yaml"
+    system.write_text(LOCKOUT_SYSTEM)
+    out = tmp_path / "lock"
+    run = skel("run", str(system), "--spawn", "--url", url, "--out", str(out))
+    assert run.returncode == 3, run.stdout + run.stderr
+    report, watched, err = _replay_and_compare(out / "run.lcm", url)
+    assert report.returncode == 3 and "(exit 3)" in err, err
+    assert "hungry_reader" in watched and "lockout" in watched, watched + err
+    assert watched == report.stdout, err
+
+
+def test_live_view_shows_dpus_processes_and_lockout(tmp_path: Path, url: str) -> None:
+    system = tmp_path / "lockout.yaml"
+    system.write_text(LOCKOUT_SYSTEM)
+    watch = _watch("--url", url, "--duration", "12")
+    time.sleep(1.0)  # the watch subscribes before the run's DPUs even start
+    run = skel("run", str(system), "--spawn", "--url", url, "--out", str(tmp_path / "lock"))
+    assert run.returncode == 3, run.stdout + run.stderr
+    shown, err = watch.communicate(timeout=30)
+    assert watch.returncode == 0, err
+    run_id = re.search(r"run (\d+), generation", run.stdout)
+    assert run_id, run.stdout
+    assert f"run {run_id.group(1)}" in shown, shown
+    assert "per DPU" in shown and "per process" in shown, shown
+    for row in (r"│\s+1 │", r"│\s+2 │"):  # one row per DPU
+        assert re.search(row, shown), shown
+    assert "slow_writer" in shown and "hungry_reader" in shown, shown
+    assert "lockout: hungry_reader (DPU 2)" in shown, shown
+
+
+def _synthetic_messages() -> list[bytes]:
+    dpu1, dpu2 = small_run()
+    return [t.encode() for t in batches(1, dpu1, 3) + batches(2, dpu2, 2)]
+
+
+def test_record_store_in_chunks_equals_one_decode() -> None:
+    msgs = _synthetic_messages()
+    whole = decode_run(msgs, RUN_ID)
+    store = RecordStore(RUN_ID)
+    for first in range(0, len(msgs), 2):
+        store.add(msgs[first : first + 2])
+    store.add(msgs[:3])  # heard twice: counted as duplicates, never twice in the records
+    run = store.run()
+    assert np.array_equal(run.records, whole.records)
+    assert np.array_equal(run.inputs, whole.inputs)
+    assert run.batches == whole.batches and run.generations == whole.generations
+    assert run.duplicates == 3 and run.lost_batches == []
+    assert store.run({1: len(batches(1, small_run()[0], 3)) + 2}).lost_batches[-1]["dpu"] == 1
+
+
+def test_heard_messages_give_the_report_and_a_view() -> None:
+    heard = Heard(keep_events=False)
+    config = small_config()
+    heard.handle("SKEL_CONFIG", config.encode())
+    heard.handle("SKEL_STATUS", status(2, [(2, 1, 7)]).encode())
+    for data in _synthetic_messages():
+        heard.handle("SKEL_TIMING", data)
+    heard.handle("SKEL_TIMING", b"junk")
+    report = heard.snapshot()
+    assert report is not None and heard.run_id == RUN_ID
+    expected = build_report(config, decode_run(_synthetic_messages(), RUN_ID), [status(2, [(2, 1, 7)])])
+    assert [d.compute_pct for d in report.dpus] == [d.compute_pct for d in expected.dpus]
+    assert report.integrity.malformed == {"SKEL_TIMING": 1}
+    assert any("lockout: C (DPU 2) at cycle 7, waiting on b_out" in text for _, text in heard.faults)
+    console = Console(width=160, record=True, file=io.StringIO())
+    console.print(render(heard, report, "udpm://x"))
+    text = console.export_text()
+    assert f"run {RUN_ID}" in text and "hungry" not in text and "lockout: C" in text
