@@ -12,13 +12,13 @@ corrupt ranges, truncated tail) is the source log's, from the file's metadata.
 from __future__ import annotations
 
 import base64
+import dataclasses
 import json
 import os
 import struct
 from collections import defaultdict
 from typing import Any
 
-import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
@@ -26,9 +26,8 @@ import skelmsg
 
 from .export_mcap import METADATA, RAW_TOPIC
 from .lcmjson import from_json, lcm_class
-from .logreader import HEADER_BYTES, SYNC, Integrity, Log
+from .logreader import Integrity, Log, encode_events, read_bytes
 
-_HEADER = struct.Struct(">Iqqii")
 _RECORD = ["process", "cycle", "minor", "release_ns", "start_ns", "comm_in_ns", "blocked_ns",
            "compute_ns", "comm_out_ns", "idle_ns", "slack_ns", "flags"]  # fmt: skip
 _INPUT = ["buffer", "seq", "new", "dropped", "received", "sent_ns", "recv_ns"]
@@ -103,34 +102,6 @@ def _timing_batch(records: list[dict[str, Any]]) -> tuple[int, bytes]:
 
 
 def _log(path: str, events: list[tuple[int, int, str, bytes]], integrity: Integrity) -> Log:
-    """A Log over an in-memory LCM log file holding `events`."""
-    parts: list[bytes] = []
-    offsets, data_offsets, lengths, utimes, ids = [], [], [], [], []
-    channels: list[str] = []
-    channel_ids: dict[str, int] = {}
-    pos = 0
-    for number, (_, utime, channel, data) in enumerate(events):
-        name = channel.encode()
-        parts += [_HEADER.pack(SYNC, number, utime, len(name), len(data)), name, data]
-        offsets.append(pos)
-        data_offsets.append(pos + HEADER_BYTES + len(name))
-        lengths.append(len(data))
-        utimes.append(utime)
-        ids.append(channel_ids.setdefault(channel, len(channels)))
-        if len(channels) < len(channel_ids):
-            channels.append(channel)
-        pos += HEADER_BYTES + len(name) + len(data)
-    buf = np.frombuffer(b"".join(parts), dtype=np.uint8)
-    return Log(
-        path=path,
-        size=len(buf),
-        buf=buf,
-        offset=np.asarray(offsets, dtype=np.int64),
-        eventnum=np.arange(len(events), dtype=np.int64),
-        utime_us=np.asarray(utimes, dtype=np.int64),
-        channel_id=np.asarray(ids, dtype=np.int32),
-        channels=channels,
-        data_offset=np.asarray(data_offsets, dtype=np.int64),
-        data_len=np.asarray(lengths, dtype=np.int64),
-        integrity=integrity,
-    )
+    """A Log over an in-memory LCM log file holding `events`, with the source's integrity."""
+    log = read_bytes(encode_events((utime, channel, data) for _, utime, channel, data in events), path)
+    return dataclasses.replace(log, integrity=integrity)
