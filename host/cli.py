@@ -1,4 +1,4 @@
-"""`skel`: the operator's command line (check, up, down, push, run, status, report).
+"""`skel`: the operator's command line (check, up, down, push, run, status, clock, report...).
 
 Exit codes: 0 fine, 1 an operation failed (a DPU did not answer...), 2 bad
 input (the one-line message names the file and field), 3 a fatal flaw (lockout
@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -50,6 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("push", help="broadcast a (changed) system to running DPUs, without restarting them")
     _system_args(p)
+    p.add_argument("--at-ms", type=float, default=300.0, metavar="N",
+                   help="commit N ms from now: DPUs in a run all switch at their first release at or "
+                        "after that instant (default 300)")
 
     p = sub.add_parser("run", help="push, run at one shared instant, record, and print the tables")
     _system_args(p, optional=True)
@@ -61,6 +65,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print report.json instead of tables")
     p.add_argument("--compare-paper", action="store_true",
                    help="print the system file's reference values (the paper's Table 1) beside ours")
+    p.add_argument("--wait-dpus", type=float, default=5.0, metavar="S",
+                   help="wait up to S seconds for every DPU's first heartbeat (default 5)")
+    p.add_argument("--logger", choices=("local", "external"), default="local",
+                   help="local: record run.lcm with lcm-logger here (default); external: a logger "
+                        "runs elsewhere, print the DPUs' own totals and analyse that log with `skel report`")
+
+    p = sub.add_parser("clock", help="estimate each DPU's clock offset and round trip (ping, best of N)")
+    p.add_argument("--url", default=DEFAULT_URL)
+    p.add_argument("--samples", type=int, default=8, help="pings per DPU (default 8)")
+    p.add_argument("--wait", type=float, default=1.0, metavar="S",
+                   help="how long to listen for DPUs (default 1 s)")
+    p.add_argument("--json", action="store_true")
 
     p = sub.add_parser("status", help="the DPUs heard on the control channel")
     p.add_argument("--url", default=DEFAULT_URL)
@@ -141,26 +157,40 @@ def cmd_push(args: argparse.Namespace) -> int:
     from skeleton.host.control import Control
     from skeleton.host.run import HEAR_TIMEOUT_S, control_url
 
+    if args.at_ms < 0:
+        print(f"skel push: --at-ms {args.at_ms:g}: must be >= 0", file=sys.stderr)
+        return EXIT_BAD_INPUT
     system = _load(args)
     control = Control(control_url(system))
     try:
         ids = sorted(d.id for d in system.dpus)
         control.wait_heard(ids, HEAR_TIMEOUT_S)
         generation = control.next_generation()
-        result = control.push(system.to_config(generation, 0, committed=False), ids)
+        # Pushed during a run, the config names that run, so its log pairs them.
+        runs = {v.status.run_id for i, v in control.snapshot().items()
+                if i in ids and v.state in ("armed", "running")}
+        run_id = runs.pop() if len(runs) == 1 else 0
+        result = control.push(system.to_config(generation, run_id, committed=False), ids, at_ms=args.at_ms)
     finally:
         control.close()
+    if result.committed:
+        when = time.strftime("%H:%M:%S", time.gmtime(result.at_utc_ns / 1e9))
+        print(f"generation {generation}: staged on every DPU, committed for {when}."
+              f"{result.at_utc_ns // 1_000_000 % 1000:03d} UTC ({args.at_ms:g} ms after the commit)"
+              + (f", mid-run in run {run_id}" if run_id else ""))
     for dpu_id in result.applied:
         print(f"DPU {dpu_id}: applied generation {generation}")
     for dpu_id, reason in sorted(result.rejected.items()):
         print(f"DPU {dpu_id}: rejected generation {generation}: {reason}", file=sys.stderr)
     for dpu_id in result.silent:
-        print(f"DPU {dpu_id}: did not answer (is it up? `skel status`)", file=sys.stderr)
-    if not result.ok:
+        what = ("did not confirm the switch" if result.committed
+                else "did not answer (is it up? `skel status`)")
+        print(f"DPU {dpu_id}: {what}", file=sys.stderr)
+    if not result.committed:
         print("nothing was committed: every DPU keeps its previous configuration", file=sys.stderr)
         return EXIT_FAILED
     spawn.remember_push(control_url(system), system.source_text, generation)
-    return 0
+    return 0 if result.ok else EXIT_FAILED
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -175,15 +205,17 @@ def cmd_run(args: argparse.Namespace) -> int:
             return EXIT_BAD_INPUT
         args.file, pushed_generation = remembered
     system = _load(args)
+    if args.wait_dpus < 0:
+        print(f"skel run: --wait-dpus {args.wait_dpus:g}: must be >= 0", file=sys.stderr)
+        return EXIT_BAD_INPUT
     options = RunOptions(spawn=args.spawn, cycles=args.cycles, duration_s=args.duration, out=args.out,
                          as_json=args.json, compare_paper=args.compare_paper,
-                         pushed_generation=pushed_generation)
+                         pushed_generation=pushed_generation, wait_dpus_s=args.wait_dpus,
+                         logger=args.logger)
     return run(system, options)
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    import time
-
     from skeleton.host.control import Control
 
     control = Control(args.url)
@@ -211,6 +243,40 @@ def cmd_status(args: argparse.Namespace) -> int:
             "dpu", "host", "pid", "state", "generation", "run_id", "minor_cycles", "faults",
             "rejected_messages", "reject_reason")))
     Console().print(table)
+    return 0
+
+
+def cmd_clock(args: argparse.Namespace) -> int:
+    from skeleton.host import clock
+    from skeleton.host.control import Control
+
+    if args.samples < 1:
+        print(f"skel clock: --samples {args.samples}: must be >= 1", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    control = Control(args.url)
+    try:
+        time.sleep(args.wait)
+        ids = sorted(i for i in control.snapshot() if i >= 0)
+        found = clock.estimate(control, ids, samples=args.samples)
+        clock.publish(control, found)  # a logger on the URL records them too
+    finally:
+        control.close()
+    rows = [e.to_json() for _, e in sorted(found.items())]
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    if not rows:
+        print(f"no DPU heard on {args.url} in {args.wait:g} s (or none answered the pings)")
+        return EXIT_FAILED
+    table = Table(title=f"clock offsets on {args.url} (DPU - host, best of {args.samples})")
+    for column in ("dpu", "offset", "round trip"):
+        table.add_column(column, justify="right")
+    for row in rows:
+        table.add_row(str(row["dpu"]), f"{row['offset_ns'] / 1e3:+.1f} µs", f"{row['rtt_ns'] / 1e3:.1f} µs")
+    Console().print(table)
+    missing = sorted(set(ids) - set(found))
+    if missing:
+        print(f"no answer to the pings from DPU {', '.join(map(str, missing))}")
     return 0
 
 
@@ -255,8 +321,8 @@ def cmd_doctor(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"check": cmd_check, "up": cmd_up, "down": cmd_down, "push": cmd_push, "run": cmd_run,
-            "status": cmd_status, "report": cmd_report, "diff": cmd_diff, "export": cmd_export,
-            "watch": cmd_watch, "doctor": cmd_doctor}
+            "status": cmd_status, "clock": cmd_clock, "report": cmd_report, "diff": cmd_diff,
+            "export": cmd_export, "watch": cmd_watch, "doctor": cmd_doctor}
 
 
 if __name__ == "__main__":

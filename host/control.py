@@ -31,6 +31,28 @@ STATE_NAMES = {
 COMMAND_REPEATS = 3
 # A DPU heartbeats at 5 Hz: three missed beats and it is reported lost.
 LOST_AFTER_S = 0.6
+# Pushed configs kept (by generation) so a running follower can re-send the one committed mid-run.
+CONFIGS_KEPT = 4
+
+
+@dataclass(frozen=True)
+class PingSample:
+    """One ping/pong: t1 host send, t2 DPU receive, t3 DPU reply, t4 host receive (ns)."""
+
+    t1: int
+    t2: int
+    t3: int
+    t4: int
+
+    @property
+    def offset_ns(self) -> int:
+        """DPU clock minus host clock, assuming the two legs take equally long."""
+        return ((self.t2 - self.t1) + (self.t3 - self.t4)) // 2
+
+    @property
+    def rtt_ns(self) -> int:
+        """Time on the wire (both legs), the DPU's own handling time taken out."""
+        return (self.t4 - self.t1) - (self.t3 - self.t2)
 
 
 @dataclass
@@ -51,6 +73,8 @@ class PushResult:
     applied: list[int] = field(default_factory=list)
     rejected: dict[int, str] = field(default_factory=dict)
     silent: list[int] = field(default_factory=list)
+    at_utc_ns: int = 0          # when the commit takes effect (0: at once)
+    committed: bool = False     # the COMMIT was sent (every DPU had staged the generation)
 
     @property
     def ok(self) -> bool:
@@ -69,7 +93,12 @@ class Control:
         self.reports: dict[tuple[int, int], skelmsg.report_t] = {}
         self.rejected_messages = 0
         self.on_status: Callable[[skelmsg.status_t], None] | None = None
-        for channel, handler in ((STATUS, self._handle_status), (REPORT, self._handle_report)):
+        # Every config heard on the wire (ours and other `skel push`es'), newest generations only.
+        self.configs: dict[int, skelmsg.config_t] = {}
+        # seq of each PING we sent -> the first answer of each DPU (later heartbeats repeat it).
+        self._pings: dict[int, dict[int, PingSample]] = {}
+        for channel, handler in ((STATUS, self._handle_status), (REPORT, self._handle_report),
+                                 (CONFIG, self._handle_config)):
             self._lcm.subscribe(channel, handler).set_queue_capacity(0)
         self._running = True
         self._thread = threading.Thread(target=self._drain, name="lcm-control", daemon=True)
@@ -90,11 +119,16 @@ class Control:
             return None
 
     def _handle_status(self, _channel: str, data: bytes) -> None:
+        # t4 of a ping: first thing, before decoding, so only the wire and LCM are in the round trip.
+        t4 = time.monotonic_ns()
         status = self._decode(skelmsg.status_t, data)
         if not isinstance(status, skelmsg.status_t):
             return
         with self._changed:
             self.dpus[status.dpu] = DpuView(status, time.monotonic())
+            answers = self._pings.get(status.ping_seq)
+            if answers is not None and status.dpu not in answers:
+                answers[status.dpu] = PingSample(status.ping_t1_ns, status.ping_t2_ns, status.ping_t3_ns, t4)
             self._changed.notify_all()
         if self.on_status is not None:
             self.on_status(status)
@@ -106,6 +140,21 @@ class Control:
         with self._changed:
             self.reports[(report.dpu, report.run_id)] = report
             self._changed.notify_all()
+
+    def _handle_config(self, _channel: str, data: bytes) -> None:
+        config = self._decode(skelmsg.config_t, data)
+        if not isinstance(config, skelmsg.config_t):
+            return
+        with self._changed:
+            self.configs[config.generation] = config
+            for old in sorted(self.configs)[:-CONFIGS_KEPT]:
+                del self.configs[old]
+            self._changed.notify_all()
+
+    def config_of(self, generation: int) -> skelmsg.config_t | None:
+        """The config of `generation` if it was heard on the wire (pushed by any host)."""
+        with self._lock:
+            return self.configs.get(generation)
 
     def wait_for(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
         """Wait until predicate() (evaluated under the lock) holds, or time out."""
@@ -163,8 +212,44 @@ class Control:
             self._lcm.publish(COMMAND, data)
         return cmd.seq
 
-    def push(self, config: skelmsg.config_t, dpus: Iterable[int], timeout_s: float = 3.0) -> PushResult:
-        """Stage a config on every DPU, then commit it only if all of them accepted it."""
+    def publish(self, channel: str, message: object) -> None:
+        self._lcm.publish(channel, message.encode())  # type: ignore[attr-defined]
+
+    def ping(self, dpu: int = -1) -> int:
+        """Send one PING (not repeated: a lost one is just a lost sample); return its seq.
+        The answers are collected by the LCM thread as they arrive: see pongs()."""
+        cmd = skelmsg.command_t()
+        cmd.seq = time.time_ns()
+        cmd.kind = skelmsg.command_t.PING
+        cmd.dpu = dpu
+        with self._lock:
+            self._pings[cmd.seq] = {}
+        cmd.ping_t1_ns = time.monotonic_ns()
+        self._lcm.publish(COMMAND, cmd.encode())
+        return cmd.seq
+
+    def wait_pongs(self, seqs: Iterable[int], dpus: Iterable[int], timeout_s: float) -> bool:
+        """Wait until every DPU in `dpus` answered every ping in `seqs`."""
+        seqs, wanted = list(seqs), set(dpus)
+        return self.wait_for(lambda: all(wanted <= self._pings.get(s, {}).keys() for s in seqs), timeout_s)
+
+    def pongs(self, seqs: Iterable[int], forget: bool = True) -> dict[int, list[PingSample]]:
+        """The answers to the pings `seqs`, per DPU; forget those pings unless told not to."""
+        samples: dict[int, list[PingSample]] = {}
+        with self._lock:
+            for seq in seqs:
+                answers = self._pings.pop(seq, {}) if forget else dict(self._pings.get(seq, {}))
+                for dpu, sample in answers.items():
+                    samples.setdefault(dpu, []).append(sample)
+        return samples
+
+    def push(self, config: skelmsg.config_t, dpus: Iterable[int], timeout_s: float = 3.0,
+             at_ms: float | None = None) -> PushResult:
+        """Stage a config on every DPU, then commit it only if all of them accepted it.
+
+        With `at_ms`, the COMMIT names the instant `at_ms` after it is sent: DPUs in a run
+        switch at their first release at or after it, all at the same cycle boundary.
+        Without, it takes effect at once (between runs)."""
         wanted = sorted(set(dpus))
         generation = config.generation
         result = PushResult(generation)
@@ -192,9 +277,14 @@ class Control:
                 result.silent.append(i)
         if not result.ok:
             return result
-        self.command(skelmsg.command_t.COMMIT, generation=generation)
+        if at_ms is not None:
+            result.at_utc_ns = time.time_ns() + int(at_ms * 1e6)
+        self.command(skelmsg.command_t.COMMIT, generation=generation, at_utc_ns=result.at_utc_ns)
+        result.committed = True
+        until_switch_s = max(0.0, (result.at_utc_ns - time.time_ns()) / 1e9)
         applied = self.wait_for(
-            lambda: all(self.dpus[i].status.generation >= generation for i in wanted), timeout_s)
+            lambda: all(self.dpus[i].status.generation >= generation for i in wanted),
+            until_switch_s + timeout_s)
         snapshot = self.snapshot()
         result.applied = [i for i in wanted if snapshot[i].status.generation >= generation]
         if not applied:

@@ -2,6 +2,12 @@
 
 The printed tables come from the recorded log through the same analysis as
 `skel report`, so what `skel run` shows is exactly what the log alone gives.
+
+What outlives the host tool: the DPUs have the run's duration, so they finish
+their cycles if `skel run` dies. The logger is started in its own session under
+`timeout` (the run's length plus LOGGER_MARGIN_S), so a killed host tool neither
+takes it down nor leaves it running for ever; on a clean end it is stopped at
+once as before. DPUs started with --spawn end the same way.
 """
 
 from __future__ import annotations
@@ -13,11 +19,13 @@ from pathlib import Path
 
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
 
 import skelmsg
-from skeleton.analysis.report import analyze
+from skeleton.analysis.report import LogError, analyze
 from skeleton.analysis.tables import print_report
 from skeleton.host import spawn
+from skeleton.host.clock import ClockKeeper
 from skeleton.host.control import Control, PushResult
 from skeleton.host.system import System
 
@@ -26,6 +34,10 @@ START_LEAD_S = 0.5          # time for START to reach every DPU before cycle 0
 REPORT_GRACE_S = 5.0        # how long after the end we wait for the DPUs' reports
 HEAR_TIMEOUT_S = 5.0
 CONFIG_RESEND_S = 1.0
+POLL_S = 0.1                # follower period: a lost DPU is reported within LOST_AFTER_S + this
+PUSH_TIMEOUT_S = 3.0        # per phase (stage, commit) of Control.push
+LOGGER_MARGIN_S = 5.0       # an orphaned logger ends this long after the report grace
+FATAL_KINDS = ("lockout", "jam")
 
 
 @dataclass
@@ -39,6 +51,8 @@ class RunOptions:
     # Run the generation `skel push` already applied, when every DPU still has it.
     pushed_generation: int | None = None
     dpu_args: list[str] = field(default_factory=list)
+    wait_dpus_s: float = HEAR_TIMEOUT_S
+    logger: str = "local"   # local: lcm-logger here; external: someone else records the run
 
 
 def control_url(system: System) -> str:
@@ -47,6 +61,63 @@ def control_url(system: System) -> str:
 
 def default_out(system: System) -> Path:
     return Path("runs") / f"{system.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+
+
+def run(system: System, options: RunOptions, console: Console | None = None) -> int:
+    console = console or Console()
+    out = options.out or default_out(system)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "system.yaml").write_text(system.source_text)
+    url = control_url(system)
+    dpu_ids = sorted(d.id for d in system.dpus)
+    duration_ns = system.run_duration_ns(options.cycles, options.duration_s)
+    # From the logger's start: clock estimate, START lead, the run, the reports, a margin.
+    logger_deadline_s = 1.0 + START_LEAD_S + duration_ns / 1e9 + REPORT_GRACE_S + LOGGER_MARGIN_S
+    daemons = []
+    if options.spawn:
+        dpu_deadline_s = options.wait_dpus_s + 2 * PUSH_TIMEOUT_S + logger_deadline_s
+        daemons = [spawn.start_dpu(d.id, url, out / "logs", options.dpu_args, deadline_s=dpu_deadline_s)
+                   for d in system.dpus if spawn.is_local(d.host)]
+    logger = None
+    control = Control(url)
+    try:
+        silent = control.wait_heard(dpu_ids, options.wait_dpus_s)
+        if silent:
+            console.print(f"[red]no heartbeat from DPU {', '.join(map(str, silent))} on {url} in "
+                          f"{options.wait_dpus_s:g} s[/]: start them (`skel up FILE` or skel-dpu --id N "
+                          "on their hosts), use --spawn, or wait longer (--wait-dpus S)")
+            return EXIT_FAILED
+        run_id = time.time_ns() // 1_000_000
+        generation = options.pushed_generation
+        current = {v.status.generation for i, v in control.snapshot().items() if i in dpu_ids}
+        if generation is None or current != {generation}:
+            generation = control.next_generation()
+            pushed = control.push(system.to_config(generation, run_id, committed=False), dpu_ids,
+                                  timeout_s=PUSH_TIMEOUT_S)
+            if not pushed.ok:
+                _print_push_failure(console, pushed)
+                return EXIT_FAILED
+        if options.logger == "local":
+            logger = spawn.start_logger(url, out / "run.lcm", deadline_s=logger_deadline_s)
+        clocks = ClockKeeper(control, dpu_ids)
+        clocks.refresh()  # before START, so the log has offsets for the whole run
+        follower = RunFollower(system, control, console)
+        committed = system.to_config(generation, run_id, committed=True)
+        _follow(control, follower, clocks, committed, duration_ns, dpu_ids)
+        control.wait_for(lambda: all((d, run_id) in control.reports for d in dpu_ids
+                                     if d not in follower.lost), REPORT_GRACE_S)
+        # The DPUs flush their last timing batches before the report: give the logger a moment.
+        time.sleep(0.3)
+        reports = {d: r for (d, r_id), r in control.reports.items() if r_id == run_id}
+    finally:
+        control.close()
+        if logger is not None:
+            spawn.stop(logger)
+        for daemon in daemons:
+            spawn.stop(daemon)
+    if logger is None:
+        return _external_summary(console, out, run_id, dpu_ids, reports, follower.lost, options.as_json)
+    return _report(console, system, options, out, run_id, follower.lost)
 
 
 class RunFollower:
@@ -59,7 +130,8 @@ class RunFollower:
         self.writer = {b.id: system.process(b.writer) for b in system.buffers}
         self.names = {p.id: p.name for p in system.processes}
         self.lockouts: dict[int, skelmsg.lockout_t] = {}
-        self.lost: set[int] = set()
+        self.lost: set[int] = set()      # lost during this run (a restarted DPU stays in it)
+        self.back: set[int] = set()
         self.stop_reason: str | None = None
 
     def poll(self, run_id: int, dpu_ids: list[int]) -> None:
@@ -70,12 +142,21 @@ class RunFollower:
                 if lockout.process not in self.lockouts:
                     self.lockouts[lockout.process] = lockout
                     self._announce_lockout(view.status.dpu, lockout)
-        for dpu_id in self.control.lost(dpu_ids):
+        views = self.control.snapshot()
+        silent = self.control.lost(dpu_ids)
+        for dpu_id in silent:
             if dpu_id not in self.lost:
                 self.lost.add(dpu_id)
-                self.console.print(f"[bold red]FAULT[/] dpu_lost: DPU {dpu_id} stopped answering")
+                view = views.get(dpu_id)
+                since = f" for {time.monotonic() - view.heard_mono:.2f} s" if view else ""
+                self.console.print(f"[bold red]FAULT[/] dpu_lost: DPU {dpu_id} not heard{since}; "
+                                   "the run goes on without it")
                 if "dpu_lost" in self.system.run.stop_on:
                     self.stop_reason = self.stop_reason or f"DPU {dpu_id} lost"
+        for dpu_id in sorted(self.lost - set(silent) - self.back):
+            # Restarted: it takes the re-sent config and joins the next run, not this one.
+            self.back.add(dpu_id)
+            self.console.print(f"DPU {dpu_id} heard again ({views[dpu_id].state}): it joins the next run")
 
     def _announce_lockout(self, dpu: int, lockout: skelmsg.lockout_t) -> None:
         name = self.names.get(lockout.process, str(lockout.process))
@@ -90,48 +171,66 @@ class RunFollower:
             self.stop_reason = self.stop_reason or f"lockout of {name}"
 
 
-def run(system: System, options: RunOptions, console: Console | None = None) -> int:
-    console = console or Console()
-    out = options.out or default_out(system)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "system.yaml").write_text(system.source_text)
-    url = control_url(system)
-    dpu_ids = sorted(d.id for d in system.dpus)
-    daemons = []
-    if options.spawn:
-        daemons = [spawn.start_dpu(d.id, url, out / "logs", options.dpu_args)
-                   for d in system.dpus if spawn.is_local(d.host)]
-    logger = spawn.start_logger(url, out / "run.lcm")
-    control = Control(url)
+def _adopt_pushed(control: Control, config: skelmsg.config_t, dpu_ids: list[int],
+                  console: Console) -> skelmsg.config_t:
+    """The config to re-send from now on: ours, or the one a `skel push` committed mid-run.
+
+    The DPUs' heartbeats say which generation they apply; the pushed config itself was
+    heard on SKEL_CONFIG when `skel push` staged it (from any host), so the follower
+    needs no shared file and works when the push comes from another machine."""
+    views = control.snapshot()
+    applied = [views[i].status.generation for i in dpu_ids if i in views]
+    newest = max(applied, default=config.generation)
+    if newest <= config.generation:
+        return config
+    pushed = control.config_of(newest)
+    if pushed is None:
+        return config  # not heard (yet): keep the old one, a DPU that has the new one ignores it
+    adopted = skelmsg.config_t.decode(pushed.encode())  # a copy: the Control's stays as heard
+    adopted.committed, adopted.run_id = 1, config.run_id
+    console.print(f"generation {newest} committed mid-run: re-sending it from now on")
+    return adopted
+
+
+def _follow(control: Control, follower: RunFollower, clocks: ClockKeeper, config: skelmsg.config_t,
+            duration_ns: int, dpu_ids: list[int]) -> None:
+    """Start the run and follow it; re-send the committed config every second meanwhile, so
+    a late or restarted DPU catches up and the log holds the configuration of the run.
+    A generation committed mid-run by `skel push` replaces ours in the re-sends."""
+    run_id = config.run_id
+    control.publish_config(config)
+    start_utc = time.time_ns() + int(START_LEAD_S * 1e9)
+    control.start(config.generation, run_id, start_utc, duration_ns)
+    resent = time.monotonic()
+    end_utc = start_utc + duration_ns
+    columns = [TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+               TimeRemainingColumn()]
+    with Progress(*columns, console=follower.console, transient=True) as progress:
+        task = progress.add_task(f"run {run_id}", total=duration_ns / 1e9)
+        while time.time_ns() < end_utc + 200_000_000:
+            follower.poll(run_id, dpu_ids)
+            if follower.stop_reason:
+                follower.console.print(f"stopping early: {follower.stop_reason} (run.stop_on)")
+                control.stop()
+                break
+            progress.update(task, completed=max(0.0, (time.time_ns() - start_utc) / 1e9))
+            if time.monotonic() - resent >= CONFIG_RESEND_S:
+                config = _adopt_pushed(control, config, dpu_ids, follower.console)
+                control.publish_config(config)
+                resent = time.monotonic()
+            if clocks.due():
+                clocks.refresh(skip=follower.lost)
+            time.sleep(POLL_S)
+    follower.poll(run_id, dpu_ids)
+
+
+def _report(console: Console, system: System, options: RunOptions, out: Path, run_id: int,
+            lost: set[int]) -> int:
     try:
-        silent = control.wait_heard(dpu_ids, HEAR_TIMEOUT_S)
-        if silent:
-            console.print(f"[red]no heartbeat from DPU {', '.join(map(str, silent))} on {url}[/]: "
-                          "start them (`skel up FILE` or skel-dpu --id N on their hosts) or use --spawn")
-            return EXIT_FAILED
-        run_id = time.time_ns() // 1_000_000
-        generation = options.pushed_generation
-        current = {v.status.generation for i, v in control.snapshot().items() if i in dpu_ids}
-        if generation is None or current != {generation}:
-            generation = control.next_generation()
-            pushed = control.push(system.to_config(generation, run_id, committed=False), dpu_ids)
-            if not pushed.ok:
-                _print_push_failure(console, pushed)
-                return EXIT_FAILED
-        duration_ns = system.run_duration_ns(options.cycles, options.duration_s)
-        follower = RunFollower(system, control, console)
-        committed = system.to_config(generation, run_id, committed=True)
-        _follow(control, follower, console, committed, duration_ns, dpu_ids)
-        control.wait_for(lambda: all((d, run_id) in control.reports for d in dpu_ids
-                                     if d not in follower.lost), REPORT_GRACE_S)
-        # The DPUs flush their last timing batches before the report: give the logger a moment.
-        time.sleep(0.3)
-    finally:
-        control.close()
-        spawn.stop(logger)
-        for daemon in daemons:
-            spawn.stop(daemon)
-    report = analyze(out / "run.lcm", run_id=run_id)
+        report = analyze(out / "run.lcm", run_id=run_id)
+    except LogError as error:
+        console.print(f"[red]{out / 'run.lcm'}: {error}[/]")
+        return EXIT_FAILED
     (out / "report.json").write_text(json.dumps(report.to_json(), indent=2) + "\n")
     if options.as_json:
         print(json.dumps(report.to_json(), indent=2))
@@ -141,36 +240,53 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
             paper = {i: row.model_dump() for i, row in system.reference.dpus.items()}
         print_report(report, console=console, paper=paper)
         console.print(f"run written to {out}/ (system.yaml, run.lcm, report.json)")
-    fatal = any(f["kind"] in ("lockout", "jam") for f in report.to_json()["faults"])
-    return EXIT_FATAL_FLAW if fatal else EXIT_OK
+    kinds = {f["kind"] for f in report.to_json()["faults"]}
+    if kinds & set(FATAL_KINDS):
+        return EXIT_FATAL_FLAW
+    # A lost DPU's part of the run is missing: the tables cover the others only.
+    return EXIT_FAILED if lost or "dpu_lost" in kinds else EXIT_OK
 
 
-def _follow(control: Control, follower: RunFollower, console: Console, config: skelmsg.config_t,
-            duration_ns: int, dpu_ids: list[int]) -> None:
-    """Start the run and follow it; re-send the committed config every second meanwhile, so
-    a late or restarted DPU catches up and the log holds the configuration of the run."""
-    run_id = config.run_id
-    control.publish_config(config)
-    start_utc = time.time_ns() + int(START_LEAD_S * 1e9)
-    control.start(config.generation, run_id, start_utc, duration_ns)
-    resent = time.monotonic()
-    end_utc = start_utc + duration_ns
-    columns = [TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
-               TimeRemainingColumn()]
-    with Progress(*columns, console=console, transient=True) as progress:
-        task = progress.add_task(f"run {run_id}", total=duration_ns / 1e9)
-        while time.time_ns() < end_utc + 200_000_000:
-            follower.poll(run_id, dpu_ids)
-            if follower.stop_reason:
-                console.print(f"stopping early: {follower.stop_reason} (run.stop_on)")
-                control.stop()
-                break
-            progress.update(task, completed=max(0.0, (time.time_ns() - start_utc) / 1e9))
-            if time.monotonic() - resent >= CONFIG_RESEND_S:
-                control.publish_config(config)
-                resent = time.monotonic()
-            time.sleep(0.1)
-    follower.poll(run_id, dpu_ids)
+def _external_summary(console: Console, out: Path, run_id: int, dpu_ids: list[int],
+                      reports: dict[int, skelmsg.report_t], lost: set[int], as_json: bool) -> int:
+    """Without a local log, the DPUs' own end-of-run totals (report_t) are all we have."""
+    rows = []
+    for dpu in dpu_ids:
+        rep = reports.get(dpu)
+        if rep is None:
+            rows.append({"dpu": dpu, "reported": False})
+            continue
+        elapsed = max(rep.elapsed_ns, 1)
+        rows.append({"dpu": dpu, "reported": True, "generation": rep.generation,
+                     "minor_cycles": rep.minor_cycles, "elapsed_s": rep.elapsed_ns / 1e9,
+                     "compute_pct": 100 * rep.compute_ns / elapsed,
+                     "communicate_pct": 100 * rep.communicate_ns / elapsed,
+                     "wait_pct": 100 * rep.wait_ns / elapsed,
+                     "overruns": sum(p.overruns for p in rep.processes),
+                     "locked_out": sorted(p.process for p in rep.processes if p.locked_out),
+                     "faults": rep.faults})
+    summary = {"run_id": run_id, "dpus": rows}
+    (out / "reports.json").write_text(json.dumps(summary, indent=2) + "\n")
+    if as_json:
+        print(json.dumps(summary, indent=2))
+    else:
+        table = Table(title=f"run {run_id}: the DPUs' own totals (report_t)")
+        for column in ("DPU", "minor cycles", "compute %", "comm %", "wait %", "overruns", "locked out"):
+            table.add_column(column, justify="right")
+        for row in rows:
+            if not row["reported"]:
+                table.add_row(str(row["dpu"]), "[red]no report[/]", "", "", "", "", "")
+                continue
+            table.add_row(str(row["dpu"]), str(row["minor_cycles"]), f"{row['compute_pct']:.1f}",
+                          f"{row['communicate_pct']:.1f}", f"{row['wait_pct']:.1f}", str(row["overruns"]),
+                          ", ".join(map(str, row["locked_out"])) or "-")
+        console.print(table)
+        console.print(f"the run was recorded by the external logger: `skel report LOG --run-id {run_id}` "
+                      "on its log gives the full tables")
+    fatal = skelmsg.status_t.FAULT_LOCKOUT | skelmsg.status_t.FAULT_JAM
+    if any(r.get("faults", 0) & fatal or r.get("locked_out") for r in rows):
+        return EXIT_FATAL_FLAW
+    return EXIT_FAILED if lost or not all(r["reported"] for r in rows) else EXIT_OK
 
 
 def _print_push_failure(console: Console, pushed: PushResult) -> None:

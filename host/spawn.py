@@ -3,6 +3,11 @@
 `skel up` leaves DPUs running between runs (their pids go to a small state
 file so `skel down` finds them); `skel run --spawn` starts and stops them
 around one run. The logger is always ours for the length of a run.
+
+Given a deadline, a daemon runs under coreutils `timeout`, which forwards our
+SIGINT to it and ends it by itself at the deadline: what `skel run` started
+cannot outlive a killed host tool by more than that. The logger also gets its
+own session, so a signal to the host tool's process group does not reach it.
 """
 
 from __future__ import annotations
@@ -73,26 +78,39 @@ class Daemon:
         return self.process.poll() is None
 
 
+def _with_deadline(argv: list[str], deadline_s: float | None, signal_name: str) -> list[str]:
+    if deadline_s is None:
+        return argv
+    wrapper = shutil.which("timeout")
+    if wrapper is None:
+        raise SpawnError("`timeout` (GNU coreutils) not found: install coreutils")
+    return [wrapper, f"--signal={signal_name}", "--kill-after=5", f"{deadline_s:.1f}", *argv]
+
+
 def start_dpu(dpu_id: int, url: str, log_dir: Path, extra: list[str] | None = None,
-              detach: bool = False) -> Daemon:
+              detach: bool = False, deadline_s: float | None = None) -> Daemon:
     log_dir.mkdir(parents=True, exist_ok=True)
     log_path = log_dir / f"dpu{dpu_id}.log"
+    argv = [str(dpu_binary()), "--id", str(dpu_id), "--url", url, *(extra or [])]
     with open(log_path, "ab") as log:
         process = subprocess.Popen(
-            [str(dpu_binary()), "--id", str(dpu_id), "--url", url, *(extra or [])],
+            _with_deadline(argv, deadline_s, "TERM"),
             stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
             start_new_session=detach)
     return Daemon(f"dpu {dpu_id}", process, log_path)
 
 
-def start_logger(url: str, path: Path, channels: str = LOGGED_CHANNELS) -> Daemon:
-    """Start lcm-logger on `url` writing `path`, and wait until it has opened the file."""
+def start_logger(url: str, path: Path, channels: str = LOGGED_CHANNELS,
+                 deadline_s: float | None = None) -> Daemon:
+    """Start lcm-logger on `url` writing `path`, and wait until it has opened the file.
+    With `deadline_s`, it stops by itself (SIGINT: it flushes) that long after its start."""
     path.parent.mkdir(parents=True, exist_ok=True)
     log_path = path.with_suffix(".logger.txt")
+    argv = [str(logger_binary()), "-f", "-q", "-l", url, "-c", channels, "--flush-interval=50", str(path)]
     with open(log_path, "ab") as log:
         process = subprocess.Popen(
-            [str(logger_binary()), "-f", "-q", "-l", url, "-c", channels, "--flush-interval=50", str(path)],
-            stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT)
+            _with_deadline(argv, deadline_s, "INT"),
+            stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     deadline = time.monotonic() + 5.0
     while not path.exists():
         if process.poll() is not None or time.monotonic() > deadline:
