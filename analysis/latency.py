@@ -8,7 +8,11 @@ clock-offset estimates in the log (channel SKEL_CLOCK, clock_offset_t: offset_ns
 DPU clock - host clock). A time t on DPU d is taken as t - offset, with the latest
 estimate for d made at or before t (its host_mono_ns + offset_ns on d's clock);
 before d's first estimate, the first one; a DPU with no estimate has offset 0 (one
-machine, one clock). Stale cycles hold the same message as before and are not
+machine, one clock). An estimate is off by at most half its round trip, so one
+with |offset_ns| <= rtt_ns / 2 cannot tell the DPU's clock from the host's: it is
+taken as 0. That is the one-machine case (the monotonic clocks of two hosts differ
+by their boot times, far more than any round trip), where a ping's queueing would
+otherwise shift every latency by tens of µs. Stale cycles hold the same message as before and are not
 counted again, so each sequence contributes at most one sample per reader.
 
 Loss at one reader, over the measured window (completed cycles):
@@ -78,11 +82,12 @@ def histogram(samples: np.ndarray, bins: int = HISTOGRAM_BINS) -> Histogram:
 class ClockOffsets:
     """Per-DPU clock-offset estimates (offset_ns = DPU clock - host clock)."""
 
-    def __init__(self, estimates: Iterable[tuple[int, int, int]] = ()) -> None:
-        """`estimates`: (dpu, host_mono_ns, offset_ns) in any order."""
+    def __init__(self, estimates: Iterable[tuple[int, ...]] = ()) -> None:
+        """`estimates`: (dpu, host_mono_ns, offset_ns[, rtt_ns]) in any order."""
         by_dpu: dict[int, list[tuple[int, int]]] = {}
-        for dpu, host_ns, offset_ns in estimates:
-            by_dpu.setdefault(int(dpu), []).append((int(host_ns) + int(offset_ns), int(offset_ns)))
+        for dpu, host_ns, offset_ns, *rtt in estimates:
+            offset = _significant(int(offset_ns), int(rtt[0]) if rtt else 0)
+            by_dpu.setdefault(int(dpu), []).append((int(host_ns) + int(offset_ns), offset))
         self._at: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         for dpu, rows in by_dpu.items():
             rows.sort()
@@ -94,14 +99,14 @@ class ClockOffsets:
     @classmethod
     def from_messages(cls, messages: Iterable[Any]) -> ClockOffsets:
         """From decoded clock_offset_t messages."""
-        return cls((m.dpu, m.host_mono_ns, m.offset_ns) for m in messages)
+        return cls((m.dpu, m.host_mono_ns, m.offset_ns, m.rtt_ns) for m in messages)
 
     @property
     def dpus(self) -> list[int]:
         return sorted(self._at)
 
     def latest(self) -> dict[int, int]:
-        """DPU -> its last estimate (ns)."""
+        """DPU -> its last estimate as applied (ns; 0 when within its error)."""
         return {dpu: int(offset[-1]) for dpu, (_, offset) in sorted(self._at.items())}
 
     def offset_ns(self, dpu: int, t_dpu_ns: np.ndarray) -> np.ndarray:
@@ -127,6 +132,11 @@ class ClockOffsets:
             mask = dpus == dpu
             out[mask] = self.to_host(dpu, t[mask])
         return out
+
+
+def _significant(offset_ns: int, rtt_ns: int) -> int:
+    """The offset, or 0 when the estimate's error (rtt / 2) covers it."""
+    return 0 if 2 * abs(offset_ns) <= rtt_ns else offset_ns
 
 
 NO_OFFSETS = ClockOffsets()

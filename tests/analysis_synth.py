@@ -80,8 +80,9 @@ class Rec:
     idle_ns: int = 0
     slack_ns: int = 0
     flags: int = 0
-    # (buffer, seq, new, dropped, received)
-    inputs: list[tuple[int, int, int, int, int]] = field(default_factory=list)
+    # (buffer, seq, new, dropped, received) or (..., sent_ns, recv_ns); without times
+    # an input gets sent 1000 + i and received 2000 + i ns (i: its row in the batch)
+    inputs: list[tuple[int, ...]] = field(default_factory=list)
 
     @property
     def end_ns(self) -> int:
@@ -93,9 +94,9 @@ _FIELDS = ("process", "cycle", "minor", "release_ns", "start_ns", "comm_in_ns", 
 
 
 def batches(dpu: int, recs: list[Rec], size: int, run_id: int = RUN_ID,
-            generation: int = GENERATION) -> list[skelmsg.timing_t]:  # fmt: skip
+            generation: int = GENERATION, first_seq: int = 0) -> list[skelmsg.timing_t]:  # fmt: skip
     out = []
-    for seq, first in enumerate(range(0, len(recs), size)):
+    for seq, first in enumerate(range(0, len(recs), size), start=first_seq):
         chunk = recs[first : first + size]
         t = skelmsg.timing_t()
         t.dpu, t.run_id, t.generation, t.batch_seq, t.n = dpu, run_id, generation, seq, len(chunk)
@@ -109,8 +110,8 @@ def batches(dpu: int, recs: list[Rec], size: int, run_id: int = RUN_ID,
         t.in_new = [r[3] for r in rows]
         t.in_dropped = [r[4] for r in rows]
         t.in_received = [r[5] for r in rows]
-        t.in_sent_ns = [1000 + i for i in range(len(rows))]
-        t.in_recv_ns = [2000 + i for i in range(len(rows))]
+        t.in_sent_ns = [r[6] if len(r) > 6 else 1000 + i for i, r in enumerate(rows)]
+        t.in_recv_ns = [r[7] if len(r) > 7 else 2000 + i for i, r in enumerate(rows)]
         out.append(t)
     return out
 
@@ -134,6 +135,19 @@ def report(dpu: int, timing_batches: int, run_id: int = RUN_ID) -> skelmsg.repor
     r.dpu, r.run_id, r.generation, r.timing_batches, r.speed = dpu, run_id, GENERATION, timing_batches, 1.0
     r.nprocesses, r.processes = 0, []
     return r
+
+
+def chain(name: str, processes: list[int]) -> skelmsg.chain_t:
+    c = skelmsg.chain_t()
+    c.name, c.nprocesses, c.processes = name, len(processes), processes
+    return c
+
+
+def clock_offset(dpu: int, host_mono_ns: int, offset_ns: int) -> skelmsg.clock_offset_t:
+    """An estimate of DPU clock - host clock, made at host_mono_ns (host clock)."""
+    m = skelmsg.clock_offset_t()
+    m.dpu, m.host_mono_ns, m.offset_ns, m.rtt_ns, m.samples = dpu, host_mono_ns, offset_ns, 50_000, 8
+    return m
 
 
 def write_log(path: Path, events: list[tuple[str, Any]]) -> Path:
