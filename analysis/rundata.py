@@ -24,9 +24,18 @@ import numpy as np
 import skelmsg
 
 from .flatdecode import decode_heads
+from .latency import ClockOffsets
 from .logreader import Log, read_log
 from .records import TIMING, TIMING_CHANNEL, RunRecords, load_run
-from .report import CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, LogError, RunReport, analyze_log
+from .report import (
+    CLOCK_CHANNEL,
+    CONFIG_CHANNEL,
+    REPORT_CHANNEL,
+    STATUS_CHANNEL,
+    LogError,
+    RunReport,
+    analyze_log,
+)
 
 
 @dataclass
@@ -39,6 +48,7 @@ class RunData:
     inputs: np.ndarray  # their input records ("record" indexes `records`)
     statuses: list[Any]  # every decodable status_t in the log, in log order
     utc_offset_ns: dict[int, int]  # dpu -> utc_ns - mono_ns
+    clock: ClockOffsets  # DPU clock -> host clock (SKEL_CLOCK estimates), as the report uses
 
     def to_utc_ns(self, dpu: np.ndarray | int, mono_ns: np.ndarray | int) -> np.ndarray:
         """Wall-clock ns (UTC) of DPU monotonic times."""
@@ -87,6 +97,7 @@ def run_data(log: Log, run_id: int | None = None) -> RunData:
         inputs=inputs,
         statuses=statuses,
         utc_offset_ns=utc_offsets(log, run, statuses),
+        clock=ClockOffsets.from_messages(_decode(log, CLOCK_CHANNEL, skelmsg.clock_offset_t)),
     )
 
 
