@@ -130,44 +130,71 @@ def decode_many(layout: FlatLayout, buf: np.ndarray, starts: np.ndarray, lengths
     good = np.flatnonzero(ok)
     counts = {step.length: scalars[step.length][good].astype(np.int64) for step, _ in placed}
     columns: dict[str, np.ndarray] = {}
-    groups: dict[str, list[tuple[np.ndarray, int, np.ndarray | None]]] = {}
     for step, at in placed:
         n = counts[step.length]
-        if step.length not in groups:
-            groups[step.length] = _equal_length_groups(n)
-        starts_ok = at[good]
-        out = {name: np.empty(int(n.sum()), dtype=step.dtype.newbyteorder("=")) for name in step.names}
-        k, size = len(step.names), step.dtype.itemsize
-        for members, count, dest in groups[step.length]:
-            # One opaque row per message (its whole run of arrays), then one strided
-            # slice per array: memcpy speed, no per-element index arithmetic.
-            row = np.dtype((np.void, k * count * size))
-            view = np.ndarray(shape=(len(buf) - row.itemsize + 1,), dtype=row, buffer=buf, strides=(1,))
-            block = view[starts_ok[members]].view(step.dtype).reshape(len(members), k, count)
-            for j, name in enumerate(step.names):
-                if dest is None:
-                    out[name][:] = block[:, j, :].ravel()
-                else:
-                    out[name][dest] = block[:, j, :].ravel()
-        columns.update(out)
+        size = step.dtype.itemsize
+        for j, name in enumerate(step.names):
+            # Array j of a run of equal-length arrays starts j * n * size bytes in.
+            columns[name] = _concat(buf, at[good] + j * n * size, n, step.dtype)
     return Decoded(ok=ok, scalars=scalars, counts=counts, columns=columns)
 
 
-def _equal_length_groups(n: np.ndarray) -> list[tuple[np.ndarray, int, np.ndarray | None]]:
-    """Messages grouped by their array length: (members, length, where their elements
-    go in the concatenated output, or None when the group is every message in order).
-    Batches are mostly full, so there are few groups."""
+def _concat(buf: np.ndarray, at: np.ndarray, n: np.ndarray, dtype: np.dtype[Any]) -> np.ndarray:
+    """The n[i] values of `dtype` starting at byte at[i], for every i, concatenated
+    (native byte order).
+
+    One opaque row per message, as wide as the longest, read in one fancy index;
+    when lengths differ, a mask over the padded rows keeps the real values in order.
+    Padding costs at most as much as the values themselves, else messages are
+    grouped by length instead (a few distinct lengths with rare long outliers)."""
+    native = dtype.newbyteorder("=")
+    total = int(n.sum())
+    if total == 0:
+        return np.zeros(0, dtype=native)
+    widest = int(n.max())
+    if len(n) * widest > 2 * total + 4096:
+        return _concat_groups(buf, at, n, dtype)
+    values = _rows(buf, at, widest * dtype.itemsize).view(dtype).reshape(len(n), widest)
+    if int(n.min()) != widest:
+        values = values[np.arange(widest) < n[:, None]]
+    return values.reshape(-1).astype(native)
+
+
+def _rows(buf: np.ndarray, at: np.ndarray, width: int) -> np.ndarray:
+    """The `width` bytes from each offset in `at`, as opaque items. A row may run past
+    the end of the buffer (padding after a short last message): those few rows come
+    from a zero-padded copy of the tail."""
+    inside = at <= len(buf) - width
+    if bool(inside.all()):  # also when `at` is empty
+        return _items(buf, width)[at]
+    out = np.zeros(len(at), dtype=np.dtype((np.void, width)))
+    if inside.any():
+        out[inside] = _items(buf, width)[at[inside]]
+    low = int(at[~inside].min())
+    tail = np.zeros(len(buf) - low + width, dtype=np.uint8)
+    tail[: len(buf) - low] = buf[low:]
+    out[~inside] = _items(tail, width)[at[~inside] - low]
+    return out
+
+
+def _items(buf: np.ndarray, width: int) -> np.ndarray:
+    """Item i = the `width` bytes starting at byte i (a stride-1 view, no copy). Opaque
+    items index fastest: no per-field transfer."""
+    opaque = np.dtype((np.void, width))
+    return np.ndarray(shape=(max(0, len(buf) - width + 1),), dtype=opaque, buffer=buf, strides=(1,))
+
+
+def _concat_groups(buf: np.ndarray, at: np.ndarray, n: np.ndarray, dtype: np.dtype[Any]) -> np.ndarray:
+    """_concat by groups of messages of one length (few groups, very unequal lengths)."""
+    out = np.empty(int(n.sum()), dtype=dtype.newbyteorder("="))
     first = np.cumsum(n) - n
     values, inverse = np.unique(n, return_inverse=True)
-    out: list[tuple[np.ndarray, int, np.ndarray | None]] = []
     for g, count in enumerate(values.tolist()):
         if count == 0:
             continue
         members = np.flatnonzero(inverse == g)
-        if len(values) == 1:
-            out.append((members, count, None))
-        else:
-            out.append((members, count, (first[members][:, None] + np.arange(count)).ravel()))
+        block = _rows(buf, at[members], count * dtype.itemsize).view(dtype)
+        out[(first[members][:, None] + np.arange(count)).ravel()] = block
     return out
 
 

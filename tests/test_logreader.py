@@ -175,3 +175,35 @@ def test_encoded_events_read_back_by_both_readers(tmp_path: Path) -> None:
     assert [tuple(e) for e in log.events] == _reference(path)
     assert log.integrity.events == len(events) and not log.integrity.damaged
     assert len(read_bytes(b"")) == 0
+
+
+def _timing_message(seq: int, n: int, m: int, rng: np.random.Generator) -> bytes:
+    t = skelmsg.timing_t()
+    t.dpu, t.run_id, t.generation, t.batch_seq, t.n, t.ninputs = 5, RUN_ID, 2, seq, n, m
+    for name, dims in zip(t.__slots__, t.__dimensions__, strict=True):
+        if dims is not None:
+            setattr(t, name, rng.integers(-100, 100, n if dims == ["n"] else m).tolist())
+    t.in_record = rng.integers(0, max(n, 1), m).tolist()
+    return t.encode()
+
+
+@pytest.mark.parametrize(
+    "shapes",
+    [
+        [(64, 100), (64, 150), (64, 3)],  # padded rows; the last (short) one runs past the buffer's end
+        [(2, 1), (3, 2), (2, 5000), (1, 1)],  # one long outlier: decoded by groups of equal length
+        [(8, 8)] * 5,  # all equal: no mask
+        [(0, 0), (4, 0), (0, 0)],  # empty arrays
+    ],
+)
+def test_bulk_decode_of_every_length_pattern(shapes: list[tuple[int, int]]) -> None:
+    rng = np.random.default_rng(11)
+    msgs = [_timing_message(seq, n, m if n else 0, rng) for seq, (n, m) in enumerate(shapes)]
+    run = decode_run(msgs, RUN_ID)
+    ref = [skelmsg.timing_t.decode(d) for d in msgs]
+    assert run.malformed == 0 and run.batches == len(msgs)
+    assert run.records["slack_ns"].tolist() == [v for r in ref for v in r.slack_ns]
+    assert run.records["flags"].tolist() == [v for r in ref for v in r.flags]
+    assert run.inputs["recv_ns"].tolist() == [v for r in ref for v in r.in_recv_ns]
+    assert run.inputs["buffer"].tolist() == [v for r in ref for v in r.in_buffer]
+    assert run.inputs["new"].tolist() == [v for r in ref for v in r.in_new]
