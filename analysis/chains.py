@@ -9,8 +9,9 @@ it used; that cycle's own input from P[n-2] names P[n-2]'s cycle; and so on to
 the head's cycle c0, whose value the tail cycle carries.
 
 One sample per value: a tail cycle counts when the value it carries arrives there
-for the first time (its c0 is newer than every earlier tail cycle's), and only
-when that tail cycle is completed and in the measured window.
+for the first time (its input from the last step is new, and its c0 is newer than
+every earlier tail cycle's), and only when that tail cycle is completed and in
+the measured window.
 
 - birth: the head's send time of sequence c0 (send_ns of the message, as the
   second step received it: exact, on the head's DPU clock);
@@ -138,7 +139,7 @@ def chain_series(
     tail_rec = inputs["record"][tail_rows]
     measured = records["cycle"][tail_rec] >= config.warmup_cycles
     broken = int(np.count_nonzero(measured & ~ok & (inputs["new"][tail_rows] != 0)))
-    keep = first & measured
+    keep = first & measured & (inputs["new"][tail_rows] != 0)  # a stale input brings nothing
     rec = records[tail_rec[keep]]
     use = clock.to_host(procs[tail].dpu, rec["start_ns"] + rec["comm_in_ns"] + rec["blocked_ns"])
     birth = clock.to_host(procs[pids[0]].dpu, born[keep])

@@ -143,18 +143,17 @@ def _num(value: float) -> str:
     return f"{value:.{0 if abs(value) >= 1000 else 2}f}"
 
 
-def _item(row: dict[str, Any], key: str, extra: Sequence[str]) -> str:
-    """The item's name, what moved (e.g. its DPU) and whether it is added or removed."""
-    text = str(row[key])
+def _item(row: dict[str, Any], key: str, extra: Sequence[str]) -> list[str]:
+    """The item's name, whether it is added or removed, and what moved (e.g. its DPU):
+    one line each, shown down the item column of the item's rows."""
+    lines = [str(row[key]) if row["status"] == "both" else f"{row[key]} ({row['status']})"]
     for m in extra:
         a, b = row[m]["a"], row[m]["b"]
         if isinstance(a, list) or isinstance(b, list):
             a, b = ", ".join(a or []), ", ".join(b or [])
         if row["status"] == "both" and a != b:
-            text += f"\n{m} {a} -> {b}"
-    if row["status"] != "both":
-        text += f"\n({row['status']})"
-    return text
+            lines.append(f"{m} {a} -> {b}")
+    return lines
 
 
 def diff_rows(
@@ -163,10 +162,21 @@ def diff_rows(
     """One table row per (item, measure): item, measure, A, B, delta."""
     out = []
     for row in rows:
+        item = _item(row, key, extra)
+        if len(item) > len(measures):
+            item = [*item[: len(measures) - 1], "; ".join(item[len(measures) - 1 :])]
+        item += [""] * (len(measures) - len(item))
         for i, m in enumerate(measures):
             cell = row[m]
-            out.append([_item(row, key, extra) if i == 0 else "", LABELS.get(m, m), _fmt(cell["a"]),
-                        _fmt(cell["b"]), _fmt(cell["delta"], signed=True)])  # fmt: skip
+            out.append(
+                [
+                    item[i],
+                    LABELS.get(m, m),
+                    _fmt(cell["a"]),
+                    _fmt(cell["b"]),
+                    _fmt(cell["delta"], signed=True),
+                ]
+            )
     return out
 
 

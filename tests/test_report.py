@@ -110,3 +110,68 @@ def test_tables_are_deterministic_and_show_the_paper(tmp_path: Path) -> None:
     assert re.search(r"B +│ a_out +│ +6 │ +2 │ +2 │ +6 │", first)
     clean = _render(analyze(str(_log(tmp_path / "ok.lcm"))))
     assert "log damaged" not in clean and "malformed messages skipped: SKEL_STATUS: 1" in clean
+
+
+def _two_generation_log(path: Path) -> Path:
+    """small_run with the config changed mid-run: A's compute 4 -> 5 ms (static load 60 -> 70 %).
+    DPU 1 runs generation 3 for cycles 0..5 and 4 from 6; DPU 2 (20 ms) switches at cycle 3."""
+    dpu1, dpu2 = small_run()
+    new = small_config(generation=GENERATION + 1)
+    new.processes[0].compute_us = 5_000
+    old_1, new_1 = batches(1, dpu1[:12], 4), batches(1, dpu1[12:], 4, generation=GENERATION + 1, first_seq=3)
+    old_2, new_2 = batches(2, dpu2[:3], 2), batches(2, dpu2[3:], 2, generation=GENERATION + 1, first_seq=2)
+    events: list[tuple[str, object]] = [("SKEL_CONFIG", small_config())]
+    events += [("SKEL_TIMING", t) for t in old_1 + old_2]
+    events += [("SKEL_CONFIG", new)] + [("SKEL_TIMING", t) for t in new_1 + new_2]
+    events += [("SKEL_REPORT", report(1, 5)), ("SKEL_REPORT", report(2, 3))]
+    return write_log(path, events)
+
+
+def test_generation_windows_split_the_run(tmp_path: Path) -> None:
+    rep = analyze(str(_two_generation_log(tmp_path / "run.lcm")))
+    assert rep.generations == [GENERATION, GENERATION + 1] and rep.generation == GENERATION + 1
+    first, last = rep.windows
+    assert (first.generation, last.generation) == (GENERATION, GENERATION + 1)
+    assert [d.static_load_pct for d in first.dpus] == pytest.approx([60.0, 25.0])
+    assert [d.static_load_pct for d in last.dpus] == pytest.approx([70.0, 25.0])
+    # Measured cycles (warm-up 2): A 2..5 then 6..9; C 2 then 3..4 (its overrun is in 4).
+    assert [p.cycles for p in first.processes] == [4, 4, 1]
+    assert [p.cycles for p in last.processes] == [4, 4, 2]
+    assert first.faults == [] and [f.kind for f in last.faults] == ["overrun"]
+    # From the first measured release to the end of the last measured cycle (work + idle).
+    assert first.duration_ms == pytest.approx(40.0) and last.duration_ms == pytest.approx(40.25)
+    # The top level is the last window; the JSON carries every window with the same fields.
+    assert rep.dpus == last.dpus and rep.processes == last.processes and rep.faults == last.faults
+    out = rep.to_json()
+    assert [w["generation"] for w in out["windows"]] == [GENERATION, GENERATION + 1]
+    for w in out["windows"]:
+        assert {"dpus", "processes", "buffers", "chains", "faults", "start_ns", "end_ns"} <= set(w)
+    assert out["windows"][1]["dpus"] == out["dpus"] and out["windows"][1]["processes"] == out["processes"]
+    assert out["windows"][0]["dpus"][0]["compute_mode"] == "sleep"
+    text = _render(rep)
+    assert text.count("== generation") == 2
+    assert text.index(f"== generation {GENERATION} window: 0.040 s") < text.index(
+        f"== generation {GENERATION + 1} window: 0.040 s"
+    )
+    assert "run 42, generation 3: per DPU" in text and "run 42, generation 4: per DPU" in text
+
+
+def test_one_generation_prints_no_window_header(tmp_path: Path) -> None:
+    rep = analyze(str(_log(tmp_path / "run.lcm")))
+    assert len(rep.windows) == 1 and rep.windows[0].dpus == rep.dpus
+    text = _render(rep)
+    assert "== generation" not in text and "per buffer" in text
+
+
+def test_process_response_slack_and_histograms(tmp_path: Path) -> None:
+    out = analyze(str(_log(tmp_path / "run.lcm"))).to_json()
+    a = out["processes"][0]
+    # A: response = start latency (100 + 10 k µs) + 200 + 4000 + 300 µs, k = 2..9
+    assert a["response_us"]["p50"] == pytest.approx(4655.0)
+    assert a["response_us"]["max"] == pytest.approx(4690.0)
+    # slack = 10 ms - response: 5310 .. 5380 µs
+    assert a["slack_us"] == {"min": pytest.approx(5310.0), "mean": pytest.approx(5345.0)}
+    for name in ("release_latency_us", "response_us"):
+        hist = a["histograms"][name]
+        assert len(hist["bins"]) == 41 and sum(hist["counts"]) == 8
+    assert a["histograms"]["response_us"]["bins"][0] == pytest.approx(4620.0)  # the smallest sample
