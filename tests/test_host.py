@@ -1,0 +1,205 @@
+"""A run in a lab, on one machine (ttl=0, real daemons): DPUs lost, a host tool killed, start orders.
+
+Each test drives the real `skel run` as a child process and interferes with it
+the way a lab does: SIGKILL a DPU, SIGKILL the host tool's whole process group,
+start the DPUs after the host tool.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+from conftest import EXAMPLES, REPO, DpuFarm, skel
+
+from skeleton.host.control import Control
+
+PAIR = str(EXAMPLES / "pair-10ms-5ms.yaml")
+# Light and patient (lockout after 1 s without a cycle), so a loaded test machine cannot fail it.
+LAB_SYSTEM = """\
+system: lab
+dpus: [{id: 1}, {id: 2}]
+buffers: [{id: 1, name: state, bytes: 64}, {id: 2, name: command, bytes: 64}]
+processes:
+  - {id: 1, name: sensor, dpu: 1, period_us: 10000, compute_us: 300, outputs: [state]}
+  - {id: 2, name: controller, dpu: 2, period_us: 10000, compute_us: 300, inputs: [state], outputs: [command]}
+  - {id: 3, name: actuator, dpu: 1, period_us: 10000, compute_us: 300, inputs: [command]}
+run: {warmup_cycles: 10, lockout_cycles: 100, stop_on: [jam]}
+"""
+
+
+def _lab(tmp_path: Path) -> str:
+    path = tmp_path / "lab.yaml"
+    path.write_text(LAB_SYSTEM)
+    return str(path)
+
+
+class SkelProcess:
+    """`skel ...` running in the background; its output lines with the time each arrived."""
+
+    def __init__(self, *args: str, new_session: bool = False) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "skeleton.host.cli", *args], cwd=REPO, text=True,
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=new_session,
+            env={**os.environ, "COLUMNS": "160"})
+        self.lines: list[tuple[float, str]] = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.append((time.monotonic(), line))
+
+    def wait(self, timeout: float = 60) -> int:
+        code = self.proc.wait(timeout)
+        self._reader.join(5)
+        return code
+
+    @property
+    def output(self) -> str:
+        return "".join(line for _, line in self.lines)
+
+    def first(self, pattern: str) -> tuple[float, re.Match[str]] | None:
+        for when, line in self.lines:
+            match = re.search(pattern, line)
+            if match:
+                return when, match
+        return None
+
+
+def _wait_running(url: str, dpu: int, min_cycles: int = 50, timeout_s: float = 20) -> None:
+    control = Control(url)
+    try:
+        assert control.wait_for(lambda: dpu in control.dpus and control.dpus[dpu].state == "running"
+                                and control.dpus[dpu].status.minor_cycles >= min_cycles, timeout_s), \
+            "the run did not start"
+    finally:
+        control.close()
+
+
+def _report(out: Path) -> dict:
+    done = skel("report", str(out / "run.lcm"), "--json")
+    assert done.returncode in (0, 1, 3), done.stdout + done.stderr
+    return json.loads(done.stdout)
+
+
+def _inputs(report: dict) -> dict[str, dict]:
+    return {p["name"]: i for p in report["processes"] for i in p["inputs"]}
+
+
+def test_dpu_killed_mid_run_is_reported_and_the_others_are_analysed(dpus: DpuFarm, url: str,
+                                                                      tmp_path: Path) -> None:
+    dpus.start(1, 2)
+    out = tmp_path / "run"
+    run = SkelProcess("run", _lab(tmp_path), "--url", url, "--duration", "5", "--out", str(out))
+    _wait_running(url, 1)
+    killed = time.monotonic()
+    dpus.kill(1)  # SIGKILL: no report, no last status
+    deadline = time.monotonic() + 10
+    while run.first("dpu_lost") is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    dpus.start(1)  # restarted: it takes the re-sent config, and sits out the rest of this run
+    assert run.wait() == 1, run.output  # a DPU's part of the run is missing: "an operation failed"
+    found = run.first(r"dpu_lost: DPU 1 not heard for ([0-9.]+) s")
+    assert found is not None, run.output
+    when, match = found
+    # Detection is by heartbeat age (LOST_AFTER_S = 0.6 s, polled every 0.1 s): within 1 s of the last one.
+    assert float(match.group(1)) <= 1.0, match.group(0)
+    assert when - killed < 3.0, f"reported {when - killed:.2f} s after the kill"
+    assert "dpu_lost: DPU 2" not in run.output
+
+    report = json.loads((out / "report.json").read_text())
+    assert report == _report(out)  # the log alone gives the same
+    assert any(f["kind"] == "dpu_lost" and f.get("dpu") == 1 for f in report["faults"]), report["faults"]
+    assert 2 in [d["id"] for d in report["dpus"]]
+    # DPU 2 kept running to the end: its controller saw DPU 1's buffer go stale after the kill.
+    controller = _inputs(report)["controller"]
+    assert controller["stale"] > controller["new"], controller
+    assert dpus.daemons[2].alive()
+    assert "DPU 1 heard again" in run.output
+    status = {d["dpu"]: d for d in json.loads(skel("status", "--url", url, "--json").stdout)}
+    assert status[1]["generation"] == report["generation"], status
+
+
+def _logger_pids(log: Path) -> list[int]:
+    """lcm-logger processes writing `log` (found by command line: the host tool that started them is dead)."""
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            argv = (entry / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if argv and argv[0].endswith(b"lcm-logger") and str(log).encode() in argv:
+            pids.append(int(entry.name))
+    return pids
+
+
+def test_host_tool_killed_mid_run_dpus_finish_and_the_logger_keeps_recording(dpus: DpuFarm, url: str,
+                                                                               tmp_path: Path) -> None:
+    dpus.start(1, 2)
+    out = tmp_path / "run"
+    duration_s = 3.0
+    run = SkelProcess("run", _lab(tmp_path), "--url", url, "--duration", str(duration_s), "--out", str(out),
+                      new_session=True)
+    _wait_running(url, 2, min_cycles=20)
+    os.killpg(run.proc.pid, signal.SIGKILL)  # the whole process group, as a closed terminal would
+    run.wait()
+    assert _logger_pids(out / "run.lcm"), "the logger died with the host tool"
+    # It ends by itself once the run is over (its `timeout`), having recorded the end of the run.
+    deadline = time.monotonic() + duration_s + 30
+    while _logger_pids(out / "run.lcm") and time.monotonic() < deadline:
+        time.sleep(0.5)
+    assert not _logger_pids(out / "run.lcm"), "the orphaned logger did not stop by itself"
+
+    report = _report(out)
+    assert sorted(d["id"] for d in report["dpus"]) == [1, 2]
+    assert not [f for f in report["faults"] if f["kind"] == "dpu_lost"], report["faults"]
+    # Every cycle of the run is there: the controller runs every 10 ms for the whole duration.
+    controller = next(p for p in report["processes"] if p["name"] == "controller")
+    assert controller["cycles"] >= 0.9 * (duration_s / 0.010 - 10), controller
+    assert all(d.alive() for d in dpus.daemons.values())
+
+
+def test_dpus_started_before_and_after_the_host_tool(dpus: DpuFarm, url: str, tmp_path: Path) -> None:
+    dpus.start(1)  # up before the host tool
+    out = tmp_path / "run"
+    run = SkelProcess("run", _lab(tmp_path), "--url", url, "--duration", "1", "--wait-dpus", "15",
+                      "--out", str(out))
+    time.sleep(2.0)
+    assert run.proc.poll() is None, run.output  # still waiting for DPU 2
+    dpus.start(2)  # up after it
+    assert run.wait() == 0, run.output
+    report = json.loads((out / "report.json").read_text())
+    assert sorted(d["id"] for d in report["dpus"]) == [1, 2]
+
+
+def test_no_dpu_within_wait_dpus_fails_clearly(tmp_path: Path, url: str) -> None:
+    started = time.monotonic()
+    done = skel("run", PAIR, "--url", url, "--wait-dpus", "0.5", "--out", str(tmp_path / "run"))
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert "no heartbeat from DPU 1, 2" in done.stdout and "--wait-dpus" in done.stdout
+    assert time.monotonic() - started < 30
+    assert skel("run", PAIR, "--url", url, "--wait-dpus", "-1").returncode == 2
+
+
+def test_external_logger_prints_the_dpus_own_totals(dpus: DpuFarm, url: str, tmp_path: Path) -> None:
+    dpus.start(1, 2)
+    out = tmp_path / "run"
+    done = skel("run", _lab(tmp_path), "--url", url, "--duration", "1", "--logger", "external",
+                "--out", str(out))
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "own totals" in done.stdout and "skel report" in done.stdout
+    assert not (out / "run.lcm").exists()
+    totals = json.loads((out / "reports.json").read_text())
+    assert [row["dpu"] for row in totals["dpus"]] == [1, 2]
+    assert all(row["reported"] and row["minor_cycles"] > 0 for row in totals["dpus"]), totals
