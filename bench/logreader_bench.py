@@ -100,8 +100,8 @@ def best_of(fn: Callable[[Path], dict[str, np.ndarray]], path: Path, repeat: int
     return best, out
 
 
-def main() -> None:
-    records = int(sys.argv[1]) if len(sys.argv) > 1 else 500_000
+def measure(records: int = 500_000) -> list[str]:
+    """The headline ("log reader: N.Nx lcm.EventLog ...") and one line per log."""
     lines = [f"# {records} process-cycle records, {BATCH} per timing_t batch, 1-3 inputs per record"]
     headline = ""
     with tempfile.TemporaryDirectory() as tmp:
@@ -123,7 +123,12 @@ def main() -> None:
             if name == "timing":
                 rate = records / t_ours / 1e6
                 headline = f"log reader: {t_all / t_ours:.1f}x lcm.EventLog ({rate:.1f} M records/s)"
-    text = "\n".join([headline, *lines]) + "\n"
+    return [headline, *lines]
+
+
+def main() -> None:
+    records = int(sys.argv[1]) if len(sys.argv) > 1 else 500_000
+    text = "\n".join(measure(records)) + "\n"
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(text)
     print(text, end="")

@@ -1,0 +1,221 @@
+"""`make bench`: skeleton against the bare tools, side by side in one run, as ratios.
+
+(a) wake-up jitter: skel-dpu's release latency (the first process of each minor
+    cycle: start - release) in `sleep` and `wall` compute modes, against cyclictest
+    (Debian rt-tests) for the same time at the same period and scheduling class;
+(b) publish cost: skel-dpu's comm_out per output buffer against a bare lcm_publish()
+    loop in C (bench/lcm_publish.c) of the same message size at the same period;
+(c) the log reader against lcm.EventLog + the generated decoders (bench/logreader_bench.py).
+
+Each part writes bench/results/<name>.txt, the headlines go to bench/results/summary.txt.
+Runs use a private multicast port with ttl=0 (nothing leaves the host). About 1-2 minutes.
+
+Usage: .venv/bin/python bench/run.py [--seconds S] [--records N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import lcm
+import numpy as np
+
+import skelmsg
+from skeleton.analysis.logreader import read_log
+from skeleton.analysis.records import load_run
+
+BENCH = Path(__file__).resolve().parent
+REPO = BENCH.parent
+RESULTS = BENCH / "results"
+LCM_PREFIX = Path(lcm.__file__).resolve().parent.parent
+PERIOD_US = 1000
+BUFFER_BYTES = 1024
+WARMUP_CYCLES = 200
+URL = f"udpm://239.255.76.67:{7000 + os.getpid() % 500 * 2}?ttl=0"
+
+SYSTEM = f"""\
+system: bench
+links: [{{name: bus, url: "{URL}"}}]
+dpus: [{{id: 1, compute: sleep}}]
+buffers: [{{id: 1, name: out, bytes: {BUFFER_BYTES}}}]
+processes:
+  - {{id: 1, name: cyclic, dpu: 1, period_us: {PERIOD_US}, compute_us: 100, outputs: [out]}}
+run: {{warmup_cycles: {WARMUP_CYCLES}, lockout_cycles: 1000, stop_on: []}}
+"""
+
+
+def _us(ns: np.ndarray, q: float) -> float:
+    return float(np.percentile(ns, q)) / 1000.0
+
+
+def skel_run(tmp: Path, mode: str, seconds: float) -> np.ndarray:
+    """Measured records of one real run of SYSTEM with the DPU in compute mode `mode`."""
+    system = tmp / "bench.yaml"
+    system.write_text(SYSTEM)
+    out = tmp / mode
+    argv = [sys.executable, "-m", "skeleton.host.cli", "run", str(system), "--spawn", "--url", URL,
+            "--duration", str(seconds), "--out", str(out), "--json", "-s", f"dpu.1.compute={mode}"]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=seconds + 60, cwd=REPO,
+                          env={**os.environ, "SKEL_DPU": str(REPO / "build" / "skel-dpu")})
+    if done.returncode not in (0, 3):
+        raise SystemExit(f"bench: skel run ({mode}) failed:\n{done.stdout}{done.stderr}")
+    records = load_run(read_log(out / "run.lcm")).records
+    return records[records["cycle"] >= WARMUP_CYCLES]
+
+
+def first_of_minor(records: np.ndarray) -> np.ndarray:
+    """Release latency (ns) of the first process started in each minor cycle."""
+    order = np.lexsort((records["start_ns"], records["minor"]))
+    minor = records["minor"][order]
+    first = order[np.r_[True, minor[1:] != minor[:-1]]]
+    return (records["start_ns"][first] - records["release_ns"][first]).astype(np.int64)
+
+
+def cyclictest_binary() -> tuple[str | None, str]:
+    """cyclictest, installed from Debian's rt-tests when we are root; else why not."""
+    found = shutil.which("cyclictest")
+    if found:
+        return found, ""
+    if os.geteuid() != 0:
+        return None, "cyclictest missing (Debian rt-tests) and not root: `sudo apt-get install rt-tests`"
+    env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
+    for cmd in (["apt-get", "update", "-qq"], ["apt-get", "install", "-y", "-qq", "rt-tests"]):
+        if subprocess.run(cmd, capture_output=True, env=env).returncode != 0:
+            return None, "cyclictest missing and `apt-get install rt-tests` failed"
+    found = shutil.which("cyclictest")
+    return (found, "") if found else (None, "rt-tests installed but no cyclictest on PATH")
+
+
+def cyclictest(binary: str, seconds: float, priority: int) -> dict[str, float]:
+    """p50/p99/max wake-up latency in µs: clock_nanosleep on an absolute time (as
+    skel-dpu waits; cyclictest 2.x has no -n, it is the default), -m (locked memory),
+    --default-system (no /dev/cpu_dma_latency tuning: skel-dpu does none), the same
+    period, a histogram for the percentiles."""
+    loops = int(seconds * 1e6 / PERIOD_US)
+    argv = [binary, "-m", "-q", "--default-system", "-i", str(PERIOD_US), "-l", str(loops), "-h", "5000"]
+    if priority:
+        argv += ["-p", str(priority)]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=seconds + 30)
+    if done.returncode != 0:
+        raise SystemExit(f"bench: cyclictest failed: {done.stderr.strip()}")
+    counts = np.zeros(5001, dtype=np.int64)
+    for line in done.stdout.splitlines():
+        if re.fullmatch(r"\d+\s+\d+", line.strip()):
+            bucket, count = map(int, line.split())
+            counts[min(bucket, 5000)] += count
+    overflow = re.search(r"# Histogram Overflows:\s*(\d+)", done.stdout)
+    counts[5000] += int(overflow.group(1)) if overflow else 0
+    worst = re.search(r"# Max Latencies:\s*(\d+)", done.stdout)
+    if counts.sum() == 0:
+        raise SystemExit(f"bench: no histogram from {' '.join(argv)}:\n{done.stdout}{done.stderr}")
+    cumulative = np.cumsum(counts) / counts.sum()
+    return {
+        "p50": float(np.searchsorted(cumulative, 0.50)),
+        "p99": float(np.searchsorted(cumulative, 0.99)),
+        "max": float(worst.group(1)) if worst else float("nan"),
+        "samples": float(counts.sum()),
+    }
+
+
+def part_wakeup(tmp: Path, seconds: float) -> list[str]:
+    ours = {mode: first_of_minor(skel_run(tmp, mode, seconds)) for mode in ("sleep", "wall")}
+    lines = [f"# {seconds:.0f} s at {PERIOD_US} us per minor cycle, one DPU (SCHED_OTHER), "
+             f"first {WARMUP_CYCLES} cycles excluded; cyclictest -m -i {PERIOD_US}, same time"]
+    for mode, ns in ours.items():
+        lines.append(f"skel-dpu {mode}: p50 {_us(ns, 50):.1f} us, p99 {_us(ns, 99):.1f} us, "
+                     f"max {ns.max() / 1000:.1f} us ({len(ns)} minor cycles)")
+    binary, why = cyclictest_binary()
+    if binary is None:
+        return [f"wake-up p99: skel {_us(ours['sleep'], 99):.1f} us, cyclictest skipped: {why}", *lines]
+    ref = cyclictest(binary, seconds, 0)
+    fifo = cyclictest(binary, seconds, 80) if os.geteuid() == 0 else None
+    lines.append(f"cyclictest (SCHED_OTHER): p50 {ref['p50']:.0f} us, p99 {ref['p99']:.0f} us, "
+                 f"max {ref['max']:.0f} us ({ref['samples']:.0f} wake-ups)")
+    if fifo:
+        lines.append(f"cyclictest -p 80 (SCHED_FIFO, for scale): p50 {fifo['p50']:.0f} us, "
+                     f"p99 {fifo['p99']:.0f} us, max {fifo['max']:.0f} us")
+    mine = _us(ours["sleep"], 99)
+    ratio = mine / max(ref["p99"], 1.0)  # cyclictest counts whole µs: never divide by 0
+    head = f"wake-up p99: skel {mine:.1f} us, cyclictest {ref['p99']:.0f} us (ratio {ratio:.1f})"
+    return [head, *lines]
+
+
+def build_publisher(tmp: Path) -> Path:
+    exe = REPO / "build" / "bench" / "lcm_publish"
+    exe.parent.mkdir(parents=True, exist_ok=True)
+    argv = ["gcc", "-std=c11", "-D_GNU_SOURCE", "-O2", "-Wall", "-Wextra", "-Werror",
+            f"-I{LCM_PREFIX / 'include'}", "-o", str(exe), str(BENCH / "lcm_publish.c"),
+            f"-L{LCM_PREFIX / 'lib'}", f"-Wl,-rpath,{LCM_PREFIX / 'lib'}", "-llcm"]
+    done = subprocess.run(argv, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise SystemExit(f"bench: cannot build {exe}:\n{done.stderr}")
+    return exe
+
+
+def part_publish(tmp: Path, seconds: float, records: np.ndarray | None) -> list[str]:
+    """comm_out of the one-output process (one buffer_t per cycle) vs bare lcm_publish."""
+    msg = skelmsg.buffer_t()
+    msg.nbytes, msg.payload = BUFFER_BYTES, bytes(BUFFER_BYTES)
+    size = len(msg.encode())
+    exe = build_publisher(tmp)
+    count = int(seconds * 1e6 / PERIOD_US)
+    done = subprocess.run([str(exe), URL, str(size), str(PERIOD_US), str(count)], capture_output=True,
+                          text=True, timeout=seconds + 30)
+    if done.returncode != 0:
+        raise SystemExit(f"bench: lcm_publish failed: {done.stderr.strip()}")
+    _, mean, p50, p99, worst = map(int, done.stdout.split())
+    ours = records["comm_out_ns"] if records is not None else np.zeros(1)
+    lines = [f"# one {BUFFER_BYTES}-byte buffer ({size} bytes encoded buffer_t) per {PERIOD_US} us cycle, "
+             f"{len(ours)} cycles; bare: lcm_publish() of {size} bytes, {count} times, same period",
+             f"skel-dpu comm_out: mean {ours.mean() / 1000:.2f} us, p50 {_us(ours, 50):.2f} us, "
+             f"p99 {_us(ours, 99):.2f} us, max {ours.max() / 1000:.1f} us",
+             f"bare lcm_publish: mean {mean / 1000:.2f} us, p50 {p50 / 1000:.2f} us, "
+             f"p99 {p99 / 1000:.2f} us, max {worst / 1000:.1f} us"]
+    head = (f"publish: skel {_us(ours, 50):.2f} us, bare lcm {p50 / 1000:.2f} us "
+            f"(ratio {_us(ours, 50) / max(p50 / 1000, 1e-3):.2f}, p50 per {size}-byte message)")
+    return [head, *lines]
+
+
+def part_logreader(records: int) -> list[str]:
+    sys.path.insert(0, str(BENCH))
+    from logreader_bench import measure
+
+    return measure(records)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=5.0, help="length of each timed run (default 5)")
+    parser.add_argument("--records", type=int, default=500_000, help="records in the reader's log")
+    args = parser.parse_args()
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    summary = [f"# make bench, {time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} CPUs, "
+               f"load average {os.getloadavg()[0]:.1f} at start (the machine may be shared)"]
+    with tempfile.TemporaryDirectory(prefix="skel-bench-") as name:
+        tmp = Path(name)
+        wake = part_wakeup(tmp, args.seconds)
+        records = load_run(read_log(tmp / "sleep" / "run.lcm")).records
+        parts = {
+            "wakeup": wake,
+            "publish": part_publish(tmp, args.seconds, records[records["cycle"] >= WARMUP_CYCLES]),
+            "logreader": part_logreader(args.records),
+        }
+    for name, lines in parts.items():
+        (RESULTS / f"{name}.txt").write_text("\n".join(lines) + "\n")
+        print("\n".join(lines) + "\n")
+        summary.append(lines[0])
+    (RESULTS / "summary.txt").write_text("\n".join(summary) + "\n")
+    print("\n".join(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
