@@ -8,6 +8,10 @@ from pathlib import Path
 from conftest import EXAMPLES, skel
 
 PAPER_COMPUTE_PCT = {1: 90.3, 2: 73.4, 3: 86.0, 4: 96.5}
+# DPUs 1 and 3 are 86-90 % loaded: after a scheduling hiccup of a shared 2-core machine they
+# catch up at only 10-14 % of real time. A lockout window of 20 periods (100 ms) keeps such
+# noise from reading as a design flaw; the 2.5 ms system falls behind without bound either way.
+NOISE_TOLERANT = ("-s", "run.lockout_cycles=20")
 
 
 def _report(out: Path) -> dict:
@@ -17,7 +21,7 @@ def _report(out: Path) -> dict:
 def test_servo_reproduces_table1_and_report_reproduces_run(tmp_path: Path, url: str) -> None:
     out = tmp_path / "servo"
     run = skel("run", str(EXAMPLES / "servo.yaml"), "--spawn", "--url", url, "--cycles", "800",
-               "-s", "run.warmup_cycles=20", "--out", str(out))
+               "-s", "run.warmup_cycles=20", *NOISE_TOLERANT, "--out", str(out))
     assert run.returncode == 0, run.stdout + run.stderr
     report = _report(out)
     assert sorted(d["id"] for d in report["dpus"]) == [1, 2, 3, 4]
@@ -115,13 +119,13 @@ def test_push_reconfigures_running_dpus_without_restart(tmp_path: Path, url: str
         pids_before = {d["dpu"]: d["pid"] for d in json.loads(skel("status", "--url", url, "--json").stdout)}
         assert sorted(pids_before) == [1, 2, 3, 4]
         first = skel("run", servo, "--url", url, "--cycles", "300", "-s", "run.warmup_cycles=10",
-                     "--out", str(tmp_path / "a"), "--compare-paper")
+                     *NOISE_TOLERANT, "--out", str(tmp_path / "a"), "--compare-paper")
         assert first.returncode == 0, first.stdout + first.stderr
         assert "(90.3)" in first.stdout and "Table 1" in first.stdout
         assert abs(_executor_compute_us(tmp_path / "a") - 3500) < 150
 
         pushed = skel("push", servo, "--url", url, "-s", "process.executor.compute_us=2000",
-                      "-s", "run.warmup_cycles=10")
+                      "-s", "run.warmup_cycles=10", *NOISE_TOLERANT)
         assert pushed.returncode == 0, pushed.stdout + pushed.stderr
         assert pushed.stdout.count("applied generation") == 4
         second = skel("run", "--url", url, "--cycles", "300", "--out", str(tmp_path / "b"))
