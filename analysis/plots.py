@@ -143,6 +143,9 @@ def utilization(data: RunData) -> Figure:
                 ax.text(bar.get_x() + bar.get_width() / 2, bar.get_y() + value / 2, f"{value:.1f}",
                         ha="center", va="center", fontsize=8, color=ink)  # fmt: skip
         bottom += v
+    for xi, d in zip(x, dpus, strict=True):
+        if d.compute_pct is None:
+            ax.text(xi - 0.15, 2, "no measured\ncycle", ha="center", va="bottom", fontsize=8, color="#555")
     load = np.array([d.static_load_pct for d in dpus])
     ax.bar(x + 0.3, load, 0.2, color="none", edgecolor="black", hatch="///",
            label="configured load\n(Σ compute / period)")  # fmt: skip
@@ -247,9 +250,10 @@ def _grid(n: int, width: float = 11.0, row_height: float = 2.3) -> tuple[Figure,
     return fig, axes[:n]
 
 
-def _log_counts(ax: plt.Axes) -> None:
-    """Log-scale counts labelled 1, 10, 100 (not 6x10^0 on the minor ticks)."""
+def _log_counts(ax: plt.Axes, highest: int) -> None:
+    """Log-scale counts labelled 1, 2, 5, 10... (not 6x10^0), from 1 up."""
     ax.set_yscale("log")
+    ax.set_ylim(0.7, max(highest, 1) * 1.8)
     ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
     ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     ax.yaxis.set_minor_formatter(NullFormatter())
@@ -260,14 +264,18 @@ def release_latency(data: RunData) -> Figure:
     fig, axes = _grid(max(1, len(procs)))
     for ax, p in zip(axes, procs, strict=False):
         hist = p.histograms["release_latency_us"]
-        if hist.counts:
-            ax.stairs(hist.counts, hist.bins, fill=True, color=COMPUTE)
-        _log_counts(ax)
+        ax.set_title(f"{p.name} (DPU {p.dpu}, {p.period_us / 1000:g} ms)", fontsize=9)
+        if not hist.counts:
+            ax.text(0.5, 0.5, "no measured cycle", ha="center", va="center", transform=ax.transAxes)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            continue
+        ax.stairs(hist.counts, hist.bins, fill=True, color=COMPUTE)
+        _log_counts(ax, max(hist.counts))
         for value, style, label in ((p.latency_us.p50, "--", "p50"), (p.latency_us.p99, ":", "p99")):
             if value is not None:
                 ax.axvline(value, color="black", linestyle=style, linewidth=1,
                            label=f"{label} {value:.0f} µs")  # fmt: skip
-        ax.set_title(f"{p.name} (DPU {p.dpu}, {p.period_us / 1000:g} ms)", fontsize=9)
         ax.legend(fontsize=7, frameon=False)
         ax.tick_params(labelsize=8)
     for ax in axes:
@@ -288,7 +296,7 @@ def buffer_latency(data: RunData) -> Figure | None:
         for color, reader in zip(colors, (r for r in b.readers if r.samples), strict=False):
             ax.stairs(reader.histogram.counts, reader.histogram.bins, color=color, linewidth=1.4,
                       label=f"→ {reader.process} (p99 {reader.latency_us.p99:.0f} µs)")  # fmt: skip
-        _log_counts(ax)
+        _log_counts(ax, max(max(r.histogram.counts, default=0) for r in b.readers))
         ax.set_title(f"{b.buffer} ({b.writer} →)", fontsize=9)
         ax.set_xlabel("send → receive (µs)", fontsize=8)
         ax.legend(fontsize=7, frameon=False)
