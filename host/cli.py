@@ -164,7 +164,7 @@ def cmd_push(args: argparse.Namespace) -> int:
     control = Control(control_url(system))
     try:
         ids = sorted(d.id for d in system.dpus)
-        control.wait_heard(ids, HEAR_TIMEOUT_S)
+        control.wait_heard(ids, HEAR_TIMEOUT_S, introduce=lambda g: system.to_config(g, 0, committed=False))
         generation = control.next_generation()
         # Pushed during a run, the config names that run, so its log pairs them.
         runs = {v.status.run_id for i, v in control.snapshot().items()

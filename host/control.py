@@ -177,10 +177,22 @@ class Control:
         with self._lock:
             return [i for i in ids if i not in self.dpus or now - self.dpus[i].heard_mono > LOST_AFTER_S]
 
-    def wait_heard(self, ids: Iterable[int], timeout_s: float) -> list[int]:
-        """Wait until every DPU in `ids` has sent a heartbeat; return the silent ones."""
+    def wait_heard(self, ids: Iterable[int], timeout_s: float,
+                   introduce: Callable[[int], skelmsg.config_t] | None = None) -> list[int]:
+        """Wait until every DPU in `ids` has sent a heartbeat; return the silent ones.
+
+        A DPU started with `--id auto` heartbeats as DPU -1 until a config names its host.
+        With `introduce` (generation -> config), such a DPU is sent the config, staged
+        only, so it finds itself and answers under its id."""
         wanted = set(ids)
-        self.wait_for(lambda: wanted <= self.dpus.keys(), timeout_s)
+        deadline = time.monotonic() + timeout_s
+        generation = None
+        while not self.wait_for(lambda: wanted <= self.dpus.keys(), min(0.25, deadline - time.monotonic())):
+            if time.monotonic() >= deadline:
+                break
+            if introduce is not None and -1 in self.dpus:
+                generation = generation or self.next_generation()
+                self.publish_config(introduce(generation))
         with self._lock:
             return sorted(wanted - self.dpus.keys())
 

@@ -81,7 +81,8 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
     logger = None
     control = Control(url)
     try:
-        silent = control.wait_heard(dpu_ids, options.wait_dpus_s)
+        silent = control.wait_heard(dpu_ids, options.wait_dpus_s,
+                                    introduce=lambda g: system.to_config(g, 0, committed=False))
         if silent:
             console.print(f"[red]no heartbeat from DPU {', '.join(map(str, silent))} on {url} in "
                           f"{options.wait_dpus_s:g} s[/]: start them (`skel up FILE` or skel-dpu --id N "
