@@ -11,6 +11,7 @@
 void buffers_slot_reset(skel_slot_t *slot)
 {
     slot->newest_seq = -1;
+    slot->dup_upto = -1;
     slot->newest_send_ns = 0;
     slot->newest_recv_ns = 0;
     slot->received = 0;
@@ -28,6 +29,9 @@ int buffers_slot_receive(skel_slot_t *slot, int64_t run_id, const wire_buffer_hd
         slot->foreign++;
         return BUFFERS_FOREIGN_RUN;
     }
+    /* After a live switch the new plan's lcm_t holds copies of what the old one
+     * delivered already: those are not received twice. */
+    if (hdr->seq <= slot->dup_upto) return BUFFERS_DUPLICATE;
     slot->received++;
     /* A late, reordered message still counts as received but never replaces newer data. */
     if (hdr->seq > slot->newest_seq) {
@@ -58,8 +62,10 @@ void buffers_input_peek(const skel_input_t *in, const skel_slot_t *slot, skel_in
 {
     rec->buffer = in->buffer;
     rec->seq = slot->newest_seq;
-    rec->new_data = slot->newest_seq > in->last_used;
-    rec->dropped = rec->new_data ? buffers_clamp32(slot->newest_seq - in->last_used - 1) : 0;
+    rec->new_data = slot->newest_seq >= 0 && slot->newest_seq > in->last_used;
+    /* An input added by a live switch never used anything: nothing was dropped for it. */
+    int counts = rec->new_data && in->last_used != SKEL_SEQ_JOINED;
+    rec->dropped = counts ? buffers_clamp32(slot->newest_seq - in->last_used - 1) : 0;
     rec->received = buffers_clamp32(slot->received - in->received_seen);
     rec->sent_ns = slot->newest_send_ns;
     rec->recv_ns = slot->newest_recv_ns;

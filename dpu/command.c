@@ -1,8 +1,9 @@
 /* command.c: what the control thread does with a config or a command. A config
- * is checked, decoded, our part found and validated, then staged; it is applied
- * (plan built, links opened, swapped in) on COMMIT or when it arrives already
- * committed, and only between runs. Commands act once per seq: the host repeats
- * them over lossy multicast. */
+ * is checked, decoded, our part found and validated, then staged; apply.c turns
+ * it into the plan on COMMIT (between runs at once, during a run at the
+ * COMMIT's cycle boundary) or when it arrives already committed. A staged
+ * config that a newer one overtakes is discarded, never applied. Commands act
+ * once per seq: the host repeats them over lossy multicast. */
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -10,68 +11,6 @@
 #include <unistd.h>
 
 #include "dpu.h"
-
-static void command_free_config(skelmsg_config_t *cfg)
-{
-    if (cfg == NULL) return;
-    skelmsg_config_t_decode_cleanup(cfg);
-    free(cfg);
-}
-
-static void command_reject(skel_control_t *c, int64_t generation, const char *reason, int fault)
-{
-    skel_server_t *s = c->s;
-    if (pthread_mutex_lock(&s->lock) != 0) return;
-    if (generation >= 0) s->rejected_generation = generation;
-    snprintf(s->reject_reason, sizeof s->reject_reason, "%s", reason);
-    pthread_mutex_unlock(&s->lock);
-    if (fault) server_fault(s, SKELMSG_STATUS_T_FAULT_CONFIG_REJECTED);
-    skel_log("DPU %d: %s", s->dpu_id, reason);
-    c->status_due = 1;
-}
-
-/* Applies the staged config if no run holds the plan; otherwise it waits for
- * the end of the run (control_finish_run calls again). A future "switch at a
- * cycle boundary mid-run" goes here: hand the built plan to the executive as
- * s->next_plan and let it swap at the first release at or after COMMIT's at. */
-void control_apply(skel_control_t *c)
-{
-    skel_server_t *s = c->s;
-    char reason[SKEL_REASON_LEN];
-    if (pthread_mutex_lock(&s->lock) != 0) return;
-    if (s->staged == NULL || s->run_active) {
-        s->apply_pending = s->staged != NULL;
-        pthread_mutex_unlock(&s->lock);
-        return;
-    }
-    skelmsg_config_t *cfg = s->staged;
-    int index = s->staged_dpu_index;
-    s->staged = NULL;
-    pthread_mutex_unlock(&s->lock);
-    skel_plan_t *plan = plan_build(cfg, index, reason, sizeof reason);
-    if (plan != NULL && plan_open_links(plan, &s->rejected, reason, sizeof reason) != 0) {
-        plan_free(plan);
-        plan = NULL;
-    }
-    if (plan == NULL) {
-        command_reject(c, cfg->generation, reason, 1);
-        command_free_config(cfg);
-        return;
-    }
-    if (pthread_mutex_lock(&s->lock) != 0) return;
-    skel_plan_t *old = s->plan;
-    s->plan = plan;
-    s->generation = plan->generation;
-    s->applied_any = 1;
-    s->state = SKELMSG_STATUS_T_STATE_READY;
-    pthread_mutex_unlock(&s->lock);
-    plan_free(old); /* the executive drains links only under the lock: old is unused */
-    skel_log("DPU %d: applied generation %lld: %d processes, %d links, minor cycle %lld us",
-             plan->dpu, (long long)plan->generation, plan->nprocesses, plan->nlinks,
-             (long long)(plan->minor_ns / SKEL_NS_PER_US));
-    command_free_config(cfg);
-    c->status_due = 1;
-}
 
 /* Our id is absent (or ambiguous for --id auto): keep waiting, unconfigured. */
 static void command_absent(skel_control_t *c, const skelmsg_config_t *cfg, const char *reason)
@@ -86,22 +25,33 @@ static void command_absent(skel_control_t *c, const skelmsg_config_t *cfg, const
     }
     pthread_mutex_unlock(&s->lock);
     plan_free(old);
-    command_reject(c, cfg->generation, reason, 0);
+    control_reject(c, cfg->generation, reason, 0);
 }
 
-/* Re-sends of a generation we already applied, staged or refused change nothing. */
+/* Re-sends of a generation we already applied, offered for a switch, staged or
+ * refused change nothing. A newer generation discards an uncommitted staged one. */
 static int command_config_known(skel_control_t *c, const skelmsg_config_t *cfg)
 {
     skel_server_t *s = c->s;
     int known = 0, apply = 0;
+    skelmsg_config_t *discard = NULL;
     if (pthread_mutex_lock(&s->lock) != 0) return 1;
     if (s->applied_any && cfg->generation <= s->generation) known = 1;
+    else if (s->next_generation >= 0 && cfg->generation <= s->next_generation) known = 1;
     else if (cfg->generation == s->rejected_generation && s->reject_reason[0] != '\0') known = 1;
     else if (s->staged != NULL && cfg->generation == s->staged_generation) {
         known = 1;
         apply = cfg->committed;
+    } else if (s->staged != NULL && cfg->generation > s->staged_generation) {
+        discard = s->staged;
+        s->staged = NULL;
+        s->apply_pending = 0;
     }
     pthread_mutex_unlock(&s->lock);
+    if (discard != NULL)
+        skel_log("DPU %d: generation %lld discarded (never committed): %lld arrived", s->dpu_id,
+                 (long long)discard->generation, (long long)cfg->generation);
+    control_free_config(discard);
     if (apply) control_apply(c);
     return known;
 }
@@ -118,26 +68,26 @@ void control_handle_config(skel_control_t *c, const void *data, int len)
         return;
     }
     if (command_config_known(c, cfg)) {
-        command_free_config(cfg);
+        control_free_config(cfg);
         return;
     }
     skel_self_t self;
     char reason[SKEL_REASON_LEN];
     if (config_find_self(cfg, s->id_arg, s->hostname, &self) != 0) {
         command_absent(c, cfg, self.reason);
-        command_free_config(cfg);
+        control_free_config(cfg);
         return;
     }
     if (config_validate(cfg, self.dpu_index, reason, sizeof reason) != 0) {
         char line[SKEL_REASON_LEN];
         snprintf(line, sizeof line, "generation %lld rejected: %.200s", (long long)cfg->generation,
                  reason);
-        command_reject(c, cfg->generation, line, 1);
-        command_free_config(cfg);
+        control_reject(c, cfg->generation, line, 1);
+        control_free_config(cfg);
         return;
     }
     if (pthread_mutex_lock(&s->lock) != 0) return;
-    command_free_config(s->staged);
+    control_free_config(s->staged);
     s->staged = cfg;
     s->staged_generation = cfg->generation;
     s->staged_dpu_index = self.dpu_index;
@@ -190,7 +140,7 @@ static void command_start(skel_control_t *c, const skelmsg_command_t *cmd)
                  (long long)cmd->run_id, command_state_name(s->state), (long long)s->run_id);
     if (reason[0] != '\0') {
         pthread_mutex_unlock(&s->lock);
-        command_reject(c, -1, reason, 0);
+        control_reject(c, -1, reason, 0);
         return;
     }
     int64_t now_mono = clock_mono_ns(), now_utc = clock_utc_ns();
@@ -238,12 +188,17 @@ static void command_commit(skel_control_t *c, const skelmsg_command_t *cmd)
     char reason[SKEL_REASON_LEN] = "";
     if (pthread_mutex_lock(&s->lock) != 0) return;
     int applied = s->applied_any && s->generation == cmd->generation;
+    int offered = s->next_generation >= 0 && s->next_generation == cmd->generation;
     int staged = s->staged != NULL && s->staged_generation == cmd->generation;
-    if (!applied && !staged)
-        snprintf(reason, sizeof reason, "COMMIT for generation %lld but staged %lld",
-                 (long long)cmd->generation, (long long)s->staged_generation);
+    int live = s->run_active;
+    if (!applied && !offered && !staged)
+        snprintf(reason, sizeof reason, "COMMIT for generation %lld but staged %lld%s",
+                 (long long)cmd->generation, (long long)s->staged_generation,
+                 s->staged == NULL ? " (none waiting)" : "");
     pthread_mutex_unlock(&s->lock);
-    if (reason[0] != '\0') command_reject(c, -1, reason, 0);
+    /* Ignored, not a fault: nothing changes, and the status says why. */
+    if (reason[0] != '\0') control_reject(c, -1, reason, 0);
+    else if (staged && live) control_commit_live(c, cmd->at_utc_ns);
     else if (staged) control_apply(c);
 }
 

@@ -45,7 +45,7 @@ static void control_publish_batch(skel_control_t *c)
     if (c->batch.msg.n == 0) return;
     c->batch.msg.dpu = s->dpu_id;
     c->batch.msg.run_id = s->run_id;
-    c->batch.msg.generation = s->run_generation;
+    c->batch.msg.generation = c->batch_generation;
     c->batch.msg.batch_seq = c->batch_seq++;
     if (skelmsg_timing_t_publish(s->ctl, SKEL_CH_TIMING, &c->batch.msg) != 0)
         skel_log("cannot publish timing batch %lld", (long long)c->batch.msg.batch_seq);
@@ -53,12 +53,17 @@ static void control_publish_batch(skel_control_t *c)
     timing_batch_clear(&c->batch);
 }
 
-/* Full batches go at once; a partial one waits at most SKEL_BATCH_NS, or FLUSH. */
+/* Full batches go at once; a partial one waits at most SKEL_BATCH_NS, or FLUSH.
+ * A batch holds one generation: a live switch closes the batch in progress. */
 static void control_drain_timing(skel_control_t *c, int flush)
 {
     skel_rec_t rec;
     while (timing_ring_pop(&c->s->ring, &rec) == 1) {
-        if (c->batch.msg.n == 0) c->batch.first_add_ns = clock_mono_ns();
+        if (c->batch.msg.n > 0 && rec.generation != c->batch_generation) control_publish_batch(c);
+        if (c->batch.msg.n == 0) {
+            c->batch.first_add_ns = clock_mono_ns();
+            c->batch_generation = rec.generation;
+        }
         timing_batch_add(&c->batch, &rec);
         if (timing_batch_full(&c->batch)) control_publish_batch(c);
     }
@@ -74,6 +79,7 @@ static void control_finish_run(skel_control_t *c)
     control_drain_timing(c, 1);
     if (report_publish(s, s->plan) != 0) skel_log("cannot publish the report of run %lld",
                                                   (long long)s->run_id);
+    control_install_next(c); /* a switch the run did not reach takes effect now */
     if (pthread_mutex_lock(&s->lock) != 0) return;
     s->run_ended = 0;
     s->run_active = 0;
@@ -147,6 +153,7 @@ void *control_main(void *arg)
     for (;;) {
         if (control_poll(c) != 0) skel_log("control poll failed: %s", strerror(errno));
         control_drain_timing(c, 0);
+        control_drain_next(c);
         if (pthread_mutex_lock(&s->lock) != 0) break;
         int ended = s->run_ended, done = s->exec_done;
         pthread_mutex_unlock(&s->lock);

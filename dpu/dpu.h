@@ -91,6 +91,7 @@ typedef struct skel_slot {
     int link;                  /* index into plan->links, -1: local memory */
     char *channel;
     int64_t newest_seq;        /* -1: nothing yet in this run */
+    int64_t dup_upto;          /* live switch: seqs <= this came via the old plan's link, -1: none */
     int64_t newest_send_ns;
     int64_t newest_recv_ns;
     int64_t received;          /* messages accepted in this run */
@@ -103,7 +104,7 @@ typedef struct {
     int slot;
     int16_t buffer;
     int8_t required;
-    int64_t last_used;         /* -1: nothing used yet */
+    int64_t last_used;         /* -1: nothing used yet; SKEL_SEQ_JOINED: input added mid-run */
     int64_t received_seen;     /* slot->received at the previous cycle */
     int64_t n_new, n_stale, n_dropped;
 } skel_input_t;
@@ -129,7 +130,9 @@ typedef struct {
     int enc_len;
 } skel_output_t;
 
-enum { BUFFERS_ACCEPTED = 0, BUFFERS_FOREIGN_RUN = 1, BUFFERS_MISMATCH = -1 };
+enum { BUFFERS_ACCEPTED = 0, BUFFERS_FOREIGN_RUN = 1, BUFFERS_DUPLICATE = 2, BUFFERS_MISMATCH = -1 };
+/* An input that joins a running run (live switch): its first new data counts no drops. */
+#define SKEL_SEQ_JOINED INT64_MIN
 
 void buffers_slot_reset(skel_slot_t *slot);
 int buffers_slot_receive(skel_slot_t *slot, int64_t run_id, const wire_buffer_hdr_t *hdr,
@@ -156,6 +159,7 @@ typedef struct {
     int16_t process;
     int8_t flags;
     int8_t ninputs;
+    int64_t generation;        /* of the plan that ran the cycle: batches never mix two */
     int64_t cycle, minor, release_ns, start_ns, comm_in_ns, blocked_ns, compute_ns,
         comm_out_ns, idle_ns, slack_ns;
     skel_in_rec_t in[SKEL_MAX_IO];
@@ -211,6 +215,8 @@ typedef struct {
     skel_input_t inputs[SKEL_MAX_IO];
     skel_output_t outputs[SKEL_MAX_IO];
     /* run state and measured-window sums */
+    int64_t k_base;            /* cycle index of this plan's first cycle (live switch: carried) */
+    int64_t measure_from_k;    /* cycles >= this count in the sums (warm-up applied once) */
     int8_t locked_out;
     int64_t cycles, overruns, compute_sum, communicate_sum, wait_sum, max_latency_ns;
 } skel_process_t;
@@ -240,6 +246,9 @@ typedef struct skel_plan {
     uint8_t *dummy;             /* the payload every output sends */
     /* run context read by the link handler (executive thread only) */
     int64_t run_id;
+    int64_t run_t0_ns;          /* the run's first release (monotonic) */
+    int64_t epoch_t0_ns;        /* this plan's minor 0: the run's start or its switch instant */
+    int64_t minor_base;         /* run-wide index of this plan's minor 0 */
     int running;
     int64_t clock_offset_ns;
     atomic_int_fast64_t *rejected;
@@ -297,6 +306,12 @@ typedef struct skel_server {
     int staged_dpu_index;
     int apply_pending;         /* staged config committed, apply when the run ends */
     skel_plan_t *plan;
+    /* Live switch (swap.c): built by the control thread, taken by the executive
+     * at the first release of its grid at or after next_at_mono_ns. */
+    skel_plan_t *next_plan;
+    int64_t next_at_mono_ns;   /* 0: the next release */
+    int64_t next_generation;   /* of next_plan; -1 when none */
+    skel_plan_t *retired;      /* the plan a switch replaced: the control thread frees it */
     skel_run_t run;
     int run_active;            /* ARMED or RUNNING: the executive owns the plan */
     int run_ended;             /* executive finished; control finalises */
@@ -309,6 +324,7 @@ typedef struct skel_server {
     int exec_done;             /* executive thread has exited */
 
     atomic_int stop;           /* end the run at the next boundary */
+    atomic_int_fast64_t switch_seq; /* bumped when next_plan changes: the executive re-reads it */
     atomic_int quit;           /* daemon is shutting down */
     atomic_int_fast64_t minor_cycles, overruns, rejected, timing_batches;
     atomic_int faults;
@@ -327,13 +343,22 @@ typedef struct {
     skel_server_t *s;
     skel_plan_t *plan;
     int64_t end_mono_ns;       /* the run's end: a blocked wait gives up after it */
+    int64_t switch_seq;        /* the s->switch_seq last read */
+    int switch_pending;        /* s->next_plan was set at that read ... */
+    int64_t switch_at_mono_ns; /* ... to switch at the first release at or after this */
+    int announce;              /* a switch happened: publish the generation at its release */
 } skel_exec_t;
 
 enum { PROCESS_DONE = 0, PROCESS_STOPPED = 1 };
-int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t j, int64_t release_ns,
+int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, int64_t release_ns,
                   skel_rec_t *rec);
 void process_lockout(skel_exec_t *x, skel_process_t *p, int16_t buffer, int64_t k,
                      int64_t release_ns);
+
+/* ---- swap (swap.c): a live switch of plans at one cycle boundary ---------------- */
+int64_t swap_index(const skel_plan_t *plan, int64_t j_prev, int64_t at_mono_ns);
+int64_t swap_instant(const skel_plan_t *plan, int64_t j_sw);
+void swap_carry(skel_plan_t *next, const skel_plan_t *old, int64_t j_sw);
 
 /* ---- executive (executive.c): the cyclic loop and its thread -------------------- */
 void *executive_main(void *arg);
@@ -355,6 +380,7 @@ typedef struct {
     skel_server_t *s;
     skel_batch_t batch;
     int64_t batch_seq;
+    int64_t batch_generation;  /* of every record in the batch */
     int64_t last_status_ns;
     skel_seen_t seen[SKEL_SEEN_COMMANDS];
     int nseen;
@@ -369,6 +395,13 @@ void control_handle_config(skel_control_t *c, const void *data, int len);
 void control_handle_command(skel_control_t *c, const void *data, int len);
 int control_seen(skel_control_t *c, const skelmsg_command_t *cmd);
 int control_publish_status(skel_control_t *c);
+
+/* ---- apply (apply.c): a staged config becomes the plan ---------------------------- */
 void control_apply(skel_control_t *c);
+void control_commit_live(skel_control_t *c, int64_t at_utc_ns);
+void control_install_next(skel_control_t *c);
+void control_drain_next(skel_control_t *c);
+void control_reject(skel_control_t *c, int64_t generation, const char *reason, int fault);
+void control_free_config(skelmsg_config_t *cfg);
 
 #endif

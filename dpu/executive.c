@@ -2,10 +2,13 @@
  * per DPU runs its processes in their configured order on an absolute grid of
  * minor cycles t0 + j*m (CLOCK_MONOTONIC, TIMER_ABSTIME). Releases are never
  * skipped: a late DPU runs the next due release at once and falls further
- * behind, and that backlog is what turns an overload into a lockout. Between
+ * behind, and that backlog is what turns an overload into a lockout. A COMMIT
+ * during a run switches to the next plan at one boundary (swap.c). Between
  * runs the thread waits for a START and keeps the link queues drained. */
+#include <errno.h>
 #include <sched.h>
 #include <string.h>
+#include <time.h>
 
 #include "dpu.h"
 
@@ -47,7 +50,7 @@ static void executive_account(skel_plan_t *plan, skel_process_t *p, const skel_r
                               int64_t release, int64_t end)
 {
     skel_dpu_sums_t *d = &plan->sums;
-    if (rec->cycle >= plan->warmup_cycles) p->wait_sum += rec->idle_ns;
+    if (rec->cycle >= p->measure_from_k) p->wait_sum += rec->idle_ns;
     if (release < plan->measure_from_ns) return;
     if (d->first_release_ns < 0) d->first_release_ns = release;
     d->end_ns = end + rec->idle_ns;
@@ -61,8 +64,9 @@ static void executive_record(skel_server_t *s, const skel_rec_t *rec)
     if (timing_ring_push(&s->ring, rec) != 0) server_fault(s, SKELMSG_STATUS_T_FAULT_TIMING_LOST);
 }
 
-/* Runs the due processes of minor cycle J; 1 when the run stopped inside it. */
-static int executive_minor(skel_exec_t *x, int64_t t0, int64_t j, int64_t next_j)
+/* Runs the due processes of minor cycle J; NEXT_R is the next release (INT64_MAX:
+ * none), where the idle of the last one ends. 1 when the run stopped inside it. */
+static int executive_minor(skel_exec_t *x, int64_t j, int64_t next_r)
 {
     skel_plan_t *plan = x->plan;
     int last = -1;
@@ -72,15 +76,13 @@ static int executive_minor(skel_exec_t *x, int64_t t0, int64_t j, int64_t next_j
         skel_process_t *p = &plan->processes[i];
         if (j % p->ratio != 0) continue;
         int64_t k = j / p->ratio;
-        int64_t release = t0 + k * p->period_ns;
+        int64_t release = plan->epoch_t0_ns + k * p->period_ns;
         skel_rec_t rec;
-        int rc = process_cycle(x, p, k, j, release, &rec);
+        int rc = process_cycle(x, p, p->k_base + k, plan->minor_base + j, release, &rec);
         int64_t end = release + p->period_ns - rec.slack_ns;
         /* Idle belongs to the last process of the release: gaps between processes are overhead. */
-        if (i == last && rc == PROCESS_DONE && next_j != INT64_MAX) {
-            int64_t next = t0 + next_j * plan->minor_ns;
-            rec.idle_ns = next > end ? next - end : 0;
-        }
+        if (i == last && rc == PROCESS_DONE && next_r != INT64_MAX)
+            rec.idle_ns = next_r > end ? next_r - end : 0;
         if (rc == PROCESS_DONE) executive_account(plan, p, &rec, release, end);
         executive_record(x->s, &rec);
         if (rc == PROCESS_STOPPED) return 1;
@@ -96,35 +98,148 @@ static void executive_set_state(skel_server_t *s, int8_t state)
     server_wake(s->notify_fd);
 }
 
+/* Re-reads the pending switch only when the control thread changed it: one
+ * atomic load per minor cycle, the lock only on a change. */
+static void executive_poll_switch(skel_exec_t *x)
+{
+    skel_server_t *s = x->s;
+    if (atomic_load(&s->switch_seq) == x->switch_seq) return;
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    x->switch_seq = atomic_load(&s->switch_seq);
+    x->switch_pending = s->next_plan != NULL;
+    x->switch_at_mono_ns = s->next_at_mono_ns;
+    pthread_mutex_unlock(&s->lock);
+}
+
+/* Sleeps until UNTIL (INT64_MAX: until told): 0 reached, 1 stop, 2 the pending
+ * switch changed. 50 ms pieces, so a COMMIT is seen within one piece. */
+static int executive_wait(skel_exec_t *x, int64_t until)
+{
+    const int64_t piece = 50 * 1000 * 1000LL;
+    for (;;) {
+        if (atomic_load(&x->s->stop)) return 1;
+        if (atomic_load(&x->s->switch_seq) != x->switch_seq) return 2;
+        int64_t now = clock_mono_ns();
+        if (now >= until) return 0;
+        int64_t t = until - now > piece ? now + piece : until;
+        struct timespec ts = { .tv_sec = t / SKEL_NS_PER_S, .tv_nsec = t % SKEL_NS_PER_S };
+        int rc = clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL);
+        if (rc != 0 && rc != EINTR) return 1;
+    }
+}
+
+/* The switch instant on the current grid given J_PREV (the last minor run),
+ * INT64_MAX when no switch is pending. */
+static int64_t executive_switch_at(const skel_exec_t *x, int64_t j_prev, int64_t *j_sw)
+{
+    if (!x->switch_pending) return INT64_MAX;
+    *j_sw = swap_index(x->plan, j_prev, x->switch_at_mono_ns);
+    return swap_instant(x->plan, *j_sw);
+}
+
+/* Between two releases: take the next plan, carry the run into it at minor
+ * J_SW of the current one. Nothing is allocated or freed here: the old plan
+ * (and its lcm_t) goes back to the control thread. The status changes at the
+ * first release of the new plan (executive_announce). */
+static void executive_switch(skel_exec_t *x, int64_t j_sw, int ran)
+{
+    skel_server_t *s = x->s;
+    skel_plan_t *old = x->plan;
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    skel_plan_t *next = s->next_plan;
+    s->next_plan = NULL;
+    x->switch_seq = atomic_load(&s->switch_seq);
+    x->switch_pending = 0;
+    pthread_mutex_unlock(&s->lock);
+    if (next == NULL) return;
+    (void)link_drain(old->links, old->nlinks); /* the old slots are complete ... */
+    swap_carry(next, old, j_sw);
+    if (!ran) next->measure_from_ns = next->run_t0_ns + next->warmup_cycles * executive_max_period(next);
+    next->running = 1;
+    old->running = 0;
+    (void)link_drain(next->links, next->nlinks); /* ... so the copies here are dropped */
+    if (next->cpu != old->cpu) executive_pin(next);
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    s->plan = next;
+    s->retired = old; /* the control thread emptied it before it offered NEXT */
+    pthread_mutex_unlock(&s->lock);
+    x->plan = next;
+    x->announce = 1;
+}
+
+static void executive_announce(skel_exec_t *x)
+{
+    skel_server_t *s = x->s;
+    x->announce = 0;
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    s->generation = x->plan->generation;
+    s->run_generation = x->plan->generation;
+    s->next_generation = -1;
+    pthread_mutex_unlock(&s->lock);
+    server_wake(s->notify_fd); /* a status at once, with the new generation */
+    skel_log("DPU %d: switched to generation %lld at minor %lld of run %lld (%d processes)",
+             x->plan->dpu, (long long)x->plan->generation, (long long)x->plan->minor_base,
+             (long long)x->plan->run_id, x->plan->nprocesses);
+}
+
+/* The release after minor J: the plan's next due minor, or the switch if sooner. */
+static int64_t executive_next_r(const skel_exec_t *x, int64_t j, int64_t next_j)
+{
+    int64_t next_r = next_j == INT64_MAX ? INT64_MAX : swap_instant(x->plan, next_j);
+    int64_t j_sw;
+    int64_t t_sw = executive_switch_at(x, j, &j_sw);
+    return t_sw < next_r ? t_sw : next_r;
+}
+
 void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
 {
-    skel_exec_t x = { s, plan, run->end_mono_ns };
+    skel_exec_t x = { s, plan, run->end_mono_ns, -1, 0, 0, 0 };
     plan_reset_run(plan, run->run_id);
     plan->clock_offset_ns = s->clock_offset_ns;
     executive_pin(plan);
     int64_t t0 = run->start_mono_ns;
+    plan->run_t0_ns = plan->epoch_t0_ns = t0;
     plan->measure_from_ns = t0 + plan->warmup_cycles * executive_max_period(plan);
-    if (clock_sleep_until(t0, &s->stop) != 0) return;
+    executive_poll_switch(&x);
+    int rc;
+    while ((rc = executive_wait(&x, t0)) == 2) executive_poll_switch(&x);
+    if (rc != 0) return;
     plan->running = 1;
     executive_set_state(s, SKELMSG_STATUS_T_STATE_RUNNING);
     skel_log("DPU %d: run %lld started (%d processes)", plan->dpu, (long long)run->run_id,
              plan->nprocesses);
-    for (int64_t j = executive_next_release(plan, 0); j != INT64_MAX;) {
-        int64_t r = t0 + j * plan->minor_ns;
-        if (r >= run->end_mono_ns || atomic_load(&s->stop)) break;
-        if (clock_sleep_until(r, &s->stop) != 0) break;
-        int64_t next_j = executive_next_release(plan, j + 1);
-        if (executive_minor(&x, t0, j, next_j) != 0) break;
+    int ran = 0;
+    int64_t j_prev = -1, j = executive_next_release(plan, 0), j_sw = 0;
+    for (;;) {
+        executive_poll_switch(&x);
+        int64_t r = j == INT64_MAX ? INT64_MAX : swap_instant(x.plan, j);
+        int64_t t_sw = executive_switch_at(&x, j_prev, &j_sw);
+        if (t_sw <= r && t_sw < run->end_mono_ns) {
+            executive_switch(&x, j_sw, ran);
+            j_prev = -1;
+            j = executive_next_release(x.plan, 0);
+            continue;
+        }
+        if (x.announce && r == INT64_MAX) executive_announce(&x); /* a plan without processes */
+        int64_t until = r < run->end_mono_ns ? r : run->end_mono_ns;
+        rc = executive_wait(&x, until);
+        if (rc == 2) continue;
+        if (rc != 0 || r >= run->end_mono_ns) break;
+        if (x.announce) executive_announce(&x);
+        int64_t next_j = executive_next_release(x.plan, j + 1);
+        if (executive_minor(&x, j, executive_next_r(&x, j, next_j)) != 0) break;
+        ran = 1;
         atomic_fetch_add(&s->minor_cycles, 1);
-        if (r >= plan->measure_from_ns) plan->sums.minor_cycles++;
+        if (r >= x.plan->measure_from_ns) x.plan->sums.minor_cycles++;
+        j_prev = j;
         j = next_j;
     }
-    if (plan->nprocesses == 0) (void)clock_sleep_until(run->end_mono_ns, &s->stop);
-    plan->running = 0;
+    if (x.announce) executive_announce(&x);
+    x.plan->running = 0;
 }
 
-/* Waits for a START; the plan cannot be swapped while a run holds it
- * (control.c only applies a config when no run is active). */
+/* Waits for a START. During a run only the executive swaps the plan (at a
+ * boundary, executive_switch); between runs only the control thread does. */
 void *executive_main(void *arg)
 {
     skel_server_t *s = arg;

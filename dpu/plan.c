@@ -195,11 +195,15 @@ void plan_reset_run(skel_plan_t *plan, int64_t run_id)
     for (int i = 0; i < plan->nprocesses; i++) {
         skel_process_t *p = &plan->processes[i];
         for (int q = 0; q < p->ninputs; q++) buffers_input_reset(&p->inputs[q]);
+        p->k_base = 0;
+        p->measure_from_k = plan->warmup_cycles;
         p->locked_out = 0;
         p->cycles = p->overruns = p->compute_sum = p->communicate_sum = p->wait_sum = 0;
         p->max_latency_ns = 0;
     }
     plan->publish_errors = 0;
+    plan->run_t0_ns = plan->epoch_t0_ns = 0;
+    plan->minor_base = 0;
     plan->measure_from_ns = 0;
     memset(&plan->sums, 0, sizeof plan->sums);
     plan->sums.first_release_ns = -1;

@@ -110,18 +110,20 @@ static void process_commit(skel_plan_t *plan, skel_process_t *p, const skel_rec_
                              measured);
 }
 
-/* Runs cycle K of P released at RELEASE (monotonic ns) in minor cycle J and
- * fills REC (times reported with the clock offset). The executive adds idle. */
-int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t j, int64_t release,
+/* Runs cycle K of P released at RELEASE (monotonic ns) in the run's minor
+ * cycle MINOR and fills REC (times reported with the clock offset). The
+ * executive adds idle. */
+int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, int64_t release,
                   skel_rec_t *rec)
 {
     skel_plan_t *plan = x->plan;
     const int64_t off = x->s->clock_offset_ns;
-    const int measured = k >= plan->warmup_cycles;
+    const int measured = k >= p->measure_from_k;
     memset(rec, 0, offsetof(skel_rec_t, in));
     rec->process = p->id;
+    rec->generation = plan->generation;
     rec->cycle = k;
-    rec->minor = j;
+    rec->minor = minor;
     rec->release_ns = release + off;
     int64_t start = clock_mono_ns();
     rec->start_ns = start + off;

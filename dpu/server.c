@@ -25,6 +25,8 @@ int server_init(skel_server_t *s)
     s->dpu_id = -1;
     s->state = SKELMSG_STATUS_T_STATE_UNCONFIGURED;
     s->staged_dpu_index = -1;
+    s->next_generation = -1;
+    atomic_init(&s->switch_seq, 0);
     atomic_init(&s->stop, 0);
     atomic_init(&s->quit, 0);
     atomic_init(&s->minor_cycles, 0);
@@ -38,7 +40,9 @@ int server_init(skel_server_t *s)
 void server_free(skel_server_t *s)
 {
     plan_free(s->plan);
-    s->plan = NULL;
+    plan_free(s->next_plan);
+    plan_free(s->retired);
+    s->plan = s->next_plan = s->retired = NULL;
     if (s->staged != NULL) {
         skelmsg_config_t_decode_cleanup(s->staged);
         free(s->staged);

@@ -1,0 +1,167 @@
+/* apply.c: a staged config becomes this DPU's plan, always on the control
+ * thread (every allocation, every lcm_t). Between runs it replaces the plan at
+ * once: on COMMIT, or when a config arrives already committed (the host's
+ * periodic re-send, which is how a restarted DPU catches up: it applies the
+ * config and is READY for the next START, without joining a run in progress).
+ * During a run, a COMMIT offers the built plan to the executive as
+ * s->next_plan, and the executive switches at one cycle boundary (swap.c,
+ * executive.c); a committed re-send during our own run waits for its end,
+ * because only a COMMIT names the instant at which every DPU switches. */
+#include <stdio.h>
+#include <stdlib.h>
+
+#include "dpu.h"
+
+void control_free_config(skelmsg_config_t *cfg)
+{
+    if (cfg == NULL) return;
+    skelmsg_config_t_decode_cleanup(cfg);
+    free(cfg);
+}
+
+void control_reject(skel_control_t *c, int64_t generation, const char *reason, int fault)
+{
+    skel_server_t *s = c->s;
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    if (generation >= 0) s->rejected_generation = generation;
+    snprintf(s->reject_reason, sizeof s->reject_reason, "%s", reason);
+    pthread_mutex_unlock(&s->lock);
+    if (fault) server_fault(s, SKELMSG_STATUS_T_FAULT_CONFIG_REJECTED);
+    skel_log("DPU %d: %s", s->dpu_id, reason);
+    c->status_due = 1;
+}
+
+/* Takes the staged config and builds its plan with its links open; NULL (the
+ * config refused, the current plan untouched) when that fails. */
+static skel_plan_t *apply_build(skel_control_t *c)
+{
+    skel_server_t *s = c->s;
+    char reason[SKEL_REASON_LEN];
+    if (pthread_mutex_lock(&s->lock) != 0) return NULL;
+    skelmsg_config_t *cfg = s->staged;
+    int index = s->staged_dpu_index;
+    s->staged = NULL;
+    pthread_mutex_unlock(&s->lock);
+    if (cfg == NULL) return NULL;
+    skel_plan_t *plan = plan_build(cfg, index, reason, sizeof reason);
+    if (plan != NULL && plan_open_links(plan, &s->rejected, reason, sizeof reason) != 0) {
+        plan_free(plan);
+        plan = NULL;
+    }
+    if (plan == NULL) control_reject(c, cfg->generation, reason, 1);
+    control_free_config(cfg);
+    return plan;
+}
+
+/* Between runs only (the control thread is the one that starts runs). */
+static void apply_install(skel_control_t *c, skel_plan_t *plan)
+{
+    skel_server_t *s = c->s;
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    skel_plan_t *old = s->plan;
+    s->plan = plan;
+    s->generation = plan->generation;
+    s->applied_any = 1;
+    s->state = SKELMSG_STATUS_T_STATE_READY;
+    pthread_mutex_unlock(&s->lock);
+    plan_free(old); /* the executive drains links only under the lock: old is unused */
+    skel_log("DPU %d: applied generation %lld: %d processes, %d links, minor cycle %lld us",
+             plan->dpu, (long long)plan->generation, plan->nprocesses, plan->nlinks,
+             (long long)(plan->minor_ns / SKEL_NS_PER_US));
+    c->status_due = 1;
+}
+
+/* Applies the staged config if no run holds the plan; otherwise it waits for
+ * the end of the run (control_finish_run calls again). */
+void control_apply(skel_control_t *c)
+{
+    skel_server_t *s = c->s;
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    if (s->staged == NULL || s->run_active) {
+        s->apply_pending = s->staged != NULL;
+        pthread_mutex_unlock(&s->lock);
+        return;
+    }
+    pthread_mutex_unlock(&s->lock);
+    skel_plan_t *plan = apply_build(c);
+    if (plan != NULL) apply_install(c, plan);
+}
+
+/* The COMMIT's instant on our monotonic clock; 0 (the next release) for 0 or
+ * any instant in the past, and far instants clamped so nothing overflows. */
+static int64_t apply_at_mono(int64_t at_utc_ns)
+{
+    const int64_t far = 10LL * 365 * 24 * 3600 * SKEL_NS_PER_S;
+    if (at_utc_ns <= 0) return 0;
+    int64_t now_mono = clock_mono_ns(), now_utc = clock_utc_ns();
+    if (at_utc_ns - now_utc > far) at_utc_ns = now_utc + far;
+    int64_t at = clock_utc_to_mono(at_utc_ns, now_mono, now_utc);
+    return at > now_mono ? at : 0;
+}
+
+/* COMMIT during a run: build now, switch at the first release at or after
+ * AT_UTC_NS. A plan offered earlier and not taken yet is replaced. */
+void control_commit_live(skel_control_t *c, int64_t at_utc_ns)
+{
+    skel_server_t *s = c->s;
+    int64_t at = apply_at_mono(at_utc_ns);
+    skel_plan_t *plan = apply_build(c);
+    if (plan == NULL) return;
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    if (!s->run_active) {
+        pthread_mutex_unlock(&s->lock);
+        apply_install(c, plan);
+        return;
+    }
+    /* The executive hands back at most one plan per switch: emptied before each offer. */
+    skel_plan_t *retired = s->retired, *replaced = s->next_plan;
+    s->retired = NULL;
+    s->next_plan = plan;
+    s->next_at_mono_ns = at;
+    s->next_generation = plan->generation;
+    atomic_fetch_add(&s->switch_seq, 1);
+    pthread_mutex_unlock(&s->lock);
+    plan_free(retired);
+    plan_free(replaced);
+    skel_log("DPU %d: generation %lld ready: switch in %.3f ms (run %lld)", plan->dpu,
+             (long long)plan->generation, at > 0 ? (double)(at - clock_mono_ns()) / 1e6 : 0.0,
+             (long long)s->run_id);
+    c->status_due = 1;
+}
+
+/* At the end of a run: a plan offered but not reached becomes the plan, and a
+ * plan a switch replaced is freed. */
+void control_install_next(skel_control_t *c)
+{
+    skel_server_t *s = c->s;
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    skel_plan_t *next = s->next_plan, *retired = s->retired, *old = NULL;
+    s->next_plan = s->retired = NULL;
+    s->next_generation = -1;
+    atomic_fetch_add(&s->switch_seq, 1);
+    if (next != NULL) {
+        old = s->plan;
+        s->plan = next;
+        s->generation = next->generation;
+    }
+    pthread_mutex_unlock(&s->lock);
+    plan_free(retired);
+    plan_free(old);
+    if (next != NULL)
+        skel_log("DPU %d: applied generation %lld at the end of run %lld", next->dpu,
+                 (long long)next->generation, (long long)s->run_id);
+}
+
+/* Every control loop: free what a switch handed back, and keep the offered
+ * plan's link queues short (its handler ignores messages until it runs; the
+ * executive takes the plan under the same lock, so never while we drain). */
+void control_drain_next(skel_control_t *c)
+{
+    skel_server_t *s = c->s;
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    skel_plan_t *retired = s->retired;
+    s->retired = NULL;
+    if (s->next_plan != NULL) (void)link_drain(s->next_plan->links, s->next_plan->nlinks);
+    pthread_mutex_unlock(&s->lock);
+    plan_free(retired);
+}

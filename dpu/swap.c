@@ -1,0 +1,143 @@
+/* swap.c: live reconfiguration at one cycle boundary. The control thread has
+ * built the next plan (links open, every buffer allocated); the executive,
+ * between two releases, calls these pure functions to pick the boundary and
+ * to carry the run's state from the old plan into the next one. No allocation,
+ * no system call: the unit tests drive them without a network.
+ *
+ * The rules (what a reader of the log or of a buffer sees):
+ * - Where: the first release of the old plan's minor-cycle grid at or after
+ *   the COMMIT's instant, never one that has already run. The next plan's grid
+ *   starts there (its minor 0); minor indexes in timing records keep counting.
+ * - Cycle counters (the buffers' seq) are kept by process id: a process that
+ *   continues goes on from the cycle after its last release, re-anchored on its
+ *   new period at the boundary, so its buffers' seq never goes back and skips
+ *   nothing. A process new to this DPU takes the index of the boundary on its
+ *   period's grid since the run's start: a process moved here from another DPU
+ *   with the same period continues that DPU's seq exactly.
+ * - Per input, what was last used carries over when the input still exists; a
+ *   new input counts no drops for its first data. Slots keep their newest data.
+ * - Sums, lockouts and the measured window carry over: warm-up is applied once
+ *   per run (a process new at the boundary is measured at once when the
+ *   window has started, else when it starts). */
+#include <string.h>
+
+#include "dpu.h"
+
+static int64_t swap_ceil_div(int64_t a, int64_t b)
+{
+    return a <= 0 ? -(-a / b) : (a + b - 1) / b;
+}
+
+/* The old plan's minor index to switch at: the first at or after AT_MONO_NS
+ * (0: none given), and never one at or before J_PREV (already run). */
+int64_t swap_index(const skel_plan_t *plan, int64_t j_prev, int64_t at_mono_ns)
+{
+    int64_t j = j_prev + 1;
+    if (at_mono_ns <= 0) return j;
+    int64_t at = swap_ceil_div(at_mono_ns - plan->epoch_t0_ns, plan->minor_ns);
+    return at > j ? at : j;
+}
+
+int64_t swap_instant(const skel_plan_t *plan, int64_t j_sw)
+{
+    return plan->epoch_t0_ns + j_sw * plan->minor_ns;
+}
+
+static const skel_slot_t *swap_old_slot(const skel_plan_t *old, const skel_slot_t *slot)
+{
+    for (int i = 0; i < old->nslots; i++)
+        if (old->slots[i].buffer == slot->buffer && old->slots[i].writer == slot->writer)
+            return &old->slots[i];
+    return NULL;
+}
+
+static void swap_carry_slots(skel_plan_t *next, const skel_plan_t *old)
+{
+    for (int i = 0; i < next->nslots; i++) {
+        skel_slot_t *slot = &next->slots[i];
+        const skel_slot_t *o = swap_old_slot(old, slot);
+        buffers_slot_reset(slot);
+        if (o == NULL) continue;
+        slot->newest_seq = o->newest_seq;
+        slot->newest_send_ns = o->newest_send_ns;
+        slot->newest_recv_ns = o->newest_recv_ns;
+        slot->received = o->received;
+        slot->foreign = o->foreign;
+        slot->dup_upto = o->newest_seq;
+    }
+}
+
+static const skel_input_t *swap_old_input(const skel_process_t *old, int16_t buffer)
+{
+    for (int q = 0; q < old->ninputs; q++)
+        if (old->inputs[q].buffer == buffer) return &old->inputs[q];
+    return NULL;
+}
+
+/* An input keeps its accounting only when its slot carried over too (same
+ * buffer, same writer): otherwise its last used seq means nothing any more. */
+static void swap_carry_inputs(skel_plan_t *next, skel_process_t *p, const skel_plan_t *old,
+                              const skel_process_t *o)
+{
+    for (int q = 0; q < p->ninputs; q++) {
+        skel_input_t *in = &p->inputs[q];
+        const skel_input_t *oi = o != NULL ? swap_old_input(o, in->buffer) : NULL;
+        int carried = swap_old_slot(old, &next->slots[in->slot]) != NULL;
+        buffers_input_reset(in);
+        if (oi != NULL && carried) {
+            in->last_used = oi->last_used;
+            in->received_seen = oi->received_seen;
+            in->n_new = oi->n_new;
+            in->n_stale = oi->n_stale;
+            in->n_dropped = oi->n_dropped;
+        } else {
+            in->last_used = SKEL_SEQ_JOINED;
+            in->received_seen = next->slots[in->slot].received;
+        }
+    }
+}
+
+static void swap_carry_process(skel_plan_t *next, skel_process_t *p, const skel_plan_t *old,
+                               int64_t j_sw, int64_t t_sw)
+{
+    int i = plan_process_index(old, p->id);
+    const skel_process_t *o = i >= 0 ? &old->processes[i] : NULL;
+    p->locked_out = 0;
+    p->cycles = p->overruns = p->compute_sum = p->communicate_sum = p->wait_sum = 0;
+    p->max_latency_ns = 0;
+    if (o != NULL) {
+        /* Releases of the old plan before the boundary: minors 0 .. j_sw-1. */
+        p->k_base = o->k_base + swap_ceil_div(j_sw, o->ratio);
+        p->measure_from_k = o->measure_from_k;
+        p->locked_out = o->locked_out;
+        p->cycles = o->cycles;
+        p->overruns = o->overruns;
+        p->compute_sum = o->compute_sum;
+        p->communicate_sum = o->communicate_sum;
+        p->wait_sum = o->wait_sum;
+        p->max_latency_ns = o->max_latency_ns;
+    } else {
+        p->k_base = swap_ceil_div(t_sw - next->run_t0_ns, p->period_ns);
+        int64_t warm = next->measure_from_ns - t_sw;
+        p->measure_from_k = p->k_base + (warm > 0 ? swap_ceil_div(warm, p->period_ns) : 0);
+    }
+    swap_carry_inputs(next, p, old, o);
+}
+
+/* NEXT takes over from OLD at OLD's minor J_SW (from swap_index). OLD is only
+ * read; NEXT's links are left alone (the caller drains them after). */
+void swap_carry(skel_plan_t *next, const skel_plan_t *old, int64_t j_sw)
+{
+    int64_t t_sw = swap_instant(old, j_sw);
+    next->run_id = old->run_id;
+    next->run_t0_ns = old->run_t0_ns;
+    next->epoch_t0_ns = t_sw;
+    next->minor_base = old->minor_base + j_sw;
+    next->clock_offset_ns = old->clock_offset_ns;
+    next->publish_errors = old->publish_errors;
+    next->measure_from_ns = old->measure_from_ns;
+    next->sums = old->sums;
+    swap_carry_slots(next, old);
+    for (int i = 0; i < next->nprocesses; i++)
+        swap_carry_process(next, &next->processes[i], old, j_sw, t_sw);
+}
