@@ -1,7 +1,7 @@
 """Live reconfiguration across hosts: `skel push` during a run, from another host than the run's.
 
 DPU 1 on skelh1, DPU 2 on skelh2 (both `--id auto`), `skel run` and its logger on
-skelh3, the pushes from skelh1. A push one DPU rejects commits nothing; a good push
+skelh3, the pushes from skelh1. A push one DPU rejects or cannot hear commits nothing; a good push
 switches both DPUs at the same cycle boundary; the follower re-sends the new
 generation; the log alone shows where each generation starts.
 """
@@ -36,7 +36,7 @@ processes:
   - {{id: 2, name: controller, dpu: 2, period_us: 10000, compute_us: 300, inputs: [state],
       outputs: [command]}}
   - {{id: 3, name: actuator, dpu: 1, period_us: 10000, compute_us: 300, inputs: [command]}}
-run: {{duration_s: 8, warmup_cycles: 10, lockout_cycles: 100, stop_on: [jam]}}
+run: {{duration_s: 12, warmup_cycles: 10, lockout_cycles: 100, stop_on: [jam]}}
 """
 
 
@@ -98,6 +98,18 @@ def test_netns_push_mid_run_switches_every_dpu_at_one_boundary(netns_hosts: Host
     bad = _skel(netns_hosts, "skelh1", "push", str(system), "-s", "dpu.2.executive=threads")
     assert bad.returncode == 1, bad.stdout + bad.stderr
     assert "DPU 2: rejected generation" in bad.stderr and "nothing was committed" in bad.stderr
+    # DPU 2 cannot hear anything (all inbound multicast dropped on its host): nothing is committed,
+    # so DPU 1, which had staged it, stays on the generation the run started with.
+    netns_hosts.drop_inbound("skelh2", 100, udp_port=7667)
+    unreachable = _skel(netns_hosts, "skelh1", "push", str(system), "-s", "process.sensor.compute_us=500")
+    netns_hosts.clear_drop("skelh2")
+    assert unreachable.returncode == 1, unreachable.stdout + unreachable.stderr
+    assert "DPU 2: did not answer" in unreachable.stderr, unreachable.stderr
+    assert "nothing was committed" in unreachable.stderr
+    status = _skel(netns_hosts, "skelh3", "status", "--url", URL, "--json", "--wait", "0.5")
+    applied = {d["dpu"]: d["generation"] for d in json.loads(status.stdout)}
+    assert applied[1] == applied[2], applied
+
     good = _skel(netns_hosts, "skelh1", "push", str(system), "-s", "process.controller.compute_us=1500",
                  "--at-ms", "500")
     assert good.returncode == 0, good.stdout + good.stderr
@@ -116,8 +128,9 @@ def test_netns_push_mid_run_switches_every_dpu_at_one_boundary(netns_hosts: Host
 
     report = json.loads(_skel(netns_hosts, "skelh3", "report", str(out / "run.lcm"), "--json").stdout)
     old = min(report["generations"])
-    # The rejected generation (between the two) never ran anywhere.
-    assert report["generations"] == [old, new] and new == old + 2, report["generations"]
+    # The refused generations (between the two) never ran anywhere.
+    assert report["generations"] == [old, new] and new >= old + 2, report["generations"]
+    assert old == applied[1]
 
     facts = _switch_facts(out / "run.lcm", report["run_id"], old, new)
     print(facts)
@@ -134,5 +147,6 @@ def test_netns_push_mid_run_switches_every_dpu_at_one_boundary(netns_hosts: Host
     for generation, low, high in ((old, 200_000, 900_000), (new, 1_300_000, 3_000_000)):
         mean = controller["compute_ns"][controller["generation"] == generation].mean()
         assert low <= mean <= high, (generation, mean)
-    clocks = {skelmsg.clock_offset_t.decode(bytes(d)).dpu for _, d in log.messages("SKEL_CLOCK")}
-    assert clocks == {1, 2}
+    # Estimated before START and again every few seconds of the run.
+    clocks = [skelmsg.clock_offset_t.decode(bytes(d)).dpu for _, d in log.messages("SKEL_CLOCK")]
+    assert sorted(set(clocks)) == [1, 2] and min(clocks.count(1), clocks.count(2)) >= 2, clocks
