@@ -199,8 +199,8 @@ def test_real_run_has_small_buffer_latencies_and_chain_samples(tmp_path: Path, u
         for r in b["readers"]:
             lat = r["latency_us"]
             # One machine, one clock: positive, and typically well below the 10 ms period.
-            # Receive time is when the reader's DPU drained the message, so a DPU thread
-            # delayed on this shared machine stretches single samples: only p50 is bounded.
+            # On this shared machine a preempted sender or receiver stretches single
+            # samples (13 ms seen under load): only p50 is bounded.
             assert r["samples"] > 100, (b["buffer"], r)
             assert 0 < lat["p50"] <= lat["p99"] <= lat["max"], (b["buffer"], r)
             assert lat["p50"] < 10_000, (b["buffer"], r)
