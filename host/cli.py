@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 import time
 from collections.abc import Sequence
@@ -110,8 +111,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _interrupted(_signum: int, _frame: object) -> None:
+    # SIGTERM (systemd, timeout, kill) ends us like Ctrl-C: `skel run` stops its logger and DPUs.
+    raise KeyboardInterrupt
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    signal.signal(signal.SIGTERM, _interrupted)
     try:
         return COMMANDS[args.command](args)
     except SystemFileError as error:
