@@ -76,7 +76,8 @@ def plots_command(log: Path, out_dir: Path, run_id: int | None) -> None:
     except OSError as e:
         print(f"{out_dir}: {e.strerror or e}", file=sys.stderr)
         raise SystemExit(2) from e
-    print(f"plots: {len(made.plots)} PNG and {page.name} written to {out_dir}/")
+    # stderr: `skel report --json --plots DIR` keeps stdout pure JSON
+    print(f"plots: {len(made.plots)} PNG and {page.name} written to {out_dir}/", file=sys.stderr)
 
 
 def write_plots(data: RunData, out_dir: Path, window_ms: tuple[float, float] | None = None) -> PlotSet:

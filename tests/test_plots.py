@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+import json
 import re
 import struct
 from collections.abc import Iterator
@@ -11,6 +12,7 @@ from pathlib import Path
 import pytest
 from conftest import ASAN_DPU, EXAMPLES, _ports, skel
 
+from skeleton.analysis.export_mcap import export
 from skeleton.analysis.plots import default_window_ns, plots_command, write_plots
 from skeleton.analysis.rundata import load_run_data
 
@@ -47,7 +49,7 @@ def test_cli_writes_every_plot_and_a_self_contained_html(servo_log: Path, tmp_pa
     out = tmp_path / "plots"
     result = skel("report", str(servo_log), "--plots", str(out))
     assert result.returncode in (0, 3), result.stderr
-    assert "per DPU" in result.stdout and f"written to {out}" in result.stdout
+    assert "per DPU" in result.stdout and f"written to {out}" in result.stderr
     page = (out / "report.html").read_text()
     for name in ALL_PLOTS:
         width, height = _png_size(out / name)
@@ -86,6 +88,21 @@ def test_timeline_window_is_an_option(servo_log: Path, tmp_path: Path) -> None:
     timeline = next(p for p in made.plots if p.name == "timeline.png")
     assert timeline.caption.startswith("20.0 ms")
     _png_size(tmp_path / "timeline.png")
+
+
+def test_json_report_with_plots_keeps_stdout_json(servo_log: Path, tmp_path: Path) -> None:
+    result = skel("report", str(servo_log), "--json", "--plots", str(tmp_path / "plots"))
+    assert json.loads(result.stdout)["system"] == "servo"
+    assert (tmp_path / "plots" / "report.html").exists()
+
+
+def test_plots_from_the_mcap_export_are_the_same(servo_log: Path, tmp_path: Path) -> None:
+    export(load_run_data(servo_log), tmp_path / "run.mcap")
+    plots_command(servo_log, tmp_path / "from-lcm", None)
+    plots_command(tmp_path / "run.mcap", tmp_path / "from-mcap", None)
+    for name in ALL_PLOTS:
+        mcap_png, lcm_png = (tmp_path / d / name for d in ("from-mcap", "from-lcm"))
+        assert mcap_png.read_bytes() == lcm_png.read_bytes(), name
 
 
 def test_unreadable_log_is_one_line_and_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
