@@ -1,0 +1,52 @@
+"""Scale: 16 namespace hosts x 2 DPUs, 64 processes at 100 Hz in `sleep` mode, on this machine.
+
+examples/scale-16x2.yaml (made by bench/scale.py; its header explains the design) names the
+harness's hosts skelh1..skelh16. The DPUs are the release build: the question is how much
+the system and the network carry, not the sanitizer's overhead times 32.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import yaml
+from conftest import EXAMPLES
+from netns import Hosts, hosts_fixture
+from test_netns_lab import RELEASE_DPU, Lab, design_flaws
+
+SCALE = EXAMPLES / "scale-16x2.yaml"
+
+netns_sixteen_hosts = hosts_fixture(16)
+
+
+def test_netns_scale_16_hosts_2_dpus_64_processes_at_100hz(netns_sixteen_hosts: Hosts,
+                                                           tmp_path: Path) -> None:
+    lab = Lab(netns_sixteen_hosts, tmp_path)
+    system = yaml.safe_load(SCALE.read_text())
+    assert {d["host"] for d in system["dpus"]} == set(netns_sixteen_hosts.names)
+    assert len(system["processes"]) == 64
+    for dpu in system["dpus"]:
+        lab.dpu(dpu["host"], str(dpu["id"]), binary=RELEASE_DPU)
+    out = tmp_path / "scale"
+    done = lab.skel(netns_sixteen_hosts.names[0], "run", str(SCALE), "--wait-dpus", "15", "--out", str(out))
+    assert (out / "report.json").exists(), done.stdout + done.stderr
+    report = json.loads((out / "report.json").read_text())
+
+    run = system["run"]
+    cycles = int(run["duration_s"] * 100)
+    assert not design_flaws(report, cycles, run["lockout_cycles"]), report["faults"]
+    assert done.returncode in (0, 3), done.stdout + done.stderr
+    assert sorted(d["id"] for d in report["dpus"]) == list(range(1, 33))
+    # Every process ran the whole run (less the warm-up and a stalled last cycle or two).
+    expected = cycles - run["warmup_cycles"] - 2
+    short = {p["name"]: p["cycles"] for p in report["processes"] if p["cycles"] < expected}
+    assert len(report["processes"]) == 64 and not short, short
+    inputs = [i for p in report["processes"] for i in p["inputs"]]
+    dropped = sum(i["dropped"] for i in inputs)
+    total = dropped + sum(i["new"] for i in inputs)
+    print(f"16 hosts x 2 DPUs x 64 processes at 100 Hz: dropped {dropped} of {total} "
+          f"({100 * dropped / total:.3f} %)")
+    assert total >= 32 * expected
+    assert dropped / total < 0.001, (dropped, total)
+    assert not report["integrity"]["lost_batches"], report["integrity"]
