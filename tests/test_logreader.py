@@ -10,9 +10,21 @@ import pytest
 from analysis_synth import RUN_ID, batches, small_config, small_run, status, write_log
 
 import skelmsg
+from skeleton.analysis import logreader
 from skeleton.analysis.flatdecode import FlatLayout
 from skeleton.analysis.logreader import SYNC_BYTES, encode_events, read_bytes, read_log
 from skeleton.analysis.records import TIMING, decode_run, load_run, run_ids
+
+
+@pytest.fixture(params=["walk", "scan"], autouse=True)
+def walk_mode(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Every reader test runs twice: walking event by event, and with the sync-word scan
+    (which only big logs of small events use by default)."""
+    if request.param == "scan":
+        monkeypatch.setattr(logreader, "SCAN_MIN_FILE_BYTES", 0)
+        monkeypatch.setattr(logreader, "SCAN_BELOW_MEAN_BYTES", 1 << 30)
+        monkeypatch.setattr(logreader, "_PROBE_EVENTS", 1)
+    return str(request.param)
 
 
 def _reference(path: Path) -> list[tuple[int, int, str, bytes]]:
@@ -207,3 +219,17 @@ def test_bulk_decode_of_every_length_pattern(shapes: list[tuple[int, int]]) -> N
     assert run.inputs["recv_ns"].tolist() == [v for r in ref for v in r.in_recv_ns]
     assert run.inputs["buffer"].tolist() == [v for r in ref for v in r.in_buffer]
     assert run.inputs["new"].tolist() == [v for r in ref for v in r.in_new]
+
+
+def test_sync_words_inside_data_are_not_events(tmp_path: Path, walk_mode: str) -> None:
+    fake = SYNC_BYTES + (7).to_bytes(8, "big") * 2 + (3).to_bytes(4, "big") + (0).to_bytes(4, "big") + b"ABC"
+    events: list[tuple[str, object]] = [("SKEL_CONFIG", small_config())]
+    for i in range(30):
+        events.append(("SKEL_BUF_a_out", fake * (i % 3) + bytes(i)))  # whole fake events in the data
+        events.append(("SKEL_STATUS", status(1, [])))
+    path = write_log(tmp_path / "fake.lcm", events)
+    log = read_log(path)
+    assert [tuple(e) for e in log.events] == _reference(path)
+    assert not log.integrity.damaged
+    if walk_mode == "scan":
+        assert logreader._many_small_events(memoryview(path.read_bytes()), path.stat().st_size)
