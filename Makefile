@@ -101,12 +101,16 @@ lint: $(STAMP)
 bench: $(BUILD)/skel-dpu $(STAMP)
 	$(PY) bench/run.py
 
-# A jar of the generated types, so lcm-spy decodes every channel.
-spy: $(GEN)/python/skelmsg/__init__.py
-	@mkdir -p $(BUILD)/java
+# A jar of the generated types, so lcm-spy decodes every channel (one lcm-gen run writes
+# the Python and the Java types). lcm-spy's window needs a display and a full Java runtime.
+$(BUILD)/skelmsg.jar: $(GEN)/python/skelmsg/__init__.py
+	@command -v javac >/dev/null || { $(call need_deb,default-jdk-headless); }
+	@rm -rf $(BUILD)/java && mkdir -p $(BUILD)/java
 	javac -nowarn -cp $(LCM_PREFIX)/share/java/lcm.jar -d $(BUILD)/java $(GEN)/java/skelmsg/*.java
-	jar cf $(BUILD)/skelmsg.jar -C $(BUILD)/java .
-	CLASSPATH=$(BUILD)/skelmsg.jar $(LCM_PREFIX)/bin/lcm-spy
+	jar cf $@ -C $(BUILD)/java .
+
+spy: $(BUILD)/skelmsg.jar
+	CLASSPATH=$(abspath $(BUILD)/skelmsg.jar) $(LCM_PREFIX)/bin/lcm-spy $(if $(URL),--lcm-url=$(URL))
 
 clean:
 	rm -rf $(BUILD)
