@@ -4,10 +4,16 @@ The printed tables come from the recorded log through the same analysis as
 `skel report`, so what `skel run` shows is exactly what the log alone gives.
 
 What outlives the host tool: the DPUs have the run's duration, so they finish
-their cycles if `skel run` dies. The logger is started in its own session under
-`timeout` (the run's length plus LOGGER_MARGIN_S), so a killed host tool neither
-takes it down nor leaves it running for ever; on a clean end it is stopped at
-once as before. DPUs started with --spawn end the same way.
+their cycles if `skel run` dies. The logger is started (once the push has
+succeeded) in its own session under `timeout`: a killed host tool neither takes
+it down nor leaves it running for ever; it stops by itself about
+REPORT_GRACE_S + LOGGER_MARGIN_S (~10 s) after the run's planned end. On a clean
+end it is stopped at once. DPUs started with --spawn end the same way.
+
+A `skel push` during the run (from any host) is followed: when the DPUs' heartbeats
+show a newer generation applied, the config of that generation, heard on
+SKEL_CONFIG when it was staged, replaces ours in the periodic re-send. No state
+file is shared, so the push may come from another machine than the run.
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ CONFIG_RESEND_S = 1.0
 POLL_S = 0.1                # follower period: a lost DPU is reported within LOST_AFTER_S + this
 PUSH_TIMEOUT_S = 3.0        # per phase (stage, commit) of Control.push
 LOGGER_MARGIN_S = 5.0       # an orphaned logger ends this long after the report grace
+LOGGER_READY_S = 2.0        # heartbeats come at 5 Hz: the logger has one well within this
 FATAL_KINDS = ("lockout", "jam")
 
 
@@ -71,8 +78,9 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
     url = control_url(system)
     dpu_ids = sorted(d.id for d in system.dpus)
     duration_ns = system.run_duration_ns(options.cycles, options.duration_s)
-    # From the logger's start: clock estimate, START lead, the run, the reports, a margin.
-    logger_deadline_s = 1.0 + START_LEAD_S + duration_ns / 1e9 + REPORT_GRACE_S + LOGGER_MARGIN_S
+    # From the logger's start: first event, clock estimate, START lead, the run, the reports, a margin.
+    logger_deadline_s = (LOGGER_READY_S + 1.0 + START_LEAD_S + duration_ns / 1e9 + REPORT_GRACE_S
+                         + LOGGER_MARGIN_S)
     daemons = []
     if options.spawn:
         dpu_deadline_s = options.wait_dpus_s + 2 * PUSH_TIMEOUT_S + logger_deadline_s
@@ -100,6 +108,8 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
                 return EXIT_FAILED
         if options.logger == "local":
             logger = spawn.start_logger(url, out / "run.lcm", deadline_s=logger_deadline_s)
+            # Its file exists before it has joined the group: wait for the first heartbeat it records.
+            _wait_nonempty(out / "run.lcm", LOGGER_READY_S)
         clocks = ClockKeeper(control, dpu_ids)
         clocks.refresh()  # before START, so the log has offsets for the whole run
         follower = RunFollower(system, control, console)
@@ -223,6 +233,12 @@ def _follow(control: Control, follower: RunFollower, clocks: ClockKeeper, config
                 clocks.refresh(skip=follower.lost)
             time.sleep(POLL_S)
     follower.poll(run_id, dpu_ids)
+
+
+def _wait_nonempty(path: Path, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while path.stat().st_size == 0 and time.monotonic() < deadline:
+        time.sleep(0.02)
 
 
 def _report(console: Console, system: System, options: RunOptions, out: Path, run_id: int,
