@@ -185,13 +185,25 @@ def transport_latency_ns(
     return recv - sent
 
 
+def group_slices(keys: np.ndarray) -> tuple[np.ndarray, dict[int, slice]]:
+    """A stable sort order of `keys` and, per key, its slice of the sorted rows: one
+    sort instead of one full-array mask per group."""
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+    values, first, counts = np.unique(sorted_keys, return_index=True, return_counts=True)
+    return order, {int(v): slice(int(f), int(f + c)) for v, f, c in zip(values, first, counts, strict=True)}
+
+
 def buffer_metrics(
     records: np.ndarray, inputs: np.ndarray, config: Any, clock: ClockOffsets = NO_OFFSETS
 ) -> list[BufferMetrics]:
     """Per buffer (config order by id) that has a reader, over the measured window."""
     procs = {p.id: p for p in config.processes}
     counted = inputs[counted_inputs(records, inputs, config.warmup_cycles)]
-    completed = records[(records["cycle"] >= config.warmup_cycles) & ((records["flags"] & FLAG_SKIPPED) == 0)]
+    order, groups = group_slices((counted["buffer"].astype(np.int64) << 16) + counted["process"])
+    counted = counted[order]
+    completed = (records["cycle"] >= config.warmup_cycles) & ((records["flags"] & FLAG_SKIPPED) == 0)
+    done_per_process = dict(zip(*np.unique(records["process"][completed], return_counts=True), strict=True))
     out = []
     for buf in sorted(config.buffers, key=lambda b: b.id):
         readers = sorted((p for p in config.processes if buf.id in p.inputs), key=lambda p: p.id)
@@ -199,11 +211,10 @@ def buffer_metrics(
             continue
         writer = procs.get(buf.writer)
         writer_dpu = writer.dpu if writer is not None else -1
-        rows_of_buffer = counted[counted["buffer"] == buf.id]
         pooled: list[np.ndarray] = []
         reader_metrics = []
         for reader in readers:
-            rows = rows_of_buffer[rows_of_buffer["process"] == reader.id]
+            rows = counted[groups.get((int(buf.id) << 16) + int(reader.id), slice(0, 0))]
             lat_us = transport_latency_ns(rows, reader.dpu, writer_dpu, clock).astype(np.float64) / 1000.0
             pooled.append(lat_us)
             new = int(np.count_nonzero(rows["new"]))
@@ -229,7 +240,7 @@ def buffer_metrics(
                 buffer=buf.name,
                 buffer_id=int(buf.id),
                 writer=writer.name if writer is not None else f"process {buf.writer}",
-                published=int(np.count_nonzero(completed["process"] == buf.writer)),
+                published=int(done_per_process.get(buf.writer, 0)),
                 latency_us=latency_us(everything),
                 dropped=sum(r.dropped for r in reader_metrics),
                 lost=sum(r.lost for r in reader_metrics),

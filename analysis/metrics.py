@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from .latency import Histogram, LatencyUs, histogram
+from .latency import Histogram, LatencyUs, group_slices, histogram
 from .latency import latency_us as _latency
 from .records import FLAG_OVERRUN, FLAG_SKIPPED
 
@@ -169,15 +169,21 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
     """Per process (config order by id) over the measured window."""
     buffers = {b.id: b for b in config.buffers}
     in_window = measured(records, config.warmup_cycles)
-    window = records[in_window]
     # An input record belongs to the window when its cycle record does, and counts
     # only for completed cycles, so new + stale == cycles for every input.
     completed_idx = in_window & ((records["flags"] & FLAG_SKIPPED) == 0)
     in_mask = completed_idx[inputs["record"]] if len(inputs) else np.zeros(0, dtype=bool)
     counted_inputs = inputs[in_mask]
+    # One sort per array instead of one full-array mask per process; the records are
+    # indexed, not copied, until one process's are taken.
+    at = np.flatnonzero(in_window)
+    order, by_process = group_slices(records["process"][at].astype(np.int64))
+    at = at[order]
+    in_order, in_by_process = group_slices(counted_inputs["process"].astype(np.int64))
+    counted_inputs = counted_inputs[in_order]
     out = []
     for proc in sorted(config.processes, key=lambda p: p.id):
-        mine = window[window["process"] == proc.id]
+        mine = records[at[by_process.get(int(proc.id), slice(0, 0))]]
         skipped = (mine["flags"] & FLAG_SKIPPED) != 0
         done = mine[~skipped]
         latency = (done["start_ns"] - done["release_ns"]).astype(np.float64) / 1000.0
@@ -185,7 +191,7 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
         overran = _overran(done)
         late_us = proc.period_us * config.late_pct / 100.0
         too_late_us = proc.period_us * config.too_late_pct / 100.0
-        my_inputs = counted_inputs[counted_inputs["process"] == proc.id]
+        my_inputs = counted_inputs[in_by_process.get(int(proc.id), slice(0, 0))]
         out.append(
             ProcessMetrics(
                 id=proc.id,
