@@ -3,7 +3,9 @@ chain latency by lineage) on hand-made synthetic runs, and both on a real SERVO 
 
 from __future__ import annotations
 
+import io
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -20,11 +22,13 @@ from analysis_synth import (
     write_log,
 )
 from conftest import skel
+from rich.console import Console
 
 from skeleton.analysis.chains import chain_metrics
 from skeleton.analysis.latency import ClockOffsets, buffer_metrics
 from skeleton.analysis.records import decode_run
 from skeleton.analysis.report import analyze
+from skeleton.analysis.tables import print_report
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 T0 = 1_000 * MS  # host clock
@@ -162,6 +166,9 @@ def test_chain_in_report_json_has_summary_not_series(tmp_path: Path) -> None:
     assert c["latency_us"]["max"] == pytest.approx(51_100.0) and "series" not in c
     assert rep.chains[0].series is not None and len(rep.chains[0].series.use_ns) == 3
     json.dumps(rep.to_json())
+    console = Console(file=io.StringIO(), width=120, record=True, color_system=None)
+    print_report(rep, console=console)
+    assert re.search(r"│ A-B-C +│ A -> B -> C +│ +3 │ +21300 │ +50504 │ +51100 │ +1 │", console.export_text())
 
 
 # The servo's sensor-to-command path, lightly loaded so a shared 2-core machine never
