@@ -19,15 +19,14 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from rich.console import Console, Group
+from rich.console import Console
 from rich.live import Live
-from rich.table import Table
-from rich.text import Text
 
 import skelmsg
 
 from .records import INPUT_DTYPE, RECORD_DTYPE, TIMING_CHANNEL, RunRecords, decode_run, lost_batches
 from .report import (
+    CLOCK_CHANNEL,
     CONFIG_CHANNEL,
     EXIT_FATAL,
     EXIT_OK,
@@ -39,15 +38,15 @@ from .report import (
     analyze_log,
     build_report,
 )
+from .watch_view import render
 
-CLOCK_CHANNEL = "SKEL_CLOCK"  # clock-offset estimates: kept so --once's log is complete
+# Clock-offset estimates too: the report corrects cross-host latencies with them.
 CHANNELS = (CONFIG_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL, REPORT_CHANNEL, CLOCK_CHANNEL)
 EXIT_NO_RUN = 1
 REFRESH_S = 0.4  # redraw period: at least twice a second
 QUIET_S = 2.0  # no timing for this long after data stopped: the run ended
 REPORT_GRACE_S = 0.5  # after the last report_t, for the messages logged behind it
 HEARTBEAT_LOST_S = 1.0  # status_t comes at >= 5 Hz: a DPU silent this long is lost
-STATES = {0: "unconfigured", 1: "ready", 2: "armed", 3: "running"}
 _TIMING_FP = skelmsg.timing_t._get_packed_fingerprint()
 _CONFIG_FP = skelmsg.config_t._get_packed_fingerprint()
 _TIMING_HEAD = struct.Struct(">hqq")  # dpu, run_id, generation after the fingerprint
@@ -145,6 +144,7 @@ class Heard:
     last_report: float = 0.0
     next_run: int | None = None  # a newer run began while following one
     generations: set[int] = field(default_factory=set)  # of the followed run, from timing headers
+    covered: int = 0  # records the last snapshot's tables cover
 
     @property
     def run_id(self) -> int | None:
@@ -264,12 +264,18 @@ class Heard:
         everyone = bool(config and reported >= {d.id for d in config.dpus})
         return everyone and now - self.last_report > REPORT_GRACE_S
 
+    def absorb(self) -> None:
+        """Decode the timing batches that came since the last call (cheap: those only)."""
+        if self.store is not None:
+            self.store.add(self.pending)
+        self.pending = []
+
     def snapshot(self) -> RunReport | None:
         """The report of the records heard so far (None before a run and its config)."""
         if self.store is None:
             return None
-        self.store.add(self.pending)
-        self.pending = []
+        self.absorb()
+        self.covered = self.store.n_records
         expected = {r.dpu: r.timing_batches for r in self.reports if r.run_id == self.run_id}
         run = self.store.run(expected)
         config = self.config(max(run.generations)) if run.generations else None
@@ -312,85 +318,6 @@ def _fault_text(fault: Any) -> str:
     return f"{fault.kind}: {where}: {fault.detail}"
 
 
-# --- the view ---------------------------------------------------------------------------
-
-BAR_WIDTH = 40
-SHARES = (("compute", "green"), ("communicate", "cyan"), ("wait", "grey50"), ("overhead", "red"))
-
-
-def _bar(shares: list[float | None]) -> Text:
-    """compute / communicate / wait / overhead as one stacked bar of BAR_WIDTH cells."""
-    bar = Text()
-    if any(s is None for s in shares):
-        return bar.append("·" * BAR_WIDTH, style="grey30")
-    cells = [max(0.0, float(s or 0.0)) * BAR_WIDTH / 100.0 for s in shares]
-    used = 0
-    for (_, style), width in zip(SHARES, cells, strict=True):
-        n = min(BAR_WIDTH - used, round(width))
-        bar.append("█" * n, style=style)
-        used += n
-    return bar.append(" " * (BAR_WIDTH - used))
-
-
-def _num(value: float | None, digits: int = 1) -> str:
-    return "-" if value is None else f"{value:.{digits}f}"
-
-
-def render(heard: Heard, report: RunReport | None, url: str) -> Group:
-    if heard.store is None:
-        dpus = ", ".join(f"DPU {d} {STATES.get(s.state, s.state)}" for d, s in sorted(heard.latest.items()))
-        return Group(Text(f"skel watch {url}: waiting for a run" + (f" ({dpus})" if dpus else "")))
-    elapsed = max((d.elapsed_ms or 0.0 for d in report.dpus), default=0.0) / 1000 if report else 0.0
-    head = Text(f"run {heard.run_id}")
-    if report is not None:
-        lost = sum(b["to_seq"] - b["from_seq"] + 1 for b in report.integrity.lost_batches)
-        head.append(f" · {report.system} · generation {report.generation} · elapsed {elapsed:.1f} s · "
-                    f"{heard.store.n_records} records · {lost} batches lost")
-    else:
-        head.append(" · waiting for its config_t")
-    parts: list[Any] = [head]
-    if report is not None:
-        parts += [_dpu_view(heard, report), _process_view(report)]
-    legend = Text("bars: ")
-    for name, style in SHARES:
-        legend.append("█ ", style=style).append(f"{name}  ")
-    parts.append(legend)
-    faults = Table(title="faults as they happen (s since the run was first heard)", show_header=False)
-    faults.add_column(justify="right")
-    faults.add_column()
-    for at, text in heard.faults[-8:]:
-        faults.add_row(f"{at:.1f}", text)
-    parts.append(faults if heard.faults else Text("faults: none so far"))
-    return Group(*parts)
-
-
-def _dpu_view(heard: Heard, report: RunReport) -> Table:
-    table = Table(title="per DPU: utilization so far (warm-up excluded)")
-    for name, justify in (("DPU", "right"), ("state", "left"), ("utilization", "left"), ("% comp", "right"),
-                          ("% comm", "right"), ("% wait", "right"), ("% ovhd", "right"), ("ovr", "right"),
-                          ("records", "right")):  # fmt: skip
-        table.add_column(name, justify=justify, no_wrap=True)  # type: ignore[arg-type]
-    for d in report.dpus:
-        shares = [d.compute_pct, d.communicate_pct, d.wait_pct, d.overhead_pct]
-        status = heard.latest.get(d.id)
-        state = "-" if status is None else STATES.get(status.state, str(status.state))
-        table.add_row(str(d.id), state, _bar(shares), *(_num(s) for s in shares), str(d.overruns),
-                      str(d.records))
-    return table
-
-
-def _process_view(report: RunReport) -> Table:
-    table = Table(title="per process: release latency (µs) and overruns so far")
-    for name in ("process", "DPU", "cycles", "ovr", "p50", "p99", "max", "late/too late"):
-        table.add_column(name, justify="left" if name == "process" else "right", no_wrap=True)
-    for p in report.processes:
-        lat = p.latency_us
-        ovr = Text(str(p.overruns), style="bold red" if p.overruns else "")
-        table.add_row(p.name, str(p.dpu), str(p.cycles), ovr, _num(lat.p50), _num(lat.p99), _num(lat.max),
-                      f"{p.late}/{p.too_late}")
-    return table
-
-
 # --- the command ------------------------------------------------------------------------
 
 
@@ -431,11 +358,22 @@ def watch_command(url: str, once: bool, duration_s: float | None) -> int:
 
 def _live(lc: Any, heard: Heard, url: str, deadline: float | None) -> None:
     console = Console()
+    report, due = None, 0.0
     with Live(render(heard, None, url), console=console, auto_refresh=False, transient=False) as live:
         while deadline is None or time.monotonic() < deadline:
             tick = time.monotonic() + REFRESH_S
             _pump(lc, tick if deadline is None else min(tick, deadline))
-            live.update(render(heard, heard.snapshot(), url), refresh=True)
+            heard.absorb()
+            if report is not None and report.run_id != heard.run_id:
+                report, due = None, 0.0  # a new run: the old tables are not its tables
+            start = time.monotonic()
+            if start >= due:
+                # The tables cost O(records so far): once they take more than a third of
+                # the time, recompute less often; the view (records, faults, states)
+                # still refreshes every REFRESH_S.
+                report = heard.snapshot() or report
+                due = start + 2 * (time.monotonic() - start)
+            live.update(render(heard, report, url), refresh=True)
 
 
 def _once(lc: Any, heard: Heard, url: str, deadline: float | None) -> int:

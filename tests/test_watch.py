@@ -19,7 +19,8 @@ from rich.console import Console
 
 from skeleton.analysis.records import decode_run
 from skeleton.analysis.report import build_report
-from skeleton.analysis.watch import Heard, RecordStore, render
+from skeleton.analysis.watch import Heard, RecordStore
+from skeleton.analysis.watch_view import render
 
 LOGPLAYER = Path(lcm.__file__).parent.parent / "bin" / "lcm-logplayer"
 ENV = {**os.environ, "COLUMNS": "160"}

@@ -1,0 +1,95 @@
+"""What `skel watch` draws: per-DPU utilization bars, per-process overruns and release
+latency, faults as they happened (rich renderables, no terminal I/O here)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from rich.console import Group
+from rich.table import Table
+from rich.text import Text
+
+from .report import RunReport
+
+if TYPE_CHECKING:
+    from .watch import Heard
+
+STATES = {0: "unconfigured", 1: "ready", 2: "armed", 3: "running"}
+
+BAR_WIDTH = 40
+SHARES = (("compute", "green"), ("communicate", "cyan"), ("wait", "grey50"), ("overhead", "red"))
+
+
+def _bar(shares: list[float | None]) -> Text:
+    """compute / communicate / wait / overhead as one stacked bar of BAR_WIDTH cells."""
+    bar = Text()
+    if any(s is None for s in shares):
+        return bar.append("·" * BAR_WIDTH, style="grey30")
+    cells = [max(0.0, float(s or 0.0)) * BAR_WIDTH / 100.0 for s in shares]
+    used = 0
+    for (_, style), width in zip(SHARES, cells, strict=True):
+        n = min(BAR_WIDTH - used, round(width))
+        bar.append("█" * n, style=style)
+        used += n
+    return bar.append(" " * (BAR_WIDTH - used))
+
+
+def _num(value: float | None, digits: int = 1) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def render(heard: Heard, report: RunReport | None, url: str) -> Group:
+    if heard.store is None:
+        dpus = ", ".join(f"DPU {d} {STATES.get(s.state, s.state)}" for d, s in sorted(heard.latest.items()))
+        return Group(Text(f"skel watch {url}: waiting for a run" + (f" ({dpus})" if dpus else "")))
+    elapsed = max((d.elapsed_ms or 0.0 for d in report.dpus), default=0.0) / 1000 if report else 0.0
+    head = Text(f"run {heard.run_id}")
+    if report is not None:
+        lost = sum(b["to_seq"] - b["from_seq"] + 1 for b in report.integrity.lost_batches)
+        head.append(f" · {report.system} · generation {report.generation} · elapsed {elapsed:.1f} s · "
+                    f"{heard.store.n_records} records · {lost} batches lost")
+        if heard.store.n_records > heard.covered:
+            head.append(f" · tables over the first {heard.covered}", style="yellow")
+    else:
+        head.append(" · waiting for its config_t")
+    parts: list[Any] = [head]
+    if report is not None:
+        parts += [_dpu_view(heard, report), _process_view(report)]
+    legend = Text("bars: ")
+    for name, style in SHARES:
+        legend.append("█ ", style=style).append(f"{name}  ")
+    parts.append(legend)
+    faults = Table(title="faults as they happen (s since the run was first heard)", show_header=False)
+    faults.add_column(justify="right")
+    faults.add_column()
+    for at, text in heard.faults[-8:]:
+        faults.add_row(f"{at:.1f}", text)
+    parts.append(faults if heard.faults else Text("faults: none so far"))
+    return Group(*parts)
+
+
+def _dpu_view(heard: Heard, report: RunReport) -> Table:
+    table = Table(title="per DPU: utilization so far (warm-up excluded)")
+    for name, justify in (("DPU", "right"), ("state", "left"), ("utilization", "left"), ("% comp", "right"),
+                          ("% comm", "right"), ("% wait", "right"), ("% ovhd", "right"), ("ovr", "right"),
+                          ("records", "right")):  # fmt: skip
+        table.add_column(name, justify=justify, no_wrap=True)  # type: ignore[arg-type]
+    for d in report.dpus:
+        shares = [d.compute_pct, d.communicate_pct, d.wait_pct, d.overhead_pct]
+        status = heard.latest.get(d.id)
+        state = "-" if status is None else STATES.get(status.state, str(status.state))
+        table.add_row(str(d.id), state, _bar(shares), *(_num(s) for s in shares), str(d.overruns),
+                      str(d.records))
+    return table
+
+
+def _process_view(report: RunReport) -> Table:
+    table = Table(title="per process: release latency (µs) and overruns so far")
+    for name in ("process", "DPU", "cycles", "ovr", "p50", "p99", "max", "late/too late"):
+        table.add_column(name, justify="left" if name == "process" else "right", no_wrap=True)
+    for p in report.processes:
+        lat = p.latency_us
+        ovr = Text(str(p.overruns), style="bold red" if p.overruns else "")
+        table.add_row(p.name, str(p.dpu), str(p.cycles), ovr, _num(lat.p50), _num(lat.p99), _num(lat.max),
+                      f"{p.late}/{p.too_late}")
+    return table
