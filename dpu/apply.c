@@ -44,10 +44,12 @@ static skel_plan_t *apply_build(skel_control_t *c)
     pthread_mutex_unlock(&s->lock);
     if (cfg == NULL) return NULL;
     skel_plan_t *plan = plan_build(cfg, index, reason, sizeof reason);
+    (void)pthread_setname_np(pthread_self(), "lcm-link"); /* for LCM's threads, as in control.c */
     if (plan != NULL && plan_open_links(plan, &s->rejected, reason, sizeof reason) != 0) {
         plan_free(plan);
         plan = NULL;
     }
+    (void)pthread_setname_np(pthread_self(), "skel-ctl");
     if (plan == NULL) control_reject(c, cfg->generation, reason, 1);
     control_free_config(cfg);
     return plan;

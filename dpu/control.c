@@ -145,7 +145,12 @@ void *control_main(void *arg)
 {
     skel_control_t *c = arg;
     skel_server_t *s = c->s;
-    if (control_subscribe(c) != 0) {
+    /* LCM starts its receive thread on the first subscription and the thread
+     * inherits our name: give it its own, so its CPU is told apart. */
+    (void)pthread_setname_np(pthread_self(), "lcm-ctl");
+    int subscribed = control_subscribe(c);
+    (void)pthread_setname_np(pthread_self(), "skel-ctl");
+    if (subscribed != 0) {
         skel_log("cannot subscribe to %s/%s on %s", SKEL_CH_CONFIG, SKEL_CH_COMMAND, s->url);
         return NULL;
     }
