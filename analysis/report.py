@@ -192,7 +192,14 @@ def _cross_check(records: np.ndarray, config: Any, reports: Sequence[Any]) -> li
 def analyze(log_path: str | os.PathLike[str], run_id: int | None = None) -> RunReport:
     """Analyse one run (default: the last run with timing records) from the log alone."""
     try:
-        log = read_log(log_path)
+        if os.fspath(log_path).endswith(".mcap"):
+            # An MCAP from `skel export` holds the same events: rebuild the log from it. Imported
+            # here because mcapsource -> export_mcap -> rundata -> report would be circular.
+            from .mcapsource import read_as_log
+
+            log = read_as_log(log_path)
+        else:
+            log = read_log(log_path)
     except OSError as e:
         raise LogError(e.strerror or str(e)) from e
     return analyze_log(log, run_id)
