@@ -161,16 +161,32 @@ def overrun_faults(processes: list[ProcessMetrics]) -> list[Fault]:
     ]
 
 
+# Records that end this much (or three periods) before the other DPUs' mean a lost DPU.
+LOST_SPAN_NS = 500_000_000
+
+
 def dpu_lost_faults(config: Any, records: np.ndarray, reported: set[int] | None = None) -> list[Fault]:
-    """A DPU with processes but no timing record in the run, or (when any DPU sent its
-    end-of-run report_t) one that sent none."""
-    with_records = set(np.unique(records["dpu"]).tolist())
+    """A DPU with processes but no timing record, or whose records stop well before the
+    others' (it died or was cut off mid-run). Each DPU's span is measured on its own clock
+    (first to last release), so hosts with different clocks compare. A missing report_t
+    alone is not a loss: the logger may miss one message under load while the DPU's
+    timing runs to the end (`reported` is kept for the signature; the cross-check shows it)."""
+    del reported
+    spans: dict[int, float] = {}
+    for dpu in np.unique(records["dpu"]).tolist():
+        release = records["release_ns"][records["dpu"] == dpu]
+        spans[int(dpu)] = float(release.max() - release.min())
+    longest = max(spans.values(), default=0.0)
     faults = []
     for dpu in sorted({p.dpu for p in config.processes}):
-        if dpu not in with_records:
+        if dpu not in spans:
             faults.append(Fault(kind="dpu_lost", dpu=dpu, detail="no timing records in this run"))
-        elif reported and dpu not in reported:
-            faults.append(Fault(kind="dpu_lost", dpu=dpu, detail="no end-of-run report_t"))
+            continue
+        period_ns = max(p.period_us for p in config.processes if p.dpu == dpu) * 1000
+        missing_ns = longest - spans[dpu]
+        if missing_ns > max(3 * period_ns, LOST_SPAN_NS):
+            faults.append(Fault(kind="dpu_lost", dpu=dpu,
+                                detail=f"timing stopped {missing_ns / 1e9:.2f} s before the other DPUs'"))
     return faults
 
 
