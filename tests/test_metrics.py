@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from fractions import Fraction
 
+import numpy as np
 import pytest
 from analysis_synth import MS, RUN_ID, US, Rec, batches, small_config, small_run, status
 
 import skelmsg
 from skeleton.analysis.faults import jam_faults, lockout_faults, lockouts_from_status
 from skeleton.analysis.metrics import dpu_metrics, process_metrics, static_load_pct
-from skeleton.analysis.records import RunRecords, decode_run, lost_batches
+from skeleton.analysis.records import RECORD_DTYPE, RunRecords, decode_run, lost_batches
 
 
 def _run(dpu1: list[Rec], dpu2: list[Rec], size: int = 4) -> RunRecords:
@@ -146,3 +147,26 @@ def test_lockout_without_locked_writer_is_not_a_jam() -> None:
     locks = lockouts_from_status([status(1, [(1, 0, 5)])], RUN_ID)
     assert jam_faults(locks, small_config()) == []
     assert [f.kind for f in lockout_faults(locks, small_config())] == ["lockout"]
+
+
+def _spans(dpu_releases_ms: dict[int, list[float]]) -> np.ndarray:
+    rows = [(dpu, int(ms * 1e6)) for dpu, releases in dpu_releases_ms.items() for ms in releases]
+    records = np.zeros(len(rows), dtype=RECORD_DTYPE)
+    records["dpu"] = [r[0] for r in rows]
+    records["release_ns"] = [r[1] for r in rows]
+    return records
+
+
+def test_dpu_lost_when_its_timing_stops_early_not_when_its_report_is_missing() -> None:
+    from types import SimpleNamespace
+
+    from skeleton.analysis.faults import dpu_lost_faults
+
+    config = SimpleNamespace(processes=[SimpleNamespace(id=1, dpu=1, period_us=5000),
+                                        SimpleNamespace(id=2, dpu=2, period_us=5000),
+                                        SimpleNamespace(id=3, dpu=3, period_us=5000)])
+    # DPU 2's clock is 7 s off: spans are compared, not instants. DPU 3 stops 1 s early.
+    records = _spans({1: [0, 2000], 2: [7000, 9000], 3: [0, 1000]})
+    faults = dpu_lost_faults(config, records, reported={1})
+    assert [(f.kind, f.dpu) for f in faults] == [("dpu_lost", 3)]
+    assert "1.00 s before" in (faults[0].detail or "")
