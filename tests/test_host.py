@@ -189,7 +189,6 @@ def test_no_dpu_within_wait_dpus_fails_clearly(tmp_path: Path, url: str) -> None
     assert done.returncode == 1, done.stdout + done.stderr
     assert "no heartbeat from DPU 1, 2" in done.stdout and "--wait-dpus" in done.stdout
     assert time.monotonic() - started < 30
-    assert skel("run", PAIR, "--url", url, "--wait-dpus", "-1").returncode == 2
 
 
 def test_external_logger_prints_the_dpus_own_totals(dpus: DpuFarm, url: str, tmp_path: Path) -> None:
@@ -203,3 +202,12 @@ def test_external_logger_prints_the_dpus_own_totals(dpus: DpuFarm, url: str, tmp
     totals = json.loads((out / "reports.json").read_text())
     assert [row["dpu"] for row in totals["dpus"]] == [1, 2]
     assert all(row["reported"] and row["minor_cycles"] > 0 for row in totals["dpus"]), totals
+
+
+def test_bad_options_are_one_line_exit_2(tmp_path: Path, url: str) -> None:
+    for args in (("push", _lab(tmp_path), "--url", url, "--at-ms", "-5"),
+                 ("clock", "--url", url, "--samples", "0"),
+                 ("run", _lab(tmp_path), "--url", url, "--wait-dpus", "-1")):
+        done = skel(*args)
+        assert done.returncode == 2, (args, done.stdout, done.stderr)
+        assert len(done.stderr.strip().splitlines()) == 1 and "Traceback" not in done.stderr, done.stderr
