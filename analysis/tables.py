@@ -47,45 +47,52 @@ def _paper(paper: dict[Any, Any] | None, dpu: int) -> dict[str, Any] | None:
     return paper.get(dpu) or paper.get(str(dpu))
 
 
-def dpu_table(
-    report: RunReport, paper: dict[Any, Any] | None = None, window: WindowReport | None = None
-) -> Table:
-    """Per DPU of the report (or of one of its generation windows)."""
+def dpu_table(report: RunReport, window: WindowReport | None = None) -> Table:
+    """Per DPU of the report (or of one of its generation windows): the paper's Table 1."""
     part = window or report
-    rows = []
-    for d in part.dpus:
-        ref = _paper(paper, d.id)
-
-        def pair(ours: float | None, key: str, digits: int = 1, ref: dict[str, Any] | None = ref) -> str:
-            text = _num(ours, digits)
-            if ref is not None and ref.get(key) is not None:
-                text += f" ({ref[key]:.{digits}f})"
-            return text
-
-        rows.append(
-            [
-                str(d.id),
-                _num(d.configured_cycle_ms, 2),
-                pair(d.measured_cycle_ms, "cycle_ms", 2),
-                ", ".join(d.processes),
-                pair(d.compute_pct, "compute_pct"),
-                pair(d.communicate_pct, "communicate_pct"),
-                pair(d.wait_pct, "wait_pct"),
-                _num(d.overhead_pct),
-                _num(d.static_load_pct),
-                str(d.overruns),
-            ]
-        )
+    rows = [
+        [
+            str(d.id),
+            _num(d.configured_cycle_ms, 2),
+            _num(d.measured_cycle_ms, 2),
+            ", ".join(d.processes),
+            _num(d.compute_pct),
+            _num(d.communicate_pct),
+            _num(d.wait_pct),
+            _num(d.overhead_pct),
+            _num(d.static_load_pct),
+        ]
+        for d in part.dpus
+    ]
     columns = [
         ("DPU", True), ("cycle\nms", True), ("meas.\nms", True), ("processes", False),
-        ("%\ncomp", True), ("%\ncomm", True), ("%\nwait", True), ("%\novhd", True),
-        ("static\nload\n%", True), ("ovr", True),
+        ("%\ncomp", True), ("%\ncomm", True), ("%\nwait", True), ("%\novhd", True), ("load\n%", True),
     ]  # fmt: skip
-    title = f"{report.system}: run {report.run_id}, generation {part.generation}: per DPU (ovr = overruns)"
-    table = _table(title, columns, rows)
-    if paper:
-        table.caption = "(in brackets: the paper's Table 1)"
-    return table
+    title = f"{report.system}: run {report.run_id}, generation {part.generation}: per DPU (load = configured)"
+    return _table(title, columns, rows)
+
+
+def paper_table(report: RunReport, paper: dict[Any, Any], window: WindowReport | None = None) -> Table:
+    """Ours beside a published table (`reference:` in the system file, e.g. the paper's Table 1)."""
+    rows = []
+    for d in (window or report).dpus:
+        ref = _paper(paper, d.id) or {}
+
+        def theirs(key: str, digits: int = 1, ref: dict[str, Any] = ref) -> str:
+            return _num(ref.get(key), digits)
+
+        delta = None if ref.get("compute_pct") is None else d.compute_pct - ref["compute_pct"]
+        rows.append([
+            str(d.id), theirs("cycle_ms", 2), _num(d.measured_cycle_ms, 2),
+            theirs("compute_pct"), _num(d.compute_pct), "-" if delta is None else f"{delta:+.1f}",
+            theirs("communicate_pct"), _num(d.communicate_pct), theirs("wait_pct"), _num(d.wait_pct),
+        ])  # fmt: skip
+    columns = [
+        ("DPU", True), ("cycle ms\npaper", True), ("\nours", True), ("% compute\npaper", True),
+        ("\nours", True), ("\nΔ", True), ("% comm.\npaper", True), ("\nours", True),
+        ("% wait\npaper", True), ("\nours", True),
+    ]  # fmt: skip
+    return _table("the paper's Table 1 beside this run", columns, rows)
 
 
 def process_table(report: RunReport, window: WindowReport | None = None) -> Table:
@@ -221,7 +228,9 @@ def print_report(
         if window is not None:
             console.print(window_header(window), style="bold", markup=False, highlight=False)
         part = window or report
-        console.print(dpu_table(report, paper, window))
+        console.print(dpu_table(report, window))
+        if paper:
+            console.print(paper_table(report, paper, window))
         console.print(process_table(report, window))
         console.print(response_table(report, window))
         if any(p.inputs for p in part.processes):

@@ -105,7 +105,8 @@ def test_tables_are_deterministic_and_show_the_paper(tmp_path: Path) -> None:
     paper = {1: {"compute_pct": 90.3, "communicate_pct": 9.0, "wait_pct": 0.0, "cycle_ms": 5.0}}
     first, second = _render(analyze(str(path)), paper), _render(analyze(str(path)), paper)
     assert first == second
-    assert "60.0 (90.3)" in first and "10.01 (5.00)" in first
+    # The paper's row beside ours: cycle paper/ours, % compute paper/ours/delta.
+    assert re.search(r"│ +1 │ +5\.00 │ +10\.01 │ +90\.3 │ +60\.0 │ +-30\.3 │", first), first
     assert "C -> B -> A" in first and "overloaded" in first
     assert re.search(r"B +│ a_out +│ +6 │ +2 │ +2 │ +6 │", first)
     clean = _render(analyze(str(_log(tmp_path / "ok.lcm"))))

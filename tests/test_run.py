@@ -121,7 +121,7 @@ def test_push_reconfigures_running_dpus_without_restart(tmp_path: Path, url: str
         first = skel("run", servo, "--url", url, "--cycles", "300", "-s", "run.warmup_cycles=10",
                      *NOISE_TOLERANT, "--out", str(tmp_path / "a"), "--compare-paper")
         assert first.returncode == 0, first.stdout + first.stderr
-        assert "(90.3)" in first.stdout and "Table 1" in first.stdout
+        assert "Table 1 beside this run" in first.stdout and "90.3" in first.stdout
         assert abs(_executor_compute_us(tmp_path / "a") - 3500) < 150
 
         pushed = skel("push", servo, "--url", url, "-s", "process.executor.compute_us=2000",
