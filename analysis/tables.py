@@ -88,9 +88,9 @@ def paper_table(report: RunReport, paper: dict[Any, Any], window: WindowReport |
             theirs("communicate_pct"), _num(d.communicate_pct), theirs("wait_pct"), _num(d.wait_pct),
         ])  # fmt: skip
     columns = [
-        ("DPU", True), ("cycle ms\npaper", True), ("\nours", True), ("% compute\npaper", True),
-        ("\nours", True), ("\nΔ", True), ("% comm.\npaper", True), ("\nours", True),
-        ("% wait\npaper", True), ("\nours", True),
+        ("DPU", True), ("cycle\npaper", True), ("ms\nours", True), ("comp\npaper", True),
+        ("%\nours", True), ("Δ", True), ("comm\npaper", True), ("%\nours", True),
+        ("wait\npaper", True), ("%\nours", True),
     ]  # fmt: skip
     return _table("the paper's Table 1 beside this run", columns, rows)
 
