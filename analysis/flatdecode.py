@@ -141,10 +141,11 @@ def decode_many(layout: FlatLayout, buf: np.ndarray, starts: np.ndarray, lengths
     arena = np.empty(sum(sizes), dtype=np.uint8)
     scratch = np.empty(max([_padded_bytes(n, dtype) for _, _, n, dtype in plan] + [0]), dtype=np.uint8)
     columns: dict[str, np.ndarray] = {}
+    kept: dict[int, np.ndarray] = {}  # per length field: where the real values are in padded rows
     offset = 0
     for (name, at_j, n, dtype), size in zip(plan, sizes, strict=True):
         out = arena[offset : offset + size].view(dtype)
-        _concat_into(out, buf, at_j, n, scratch)
+        _concat_into(out, buf, at_j, n, scratch, kept)
         columns[name] = out.view(dtype.newbyteorder("="))
         offset += size
     return Decoded(ok=ok, scalars=scalars, counts=counts, columns=columns)
@@ -164,13 +165,15 @@ def _padded_bytes(n: np.ndarray, dtype: np.dtype[Any]) -> int:
 
 
 def _concat_into(
-    out: np.ndarray, buf: np.ndarray, at: np.ndarray, n: np.ndarray, scratch: np.ndarray
+    out: np.ndarray, buf: np.ndarray, at: np.ndarray, n: np.ndarray, scratch: np.ndarray,
+    kept: dict[int, np.ndarray],
 ) -> None:
     """Fill `out` (of the wire dtype) with the n[i] values starting at byte at[i], for
     every i, concatenated, then swap it to native byte order in place.
 
-    One opaque row per message, as wide as the longest, read in one take; when the
-    lengths differ, a mask over the padded rows keeps the real values in order."""
+    One opaque row per message, as wide as the longest, read in one fancy index; when
+    the lengths differ, the real values are taken from the padded rows in order (their
+    places computed once per length field: `kept`)."""
     dtype = out.dtype
     if len(out) == 0:
         return
@@ -183,8 +186,10 @@ def _concat_into(
     else:
         rows = scratch[: len(n) * width].view(np.dtype((np.void, width)))
         _rows_into(rows, buf, at, width)
-        keep = (np.arange(widest) < n[:, None]).reshape(-1)
-        np.compress(keep, rows.view(dtype), out=out)
+        if id(n) not in kept:
+            kept[id(n)] = np.flatnonzero((np.arange(widest) < n[:, None]).reshape(-1))
+        # mode="clip" writes `out` directly (np.compress and mode="raise" buffer it: 4x slower)
+        np.take(rows.view(dtype), kept[id(n)], out=out, mode="clip")
     if dtype.byteorder == ">":
         out.byteswap(inplace=True)
 

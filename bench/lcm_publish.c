@@ -2,7 +2,9 @@
  *
  * The baseline for skel-dpu's comm_out: the same message size, published once per
  * period (as a DPU publishes one buffer per cycle, with caches as cold), each call
- * timed with CLOCK_MONOTONIC. Prints "count mean_ns p50_ns p99_ns max_ns".
+ * timed with CLOCK_MONOTONIC. Like a DPU it also listens on the URL (its socket
+ * receives every message on the port) and drains between cycles. Prints
+ * "count mean_ns p50_ns p99_ns max_ns".
  *
  * usage: lcm_publish URL BYTES PERIOD_US COUNT
  */
@@ -18,6 +20,13 @@ static int64_t now_ns(void)
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (int64_t)ts.tv_sec * 1000000000LL + ts.tv_nsec;
+}
+
+static void on_message(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+{
+    (void)rbuf;
+    (void)channel;
+    (void)user;
 }
 
 static int cmp_i64(const void *a, const void *b)
@@ -44,11 +53,17 @@ int main(int argc, char **argv)
         fprintf(stderr, "cannot create LCM on %s or allocate\n", argv[1]);
         return 1;
     }
+    if (lcm_subscribe(lcm, "BENCH_NOTHING", on_message, NULL) == NULL) {
+        fprintf(stderr, "lcm_subscribe failed\n");
+        return 1;
+    }
     int64_t release = now_ns();
     for (long i = 0; i < count; i++) {
         release += period_us * 1000;
         struct timespec ts = { .tv_sec = release / 1000000000LL, .tv_nsec = release % 1000000000LL };
         clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL);
+        while (lcm_handle_timeout(lcm, 0) > 0) {
+        } /* drain, as a DPU does before its inputs */
         memcpy(data, &i, sizeof i); /* a new payload each time, as a DPU's sequence number */
         int64_t t0 = now_ns();
         if (lcm_publish(lcm, "BENCH_BARE_PUBLISH", data, (unsigned)bytes) != 0) {
