@@ -9,6 +9,7 @@ field, not per message, and never one Python object per value.
 
 from __future__ import annotations
 
+import itertools
 import struct
 from dataclasses import dataclass
 from typing import Any
@@ -139,57 +140,85 @@ def decode_many(layout: FlatLayout, buf: np.ndarray, starts: np.ndarray, lengths
     ]
     sizes = [int(n.sum()) * dtype.itemsize for _, _, n, dtype in plan]
     arena = np.empty(sum(sizes), dtype=np.uint8)
-    scratch = np.empty(max([_padded_bytes(n, dtype) for _, _, n, dtype in plan] + [0]), dtype=np.uint8)
+    paddings = {id(n): _Padding.of(n) for n in counts.values() if _unequal(n) and _padded(n)}
+    scratch = np.empty(max([paddings[id(n)].elements * dtype.itemsize for _, _, n, dtype in plan
+                            if id(n) in paddings] + [0]), dtype=np.uint8)
     columns: dict[str, np.ndarray] = {}
-    kept: dict[int, np.ndarray] = {}  # per length field: where the real values are in padded rows
     offset = 0
     for (name, at_j, n, dtype), size in zip(plan, sizes, strict=True):
         out = arena[offset : offset + size].view(dtype)
-        _concat_into(out, buf, at_j, n, scratch, kept)
+        _concat_into(out, buf, at_j, n, scratch, paddings.get(id(n)))
         columns[name] = out.view(dtype.newbyteorder("="))
         offset += size
     return Decoded(ok=ok, scalars=scalars, counts=counts, columns=columns)
 
 
+def _unequal(n: np.ndarray) -> bool:
+    return len(n) > 0 and int(n.min()) != int(n.max())
+
+
 def _padded(n: np.ndarray) -> bool:
-    """Read as rows padded to the longest (else by groups of one length): when padding
-    costs at most as much as the values themselves."""
+    """Read as padded rows (else by groups of one length): when padding every row to
+    the longest would cost at most as much as the values themselves."""
     return len(n) * int(n.max(initial=0)) <= 2 * int(n.sum()) + 4096
 
 
-def _padded_bytes(n: np.ndarray, dtype: np.dtype[Any]) -> int:
-    """Scratch bytes _concat_into needs: padded rows of unequal lengths."""
-    if len(n) == 0 or not _padded(n) or int(n.min()) == int(n.max()):
-        return 0
-    return len(n) * int(n.max()) * dtype.itemsize
+@dataclass(frozen=True)
+class _Padding:
+    """Messages of unequal lengths as padded rows, in a few classes of similar length
+    (by quantile), each padded to its own longest: less padding to copy than one width
+    for all. `kept` = where each real value is, in message order, among all the rows."""
+
+    classes: tuple[tuple[np.ndarray, int, int], ...]  # (members, width, first element)
+    kept: np.ndarray
+    elements: int  # of all the rows
+
+    CLASSES = 4
+
+    @classmethod
+    def of(cls, n: np.ndarray) -> _Padding:
+        order = np.argsort(n, kind="stable")
+        bounds = np.linspace(0, len(n), cls.CLASSES + 1).astype(np.int64).tolist()
+        row_start = np.zeros(len(n), dtype=np.int64)
+        classes = []
+        elements = 0
+        for a, b in itertools.pairwise(bounds):
+            members = np.sort(order[a:b])  # in file order: the reads go forward
+            width = int(n[members].max(initial=0))
+            if width == 0:
+                continue
+            row_start[members] = elements + np.arange(len(members)) * width
+            classes.append((members, width, elements))
+            elements += len(members) * width
+        first = np.cumsum(n) - n
+        kept = np.repeat(row_start - first, n) + np.arange(int(n.sum()))
+        return cls(tuple(classes), kept, elements)
 
 
 def _concat_into(
     out: np.ndarray, buf: np.ndarray, at: np.ndarray, n: np.ndarray, scratch: np.ndarray,
-    kept: dict[int, np.ndarray],
+    padding: _Padding | None,
 ) -> None:
     """Fill `out` (of the wire dtype) with the n[i] values starting at byte at[i], for
     every i, concatenated, then swap it to native byte order in place.
 
-    One opaque row per message, as wide as the longest, read in one fancy index; when
-    the lengths differ, the real values are taken from the padded rows in order (their
-    places computed once per length field: `kept`)."""
+    One opaque row per message read in one fancy index; when the lengths differ, rows
+    are padded (see _Padding) and the real values taken from them in order."""
     dtype = out.dtype
     if len(out) == 0:
         return
-    widest = int(n.max())
-    width = widest * dtype.itemsize
-    if not _padded(n):
+    size = dtype.itemsize
+    if padding is None and _unequal(n):
         _concat_groups(out, buf, at, n)
-    elif int(n.min()) == widest:
+    elif padding is None:
+        width = int(n.max()) * size
         _rows_into(out.view(np.uint8).view(np.dtype((np.void, width))), buf, at, width)
     else:
-        rows = scratch[: len(n) * width].view(np.dtype((np.void, width)))
-        _rows_into(rows, buf, at, width)
-        if id(n) not in kept:
-            kept[id(n)] = np.flatnonzero((np.arange(widest) < n[:, None]).reshape(-1))
+        for members, width, first in padding.classes:
+            rows = scratch[first * size : (first + len(members) * width) * size]
+            _rows_into(rows.view(np.dtype((np.void, width * size))), buf, at[members], width * size)
         # mode="clip" writes `out` directly (np.compress and mode="raise" buffer it: 4x slower)
-        np.take(rows.view(dtype), kept[id(n)], out=out, mode="clip")
+        np.take(scratch[: padding.elements * size].view(dtype), padding.kept, out=out, mode="clip")
     if dtype.byteorder == ">":
         out.byteswap(inplace=True)
 

@@ -202,7 +202,8 @@ def _timing_message(seq: int, n: int, m: int, rng: np.random.Generator) -> bytes
 @pytest.mark.parametrize(
     "shapes",
     [
-        [(64, 100), (64, 150), (64, 3)],  # padded rows; the last (short) one runs past the buffer's end
+        [(64, 100), (64, 150), (64, 3)],  # padded rows of unequal lengths
+        [(64, 100)] * 7 + [(64, 3)],  # the last message is padded past the buffer's end
         [(2, 1), (3, 2), (2, 5000), (1, 1)],  # one long outlier: decoded by groups of equal length
         [(8, 8)] * 5,  # all equal: no mask
         [(0, 0), (4, 0), (0, 0)],  # empty arrays
