@@ -11,6 +11,8 @@ import os
 import re
 import subprocess
 import sys
+import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -86,3 +88,56 @@ def skel(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     assert ASAN_DPU.exists(), f"{ASAN_DPU} missing: run `make test` (it builds it)"
     return subprocess.run([sys.executable, "-m", "skeleton.host.cli", *args], capture_output=True, text=True,
                           timeout=timeout, cwd=REPO, env={**os.environ, "COLUMNS": "160"})
+
+
+class Background:
+    """A process running in the background: its output lines, each with the time it arrived."""
+
+    def __init__(self, proc: subprocess.Popen[str]) -> None:
+        self.proc = proc
+        self.lines: list[tuple[float, str]] = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.append((time.monotonic(), line))
+
+    def wait(self, timeout: float = 60) -> int:
+        code = self.proc.wait(timeout)
+        self._reader.join(5)
+        return code
+
+    @property
+    def output(self) -> str:
+        return "".join(line for _, line in self.lines)
+
+    def first(self, pattern: str) -> tuple[float, re.Match[str]] | None:
+        """When the first line matching `pattern` arrived, and the match."""
+        for when, line in self.lines:
+            match = re.search(pattern, line)
+            if match:
+                return when, match
+        return None
+
+
+def skel_background(*args: str, new_session: bool = False) -> Background:
+    """The real `skel` command line, running in the background."""
+    return Background(subprocess.Popen(
+        [sys.executable, "-m", "skeleton.host.cli", *args], cwd=REPO, text=True,
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=new_session,
+        env={**os.environ, "COLUMNS": "160"}))
+
+
+# A data-synchronised reader of a writer twenty times slower: it locks out.
+LOCKOUT_SYSTEM = """\
+system: lockout
+links: [{name: bus, url: "udpm://239.255.76.67:7667?ttl=0"}]
+dpus: [{id: 1}, {id: 2}]
+buffers: [{id: 1, name: slow_data, bytes: 64}]
+processes:
+  - {id: 1, name: slow_writer, dpu: 1, period_us: 100000, compute_us: 1000, outputs: [1]}
+  - {id: 2, name: hungry_reader, dpu: 2, period_us: 5000, compute_us: 500, sync: data, inputs: [1]}
+run: {duration_s: 3, warmup_cycles: 0, lockout_cycles: 5, stop_on: [lockout]}
+"""

@@ -9,15 +9,11 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import signal
-import subprocess
-import sys
-import threading
 import time
 from pathlib import Path
 
-from conftest import EXAMPLES, REPO, DpuFarm, skel
+from conftest import EXAMPLES, DpuFarm, skel, skel_background
 
 from skeleton.host.control import Control
 
@@ -40,39 +36,6 @@ def _lab(tmp_path: Path) -> str:
     path.write_text(LAB_SYSTEM)
     return str(path)
 
-
-class SkelProcess:
-    """`skel ...` running in the background; its output lines with the time each arrived."""
-
-    def __init__(self, *args: str, new_session: bool = False) -> None:
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "skeleton.host.cli", *args], cwd=REPO, text=True,
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=new_session,
-            env={**os.environ, "COLUMNS": "160"})
-        self.lines: list[tuple[float, str]] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.append((time.monotonic(), line))
-
-    def wait(self, timeout: float = 60) -> int:
-        code = self.proc.wait(timeout)
-        self._reader.join(5)
-        return code
-
-    @property
-    def output(self) -> str:
-        return "".join(line for _, line in self.lines)
-
-    def first(self, pattern: str) -> tuple[float, re.Match[str]] | None:
-        for when, line in self.lines:
-            match = re.search(pattern, line)
-            if match:
-                return when, match
-        return None
 
 
 def _wait_running(url: str, dpu: int, min_cycles: int = 50, timeout_s: float = 20) -> None:
@@ -99,7 +62,7 @@ def test_dpu_killed_mid_run_is_reported_and_the_others_are_analysed(dpus: DpuFar
                                                                       tmp_path: Path) -> None:
     dpus.start(1, 2)
     out = tmp_path / "run"
-    run = SkelProcess("run", _lab(tmp_path), "--url", url, "--duration", "5", "--out", str(out))
+    run = skel_background("run", _lab(tmp_path), "--url", url, "--duration", "5", "--out", str(out))
     _wait_running(url, 1)
     killed = time.monotonic()
     dpus.kill(1)  # SIGKILL: no report, no last status
@@ -149,8 +112,8 @@ def test_host_tool_killed_mid_run_dpus_finish_and_the_logger_keeps_recording(dpu
     dpus.start(1, 2)
     out = tmp_path / "run"
     duration_s = 3.0
-    run = SkelProcess("run", _lab(tmp_path), "--url", url, "--duration", str(duration_s), "--out", str(out),
-                      new_session=True)
+    run = skel_background("run", _lab(tmp_path), "--url", url, "--duration", str(duration_s),
+                          "--out", str(out), new_session=True)
     _wait_running(url, 2, min_cycles=20)
     os.killpg(run.proc.pid, signal.SIGKILL)  # the whole process group, as a closed terminal would
     run.wait()
@@ -173,7 +136,7 @@ def test_host_tool_killed_mid_run_dpus_finish_and_the_logger_keeps_recording(dpu
 def test_dpus_started_before_and_after_the_host_tool(dpus: DpuFarm, url: str, tmp_path: Path) -> None:
     dpus.start(1)  # up before the host tool
     out = tmp_path / "run"
-    run = SkelProcess("run", _lab(tmp_path), "--url", url, "--duration", "1", "--wait-dpus", "15",
+    run = skel_background("run", _lab(tmp_path), "--url", url, "--duration", "1", "--wait-dpus", "15",
                       "--out", str(out))
     time.sleep(2.0)
     assert run.proc.poll() is None, run.output  # still waiting for DPU 2

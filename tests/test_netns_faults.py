@@ -9,13 +9,12 @@ import json
 import re
 import signal
 import subprocess
-import threading
 import time
 from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import EXAMPLES
+from conftest import EXAMPLES, Background
 from netns import Hosts, hosts_fixture
 from test_netns_lab import PORT, URL, Lab, host_overrides, report_json, stop, wait_until
 
@@ -36,32 +35,6 @@ processes:
 run: {duration_s: 4, warmup_cycles: 10, lockout_cycles: 20, stop_on: [jam]}
 """
 
-
-class Background:
-    """A process's output lines, each with the monotonic time it arrived."""
-
-    def __init__(self, proc: subprocess.Popen[str]) -> None:
-        self.proc = proc
-        self.lines: list[tuple[float, str]] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.append((time.monotonic(), line))
-
-    def wait(self, timeout: float = 60) -> int:
-        code = self.proc.wait(timeout)
-        self._reader.join(5)
-        return code
-
-    @property
-    def output(self) -> str:
-        return "".join(line for _, line in self.lines)
-
-    def first(self, pattern: str) -> float | None:
-        return next((when for when, line in self.lines if re.search(pattern, line)), None)
 
 
 def _system(tmp_path: Path, text: str, name: str = "system.yaml") -> str:
@@ -97,7 +70,9 @@ def test_netns_dpu_killed_is_lost_then_restarted_rejoins(netns_four_hosts: Hosts
     killed = time.monotonic()
     victim.wait()
     wait_until(lambda: run.first(r"dpu_lost: DPU 1") is not None, 5, f"no dpu_lost:\n{run.output}")
-    lost_after_s = run.first(r"dpu_lost: DPU 1") - killed  # type: ignore[operator]
+    lost = run.first(r"dpu_lost: DPU 1")
+    assert lost is not None
+    lost_after_s = lost[0] - killed
     print(f"dpu_lost reported {lost_after_s * 1000:.0f} ms after SIGKILL")
     assert lost_after_s < 1.0, run.output
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from conftest import EXAMPLES, skel
+from conftest import EXAMPLES, LOCKOUT_SYSTEM, skel
 
 PAPER_COMPUTE_PCT = {1: 90.3, 2: 73.4, 3: 86.0, 4: 96.5}
 # DPUs 1 and 3 are 86-90 % loaded: after a scheduling hiccup of a shared 2-core machine they
@@ -71,16 +71,6 @@ def test_mismatched_rates_give_stale_and_dropped(tmp_path: Path, url: str) -> No
     assert 0.9 <= slow_reader["dropped"] / slow_reader["new"] <= 1.1, slow_reader
 
 
-LOCKOUT_SYSTEM = """\
-system: lockout
-links: [{name: bus, url: "udpm://239.255.76.67:7667?ttl=0"}]
-dpus: [{id: 1}, {id: 2}]
-buffers: [{id: 1, name: slow_data, bytes: 64}]
-processes:
-  - {id: 1, name: slow_writer, dpu: 1, period_us: 100000, compute_us: 1000, outputs: [1]}
-  - {id: 2, name: hungry_reader, dpu: 2, period_us: 5000, compute_us: 500, sync: data, inputs: [1]}
-run: {duration_s: 3, warmup_cycles: 0, lockout_cycles: 5, stop_on: [lockout]}
-"""
 
 
 def test_lockout_of_a_data_synchronised_reader(tmp_path: Path, url: str) -> None:

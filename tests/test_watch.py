@@ -15,7 +15,7 @@ from pathlib import Path
 import lcm
 import numpy as np
 from analysis_synth import RUN_ID, batches, small_config, small_run, status
-from conftest import EXAMPLES, REPO, skel
+from conftest import EXAMPLES, LOCKOUT_SYSTEM, REPO, skel
 from rich.console import Console
 
 from skeleton.analysis.records import decode_run
@@ -26,16 +26,6 @@ from skeleton.analysis.watch_view import render
 LOGPLAYER = Path(lcm.__file__).parent.parent / "bin" / "lcm-logplayer"
 ENV = {**os.environ, "COLUMNS": "160"}
 
-LOCKOUT_SYSTEM = """\
-system: lockout
-links: [{name: bus, url: "udpm://239.255.76.67:7667?ttl=0"}]
-dpus: [{id: 1}, {id: 2}]
-buffers: [{id: 1, name: slow_data, bytes: 64}]
-processes:
-  - {id: 1, name: slow_writer, dpu: 1, period_us: 100000, compute_us: 1000, outputs: [1]}
-  - {id: 2, name: hungry_reader, dpu: 2, period_us: 5000, compute_us: 500, sync: data, inputs: [1]}
-run: {duration_s: 3, warmup_cycles: 0, lockout_cycles: 5, stop_on: [lockout]}
-"""
 
 
 def _other_url(url: str, shift: int = 20000) -> str:
