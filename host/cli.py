@@ -235,22 +235,29 @@ def cmd_status(args: argparse.Namespace) -> int:
              "faults": v.status.faults, "rejected_messages": v.status.rejected_messages,
              "reject_reason": v.status.reject_reason}
             for i, v in sorted(views.items())]
-    if args.json:
+    done = _json_or_nothing(rows, args.json, f"no DPU heard on {args.url} in {args.wait:g} s")
+    if done is not None:
+        return done
+    table = Table(title=f"DPUs on {args.url}")
+    columns = ("dpu", "host", "pid", "state", "generation", "run_id", "minor_cycles", "faults",
+               "rejected_messages", "reject_reason")
+    for column in columns:
+        table.add_column(column)
+    for row in rows:
+        table.add_row(*(str(row[c]) for c in columns))
+    Console().print(table)
+    return 0
+
+
+def _json_or_nothing(rows: list[dict], as_json: bool, nothing: str) -> int | None:
+    """Print `rows` as JSON, or say that nothing was heard: the exit code; None: print a table."""
+    if as_json:
         print(json.dumps(rows, indent=2))
         return 0
     if not rows:
-        print(f"no DPU heard on {args.url} in {args.wait:g} s")
+        print(nothing)
         return EXIT_FAILED
-    table = Table(title=f"DPUs on {args.url}")
-    for column in ("dpu", "host", "pid", "state", "generation", "run_id", "minor_cycles", "faults",
-                   "rejected_messages", "reject_reason"):
-        table.add_column(column)
-    for row in rows:
-        table.add_row(*(str(row[c]) for c in (
-            "dpu", "host", "pid", "state", "generation", "run_id", "minor_cycles", "faults",
-            "rejected_messages", "reject_reason")))
-    Console().print(table)
-    return 0
+    return None
 
 
 def cmd_clock(args: argparse.Namespace) -> int:
@@ -269,12 +276,10 @@ def cmd_clock(args: argparse.Namespace) -> int:
     finally:
         control.close()
     rows = [e.to_json() for _, e in sorted(found.items())]
-    if args.json:
-        print(json.dumps(rows, indent=2))
-        return 0
-    if not rows:
-        print(f"no DPU heard on {args.url} in {args.wait:g} s (or none answered the pings)")
-        return EXIT_FAILED
+    done = _json_or_nothing(rows, args.json,
+                            f"no DPU heard on {args.url} in {args.wait:g} s (or none answered the pings)")
+    if done is not None:
+        return done
     table = Table(title=f"clock offsets on {args.url} (DPU - host, best of {args.samples})")
     for column in ("dpu", "offset", "round trip"):
         table.add_column(column, justify="right")
