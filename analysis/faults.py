@@ -67,25 +67,27 @@ def lockout_faults(lockouts: dict[int, Lockout], config: Any) -> list[Fault]:
     faults = []
     for proc in sorted(lockouts):
         lock = lockouts[proc]
-        buf = buffers.get(lock.buffer) if lock.buffer is not None else None
         if lock.buffer is not None:
             detail = f"waits on {_bname(buffers, lock.buffer)}"
         elif lock.known_wait:
             detail = "not waiting for data: its DPU cannot run it"
         else:
             detail = "flagged in the timing records (no status_t)"
-        faults.append(
-            Fault(
-                kind="lockout",
-                process=names.get(proc, f"process {proc}"),
-                dpu=dpus.get(proc),
-                buffer=None if lock.buffer is None else _bname(buffers, lock.buffer),
-                writer=None if buf is None else names.get(buf.writer, f"process {buf.writer}"),
-                cycle=lock.cycle,
-                detail=detail,
-            )
-        )
+        faults.append(Fault(kind="lockout", detail=detail, **_where(proc, lock, names, dpus, buffers)))
     return faults
+
+
+def _where(proc: int, lock: Lockout, names: dict[int, str], dpus: dict[int, int],
+           buffers: dict[int, Any]) -> dict[str, Any]:
+    """A locked-out process's fault fields: who, where, what it waits on and from whom."""
+    buf = buffers.get(lock.buffer) if lock.buffer is not None else None
+    return {
+        "process": names.get(proc, f"process {proc}"),
+        "dpu": dpus.get(proc),
+        "buffer": None if lock.buffer is None else _bname(buffers, lock.buffer),
+        "writer": None if buf is None else names.get(buf.writer, f"process {buf.writer}"),
+        "cycle": lock.cycle,
+    }
 
 
 def jam_faults(lockouts: dict[int, Lockout], config: Any) -> list[Fault]:
@@ -127,16 +129,10 @@ def jam_faults(lockouts: dict[int, Lockout], config: Any) -> list[Fault]:
         else:
             load = static_load_pct(config, dpus.get(root, -1))
             cause = f"DPU {dpus.get(root)} overloaded (static load {load:.1f} %): {names.get(root)} can't run"
-        lock = lockouts[head]
-        buf = buffers[lock.buffer] if lock.buffer is not None else None
         faults.append(
             Fault(
                 kind="jam",
-                process=names.get(head, f"process {head}"),
-                dpu=dpus.get(head),
-                buffer=None if lock.buffer is None else _bname(buffers, lock.buffer),
-                writer=None if buf is None else names.get(buf.writer),
-                cycle=lock.cycle,
+                **_where(head, lockouts[head], names, dpus, buffers),
                 chain=[names.get(p, f"process {p}") for p in chain],
                 detail=cause,
                 static_load_pct=load,
