@@ -66,7 +66,7 @@ def warnings(system: System) -> list[str]:
             out.append(f"DPU {d.id}: static load {100 * load_by_dpu[d.id]:.1f} % exceeds 100 %: "
                        "it will overrun every cycle; a lockout is likely")
     out += _core_warnings(system, load_by_dpu)
-    out += _warmup_warnings(system)
+    out += warmup_warnings(system)
     return out
 
 
@@ -92,8 +92,9 @@ def _core_warnings(system: System, load_by_dpu: dict[int, float]) -> list[str]:
     return out
 
 
-def _warmup_warnings(system: System) -> list[str]:
-    run_ns = system.run_duration_ns()
+def warmup_warnings(system: System, run_ns: int | None = None) -> list[str]:
+    """Processes whose warm-up fills the run (`run_ns`, default the file's run length)."""
+    run_ns = system.run_duration_ns() if run_ns is None else run_ns
     out: list[str] = []
     for p in system.processes:
         warmup_ns = system.run.warmup_cycles * p.period_us * 1000

@@ -31,6 +31,7 @@ import skelmsg
 from skeleton.analysis.report import LogError, analyze
 from skeleton.analysis.tables import print_report
 from skeleton.host import spawn
+from skeleton.host.check import warmup_warnings
 from skeleton.host.clock import ClockKeeper
 from skeleton.host.control import Control, PushResult
 from skeleton.host.system import System
@@ -78,6 +79,8 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
     url = control_url(system)
     dpu_ids = sorted(d.id for d in system.dpus)
     duration_ns = system.run_duration_ns(options.cycles, options.duration_s)
+    for warning in warmup_warnings(system, duration_ns):
+        console.print(f"[yellow]WARN[/] {warning}")
     # From the logger's start: first event, clock estimate, START lead, the run, the reports, a margin.
     logger_deadline_s = (LOGGER_READY_S + 1.0 + START_LEAD_S + duration_ns / 1e9 + REPORT_GRACE_S
                          + LOGGER_MARGIN_S)

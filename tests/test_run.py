@@ -126,3 +126,13 @@ def test_push_reconfigures_running_dpus_without_restart(tmp_path: Path, url: str
         assert pids_after == pids_before
     finally:
         assert skel("down", "--url", url).returncode == 0
+
+
+def test_run_warns_when_a_process_would_stay_in_warm_up(tmp_path: Path, url: str) -> None:
+    run = skel("run", str(EXAMPLES / "servo.yaml"), "--spawn", "--url", url, "--cycles", "100",
+               "-s", "run.warmup_cycles=50", "-s", "run.lockout_cycles=40", "--out", str(tmp_path / "r"))
+    assert run.returncode == 0, run.stdout + run.stderr
+    # 50 cycles of 23.8 ms outlast a 0.5 s run: DPU 4's processes are never measured.
+    for name in ("dynamics", "gravity_comp", "jacobian_update"):
+        assert f"WARN process {name}: its warm-up" in run.stdout, run.stdout
+    assert "WARN process executor" not in run.stdout
