@@ -1,5 +1,6 @@
-"""timing_t batches -> one structured array of process-cycle records and one of input
-records, for one run; lost batches from batch_seq gaps.
+"""timing_t batches -> one table of process-cycle records and one of input records
+(coltable.ColumnTable: columns, read like structured arrays of RECORD_DTYPE and
+INPUT_DTYPE), for one run; lost batches from batch_seq gaps.
 
 Works on raw message bytes, so a log, a replay and a live subscription all use it.
 """
@@ -13,6 +14,7 @@ import numpy as np
 
 import skelmsg
 
+from .coltable import ColumnTable
 from .flatdecode import FlatLayout, decode_heads, decode_many
 from .logreader import Log
 
@@ -57,8 +59,8 @@ class RunRecords:
     """Every timing record of one run."""
 
     run_id: int
-    records: np.ndarray  # RECORD_DTYPE, in arrival order
-    inputs: np.ndarray  # INPUT_DTYPE
+    records: ColumnTable  # fields of RECORD_DTYPE, in arrival order
+    inputs: ColumnTable  # fields of INPUT_DTYPE
     batches: int  # distinct batches decoded
     generations: list[int]
     lost_batches: list[dict[str, int]] = field(default_factory=list)
@@ -141,7 +143,7 @@ def decode_timing(
     if len(keep) < len(table):
         cols, table = _select(cols, table, keep)
     records = _records(cols, table)
-    inputs = _inputs(cols, table, records)
+    inputs = _inputs(cols, table)
     return RunRecords(
         run_id=run_id,
         records=records,
@@ -166,51 +168,53 @@ def _select(
 
 
 def _bad_inputs(cols: dict[str, np.ndarray], table: np.ndarray) -> np.ndarray:
-    """Batches with an in_record outside their own records."""
-    if not len(table):
+    """Batches with an in_record outside their own records (from each batch's
+    smallest and largest in_record: no per-input temporaries)."""
+    counts, ninputs = table[:, 3], table[:, 4]
+    has = np.flatnonzero(ninputs > 0)
+    if not len(has):
         return np.zeros(0, dtype=np.int64)
-    batch = np.repeat(np.arange(len(table)), table[:, 4])
     rec = cols["in_record"]
-    return np.unique(batch[(rec < 0) | (rec >= table[batch, 3])])
+    first = (np.cumsum(ninputs) - ninputs)[has]
+    low = np.minimum.reduceat(rec, first)
+    high = np.maximum.reduceat(rec, first)
+    return has[(low < 0) | (high >= counts[has])].astype(np.int64)
 
 
-def _records(cols: dict[str, np.ndarray], table: np.ndarray) -> np.ndarray:
-    total = int(table[:, 3].sum()) if len(table) else 0
-    records = np.empty(total, dtype=RECORD_DTYPE)
-    if total == 0:
-        return records
+def _records(cols: dict[str, np.ndarray], table: np.ndarray) -> ColumnTable:
+    """The decoder's columns as they are (cast only where the wire type differs)."""
     counts = table[:, 3]
-    records["dpu"] = np.repeat(table[:, 0], counts)
-    records["generation"] = np.repeat(table[:, 1], counts)
-    records["batch_seq"] = np.repeat(table[:, 2], counts)
-    records["process"] = cols["process"]
-    records["flags"] = cols["flags"]
-    for name in _CYCLE_FIELDS:
-        records[name] = cols[name]
-    return records
+    out = {
+        "dpu": np.repeat(table[:, 0].astype(RECORD_DTYPE["dpu"]), counts),
+        "process": cols["process"],
+        "generation": np.repeat(table[:, 1], counts),
+        "batch_seq": np.repeat(table[:, 2], counts),
+        **{name: cols[name] for name in _CYCLE_FIELDS},
+        "flags": cols["flags"],
+    }
+    return ColumnTable.of(out, RECORD_DTYPE)
 
 
-def _inputs(cols: dict[str, np.ndarray], table: np.ndarray, records: np.ndarray) -> np.ndarray:
-    total = int(table[:, 4].sum()) if len(table) else 0
-    inputs = np.empty(total, dtype=INPUT_DTYPE)
-    if total == 0:
-        return inputs
+def _inputs(cols: dict[str, np.ndarray], table: np.ndarray) -> ColumnTable:
+    if not len(table) or not len(cols["in_record"]):
+        return ColumnTable.empty(INPUT_DTYPE)
     # in_record is relative to its batch: add the batch's first record index.
-    first_record = np.concatenate([[0], np.cumsum(table[:, 3])[:-1]])
+    first_record = np.cumsum(table[:, 3]) - table[:, 3]
     index = np.repeat(first_record, table[:, 4]) + cols["in_record"]
-    inputs["record"] = index
-    # From the contiguous columns, not the structured records (strided, slower to index).
-    inputs["dpu"] = np.repeat(table[:, 0], table[:, 4])
-    inputs["process"] = cols["process"][index]
-    inputs["cycle"] = cols["cycle"][index]
-    inputs["buffer"] = cols["in_buffer"]
-    inputs["seq"] = cols["in_seq"]
-    inputs["new"] = cols["in_new"]
-    inputs["dropped"] = cols["in_dropped"]
-    inputs["received"] = cols["in_received"]
-    inputs["sent_ns"] = cols["in_sent_ns"]
-    inputs["recv_ns"] = cols["in_recv_ns"]
-    return inputs
+    out = {
+        "record": index,
+        "dpu": np.repeat(table[:, 0].astype(INPUT_DTYPE["dpu"]), table[:, 4]),
+        "process": cols["process"][index],
+        "cycle": cols["cycle"][index],
+        "buffer": cols["in_buffer"],
+        "seq": cols["in_seq"],
+        "new": cols["in_new"],
+        "dropped": cols["in_dropped"],
+        "received": cols["in_received"],
+        "sent_ns": cols["in_sent_ns"],
+        "recv_ns": cols["in_recv_ns"],
+    }
+    return ColumnTable.of(out, INPUT_DTYPE)
 
 
 def lost_batches(

@@ -24,6 +24,7 @@ from rich.live import Live
 
 import skelmsg
 
+from .coltable import ColumnTable
 from .records import INPUT_DTYPE, RECORD_DTYPE, TIMING_CHANNEL, RunRecords, decode_run, lost_batches
 from .report import (
     CLOCK_CHANNEL,
@@ -59,8 +60,8 @@ class RecordStore:
 
     def __init__(self, run_id: int) -> None:
         self.run_id = run_id
-        self.records = np.empty(4096, dtype=RECORD_DTYPE)
-        self.inputs = np.empty(8192, dtype=INPUT_DTYPE)
+        self.records = {name: np.empty(4096, dtype=RECORD_DTYPE[name]) for name in RECORD_DTYPE.names or ()}
+        self.inputs = {name: np.empty(8192, dtype=INPUT_DTYPE[name]) for name in INPUT_DTYPE.names or ()}
         self.n_records = 0
         self.n_inputs = 0
         self.batch_keys: set[tuple[int, int]] = set()
@@ -98,8 +99,8 @@ class RecordStore:
     def run(self, expected_batches: dict[int, int] | None = None) -> RunRecords:
         return RunRecords(
             run_id=self.run_id,
-            records=self.records[: self.n_records],
-            inputs=self.inputs[: self.n_inputs],
+            records=ColumnTable({k: v[: self.n_records] for k, v in self.records.items()}, RECORD_DTYPE),
+            inputs=ColumnTable({k: v[: self.n_inputs] for k, v in self.inputs.items()}, INPUT_DTYPE),
             batches=len(self.batch_keys),
             generations=sorted(self.generations),
             lost_batches=lost_batches(
@@ -111,15 +112,21 @@ class RecordStore:
         )
 
 
-def _append(array: np.ndarray, used: int, rows: np.ndarray) -> tuple[np.ndarray, int]:
-    """Append rows, doubling the capacity when full (amortised O(1) per row)."""
+def _append(
+    columns: dict[str, np.ndarray], used: int, rows: ColumnTable
+) -> tuple[dict[str, np.ndarray], int]:
+    """Append rows, doubling the capacity when full (amortised O(1) per row). Rows
+    below `used` are never written again, so earlier snapshots (views) stay valid."""
     need = used + len(rows)
-    if need > len(array):
-        grown = np.empty(max(need, 2 * len(array)), dtype=array.dtype)
-        grown[:used] = array[:used]
-        array = grown
-    array[used:need] = rows
-    return array, need
+    out = {}
+    for name, array in columns.items():
+        if need > len(array):
+            grown = np.empty(max(need, 2 * len(array)), dtype=array.dtype)
+            grown[:used] = array[:used]
+            array = grown
+        array[used:need] = rows[name]
+        out[name] = array
+    return out, need
 
 
 @dataclass

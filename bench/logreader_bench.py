@@ -65,8 +65,11 @@ def write_log(path: Path, records: int, with_buffers: bool) -> None:
 
 
 def ours(path: Path) -> dict[str, np.ndarray]:
-    """Up to records.RunRecords: the structured arrays the metrics take."""
+    """Up to records.RunRecords: the record and input tables the metrics take, every
+    column of both in hand (not only the two compared)."""
     run = load_run(read_log(path))
+    columns = [table[name] for table in (run.records, run.inputs) for name in table.names]
+    assert all(isinstance(c, np.ndarray) for c in columns)
     return {"start_ns": run.records["start_ns"], "in_seq": run.inputs["seq"]}
 
 

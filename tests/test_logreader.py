@@ -13,7 +13,7 @@ import skelmsg
 from skeleton.analysis import logreader
 from skeleton.analysis.flatdecode import FlatLayout
 from skeleton.analysis.logreader import SYNC_BYTES, encode_events, read_bytes, read_log
-from skeleton.analysis.records import TIMING, decode_run, load_run, run_ids
+from skeleton.analysis.records import INPUT_DTYPE, RECORD_DTYPE, TIMING, decode_run, load_run, run_ids
 
 
 @pytest.fixture(params=["walk", "scan"], autouse=True)
@@ -234,3 +234,66 @@ def test_sync_words_inside_data_are_not_events(tmp_path: Path, walk_mode: str) -
     assert not log.integrity.damaged
     if walk_mode == "scan":
         assert logreader._many_small_events(memoryview(path.read_bytes()), path.stat().st_size)
+
+
+def _structured(msgs: list[bytes], run_id: int) -> tuple[np.ndarray, np.ndarray]:
+    """The records and inputs as the structured arrays they were before columns, built
+    with the generated decoder message by message: first good copy of each batch."""
+    seen: set[tuple[int, int]] = set()
+    recs: list[tuple[int, ...]] = []
+    ins: list[tuple[int, ...]] = []
+    for data in msgs:
+        try:
+            t = skelmsg.timing_t.decode(data)
+        except Exception:
+            continue
+        if t.run_id != run_id or (t.dpu, t.batch_seq) in seen or any(not 0 <= r < t.n for r in t.in_record):
+            continue
+        seen.add((t.dpu, t.batch_seq))
+        base = len(recs)
+        for i in range(t.n):
+            recs.append((t.dpu, t.process[i], t.generation, t.batch_seq, t.cycle[i], t.minor[i],
+                         t.release_ns[i], t.start_ns[i], t.comm_in_ns[i], t.blocked_ns[i], t.compute_ns[i],
+                         t.comm_out_ns[i], t.idle_ns[i], t.slack_ns[i], t.flags[i]))  # fmt: skip
+        for j, r in enumerate(t.in_record):
+            ins.append((base + r, t.dpu, t.process[r], t.cycle[r], t.in_buffer[j], t.in_seq[j], t.in_new[j],
+                        t.in_dropped[j], t.in_received[j], t.in_sent_ns[j], t.in_recv_ns[j]))  # fmt: skip
+    return np.array(recs, dtype=RECORD_DTYPE), np.array(ins, dtype=INPUT_DTYPE)
+
+
+def test_run_records_equal_the_structured_arrays_field_by_field(tmp_path: Path) -> None:
+    rng = np.random.default_rng(5)
+    msgs = [_timing_message(seq, n, m if n else 0, rng) for seq, (n, m) in
+            enumerate([(64, 100), (64, 150), (3, 2), (0, 0), (64, 3), (5, 5000), (1, 1)])]  # fmt: skip
+    bad = skelmsg.timing_t.decode(msgs[2])
+    bad.in_record = [7] * bad.ninputs  # outside its batch: malformed, dropped
+    msgs[2] = bad.encode()
+    msgs += [msgs[1], msgs[4][:-3], b"junk"]  # a duplicate, a cut one, garbage
+    log = read_log(write_log(tmp_path / "t.lcm", [("SKEL_TIMING", m) for m in msgs]))
+    for run in (load_run(log), decode_run(msgs, RUN_ID)):
+        want_recs, want_ins = _structured(msgs, RUN_ID)
+        assert run.malformed == 3 and run.duplicates == 1 and len(run.records) == len(want_recs) > 100
+        for got, want in ((run.records, want_recs), (run.inputs, want_ins)):
+            assert got.dtype == want.dtype and len(got) == len(want)
+            for name in want.dtype.names:
+                assert got[name].dtype == want[name].dtype, name
+                assert np.array_equal(got[name], want[name]), name
+            as_array = np.asarray(got)
+            assert as_array.dtype == want.dtype and np.array_equal(as_array, want)
+            # What the callers do with a table behaves as it did on the structured array.
+            mask = want["process"] % 3 == 0
+            assert np.array_equal(np.asarray(got[mask]), want[mask])
+            idx = np.flatnonzero(mask)[::-1]
+            assert np.array_equal(np.asarray(got[idx][2:9]), want[idx][2:9])
+            assert np.array_equal(np.asarray(got[mask][idx[: mask.sum()] % max(1, mask.sum())]),
+                                  want[mask][idx[: mask.sum()] % max(1, mask.sum())])  # fmt: skip
+            assert got[-1] == want[-1] and got[3]["cycle"] == want[3]["cycle"]
+            assert [r["process"] for r in got][:50] == [r["process"] for r in want][:50]
+            copy = got[mask].copy()
+            copy["cycle"] = -1
+            assert np.array_equal(got["cycle"], want["cycle"]) and (copy["cycle"] == -1).all()
+            assert len(got[np.zeros(len(want), dtype=bool)]) == 0 and len(got[[]]) == 0
+            with pytest.raises(IndexError):
+                got[np.array([len(want)])]
+            with pytest.raises(IndexError):
+                got[np.ones(len(want) + 1, dtype=bool)]
