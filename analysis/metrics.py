@@ -139,12 +139,25 @@ def _utilization(mine: np.ndarray) -> tuple[float | None, float | None, float | 
     """(% compute, % communicate, % wait, % overhead) of one DPU's measured records.
 
     Partial (skipped) cycles count: the DPU really spent that time."""
-    elapsed = _elapsed_ns(mine)
-    if elapsed is None or elapsed <= 0:
+    return utilization_pct(
+        int(mine["compute_ns"].sum()),
+        int(mine["comm_in_ns"].sum() + mine["comm_out_ns"].sum()),
+        int(mine["blocked_ns"].sum() + mine["idle_ns"].sum()),
+        _elapsed_ns(mine),
+    )
+
+
+def utilization_pct(
+    compute_ns: int, communicate_ns: int, wait_ns: int, elapsed_ns: int | None
+) -> tuple[float | None, float | None, float | None, float | None]:
+    """The paper's Table 1 figures from a DPU's sums: (% compute, % communicate, % wait,
+    % overhead), overhead being the remainder so the four sum to 100. Also used on the
+    DPUs' own report_t totals when no log is at hand."""
+    if elapsed_ns is None or elapsed_ns <= 0:
         return None, None, None, None
-    compute = 100.0 * int(mine["compute_ns"].sum()) / elapsed
-    communicate = 100.0 * int(mine["comm_in_ns"].sum() + mine["comm_out_ns"].sum()) / elapsed
-    wait = 100.0 * int(mine["blocked_ns"].sum() + mine["idle_ns"].sum()) / elapsed
+    compute = 100.0 * compute_ns / elapsed_ns
+    communicate = 100.0 * communicate_ns / elapsed_ns
+    wait = 100.0 * wait_ns / elapsed_ns
     return compute, communicate, wait, 100.0 - compute - communicate - wait
 
 

@@ -28,6 +28,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 import skelmsg
+from skeleton.analysis.metrics import utilization_pct
 from skeleton.analysis.report import LogError, analyze
 from skeleton.analysis.tables import print_report
 from skeleton.host import spawn
@@ -276,12 +277,11 @@ def _external_summary(console: Console, out: Path, run_id: int, dpu_ids: list[in
         if rep is None:
             rows.append({"dpu": dpu, "reported": False})
             continue
-        elapsed = max(rep.elapsed_ns, 1)
+        compute, communicate, wait, _ = utilization_pct(rep.compute_ns, rep.communicate_ns,
+                                                        rep.wait_ns, rep.elapsed_ns)
         rows.append({"dpu": dpu, "reported": True, "generation": rep.generation,
                      "minor_cycles": rep.minor_cycles, "elapsed_s": rep.elapsed_ns / 1e9,
-                     "compute_pct": 100 * rep.compute_ns / elapsed,
-                     "communicate_pct": 100 * rep.communicate_ns / elapsed,
-                     "wait_pct": 100 * rep.wait_ns / elapsed,
+                     "compute_pct": compute, "communicate_pct": communicate, "wait_pct": wait,
                      "overruns": sum(p.overruns for p in rep.processes),
                      "locked_out": sorted(p.process for p in rep.processes if p.locked_out),
                      "faults": rep.faults})
@@ -297,8 +297,8 @@ def _external_summary(console: Console, out: Path, run_id: int, dpu_ids: list[in
             if not row["reported"]:
                 table.add_row(str(row["dpu"]), "[red]no report[/]", "", "", "", "", "")
                 continue
-            table.add_row(str(row["dpu"]), str(row["minor_cycles"]), f"{row['compute_pct']:.1f}",
-                          f"{row['communicate_pct']:.1f}", f"{row['wait_pct']:.1f}", str(row["overruns"]),
+            table.add_row(str(row["dpu"]), str(row["minor_cycles"]), _pct(row["compute_pct"]),
+                          _pct(row["communicate_pct"]), _pct(row["wait_pct"]), str(row["overruns"]),
                           ", ".join(map(str, row["locked_out"])) or "-")
         console.print(table)
         console.print(f"the run was recorded by the external logger: `skel report LOG --run-id {run_id}` "
@@ -307,6 +307,10 @@ def _external_summary(console: Console, out: Path, run_id: int, dpu_ids: list[in
     if any(r.get("faults", 0) & fatal or r.get("locked_out") for r in rows):
         return EXIT_FATAL_FLAW
     return EXIT_FAILED if lost or not all(r["reported"] for r in rows) else EXIT_OK
+
+
+def _pct(value: float | None) -> str:
+    return "-" if value is None else f"{value:.1f}"
 
 
 def _print_push_failure(console: Console, pushed: PushResult) -> None:
