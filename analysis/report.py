@@ -19,7 +19,7 @@ import skelmsg
 from .chains import ChainMetrics
 from .faults import Fault, lockouts_from_status
 from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets
-from .logreader import Integrity, Log, read_log
+from .logreader import Integrity, Log, open_log
 from .metrics import DpuMetrics, ProcessMetrics, measured
 from .records import RunRecords, load_run, run_ids
 from .windows import WindowReport, build_window, split_lockouts, window_records
@@ -192,14 +192,7 @@ def _cross_check(records: np.ndarray, config: Any, reports: Sequence[Any]) -> li
 def analyze(log_path: str | os.PathLike[str], run_id: int | None = None) -> RunReport:
     """Analyse one run (default: the last run with timing records) from the log alone."""
     try:
-        if os.fspath(log_path).endswith(".mcap"):
-            # An MCAP from `skel export` holds the same events: rebuild the log from it. Imported
-            # here because mcapsource -> export_mcap -> rundata -> report would be circular.
-            from .mcapsource import read_as_log
-
-            log = read_as_log(log_path)
-        else:
-            log = read_log(log_path)
+        log = open_log(log_path)
     except OSError as e:
         raise LogError(e.strerror or str(e)) from e
     return analyze_log(log, run_id)

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -25,7 +24,7 @@ import skelmsg
 
 from .flatdecode import decode_heads
 from .latency import ClockOffsets
-from .logreader import Log, read_log
+from .logreader import Log, open_log
 from .records import TIMING, TIMING_CHANNEL, RunRecords, load_run
 from .report import (
     CLOCK_CHANNEL,
@@ -58,15 +57,6 @@ class RunData:
 
     def process_names(self) -> dict[int, str]:
         return {p.id: p.name for p in self.config.processes}
-
-
-def open_log(path: str | os.PathLike[str]) -> Log:
-    """An LCM log, or an MCAP written by `skel export` served as one. OSError when unreadable."""
-    if Path(path).suffix == ".mcap":
-        from .mcapsource import read_as_log
-
-        return read_as_log(path)
-    return read_log(path)
 
 
 def load_run_data(path: str | os.PathLike[str], run_id: int | None = None) -> RunData:
