@@ -189,13 +189,17 @@ def _cross_check(records: np.ndarray, config: Any, reports: Sequence[Any]) -> li
     return out
 
 
-def analyze(log_path: str | os.PathLike[str], run_id: int | None = None) -> RunReport:
-    """Analyse one run (default: the last run with timing records) from the log alone."""
+def read_run_log(log_path: str | os.PathLike[str]) -> Log:
+    """The log (or exported MCAP) of a run; LogError, one line for the user, when unreadable."""
     try:
-        log = open_log(log_path)
+        return open_log(log_path)
     except OSError as e:
         raise LogError(e.strerror or str(e)) from e
-    return analyze_log(log, run_id)
+
+
+def analyze(log_path: str | os.PathLike[str], run_id: int | None = None) -> RunReport:
+    """Analyse one run (default: the last run with timing records) from the log alone."""
+    return analyze_log(read_run_log(log_path), run_id)
 
 
 def analyze_log(log: Log, run_id: int | None = None) -> RunReport:

@@ -24,7 +24,7 @@ import skelmsg
 
 from .flatdecode import decode_heads
 from .latency import ClockOffsets
-from .logreader import Log, open_log
+from .logreader import Log
 from .records import TIMING, TIMING_CHANNEL, RunRecords, load_run
 from .report import (
     CLOCK_CHANNEL,
@@ -34,6 +34,7 @@ from .report import (
     LogError,
     RunReport,
     analyze_log,
+    read_run_log,
 )
 
 
@@ -61,11 +62,7 @@ class RunData:
 
 def load_run_data(path: str | os.PathLike[str], run_id: int | None = None) -> RunData:
     """Raises LogError (one line for the user) when the file cannot be analysed."""
-    try:
-        log = open_log(path)
-    except OSError as e:
-        raise LogError(e.strerror or str(e)) from e
-    return run_data(log, run_id)
+    return run_data(read_run_log(path), run_id)
 
 
 def run_data(log: Log, run_id: int | None = None) -> RunData:
