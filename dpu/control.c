@@ -94,8 +94,8 @@ static void control_finish_run(skel_control_t *c)
     for (int i = 0; s->verbose && s->plan != NULL && i < s->plan->nprocesses; i++) {
         const skel_process_t *p = &s->plan->processes[i];
         skel_log("DPU %d:   process %d: %lld measured cycles, %lld overruns, max latency %lld us%s",
-                 s->dpu_id, p->id, (long long)p->cycles, (long long)p->overruns,
-                 (long long)(p->max_latency_ns / 1000), p->locked_out ? ", LOCKED OUT" : "");
+                 s->dpu_id, p->id, (long long)p->sums.cycles, (long long)p->sums.overruns,
+                 (long long)(p->sums.max_latency_ns / 1000), p->locked_out ? ", LOCKED OUT" : "");
     }
     c->status_due = 1;
     if (apply) control_apply(c);

@@ -204,6 +204,12 @@ int link_drain(skel_link_t *links, int nlinks);
 int link_wait(skel_link_t *links, int nlinks, int wake_fd, int timeout_ms);
 
 /* ---- plan (plan.c, config.c): one DPU's part of a config, ready to run ---------- */
+/* One process's totals over the measured window (report_t's process_report_t);
+ * a live switch carries them over whole. */
+typedef struct {
+    int64_t cycles, overruns, compute_ns, communicate_ns, wait_ns, max_latency_ns;
+} skel_process_sums_t;
+
 typedef struct {
     int16_t id;
     int16_t order;
@@ -218,7 +224,7 @@ typedef struct {
     int64_t k_base;            /* cycle index of this plan's first cycle (live switch: carried) */
     int64_t measure_from_k;    /* cycles >= this count in the sums (warm-up applied once) */
     int8_t locked_out;
-    int64_t cycles, overruns, compute_sum, communicate_sum, wait_sum, max_latency_ns;
+    skel_process_sums_t sums;
 } skel_process_t;
 
 typedef struct {

@@ -51,7 +51,7 @@ static void executive_account(skel_plan_t *plan, skel_process_t *p, const skel_r
                               int64_t release, int64_t end)
 {
     skel_dpu_sums_t *d = &plan->sums;
-    if (rec->cycle >= p->measure_from_k) p->wait_sum += rec->idle_ns;
+    if (rec->cycle >= p->measure_from_k) p->sums.wait_ns += rec->idle_ns;
     if (release < plan->measure_from_ns) return;
     if (d->first_release_ns < 0) d->first_release_ns = release;
     d->end_ns = end + rec->idle_ns;

@@ -198,8 +198,7 @@ void plan_reset_run(skel_plan_t *plan, int64_t run_id)
         p->k_base = 0;
         p->measure_from_k = plan->warmup_cycles;
         p->locked_out = 0;
-        p->cycles = p->overruns = p->compute_sum = p->communicate_sum = p->wait_sum = 0;
-        p->max_latency_ns = 0;
+        p->sums = (skel_process_sums_t){ 0 };
     }
     plan->publish_errors = 0;
     plan->run_t0_ns = plan->epoch_t0_ns = 0;

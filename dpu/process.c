@@ -159,12 +159,13 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
         server_fault(x->s, SKELMSG_STATUS_T_FAULT_OVERRUN);
     }
     if (measured) {
-        p->cycles++;
-        p->overruns += rec->slack_ns < 0;
-        p->compute_sum += rec->compute_ns;
-        p->communicate_sum += rec->comm_in_ns + rec->comm_out_ns;
-        p->wait_sum += rec->blocked_ns;
-        if (start - release > p->max_latency_ns) p->max_latency_ns = start - release;
+        skel_process_sums_t *sum = &p->sums;
+        sum->cycles++;
+        sum->overruns += rec->slack_ns < 0;
+        sum->compute_ns += rec->compute_ns;
+        sum->communicate_ns += rec->comm_in_ns + rec->comm_out_ns;
+        sum->wait_ns += rec->blocked_ns;
+        if (start - release > sum->max_latency_ns) sum->max_latency_ns = start - release;
     }
     return PROCESS_DONE;
 }

@@ -43,12 +43,12 @@ void report_status_fill(skel_server_t *s, skelmsg_status_t *st, skelmsg_lockout_
 static void report_fill_process(skelmsg_process_report_t *r, const skel_process_t *p)
 {
     r->process = p->id;
-    r->cycles = p->cycles;
-    r->overruns = p->overruns;
-    r->compute_ns = p->compute_sum;
-    r->communicate_ns = p->communicate_sum;
-    r->wait_ns = p->wait_sum;
-    r->max_latency_ns = p->max_latency_ns;
+    r->cycles = p->sums.cycles;
+    r->overruns = p->sums.overruns;
+    r->compute_ns = p->sums.compute_ns;
+    r->communicate_ns = p->sums.communicate_ns;
+    r->wait_ns = p->sums.wait_ns;
+    r->max_latency_ns = p->sums.max_latency_ns;
     r->locked_out = p->locked_out;
     r->ninputs = (int16_t)p->ninputs;
     for (int q = 0; q < p->ninputs; q++) {

@@ -103,19 +103,13 @@ static void swap_carry_process(skel_plan_t *next, skel_process_t *p, const skel_
     int i = plan_process_index(old, p->id);
     const skel_process_t *o = i >= 0 ? &old->processes[i] : NULL;
     p->locked_out = 0;
-    p->cycles = p->overruns = p->compute_sum = p->communicate_sum = p->wait_sum = 0;
-    p->max_latency_ns = 0;
+    p->sums = (skel_process_sums_t){ 0 };
     if (o != NULL) {
         /* Releases of the old plan before the boundary: minors 0 .. j_sw-1. */
         p->k_base = o->k_base + swap_ceil_div(j_sw, o->ratio);
         p->measure_from_k = o->measure_from_k;
         p->locked_out = o->locked_out;
-        p->cycles = o->cycles;
-        p->overruns = o->overruns;
-        p->compute_sum = o->compute_sum;
-        p->communicate_sum = o->communicate_sum;
-        p->wait_sum = o->wait_sum;
-        p->max_latency_ns = o->max_latency_ns;
+        p->sums = o->sums;
     } else {
         p->k_base = swap_ceil_div(t_sw - next->run_t0_ns, p->period_ns);
         int64_t warm = next->measure_from_ns - t_sw;

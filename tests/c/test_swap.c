@@ -53,10 +53,10 @@ static skel_plan_t *old_plan(void)
     b3->newest_seq = 10;
     b3->received = 11;
     skel_process_t *p1 = proc(plan, 1), *p4 = proc(plan, 4);
-    p1->cycles = 20;
-    p1->overruns = 3;
+    p1->sums.cycles = 20;
+    p1->sums.overruns = 3;
     p1->locked_out = 1;
-    p1->compute_sum = 999;
+    p1->sums.compute_ns = 999;
     skel_input_t *in2 = &p4->inputs[0];
     CHECK_EQ(in2->buffer, 2);
     in2->last_used = 39;
@@ -124,14 +124,14 @@ static void test_carry(void)
     CHECK_EQ(p1->compute_ns, 3 * MS);
     CHECK_EQ(p1->measure_from_k, 2); /* warm-up not re-applied */
     CHECK_EQ(p1->locked_out, 1);     /* lockout state carries over */
-    CHECK_EQ(p1->cycles, 20);
-    CHECK_EQ(p1->overruns, 3);
-    CHECK_EQ(p1->compute_sum, 999);
+    CHECK_EQ(p1->sums.cycles, 20);
+    CHECK_EQ(p1->sums.overruns, 3);
+    CHECK_EQ(p1->sums.compute_ns, 999);
     CHECK_EQ(p4->k_base, 21);
     /* New: the boundary's index on its period's grid since the run's start. */
     CHECK_EQ(p6->k_base, 11); /* ceil(205 ms / 20 ms) */
     CHECK_EQ(p6->measure_from_k, 11);
-    CHECK_EQ(p6->cycles, 0);
+    CHECK_EQ(p6->sums.cycles, 0);
 
     /* Slots keep their data; the old link's copies are not received twice. */
     skel_slot_t *b2 = slot_of(next, 2), *b3 = slot_of(next, 3);
