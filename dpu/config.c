@@ -57,18 +57,24 @@ int config_find_self(const skelmsg_config_t *cfg, int id_arg, const char *hostna
     return -1;
 }
 
-static const skelmsg_buffer_desc_t *config_buffer(const skelmsg_config_t *cfg, int16_t id)
+const skelmsg_buffer_desc_t *config_buffer(const skelmsg_config_t *cfg, int16_t id)
 {
     for (int i = 0; i < cfg->nbuffers; i++)
         if (cfg->buffers[i].id == id) return &cfg->buffers[i];
     return NULL;
 }
 
-static const skelmsg_link_t *config_link(const skelmsg_config_t *cfg, int16_t id)
+const skelmsg_link_t *config_link(const skelmsg_config_t *cfg, int16_t id)
 {
     for (int i = 0; i < cfg->nlinks; i++)
         if (cfg->links[i].id == id) return &cfg->links[i];
     return NULL;
+}
+
+const char *config_link_url(const skelmsg_config_t *cfg, int16_t id)
+{
+    const skelmsg_link_t *l = config_link(cfg, id);
+    return l != NULL ? l->url : NULL;
 }
 
 static int config_dpu_reaches(const skelmsg_dpu_t *d, int16_t link)

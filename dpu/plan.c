@@ -8,20 +8,6 @@
 
 #include "dpu.h"
 
-static const skelmsg_buffer_desc_t *plan_cfg_buffer(const skelmsg_config_t *cfg, int16_t id)
-{
-    for (int i = 0; i < cfg->nbuffers; i++)
-        if (cfg->buffers[i].id == id) return &cfg->buffers[i];
-    return NULL;
-}
-
-static const char *plan_cfg_url(const skelmsg_config_t *cfg, int16_t link)
-{
-    for (int i = 0; i < cfg->nlinks; i++)
-        if (cfg->links[i].id == link) return cfg->links[i].url;
-    return NULL;
-}
-
 /* Index of URL in plan->links (registered once); -1 for local or when full. */
 static int plan_link_index(skel_plan_t *plan, const char *url)
 {
@@ -46,11 +32,11 @@ static int plan_slot_index(skel_plan_t *plan, const skelmsg_config_t *cfg, int16
 {
     for (int i = 0; i < plan->nslots; i++)
         if (plan->slots[i].buffer == id) return i;
-    const skelmsg_buffer_desc_t *b = plan_cfg_buffer(cfg, id);
+    const skelmsg_buffer_desc_t *b = config_buffer(cfg, id);
     skel_slot_t *slot = &plan->slots[plan->nslots];
     slot->buffer = id;
     slot->writer = b->writer;
-    slot->link = plan_link_index(plan, plan_cfg_url(cfg, b->link));
+    slot->link = plan_link_index(plan, config_link_url(cfg, b->link));
     slot->channel = strdup(b->channel);
     slot->plan = plan;
     if (slot->link == -2 || slot->channel == NULL) return -1;
@@ -68,10 +54,10 @@ static int plan_cmp_order(const void *a, const void *b)
 static int plan_add_output(skel_plan_t *plan, const skelmsg_config_t *cfg, skel_output_t *out,
                            int16_t id)
 {
-    const skelmsg_buffer_desc_t *b = plan_cfg_buffer(cfg, id);
+    const skelmsg_buffer_desc_t *b = config_buffer(cfg, id);
     out->buffer = id;
     out->bytes = b->bytes;
-    out->link = plan_link_index(plan, plan_cfg_url(cfg, b->link));
+    out->link = plan_link_index(plan, config_link_url(cfg, b->link));
     out->local_slot = -1;
     out->channel = strdup(b->channel);
     out->enc_len = wire_buffer_encoded_size(b->bytes);
