@@ -168,6 +168,7 @@ static void command_start(skel_control_t *c, const skelmsg_command_t *cmd)
     pthread_mutex_unlock(&s->lock);
     c->batch_seq = 0;
     timing_batch_clear(&c->batch);
+    history_reset(&c->history, cmd->run_id);
     skel_log("DPU %d: run %lld armed: start in %.3f ms, duration %.3f s", s->dpu_id,
              (long long)cmd->run_id, (double)(start - now_mono) / 1e6,
              (double)cmd->duration_ns / 1e9);
@@ -202,6 +203,18 @@ static void command_commit(skel_control_t *c, const skelmsg_command_t *cmd)
     else if (staged) control_apply(c);
 }
 
+/* The logger missed some of what we published: publish it again, as it was. */
+static void command_resend(skel_control_t *c, const skelmsg_command_t *cmd)
+{
+    skel_resend_t ask = { cmd->run_id, cmd->batch_from, cmd->batch_to, cmd->with_report };
+    int gone = 0;
+    int sent = history_resend(&c->history, c->s->ctl, &ask, &gone);
+    skel_log("DPU %d: re-sent %d of run %lld (batches %lld..%lld%s)%s", c->s->dpu_id, sent,
+             (long long)cmd->run_id, (long long)cmd->batch_from, (long long)cmd->batch_to,
+             cmd->with_report ? " and the report" : "",
+             gone > 0 ? ": some no longer held" : "");
+}
+
 void control_handle_command(skel_control_t *c, const void *data, int len)
 {
     skel_server_t *s = c->s;
@@ -225,6 +238,7 @@ void control_handle_command(skel_control_t *c, const void *data, int len)
         c->ping_t3_ns = server_now(s); /* as late as possible: just before the publish */
         if (control_publish_status(c) != 0) skel_log("cannot answer ping %lld", (long long)cmd.seq);
         break;
+    case SKELMSG_COMMAND_T_RESEND: command_resend(c, &cmd); break;
     case SKELMSG_COMMAND_T_SHUTDOWN:
         skel_log("DPU %d: SHUTDOWN", s->dpu_id);
         /* main() waits for SIGTERM in sigwait: the same clean path as a signal. */

@@ -16,11 +16,22 @@ int control_init(skel_control_t *c, skel_server_t *s)
     memset(c, 0, sizeof *c);
     c->s = s;
     c->ping_seq = -1;
-    return timing_batch_init(&c->batch);
+    if (timing_batch_init(&c->batch) != 0) return -1;
+    /* The largest batch: every record with every input. */
+    c->batch.msg.n = SKEL_BATCH_RECORDS;
+    c->batch.msg.ninputs = SKEL_BATCH_RECORDS * SKEL_MAX_IO;
+    int largest = skelmsg_timing_t_encoded_size(&c->batch.msg);
+    timing_batch_clear(&c->batch);
+    if (history_init(&c->history, largest) != 0) {
+        timing_batch_free(&c->batch);
+        return -1;
+    }
+    return 0;
 }
 
 void control_free(skel_control_t *c)
 {
+    history_free(&c->history);
     timing_batch_free(&c->batch);
 }
 
@@ -47,7 +58,7 @@ static void control_publish_batch(skel_control_t *c)
     c->batch.msg.run_id = s->run_id;
     c->batch.msg.generation = c->batch_generation;
     c->batch.msg.batch_seq = c->batch_seq++;
-    if (skelmsg_timing_t_publish(s->ctl, SKEL_CH_TIMING, &c->batch.msg) != 0)
+    if (history_publish_batch(&c->history, s->ctl, &c->batch.msg) != 0)
         skel_log("cannot publish timing batch %lld", (long long)c->batch.msg.batch_seq);
     atomic_fetch_add(&s->timing_batches, 1);
     timing_batch_clear(&c->batch);
@@ -77,7 +88,7 @@ static void control_finish_run(skel_control_t *c)
 {
     skel_server_t *s = c->s;
     control_drain_timing(c, 1);
-    if (report_publish(s, s->plan) != 0) skel_log("cannot publish the report of run %lld",
+    if (report_publish(s, s->plan, &c->history) != 0) skel_log("cannot publish the report of run %lld",
                                                   (long long)s->run_id);
     control_install_next(c); /* a switch the run did not reach takes effect now */
     if (pthread_mutex_lock(&s->lock) != 0) return;

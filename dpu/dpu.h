@@ -45,6 +45,8 @@
 #define SKEL_RING_RECORDS    8192               /* timing records in flight */
 #define SKEL_BATCH_RECORDS   64                 /* records per timing_t */
 #define SKEL_BATCH_NS        (50 * 1000 * 1000LL)
+#define SKEL_HISTORY_BYTES   (4 * 1024 * 1024)  /* published batches kept for RESEND */
+#define SKEL_HISTORY_BATCHES 4096               /* ... at most this many */
 #define SKEL_STATUS_NS       (200 * 1000 * 1000LL)
 #define SKEL_REASON_LEN      256
 #define SKEL_SEEN_COMMANDS   64
@@ -189,6 +191,36 @@ void timing_batch_free(skel_batch_t *b);
 void timing_batch_clear(skel_batch_t *b);
 int timing_batch_full(const skel_batch_t *b);
 void timing_batch_add(skel_batch_t *b, const skel_rec_t *rec);
+
+/* ---- history (history.c): what was published, for a RESEND ---------------------- */
+typedef struct {
+    int64_t seq;               /* -1: empty */
+    uint64_t at;               /* offset in the ring's byte stream */
+    uint32_t len;
+} skel_held_t;
+
+typedef struct {
+    uint8_t *bytes;            /* SKEL_HISTORY_BYTES, a ring of encoded batches */
+    skel_held_t *held;         /* SKEL_HISTORY_BATCHES slots, by batch_seq */
+    uint64_t head;             /* bytes stored since start-up */
+    int64_t run_id;            /* the run they belong to */
+    uint8_t *enc;              /* one encoded batch */
+    int enc_cap;
+    uint8_t *report;           /* the run's report_t as published */
+    int report_len, report_cap;
+} skel_history_t;
+
+typedef struct {
+    int64_t run_id, from, to;  /* batches from..to inclusive (to < from: none) */
+    int with_report;
+} skel_resend_t;
+
+int history_init(skel_history_t *h, int batch_bytes);
+void history_free(skel_history_t *h);
+void history_reset(skel_history_t *h, int64_t run_id);
+int history_publish_batch(skel_history_t *h, lcm_t *lcm, const skelmsg_timing_t *msg);
+int history_publish_report(skel_history_t *h, lcm_t *lcm, const skelmsg_report_t *r);
+int history_resend(skel_history_t *h, lcm_t *lcm, const skel_resend_t *ask, int *gone);
 
 /* ---- link (link.c): one lcm_t per distinct link URL ----------------------------- */
 typedef struct {
@@ -377,7 +409,7 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run);
 /* ---- report (report.c): status_t and report_t --------------------------------- */
 void report_status_fill(skel_server_t *s, skelmsg_status_t *st, skelmsg_lockout_t *lockouts,
                         char *reason);
-int report_publish(skel_server_t *s, const skel_plan_t *plan);
+int report_publish(skel_server_t *s, const skel_plan_t *plan, skel_history_t *history);
 
 /* ---- control (control.c): the control thread ------------------------------------ */
 typedef struct {
@@ -388,6 +420,7 @@ typedef struct {
 typedef struct {
     skel_server_t *s;
     skel_batch_t batch;
+    skel_history_t history;
     int64_t batch_seq;
     int64_t batch_generation;  /* of every record in the batch */
     int64_t last_status_ns;

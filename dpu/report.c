@@ -65,7 +65,7 @@ typedef struct {
     int64_t n_new[SKEL_MAX_IO], stale[SKEL_MAX_IO], dropped[SKEL_MAX_IO];
 } report_inputs_t;
 
-int report_publish(skel_server_t *s, const skel_plan_t *plan)
+int report_publish(skel_server_t *s, const skel_plan_t *plan, skel_history_t *history)
 {
     skelmsg_report_t r;
     memset(&r, 0, sizeof r);
@@ -101,7 +101,7 @@ int report_publish(skel_server_t *s, const skel_plan_t *plan)
     r.faults = atomic_load(&s->faults);
     r.nprocesses = (int16_t)n;
     r.processes = procs;
-    int rc = skelmsg_report_t_publish(s->ctl, SKEL_CH_REPORT, &r);
+    int rc = history_publish_report(history, s->ctl, &r);
     free(procs);
     free(ins);
     return rc;

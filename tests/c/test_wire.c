@@ -62,7 +62,7 @@ static void test_config_mutations(void)
     CHECK(skelmsg_config_t_check(m, len) != 0);
     CHECK(wire_decode_config(m, len, &cfg) != 0);
     /* A foreign type on our channel: a command is not a config. */
-    skelmsg_command_t cmd = { 1, SKELMSG_COMMAND_T_PING, -1, 0, 0, 0, 0, 5 };
+    skelmsg_command_t cmd = { .seq = 1, .kind = SKELMSG_COMMAND_T_PING, .dpu = -1, .ping_t1_ns = 5 };
     uint8_t cbuf[128];
     int clen = skelmsg_command_t_encode(cbuf, 0, sizeof cbuf, &cmd);
     CHECK(wire_decode_config(cbuf, clen, &cfg) != 0);
