@@ -73,6 +73,13 @@ def _timing_events(log: Log) -> tuple[np.ndarray, np.ndarray]:
     return log.data_offset[idx], log.data_len[idx]
 
 
+def timing_heads(log: Log, run_id: int) -> tuple[np.ndarray, np.ndarray]:
+    """(dpu, batch_seq) of each good timing batch of `run_id` in the log, in file order."""
+    ok, heads = decode_heads(TIMING, log.buf, *_timing_events(log))
+    mine = ok & (heads["run_id"] == run_id)
+    return heads["dpu"][mine].astype(np.int64), heads["batch_seq"][mine].astype(np.int64)
+
+
 def run_ids(log: Log) -> list[int]:
     """Run ids with timing records, ordered by their last batch in the log."""
     ok, heads = decode_heads(TIMING, log.buf, *_timing_events(log))
@@ -139,8 +146,13 @@ def decode_timing(
     keep = np.setdiff1d(np.arange(len(table)), bad)
     _, first = np.unique(table[keep][:, [0, 2]], axis=0, return_index=True)
     keep = keep[np.sort(first)]
+    # A batch re-sent for the logger (host/repair.py) lands after later ones: put each
+    # DPU's batches back in batch_seq order, so its records run in cycle order.
+    reorder = _out_of_order(table[keep])
+    if reorder:
+        keep = keep[np.lexsort((table[keep][:, 2], table[keep][:, 0]))]
     duplicates = len(table) - len(bad) - len(keep)
-    if len(keep) < len(table):
+    if reorder or len(keep) < len(table):
         cols, table = _select(cols, table, keep)
     records = _records(cols, table)
     inputs = _inputs(cols, table)
@@ -156,15 +168,26 @@ def decode_timing(
     )
 
 
+def _out_of_order(table: np.ndarray) -> bool:
+    """Some DPU's batch_seq goes backwards in `table`'s (dpu, generation, batch_seq, ...) rows."""
+    order = np.argsort(table[:, 0], kind="stable")
+    dpu, seq = table[order, 0], table[order, 2]
+    return bool(np.any((np.diff(dpu) == 0) & (np.diff(seq) < 0)))
+
+
 def _select(
     cols: dict[str, np.ndarray], table: np.ndarray, keep: np.ndarray
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Only the batches `keep` (indices into table), with their records and inputs."""
-    wanted = np.zeros(len(table), dtype=bool)
-    wanted[keep] = True
-    rec_keep = np.repeat(wanted, table[:, 3])
-    in_keep = np.repeat(wanted, table[:, 4])
-    return {k: v[in_keep] if k.startswith("in_") else v[rec_keep] for k, v in cols.items()}, table[wanted]
+    """Only the batches `keep` (indices into table, in that order), with their records and inputs."""
+    rec = _ranges((np.cumsum(table[:, 3]) - table[:, 3])[keep], table[keep, 3])
+    ins = _ranges((np.cumsum(table[:, 4]) - table[:, 4])[keep], table[keep, 4])
+    return {k: v[ins] if k.startswith("in_") else v[rec] for k, v in cols.items()}, table[keep]
+
+
+def _ranges(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """The concatenation of arange(start, start + length) for each pair, without a loop."""
+    shift = np.repeat(starts - (np.cumsum(lengths) - lengths), lengths)
+    return shift + np.arange(int(lengths.sum()), dtype=np.int64)
 
 
 def _bad_inputs(cols: dict[str, np.ndarray], table: np.ndarray) -> np.ndarray:

@@ -130,7 +130,8 @@ def build_report(
     by_generation[config.generation] = config
     generations = sorted(by_generation)
     parts = [window_records(run, g) for g in generations]
-    mine = [r for r in reports if r.run_id == run.run_id]
+    # A report the logger missed may have been re-sent (host/repair.py): one per DPU.
+    mine = list({r.dpu: r for r in reports if r.run_id == run.run_id}.values())
     locks = split_lockouts(lockouts_from_status(statuses, run.run_id), [p[0] for p in parts])
     # Only the last window can miss an end-of-run report_t.
     reported: list[set[int] | None] = [None] * (len(generations) - 1) + [{r.dpu for r in mine}]

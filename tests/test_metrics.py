@@ -110,9 +110,30 @@ def test_lost_batches_from_batch_seq_gaps() -> None:
         {"dpu": 1, "from_seq": 10, "to_seq": 11},  # report_t says 12 were published
     ]
     assert run.duplicates == 1 and run.batches == 7
-    import numpy as np
-
     assert lost_batches(np.array([3, 3]), np.array([1, 2])) == [{"dpu": 3, "from_seq": 0, "to_seq": 0}]
+
+
+def test_resent_batches_rejoin_their_place() -> None:
+    """Batches the logger missed come back (host/repair.py) after later ones, some twice:
+    the records end up as if nothing had been missed."""
+    dpu1, dpu2 = small_run()
+    first = [m.encode() for m in batches(1, dpu1, 2) + batches(2, dpu2, 2)]
+    whole = decode_run(first, RUN_ID)
+    late = [m.encode() for m in batches(1, dpu1, 2) if m.batch_seq in (2, 5)]
+    holed = [m for m in first if m not in late]
+    run = decode_run([*holed, *late, late[0]], RUN_ID)
+    assert run.lost_batches == [] and run.duplicates == 1 and run.batches == whole.batches
+    for d in (1, 2):
+        mine = run.records[run.records["dpu"] == d]
+        assert np.all(np.diff(mine["batch_seq"]) >= 0)
+        theirs = whole.records[whole.records["dpu"] == d]
+        assert np.array_equal(np.sort(mine["cycle"]), np.sort(theirs["cycle"]))
+    # Every input record still belongs to its own process's cycle.
+    def inputs(r: RunRecords) -> list[tuple[int, ...]]:
+        i = r.inputs
+        return sorted(zip(*(i[k].tolist() for k in ("process", "cycle", "buffer", "seq")), strict=True))
+
+    assert inputs(run) == inputs(whole) and len(inputs(run)) > 0
 
 
 def test_jam_chain_back_to_overloaded_dpu() -> None:
