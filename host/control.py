@@ -208,8 +208,8 @@ class Control:
         config.sent_utc_ns = time.time_ns()
         self._lcm.publish(CONFIG, config.encode())
 
-    def command(self, kind: int, dpu: int = -1, **fields: int) -> int:
-        """Send one command (repeated, same seq); return its seq."""
+    def command(self, kind: int, dpu: int = -1, repeats: int = COMMAND_REPEATS, **fields: int) -> int:
+        """Send one command (`repeats` times, same seq); return its seq."""
         cmd = skelmsg.command_t()
         # Wall-clock sequence numbers stay increasing across separate `skel` invocations.
         cmd.seq = time.time_ns()
@@ -218,7 +218,7 @@ class Control:
         for name, value in fields.items():
             setattr(cmd, name, value)
         data = cmd.encode()
-        for i in range(COMMAND_REPEATS):
+        for i in range(repeats):
             if i:
                 time.sleep(0.01)
             self._lcm.publish(COMMAND, data)

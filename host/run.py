@@ -7,8 +7,10 @@ What outlives the host tool: the DPUs have the run's duration, so they finish
 their cycles if `skel run` dies. The logger is started (once the push has
 succeeded) in its own session under `timeout`: a killed host tool neither takes
 it down nor leaves it running for ever; it stops by itself about
-REPORT_GRACE_S + LOGGER_MARGIN_S (~10 s) after the run's planned end. On a clean
-end it is stopped at once. DPUs started with --spawn end the same way.
+REPORT_GRACE_S + REPAIR_LIMIT_S + LOGGER_MARGIN_S (~20 s) after the run's planned end. On a
+clean end it is stopped once the log holds everything the DPUs published: what
+the logger missed is asked for again (repair.py), during the run and after the
+reports. DPUs started with --spawn end the same way.
 
 A `skel push` during the run (from any host) is followed: when the DPUs' heartbeats
 show a newer generation applied, the config of that generation, heard on
@@ -35,6 +37,7 @@ from skeleton.host import spawn
 from skeleton.host.check import warmup_warnings
 from skeleton.host.clock import ClockKeeper
 from skeleton.host.control import Control, PushResult
+from skeleton.host.repair import LogRepair, RepairResult
 from skeleton.host.system import System
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_FATAL_FLAW = 0, 1, 2, 3
@@ -46,6 +49,8 @@ POLL_S = 0.1                # follower period: a lost DPU is reported within LOS
 PUSH_TIMEOUT_S = 3.0        # per phase (stage, commit) of Control.push
 LOGGER_MARGIN_S = 5.0       # an orphaned logger ends this long after the report grace
 LOGGER_READY_S = 2.0        # heartbeats come at 5 Hz: the logger has one well within this
+REPAIR_STUCK_S = 3.0        # after the reports, the repair of the log gives up this long without progress
+REPAIR_LIMIT_S = 10.0       # ... or after this long in all
 FATAL_KINDS = ("lockout", "jam")
 
 
@@ -84,13 +89,14 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         console.print(f"[yellow]WARN[/] {warning}")
     # From the logger's start: first event, clock estimate, START lead, the run, the reports, a margin.
     logger_deadline_s = (LOGGER_READY_S + 1.0 + START_LEAD_S + duration_ns / 1e9 + REPORT_GRACE_S
-                         + LOGGER_MARGIN_S)
+                         + REPAIR_LIMIT_S + LOGGER_MARGIN_S)
     daemons = []
     if options.spawn:
         dpu_deadline_s = options.wait_dpus_s + 2 * PUSH_TIMEOUT_S + logger_deadline_s
         daemons = [spawn.start_dpu(d.id, url, out / "logs", options.dpu_args, deadline_s=dpu_deadline_s)
                    for d in system.dpus if spawn.is_local(d.host)]
     logger = None
+    repair = None
     control = Control(url)
     try:
         silent = control.wait_heard(dpu_ids, options.wait_dpus_s,
@@ -114,16 +120,17 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
             logger = spawn.start_logger(url, out / "run.lcm", deadline_s=logger_deadline_s)
             # Its file exists before it has joined the group: wait for the first heartbeat it records.
             _wait_nonempty(out / "run.lcm", LOGGER_READY_S)
+            repair = LogRepair(control, out / "run.lcm", run_id, dpu_ids)
         clocks = ClockKeeper(control, dpu_ids)
         clocks.refresh()  # before START, so the log has offsets for the whole run
         follower = RunFollower(system, control, console)
         committed = system.to_config(generation, run_id, committed=True)
-        _follow(control, follower, clocks, committed, duration_ns, dpu_ids)
+        _follow(control, follower, clocks, committed, duration_ns, dpu_ids, repair)
         control.wait_for(lambda: all((d, run_id) in control.reports for d in dpu_ids
                                      if d not in follower.lost), REPORT_GRACE_S)
-        # The DPUs flush their last timing batches before the report: give the logger a moment.
-        time.sleep(0.3)
         reports = {d: r for (d, r_id), r in control.reports.items() if r_id == run_id}
+        if repair is not None:
+            repair.finish(reports, REPAIR_STUCK_S, REPAIR_LIMIT_S)
     finally:
         control.close()
         if logger is not None:
@@ -132,7 +139,8 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
             spawn.stop(daemon)
     if logger is None:
         return _external_summary(console, out, run_id, dpu_ids, reports, follower.lost, options.as_json)
-    return _report(console, system, options, out, run_id, follower.lost)
+    return _report(console, system, options, out, run_id, follower.lost,
+                   repair.result if repair is not None else RepairResult())
 
 
 class RunFollower:
@@ -208,7 +216,7 @@ def _adopt_pushed(control: Control, config: skelmsg.config_t, dpu_ids: list[int]
 
 
 def _follow(control: Control, follower: RunFollower, clocks: ClockKeeper, config: skelmsg.config_t,
-            duration_ns: int, dpu_ids: list[int]) -> None:
+            duration_ns: int, dpu_ids: list[int], repair: LogRepair | None) -> None:
     """Start the run and follow it; re-send the committed config every second meanwhile, so
     a late or restarted DPU catches up and the log holds the configuration of the run.
     A generation committed mid-run by `skel push` replaces ours in the re-sends."""
@@ -235,6 +243,8 @@ def _follow(control: Control, follower: RunFollower, clocks: ClockKeeper, config
                 resent = time.monotonic()
             if clocks.due():
                 clocks.refresh(skip=follower.lost)
+            if repair is not None:
+                repair.poll()
             time.sleep(POLL_S)
     follower.poll(run_id, dpu_ids)
 
@@ -246,7 +256,7 @@ def _wait_nonempty(path: Path, timeout_s: float) -> None:
 
 
 def _report(console: Console, system: System, options: RunOptions, out: Path, run_id: int,
-            lost: set[int]) -> int:
+            lost: set[int], repaired: RepairResult) -> int:
     try:
         report = analyze(out / "run.lcm", run_id=run_id)
     except LogError as error:
@@ -260,6 +270,9 @@ def _report(console: Console, system: System, options: RunOptions, out: Path, ru
         if options.compare_paper and system.reference is not None:
             paper = {i: row.model_dump() for i, row in system.reference.dpus.items()}
         print_report(report, console=console, paper=paper)
+        if repaired.asked:
+            console.print(f"the logger missed {repaired.asked} messages; the DPUs sent them again"
+                          + (f", {repaired.missing} still missing" if repaired.missing else ": all logged"))
         console.print(f"run written to {out}/ (system.yaml, run.lcm, report.json)")
     kinds = {f["kind"] for f in report.to_json()["faults"]}
     if kinds & set(FATAL_KINDS):

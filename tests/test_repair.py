@@ -1,0 +1,86 @@
+"""A logger that misses messages: `skel run` asks the DPUs again, and the log ends up whole.
+
+lcm-logger drops what arrives while its process is not scheduled (the kernel's socket
+buffer, then LCM's queue of 30). Here it is stopped outright for two seconds of a busy
+run (real DPUs, real logger, real multicast with ttl=0): the holes must be filled.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+from pathlib import Path
+
+from conftest import skel_background
+
+from skeleton.host.repair import SeenBatches, seq_ranges
+
+# Two DPUs, 1000 records a second each: ~20 timing batches a second of ~4.5 kB (four
+# datagrams), so two stopped seconds overflow the logger's 208 kB socket buffer.
+BUSY_SYSTEM = """\
+system: busy
+dpus: [{id: 1, compute: sleep}, {id: 2, compute: sleep}]
+processes:
+  - {id: 1, name: a1, dpu: 1, period_us: 2000, compute_us: 100}
+  - {id: 2, name: b1, dpu: 1, period_us: 2000, compute_us: 100}
+  - {id: 3, name: a2, dpu: 2, period_us: 2000, compute_us: 100}
+  - {id: 4, name: b2, dpu: 2, period_us: 2000, compute_us: 100}
+run: {duration_s: 5, warmup_cycles: 10, lockout_cycles: 200}
+"""
+
+
+def _logger_pid(log: Path, timeout_s: float) -> int:
+    """The real lcm-logger binary writing `log` (not the `timeout` that wraps it)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        for proc in Path("/proc").iterdir():
+            try:
+                if (proc / "comm").read_text().strip() != "lcm-logger":
+                    continue
+                if str(log) in (proc / "cmdline").read_bytes().decode(errors="replace"):
+                    return int(proc.name)
+            except (OSError, ValueError):
+                continue
+        time.sleep(0.05)
+    raise AssertionError(f"no lcm-logger writing {log} within {timeout_s} s")
+
+
+def test_run_refills_what_a_stalled_logger_missed(tmp_path: Path, url: str) -> None:
+    system = tmp_path / "busy.yaml"
+    system.write_text(BUSY_SYSTEM)
+    out = tmp_path / "busy"
+    run = skel_background("run", str(system), "--spawn", "--url", url, "--out", str(out))
+    try:
+        pid = _logger_pid(out / "run.lcm", 30)
+        time.sleep(2.0)  # the clock estimate, the START lead, a second of the run
+        os.kill(pid, signal.SIGSTOP)
+        time.sleep(2.0)
+        os.kill(pid, signal.SIGCONT)
+        code = run.wait(60)
+    finally:
+        if run.proc.poll() is None:
+            run.proc.kill()
+    assert code == 0, run.output
+    # The stop did cost the logger messages (else this test proves nothing) ...
+    assert "the logger missed" in run.output and "all logged" in run.output, run.output
+    resent = [line for f in (out / "logs").glob("*.log") for line in f.read_text().splitlines()
+              if "re-sent" in line]
+    assert resent, "no DPU was asked to re-send"
+    # ... and the log holds every batch and every cycle all the same.
+    report = json.loads((out / "report.json").read_text())
+    assert report["integrity"]["lost_batches"] == [], report["integrity"]
+    expected = 5 * 500 - 10
+    short = {p["name"]: p["cycles"] for p in report["processes"] if p["cycles"] < expected - 2}
+    assert len(report["processes"]) == 4 and not short, short
+
+
+def test_holes_are_found_below_the_newest_batch_and_up_to_the_reported_count() -> None:
+    seen = SeenBatches()
+    for seq in (0, 1, 4, 2, 7):
+        seen.add(seq)
+    assert (seen.whole, seen.has(4), seen.has(5)) == (3, True, False)
+    assert seen.missing(None) == [3, 5, 6]  # the tail after 7 is unknown until the report
+    assert seen.missing(10) == [3, 5, 6, 8, 9]
+    assert seq_ranges([3, 5, 6, 8, 9]) == [(3, 3), (5, 6), (8, 9)]
