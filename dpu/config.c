@@ -181,6 +181,26 @@ int64_t config_minor_us(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d)
     return g;
 }
 
+/* The grid every DPU's minor-cycle grid shares (their lcm, in us), so a live
+ * switch can happen at one instant on all of them; 0 when it is longer than
+ * SKEL_MAX_COMMON_US (each DPU then switches at its own next release). */
+int64_t config_common_us(const skelmsg_config_t *cfg)
+{
+    int64_t common = 1;
+    for (int i = 0; i < cfg->ndpus; i++) {
+        int64_t m = config_minor_us(cfg, &cfg->dpus[i]), a = common, b = m;
+        if (m <= 0) continue;
+        while (b != 0) {
+            int64_t t = a % b;
+            a = b;
+            b = t;
+        }
+        common = common / a * m; /* <= 1e7 * INT32_MAX: no overflow */
+        if (common > SKEL_MAX_COMMON_US) return 0;
+    }
+    return common;
+}
+
 static int config_check_ids(const skelmsg_config_t *cfg, char *reason, size_t len)
 {
     for (int i = 0; i < cfg->nbuffers; i++)

@@ -38,6 +38,7 @@
 #define SKEL_MAX_BUFFER_BYTES (4 * 1024 * 1024) /* one buffer's payload */
 #define SKEL_MAX_DPU_BYTES   (64 * 1024 * 1024) /* all output payloads of one DPU */
 #define SKEL_MIN_PERIOD_US   100
+#define SKEL_MAX_COMMON_US   (10 * 1000 * 1000) /* a common switch grid longer than this is not used */
 #define SKEL_MAX_PERIOD_US   (60 * 1000 * 1000)
 #define SKEL_MAX_LINKS       16                 /* distinct link URLs per DPU */
 #define SKEL_MAX_SLOTS       (SKEL_MAX_PROCESSES * SKEL_MAX_IO)
@@ -273,6 +274,7 @@ typedef struct skel_plan {
     int8_t compute;
     double speed;
     int64_t minor_ns;
+    int64_t common_ns;          /* the grid all DPUs share (a multiple of minor_ns): live switches */
     int32_t warmup_cycles;
     int32_t lockout_cycles;
     int nprocesses;
@@ -305,6 +307,7 @@ int config_find_self(const skelmsg_config_t *cfg, int id_arg, const char *hostna
                      skel_self_t *self);
 int config_validate(const skelmsg_config_t *cfg, int dpu_index, char *reason, size_t len);
 int64_t config_minor_us(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d);
+int64_t config_common_us(const skelmsg_config_t *cfg);
 const skelmsg_buffer_desc_t *config_buffer(const skelmsg_config_t *cfg, int16_t id);
 const skelmsg_link_t *config_link(const skelmsg_config_t *cfg, int16_t id);
 const char *config_link_url(const skelmsg_config_t *cfg, int16_t id); /* NULL: no such link */

@@ -113,6 +113,8 @@ skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason
     plan->compute = d->compute;
     plan->speed = d->speed;
     plan->minor_ns = config_minor_us(cfg, d) * SKEL_NS_PER_US;
+    plan->common_ns = config_common_us(cfg) * SKEL_NS_PER_US;
+    if (plan->minor_ns <= 0 || plan->common_ns % plan->minor_ns != 0) plan->common_ns = plan->minor_ns;
     plan->warmup_cycles = cfg->warmup_cycles;
     plan->lockout_cycles = cfg->lockout_cycles;
     plan->processes = calloc(SKEL_MAX_PROCESSES, sizeof *plan->processes);

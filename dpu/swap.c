@@ -5,9 +5,11 @@
  * no system call: the unit tests drive them without a network.
  *
  * The rules (what a reader of the log or of a buffer sees):
- * - Where: the first release of the old plan's minor-cycle grid at or after
- *   the COMMIT's instant, never one that has already run. The next plan's grid
- *   starts there (its minor 0); minor indexes in timing records keep counting.
+ * - Where: the first point at or after the COMMIT's instant of the grid that
+ *   every DPU's minor cycles share (their lcm from the run's start, or from the
+ *   last switch; config_common_us), never a release that has already run: so
+ *   DPUs with different minor cycles still switch at one instant. The next
+ *   plan's grid starts there (its minor 0); minor indexes keep counting.
  * - Cycle counters (the buffers' seq) are kept by process id: a process that
  *   continues goes on from the cycle after its last release, re-anchored on its
  *   new period at the boundary, so its buffers' seq never goes back and skips
@@ -28,14 +30,17 @@ static int64_t swap_ceil_div(int64_t a, int64_t b)
     return a <= 0 ? -(-a / b) : (a + b - 1) / b;
 }
 
-/* The old plan's minor index to switch at: the first at or after AT_MONO_NS
- * (0: none given), and never one at or before J_PREV (already run). */
+/* The old plan's minor index to switch at: the first on the common grid at or
+ * after AT_MONO_NS (0: none given: the next release), and never one at or
+ * before J_PREV (already run). */
 int64_t swap_index(const skel_plan_t *plan, int64_t j_prev, int64_t at_mono_ns)
 {
     int64_t j = j_prev + 1;
-    if (at_mono_ns <= 0) return j;
-    int64_t at = swap_ceil_div(at_mono_ns - plan->epoch_t0_ns, plan->minor_ns);
-    return at > j ? at : j;
+    if (at_mono_ns <= 0 || plan->minor_ns <= 0) return j;
+    int64_t r = plan->common_ns > plan->minor_ns ? plan->common_ns / plan->minor_ns : 1;
+    int64_t at = swap_ceil_div(at_mono_ns - plan->epoch_t0_ns, r * plan->minor_ns) * r;
+    int64_t next = swap_ceil_div(j, r) * r;
+    return at > next ? at : next;
 }
 
 int64_t swap_instant(const skel_plan_t *plan, int64_t j_sw)

@@ -184,7 +184,8 @@ def cmd_push(args: argparse.Namespace) -> int:
         when = time.strftime("%H:%M:%S", time.gmtime(result.at_utc_ns / 1e9))
         print(f"generation {generation}: staged on every DPU, committed for {when}."
               f"{result.at_utc_ns // 1_000_000 % 1000:03d} UTC ({args.at_ms:g} ms after the commit)"
-              + (f", mid-run in run {run_id}" if run_id else ""))
+              + (f", mid-run in run {run_id} (at the first cycle boundary all DPUs share from then)"
+                 if run_id else ""))
     for dpu_id in result.applied:
         print(f"DPU {dpu_id}: applied generation {generation}")
     for dpu_id, reason in sorted(result.rejected.items()):

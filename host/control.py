@@ -9,6 +9,7 @@ DPUs act on each command sequence number once.
 
 from __future__ import annotations
 
+import math
 import struct
 import threading
 import time
@@ -260,8 +261,8 @@ class Control:
         """Stage a config on every DPU, then commit it only if all of them accepted it.
 
         With `at_ms`, the COMMIT names the instant `at_ms` after it is sent: DPUs in a run
-        switch at their first release at or after it, all at the same cycle boundary.
-        Without, it takes effect at once (between runs)."""
+        switch at the first boundary at or after it of the grid their minor cycles share
+        (dpu/swap.c), all at one instant. Without, it takes effect at once (between runs)."""
         wanted = sorted(set(dpus))
         generation = config.generation
         result = PushResult(generation)
@@ -293,7 +294,9 @@ class Control:
             result.at_utc_ns = time.time_ns() + int(at_ms * 1e6)
         self.command(skelmsg.command_t.COMMIT, generation=generation, at_utc_ns=result.at_utc_ns)
         result.committed = True
-        until_switch_s = max(0.0, (result.at_utc_ns - time.time_ns()) / 1e9)
+        # The switch waits for the DPUs' common grid (their minor cycles' lcm, unused past 10 s).
+        grid_s = math.lcm(*(d.minor_cycle_us for d in config.dpus if d.minor_cycle_us > 0)) / 1e6
+        until_switch_s = max(0.0, (result.at_utc_ns - time.time_ns()) / 1e9) + min(grid_s, 10.0)
         applied = self.wait_for(
             lambda: all(self.dpus[i].status.generation >= generation for i in wanted),
             until_switch_s + timeout_s)

@@ -121,15 +121,28 @@ def _utc_to_mono(control: Control, dpu: int, utc_ns: int) -> int:
     return utc_ns - (st.utc_ns - st.mono_ns)
 
 
-def test_commit_mid_run_switches_every_dpu_at_one_release(dpus: DpuFarm, url: str) -> None:
-    ids, run_id = [1, 2], 5151
+@dataclass
+class Switched:
+    """A run in which generation `g` was switched to g + 1 by a COMMIT with an instant."""
+
+    g: int
+    records: list[Rec]
+    at_mono: dict[int, int]  # the COMMIT's instant on each DPU's clock
+    reports: dict[tuple[int, int], skelmsg.report_t]
+    batch_generations: dict[int, set[int]]  # per DPU: the generations of its timing batches
+
+
+def _switch_mid_run(dpus: DpuFarm, url: str, run_id: int, before: System, after: System,
+                    duration_s: float) -> Switched:
+    """DPUs 1 and 2 run `before`; `after` is staged, then committed for 300 ms later."""
+    ids = [1, 2]
     dpus.start(*ids)
     control = Control(url)
     tap = TimingTap(url, run_id)
     try:
         assert control.wait_heard(ids, 5.0) == []
-        g = _begin_run(control, _pair(url), ids, run_id, 2.5)
-        _stage(control, _slower(url).to_config(g + 1, run_id, committed=False), ids)
+        g = _begin_run(control, before, ids, run_id, duration_s)
+        _stage(control, after.to_config(g + 1, run_id, committed=False), ids)
         assert all(control.dpus[i].status.generation == g for i in ids)  # staged, not applied
         at_utc = time.time_ns() + 300 * MS
         control.command(skelmsg.command_t.COMMIT, generation=g + 1, at_utc_ns=at_utc)
@@ -141,12 +154,18 @@ def test_commit_mid_run_switches_every_dpu_at_one_release(dpus: DpuFarm, url: st
     finally:
         records = tap.close()
         control.close()
+    return Switched(g, records, at_mono, dict(control.reports), dict(tap.batch_generations))
 
+
+def test_commit_mid_run_switches_every_dpu_at_one_release(dpus: DpuFarm, url: str) -> None:
+    ids, run_id = [1, 2], 5151
+    done = _switch_mid_run(dpus, url, run_id, _pair(url), _slower(url), 2.5)
+    g, records, at_mono = done.g, done.records, done.at_mono
     switch = {}
     for dpu in ids:
         mine = [r for r in records if r.dpu == dpu]
         assert {r.generation for r in mine} == {g, g + 1}
-        assert tap.batch_generations[dpu] == {g, g + 1}
+        assert done.batch_generations[dpu] == {g, g + 1}
         switch[dpu] = min(r.release_ns for r in mine if r.generation == g + 1)
         # The first release of the 5 ms grid at or after the COMMIT's instant (clocks read
         # through the status, so allow a millisecond of conversion error).
@@ -156,7 +175,7 @@ def test_commit_mid_run_switches_every_dpu_at_one_release(dpus: DpuFarm, url: st
         old = sorted(r.compute_ns for r in mine if r.generation == g)
         assert old[len(old) // 2] < 1_000_000, old[len(old) // 2]      # 500 us asked
         assert min(r.compute_ns for r in mine if r.generation == g + 1) >= 1_490_000  # 1500 us
-        report = control.reports[(dpu, run_id)]
+        report = done.reports[(dpu, run_id)]
         assert report.generation == g + 1
         for p in report.processes:
             after = sum(1 for r in mine if r.process == p.process and r.generation == g + 1)
@@ -181,6 +200,25 @@ def test_commit_mid_run_switches_every_dpu_at_one_release(dpus: DpuFarm, url: st
         for buffer, seen in seqs.items():
             assert seen == sorted(seen), (process, buffer)  # a reader never sees seq go back
             assert seen[-1] > 0
+
+
+def test_commit_mid_run_switches_dpus_of_different_minor_cycles_at_one_instant(dpus: DpuFarm,
+                                                                                url: str) -> None:
+    # DPU 1 runs a 10 ms minor cycle, DPU 2 a 15 ms one: their grids meet every 30 ms.
+    rates = ("process.fast_writer.period_us=10000", "process.fast_reader.period_us=15000",
+             "process.slow_reader.period_us=15000")
+    common_ns = 30 * MS
+    slower = _pair(url, *rates, "process.slow_writer.compute_us=1500", "process.fast_reader.compute_us=1500")
+    # 300 ms after now is on no grid: each DPU's own next release would differ by up to 15 ms.
+    done = _switch_mid_run(dpus, url, 5252, _pair(url, *rates), slower, 2.0)
+    g, records, at_mono, ids = done.g, done.records, done.at_mono, [1, 2]
+    t0 = min(r.release_ns for r in records)  # the run's first release: minor 0 of both DPUs
+    switch = {d: min(r.release_ns for r in records if r.dpu == d and r.generation == g + 1) for d in ids}
+    assert abs(switch[1] - switch[2]) < MS, switch
+    for d in ids:
+        assert at_mono[d] - MS <= switch[d] < at_mono[d] + common_ns + MS, (d, switch, at_mono)
+        offgrid = (switch[d] - t0) % common_ns
+        assert min(offgrid, common_ns - offgrid) < MS, (d, offgrid)
 
 
 def test_commit_for_a_generation_not_staged_changes_nothing(dpus: DpuFarm, url: str) -> None:

@@ -42,6 +42,13 @@ static void test_valid(void)
     f.dpus[0].minor_cycle_us = 0;
     CHECK_EQ(validate(&f, 0), 0);
     CHECK_EQ(config_minor_us(&f.cfg, &f.dpus[0]), 10000);
+    /* The grid both DPUs share: lcm(10 ms, 5 ms); none when it would be longer than 10 s. */
+    CHECK_EQ(config_common_us(&f.cfg), 10000);
+    f.dpus[1].minor_cycle_us = 23800;
+    CHECK_EQ(config_common_us(&f.cfg), 1190000);
+    f.dpus[1].minor_cycle_us = 9999991; /* a prime: the lcm is 100 s */
+    CHECK_EQ(config_common_us(&f.cfg), 0);
+    f.dpus[1].minor_cycle_us = 0;
 }
 
 #define REJECTS(setup, dpu_index, words)                 \

@@ -98,6 +98,13 @@ static void test_index(void)
     CHECK_EQ(swap_index(&plan, -1, T0 - 7 * MS), 0);          /* before the start: at the start */
     CHECK_EQ(swap_index(&plan, -1, 1), 0);
     CHECK_EQ(swap_instant(&plan, 21), T0 + 105 * MS);
+    /* Another DPU runs 15 ms minor cycles: the switch waits for the 15 ms grid they share. */
+    plan.common_ns = 15 * MS;
+    CHECK_EQ(swap_index(&plan, 10, T0 + 20 * 5 * MS), 21);   /* 100 ms -> 105 ms, minor 21 */
+    CHECK_EQ(swap_index(&plan, 10, T0 + 21 * 5 * MS), 21);   /* on the common grid: that one */
+    CHECK_EQ(swap_index(&plan, 10, T0 + 3 * 5 * MS), 12);    /* in the past: next common point */
+    CHECK_EQ(swap_index(&plan, 11, 0), 12);                  /* no instant: the next release */
+    CHECK_EQ(swap_index(&plan, -1, T0 - 7 * MS), 0);
 }
 
 static void test_carry(void)
