@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from .parallel import WORKERS, map_threads
+
 # LCM type -> (numpy dtype, struct code). Struct codes are explicit because numpy's
 # dtype.char for int64 is "l", which struct's standard sizes read as 4 bytes.
 _PRIMITIVES = {
@@ -141,15 +143,20 @@ def decode_many(layout: FlatLayout, buf: np.ndarray, starts: np.ndarray, lengths
     sizes = [int(n.sum()) * dtype.itemsize for _, _, n, dtype in plan]
     arena = np.empty(sum(sizes), dtype=np.uint8)
     paddings = {id(n): _Padding.of(n) for n in counts.values() if _unequal(n) and _padded(n)}
-    scratch = np.empty(max([paddings[id(n)].elements * dtype.itemsize for _, _, n, dtype in plan
-                            if id(n) in paddings] + [0]), dtype=np.uint8)
-    columns: dict[str, np.ndarray] = {}
-    offset = 0
-    for (name, at_j, n, dtype), size in zip(plan, sizes, strict=True):
-        out = arena[offset : offset + size].view(dtype)
-        _concat_into(out, buf, at_j, n, scratch, paddings.get(id(n)))
-        columns[name] = out.view(dtype.newbyteorder("="))
-        offset += size
+    scratch_bytes = max([paddings[id(n)].elements * dtype.itemsize for _, _, n, dtype in plan
+                         if id(n) in paddings] + [0])
+    outs = np.split(arena, np.cumsum(sizes)[:-1]) if plan else []
+    columns = {name: out.view(dtype.newbyteorder("="))
+               for (name, _, _, dtype), out in zip(plan, outs, strict=True)}
+    # Columns are filled side by side (parallel.py), each worker with its own scratch.
+    workers = min(WORKERS, len(plan))
+
+    def fill(worker: int) -> None:
+        scratch = np.empty(scratch_bytes, dtype=np.uint8)
+        for (_, at_j, n, dtype), out in itertools.islice(zip(plan, outs, strict=True), worker, None, workers):
+            _concat_into(out.view(dtype), buf, at_j, n, scratch, paddings.get(id(n)))
+
+    map_threads(fill, range(workers), sum(sizes))
     return Decoded(ok=ok, scalars=scalars, counts=counts, columns=columns)
 
 

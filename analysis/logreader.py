@@ -22,6 +22,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .parallel import map_threads
+
 SYNC = 0xEDA1DA01
 SYNC_BYTES = struct.pack(">I", SYNC)
 HEADER_BYTES = 28
@@ -245,18 +247,25 @@ class _Runs:
         return self.pos[i:end], self.head[i:end], int(self.next[end - 1])
 
 
-def _sync_words(buf: np.ndarray, chunk: int = 1 << 24) -> np.ndarray:
+SYNC_CHUNK_BYTES = 1 << 24
+
+
+def _sync_words(buf: np.ndarray) -> np.ndarray:
     """Offsets of every sync word, in bulk: its first byte, then the three others at
-    those few places. Chunked, so the temporary masks stay small."""
-    out = [np.zeros(0, dtype=np.int64)]
+    those few places. Chunked, so the temporary masks stay small (and the chunks are
+    scanned side by side, parallel.py)."""
     last = len(buf) - len(SYNC_BYTES)
-    for start in range(0, last + 1, chunk):
+    chunk = SYNC_CHUNK_BYTES
+
+    def scan(start: int) -> np.ndarray:
         seg = buf[start : min(last, start + chunk - 1) + len(SYNC_BYTES)]
         hit = np.flatnonzero(seg[: len(seg) - 3] == SYNC_BYTES[0])
         for k in (1, 2, 3):
             hit = hit[seg[hit + k] == SYNC_BYTES[k]]
-        out.append(hit.astype(np.int64) + start)
-    return np.concatenate(out)
+        return hit.astype(np.int64) + start
+
+    hits = map_threads(scan, range(0, last + 1, chunk), len(buf))
+    return np.concatenate([np.zeros(0, dtype=np.int64), *hits])
 
 
 def _follow(

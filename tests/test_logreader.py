@@ -10,7 +10,7 @@ import pytest
 from analysis_synth import RUN_ID, batches, small_config, small_run, status, write_log
 
 import skelmsg
-from skeleton.analysis import logreader
+from skeleton.analysis import logreader, parallel
 from skeleton.analysis.flatdecode import FlatLayout
 from skeleton.analysis.logreader import SYNC_BYTES, encode_events, read_bytes, read_log
 from skeleton.analysis.records import INPUT_DTYPE, RECORD_DTYPE, TIMING, decode_run, load_run, run_ids
@@ -19,11 +19,14 @@ from skeleton.analysis.records import INPUT_DTYPE, RECORD_DTYPE, TIMING, decode_
 @pytest.fixture(params=["walk", "scan"], autouse=True)
 def walk_mode(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
     """Every reader test runs twice: walking event by event, and with the sync-word scan
-    (which only big logs of small events use by default)."""
+    (which only big logs of small events use by default) in many small chunks, and the
+    columns decoded, on threads as big logs are (parallel.py)."""
     if request.param == "scan":
         monkeypatch.setattr(logreader, "SCAN_MIN_FILE_BYTES", 0)
         monkeypatch.setattr(logreader, "SCAN_BELOW_MEAN_BYTES", 1 << 30)
         monkeypatch.setattr(logreader, "_PROBE_EVENTS", 1)
+        monkeypatch.setattr(logreader, "SYNC_CHUNK_BYTES", 61)  # sync words across chunk ends too
+        monkeypatch.setattr(parallel, "WORTH_BYTES", 0)
     return str(request.param)
 
 
@@ -297,3 +300,14 @@ def test_run_records_equal_the_structured_arrays_field_by_field(tmp_path: Path) 
                 got[np.array([len(want)])]
             with pytest.raises(IndexError):
                 got[np.ones(len(want) + 1, dtype=bool)]
+
+
+def test_sync_word_scan_finds_every_one_across_chunk_ends(walk_mode: str) -> None:
+    """The scan is only a short cut (a missed sync word falls back to walking), so it is
+    checked on its own: every sync word, also one cut by a chunk's end, on every thread."""
+    buf = np.frombuffer(_garbage(5000), dtype=np.uint8).copy()
+    where = [0, 59, 120, 182, 244, 1000, 4996]  # cut by the ends of 61-byte chunks ("scan" mode)
+    for at in where:
+        buf[at : at + 4] = np.frombuffer(SYNC_BYTES, dtype=np.uint8)
+    expected = [i for i in range(len(buf) - 3) if bytes(buf[i : i + 4]) == SYNC_BYTES]
+    assert logreader._sync_words(buf).tolist() == expected and len(expected) >= 6
