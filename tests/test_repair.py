@@ -18,7 +18,9 @@ from conftest import skel_background
 from skeleton.host.repair import SeenBatches, seq_ranges
 
 # Two DPUs, 1000 records a second each: ~20 timing batches a second of ~4.5 kB (four
-# datagrams), so two stopped seconds overflow the logger's 208 kB socket buffer.
+# datagrams), ~250 kB/s of the logger's socket buffer (net.core.rmem_default, 208 kB
+# here): stopped for three times what that buffer holds, the logger must lose some.
+BYTES_PER_S = 250_000
 BUSY_SYSTEM = """\
 system: busy
 dpus: [{id: 1, compute: sleep}, {id: 2, compute: sleep}]
@@ -27,7 +29,7 @@ processes:
   - {id: 2, name: b1, dpu: 1, period_us: 2000, compute_us: 100}
   - {id: 3, name: a2, dpu: 2, period_us: 2000, compute_us: 100}
   - {id: 4, name: b2, dpu: 2, period_us: 2000, compute_us: 100}
-run: {duration_s: 5, warmup_cycles: 10, lockout_cycles: 200}
+run: {warmup_cycles: 10, lockout_cycles: 200}
 """
 
 
@@ -48,17 +50,21 @@ def _logger_pid(log: Path, timeout_s: float) -> int:
 
 
 def test_run_refills_what_a_stalled_logger_missed(tmp_path: Path, url: str) -> None:
+    rmem = int(Path("/proc/sys/net/core/rmem_default").read_text())
+    stopped_s = min(20.0, max(2.0, 3 * rmem / BYTES_PER_S))
+    duration_s = int(stopped_s) + 3
     system = tmp_path / "busy.yaml"
     system.write_text(BUSY_SYSTEM)
     out = tmp_path / "busy"
-    run = skel_background("run", str(system), "--spawn", "--url", url, "--out", str(out))
+    run = skel_background("run", str(system), "--spawn", "--url", url, "--duration", str(duration_s),
+                          "--out", str(out))
     try:
         pid = _logger_pid(out / "run.lcm", 30)
         time.sleep(2.0)  # the clock estimate, the START lead, a second of the run
         os.kill(pid, signal.SIGSTOP)
-        time.sleep(2.0)
+        time.sleep(stopped_s)
         os.kill(pid, signal.SIGCONT)
-        code = run.wait(60)
+        code = run.wait(60 + duration_s)
     finally:
         if run.proc.poll() is None:
             run.proc.kill()
@@ -71,7 +77,7 @@ def test_run_refills_what_a_stalled_logger_missed(tmp_path: Path, url: str) -> N
     # ... and the log holds every batch and every cycle all the same.
     report = json.loads((out / "report.json").read_text())
     assert report["integrity"]["lost_batches"] == [], report["integrity"]
-    expected = 5 * 500 - 10
+    expected = duration_s * 500 - 10
     short = {p["name"]: p["cycles"] for p in report["processes"] if p["cycles"] < expected - 2}
     assert len(report["processes"]) == 4 and not short, short
 
