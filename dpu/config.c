@@ -163,21 +163,24 @@ static int config_check_process(const skelmsg_config_t *cfg, const skelmsg_dpu_t
     return 0;
 }
 
+static int64_t config_gcd(int64_t a, int64_t b)
+{
+    while (b != 0) {
+        int64_t t = a % b;
+        a = b;
+        b = t;
+    }
+    return a;
+}
+
 /* The gcd of our periods: the minor cycle when the config leaves it at 0. */
 int64_t config_minor_us(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d)
 {
     if (d->minor_cycle_us > 0) return d->minor_cycle_us;
     int64_t g = 0;
-    for (int i = 0; i < cfg->nprocesses; i++) {
-        if (cfg->processes[i].dpu != d->id || cfg->processes[i].period_us <= 0) continue;
-        int64_t a = cfg->processes[i].period_us, b = g;
-        while (b != 0) {
-            int64_t t = a % b;
-            a = b;
-            b = t;
-        }
-        g = a;
-    }
+    for (int i = 0; i < cfg->nprocesses; i++)
+        if (cfg->processes[i].dpu == d->id && cfg->processes[i].period_us > 0)
+            g = config_gcd(cfg->processes[i].period_us, g);
     return g;
 }
 
@@ -188,14 +191,9 @@ int64_t config_common_us(const skelmsg_config_t *cfg)
 {
     int64_t common = 1;
     for (int i = 0; i < cfg->ndpus; i++) {
-        int64_t m = config_minor_us(cfg, &cfg->dpus[i]), a = common, b = m;
+        int64_t m = config_minor_us(cfg, &cfg->dpus[i]);
         if (m <= 0) continue;
-        while (b != 0) {
-            int64_t t = a % b;
-            a = b;
-            b = t;
-        }
-        common = common / a * m; /* <= 1e7 * INT32_MAX: no overflow */
+        common = common / config_gcd(common, m) * m; /* <= 1e7 * INT32_MAX: no overflow */
         if (common > SKEL_MAX_COMMON_US) return 0;
     }
     return common;
