@@ -121,13 +121,23 @@ def start_logger(url: str, path: Path, channels: str = LOGGED_CHANNELS,
 
 
 def stop(daemon: Daemon, timeout_s: float = 3.0) -> int | None:
-    """SIGINT (the logger flushes on it, the DPU exits cleanly), then SIGKILL."""
+    """SIGINT (the logger flushes on it, the DPU exits cleanly), then SIGKILL to its whole
+    process group: under `timeout` (which leads a group of its own) killing the wrapper
+    alone would orphan a daemon stuck on its way out, e.g. a sanitizer's exit-time check."""
     if daemon.alive():
         daemon.process.send_signal(signal.SIGINT)
         try:
             daemon.process.wait(timeout_s)
         except subprocess.TimeoutExpired:
-            daemon.process.kill()
+            pid = daemon.process.pid
+            try:
+                leads_group = os.getpgid(pid) == pid
+            except ProcessLookupError:
+                leads_group = False
+            if leads_group:
+                os.killpg(pid, signal.SIGKILL)
+            else:
+                daemon.process.kill()
             daemon.process.wait()
     return daemon.process.returncode
 

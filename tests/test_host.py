@@ -13,8 +13,10 @@ import signal
 import time
 from pathlib import Path
 
+import pytest
 from conftest import EXAMPLES, DpuFarm, skel, skel_background
 
+from skeleton.host import spawn
 from skeleton.host.control import Control
 
 PAIR = str(EXAMPLES / "pair-10ms-5ms.yaml")
@@ -174,3 +176,34 @@ def test_bad_options_are_one_line_exit_2(tmp_path: Path, url: str) -> None:
         done = skel(*args)
         assert done.returncode == 2, (args, done.stdout, done.stderr)
         assert len(done.stderr.strip().splitlines()) == 1 and "Traceback" not in done.stderr, done.stderr
+
+
+def test_a_daemon_stuck_on_its_way_out_is_killed_not_orphaned(tmp_path: Path,
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """`skel run --spawn` stops its DPUs with SIGINT; one that does not exit (here: it
+    ignores the signal) is killed with the `timeout` wrapper around it, not left behind."""
+    stuck = tmp_path / "stuck-dpu"
+    pid_file = tmp_path / "pid"
+    stuck.write_text(f"#!/bin/sh\ntrap '' INT TERM\necho $$ > {pid_file}\nwhile :; do sleep 0.1; done\n")
+    stuck.chmod(0o755)
+    monkeypatch.setenv("SKEL_DPU", str(stuck))
+    daemon = spawn.start_dpu(1, "udpm://239.255.76.67:7667?ttl=0", tmp_path, deadline_s=60)
+    deadline = time.monotonic() + 5
+    while not pid_file.exists() or not pid_file.read_text().strip():
+        assert time.monotonic() < deadline, "the stand-in DPU did not start"
+        time.sleep(0.05)
+    pid = int(pid_file.read_text())
+    spawn.stop(daemon, timeout_s=0.5)
+    deadline = time.monotonic() + 5
+    while _alive(pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _alive(pid), f"process {pid} outlived skel's stop"
+
+
+def _alive(pid: int) -> bool:
+    """Running (a zombie nobody reaped yet is not running)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
