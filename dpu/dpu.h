@@ -50,6 +50,7 @@
 #define SKEL_HISTORY_BATCHES 4096               /* ... at most this many */
 #define SKEL_STATUS_NS       (200 * 1000 * 1000LL)
 #define SKEL_REASON_LEN      256
+#define SKEL_RT_PRIORITY     10                 /* SCHED_FIFO of SLEEP-mode cycles, by default */
 #define SKEL_SEEN_COMMANDS   64
 
 #define SKEL_NS_PER_US 1000LL
@@ -335,6 +336,8 @@ typedef struct skel_server {
     char hostname[256];
     int32_t pid;
     skel_compute_t compute;
+    int rt_priority;           /* SCHED_FIFO priority of a run's cycles; 0 never, -1 default */
+    int rt_warned;             /* executive thread only: SCHED_FIFO refused, said once */
 
     lcm_t *ctl;                /* control thread's lcm_t on the control URL */
     int wake_fd;               /* eventfd: anything -> executive (stop, quit) */

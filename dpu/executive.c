@@ -7,6 +7,7 @@
  * runs the thread waits for a START and keeps the link queues drained. */
 #include <errno.h>
 #include <sched.h>
+#include <stdio.h>
 #include <string.h>
 #include <sys/prctl.h>
 #include <time.h>
@@ -35,6 +36,27 @@ static void executive_pin(const skel_plan_t *plan)
     if (rc != 0)
         skel_log("DPU %d: warning: cannot pin to CPU %d (%s); running unpinned", plan->dpu,
                  plan->cpu, rc > 0 ? strerror(rc) : "out of range");
+}
+
+/* SLEEP models a dedicated processor: on a shared machine every late wake-up
+ * would lengthen the emulated computations and the DPU would seem overloaded.
+ * So a run's cycles go under SCHED_FIFO where permitted; they sleep nearly all
+ * the time, so this cannot starve the machine. The spinning modes stay
+ * SCHED_OTHER unless --rt-priority asks. Between runs: SCHED_OTHER. */
+static int executive_schedule(skel_server_t *s, const skel_plan_t *plan, int running)
+{
+    int prio = s->rt_priority >= 0 ? s->rt_priority
+               : plan->compute == SKELMSG_DPU_T_COMPUTE_SLEEP ? SKEL_RT_PRIORITY : 0;
+    if (!running) prio = 0;
+    struct sched_param sp = { .sched_priority = prio };
+    int rc = pthread_setschedparam(pthread_self(), prio > 0 ? SCHED_FIFO : SCHED_OTHER, &sp);
+    if (rc != 0 && !s->rt_warned) {
+        s->rt_warned = 1;
+        skel_log("DPU %d: warning: cannot run cycles under %s (%s): a busy machine will stretch "
+                 "them (needs root or CAP_SYS_NICE; --rt-priority 0 silences this)",
+                 plan->dpu, prio > 0 ? "SCHED_FIFO" : "SCHED_OTHER", strerror(rc));
+    }
+    return rc == 0 ? prio : 0; /* the SCHED_FIFO priority in effect, 0: SCHED_OTHER */
 }
 
 static int64_t executive_max_period(const skel_plan_t *plan)
@@ -160,6 +182,7 @@ static void executive_switch(skel_exec_t *x, int64_t j_sw, int ran)
     old->running = 0;
     (void)link_drain(next->links, next->nlinks); /* ... so the copies here are dropped */
     if (next->cpu != old->cpu) executive_pin(next);
+    if (next->compute != old->compute) (void)executive_schedule(s, next, 1);
     if (pthread_mutex_lock(&s->lock) != 0) return;
     s->plan = next;
     s->retired = old; /* the control thread emptied it before it offered NEXT */
@@ -198,6 +221,7 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
     plan_reset_run(plan, run->run_id);
     plan->clock_offset_ns = s->clock_offset_ns;
     executive_pin(plan);
+    int fifo = executive_schedule(s, plan, 1);
     int64_t t0 = run->start_mono_ns;
     plan->run_t0_ns = plan->epoch_t0_ns = t0;
     plan->measure_from_ns = t0 + plan->warmup_cycles * executive_max_period(plan);
@@ -207,8 +231,10 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
     if (rc != 0) return;
     plan->running = 1;
     executive_set_state(s, SKELMSG_STATUS_T_STATE_RUNNING);
-    skel_log("DPU %d: run %lld started (%d processes)", plan->dpu, (long long)run->run_id,
-             plan->nprocesses);
+    char klass[32] = "SCHED_OTHER";
+    if (fifo > 0) snprintf(klass, sizeof klass, "SCHED_FIFO %d", fifo);
+    skel_log("DPU %d: run %lld started (%d processes, %s)", plan->dpu, (long long)run->run_id,
+             plan->nprocesses, klass);
     int ran = 0;
     int64_t j_prev = -1, j = executive_next_release(plan, 0), j_sw = 0;
     for (;;) {
@@ -237,6 +263,7 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
     }
     if (x.announce) executive_announce(&x);
     x.plan->running = 0;
+    (void)executive_schedule(s, x.plan, 0);
 }
 
 /* Waits for a START. During a run only the executive swaps the plan (at a

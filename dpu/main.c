@@ -14,12 +14,15 @@
 static void usage(void)
 {
     fprintf(stderr,
-            "usage: skel-dpu --id N|auto [--url URL] [--clock-offset-ns N] [--spin-us N] [--verbose]\n"
+            "usage: skel-dpu --id N|auto [--url URL] [--clock-offset-ns N] [--spin-us N]\n"
+            "                [--rt-priority N] [--verbose]\n"
             "  --id N|auto          this DPU's id in the config; auto: the DPU whose host is this\n"
             "                       machine's host name\n"
             "  --url URL            control URL (default %s)\n"
             "  --clock-offset-ns N  test option: add N to every reported timestamp\n"
-            "  --spin-us N          compute mode SLEEP spins the last N us (default 150)\n",
+            "  --spin-us N          compute mode SLEEP spins the last N us (default 150)\n"
+            "  --rt-priority N      run cycles under SCHED_FIFO priority N (1-99; 0: never);\n"
+            "                       default: 10 in compute mode SLEEP where permitted\n",
             SKEL_DEFAULT_URL);
 }
 
@@ -39,6 +42,7 @@ static int parse_args(skel_server_t *s, int argc, char **argv)
     int64_t v;
     s->url = SKEL_DEFAULT_URL;
     s->compute.spin_ns = 150 * SKEL_NS_PER_US;
+    s->rt_priority = -1;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *next = i + 1 < argc ? argv[i + 1] : NULL;
         if (strcmp(a, "--verbose") == 0) { s->verbose = 1; continue; }
@@ -54,6 +58,8 @@ static int parse_args(skel_server_t *s, int argc, char **argv)
         else if (strcmp(a, "--clock-offset-ns") == 0 && parse_i64(next, &v) == 0) s->clock_offset_ns = v;
         else if (strcmp(a, "--spin-us") == 0 && parse_i64(next, &v) == 0 && v >= 0 && v < 1000000)
             s->compute.spin_ns = v * SKEL_NS_PER_US;
+        else if (strcmp(a, "--rt-priority") == 0 && parse_i64(next, &v) == 0 && v >= 0 && v <= 99)
+            s->rt_priority = (int)v;
         else { fprintf(stderr, "skel-dpu: bad option or value: %s %s\n", a, next); return -1; }
     }
     if (!have_id) fprintf(stderr, "skel-dpu: --id N|auto is required\n");

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import struct
 import time
+from pathlib import Path
 
 import lcm
 from conftest import EXAMPLES, DpuFarm
@@ -92,3 +94,56 @@ def test_dpu_ignores_undecodable_messages(dpus: DpuFarm, url: str) -> None:
         assert control.wait_for(lambda: (2, 7) in control.reports, 5.0)
     finally:
         control.close()
+
+
+# A DPU in `sleep` mode and one in `wall` mode, each one process.
+MODES_SYSTEM = """\
+system: modes
+dpus: [{id: 1, compute: sleep}, {id: 2, compute: wall}]
+processes:
+  - {id: 1, name: sleeper, dpu: 1, period_us: 5000, compute_us: 500}
+  - {id: 2, name: spinner, dpu: 2, period_us: 5000, compute_us: 500}
+run: {duration_s: 2, warmup_cycles: 5}
+"""
+
+
+def _exec_sched(pid: int) -> tuple[int, int]:
+    """(policy, rt priority) of a DPU's cycle thread: 0 SCHED_OTHER, 1 SCHED_FIFO."""
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        if (task / "comm").read_text().strip() == "skel-exec":
+            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()  # from field 3, state
+            return int(fields[41 - 3]), int(fields[40 - 3])
+    raise AssertionError(f"no skel-exec thread in process {pid}")
+
+
+def test_sleep_mode_cycles_run_sched_fifo_where_permitted(dpus: DpuFarm, url: str, tmp_path: Path) -> None:
+    """`sleep` models a dedicated processor: its cycles run SCHED_FIFO (when the DPU may),
+    so a busy machine does not stretch them; `wall` spins, and stays SCHED_OTHER."""
+    system_file = tmp_path / "modes.yaml"
+    system_file.write_text(MODES_SYSTEM)
+    system = load(system_file, []).with_url(url)
+    dpus.start(1, 2)
+    pids = {i: dpus.daemons[i].process.pid for i in (1, 2)}
+    control = Control(url)
+    permitted = os.geteuid() == 0
+    try:
+        assert control.wait_heard([1, 2], 5.0) == []
+        generation = control.next_generation()
+        assert control.push(system.to_config(generation, 0, committed=False), [1, 2]).ok
+        assert {i: _exec_sched(pids[i])[0] for i in (1, 2)} == {1: 0, 2: 0}  # between runs
+        control.start(generation, 77, time.time_ns() + 200_000_000, 2_000_000_000)
+        assert control.wait_for(lambda: all(control.dpus[i].status.state == skelmsg.status_t.STATE_RUNNING
+                                            for i in (1, 2)), 3.0)
+        during = {i: _exec_sched(pids[i]) for i in (1, 2)}
+        assert control.wait_for(lambda: all((i, 77) in control.reports for i in (1, 2)), 5.0)
+        time.sleep(0.2)
+        after = {i: _exec_sched(pids[i])[0] for i in (1, 2)}
+    finally:
+        control.close()
+    assert during == ({1: (1, 10), 2: (0, 0)} if permitted else {1: (0, 0), 2: (0, 0)})
+    assert after == {1: 0, 2: 0}
+    if permitted:
+        assert "run 77 started (1 processes, SCHED_FIFO 10)" in dpus.log(1)
+    else:
+        assert "cannot run cycles under SCHED_FIFO" in dpus.log(1)
+    assert "run 77 started (1 processes, SCHED_OTHER)" in dpus.log(2)
