@@ -228,7 +228,10 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
     executive_poll_switch(&x);
     int rc;
     while ((rc = executive_wait(&x, t0)) == 2) executive_poll_switch(&x);
-    if (rc != 0) return;
+    if (rc != 0) { /* stopped before its first release */
+        (void)executive_schedule(s, plan, 0);
+        return;
+    }
     plan->running = 1;
     executive_set_state(s, SKELMSG_STATUS_T_STATE_RUNNING);
     char klass[32] = "SCHED_OTHER";
