@@ -33,8 +33,9 @@ from typing import Any
 
 import numpy as np
 
-from .latency import NO_OFFSETS, ClockOffsets, Histogram, LatencyUs, histogram, latency_us
-from .records import FLAG_SKIPPED
+from .latency import NO_OFFSETS, ClockOffsets
+from .metrics import completed, measured
+from .stats import Histogram, LatencyUs, histogram, latency_us
 
 _CYCLE_BITS = 40  # (process, cycle) -> one int64 key; cycles stay far below 2**40
 
@@ -70,7 +71,7 @@ class _Lookup:
     """(process, cycle) -> record index and (record, buffer) -> input row, by binary search."""
 
     def __init__(self, records: np.ndarray, inputs: np.ndarray) -> None:
-        done = np.flatnonzero((records["flags"] & FLAG_SKIPPED) == 0)
+        done = np.flatnonzero(completed(records))
         keys = (records["process"][done].astype(np.int64) << _CYCLE_BITS) + records["cycle"][done]
         order = np.argsort(keys, kind="stable")
         self.rec_keys, self.rec_index = keys[order], done[order]
@@ -120,7 +121,7 @@ def chain_series(
     tail = pids[-1]
     # Every completed tail cycle's row on the last buffer (warm-up too: it tells
     # which values the measured window saw before).
-    rec_done = (records["flags"] & FLAG_SKIPPED) == 0
+    rec_done = completed(records)
     tail_rows = np.flatnonzero(
         (inputs["process"] == tail) & (inputs["buffer"] == steps[-1]) & rec_done[inputs["record"]]
     )
@@ -137,9 +138,9 @@ def chain_series(
     earlier = np.maximum.accumulate(np.r_[-1, head_cycle[:-1]]) if len(head_cycle) else head_cycle
     first = ok & (head_cycle > earlier)
     tail_rec = inputs["record"][tail_rows]
-    measured = records["cycle"][tail_rec] >= config.warmup_cycles
-    broken = int(np.count_nonzero(measured & ~ok & (inputs["new"][tail_rows] != 0)))
-    keep = first & measured & (inputs["new"][tail_rows] != 0)  # a stale input brings nothing
+    in_window = measured(records, config)[tail_rec]
+    broken = int(np.count_nonzero(in_window & ~ok & (inputs["new"][tail_rows] != 0)))
+    keep = first & in_window & (inputs["new"][tail_rows] != 0)  # a stale input brings nothing
     rec = records[tail_rec[keep]]
     use = clock.to_host(procs[tail].dpu, rec["start_ns"] + rec["comm_in_ns"] + rec["blocked_ns"])
     birth = clock.to_host(procs[pids[0]].dpu, born[keep])

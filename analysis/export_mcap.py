@@ -37,7 +37,15 @@ import skelmsg
 from .flatdecode import decode_heads
 from .lcmjson import schema_of, to_json, type_name
 from .metrics import cycle_end_ns
-from .records import FLAG_LOCKOUT, FLAG_OVERRUN, FLAG_SKIPPED, TIMING, TIMING_CHANNEL, decode_timing
+from .records import (
+    CYCLE_FIELDS,
+    FLAG_LOCKOUT,
+    FLAG_OVERRUN,
+    FLAG_SKIPPED,
+    TIMING,
+    TIMING_CHANNEL,
+    decode_timing,
+)
 from .report import LogError
 from .rundata import RunData, load_run_data
 
@@ -54,8 +62,7 @@ MESSAGE_CHANNELS: dict[str, tuple[type, str]] = {
 }
 _INT = {"type": "integer"}
 _NS = {"type": "integer", "description": "DPU CLOCK_MONOTONIC, ns"}
-_CYCLE = ["cycle", "minor", "release_ns", "start_ns", "comm_in_ns", "blocked_ns", "compute_ns",
-          "comm_out_ns", "idle_ns", "slack_ns", "flags"]  # fmt: skip
+_CYCLE = [*CYCLE_FIELDS, "flags"]
 _INPUT = ["buffer", "seq", "new", "dropped", "received", "sent_ns", "recv_ns"]
 TIMING_SCHEMA: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
@@ -66,7 +73,7 @@ TIMING_SCHEMA: dict[str, Any] = {
     "properties": {
         **{k: _INT for k in ("run_id", "dpu", "process", "generation", "batch_seq", "index", "logged_us")},
         "process_name": {"type": "string"},
-        **{k: (_NS if k in ("release_ns", "start_ns") else _INT) for k in _CYCLE},
+        **{k: (_NS if k in ("release_ns", "sched_ns", "start_ns") else _INT) for k in _CYCLE},
         **{k: {"type": "boolean"} for k in ("overrun", "skipped", "lockout")},
         "release_latency_us": {"type": "number", "description": "start - release"},
         "response_us": {"type": "number", "description": "end of the cycle's work - release"},

@@ -38,45 +38,8 @@ from typing import Any
 
 import numpy as np
 
-from .records import FLAG_SKIPPED
-
-
-@dataclass
-class LatencyUs:
-    p50: float | None
-    p99: float | None
-    max: float | None
-
-
-@dataclass
-class Histogram:
-    """Counts of samples in len(bins) - 1 equal bins; bins are the edges."""
-
-    bins: list[float] = field(default_factory=list)
-    counts: list[int] = field(default_factory=list)
-
-
-HISTOGRAM_BINS = 40
-
-
-def latency_us(samples_us: np.ndarray) -> LatencyUs:
-    """p50 / p99 (linear interpolation) / max of samples in µs; None when empty."""
-    if len(samples_us) == 0:
-        return LatencyUs(None, None, None)
-    p50, p99 = np.percentile(samples_us, [50, 99])
-    return LatencyUs(float(p50), float(p99), float(samples_us.max()))
-
-
-def histogram(samples: np.ndarray, bins: int = HISTOGRAM_BINS) -> Histogram:
-    """An equal-width histogram from the smallest to the largest sample (a 1-wide
-    range around the value when they are all equal)."""
-    if len(samples) == 0:
-        return Histogram()
-    low, high = float(samples.min()), float(samples.max())
-    if high <= low:
-        low, high = low - 0.5, high + 0.5
-    counts, edges = np.histogram(samples, bins=bins, range=(low, high))
-    return Histogram([round(float(e), 3) for e in edges], [int(c) for c in counts])
+from .metrics import completed, measured
+from .stats import Histogram, LatencyUs, group_slices, histogram, latency_us
 
 
 class ClockOffsets:
@@ -167,12 +130,11 @@ class BufferMetrics:
     readers: list[ReaderMetrics] = field(default_factory=list)
 
 
-def counted_inputs(records: np.ndarray, inputs: np.ndarray, warmup_cycles: int) -> np.ndarray:
+def counted_inputs(records: np.ndarray, inputs: np.ndarray, config: Any) -> np.ndarray:
     """Mask of the input records that count: those of completed, measured cycles."""
     if len(inputs) == 0:
         return np.zeros(0, dtype=bool)
-    ok = (records["cycle"] >= warmup_cycles) & ((records["flags"] & FLAG_SKIPPED) == 0)
-    return ok[inputs["record"]]
+    return (measured(records, config) & completed(records))[inputs["record"]]
 
 
 def transport_latency_ns(
@@ -185,25 +147,16 @@ def transport_latency_ns(
     return recv - sent
 
 
-def group_slices(keys: np.ndarray) -> tuple[np.ndarray, dict[int, slice]]:
-    """A stable sort order of `keys` and, per key, its slice of the sorted rows: one
-    sort instead of one full-array mask per group."""
-    order = np.argsort(keys, kind="stable")
-    sorted_keys = keys[order]
-    values, first, counts = np.unique(sorted_keys, return_index=True, return_counts=True)
-    return order, {int(v): slice(int(f), int(f + c)) for v, f, c in zip(values, first, counts, strict=True)}
-
-
 def buffer_metrics(
     records: np.ndarray, inputs: np.ndarray, config: Any, clock: ClockOffsets = NO_OFFSETS
 ) -> list[BufferMetrics]:
     """Per buffer (config order by id) that has a reader, over the measured window."""
     procs = {p.id: p for p in config.processes}
-    counted = inputs[counted_inputs(records, inputs, config.warmup_cycles)]
+    counted = inputs[counted_inputs(records, inputs, config)]
     order, groups = group_slices((counted["buffer"].astype(np.int64) << 16) + counted["process"])
     counted = counted[order]
-    completed = (records["cycle"] >= config.warmup_cycles) & ((records["flags"] & FLAG_SKIPPED) == 0)
-    done_per_process = dict(zip(*np.unique(records["process"][completed], return_counts=True), strict=True))
+    done = measured(records, config) & completed(records)
+    done_per_process = dict(zip(*np.unique(records["process"][done], return_counts=True), strict=True))
     out = []
     for buf in sorted(config.buffers, key=lambda b: b.id):
         readers = sorted((p for p in config.processes if buf.id in p.inputs), key=lambda p: p.id)

@@ -27,9 +27,9 @@ import skelmsg
 from .export_mcap import METADATA, RAW_TOPIC
 from .lcmjson import from_json, lcm_class
 from .logreader import Integrity, Log, encode_events, read_bytes
+from .records import CYCLE_FIELDS
 
-_RECORD = ["process", "cycle", "minor", "release_ns", "start_ns", "comm_in_ns", "blocked_ns",
-           "compute_ns", "comm_out_ns", "idle_ns", "slack_ns", "flags"]  # fmt: skip
+_RECORD = ["process", *CYCLE_FIELDS, "flags"]
 _INPUT = ["buffer", "seq", "new", "dropped", "received", "sent_ns", "recv_ns"]
 
 

@@ -1,10 +1,25 @@
-"""THE metric definitions: per-DPU utilization and per-process cycle statistics
-(per-buffer transport latency and loss: latency.py; chain latency: chains.py).
+"""THE metric definitions: the measurement window, per-DPU utilization and
+per-process cycle statistics (per-buffer transport latency and loss: latency.py;
+chain latency: chains.py; faults: faults.py).
 
 Everything here takes record arrays (records.RECORD_DTYPE / INPUT_DTYPE) and a
 config_t, never a file, so a post-mortem report, a replay and a live view compute
-the same numbers with the same code. Warm-up cycles (cycle < warmup_cycles) are
-excluded from every measure.
+the same numbers with the same code.
+
+The measurement window is one per DPU, shared by all its processes: it opens at
+t0 + warmup_cycles x the DPU's longest period (t0: the run's first release), when
+even the slowest process is past its warm-up, and every record released from then
+on counts. A fast process's warm-up is therefore longer than warmup_cycles of its
+own cycles; in exchange its sums and a slow process's cover the same time, so the
+DPU's % compute is its configured load whatever the mix of periods. The DPU's own
+report_t sums use the same window.
+
+Three times per cycle, each its own measure:
+- release latency = start - r_k (the process's release): cyclictest's figure for
+  the first process of a minor cycle; a later one includes the ones before it;
+- lateness = start - the schedule's start (r_k plus the configured compute of the
+  processes before it in its minor cycle): what `late` and `too late` judge;
+- the DPU's frame release latency: the first start of each minor cycle - its release.
 """
 
 from __future__ import annotations
@@ -14,9 +29,9 @@ from typing import Any
 
 import numpy as np
 
-from .latency import Histogram, LatencyUs, group_slices, histogram
-from .latency import latency_us as _latency
-from .records import FLAG_OVERRUN, FLAG_SKIPPED
+from .records import FLAG_OVERRUN, FLAG_RELEASE_SKIPPED, FLAG_SKIPPED
+from .stats import Histogram, LatencyUs, group_slices, histogram
+from .stats import latency_us as _latency
 
 
 @dataclass
@@ -47,9 +62,12 @@ class ProcessMetrics:
     latency_us: LatencyUs  # release latency: start - release
     compute_mean_us: float | None
     slack_min_us: float | None
-    late: int  # latency > late_pct % of the period (includes the too-late ones)
-    too_late: int  # latency > too_late_pct % of the period
+    late: int  # lateness > late_pct % of the period (includes the too-late ones)
+    too_late: int  # lateness > too_late_pct % of the period
     first_overrun_cycle: int | None = None
+    lateness_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))  # start - sched
+    releases_skipped: int = 0  # cycle skipping: a data-synchronised process a period behind
+    stall_ms: float = 0.0  # time its cycles' thread was kept from running
     inputs: list[InputMetrics] = field(default_factory=list)
     response_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))  # end - release
     slack_us: SlackUs = field(default_factory=lambda: SlackUs(None, None))
@@ -71,11 +89,41 @@ class DpuMetrics:
     overruns: int
     elapsed_ms: float | None
     records: int  # measured records
+    # the first start of each minor cycle - its release (cyclictest's figure)
+    release_latency_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))
+    stall_ms: float = 0.0  # time the executive was kept from running (stalls) in the window
 
 
-def measured(records: np.ndarray, warmup_cycles: int) -> np.ndarray:
-    """Mask of the records in the measured window."""
-    return records["cycle"] >= warmup_cycles
+def window_start_ns(records: np.ndarray, config: Any) -> dict[int, int]:
+    """Per DPU with records: when its measurement window opens, on its own clock.
+
+    t0 is where cycle 0 of every process was released (release - cycle x period of
+    any record); the window opens warmup_cycles of the DPU's longest period later."""
+    periods = {p.id: p.period_us * 1000 for p in config.processes}
+    longest: dict[int, int] = {}
+    for p in config.processes:
+        longest[p.dpu] = max(longest.get(p.dpu, 0), p.period_us * 1000)
+    period = np.array([periods.get(int(x), 0) for x in records["process"]], dtype=np.int64)
+    t0 = records["release_ns"] - records["cycle"] * period
+    out = {}
+    for dpu in np.unique(records["dpu"]).tolist():
+        mine = records["dpu"] == dpu
+        out[int(dpu)] = int(t0[mine].min()) + config.warmup_cycles * longest.get(int(dpu), 0)
+    return out
+
+
+def measured(records: np.ndarray, config: Any) -> np.ndarray:
+    """Mask of the records in their DPU's measurement window."""
+    if len(records) == 0:
+        return np.zeros(0, dtype=bool)
+    start = window_start_ns(records, config)
+    opens = np.array([start[int(d)] for d in records["dpu"]], dtype=np.int64)
+    return records["release_ns"] >= opens
+
+
+def completed(records: np.ndarray) -> np.ndarray:
+    """Mask of the cycles that ran to the end: not partial, not a skipped release."""
+    return (records["flags"] & (FLAG_SKIPPED | FLAG_RELEASE_SKIPPED)) == 0
 
 
 def cycle_end_ns(records: np.ndarray) -> np.ndarray:
@@ -100,13 +148,12 @@ def static_load_pct(config: Any, dpu_id: int) -> float:
 
 def dpu_metrics(records: np.ndarray, config: Any) -> list[DpuMetrics]:
     """Per DPU (config order by id) over the measured window."""
-    window = records[measured(records, config.warmup_cycles)]
+    window = records[measured(records, config)]
     out = []
     for dpu in sorted(config.dpus, key=lambda d: d.id):
         procs = sorted((p for p in config.processes if p.dpu == dpu.id), key=lambda p: (p.order, p.id))
         mine = window[window["dpu"] == dpu.id]
-        completed = mine[(mine["flags"] & FLAG_SKIPPED) == 0]
-        overruns = int(np.count_nonzero(_overran(completed)))
+        overruns = int(np.count_nonzero(_overran(mine[completed(mine)])))
         shares = _utilization(mine)
         elapsed = _elapsed_ns(mine)
         out.append(
@@ -123,9 +170,28 @@ def dpu_metrics(records: np.ndarray, config: Any) -> list[DpuMetrics]:
                 overruns=overruns,
                 elapsed_ms=None if elapsed is None else elapsed / 1e6,
                 records=len(mine),
+                release_latency_us=_latency(frame_release_latency_ns(mine).astype(np.float64) / 1000.0),
+                stall_ms=float(mine["stall_ns"].sum()) / 1e6,
             )
         )
     return out
+
+
+def _frames(mine: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per minor cycle of one DPU's records, in minor order: (first start, release)."""
+    if len(mine) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    order = np.argsort(mine["minor"], kind="stable")
+    minor = mine["minor"][order]
+    first = np.flatnonzero(np.r_[True, minor[1:] != minor[:-1]])
+    starts = np.minimum.reduceat(mine["start_ns"][order], first)
+    return starts, np.minimum.reduceat(mine["release_ns"][order], first)
+
+
+def frame_release_latency_ns(mine: np.ndarray) -> np.ndarray:
+    """Per minor cycle of one DPU's records: its first start - its release."""
+    starts, releases = _frames(mine)
+    return starts - releases
 
 
 def _elapsed_ns(mine: np.ndarray) -> int | None:
@@ -163,14 +229,9 @@ def utilization_pct(
 
 def _measured_cycle_ms(mine: np.ndarray) -> float | None:
     """Mean interval between consecutive minor-cycle starts (earliest start per minor index)."""
-    if len(mine) == 0:
+    starts, _ = _frames(mine)
+    if len(starts) < 2:
         return None
-    order = np.argsort(mine["minor"], kind="stable")
-    minor = mine["minor"][order]
-    first = np.flatnonzero(np.r_[True, minor[1:] != minor[:-1]])
-    if len(first) < 2:
-        return None
-    starts = np.minimum.reduceat(mine["start_ns"][order], first)
     return float(starts[-1] - starts[0]) / (len(starts) - 1) / 1e6
 
 
@@ -181,10 +242,10 @@ def _overran(records: np.ndarray) -> np.ndarray:
 def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> list[ProcessMetrics]:
     """Per process (config order by id) over the measured window."""
     buffers = {b.id: b for b in config.buffers}
-    in_window = measured(records, config.warmup_cycles)
+    in_window = measured(records, config)
     # An input record belongs to the window when its cycle record does, and counts
     # only for completed cycles, so new + stale == cycles for every input.
-    completed_idx = in_window & ((records["flags"] & FLAG_SKIPPED) == 0)
+    completed_idx = in_window & completed(records)
     in_mask = completed_idx[inputs["record"]] if len(inputs) else np.zeros(0, dtype=bool)
     counted_inputs = inputs[in_mask]
     # One sort per array instead of one full-array mask per process; the records are
@@ -198,8 +259,9 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
     for proc in sorted(config.processes, key=lambda p: p.id):
         mine = records[at[by_process.get(int(proc.id), slice(0, 0))]]
         skipped = (mine["flags"] & FLAG_SKIPPED) != 0
-        done = mine[~skipped]
+        done = mine[completed(mine)]
         latency = (done["start_ns"] - done["release_ns"]).astype(np.float64) / 1000.0
+        lateness = (done["start_ns"] - done["sched_ns"]).astype(np.float64) / 1000.0
         response = (cycle_end_ns(done) - done["release_ns"]).astype(np.float64) / 1000.0
         overran = _overran(done)
         late_us = proc.period_us * config.late_pct / 100.0
@@ -217,8 +279,8 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
                 latency_us=_latency(latency),
                 compute_mean_us=float(done["compute_ns"].mean()) / 1000.0 if len(done) else None,
                 slack_min_us=float(done["slack_ns"].min()) / 1000.0 if len(done) else None,
-                late=int(np.count_nonzero(latency > late_us)),
-                too_late=int(np.count_nonzero(latency > too_late_us)),
+                late=int(np.count_nonzero(lateness > late_us)),
+                too_late=int(np.count_nonzero(lateness > too_late_us)),
                 first_overrun_cycle=int(done["cycle"][overran].min()) if overran.any() else None,
                 inputs=[_input(my_inputs, b, buffers) for b in proc.inputs],
                 response_us=_latency(response),
@@ -227,6 +289,9 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
                     float(done["slack_ns"].mean()) / 1000.0 if len(done) else None,
                 ),
                 histograms={"release_latency_us": histogram(latency), "response_us": histogram(response)},
+                lateness_us=_latency(lateness),
+                releases_skipped=int(np.count_nonzero((mine["flags"] & FLAG_RELEASE_SKIPPED) != 0)),
+                stall_ms=float(mine["stall_ns"].sum()) / 1e6,
             )
         )
     return out

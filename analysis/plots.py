@@ -22,7 +22,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
-from .metrics import cycle_end_ns
+from .metrics import cycle_end_ns, measured
 from .records import FLAG_OVERRUN, FLAG_SKIPPED
 from .report import LogError
 from .rundata import RunData, load_run_data
@@ -171,8 +171,8 @@ def _host_ns(data: RunData, recs: np.ndarray, field_ns: np.ndarray) -> np.ndarra
 def default_window_ns(data: RunData) -> tuple[int, int]:
     """From the moment every process is past warm-up, 4 minor cycles of the slowest DPU."""
     recs = data.records
-    measured = recs[recs["cycle"] >= data.config.warmup_cycles]
-    use = measured if len(measured) else recs
+    in_window = recs[measured(recs, data.config)]
+    use = in_window if len(in_window) else recs
     if not len(use):
         return 0, 1
     release = _host_ns(data, use, use["release_ns"])

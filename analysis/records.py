@@ -23,18 +23,21 @@ TIMING = FlatLayout.of(skelmsg.timing_t)
 FLAG_OVERRUN = skelmsg.timing_t.FLAG_OVERRUN
 FLAG_SKIPPED = skelmsg.timing_t.FLAG_SKIPPED
 FLAG_LOCKOUT = skelmsg.timing_t.FLAG_LOCKOUT
+FLAG_RELEASE_SKIPPED = skelmsg.timing_t.FLAG_RELEASE_SKIPPED
 
 # The scalars in front of the first array: enough to pick a run without decoding arrays.
 if TIMING.head[0][:4] != ("dpu", "run_id", "generation", "batch_seq"):
     raise ImportError(f"timing_t changed: its header is now {TIMING.head[0]}; update analysis/records.py")
 
-_CYCLE_FIELDS = (
-    "cycle", "minor", "release_ns", "start_ns", "comm_in_ns", "blocked_ns",
-    "compute_ns", "comm_out_ns", "idle_ns", "slack_ns",
+# The per-cycle fields of timing_t, in its order: the record tables, the MCAP export and
+# its reader all follow this list.
+CYCLE_FIELDS = (
+    "cycle", "minor", "release_ns", "sched_ns", "start_ns", "comm_in_ns", "blocked_ns",
+    "compute_ns", "comm_out_ns", "idle_ns", "slack_ns", "stall_ns",
 )  # fmt: skip
 RECORD_DTYPE = np.dtype(
     [("dpu", "i2"), ("process", "i2"), ("generation", "i8"), ("batch_seq", "i8")]
-    + [(name, "i8") for name in _CYCLE_FIELDS]
+    + [(name, "i8") for name in CYCLE_FIELDS]
     + [("flags", "i1")]
 )
 INPUT_DTYPE = np.dtype(
@@ -212,7 +215,7 @@ def _records(cols: dict[str, np.ndarray], table: np.ndarray) -> ColumnTable:
         "process": cols["process"],
         "generation": np.repeat(table[:, 1], counts),
         "batch_seq": np.repeat(table[:, 2], counts),
-        **{name: cols[name] for name in _CYCLE_FIELDS},
+        **{name: cols[name] for name in CYCLE_FIELDS},
         "flags": cols["flags"],
     }
     return ColumnTable.of(out, RECORD_DTYPE)

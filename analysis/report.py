@@ -172,7 +172,7 @@ def build_report(
 
 def _cross_check(records: np.ndarray, config: Any, reports: Sequence[Any]) -> list[dict[str, Any]]:
     """The DPU's own running sums (report_t) beside ours: they should agree."""
-    window = records[measured(records, config.warmup_cycles)]
+    window = records[measured(records, config)]
     out = []
     for rep in sorted(reports, key=lambda r: r.dpu):
         mine = window[window["dpu"] == rep.dpu]

@@ -55,8 +55,8 @@ def window_records(run: RunRecords, generation: int) -> tuple[np.ndarray, np.nda
     return run.records[keep], inputs
 
 
-def _span(records: np.ndarray, warmup_cycles: int, clock: ClockOffsets) -> tuple[int | None, int | None]:
-    mine = records[measured(records, warmup_cycles)]
+def _span(records: np.ndarray, config: Any, clock: ClockOffsets) -> tuple[int | None, int | None]:
+    mine = records[measured(records, config)]
     if len(mine) == 0:
         mine = records
     if len(mine) == 0:
@@ -78,7 +78,7 @@ def build_window(
     this window; `reported`: DPUs that sent their end-of-run report_t (last window only)."""
     processes = process_metrics(records, inputs, config)
     locks = lockouts_from_records(records, lockouts or {})
-    start, end = _span(records, config.warmup_cycles, clock)
+    start, end = _span(records, config, clock)
     return WindowReport(
         generation=int(config.generation),
         start_ns=start,

@@ -51,6 +51,8 @@
 #define SKEL_STATUS_NS       (200 * 1000 * 1000LL)
 #define SKEL_REASON_LEN      256
 #define SKEL_RT_PRIORITY     10                 /* SCHED_FIFO of SLEEP-mode cycles, by default */
+#define SKEL_STALL_NS        (1000 * 1000LL)    /* the thread kept from running this long: a stall */
+#define SKEL_DRIFT_PCT       2.0                /* WORK calibration further off than this: said */
 #define SKEL_SEEN_COMMANDS   64
 
 #define SKEL_NS_PER_US 1000LL
@@ -150,12 +152,17 @@ int buffers_output_encode(skel_output_t *out, int64_t run_id, int16_t writer, in
 
 /* ---- compute (compute.c): the emulated computation ----------------------------- */
 typedef struct {
-    double work_iters_per_us;  /* this CPU's calibration of the WORK kernel */
+    double work_iters_per_us;  /* this CPU's calibration of the WORK kernel (the reference) */
     int64_t spin_ns;           /* SLEEP: spin this last stretch */
+    int64_t stall_ns;          /* a wake-up this late, or a gap this long, is a stall */
 } skel_compute_t;
 
+#define CALIBRATION_RUNS_MAX 15
+#define CALIBRATION_RUN_NS   (4 * 1000 * 1000LL)
+
 int compute_calibrate(skel_compute_t *c);
-int64_t compute_run(const skel_compute_t *c, int mode, int64_t ns);
+double compute_check_calibration(const skel_compute_t *c); /* % slower than the reference */
+int64_t compute_run(const skel_compute_t *c, int mode, int64_t ns, int64_t *stall);
 uint64_t compute_work_kernel(uint64_t iterations);
 
 /* ---- timing (timing.c): per-cycle records, SPSC ring, timing_t batches ---------- */
@@ -164,8 +171,8 @@ typedef struct {
     int8_t flags;
     int8_t ninputs;
     int64_t generation;        /* of the plan that ran the cycle: batches never mix two */
-    int64_t cycle, minor, release_ns, start_ns, comm_in_ns, blocked_ns, compute_ns,
-        comm_out_ns, idle_ns, slack_ns;
+    int64_t cycle, minor, release_ns, sched_ns, start_ns, comm_in_ns, blocked_ns, compute_ns,
+        comm_out_ns, idle_ns, slack_ns, stall_ns;
     skel_in_rec_t in[SKEL_MAX_IO];
 } skel_rec_t;
 
@@ -241,7 +248,7 @@ int link_wait(skel_link_t *links, int nlinks, int wake_fd, int timeout_ms);
 /* One process's totals over the measured window (report_t's process_report_t);
  * a live switch carries them over whole. */
 typedef struct {
-    int64_t cycles, overruns, compute_ns, communicate_ns, wait_ns, max_latency_ns;
+    int64_t cycles, overruns, compute_ns, communicate_ns, wait_ns, max_latency_ns, releases_skipped;
 } skel_process_sums_t;
 
 typedef struct {
@@ -265,7 +272,7 @@ typedef struct {
     int64_t first_release_ns;  /* -1 until the measured window starts */
     int64_t end_ns;
     int64_t minor_cycles;
-    int64_t compute_ns, communicate_ns, wait_ns;
+    int64_t compute_ns, communicate_ns, wait_ns, stall_ns;
 } skel_dpu_sums_t;
 
 typedef struct skel_plan {
@@ -295,6 +302,7 @@ typedef struct skel_plan {
     atomic_int_fast64_t *rejected;
     int64_t publish_errors;
     int64_t measure_from_ns;    /* DPU window: every process past its warm-up */
+    double work_drift_pct;      /* WORK: the calibration check at this run's start */
     skel_dpu_sums_t sums;
 } skel_plan_t;
 
@@ -394,11 +402,13 @@ typedef struct {
     int switch_pending;        /* s->next_plan was set at that read ... */
     int64_t switch_at_mono_ns; /* ... to switch at the first release at or after this */
     int announce;              /* a switch happened: publish the generation at its release */
+    int64_t wake_stall_ns;     /* the stall of this minor's wake-up, for its first record */
+    int64_t stall_debt_ns;     /* stalls since the executive was last on time: lateness they explain */
 } skel_exec_t;
 
 enum { PROCESS_DONE = 0, PROCESS_STOPPED = 1 };
 int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, int64_t release_ns,
-                  skel_rec_t *rec);
+                  int64_t sched_ns, skel_rec_t *rec);
 void process_lockout(skel_exec_t *x, skel_process_t *p, int16_t buffer, int64_t k,
                      int64_t release_ns);
 

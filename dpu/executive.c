@@ -67,8 +67,21 @@ static int64_t executive_max_period(const skel_plan_t *plan)
     return m;
 }
 
-/* The DPU's measured window starts when every process is past its warm-up, so
- * its % compute / communicate / wait cover one consistent stretch of time. */
+/* One measurement window per DPU, shared by all its processes: it opens at
+ * t0 + warmup_cycles * the DPU's longest period, when even its slowest process
+ * is past its warm-up. A process's cycles count from its first release in the
+ * window, so a fast process's sums and a slow one's cover the same time and
+ * the DPU's % compute is its configured load whatever the mix of periods. */
+static void executive_open_window(skel_plan_t *plan, int64_t t0)
+{
+    plan->measure_from_ns = t0 + plan->warmup_cycles * executive_max_period(plan);
+    for (int i = 0; i < plan->nprocesses; i++) {
+        skel_process_t *p = &plan->processes[i];
+        p->measure_from_k = (plan->measure_from_ns - t0 + p->period_ns - 1) / p->period_ns;
+    }
+}
+
+/* The DPU's sums cover its window only; so do the process sums (process.c). */
 static void executive_account(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec,
                               int64_t release, int64_t end)
 {
@@ -80,6 +93,7 @@ static void executive_account(skel_plan_t *plan, skel_process_t *p, const skel_r
     d->compute_ns += rec->compute_ns;
     d->communicate_ns += rec->comm_in_ns + rec->comm_out_ns;
     d->wait_ns += rec->blocked_ns + rec->idle_ns;
+    d->stall_ns += rec->stall_ns;
 }
 
 static void executive_record(skel_server_t *s, const skel_rec_t *rec)
@@ -87,23 +101,66 @@ static void executive_record(skel_server_t *s, const skel_rec_t *rec)
     if (timing_ring_push(&s->ring, rec) != 0) server_fault(s, SKELMSG_STATUS_T_FAULT_TIMING_LOST);
 }
 
-/* Runs the due processes of minor cycle J; NEXT_R is the next release (INT64_MAX:
- * none), where the idle of the last one ends. 1 when the run stopped inside it. */
+/* Cycle skipping: a data-synchronised process runs on the newest sample of its
+ * inputs, so a release whose period has already passed when its turn comes would
+ * only repeat old work and keep the DPU behind for good (it gets at most one new
+ * sample per writer period, so a lag never shrinks). It skips that release, as a
+ * real data-driven executive would, and its readers see the skipped sequence as
+ * dropped. Periodic processes run every release: an overloaded DPU falls ever
+ * further behind, which is how the paper's pipeline jam shows up. */
+static int executive_skips(const skel_process_t *p, int64_t release, int64_t now)
+{
+    return p->sync == SKELMSG_PROCESS_T_SYNC_DATA && now >= release + p->period_ns;
+}
+
+static void executive_skip_record(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor,
+                                  int64_t release, int64_t sched, int64_t now, skel_rec_t *rec)
+{
+    const int64_t off = x->s->clock_offset_ns;
+    memset(rec, 0, offsetof(skel_rec_t, in));
+    rec->process = p->id;
+    rec->generation = x->plan->generation;
+    rec->cycle = k;
+    rec->minor = minor;
+    rec->release_ns = release + off;
+    rec->sched_ns = sched + off;
+    rec->start_ns = now + off;
+    rec->slack_ns = release + p->period_ns - now;
+    rec->stall_ns = x->wake_stall_ns;
+    x->wake_stall_ns = 0;
+    rec->flags = SKELMSG_TIMING_T_FLAG_RELEASE_SKIPPED;
+    if (k >= p->measure_from_k) p->sums.releases_skipped++;
+}
+
+/* Runs the due processes of minor cycle J in their order; NEXT_R is the next
+ * release (INT64_MAX: none), where the idle of the minor's last record ends. The
+ * schedule's start of each is the minor's release plus the configured compute of
+ * the processes before it. 1 when the run stopped inside it. */
 static int executive_minor(skel_exec_t *x, int64_t j, int64_t next_r)
 {
     skel_plan_t *plan = x->plan;
     int last = -1;
     for (int i = 0; i < plan->nprocesses; i++)
         if (j % plan->processes[i].ratio == 0) last = i;
+    int64_t sched = -1;
     for (int i = 0; i <= last; i++) {
         skel_process_t *p = &plan->processes[i];
         if (j % p->ratio != 0) continue;
         int64_t k = j / p->ratio;
         int64_t release = plan->epoch_t0_ns + k * p->period_ns;
+        if (sched < 0) sched = release;
         skel_rec_t rec;
-        int rc = process_cycle(x, p, p->k_base + k, plan->minor_base + j, release, &rec);
-        int64_t end = release + p->period_ns - rec.slack_ns;
-        /* Idle belongs to the last process of the release: gaps between processes are overhead. */
+        int64_t now = clock_mono_ns(), end;
+        int rc = PROCESS_DONE;
+        if (executive_skips(p, release, now)) {
+            executive_skip_record(x, p, p->k_base + k, plan->minor_base + j, release, sched, now, &rec);
+            end = now;
+        } else {
+            rc = process_cycle(x, p, p->k_base + k, plan->minor_base + j, release, sched, &rec);
+            end = release + p->period_ns - rec.slack_ns;
+        }
+        sched += p->compute_ns;
+        /* Idle belongs to the last record of the release: gaps between processes are overhead. */
         if (i == last && rc == PROCESS_DONE && next_r != INT64_MAX)
             rec.idle_ns = next_r > end ? next_r - end : 0;
         if (rc == PROCESS_DONE) executive_account(plan, p, &rec, release, end);
@@ -177,7 +234,7 @@ static void executive_switch(skel_exec_t *x, int64_t j_sw, int ran)
     if (next == NULL) return;
     (void)link_drain(old->links, old->nlinks); /* the old slots are complete ... */
     swap_carry(next, old, j_sw);
-    if (!ran) next->measure_from_ns = next->run_t0_ns + next->warmup_cycles * executive_max_period(next);
+    if (!ran) executive_open_window(next, next->run_t0_ns);
     next->running = 1;
     old->running = 0;
     (void)link_drain(next->links, next->nlinks); /* ... so the copies here are dropped */
@@ -206,6 +263,15 @@ static void executive_announce(skel_exec_t *x)
              (long long)x->plan->run_id, x->plan->nprocesses);
 }
 
+/* The executive slept until UNTIL, so it was on time: the stalls it owed are
+ * paid. A wake-up later than the stall threshold is a stall of its own. */
+static void executive_woke(skel_exec_t *x, int64_t until)
+{
+    int64_t late = clock_mono_ns() - until;
+    x->wake_stall_ns = late > x->s->compute.stall_ns ? late : 0;
+    x->stall_debt_ns = x->wake_stall_ns;
+}
+
 /* The release after minor J: the plan's next due minor, or the switch if sooner. */
 static int64_t executive_next_r(const skel_exec_t *x, int64_t j, int64_t next_j)
 {
@@ -215,16 +281,33 @@ static int64_t executive_next_r(const skel_exec_t *x, int64_t j, int64_t next_j)
     return t_sw < next_r ? t_sw : next_r;
 }
 
+/* WORK is calibrated once, at start-up: the reference a slower CPU is measured
+ * against. Each run checks, in the run's own thread, class and CPU, how far the
+ * kernel's speed is from it, and says so when it drifted. */
+static void executive_check_work(skel_server_t *s, skel_plan_t *plan)
+{
+    plan->work_drift_pct = 0.0;
+    if (plan->compute != SKELMSG_DPU_T_COMPUTE_WORK) return;
+    plan->work_drift_pct = compute_check_calibration(&s->compute);
+    if (plan->work_drift_pct > SKEL_DRIFT_PCT || plan->work_drift_pct < -SKEL_DRIFT_PCT)
+        skel_log("DPU %d: warning: the WORK kernel runs %.1f %% %s than at start-up (CPU frequency, "
+                 "throttling or a busy neighbour): computations take that much %s",
+                 plan->dpu, plan->work_drift_pct > 0 ? plan->work_drift_pct : -plan->work_drift_pct,
+                 plan->work_drift_pct > 0 ? "slower" : "faster",
+                 plan->work_drift_pct > 0 ? "longer" : "less");
+}
+
 void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
 {
-    skel_exec_t x = { s, plan, run->end_mono_ns, -1, 0, 0, 0 };
+    skel_exec_t x = { .s = s, .plan = plan, .end_mono_ns = run->end_mono_ns, .switch_seq = -1 };
     plan_reset_run(plan, run->run_id);
     plan->clock_offset_ns = s->clock_offset_ns;
     executive_pin(plan);
     int fifo = executive_schedule(s, plan, 1);
+    executive_check_work(s, plan);
     int64_t t0 = run->start_mono_ns;
     plan->run_t0_ns = plan->epoch_t0_ns = t0;
-    plan->measure_from_ns = t0 + plan->warmup_cycles * executive_max_period(plan);
+    executive_open_window(plan, t0);
     executive_poll_switch(&x);
     int rc;
     while ((rc = executive_wait(&x, t0)) == 2) executive_poll_switch(&x);
@@ -252,9 +335,11 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
         }
         if (x.announce && r == INT64_MAX) executive_announce(&x); /* a plan without processes */
         int64_t until = r < run->end_mono_ns ? r : run->end_mono_ns;
+        int on_time = clock_mono_ns() < until;
         rc = executive_wait(&x, until);
         if (rc == 2) continue;
         if (rc != 0 || r >= run->end_mono_ns) break;
+        if (on_time) executive_woke(&x, until);
         if (x.announce) executive_announce(&x);
         int64_t next_j = executive_next_release(x.plan, j + 1);
         if (executive_minor(&x, j, executive_next_r(&x, j, next_j)) != 0) break;

@@ -42,6 +42,7 @@ static int parse_args(skel_server_t *s, int argc, char **argv)
     int64_t v;
     s->url = SKEL_DEFAULT_URL;
     s->compute.spin_ns = 150 * SKEL_NS_PER_US;
+    s->compute.stall_ns = SKEL_STALL_NS;
     s->rt_priority = -1;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *next = i + 1 < argc ? argv[i + 1] : NULL;

@@ -11,6 +11,14 @@ static int64_t process_lockout_ns(const skel_plan_t *plan, const skel_process_t 
     return plan->lockout_cycles > 0 ? plan->lockout_cycles * p->period_ns : INT64_MAX;
 }
 
+/* A lockout is the design's: the lateness the platform's stalls explain (the
+ * thread could not run at all) does not count towards it. */
+static int process_locked_out(const skel_exec_t *x, const skel_process_t *p, int64_t release,
+                              int64_t now)
+{
+    return now - release - x->stall_debt_ns >= process_lockout_ns(x->plan, p);
+}
+
 /* Recorded once per process per run; the process keeps trying and may recover. */
 void process_lockout(skel_exec_t *x, skel_process_t *p, int16_t buffer, int64_t k,
                      int64_t release_ns)
@@ -68,7 +76,7 @@ static int process_wait_data(skel_exec_t *x, skel_process_t *p, int64_t k, int64
         int64_t now = clock_mono_ns();
         /* Past the run's end the writers have stopped: waiting on is not a design flaw. */
         int run_over = x->end_mono_ns != INT64_MAX && now >= x->end_mono_ns;
-        if (!run_over && now - release >= process_lockout_ns(plan, p)) {
+        if (!run_over && process_locked_out(x, p, release, now)) {
             process_lockout(x, p, p->inputs[missing].buffer, k, release);
             rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
         }
@@ -76,7 +84,14 @@ static int process_wait_data(skel_exec_t *x, skel_process_t *p, int64_t k, int64
         int timeout_ms = 10;
         if (!p->locked_out && lockout_at > now && (lockout_at - now) / 1000000 + 1 < timeout_ms)
             timeout_ms = (int)((lockout_at - now) / 1000000 + 1);
-        if (link_wait(plan->links, plan->nlinks, x->s->wake_fd, timeout_ms) < 0) return 1;
+        int ready = link_wait(plan->links, plan->nlinks, x->s->wake_fd, timeout_ms);
+        if (ready < 0) return 1;
+        /* A poll that timed out far later than asked: the thread was kept from running. */
+        int64_t late = clock_mono_ns() - now - timeout_ms * 1000000LL;
+        if (ready == 0 && late > x->s->compute.stall_ns) {
+            rec->stall_ns += late;
+            x->stall_debt_ns += late;
+        }
         if (link_drain(plan->links, plan->nlinks) < 0) return 1;
         process_peek_inputs(plan, p, rec);
     }
@@ -113,10 +128,10 @@ static void process_commit(skel_plan_t *plan, skel_process_t *p, const skel_rec_
 }
 
 /* Runs cycle K of P released at RELEASE (monotonic ns) in the run's minor
- * cycle MINOR and fills REC (times reported with the clock offset). The
- * executive adds idle. */
+ * cycle MINOR, due to start at SCHED by the schedule, and fills REC (times
+ * reported with the clock offset). The executive adds idle. */
 int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, int64_t release,
-                  skel_rec_t *rec)
+                  int64_t sched, skel_rec_t *rec)
 {
     skel_plan_t *plan = x->plan;
     const int64_t off = x->s->clock_offset_ns;
@@ -127,9 +142,12 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
     rec->cycle = k;
     rec->minor = minor;
     rec->release_ns = release + off;
+    rec->sched_ns = sched + off;
+    rec->stall_ns = x->wake_stall_ns;
+    x->wake_stall_ns = 0;
     int64_t start = clock_mono_ns();
     rec->start_ns = start + off;
-    if (start - release >= process_lockout_ns(plan, p)) {
+    if (process_locked_out(x, p, release, start)) {
         process_lockout(x, p, -1, k, release);
         rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
     }
@@ -147,7 +165,10 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
         return PROCESS_STOPPED;
     }
     process_commit(plan, p, rec, measured);
-    rec->compute_ns = compute_run(&x->s->compute, plan->compute, p->compute_ns);
+    int64_t stall = 0;
+    rec->compute_ns = compute_run(&x->s->compute, plan->compute, p->compute_ns, &stall);
+    rec->stall_ns += stall;
+    x->stall_debt_ns += stall;
     int64_t t_out = clock_mono_ns();
     process_write_outputs(x, p, k);
     int64_t end = clock_mono_ns();

@@ -49,6 +49,7 @@ static void report_fill_process(skelmsg_process_report_t *r, const skel_process_
     r->communicate_ns = p->sums.communicate_ns;
     r->wait_ns = p->sums.wait_ns;
     r->max_latency_ns = p->sums.max_latency_ns;
+    r->releases_skipped = p->sums.releases_skipped;
     r->locked_out = p->locked_out;
     r->ninputs = (int16_t)p->ninputs;
     for (int q = 0; q < p->ninputs; q++) {
@@ -99,6 +100,8 @@ int report_publish(skel_server_t *s, const skel_plan_t *plan, skel_history_t *hi
     r.timing_lost = atomic_load(&s->ring.lost);
     r.rejected_messages = atomic_load(&s->rejected) - s->rejected_at_start;
     r.faults = atomic_load(&s->faults);
+    r.work_drift_pct = plan->work_drift_pct;
+    r.stall_ns = d->stall_ns;
     r.nprocesses = (int16_t)n;
     r.processes = procs;
     int rc = history_publish_report(history, s->ctl, &r);

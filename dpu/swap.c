@@ -135,6 +135,7 @@ void swap_carry(skel_plan_t *next, const skel_plan_t *old, int64_t j_sw)
     next->clock_offset_ns = old->clock_offset_ns;
     next->publish_errors = old->publish_errors;
     next->measure_from_ns = old->measure_from_ns;
+    next->work_drift_pct = old->work_drift_pct;
     next->sums = old->sums;
     swap_carry_slots(next, old);
     for (int i = 0; i < next->nprocesses; i++)

@@ -61,6 +61,7 @@ int timing_batch_init(skel_batch_t *b)
     m->cycle = calloc(n, sizeof *m->cycle);
     m->minor = calloc(n, sizeof *m->minor);
     m->release_ns = calloc(n, sizeof *m->release_ns);
+    m->sched_ns = calloc(n, sizeof *m->sched_ns);
     m->start_ns = calloc(n, sizeof *m->start_ns);
     m->comm_in_ns = calloc(n, sizeof *m->comm_in_ns);
     m->blocked_ns = calloc(n, sizeof *m->blocked_ns);
@@ -68,6 +69,7 @@ int timing_batch_init(skel_batch_t *b)
     m->comm_out_ns = calloc(n, sizeof *m->comm_out_ns);
     m->idle_ns = calloc(n, sizeof *m->idle_ns);
     m->slack_ns = calloc(n, sizeof *m->slack_ns);
+    m->stall_ns = calloc(n, sizeof *m->stall_ns);
     m->flags = calloc(n, sizeof *m->flags);
     m->in_record = calloc(ni, sizeof *m->in_record);
     m->in_buffer = calloc(ni, sizeof *m->in_buffer);
@@ -77,9 +79,9 @@ int timing_batch_init(skel_batch_t *b)
     m->in_received = calloc(ni, sizeof *m->in_received);
     m->in_sent_ns = calloc(ni, sizeof *m->in_sent_ns);
     m->in_recv_ns = calloc(ni, sizeof *m->in_recv_ns);
-    if (!m->process || !m->cycle || !m->minor || !m->release_ns || !m->start_ns ||
+    if (!m->process || !m->cycle || !m->minor || !m->release_ns || !m->sched_ns || !m->start_ns ||
         !m->comm_in_ns || !m->blocked_ns || !m->compute_ns || !m->comm_out_ns || !m->idle_ns ||
-        !m->slack_ns || !m->flags || !m->in_record || !m->in_buffer || !m->in_seq ||
+        !m->slack_ns || !m->stall_ns || !m->flags || !m->in_record || !m->in_buffer || !m->in_seq ||
         !m->in_new || !m->in_dropped || !m->in_received || !m->in_sent_ns || !m->in_recv_ns) {
         timing_batch_free(b);
         return -1;
@@ -91,8 +93,9 @@ void timing_batch_free(skel_batch_t *b)
 {
     skelmsg_timing_t *m = &b->msg;
     free(m->process); free(m->cycle); free(m->minor); free(m->release_ns);
-    free(m->start_ns); free(m->comm_in_ns); free(m->blocked_ns); free(m->compute_ns);
-    free(m->comm_out_ns); free(m->idle_ns); free(m->slack_ns); free(m->flags);
+    free(m->sched_ns); free(m->start_ns); free(m->comm_in_ns); free(m->blocked_ns);
+    free(m->compute_ns); free(m->comm_out_ns); free(m->idle_ns); free(m->slack_ns);
+    free(m->stall_ns); free(m->flags);
     free(m->in_record); free(m->in_buffer); free(m->in_seq); free(m->in_new);
     free(m->in_dropped); free(m->in_received); free(m->in_sent_ns); free(m->in_recv_ns);
     memset(b, 0, sizeof *b);
@@ -121,6 +124,7 @@ void timing_batch_add(skel_batch_t *b, const skel_rec_t *rec)
     m->cycle[i] = rec->cycle;
     m->minor[i] = rec->minor;
     m->release_ns[i] = rec->release_ns;
+    m->sched_ns[i] = rec->sched_ns;
     m->start_ns[i] = rec->start_ns;
     m->comm_in_ns[i] = rec->comm_in_ns;
     m->blocked_ns[i] = rec->blocked_ns;
@@ -128,6 +132,7 @@ void timing_batch_add(skel_batch_t *b, const skel_rec_t *rec)
     m->comm_out_ns[i] = rec->comm_out_ns;
     m->idle_ns[i] = rec->idle_ns;
     m->slack_ns[i] = rec->slack_ns;
+    m->stall_ns[i] = rec->stall_ns;
     m->flags[i] = rec->flags;
     for (int q = 0; q < rec->ninputs && q < SKEL_MAX_IO; q++) {
         int w = m->ninputs++;

@@ -80,6 +80,8 @@ class Rec:
     idle_ns: int = 0
     slack_ns: int = 0
     flags: int = 0
+    sched_ns: int | None = None  # the schedule's start; None: the release
+    stall_ns: int = 0
     # (buffer, seq, new, dropped, received) or (..., sent_ns, recv_ns); without times
     # an input gets sent 1000 + i and received 2000 + i ns (i: its row in the batch)
     inputs: list[tuple[int, ...]] = field(default_factory=list)
@@ -90,7 +92,7 @@ class Rec:
 
 
 _FIELDS = ("process", "cycle", "minor", "release_ns", "start_ns", "comm_in_ns", "blocked_ns",
-           "compute_ns", "comm_out_ns", "idle_ns", "slack_ns", "flags")  # fmt: skip
+           "compute_ns", "comm_out_ns", "idle_ns", "slack_ns", "stall_ns", "flags")  # fmt: skip
 
 
 def batches(dpu: int, recs: list[Rec], size: int, run_id: int = RUN_ID,
@@ -102,6 +104,7 @@ def batches(dpu: int, recs: list[Rec], size: int, run_id: int = RUN_ID,
         t.dpu, t.run_id, t.generation, t.batch_seq, t.n = dpu, run_id, generation, seq, len(chunk)
         for name in _FIELDS:
             setattr(t, name, [getattr(r, name) for r in chunk])
+        t.sched_ns = [r.release_ns if r.sched_ns is None else r.sched_ns for r in chunk]
         rows = [(i, *inp) for i, r in enumerate(chunk) for inp in r.inputs]
         t.ninputs = len(rows)
         t.in_record = [r[0] for r in rows]

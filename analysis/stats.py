@@ -1,0 +1,55 @@
+"""Summary statistics shared by every measure: percentiles, histograms, grouping.
+Nothing here knows what a record is."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class LatencyUs:
+    p50: float | None
+    p99: float | None
+    max: float | None
+
+
+@dataclass
+class Histogram:
+    """Counts of samples in len(bins) - 1 equal bins; bins are the edges."""
+
+    bins: list[float] = field(default_factory=list)
+    counts: list[int] = field(default_factory=list)
+
+
+HISTOGRAM_BINS = 40
+
+
+def latency_us(samples_us: np.ndarray) -> LatencyUs:
+    """p50 / p99 (linear interpolation) / max of samples in µs; None when empty."""
+    if len(samples_us) == 0:
+        return LatencyUs(None, None, None)
+    p50, p99 = np.percentile(samples_us, [50, 99])
+    return LatencyUs(float(p50), float(p99), float(samples_us.max()))
+
+
+def histogram(samples: np.ndarray, bins: int = HISTOGRAM_BINS) -> Histogram:
+    """An equal-width histogram from the smallest to the largest sample (a 1-wide
+    range around the value when they are all equal)."""
+    if len(samples) == 0:
+        return Histogram()
+    low, high = float(samples.min()), float(samples.max())
+    if high <= low:
+        low, high = low - 0.5, high + 0.5
+    counts, edges = np.histogram(samples, bins=bins, range=(low, high))
+    return Histogram([round(float(e), 3) for e in edges], [int(c) for c in counts])
+
+
+def group_slices(keys: np.ndarray) -> tuple[np.ndarray, dict[int, slice]]:
+    """A stable sort order of `keys` and, per key, its slice of the sorted rows: one
+    sort instead of one full-array mask per group."""
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+    values, first, counts = np.unique(sorted_keys, return_index=True, return_counts=True)
+    return order, {int(v): slice(int(f), int(f + c)) for v, f, c in zip(values, first, counts, strict=True)}
