@@ -1,6 +1,7 @@
 """Fatal flaws: process lockouts, pipeline jams (with the chain back to the root
-cause), overruns and lost DPUs. Definitions only; inputs are decoded messages,
-record arrays and a config_t, as in metrics.py."""
+cause), DPUs that run behind their schedule; and what is not the design's: stalls
+of the platform, overruns, lost DPUs. Definitions only; inputs are decoded
+messages, record arrays and a config_t, as in metrics.py."""
 
 from __future__ import annotations
 
@@ -10,13 +11,17 @@ from typing import Any
 
 import numpy as np
 
-from .metrics import ProcessMetrics, static_load_pct
+from .metrics import ProcessMetrics, frame_release_latency_ns, measured, static_load_pct
 from .records import FLAG_LOCKOUT
+
+# A fault of these kinds says the architecture does not work (exit 3); `behind` only
+# when no stall of the platform explains it (Fault.fatal).
+FATAL_KINDS = ("lockout", "jam", "behind")
 
 
 @dataclass
 class Fault:
-    kind: str  # "lockout" | "jam" | "overrun" | "dpu_lost"
+    kind: str  # "lockout" | "jam" | "behind" | "stall" | "overrun" | "dpu_lost"
     process: str | None = None
     dpu: int | None = None
     buffer: str | None = None
@@ -27,6 +32,16 @@ class Fault:
     count: int | None = None  # overrun: how many
     static_load_pct: float | None = None  # jam: static load of the root cause's DPU
     root_dpu: int | None = None  # jam: the DPU of the chain's last process
+    host: str | None = None  # stall: the host whose DPUs stalled
+    dpus: list[int] = field(default_factory=list)  # stall: the DPUs that stalled together
+    at_s: float | None = None  # behind, stall: when, in s from the run's first release
+    duration_ms: float | None = None  # behind: how long; stall: how long the thread could not run
+    behind_ms: float | None = None  # behind: the largest lateness of the DPU's minor cycles
+    fatal: bool = False  # the design's flaw (exit 3), not the platform's
+
+    def __post_init__(self) -> None:
+        if self.kind in ("lockout", "jam"):
+            self.fatal = True
 
 
 @dataclass(frozen=True)
@@ -196,3 +211,121 @@ def _index(config: Any) -> tuple[dict[int, str], dict[int, int], dict[int, Any]]
 def _bname(buffers: dict[int, Any], buffer_id: int) -> str:
     desc = buffers.get(buffer_id)
     return desc.name if desc is not None else f"buffer {buffer_id}"
+
+
+# A DPU is behind when its minor cycles start more than one minor cycle late for at
+# least this many minor cycles in a row: a hiccup it catches up on is not a fault.
+BEHIND_MIN_FRAMES = 20
+
+
+def _run_t0(records: np.ndarray) -> dict[int, int]:
+    return {int(d): int(records["release_ns"][records["dpu"] == d].min()) for d in np.unique(records["dpu"])}
+
+
+def stall_threshold_ns(config: Any, dpu: int) -> int:
+    """A cycle whose thread was kept from running longer than this is a stall fault: what
+    would make a minor cycle late (late_pct of it), at least 1 ms."""
+    minor_us = next((d.minor_cycle_us for d in config.dpus if d.id == dpu), 0)
+    return max(1_000_000, minor_us * 1000 * config.late_pct // 100)
+
+
+def stall_faults(records: np.ndarray, config: Any) -> list[Fault]:
+    """Stalls: cycles whose DPU thread was kept from running (late wake-ups, gaps, preemption:
+    timing_t.stall_ns) beyond stall_threshold_ns. The stalls of one host's DPUs that overlap
+    in time are one fault naming the host, when and how long: the platform, not the design."""
+    hosts = {d.id: d.host for d in config.dpus}
+    t0 = _run_t0(records)
+    events: dict[str, list[tuple[int, int, int]]] = {}  # host -> (end, start, dpu), run-relative
+    limit = np.array([stall_threshold_ns(config, int(d)) for d in records["dpu"]], dtype=np.int64)
+    hit = records[records["stall_ns"] >= limit] if len(records) else records
+    for rec in hit:
+        dpu = int(rec["dpu"])
+        end = int(rec["start_ns"] - t0[dpu] + rec["comm_in_ns"] + rec["blocked_ns"] + rec["compute_ns"])
+        events.setdefault(hosts.get(dpu, "?"), []).append((end, end - int(rec["stall_ns"]), dpu))
+    faults = []
+    for host, evs in sorted(events.items()):
+        evs.sort(key=lambda e: e[1])
+        group: list[tuple[int, int, int]] = []
+        for ev in [*evs, None]:
+            # Stalls of one instant overlap; the measure of each is up to a cycle's work apart.
+            if ev is not None and (not group or ev[1] <= max(g[0] for g in group)):
+                group.append(ev)
+                continue
+            if group:
+                start = min(g[1] for g in group)
+                longest = max(g[0] - g[1] for g in group)
+                dpus = sorted({g[2] for g in group})
+                faults.append(Fault(
+                    kind="stall", host=host, dpus=dpus, dpu=dpus[0], at_s=start / 1e9,
+                    duration_ms=longest / 1e6,
+                    detail=f"host {host}: DPU {', '.join(map(str, dpus))} could not run for "
+                           f"{longest / 1e6:.1f} ms at {start / 1e9:.2f} s (the platform, not the design)"))
+            group = [ev] if ev is not None else []
+    return faults
+
+
+def behind_faults(records: np.ndarray, config: Any) -> list[Fault]:
+    """A DPU whose minor cycles start more than a minor cycle late, BEHIND_MIN_FRAMES in a
+    row or more: how far behind, since when, for how long, and why (a stall of the
+    platform, an overload, a data wait or an overrun)."""
+    faults = []
+    t0 = _run_t0(records)
+    window = records[measured(records, config)]
+    for dpu in sorted(config.dpus, key=lambda d: d.id):
+        mine = window[window["dpu"] == dpu.id]
+        minor_ns = dpu.minor_cycle_us * 1000
+        if len(mine) == 0 or minor_ns <= 0:
+            continue
+        late = frame_release_latency_ns(mine)  # per minor, in minor order
+        minors = np.unique(mine["minor"])
+        for first, last in _runs(late > minor_ns, BEHIND_MIN_FRAMES):
+            lo, hi = minors[first], minors[last]
+            span = mine[(mine["minor"] >= lo) & (mine["minor"] <= hi)]
+            start = int(span["release_ns"].min())
+            worst = int(late[first : last + 1].max())
+            end = int(span["release_ns"].max()) + minor_ns
+            worst_minor = minors[first + int(np.argmax(late[first : last + 1]))]
+            t_worst = int(span["release_ns"][span["minor"] == worst_minor].min())
+            cause, fatal = _why_behind(records[records["dpu"] == dpu.id], config, dpu.id, start, t_worst,
+                                       worst)
+            at_s, duration_s = (start - t0[dpu.id]) / 1e9, (end - start) / 1e9
+            faults.append(Fault(
+                kind="behind", dpu=dpu.id, at_s=at_s, duration_ms=duration_s * 1e3, behind_ms=worst / 1e6,
+                fatal=fatal,
+                detail=f"DPU {dpu.id} ran up to {worst / 1e6:.1f} ms ({worst / minor_ns:.1f} minor cycles) "
+                       f"behind its schedule for {duration_s:.2f} s from {at_s:.2f} s: {cause}"))
+    return faults
+
+
+def _runs(flags: np.ndarray, min_len: int) -> list[tuple[int, int]]:
+    """(first, last) indices of the runs of True at least min_len long."""
+    edges = np.flatnonzero(np.diff(np.r_[0, flags.astype(np.int8), 0]))
+    return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a >= min_len]
+
+
+def _why_behind(mine: np.ndarray, config: Any, dpu: int, start: int, t_worst: int,
+                worst: int) -> tuple[str, bool]:
+    """Why a DPU fell behind from `start` to `t_worst` (its clock), where it was `worst` late:
+    (the cause in words, whether it is the design's). Time its thread was kept from running
+    on the way there that accounts for half the lateness or more is the platform's doing."""
+    way = mine[(mine["release_ns"] >= start - worst) & (mine["release_ns"] <= t_worst)]
+    stalled = int(way["stall_ns"].sum())
+    if stalled * 2 >= worst:
+        return (f"its thread was kept from running for {stalled / 1e6:.1f} ms on the way "
+                "(stalls, other work on its CPU: the platform, not the design)", False)
+    lead = mine[(mine["release_ns"] >= start - worst) & (mine["release_ns"] <= start)]
+    load = static_load_pct(config, dpu)
+    if load > 100.0:
+        return f"overloaded: static load {load:.1f} %", True
+    names = {p.id: p.name for p in config.processes}
+    if len(lead):
+        blocked = lead[np.argmax(lead["blocked_ns"])]
+        if blocked["blocked_ns"] * 2 >= worst:
+            return (f"{names.get(int(blocked['process']))} waited {blocked['blocked_ns'] / 1e6:.1f} ms for "
+                    "its data", True)
+        over = lead[np.argmin(lead["slack_ns"])]
+        if over["slack_ns"] < 0:
+            return (f"{names.get(int(over['process']))} overran at cycle {int(over['cycle'])} "
+                    f"(computed {over['compute_ns'] / 1e6:.1f} ms) and the DPU has too little slack "
+                    "to catch up", True)
+    return "its cycles take longer than its minor cycle", True

@@ -69,6 +69,8 @@ class RunReport:
     processes: list[ProcessMetrics]
     faults: list[Fault]
     compute_modes: dict[int, str] = field(default_factory=dict)
+    # WORK: how much slower (%) the kernel ran at the run's start than at the DPU's start-up
+    work_drift_pct: dict[int, float] = field(default_factory=dict)
     cross_check: list[dict[str, Any]] = field(default_factory=list)  # report_t vs records, per DPU
     buffers: list[BufferMetrics] = field(default_factory=list)
     chains: list[ChainMetrics] = field(default_factory=list)
@@ -77,8 +79,9 @@ class RunReport:
 
     @property
     def fatal(self) -> bool:
-        """A lockout or a jam: the architecture does not work."""
-        return any(f.kind in ("lockout", "jam") for f in self.faults)
+        """A lockout, a jam or a DPU behind its schedule for no fault of the platform:
+        the architecture does not work."""
+        return any(f.fatal for f in self.faults)
 
     def to_json(self) -> dict[str, Any]:
         # The chain series (one sample per cycle) stay in the API: report.json keeps
@@ -88,8 +91,10 @@ class RunReport:
         for chain in out["chains"]:
             chain.pop("series")
         modes = out.pop("compute_modes")
+        drift = out.pop("work_drift_pct")
         for dpu in out["dpus"]:
             dpu["compute_mode"] = modes.get(dpu["id"])
+            dpu["work_drift_pct"] = drift.get(dpu["id"])
         out["windows"] = [_window_json(w, modes) for w in self.windows]
         out["fatal"] = self.fatal
         return out
@@ -162,6 +167,7 @@ def build_report(
         processes=last.processes,
         faults=last.faults,
         compute_modes=modes,
+        work_drift_pct={r.dpu: r.work_drift_pct for r in mine if r.compute == skelmsg.dpu_t.COMPUTE_WORK},
         cross_check=_cross_check(parts[-1][0], config, mine),
         buffers=last.buffers,
         chains=last.chains,

@@ -61,12 +61,15 @@ def dpu_table(report: RunReport, window: WindowReport | None = None) -> Table:
             _num(d.wait_pct),
             _num(d.overhead_pct),
             _num(d.static_load_pct),
+            _num(d.release_latency_us.p99, 0),
+            _num(d.stall_ms),
         ]
         for d in part.dpus
     ]
     columns = [
         ("DPU", True), ("cycle\nms", True), ("meas.\nms", True), ("processes", False),
         ("%\ncomp", True), ("%\ncomm", True), ("%\nwait", True), ("%\novhd", True), ("load\n%", True),
+        ("wake\np99 µs", True), ("stall\nms", True),
     ]  # fmt: skip
     title = f"{report.system}: run {report.run_id}, generation {part.generation}: per DPU (load = configured)"
     return _table(title, columns, rows)
@@ -109,16 +112,20 @@ def process_table(report: RunReport, window: WindowReport | None = None) -> Tabl
                 _num(lat.p99),
                 _num(lat.max),
                 _num(p.compute_mean_us),
+                _num(p.lateness_us.p99),
                 f"{p.late}/{p.too_late}",
+                str(p.releases_skipped),
             ]
         )
     columns = [
         ("process", False), ("DPU", True), ("cycles", True), ("ovr", True), ("p50", True),
-        ("p99", True), ("max", True), ("compute\nmean", True), ("late/\ntoo late", True),
+        ("p99", True), ("max", True), ("compute\nmean", True), ("lateness\np99", True),
+        ("late/\ntoo late", True), ("skipped\nreleases", True),
     ]  # fmt: skip
     title = (
-        f"per process: release latency and compute in µs; "
-        f"first {report.warmup_cycles} cycles (warm-up) excluded"
+        "per process: release latency (start - release), compute and lateness (start - the "
+        f"schedule's start) in µs; the warm-up ({report.warmup_cycles} cycles of each DPU's slowest "
+        "process) excluded"
     )
     return _table(title, columns, rows)
 
@@ -185,7 +192,7 @@ def fault_table(report: RunReport, window: WindowReport | None = None) -> Table:
             [
                 f.kind,
                 f.process or "-",
-                "-" if f.dpu is None else str(f.dpu),
+                ",".join(map(str, f.dpus)) if f.dpus else "-" if f.dpu is None else str(f.dpu),
                 f.buffer or "-",
                 f.writer or "-",
                 "-" if f.cycle is None else str(f.cycle),

@@ -18,11 +18,13 @@ from .chains import ChainMetrics, chain_metrics
 from .faults import (
     Fault,
     Lockout,
+    behind_faults,
     dpu_lost_faults,
     jam_faults,
     lockout_faults,
     lockouts_from_records,
     overrun_faults,
+    stall_faults,
 )
 from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets, buffer_metrics
 from .metrics import DpuMetrics, ProcessMetrics, cycle_end_ns, dpu_metrics, measured, process_metrics
@@ -90,6 +92,8 @@ def build_window(
         faults=(
             lockout_faults(locks, config)
             + jam_faults(locks, config)
+            + behind_faults(records, config)
+            + stall_faults(records, config)
             + overrun_faults(processes)
             + dpu_lost_faults(config, records, reported)
         ),

@@ -8,16 +8,19 @@
  *   WORK   a fixed number of iterations of a deterministic kernel, calibrated
  *          when the daemon starts (the reference) and checked at every run
  *          start: a slower or throttled CPU takes longer, as real code would.
- * What a cycle reports as its compute: the wall time for SLEEP and WALL (that
- * is what they emulate), the thread's CPU time for CPU and WORK. Time a CPU or
- * WORK computation spends preempted is not computation: it lengthens the
- * cycle (response, slack, overruns) and shows as % overhead, so % compute is
- * what the computations consumed even on a CPU the DPU shares.
+ * What a cycle reports as its compute: the time the computation ran, i.e. the
+ * wall time for SLEEP and WALL and the thread's CPU time for CPU and WORK, less
+ * the time the thread was kept from running. That time is not computation: it
+ * lengthens the cycle (response, slack, overruns) and shows as % overhead and
+ * as stalls, so % compute is what the computations took even on a CPU the DPU
+ * shares.
  *
- * Every mode also reports stalls: a wake-up later than asked, or a gap between
- * two looks at the clock, longer than the stall threshold means the thread was
- * kept from running (the machine, the hypervisor, another real-time thread):
- * the platform, not the design. */
+ * Every mode also reports how much later than asked the thread's not running
+ * made it end (stalls): SLEEP and WALL by a wake-up or a gap between two looks
+ * at the clock longer than the stall threshold (50 us: far above a look at the
+ * clock, above most wake-up latencies) that carried them past their end, CPU
+ * and WORK by their wall time less their CPU time. That is the platform's (the
+ * machine, the hypervisor, other threads on the CPU), not the design's. */
 #include <math.h>
 #include <time.h>
 
@@ -97,40 +100,36 @@ double compute_check_calibration(const skel_compute_t *c)
     return 100.0 * (c->work_iters_per_us - rate) / rate; /* > 0: the kernel now runs slower */
 }
 
-/* Adds to *STALL every gap between two clock readings above the threshold. */
-static int64_t compute_spin_until(const skel_compute_t *c, int64_t end_mono, int64_t *stall)
+/* Spins until END. PREV is when the thread should last have been running: when
+ * the last look at the clock comes a stall after the one before and past END,
+ * the computation ended late because the thread was not running, and that
+ * overshoot is added to *STALL. A stall that ends before END delays nothing. */
+static void compute_spin_until(const skel_compute_t *c, int64_t prev, int64_t end, int64_t *stall)
 {
-    int64_t prev = clock_mono_ns(), now = prev;
-    while (now < end_mono) {
-        now = clock_mono_ns();
-        if (now - prev > c->stall_ns) *stall += now - prev;
+    int64_t now = clock_mono_ns();
+    while (now < end) {
         prev = now;
+        now = clock_mono_ns();
     }
-    return now;
+    if (now - prev > c->stall_ns) *stall += now - end;
 }
 
 static void compute_sleep(const skel_compute_t *c, int64_t start, int64_t ns, int64_t *stall)
 {
-    int64_t end = start + ns;
+    int64_t end = start + ns, wake = start;
     if (ns > c->spin_ns) {
-        int64_t wake = end - c->spin_ns;
+        wake = end - c->spin_ns;
         struct timespec ts = { .tv_sec = wake / SKEL_NS_PER_S, .tv_nsec = wake % SKEL_NS_PER_S };
         /* EINTR only shortens the sleep; the spin below still ends on time. */
         (void)clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL);
-        int64_t late = clock_mono_ns() - wake;
-        if (late > c->stall_ns) *stall += late;
     }
-    (void)compute_spin_until(c, end, stall);
+    compute_spin_until(c, wake, end, stall);
 }
 
-static void compute_cpu(const skel_compute_t *c, int64_t ns, int64_t *stall)
+static void compute_cpu(int64_t ns)
 {
     int64_t end = clock_thread_cpu_ns() + ns;
-    int64_t prev = clock_mono_ns();
     while (clock_thread_cpu_ns() < end) {
-        int64_t now = clock_mono_ns();
-        if (now - prev > c->stall_ns) *stall += now - prev;
-        prev = now;
     }
 }
 
@@ -142,28 +141,27 @@ static void compute_work(const skel_compute_t *c, int64_t ns)
     (void)sink;
 }
 
-/* Emulates NS of computation in MODE; returns the compute it reports (the wall
- * time for SLEEP and WALL, the thread CPU time for CPU and WORK) and adds the
- * stalls it saw to *STALL. */
+/* Emulates NS of computation in MODE; returns the compute it reports (the time
+ * it ran) and adds the time it was kept from running to *STALL. */
 int64_t compute_run(const skel_compute_t *c, int mode, int64_t ns, int64_t *stall)
 {
     if (ns <= 0) return 0;
-    int64_t start = clock_mono_ns();
+    int64_t start = clock_mono_ns(), lost = 0;
     switch (mode) {
-    case SKELMSG_DPU_T_COMPUTE_SLEEP: compute_sleep(c, start, ns, stall); break;
-    case SKELMSG_DPU_T_COMPUTE_WALL: (void)compute_spin_until(c, start + ns, stall); break;
+    case SKELMSG_DPU_T_COMPUTE_SLEEP: compute_sleep(c, start, ns, &lost); break;
+    case SKELMSG_DPU_T_COMPUTE_WALL: compute_spin_until(c, start, start + ns, &lost); break;
     case SKELMSG_DPU_T_COMPUTE_CPU:
     case SKELMSG_DPU_T_COMPUTE_WORK: {
         int64_t cpu0 = clock_thread_cpu_ns();
-        if (mode == SKELMSG_DPU_T_COMPUTE_CPU) compute_cpu(c, ns, stall);
+        if (mode == SKELMSG_DPU_T_COMPUTE_CPU) compute_cpu(ns);
         else compute_work(c, ns);
         int64_t used = clock_thread_cpu_ns() - cpu0;
-        /* WORK has no clock in its loop: what it lost is its wall time less its CPU time. */
-        int64_t lost = clock_mono_ns() - start - used;
-        if (mode == SKELMSG_DPU_T_COMPUTE_WORK && lost > c->stall_ns) *stall += lost;
+        int64_t off_cpu = clock_mono_ns() - start - used; /* the time it was not running */
+        if (off_cpu > c->stall_ns) *stall += off_cpu;
         return used;
     }
     default: break; /* config.c rejects unknown modes */
     }
-    return clock_mono_ns() - start;
+    *stall += lost;
+    return clock_mono_ns() - start - lost;
 }

@@ -51,7 +51,7 @@
 #define SKEL_STATUS_NS       (200 * 1000 * 1000LL)
 #define SKEL_REASON_LEN      256
 #define SKEL_RT_PRIORITY     10                 /* SCHED_FIFO of SLEEP-mode cycles, by default */
-#define SKEL_STALL_NS        (1000 * 1000LL)    /* the thread kept from running this long: a stall */
+#define SKEL_STALL_NS        (50 * 1000LL)      /* a wake-up this late, a gap this long: not running */
 #define SKEL_DRIFT_PCT       2.0                /* WORK calibration further off than this: said */
 #define SKEL_SEEN_COMMANDS   64
 
@@ -154,7 +154,7 @@ int buffers_output_encode(skel_output_t *out, int64_t run_id, int16_t writer, in
 typedef struct {
     double work_iters_per_us;  /* this CPU's calibration of the WORK kernel (the reference) */
     int64_t spin_ns;           /* SLEEP: spin this last stretch */
-    int64_t stall_ns;          /* a wake-up this late, or a gap this long, is a stall */
+    int64_t stall_ns;          /* a wake-up this late, or a gap this long: the thread was not running */
 } skel_compute_t;
 
 #define CALIBRATION_RUNS_MAX 15
@@ -382,6 +382,7 @@ typedef struct skel_server {
     atomic_int_fast64_t switch_seq; /* bumped when next_plan changes: the executive re-reads it */
     atomic_int quit;           /* daemon is shutting down */
     atomic_int_fast64_t minor_cycles, overruns, rejected, timing_batches;
+    atomic_int_fast64_t behind_ns, stall_ns, longest_stall_ns, longest_stall_mono_ns; /* executive -> status */
     atomic_int faults;
 
     skel_ring_t ring;

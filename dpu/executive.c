@@ -99,6 +99,12 @@ static void executive_account(skel_plan_t *plan, skel_process_t *p, const skel_r
 static void executive_record(skel_server_t *s, const skel_rec_t *rec)
 {
     if (timing_ring_push(&s->ring, rec) != 0) server_fault(s, SKELMSG_STATUS_T_FAULT_TIMING_LOST);
+    if (rec->stall_ns <= 0) return;
+    atomic_fetch_add(&s->stall_ns, rec->stall_ns);
+    if (rec->stall_ns > atomic_load(&s->longest_stall_ns)) { /* the host groups a host's stalls */
+        atomic_store(&s->longest_stall_ns, rec->stall_ns);
+        atomic_store(&s->longest_stall_mono_ns, server_now(s));
+    }
 }
 
 /* Cycle skipping: a data-synchronised process runs on the newest sample of its
@@ -305,6 +311,10 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
     executive_pin(plan);
     int fifo = executive_schedule(s, plan, 1);
     executive_check_work(s, plan);
+    atomic_store(&s->behind_ns, 0);
+    atomic_store(&s->stall_ns, 0);
+    atomic_store(&s->longest_stall_ns, 0);
+    atomic_store(&s->longest_stall_mono_ns, 0);
     int64_t t0 = run->start_mono_ns;
     plan->run_t0_ns = plan->epoch_t0_ns = t0;
     executive_open_window(plan, t0);
@@ -340,6 +350,7 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
         if (rc == 2) continue;
         if (rc != 0 || r >= run->end_mono_ns) break;
         if (on_time) executive_woke(&x, until);
+        atomic_store(&s->behind_ns, on_time ? 0 : clock_mono_ns() - r);
         if (x.announce) executive_announce(&x);
         int64_t next_j = executive_next_release(x.plan, j + 1);
         if (executive_minor(&x, j, executive_next_r(&x, j, next_j)) != 0) break;
@@ -350,6 +361,7 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
         j = next_j;
     }
     if (x.announce) executive_announce(&x);
+    atomic_store(&s->behind_ns, 0);
     x.plan->running = 0;
     (void)executive_schedule(s, x.plan, 0);
 }

@@ -36,6 +36,10 @@ void report_status_fill(skel_server_t *s, skelmsg_status_t *st, skelmsg_lockout_
     st->rejected_messages = atomic_load(&s->rejected);
     st->timing_batches = atomic_load(&s->timing_batches);
     st->timing_lost = atomic_load(&s->ring.lost);
+    st->behind_ns = atomic_load(&s->behind_ns);
+    st->stall_ns = atomic_load(&s->stall_ns);
+    st->longest_stall_ns = atomic_load(&s->longest_stall_ns);
+    st->longest_stall_mono_ns = atomic_load(&s->longest_stall_mono_ns);
     st->utc_ns = clock_utc_ns();
     st->mono_ns = server_now(s);
 }

@@ -31,6 +31,10 @@ int server_init(skel_server_t *s)
     atomic_init(&s->quit, 0);
     atomic_init(&s->minor_cycles, 0);
     atomic_init(&s->overruns, 0);
+    atomic_init(&s->behind_ns, 0);
+    atomic_init(&s->stall_ns, 0);
+    atomic_init(&s->longest_stall_ns, 0);
+    atomic_init(&s->longest_stall_mono_ns, 0);
     atomic_init(&s->rejected, 0);
     atomic_init(&s->timing_batches, 0);
     atomic_init(&s->faults, 0);

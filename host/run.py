@@ -30,13 +30,14 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 import skelmsg
+from skeleton.analysis.faults import stall_threshold_ns
 from skeleton.analysis.metrics import utilization_pct
 from skeleton.analysis.report import LogError, analyze
 from skeleton.analysis.tables import print_report
 from skeleton.host import spawn
 from skeleton.host.check import warmup_warnings
 from skeleton.host.clock import ClockKeeper
-from skeleton.host.control import Control, PushResult
+from skeleton.host.control import Control, DpuView, PushResult
 from skeleton.host.repair import LogRepair, RepairResult
 from skeleton.host.system import System
 
@@ -51,7 +52,7 @@ LOGGER_MARGIN_S = 5.0       # an orphaned logger ends this long after the report
 LOGGER_READY_S = 2.0        # heartbeats come at 5 Hz: the logger has one well within this
 REPAIR_STUCK_S = 3.0        # after the reports, the repair of the log gives up this long without progress
 REPAIR_LIMIT_S = 10.0       # ... or after this long in all
-FATAL_KINDS = ("lockout", "jam")
+BEHIND_POLLS = 5            # a DPU behind at this many polls in a row (0.5 s) is said to be behind
 
 
 @dataclass
@@ -156,15 +157,21 @@ class RunFollower:
         self.lost: set[int] = set()      # lost during this run (a restarted DPU stays in it)
         self.back: set[int] = set()
         self.stop_reason: str | None = None
+        self.hosts = {d.id: d.host for d in system.dpus}
+        self.minor_ns = {d.id: d.minor_cycle_us * 1000 for d in system.dpus}
+        self.config = system.to_config(0, 0, committed=False)  # what the fault definitions read
+        self.stalled_ns: dict[int, int] = {}   # per DPU: the longest stall already heard
+        self.behind_polls: dict[int, int] = {}  # per DPU: polls in a row it was behind
 
     def poll(self, run_id: int, dpu_ids: list[int]) -> None:
-        for view in self.control.snapshot().values():
-            if view.status.run_id != run_id:
-                continue
+        running = [v for v in self.control.snapshot().values() if v.status.run_id == run_id]
+        for view in running:
             for lockout in view.status.lockouts:
                 if lockout.process not in self.lockouts:
                     self.lockouts[lockout.process] = lockout
                     self._announce_lockout(view.status.dpu, lockout)
+        self._follow_stalls(running)
+        self._follow_behind(running)
         views = self.control.snapshot()
         silent = self.control.lost(dpu_ids)
         for dpu_id in silent:
@@ -180,6 +187,43 @@ class RunFollower:
             # Restarted: it takes the re-sent config and joins the next run, not this one.
             self.back.add(dpu_id)
             self.console.print(f"DPU {dpu_id} heard again ({views[dpu_id].state}): it joins the next run")
+
+    def _follow_stalls(self, running: list[DpuView]) -> None:
+        """A host's DPUs whose threads were kept from running for a stall (beyond
+        faults.stall_threshold_ns) since the last poll: one line per host, the platform
+        stalled, not the design (faults.stall_faults in the report)."""
+        by_host: dict[str, list[tuple[int, int]]] = {}
+        for view in running:
+            st = view.status
+            if st.longest_stall_ns <= self.stalled_ns.get(st.dpu, 0):
+                continue
+            self.stalled_ns[st.dpu] = st.longest_stall_ns
+            if st.longest_stall_ns >= stall_threshold_ns(self.config, st.dpu):
+                by_host.setdefault(self.hosts.get(st.dpu, st.host), []).append((st.dpu, st.longest_stall_ns))
+        for host, hit in sorted(by_host.items()):
+            dpus = ", ".join(str(d) for d, _ in sorted(hit))
+            longest = max(ns for _, ns in hit) / 1e6
+            self.console.print(f"[yellow]STALL[/] host {host}: DPU {dpus} could not run for up to "
+                               f"{longest:.1f} ms (the platform, not the design)")
+            if "stall" in self.system.run.stop_on:
+                self.stop_reason = self.stop_reason or f"stall of host {host}"
+
+    def _follow_behind(self, running: list[DpuView]) -> None:
+        """A DPU whose minor cycles start more than a minor cycle late, heartbeat after
+        heartbeat: said once per episode (faults.behind_faults in the report says why)."""
+        for view in running:
+            st = view.status
+            minor_ns = self.minor_ns.get(st.dpu, 0)
+            if minor_ns <= 0 or st.behind_ns <= minor_ns:
+                self.behind_polls[st.dpu] = 0
+                continue
+            self.behind_polls[st.dpu] = self.behind_polls.get(st.dpu, 0) + 1
+            if self.behind_polls[st.dpu] == BEHIND_POLLS:
+                self.console.print(f"[bold red]FAULT[/] behind: DPU {st.dpu} is {st.behind_ns / 1e6:.1f} ms "
+                                   f"({st.behind_ns / minor_ns:.1f} minor cycles) behind its schedule "
+                                   f"(kept from running {st.stall_ns / 1e6:.1f} ms in this run)")
+                if "behind" in self.system.run.stop_on:
+                    self.stop_reason = self.stop_reason or f"DPU {st.dpu} behind its schedule"
 
     def _announce_lockout(self, dpu: int, lockout: skelmsg.lockout_t) -> None:
         name = self.names.get(lockout.process, str(lockout.process))
@@ -275,7 +319,7 @@ def _report(console: Console, system: System, options: RunOptions, out: Path, ru
                           + (f", {repaired.missing} still missing" if repaired.missing else ": all logged"))
         console.print(f"run written to {out}/ (system.yaml, run.lcm, report.json)")
     kinds = {f["kind"] for f in report.to_json()["faults"]}
-    if kinds & set(FATAL_KINDS):
+    if report.fatal:
         return EXIT_FATAL_FLAW
     # A lost DPU's part of the run is missing: the tables cover the others only.
     return EXIT_FAILED if lost or "dpu_lost" in kinds else EXIT_OK

@@ -195,7 +195,7 @@ class Run(_Spec):
     duration_s: Positive | None = None
     warmup_cycles: Annotated[int, _between(0, MAX_INT32)] = 50
     lockout_cycles: Annotated[int, _between(1, MAX_INT32, " cycle")] = 10
-    stop_on: list[Literal["lockout", "jam", "dpu_lost"]] = ["lockout"]
+    stop_on: list[Literal["lockout", "jam", "behind", "stall", "dpu_lost"]] = ["lockout"]
     late_pct: Annotated[int, _between(1, MAX_INT32, " %")] = 20
     too_late_pct: Annotated[int, _between(1, MAX_INT32, " %")] = 100
 

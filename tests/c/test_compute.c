@@ -46,7 +46,7 @@ static void test_modes(void)
     CHECK(cpu_ns >= ns && cpu_ns < ns + ns / 200); /* within 0.5 % */
     /* WORK was calibrated as it runs (CPU time, the median run): it used to
      * compute 3-4 % more than asked, calibrated on its luckiest run. */
-    CHECK(work_ns > ns - ns / 100 && work_ns < ns + ns / 100);
+    CHECK(work_ns > ns - ns / 50 && work_ns < ns + ns / 50);
     /* SLEEP below the spin stretch is a pure spin; zero is free. */
     int64_t stall = 0;
     int64_t short_ns = compute_run(&c, SKELMSG_DPU_T_COMPUTE_SLEEP, 50000, &stall);
@@ -61,11 +61,12 @@ static void test_modes(void)
     CHECK(compute_work_kernel(1000) != compute_work_kernel(1001));
 }
 
-/* A wake-up or a gap longer than the stall threshold is reported as a stall,
- * and nothing shorter: no real wake-up is 0 ns late, none is a second late. */
+/* A wake-up past the end longer than the stall threshold is reported as a
+ * stall, and nothing shorter: no real wake-up is 0 ns late, none is a second
+ * late. Without the final spin, the sleep itself ends past the end. */
 static void test_stalls(void)
 {
-    skel_compute_t c = { .spin_ns = 150000, .stall_ns = 0 };
+    skel_compute_t c = { .spin_ns = 0, .stall_ns = 0 };
     int64_t stall = 0;
     compute_run(&c, SKELMSG_DPU_T_COMPUTE_SLEEP, 2000000, &stall);
     CHECK(stall > 0);

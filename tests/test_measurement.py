@@ -1,0 +1,177 @@
+"""The numbers hold on any system: one measurement window per DPU, lateness against the
+schedule, DPUs that fall behind, stalls of the machine, exact compute emulation.
+Real DPUs (sanitizer build), real lcm-logger, real multicast with ttl=0."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+from pathlib import Path
+
+import pytest
+from conftest import EXAMPLES, DpuFarm, skel, skel_background
+from randsys import random_system
+
+
+def _report(out: Path) -> dict:
+    return json.loads((out / "report.json").read_text())
+
+
+def _process(report: dict, name: str) -> dict:
+    return next(p for p in report["processes"] if p["name"] == name)
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_random_mixed_period_systems_measure_their_configured_load(tmp_path: Path, url: str,
+                                                                   seed: int) -> None:
+    """Each process used to skip its own warm-up while the DPU's elapsed time began with
+    its fastest process: a slow process's warm-up counted as time without compute in it."""
+    text, load = random_system(seed)
+    path = tmp_path / "random.yaml"
+    path.write_text(text)
+    out = tmp_path / "run"
+    run = skel("run", str(path), "--spawn", "--url", url, "--out", str(out))
+    assert run.returncode == 0, run.stdout + run.stderr
+    for dpu in _report(out)["dpus"]:
+        assert dpu["compute_pct"] == pytest.approx(load[dpu["id"]], abs=2.0), (seed, dpu, load)
+        # The DPU's own sums (report_t) cover the same window.
+    cross = _report(out)["cross_check"]
+    for row in cross:
+        ours, theirs = row["compute_ms"]
+        assert ours == pytest.approx(theirs, rel=0.01), row
+
+
+def test_late_is_judged_against_the_schedule_not_the_frame(tmp_path: Path, url: str) -> None:
+    """forward_kinematics starts 1.2 ms into its 5 ms frame, after trajectory: that is its
+    place in the schedule, not lateness (it used to be late in every cycle)."""
+    out = tmp_path / "servo"
+    run = skel("run", str(EXAMPLES / "servo.yaml"), "--spawn", "--url", url, "--cycles", "600",
+               "-s", "run.warmup_cycles=20", "-s", "run.lockout_cycles=20", "--out", str(out))
+    assert run.returncode == 0, run.stdout + run.stderr
+    report = _report(out)
+    for name in ("forward_kinematics", "force_control", "gravity_comp", "jacobian_update"):
+        proc = _process(report, name)
+        assert proc["latency_us"]["p50"] > 1000, proc  # its release latency includes those before it
+        assert proc["late"] <= proc["cycles"] // 20, proc  # was every cycle
+        assert proc["lateness_us"]["p50"] < 1000, proc
+    for dpu in report["dpus"]:  # the frame's own wake-up latency is its own measure
+        assert dpu["release_latency_us"]["p50"] < 1000, dpu
+    assert "lateness" in run.stdout
+
+
+HICCUP_SYSTEM = """\
+system: hiccup
+dpus: [{id: 1}, {id: 2}]
+buffers: [{id: 1, name: state, bytes: 64}]
+processes:
+  - {id: 1, name: sensor, dpu: 1, period_us: 5000, compute_us: 200, outputs: [state]}
+  - {id: 2, name: controller, dpu: 2, period_us: 5000, compute_us: 3800, sync: data, inputs: [state]}
+run: {duration_s: 4, warmup_cycles: 20, lockout_cycles: 40, stop_on: [lockout, jam]}
+"""
+
+
+def test_a_data_synchronised_dpu_catches_up_after_a_hiccup(tmp_path: Path, url: str, dpus: DpuFarm) -> None:
+    """A data-synchronised process gets one new sample per writer period: after a hiccup its
+    DPU never caught up and ran periods behind to the end. It now skips the releases it has
+    missed (cycle skipping), and its readers see them as dropped sequences."""
+    path = tmp_path / "hiccup.yaml"
+    path.write_text(HICCUP_SYSTEM)
+    dpus.start(1, 2)
+    out = tmp_path / "run"
+    run = skel_background("run", str(path), "--url", url, "--out", str(out))
+    time.sleep(3.0)  # the DPUs are 1-2 s into the run
+    pid = dpus.daemons[2].process.pid
+    os.kill(pid, signal.SIGSTOP)
+    time.sleep(0.015)  # three periods: under the stall threshold's excuse, over a period behind
+    os.kill(pid, signal.SIGCONT)
+    assert run.wait(60) == 0, run.output
+    report = _report(out)
+    controller = _process(report, "controller")
+    assert controller["releases_skipped"] >= 1, controller
+    # Caught up: the bulk of its cycles start in their period, not periods behind.
+    assert controller["latency_us"]["p99"] < 5000, controller
+    assert not [f for f in report["faults"] if f["kind"] == "behind" and f["fatal"]], report["faults"]
+
+
+OVERLOADED_SYSTEM = """\
+system: overloaded
+dpus: [{id: 1}]
+processes:
+  - {id: 1, name: heavy, dpu: 1, period_us: 5000, compute_us: 5300}
+run: {duration_s: 2, warmup_cycles: 10, lockout_cycles: 100000, stop_on: []}
+"""
+
+
+def test_a_dpu_that_runs_behind_is_a_fault_of_its_own(tmp_path: Path, url: str) -> None:
+    """A DPU whose release latency stays above a period: named, how far, since when, why;
+    live, in the tables and report.json, and fatal (exit 3)."""
+    path = tmp_path / "overloaded.yaml"
+    path.write_text(OVERLOADED_SYSTEM)
+    out = tmp_path / "run"
+    run = skel("run", str(path), "--spawn", "--url", url, "--out", str(out))
+    assert run.returncode == 3, run.stdout + run.stderr
+    behind = [f for f in _report(out)["faults"] if f["kind"] == "behind"]
+    assert len(behind) == 1, _report(out)["faults"]
+    fault = behind[0]
+    assert fault["dpu"] == 1 and fault["fatal"]
+    assert fault["behind_ms"] > 5.0 and fault["duration_ms"] > 100 and fault["at_s"] >= 0
+    assert "overloaded" in fault["detail"]
+    assert "FAULT behind: DPU 1" in run.stdout  # live
+    assert "behind" in run.stdout.split("faults")[-1]  # the fault table
+
+
+def test_a_stall_of_the_machine_is_not_a_lockout(tmp_path: Path, url: str, dpus: DpuFarm) -> None:
+    """Every DPU of a host late by the same tens of ms at once is the platform stalling: a
+    stall fault naming the host, when and how long; no lockout, no exit 3 (it was exit 3)."""
+    dpus.start(1, 2, 3, 4)
+    out = tmp_path / "run"
+    run = skel_background("run", str(EXAMPLES / "servo.yaml"), "--url", url, "--duration", "4",
+                          "-s", "run.warmup_cycles=20", "--out", str(out))
+    time.sleep(3.0)
+    pids = [d.process.pid for d in dpus.daemons.values()]
+    for pid in pids:
+        os.kill(pid, signal.SIGSTOP)
+    time.sleep(0.080)  # more than the 50 ms lockout of the 5 ms DPUs
+    for pid in pids:
+        os.kill(pid, signal.SIGCONT)
+    code = run.wait(60)
+    report = _report(out)
+    assert code == 0, run.output
+    kinds = [f["kind"] for f in report["faults"]]
+    assert "lockout" not in kinds and "jam" not in kinds, report["faults"]
+    stalls = [f for f in report["faults"] if f["kind"] == "stall" and f["duration_ms"] >= 50]
+    assert stalls, report["faults"]
+    assert stalls[0]["host"] == "localhost" and len(stalls[0]["dpus"]) >= 3, stalls
+    assert not stalls[0]["fatal"]
+    assert "STALL host localhost" in run.output
+
+
+ONE_DPU = """\
+system: compute
+dpus: [{id: 1, compute: sleep}]
+processes:
+  - {id: 1, name: short, dpu: 1, period_us: 5000, compute_us: 1200}
+  - {id: 2, name: long, dpu: 1, period_us: 5000, compute_us: 3315}
+run: {duration_s: 2, warmup_cycles: 20}
+"""
+
+
+@pytest.mark.parametrize("mode", ["work", "cpu", "wall", "sleep"])
+def test_each_compute_mode_computes_what_is_asked(tmp_path: Path, url: str, mode: str) -> None:
+    """One DPU alone: work computed +3-4 % and cpu +1-1.4 % of what was asked. WORK runs at
+    the CPU's speed of the moment: a machine busier than at the DPU's start-up makes it slower,
+    and the DPU says by how much (work_drift_pct); beyond that it is within 1 %."""
+    path = tmp_path / "compute.yaml"
+    path.write_text(ONE_DPU)
+    out = tmp_path / "run"
+    run = skel("run", str(path), "--spawn", "--url", url, "-s", f"dpu.1.compute={mode}", "--out", str(out))
+    assert run.returncode == 0, run.stdout + run.stderr
+    report = _report(out)
+    drift = report["dpus"][0]["work_drift_pct"]
+    assert (drift is None) == (mode != "work"), report["dpus"][0]
+    for name, asked in (("short", 1200), ("long", 3315)):
+        measured = _process(report, name)["compute_mean_us"]
+        tolerance = 0.01 + abs(drift or 0) / 100
+        assert measured == pytest.approx(asked, rel=tolerance), (mode, name, measured, drift)
