@@ -177,7 +177,7 @@ def dpu_metrics(records: np.ndarray, config: Any) -> list[DpuMetrics]:
     return out
 
 
-def _frames(mine: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def frames(mine: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per minor cycle of one DPU's records, in minor order: (first start, release)."""
     if len(mine) == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
@@ -190,7 +190,7 @@ def _frames(mine: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def frame_release_latency_ns(mine: np.ndarray) -> np.ndarray:
     """Per minor cycle of one DPU's records: its first start - its release."""
-    starts, releases = _frames(mine)
+    starts, releases = frames(mine)
     return starts - releases
 
 
@@ -229,7 +229,7 @@ def utilization_pct(
 
 def _measured_cycle_ms(mine: np.ndarray) -> float | None:
     """Mean interval between consecutive minor-cycle starts (earliest start per minor index)."""
-    starts, _ = _frames(mine)
+    starts, _ = frames(mine)
     if len(starts) < 2:
         return None
     return float(starts[-1] - starts[0]) / (len(starts) - 1) / 1e6

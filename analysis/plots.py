@@ -22,7 +22,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
-from .metrics import cycle_end_ns, measured
+from .metrics import cycle_end_ns, frames, measured
 from .records import FLAG_OVERRUN, FLAG_SKIPPED
 from .report import LogError
 from .rundata import RunData, load_run_data
@@ -38,6 +38,10 @@ TEXT = {
     "utilization": ("Utilization per DPU", "Share of each DPU's measured time, with the configured "
                     "(static) load Σ compute/period beside it."),
     "timeline": ("Timeline of process phases", ""),
+    "schedule": ("How far behind its schedule each DPU ran",
+                 "The lateness of each minor cycle's first start (its release latency) over the run, "
+                 "against one minor cycle (dashed): above it the DPU runs cycles of the past. Faults "
+                 "`behind` are shaded (red: the design's, orange: the platform's), stalls are grey bars."),
     "release_latency": ("Release latency per process",
                         "Start minus release of every measured cycle (log-scale counts), with p50 and p99."),
     "buffer_latency": ("Buffer transport latency", "Receive minus send time of every new message, "
@@ -93,6 +97,7 @@ def write_plots(data: RunData, out_dir: Path, window_ms: tuple[float, float] | N
     save(utilization(data), Plot("utilization.png", *TEXT["utilization"]))
     fig, caption = timeline(data, window_ms)
     save(fig, Plot("timeline.png", TEXT["timeline"][0], caption))
+    save(schedule(data), Plot("schedule.png", *TEXT["schedule"]))
     save(release_latency(data), Plot("release_latency.png", *TEXT["release_latency"]))
     fig = buffer_latency(data)
     if fig is None:
@@ -258,6 +263,35 @@ def _log_counts(ax: plt.Axes, highest: int) -> None:
     ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
     ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     ax.yaxis.set_minor_formatter(NullFormatter())
+
+
+def schedule(data: RunData) -> Figure:
+    """Per DPU: each minor cycle's frame release latency over the run, with the faults
+    `behind` and `stall` of the report marked where they happened."""
+    dpus = sorted(data.config.dpus, key=lambda d: d.id)
+    fig = _figure(11, 1.0 + 1.6 * len(dpus))
+    axes = fig.subplots(len(dpus), 1, sharex=True, squeeze=False)[:, 0]
+    recs = data.records
+    for ax, dpu in zip(axes, dpus, strict=True):
+        mine = recs[recs["dpu"] == dpu.id]
+        if len(mine) == 0:
+            ax.text(0.5, 0.5, "no cycle", ha="center", va="center", transform=ax.transAxes)
+            continue
+        starts, releases = frames(mine)
+        ax.plot((releases - releases[0]) / 1e9, (starts - releases) / 1e6, color=COMPUTE, linewidth=0.8)
+        ax.axhline(dpu.minor_cycle_us / 1000, color="black", linestyle="--", linewidth=0.8)
+        for f in data.report.faults:
+            if f.kind == "behind" and f.dpu == dpu.id and f.at_s is not None and f.duration_ms is not None:
+                ax.axvspan(f.at_s, f.at_s + f.duration_ms / 1000, color=OVERRUN if f.fatal else COMM_IN,
+                           alpha=0.3, linewidth=0)  # fmt: skip
+            if f.kind == "stall" and dpu.id in f.dpus and f.at_s is not None and f.duration_ms is not None:
+                end = f.at_s + max(f.duration_ms / 1000, 0.01)
+                ax.axvspan(f.at_s, end, color=WAIT, alpha=0.8, linewidth=0)
+        ax.set_ylabel(f"DPU {dpu.id}\nms late", fontsize=8)
+        ax.grid(color="#E0E0E0", linewidth=0.6)
+    axes[-1].set_xlabel("time (s) from the run's first release, each DPU's clock")
+    axes[0].set_title(_title(data, "lateness of each minor cycle's first start"))
+    return fig
 
 
 def release_latency(data: RunData) -> Figure:

@@ -90,12 +90,9 @@ class RunReport:
         out["integrity"]["corrupt_ranges"] = [list(r) for r in self.integrity.corrupt_ranges]
         for chain in out["chains"]:
             chain.pop("series")
-        modes = out.pop("compute_modes")
-        drift = out.pop("work_drift_pct")
-        for dpu in out["dpus"]:
-            dpu["compute_mode"] = modes.get(dpu["id"])
-            dpu["work_drift_pct"] = drift.get(dpu["id"])
-        out["windows"] = [_window_json(w, modes) for w in self.windows]
+        extras = {"compute_mode": out.pop("compute_modes"), "work_drift_pct": out.pop("work_drift_pct")}
+        _add_dpu_extras(out["dpus"], extras)
+        out["windows"] = [_window_json(w, extras) for w in self.windows]
         out["fatal"] = self.fatal
         return out
 
@@ -104,12 +101,18 @@ def _no_series(chains: list[ChainMetrics]) -> list[ChainMetrics]:
     return [dataclasses.replace(c, series=None) for c in chains]
 
 
-def _window_json(window: WindowReport, modes: dict[int, str]) -> dict[str, Any]:
+def _add_dpu_extras(dpus: list[dict[str, Any]], extras: dict[str, dict[int, Any]]) -> None:
+    """What the DPUs' own report_t says of each (compute mode, WORK drift) beside our rows."""
+    for dpu in dpus:
+        for key, per_dpu in extras.items():
+            dpu[key] = per_dpu.get(dpu["id"])
+
+
+def _window_json(window: WindowReport, extras: dict[str, dict[int, Any]]) -> dict[str, Any]:
     out = dataclasses.asdict(dataclasses.replace(window, chains=_no_series(window.chains)))
     for chain in out["chains"]:
         chain.pop("series")
-    for dpu in out["dpus"]:
-        dpu["compute_mode"] = modes.get(dpu["id"])
+    _add_dpu_extras(out["dpus"], extras)
     out["duration_ms"] = window.duration_ms
     return out
 

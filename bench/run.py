@@ -5,7 +5,9 @@
     (Debian rt-tests) for the same time at the same period and scheduling class;
 (b) publish cost: skel-dpu's comm_out per output buffer against a bare lcm_publish()
     loop in C (bench/lcm_publish.c) of the same message size at the same period;
-(c) the log reader against lcm.EventLog + the generated decoders (bench/logreader_bench.py).
+(c) the log reader against lcm.EventLog + the generated decoders (bench/logreader_bench.py);
+(d) compute emulation: per compute mode, one DPU alone computing 1200 and 3315 us per
+    cycle: what each cycle reports against what was asked (goal: within 0.5 %).
 
 Each part writes bench/results/<name>.txt, the headlines go to bench/results/summary.txt.
 Runs use a private multicast port with ttl=0 (nothing leaves the host). About 1-2 minutes.
@@ -70,11 +72,23 @@ def _us(ns: np.ndarray, q: float) -> float:
     return float(np.percentile(ns, q)) / 1000.0
 
 
-def skel_run(tmp: Path, mode: str, seconds: float) -> np.ndarray:
-    """Measured records of one real run of SYSTEM with the DPU in compute mode `mode`."""
+COMPUTE_SYSTEM = f"""\
+system: compute
+links: [{{name: bus, url: "{URL}"}}]
+dpus: [{{id: 1, compute: sleep}}]
+processes:
+  - {{id: 1, name: short, dpu: 1, period_us: 5000, compute_us: 1200}}
+  - {{id: 2, name: long, dpu: 1, period_us: 5000, compute_us: 3315}}
+run: {{warmup_cycles: 20, lockout_cycles: 1000, stop_on: []}}
+"""
+
+
+def skel_run(tmp: Path, mode: str, seconds: float, text: str = SYSTEM, name: str = "") -> np.ndarray:
+    """Measured records of one real run of `text` with the DPU in compute mode `mode`,
+    in tmp/NAME+MODE."""
     system = tmp / "bench.yaml"
-    system.write_text(SYSTEM)
-    out = tmp / mode
+    system.write_text(text)
+    out = tmp / f"{name}{mode}"
     argv = [sys.executable, "-m", "skeleton.host.cli", "run", str(system), "--spawn", "--url", URL,
             "--duration", str(seconds), "--out", str(out), "--json", "-s", f"dpu.1.compute={mode}"]
     done = subprocess.run(argv, capture_output=True, text=True, timeout=seconds + 60, cwd=REPO,
@@ -236,6 +250,23 @@ def part_publish(tmp: Path, seconds: float, records: np.ndarray | None) -> list[
     return [head, *lines]
 
 
+def part_compute(tmp: Path, seconds: float) -> list[str]:
+    """Per mode: the mean compute each cycle reports against what was asked."""
+    asked = {1: 1200.0, 2: 3315.0}
+    rows, worst = [], 0.0
+    for mode in ("sleep", "wall", "cpu", "work"):
+        recs = skel_run(tmp, mode, seconds, COMPUTE_SYSTEM, "compute-")
+        errors = []
+        for proc, want in asked.items():
+            got = float(recs["compute_ns"][recs["process"] == proc].mean()) / 1000.0
+            errors.append(100.0 * (got - want) / want)
+        worst = max(worst, *map(abs, errors))
+        rows.append(f"  {mode:5s}: 1200 us -> {asked[1] * (1 + errors[0] / 100):.1f} ({errors[0]:+.2f} %), "
+                    f"3315 us -> {asked[2] * (1 + errors[1] / 100):.1f} ({errors[1]:+.2f} %)")
+    verdict = "PASS" if worst <= 0.5 else "FAIL"
+    return [f"compute emulation: worst error {worst:.2f} % of what was asked (goal 0.5 %): {verdict}", *rows]
+
+
 def part_logreader(records: int) -> list[str]:
     sys.path.insert(0, str(BENCH))
     from logreader_bench import measure
@@ -259,6 +290,7 @@ def main() -> int:
             "wakeup": wake,
             "publish": part_publish(tmp, args.seconds, records[records["cycle"] >= WARMUP_CYCLES]),
             "logreader": part_logreader(args.records),
+            "compute": part_compute(tmp, args.seconds),
         }
     for name, lines in parts.items():
         (RESULTS / f"{name}.txt").write_text("\n".join(lines) + "\n")

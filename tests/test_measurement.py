@@ -120,6 +120,10 @@ def test_a_dpu_that_runs_behind_is_a_fault_of_its_own(tmp_path: Path, url: str) 
     assert "overloaded" in fault["detail"]
     assert "FAULT behind: DPU 1" in run.stdout  # live
     assert "behind" in run.stdout.split("faults")[-1]  # the fault table
+    plots = skel("report", str(out), "--plots", str(tmp_path / "plots"))
+    assert plots.returncode == 3, plots.stdout + plots.stderr
+    assert (tmp_path / "plots" / "schedule.png").stat().st_size > 10_000
+    assert "behind its schedule" in (tmp_path / "plots" / "report.html").read_text()
 
 
 def test_a_stall_of_the_machine_is_not_a_lockout(tmp_path: Path, url: str, dpus: DpuFarm) -> None:

@@ -17,7 +17,7 @@ from skeleton.analysis.plots import default_window_ns, plots_command, write_plot
 from skeleton.analysis.rundata import load_run_data
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-ALL_PLOTS = ["utilization.png", "timeline.png", "release_latency.png", "buffer_latency.png",
+ALL_PLOTS = ["utilization.png", "timeline.png", "schedule.png", "release_latency.png", "buffer_latency.png",
              "chain_latency.png"]  # fmt: skip
 
 

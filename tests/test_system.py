@@ -126,7 +126,7 @@ ERRORS: list[tuple[str, Callable[[Doc], None], str]] = [
     ("bad name", _set("processes.a.name", "a.b"),
      "processes.a.b.name: must be a name of letters, digits and _ not starting with a digit, got 'a.b'"),
     ("stop_on", _set("run.stop_on", ["crash"]),
-     "run.stop_on[0]: must be one of 'lockout', 'jam' or 'dpu_lost', got 'crash'"),
+     "run.stop_on[0]: must be one of 'lockout', 'jam', 'behind', 'stall' or 'dpu_lost', got 'crash'"),
     ("lockout_cycles", _set("run.lockout_cycles", 0), "run.lockout_cycles: must be at least 1 cycle, got 0"),
     ("cycles and duration", _both(_set("run.cycles", 10), _set("run.duration_s", 1.0)),
      "run: give cycles or duration_s, not both"),
