@@ -28,5 +28,5 @@ def test_servo_runs_long_with_no_process_behind(tmp_path: Path, url: str) -> Non
         assert fault["kind"] in ("stall", "behind", "overrun"), fault
         if fault["kind"] == "behind":
             assert "kept from running" in fault["detail"], fault
-    print(f"SERVO {SOAK_S:g} s: " + ", ".join(f"DPU {d['id']} {d['compute_pct']:.1f} %" for d in report["dpus"])
-          + f"; faults: {[(f['kind'], f.get('detail')) for f in report['faults']]}")
+    loads = ", ".join(f"DPU {d['id']} {d['compute_pct']:.1f} %" for d in report["dpus"])
+    print(f"SERVO {SOAK_S:g} s: {loads}; faults: {[(f['kind'], f['detail']) for f in report['faults']]}")
