@@ -52,6 +52,7 @@
 #define SKEL_REASON_LEN      256
 #define SKEL_RT_PRIORITY     10                 /* SCHED_FIFO of SLEEP-mode cycles, by default */
 #define SKEL_SEEN_COMMANDS   64
+#define SKEL_OWNER_LEN       128                /* "HOST pid N" of a run's host tool */
 
 #define SKEL_NS_PER_US 1000LL
 #define SKEL_NS_PER_S  1000000000LL
@@ -364,6 +365,9 @@ typedef struct skel_server {
     int run_ended;             /* executive finished; control finalises */
     int64_t run_id;            /* current/last run */
     int64_t run_generation;
+    int64_t run_session;       /* the host tool that started the current/last run (owner.c) */
+    char run_owner[SKEL_OWNER_LEN];
+    int64_t run_end_utc_ns;    /* its planned end, 0: until STOP */
     int64_t rejected_at_start;
     int applied_any;
     int nlockouts;
@@ -443,6 +447,12 @@ void control_handle_config(skel_control_t *c, const void *data, int len);
 void control_handle_command(skel_control_t *c, const void *data, int len);
 int control_seen(skel_control_t *c, const skelmsg_command_t *cmd);
 int control_publish_status(skel_control_t *c);
+
+/* ---- owner (owner.c): a run belongs to the host tool that started it ------------- */
+void owner_take(skel_server_t *s, const skelmsg_command_t *start, int64_t start_utc_ns);
+int owner_refuses(skel_control_t *c, int64_t session, int8_t force, const char *sender,
+                  const char *what, int64_t generation);
+void owner_status_fill(skel_server_t *s, skelmsg_status_t *st, char *owner);
 
 /* ---- apply (apply.c): a staged config becomes the plan ---------------------------- */
 void control_apply(skel_control_t *c);
