@@ -179,7 +179,8 @@ class LogRepair:
             now = time.monotonic()
             if fewest is None or outstanding < fewest:
                 fewest, progress = outstanding, now
-            if not outstanding or now - progress >= stuck_s or now - start >= limit_s:
+            no_logger = self.keeper is not None and self.keeper.failure is not None
+            if not outstanding or no_logger or now - progress >= stuck_s or now - start >= limit_s:
                 self.result.missing = outstanding
                 return self.result
             self._ask(holes, no_report, again_after_s=ROUND_S)
