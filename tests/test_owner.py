@@ -58,7 +58,8 @@ def test_second_run_and_push_are_refused_at_once_and_the_first_run_stays_clean(
     try:
         statuses = _running(url)
         run_id = statuses[1].run_id
-        assert statuses[1].run_owner == statuses[2].run_owner == f"{socket.gethostname()} pid {first.proc.pid}"
+        owner = f"{socket.gethostname()} pid {first.proc.pid}"
+        assert statuses[1].run_owner == statuses[2].run_owner == owner
         assert statuses[1].run_end_utc_ns > time.time_ns()
 
         began = time.monotonic()
@@ -123,7 +124,8 @@ def test_dpus_refuse_another_sessions_config_and_stop_during_a_run(tmp_path: Pat
 def test_force_takes_the_run_over(tmp_path: Path, url: str, dpus: DpuFarm) -> None:
     system = _system(tmp_path)
     dpus.start(1, 2)
-    first = skel_background("run", str(system), "--url", url, "--duration", "30", "--out", str(tmp_path / "a"))
+    first = skel_background("run", str(system), "--url", url, "--duration", "30",
+                            "--out", str(tmp_path / "a"))
     try:
         first_run = _running(url)[1].run_id
         second = skel("run", str(system), "--url", url, "--duration", "1", "--force", "--out",
