@@ -230,8 +230,16 @@ typedef struct {
     char *url;
     lcm_t *lcm;
     int fd;
+    int32_t largest;           /* the largest message (encoded bytes) its socket receives */
 } skel_link_t;
 
+/* What a socket's receive buffer must be asked for, to hold a message of
+ * ENCODED bytes whole: the message and one more LCM fragment of slack (its
+ * headers, the next message). The kernel grants twice what is asked, for its
+ * bookkeeping, up to net.core.rmem_max. analysis/faults.py names the same. */
+#define SKEL_RECV_SLACK_BYTES 65536
+
+int link_url(const skel_link_t *link, char *out, size_t len, int32_t *asked);
 int link_open(skel_link_t *link);
 void link_close(skel_link_t *link);
 int link_subscribe(skel_link_t *link, skel_slot_t *slot);
