@@ -18,6 +18,7 @@ from .chains import ChainMetrics, chain_metrics
 from .faults import (
     Fault,
     Lockout,
+    delivery_faults,
     dpu_lost_faults,
     jam_faults,
     lockout_faults,
@@ -78,6 +79,7 @@ def build_window(
     this window; `reported`: DPUs that sent their end-of-run report_t (last window only)."""
     processes = process_metrics(records, inputs, config)
     locks = lockouts_from_records(records, lockouts or {})
+    delivery, locks = delivery_faults(config, records, inputs, locks)
     start, end = _span(records, config.warmup_cycles, clock)
     return WindowReport(
         generation=int(config.generation),
@@ -88,7 +90,8 @@ def build_window(
         buffers=buffer_metrics(records, inputs, config, clock),
         chains=chain_metrics(records, inputs, config, clock),
         faults=(
-            lockout_faults(locks, config)
+            delivery
+            + lockout_faults(locks, config)
             + jam_faults(locks, config)
             + overrun_faults(processes)
             + dpu_lost_faults(config, records, reported)

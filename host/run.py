@@ -35,7 +35,7 @@ from skeleton.analysis.metrics import utilization_pct
 from skeleton.analysis.report import LogError, analyze
 from skeleton.analysis.tables import print_report
 from skeleton.host import owner, spawn
-from skeleton.host.check import warmup_warnings
+from skeleton.host.check import delivery_warnings, warmup_warnings
 from skeleton.host.clock import ClockKeeper
 from skeleton.host.control import Control, PushResult
 from skeleton.host.repair import LoggerKeeper, LogRepair, RepairResult
@@ -53,7 +53,7 @@ LOGGER_READY_S = 2.0        # heartbeats come at 5 Hz: the logger has one well w
 REPAIR_STUCK_S = 3.0        # after the reports, the repair of the log gives up this long without progress
 REPAIR_LIMIT_S = 10.0       # ... or after this long in all
 FATAL_KINDS = ("lockout", "jam")
-FAILED_KINDS = ("dpu_lost",)    # the machine or network failed the run, not the design
+FAILED_KINDS = ("dpu_lost", "delivery")    # the machine or network failed the run, not the design
 
 
 @dataclass
@@ -88,8 +88,8 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
     url = control_url(system)
     dpu_ids = sorted(d.id for d in system.dpus)
     duration_ns = system.run_duration_ns(options.cycles, options.duration_s)
-    for warning in warmup_warnings(system, duration_ns):
-        console.print(f"[yellow]WARN[/] {warning}")
+    for warning in warmup_warnings(system, duration_ns) + delivery_warnings(system):
+        console.print(f"[yellow]WARN[/] {warning}", soft_wrap=True)
     # From the logger's start: first event, clock estimate, START lead, the run, the reports, a margin.
     logger_deadline_s = (LOGGER_READY_S + 1.0 + START_LEAD_S + duration_ns / 1e9 + REPORT_GRACE_S
                          + REPAIR_LIMIT_S + LOGGER_MARGIN_S)
@@ -321,6 +321,8 @@ def _report(console: Console, system: System, options: RunOptions, out: Path, ru
                           + (f", {repaired.missing} still missing" if repaired.missing else ": all logged"))
         console.print(f"run written to {out}/ (system.yaml, run.lcm, report.json)")
     kinds = {f["kind"] for f in report.to_json()["faults"]}
+    if "delivery" in kinds:
+        return EXIT_FAILED  # what did not arrive locks its readers out: not the design's flaw
     if kinds & set(FATAL_KINDS):
         return EXIT_FATAL_FLAW
     # A lost DPU's part of the run is missing: the tables cover the others only.
