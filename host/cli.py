@@ -244,13 +244,14 @@ def cmd_status(args: argparse.Namespace) -> int:
              "generation": v.status.generation, "staged": v.status.staged_generation,
              "run_id": v.status.run_id, "minor_cycles": v.status.minor_cycles,
              "faults": v.status.faults, "rejected_messages": v.status.rejected_messages,
-             "reject_reason": v.status.reject_reason}
+             "reject_reason": v.status.reject_reason, "run_owner": v.status.run_owner,
+             "run_end_utc_ns": v.status.run_end_utc_ns}
             for i, v in sorted(views.items())]
     done = _json_or_nothing(rows, args.json, f"no DPU heard on {args.url} in {args.wait:g} s")
     if done is not None:
         return done
     table = Table(title=f"DPUs on {args.url}")
-    columns = ("dpu", "host", "pid", "state", "generation", "run_id", "minor_cycles", "faults",
+    columns = ("dpu", "host", "pid", "state", "generation", "run_id", "run_owner", "minor_cycles", "faults",
                "rejected_messages", "reject_reason")
     for column in columns:
         table.add_column(column)
