@@ -69,6 +69,10 @@ def test_second_run_and_push_are_refused_at_once_and_the_first_run_stays_clean(
         began = time.monotonic()
         push = skel("push", str(system), "--url", url, "-s", "process.sensor.compute_us=2000")
         push_s = time.monotonic() - began
+        # With --spawn too: refused before its own DPUs are started.
+        spawned_out = tmp_path / "spawned"
+        spawned = skel("run", str(system), "--spawn", "--url", url, "--duration", "2",
+                       "--out", str(spawned_out))
         code = first.wait(60)
     finally:
         if first.proc.poll() is None:
@@ -82,6 +86,8 @@ def test_second_run_and_push_are_refused_at_once_and_the_first_run_stays_clean(
         assert took < 5.0, (took, message)
     # The second run started nothing: no logger, no DPU of its own, no config staged anywhere.
     assert not (second_out / "run.lcm").exists()
+    assert spawned.returncode == 1 and f"in run {run_id} of" in spawned.stdout, spawned.stdout
+    assert not (spawned_out / "logs").exists() and not (spawned_out / "run.lcm").exists()
     assert "staged generation" not in dpus.log(1).split(f"run {run_id} armed")[1]
     assert code == 0, first.output
     report = json.loads((first_out / "report.json").read_text())
