@@ -11,7 +11,9 @@ from typing import Any
 
 import numpy as np
 
-from .metrics import ProcessMetrics, frame_release_latency_ns, measured, static_load_pct
+import skelmsg
+
+from .metrics import ProcessMetrics, completed, frame_release_latency_ns, measured, static_load_pct
 from .records import FLAG_LOCKOUT
 
 # A fault of these kinds says the architecture does not work (exit 3); `behind` only
@@ -21,7 +23,7 @@ FATAL_KINDS = ("lockout", "jam", "behind")
 
 @dataclass
 class Fault:
-    kind: str  # "lockout" | "jam" | "behind" | "stall" | "overrun" | "dpu_lost"
+    kind: str  # "lockout" | "jam" | "behind" | "stall" | "overrun" | "dpu_lost" | "delivery"
     process: str | None = None
     dpu: int | None = None
     buffer: str | None = None
@@ -329,3 +331,62 @@ def _why_behind(mine: np.ndarray, config: Any, dpu: int, start: int, t_worst: in
                     f"(computed {over['compute_ns'] / 1e6:.1f} ms) and the DPU has too little slack "
                     "to catch up", True)
     return "its cycles take longer than its minor cycle", True
+
+
+# --- delivery: a buffer that never reached a reader -----------------------------------------
+# What a reader's socket receive buffer must be asked for to hold one message of a buffer whole
+# (LCM's recv_buf_size; the kernel grants twice that, up to net.core.rmem_max). The DPU asks for
+# it (dpu/link.c, SKEL_RECV_SLACK_BYTES); `skel check` and `skel doctor` compare it with this host.
+BUFFER_HEADER_BYTES = len(skelmsg.buffer_t().encode())
+RECV_SLACK_BYTES = 65536
+FRAGMENT_BYTES = 65000        # larger messages go out as several UDP datagrams (LCM fragments)
+DELIVERY_MIN_SENT = 3         # a writer that published fewer gives a reader no fair chance
+
+
+def recv_buf_needed(payload_bytes: int) -> int:
+    """The socket receive buffer (bytes) a reader must ask for to receive one message whole."""
+    return payload_bytes + BUFFER_HEADER_BYTES + RECV_SLACK_BYTES
+
+
+def delivery_faults(config: Any, records: np.ndarray, inputs: np.ndarray,
+                    lockouts: dict[int, Lockout]) -> tuple[list[Fault], dict[int, Lockout]]:
+    """Buffers whose writer kept publishing but that never reached a reader: not one message
+    arrived. That is the machine or the network failing (a datagram larger than the reader's
+    socket receive buffer, a firewall, a route), not the design: named as a delivery failure
+    (buffer, writer, reader, the likely fix), and the reader's lockout waiting on that buffer is
+    taken out of the lockouts. Returns the faults and the lockouts that remain."""
+    names, dpus, buffers = _index(config)
+    done = records[completed(records)]
+    published = dict(zip(*np.unique(done["process"], return_counts=True), strict=True))
+    ran = set(np.unique(records["process"]).tolist())
+    faults: list[Fault] = []
+    kept = dict(lockouts)
+    for reader in sorted(config.processes, key=lambda p: p.id):
+        for buffer_id in reader.inputs:
+            desc = buffers.get(buffer_id)
+            if desc is None or desc.writer == reader.id:
+                continue
+            sent = int(published.get(desc.writer, 0))
+            lock = lockouts.get(reader.id)
+            waits_here = lock is not None and lock.buffer == buffer_id
+            if sent < DELIVERY_MIN_SENT or not (reader.id in ran or waits_here):
+                continue
+            rows = inputs[(inputs["process"] == reader.id) & (inputs["buffer"] == buffer_id)]
+            if np.count_nonzero(rows["new"]) or int(rows["received"].sum()):
+                continue
+            if waits_here:
+                del kept[reader.id]
+            faults.append(Fault(kind="delivery", process=names.get(reader.id), dpu=dpus.get(reader.id),
+                                buffer=desc.name, writer=names.get(desc.writer, f"process {desc.writer}"),
+                                count=sent, detail=_delivery_detail(desc, sent, names.get(reader.id, "?"),
+                                                                     dpus.get(reader.id))))
+    return faults, kept
+
+
+def _delivery_detail(desc: Any, sent: int, reader: str, dpu: int | None) -> str:
+    said = f"{desc.name} ({desc.bytes} bytes): {sent} published, none reached {reader}"
+    if desc.bytes + BUFFER_HEADER_BYTES > FRAGMENT_BYTES:
+        need = recv_buf_needed(desc.bytes)
+        return (f"{said}; a message this large must fit the reader's socket receive buffer whole: on "
+                f"DPU {dpu}'s host `sysctl -w net.core.rmem_max={need}` (see `skel doctor`)")
+    return f"{said}; check the link between the writer's and the reader's hosts (`skel doctor`)"

@@ -19,6 +19,7 @@ from .faults import (
     Fault,
     Lockout,
     behind_faults,
+    delivery_faults,
     dpu_lost_faults,
     jam_faults,
     lockout_faults,
@@ -80,6 +81,7 @@ def build_window(
     this window; `reported`: DPUs that sent their end-of-run report_t (last window only)."""
     processes = process_metrics(records, inputs, config)
     locks = lockouts_from_records(records, lockouts or {})
+    delivery, locks = delivery_faults(config, records, inputs, locks)
     start, end = _span(records, config, clock)
     return WindowReport(
         generation=int(config.generation),
@@ -90,7 +92,8 @@ def build_window(
         buffers=buffer_metrics(records, inputs, config, clock),
         chains=chain_metrics(records, inputs, config, clock),
         faults=(
-            lockout_faults(locks, config)
+            delivery
+            + lockout_faults(locks, config)
             + jam_faults(locks, config)
             + behind_faults(records, config)
             + stall_faults(records, config)

@@ -71,6 +71,12 @@ void control_handle_config(skel_control_t *c, const void *data, int len)
         control_free_config(cfg);
         return;
     }
+    char what[64];
+    snprintf(what, sizeof what, "generation %lld", (long long)cfg->generation);
+    if (owner_refuses(c, cfg->session, cfg->force, cfg->sender, what, cfg->generation)) {
+        control_free_config(cfg);
+        return;
+    }
     skel_self_t self;
     char reason[SKEL_REASON_LEN];
     if (config_find_self(cfg, s->id_arg, s->hostname, &self) != 0) {
@@ -146,6 +152,7 @@ static void command_start(skel_control_t *c, const skelmsg_command_t *cmd)
     int64_t now_mono = clock_mono_ns(), now_utc = clock_utc_ns();
     int64_t start = clock_utc_to_mono(cmd->at_utc_ns, now_mono, now_utc);
     if (cmd->at_utc_ns <= 0 || start < now_mono) start = now_mono; /* in the past: start now */
+    owner_take(s, cmd, clock_mono_to_utc(start, now_mono, now_utc));
     s->run = (skel_run_t){ 1, cmd->run_id, cmd->generation, start,
                            cmd->duration_ns > 0 ? start + cmd->duration_ns : INT64_MAX };
     s->run_id = cmd->run_id;
@@ -215,30 +222,37 @@ static void command_resend(skel_control_t *c, const skelmsg_command_t *cmd)
              gone > 0 ? ": some no longer held" : "");
 }
 
-void control_handle_command(skel_control_t *c, const void *data, int len)
+/* The commands that steer a run, by name; NULL for those anyone may send. */
+static const char *command_steers(int8_t kind)
+{
+    switch (kind) {
+    case SKELMSG_COMMAND_T_START: return "START";
+    case SKELMSG_COMMAND_T_STOP: return "STOP";
+    case SKELMSG_COMMAND_T_COMMIT: return "COMMIT";
+    case SKELMSG_COMMAND_T_SHUTDOWN: return "SHUTDOWN";
+    default: return NULL;
+    }
+}
+
+static void command_dispatch(skel_control_t *c, const skelmsg_command_t *cmd, int64_t received)
 {
     skel_server_t *s = c->s;
-    int64_t received = server_now(s);
-    skelmsg_command_t cmd;
-    if (wire_decode_command(data, len, &cmd) != 0) {
-        atomic_fetch_add(&s->rejected, 1);
-        server_fault(s, SKELMSG_STATUS_T_FAULT_REJECTED_MESSAGES);
-        return;
-    }
-    if (cmd.dpu != -1 && cmd.dpu != s->dpu_id) return;
-    if (control_seen(c, &cmd)) return;
-    switch (cmd.kind) {
-    case SKELMSG_COMMAND_T_START: command_start(c, &cmd); break;
+    if (cmd->dpu != -1 && cmd->dpu != s->dpu_id) return;
+    if (control_seen(c, cmd)) return;
+    const char *steers = command_steers(cmd->kind);
+    if (steers != NULL && owner_refuses(c, cmd->session, cmd->force, cmd->sender, steers, -1)) return;
+    switch (cmd->kind) {
+    case SKELMSG_COMMAND_T_START: command_start(c, cmd); break;
     case SKELMSG_COMMAND_T_STOP: command_stop(c); break;
-    case SKELMSG_COMMAND_T_COMMIT: command_commit(c, &cmd); break;
+    case SKELMSG_COMMAND_T_COMMIT: command_commit(c, cmd); break;
     case SKELMSG_COMMAND_T_PING:
-        c->ping_seq = cmd.seq;
-        c->ping_t1_ns = cmd.ping_t1_ns;
+        c->ping_seq = cmd->seq;
+        c->ping_t1_ns = cmd->ping_t1_ns;
         c->ping_t2_ns = received;
         c->ping_t3_ns = server_now(s); /* as late as possible: just before the publish */
-        if (control_publish_status(c) != 0) skel_log("cannot answer ping %lld", (long long)cmd.seq);
+        if (control_publish_status(c) != 0) skel_log("cannot answer ping %lld", (long long)cmd->seq);
         break;
-    case SKELMSG_COMMAND_T_RESEND: command_resend(c, &cmd); break;
+    case SKELMSG_COMMAND_T_RESEND: command_resend(c, cmd); break;
     case SKELMSG_COMMAND_T_SHUTDOWN:
         skel_log("DPU %d: SHUTDOWN", s->dpu_id);
         /* main() waits for SIGTERM in sigwait: the same clean path as a signal. */
@@ -249,4 +263,18 @@ void control_handle_command(skel_control_t *c, const void *data, int len)
         server_fault(s, SKELMSG_STATUS_T_FAULT_REJECTED_MESSAGES);
         break;
     }
+}
+
+void control_handle_command(skel_control_t *c, const void *data, int len)
+{
+    skel_server_t *s = c->s;
+    int64_t received = server_now(s);
+    skelmsg_command_t cmd;
+    if (wire_decode_command(data, len, &cmd) != 0) {
+        atomic_fetch_add(&s->rejected, 1);
+        server_fault(s, SKELMSG_STATUS_T_FAULT_REJECTED_MESSAGES);
+        return;
+    }
+    command_dispatch(c, &cmd, received);
+    skelmsg_command_t_decode_cleanup(&cmd); /* the sender string */
 }

@@ -39,8 +39,9 @@ int control_publish_status(skel_control_t *c)
 {
     skelmsg_status_t st;
     skelmsg_lockout_t lockouts[SKEL_MAX_LOCKOUTS];
-    char reason[SKEL_REASON_LEN];
+    char reason[SKEL_REASON_LEN], owner[SKEL_OWNER_LEN];
     report_status_fill(c->s, &st, lockouts, reason);
+    owner_status_fill(c->s, &st, owner);
     st.ping_seq = c->ping_seq;
     st.ping_t1_ns = c->ping_t1_ns;
     st.ping_t2_ns = c->ping_t2_ns;

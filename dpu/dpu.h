@@ -54,6 +54,7 @@
 #define SKEL_STALL_NS        (50 * 1000LL)      /* a wake-up this late, a gap this long: not running */
 #define SKEL_DRIFT_PCT       2.0                /* WORK calibration further off than this: said */
 #define SKEL_SEEN_COMMANDS   64
+#define SKEL_OWNER_LEN       128                /* "HOST pid N" of a run's host tool */
 
 #define SKEL_NS_PER_US 1000LL
 #define SKEL_NS_PER_S  1000000000LL
@@ -236,8 +237,16 @@ typedef struct {
     char *url;
     lcm_t *lcm;
     int fd;
+    int32_t largest;           /* the largest message (encoded bytes) its socket receives */
 } skel_link_t;
 
+/* What a socket's receive buffer must be asked for, to hold a message of
+ * ENCODED bytes whole: the message and one more LCM fragment of slack (its
+ * headers, the next message). The kernel grants twice what is asked, for its
+ * bookkeeping, up to net.core.rmem_max. analysis/faults.py names the same. */
+#define SKEL_RECV_SLACK_BYTES 65536
+
+int link_url(const skel_link_t *link, char *out, size_t len, int32_t *asked);
 int link_open(skel_link_t *link);
 void link_close(skel_link_t *link);
 int link_subscribe(skel_link_t *link, skel_slot_t *slot);
@@ -372,6 +381,9 @@ typedef struct skel_server {
     int run_ended;             /* executive finished; control finalises */
     int64_t run_id;            /* current/last run */
     int64_t run_generation;
+    int64_t run_session;       /* the host tool that started the current/last run (owner.c) */
+    char run_owner[SKEL_OWNER_LEN];
+    int64_t run_end_utc_ns;    /* its planned end, 0: until STOP */
     int64_t rejected_at_start;
     int applied_any;
     int nlockouts;
@@ -454,6 +466,12 @@ void control_handle_config(skel_control_t *c, const void *data, int len);
 void control_handle_command(skel_control_t *c, const void *data, int len);
 int control_seen(skel_control_t *c, const skelmsg_command_t *cmd);
 int control_publish_status(skel_control_t *c);
+
+/* ---- owner (owner.c): a run belongs to the host tool that started it ------------- */
+void owner_take(skel_server_t *s, const skelmsg_command_t *start, int64_t start_utc_ns);
+int owner_refuses(skel_control_t *c, int64_t session, int8_t force, const char *sender,
+                  const char *what, int64_t generation);
+void owner_status_fill(skel_server_t *s, skelmsg_status_t *st, char *owner);
 
 /* ---- apply (apply.c): a staged config becomes the plan ---------------------------- */
 void control_apply(skel_control_t *c);

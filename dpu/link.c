@@ -6,6 +6,7 @@
 #include <errno.h>
 #include <limits.h>
 #include <poll.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
@@ -15,10 +16,52 @@
 /* Handled messages per link per drain: a flood cannot hold a cycle forever. */
 #define LINK_DRAIN_MAX 100000
 
+static int64_t link_sysctl(const char *path, int64_t fallback)
+{
+    FILE *f = fopen(path, "r");
+    long long v = fallback;
+    if (f == NULL) return fallback;
+    if (fscanf(f, "%lld", &v) != 1) v = fallback;
+    fclose(f);
+    return v;
+}
+
+/* The URL to open: LINK->url, asking for a receive buffer that holds its largest
+ * message whole when the default would not (LCM's recv_buf_size, capped by the
+ * kernel at net.core.rmem_max). A recv_buf_size the system file gives is kept.
+ * Without it a large buffer's fragments overflow the socket and the message
+ * never arrives; a machine that cannot grant enough is said in the log. */
+int link_url(const skel_link_t *link, char *out, size_t len, int32_t *asked)
+{
+    *asked = 0;
+    int64_t want = link->largest > 0 ? (int64_t)link->largest + SKEL_RECV_SLACK_BYTES : 0;
+    int64_t dflt = link_sysctl("/proc/sys/net/core/rmem_default", 212992);
+    int udpm = strncmp(link->url, "udpm://", 7) == 0;
+    if (!udpm || strstr(link->url, "recv_buf_size=") != NULL || 2 * want <= dflt) {
+        int n = snprintf(out, len, "%s", link->url);
+        return n < 0 || (size_t)n >= len ? -1 : 0;
+    }
+    *asked = (int32_t)want;
+    int n = snprintf(out, len, "%s%crecv_buf_size=%lld", link->url, strchr(link->url, '?') ? '&' : '?',
+                     (long long)want);
+    return n < 0 || (size_t)n >= len ? -1 : 0;
+}
+
 /* LINK->url was set when the plan was built; the lcm_t is made at apply time. */
 int link_open(skel_link_t *link)
 {
-    link->lcm = lcm_create(link->url);
+    char url[1024];
+    int32_t asked;
+    if (link_url(link, url, sizeof url, &asked) != 0) return -1;
+    int64_t max = link_sysctl("/proc/sys/net/core/rmem_max", -1);
+    if (asked > 0 && max >= 0 && max < asked)
+        skel_log("link %s: messages of up to %d bytes need a %d-byte socket receive buffer but "
+                 "net.core.rmem_max is %lld: they may never arrive; on this host: "
+                 "sysctl -w net.core.rmem_max=%d", link->url, link->largest, asked, (long long)max, asked);
+    else if (asked > 0)
+        skel_log("link %s: socket receive buffer of %d bytes asked (recv_buf_size) for messages of up "
+                 "to %d bytes", link->url, asked, link->largest);
+    link->lcm = lcm_create(url);
     if (link->lcm == NULL) return -1;
     link->fd = lcm_get_fileno(link->lcm);
     return link->fd >= 0 ? 0 : -1;

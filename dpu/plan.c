@@ -65,6 +65,21 @@ static int plan_add_output(skel_plan_t *plan, const skelmsg_config_t *cfg, skel_
     return out->link == -2 || out->channel == NULL || out->enc == NULL ? -1 : 0;
 }
 
+/* Each link's socket receives every message on its URL, read or not: size it for the
+ * largest buffer any process sends there (link.c asks the kernel for it). */
+static void plan_size_links(skel_plan_t *plan, const skelmsg_config_t *cfg)
+{
+    for (int i = 0; i < cfg->nbuffers; i++) {
+        const skelmsg_buffer_desc_t *b = &cfg->buffers[i];
+        const char *url = config_link_url(cfg, b->link);
+        if (url == NULL || b->bytes <= 0 || b->bytes > SKEL_MAX_BUFFER_BYTES) continue;
+        int32_t encoded = wire_buffer_encoded_size(b->bytes);
+        for (int l = 0; l < plan->nlinks; l++)
+            if (strcmp(plan->links[l].url, url) == 0 && encoded > plan->links[l].largest)
+                plan->links[l].largest = encoded;
+    }
+}
+
 /* Processes first (their inputs make the slots), then local outputs find their slot. */
 static int plan_add_processes(skel_plan_t *plan, const skelmsg_config_t *cfg, int16_t dpu)
 {
@@ -121,6 +136,7 @@ skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason
     plan->slots = calloc(SKEL_MAX_SLOTS, sizeof *plan->slots);
     if (plan->processes == NULL || plan->slots == NULL) goto oom;
     if (plan_add_processes(plan, cfg, d->id) != 0) goto oom;
+    plan_size_links(plan, cfg);
     int32_t max_bytes = 1;
     for (int i = 0; i < cfg->nbuffers; i++)
         if (cfg->buffers[i].bytes > max_bytes && cfg->buffers[i].bytes <= SKEL_MAX_BUFFER_BYTES)

@@ -49,6 +49,7 @@ int wire_decode_config(const void *buf, int len, skelmsg_config_t *cfg)
     return skelmsg_config_t_decode(buf, 0, len, cfg) < 0 ? -1 : 0;
 }
 
+/* On success the caller releases CMD (its sender string) with skelmsg_command_t_decode_cleanup. */
 int wire_decode_command(const void *buf, int len, skelmsg_command_t *cmd)
 {
     memset(cmd, 0, sizeof *cmd);

@@ -3,7 +3,7 @@
 Static analysis only (nothing is started): per DPU its host, minor cycle,
 processes and static load Σ compute/period, with warnings for what a run would
 suffer from: an overloaded DPU, more busy DPUs than cores, a warm-up longer
-than the run.
+than the run, a buffer too large for this machine's socket receive buffers.
 """
 
 from __future__ import annotations
@@ -15,10 +15,12 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
+from urllib.parse import parse_qs, urlsplit
 
 from rich.console import Console, JustifyMethod
 from rich.table import Table
 
+from .doctor import check_buffer_socket, rmem_max
 from .system import System, SystemFileError, load
 
 # sleep mode models a dedicated processor by sleeping, so it needs no core of its own.
@@ -67,6 +69,24 @@ def warnings(system: System) -> list[str]:
                        "it will overrun every cycle; a lockout is likely")
     out += _core_warnings(system, load_by_dpu)
     out += warmup_warnings(system)
+    out += delivery_warnings(system)
+    return out
+
+
+def delivery_warnings(system: System) -> list[str]:
+    """Buffers this machine's DPUs read that their sockets cannot receive whole (skel doctor's check)."""
+    limit = rmem_max()
+    out = []
+    for b in system.buffers:
+        link = system.link(b.link)
+        readers = [p.name for p in system.readers(b.id) if _is_this_machine(system.dpu(p.dpu).host)]
+        if link.local or not readers:
+            continue
+        asked = parse_qs(urlsplit(link.url).query).get("recv_buf_size", [None])[-1]
+        found = check_buffer_socket(b.name, b.bytes, limit, int(asked) if asked and asked.isdigit() else None)
+        if not found.ok:
+            out.append(f"{found.name} (link {link.name}, read here by {', '.join(readers)}): {found.detail}; "
+                       f"fix: {found.fix}")
     return out
 
 

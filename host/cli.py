@@ -55,6 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--at-ms", type=float, default=300.0, metavar="N",
                    help="commit N ms from now: DPUs in a run all switch at their first release at or "
                         "after that instant (default 300)")
+    p.add_argument("--force", action="store_true",
+                   help="push even into a run another host tool started (the DPUs log who did it)")
 
     p = sub.add_parser("run", help="push, run at one shared instant, record, and print the tables")
     _system_args(p, optional=True)
@@ -71,6 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--logger", choices=("local", "external"), default="local",
                    help="local: record run.lcm with lcm-logger here (default); external: a logger "
                         "runs elsewhere, print the DPUs' own totals and analyse that log with `skel report`")
+    p.add_argument("--force", action="store_true",
+                   help="take over the DPUs when another host tool's run holds them: stop it, then run")
 
     p = sub.add_parser("clock", help="estimate each DPU's clock offset and round trip (ping, best of N)")
     p.add_argument("--url", default=DEFAULT_URL)
@@ -161,6 +165,7 @@ def cmd_down(args: argparse.Namespace) -> int:
 
 
 def cmd_push(args: argparse.Namespace) -> int:
+    from skeleton.host import owner
     from skeleton.host.control import Control
     from skeleton.host.run import HEAR_TIMEOUT_S, control_url
 
@@ -172,6 +177,11 @@ def cmd_push(args: argparse.Namespace) -> int:
     try:
         ids = sorted(d.id for d in system.dpus)
         control.wait_heard(ids, HEAR_TIMEOUT_S, introduce=lambda g: system.to_config(g, 0, committed=False))
+        foreign = owner.foreign_runs(control, ids)
+        if foreign and not args.force:
+            print(owner.refusal(foreign, "push"), file=sys.stderr)
+            return EXIT_FAILED
+        control.force = args.force
         generation = control.next_generation()
         # Pushed during a run, the config names that run, so its log pairs them.
         runs = {v.status.run_id for i, v in control.snapshot().items()
@@ -219,7 +229,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     options = RunOptions(spawn=args.spawn, cycles=args.cycles, duration_s=args.duration, out=args.out,
                          as_json=args.json, compare_paper=args.compare_paper,
                          pushed_generation=pushed_generation, wait_dpus_s=args.wait_dpus,
-                         logger=args.logger)
+                         logger=args.logger, force=args.force)
     return run(system, options)
 
 
@@ -234,13 +244,14 @@ def cmd_status(args: argparse.Namespace) -> int:
              "generation": v.status.generation, "staged": v.status.staged_generation,
              "run_id": v.status.run_id, "minor_cycles": v.status.minor_cycles,
              "faults": v.status.faults, "rejected_messages": v.status.rejected_messages,
-             "reject_reason": v.status.reject_reason}
+             "reject_reason": v.status.reject_reason, "run_owner": v.status.run_owner,
+             "run_end_utc_ns": v.status.run_end_utc_ns}
             for i, v in sorted(views.items())]
     done = _json_or_nothing(rows, args.json, f"no DPU heard on {args.url} in {args.wait:g} s")
     if done is not None:
         return done
     table = Table(title=f"DPUs on {args.url}")
-    columns = ("dpu", "host", "pid", "state", "generation", "run_id", "minor_cycles", "faults",
+    columns = ("dpu", "host", "pid", "state", "generation", "run_id", "run_owner", "minor_cycles", "faults",
                "rejected_messages", "reject_reason")
     for column in columns:
         table.add_column(column)

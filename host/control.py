@@ -10,6 +10,9 @@ DPUs act on each command sequence number once.
 from __future__ import annotations
 
 import math
+import os
+import secrets
+import socket
 import struct
 import threading
 import time
@@ -87,6 +90,10 @@ class Control:
 
     def __init__(self, url: str) -> None:
         self.url = url
+        # Who we are on the wire: a run belongs to the session that started it (dpu/owner.c).
+        self.session = secrets.randbits(62) + 1
+        self.sender = f"{socket.gethostname()} pid {os.getpid()}"
+        self.force = False  # `--force`: act during another session's run
         self._lcm = lcm.LCM(url)
         self._lock = threading.Lock()
         self._changed = threading.Condition(self._lock)
@@ -205,8 +212,12 @@ class Control:
         return max(seen, default=0) + 1
 
     # --- sending --------------------------------------------------------------------
+    def _sign(self, message: skelmsg.config_t | skelmsg.command_t) -> None:
+        message.session, message.force, message.sender = self.session, int(self.force), self.sender
+
     def publish_config(self, config: skelmsg.config_t) -> None:
         config.sent_utc_ns = time.time_ns()
+        self._sign(config)
         self._lcm.publish(CONFIG, config.encode())
 
     def command(self, kind: int, dpu: int = -1, repeats: int = COMMAND_REPEATS, **fields: int) -> int:
@@ -216,6 +227,7 @@ class Control:
         cmd.seq = time.time_ns()
         cmd.kind = kind
         cmd.dpu = dpu
+        self._sign(cmd)
         for name, value in fields.items():
             setattr(cmd, name, value)
         data = cmd.encode()
@@ -235,6 +247,7 @@ class Control:
         cmd.seq = time.time_ns()
         cmd.kind = skelmsg.command_t.PING
         cmd.dpu = dpu
+        self._sign(cmd)
         with self._lock:
             self._pings[cmd.seq] = {}
         cmd.ping_t1_ns = time.monotonic_ns()

@@ -28,6 +28,8 @@ from urllib.parse import parse_qs, urlsplit
 from rich.console import Console
 from rich.text import Text
 
+from skeleton.analysis.faults import recv_buf_needed
+
 LCM_DEFAULT_URL = "udpm://239.255.76.67:7667?ttl=0"  # what liblcm uses for an empty URL
 MIN_RMEM_BYTES = 2 * 1024 * 1024
 GOOD_RMEM_BYTES = 8 * 1024 * 1024
@@ -176,6 +178,28 @@ def check_socket_buffers(rmem_max: int | None, rmem_default: int | None,
                      "~65 kB fragment and the kernel drops fragments that do not fit",
                      f"sysctl -w net.core.rmem_max={good} net.core.rmem_default={good}", "warn")
     return Check("socket buffers", True, f"rmem_max={rmem_max}, rmem_default={rmem_default}")
+
+
+def check_buffer_socket(buffer: str, payload_bytes: int, rmem_max: int | None,
+                        recv_buf_size: int | None = None) -> Check:
+    """Can a reader's socket here hold one message of `buffer` whole? The DPU asks for
+    recv_buf_needed() (dpu/link.c); the kernel grants at most net.core.rmem_max, and a
+    recv_buf_size written in the link's URL is used as it is."""
+    need = recv_buf_needed(payload_bytes)
+    name = f"buffer {buffer}"
+    if recv_buf_size is not None and recv_buf_size < need:
+        return Check(name, False, f"{payload_bytes} bytes: the link's URL asks recv_buf_size="
+                     f"{recv_buf_size}, under the {need} bytes one message needs whole: it never arrives",
+                     f"recv_buf_size={need} in the link's url (or leave it out)")
+    if recv_buf_size is None and rmem_max is not None and rmem_max < need:
+        return Check(name, False, f"{payload_bytes} bytes: a reader's socket needs a {need}-byte receive "
+                     f"buffer but net.core.rmem_max is {rmem_max}: it would never arrive",
+                     f"sysctl -w net.core.rmem_max={need}")
+    return Check(name, True, f"{payload_bytes} bytes fit a reader's socket receive buffer")
+
+
+def rmem_max() -> int | None:
+    return _sysctl("net/core/rmem_max")
 
 
 def _port_in(spec: str, port: int) -> bool:

@@ -8,12 +8,21 @@ end, the batches after the last one logged and any report_t not logged), and
 asks for them with RESEND. It asks a few at a time, so the repair is not itself
 a burst the logger drops. What cannot be had again stays a lost batch in the
 report's integrity section: the repair hides nothing.
+
+The logger is the host tool's own child, so its death is seen at once
+(LoggerKeeper): the log is cut back to its last whole event and a new logger
+appends to the same file (the analysis reads one file per run), and the repair
+asks the DPUs for everything published meanwhile. A logger that cannot be kept
+alive, or holes that stay, make the run's log incomplete: `skel run` says so
+first and exits non-zero.
 """
 
 from __future__ import annotations
 
+import os
 import struct
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -21,6 +30,7 @@ import skelmsg
 from skeleton.analysis.logreader import read_bytes
 from skeleton.analysis.records import timing_heads
 from skeleton.analysis.report import REPORT_CHANNEL
+from skeleton.host import spawn
 from skeleton.host.control import Control
 
 # Batches asked for per round, over all DPUs. Like TCP's window: it starts well under the
@@ -61,11 +71,76 @@ class RepairResult:
     missing: int = 0        # still not in the log at the end
 
 
+RESTARTS_MAX = 3        # a logger that dies more often than this is not restarted again
+JOIN_S = 2.0            # a restarted logger records a heartbeat well within this
+
+
+class LoggerKeeper:
+    """The run's lcm-logger, started again (appending) whenever it dies."""
+
+    def __init__(self, url: str, path: Path, deadline_s: float,
+                 say: Callable[[str], None] = print) -> None:
+        self.url = url
+        self.path = path
+        self.say = say
+        self._ends = time.monotonic() + deadline_s
+        self.daemon: spawn.Daemon | None = spawn.start_logger(url, path, deadline_s=deadline_s)
+        self.restarts = 0
+        self.failure: str | None = None   # why the log could not be kept: no logger any more
+
+    def check(self) -> None:
+        """Restart the logger if it died; after RESTARTS_MAX restarts, give up (self.failure)."""
+        if self.daemon is None or self.daemon.alive():
+            return
+        code = self.daemon.process.returncode
+        if self.restarts >= RESTARTS_MAX:
+            self.daemon = None
+            self.failure = (f"the logger died {self.restarts + 1} times (last exit status {code}); "
+                            f"nothing was recorded after that: {self.path} is incomplete")
+            self.say(f"[bold red]{self.failure}[/]")
+            return
+        self.restarts += 1
+        _cut_to_whole_events(self.path)
+        size = self.path.stat().st_size if self.path.exists() else 0
+        try:
+            self.daemon = spawn.start_logger(self.url, self.path, append=True,
+                                             deadline_s=max(1.0, self._ends - time.monotonic()))
+            # It has joined the group when it records something (heartbeats come at 5 Hz).
+            joined = time.monotonic() + JOIN_S
+            while self.path.stat().st_size == size and self.daemon.alive() and time.monotonic() < joined:
+                time.sleep(0.02)
+        except spawn.SpawnError as error:
+            self.daemon = None
+            self.failure = f"the logger died (exit status {code}) and could not be restarted: {error}"
+            self.say(f"[bold red]{self.failure}[/]")
+            return
+        self.say(f"[yellow]the logger died (exit status {code}): restarted it (appending to {self.path}); "
+                 "the DPUs send again what it missed[/]")
+
+    def stop(self) -> None:
+        if self.daemon is not None:
+            spawn.stop(self.daemon)
+
+
+def _cut_to_whole_events(path: Path) -> None:
+    """Drop a last event the dead logger wrote only in part, so the appended log reads on."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return
+    log = read_bytes(data, str(path))
+    whole = int(log.data_offset[-1] + log.data_len[-1]) if len(log) else 0
+    if whole < len(data):
+        os.truncate(path, whole)
+
+
 class LogRepair:
     """Follows `path` (written by lcm-logger) for run `run_id` and fills its holes."""
 
-    def __init__(self, control: Control, path: Path, run_id: int, dpu_ids: list[int]) -> None:
+    def __init__(self, control: Control, path: Path, run_id: int, dpu_ids: list[int],
+                 keeper: LoggerKeeper | None = None) -> None:
         self.control = control
+        self.keeper = keeper
         self.path = path
         self.run_id = run_id
         self.batches = {d: SeenBatches() for d in dpu_ids}
@@ -78,7 +153,9 @@ class LogRepair:
         self._last_round: list[tuple[int, int]] = []  # (dpu, seq), seq -1 for the report
 
     def poll(self) -> None:
-        """During the run: fill the holes behind each DPU's newest logged batch."""
+        """During the run: keep a logger, fill the holes behind each DPU's newest logged batch."""
+        if self.keeper is not None:
+            self.keeper.check()
         if time.monotonic() - self._last_poll < POLL_EVERY_S:
             return
         self._last_poll = time.monotonic()
@@ -92,6 +169,8 @@ class LogRepair:
         fewest = None
         while True:
             time.sleep(ROUND_S)
+            if self.keeper is not None:
+                self.keeper.check()
             self._scan()
             holes = {d: self.batches[d].missing(r.timing_batches) for d, r in reports.items()
                      if d in self.batches}
@@ -100,7 +179,8 @@ class LogRepair:
             now = time.monotonic()
             if fewest is None or outstanding < fewest:
                 fewest, progress = outstanding, now
-            if not outstanding or now - progress >= stuck_s or now - start >= limit_s:
+            no_logger = self.keeper is not None and self.keeper.failure is not None
+            if not outstanding or no_logger or now - progress >= stuck_s or now - start >= limit_s:
                 self.result.missing = outstanding
                 return self.result
             self._ask(holes, no_report, again_after_s=ROUND_S)

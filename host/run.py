@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,11 +35,11 @@ from skeleton.analysis.faults import stall_threshold_ns
 from skeleton.analysis.metrics import utilization_pct
 from skeleton.analysis.report import LogError, analyze
 from skeleton.analysis.tables import print_report
-from skeleton.host import spawn
-from skeleton.host.check import warmup_warnings
+from skeleton.host import owner, spawn
+from skeleton.host.check import delivery_warnings, warmup_warnings
 from skeleton.host.clock import ClockKeeper
 from skeleton.host.control import Control, DpuView, PushResult
-from skeleton.host.repair import LogRepair, RepairResult
+from skeleton.host.repair import LoggerKeeper, LogRepair, RepairResult
 from skeleton.host.system import System
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_FATAL_FLAW = 0, 1, 2, 3
@@ -53,6 +54,7 @@ LOGGER_READY_S = 2.0        # heartbeats come at 5 Hz: the logger has one well w
 REPAIR_STUCK_S = 3.0        # after the reports, the repair of the log gives up this long without progress
 REPAIR_LIMIT_S = 10.0       # ... or after this long in all
 BEHIND_POLLS = 5            # a DPU behind at this many polls in a row (0.5 s) is said to be behind
+FAILED_KINDS = ("dpu_lost", "delivery")    # the machine or network failed the run, not the design
 
 
 @dataclass
@@ -68,6 +70,7 @@ class RunOptions:
     dpu_args: list[str] = field(default_factory=list)
     wait_dpus_s: float = HEAR_TIMEOUT_S
     logger: str = "local"   # local: lcm-logger here; external: someone else records the run
+    force: bool = False     # take over another host tool's run on our DPUs (host/owner.py)
 
 
 def control_url(system: System) -> str:
@@ -86,26 +89,33 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
     url = control_url(system)
     dpu_ids = sorted(d.id for d in system.dpus)
     duration_ns = system.run_duration_ns(options.cycles, options.duration_s)
-    for warning in warmup_warnings(system, duration_ns):
-        console.print(f"[yellow]WARN[/] {warning}")
+    for warning in warmup_warnings(system, duration_ns) + delivery_warnings(system):
+        console.print(f"[yellow]WARN[/] {warning}", soft_wrap=True)
     # From the logger's start: first event, clock estimate, START lead, the run, the reports, a margin.
     logger_deadline_s = (LOGGER_READY_S + 1.0 + START_LEAD_S + duration_ns / 1e9 + REPORT_GRACE_S
                          + REPAIR_LIMIT_S + LOGGER_MARGIN_S)
-    daemons = []
-    if options.spawn:
-        dpu_deadline_s = options.wait_dpus_s + 2 * PUSH_TIMEOUT_S + logger_deadline_s
-        daemons = [spawn.start_dpu(d.id, url, out / "logs", options.dpu_args, deadline_s=dpu_deadline_s)
-                   for d in system.dpus if spawn.is_local(d.host)]
-    logger = None
-    repair = None
     control = Control(url)
+    daemons: list[spawn.Daemon] = []
+    keeper = None
+    repair = None
+    problems: list[str] = []
     try:
+        if options.spawn:
+            # Before anything starts: DPUs of ours already up and busy are someone's run.
+            control.wait_for(lambda: set(dpu_ids) <= control.dpus.keys(), owner.HEAR_BEFORE_SPAWN_S)
+            if not _claim(control, dpu_ids, options.force, console):
+                return EXIT_FAILED
+            dpu_deadline_s = options.wait_dpus_s + 2 * PUSH_TIMEOUT_S + logger_deadline_s
+            daemons = [spawn.start_dpu(d.id, url, out / "logs", options.dpu_args, deadline_s=dpu_deadline_s)
+                       for d in system.dpus if spawn.is_local(d.host)]
         silent = control.wait_heard(dpu_ids, options.wait_dpus_s,
                                     introduce=lambda g: system.to_config(g, 0, committed=False))
         if silent:
             console.print(f"[red]no heartbeat from DPU {', '.join(map(str, silent))} on {url} in "
                           f"{options.wait_dpus_s:g} s[/]: start them (`skel up FILE` or skel-dpu --id N "
                           "on their hosts), use --spawn, or wait longer (--wait-dpus S)")
+            return EXIT_FAILED
+        if not _claim(control, dpu_ids, options.force, console):
             return EXIT_FAILED
         run_id = time.time_ns() // 1_000_000
         generation = options.pushed_generation
@@ -118,10 +128,10 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
                 _print_push_failure(console, pushed)
                 return EXIT_FAILED
         if options.logger == "local":
-            logger = spawn.start_logger(url, out / "run.lcm", deadline_s=logger_deadline_s)
+            keeper = LoggerKeeper(url, out / "run.lcm", logger_deadline_s, say=console.print)
             # Its file exists before it has joined the group: wait for the first heartbeat it records.
             _wait_nonempty(out / "run.lcm", LOGGER_READY_S)
-            repair = LogRepair(control, out / "run.lcm", run_id, dpu_ids)
+            repair = LogRepair(control, out / "run.lcm", run_id, dpu_ids, keeper)
         clocks = ClockKeeper(control, dpu_ids)
         clocks.refresh()  # before START, so the log has offsets for the whole run
         follower = RunFollower(system, control, console)
@@ -132,16 +142,41 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         reports = {d: r for (d, r_id), r in control.reports.items() if r_id == run_id}
         if repair is not None:
             repair.finish(reports, REPAIR_STUCK_S, REPAIR_LIMIT_S)
+        if follower.taken_over:
+            problems.append(follower.taken_over)
     finally:
         control.close()
-        if logger is not None:
-            spawn.stop(logger)
+        if keeper is not None:
+            keeper.stop()
         for daemon in daemons:
             spawn.stop(daemon)
-    if logger is None:
+    if keeper is None:
         return _external_summary(console, out, run_id, dpu_ids, reports, follower.lost, options.as_json)
-    return _report(console, system, options, out, run_id, follower.lost,
-                   repair.result if repair is not None else RepairResult())
+    repaired = repair.result if repair is not None else RepairResult()
+    if keeper.failure:
+        problems.append(keeper.failure)
+    if repaired.missing:
+        problems.append(f"the log is incomplete: {repaired.missing} of what the DPUs published never "
+                        f"reached it (the logger missed {repaired.asked}; asked again, "
+                        f"{repaired.missing} could not be had again)")
+    return _report(console, system, options, out, run_id, follower.lost, repaired, keeper.restarts, problems)
+
+
+def _claim(control: Control, dpu_ids: list[int], force: bool, console: Console) -> bool:
+    """Our DPUs are free, or (--force) made free: another session's run is refused or taken over."""
+    runs = owner.foreign_runs(control, dpu_ids)
+    if not runs:
+        return True
+    if not force:
+        console.print(f"[red]{owner.refusal(runs, 'run')}[/]", soft_wrap=True)
+        return False
+    for run in runs:
+        console.print(f"[yellow]--force: taking over: {run.describe()}; stopping it[/]", soft_wrap=True)
+    busy = owner.take_over(control, runs, dpu_ids)
+    if busy:
+        console.print(f"[red]DPU {', '.join(map(str, busy))} still busy {owner.STOP_WAIT_S:g} s after the "
+                      "STOP: not started[/]")
+    return not busy
 
 
 class RunFollower:
@@ -162,6 +197,7 @@ class RunFollower:
         self.config = system.to_config(0, 0, committed=False)  # what the fault definitions read
         self.stalled_ns: dict[int, int] = {}   # per DPU: the longest stall already heard
         self.behind_polls: dict[int, int] = {}  # per DPU: polls in a row it was behind
+        self.taken_over: str | None = None  # another host tool ended our run (--force)
 
     def poll(self, run_id: int, dpu_ids: list[int]) -> None:
         running = [v for v in self.control.snapshot().values() if v.status.run_id == run_id]
@@ -255,7 +291,8 @@ def _adopt_pushed(control: Control, config: skelmsg.config_t, dpu_ids: list[int]
         return config  # not heard (yet): keep the old one, a DPU that has the new one ignores it
     adopted = skelmsg.config_t.decode(pushed.encode())  # a copy: the Control's stays as heard
     adopted.committed, adopted.run_id = 1, config.run_id
-    console.print(f"generation {newest} committed mid-run: re-sending it from now on")
+    by = f" (pushed by {pushed.sender}{', --force' if pushed.force else ''})" if pushed.sender else ""
+    console.print(f"generation {newest} committed mid-run: re-sending it from now on{by}")
     return adopted
 
 
@@ -276,6 +313,10 @@ def _follow(control: Control, follower: RunFollower, clocks: ClockKeeper, config
         task = progress.add_task(f"run {run_id}", total=duration_ns / 1e9)
         while time.time_ns() < end_utc + 200_000_000:
             follower.poll(run_id, dpu_ids)
+            follower.taken_over = owner.taken_over(control, run_id, dpu_ids)
+            if follower.taken_over:
+                follower.console.print(f"[bold red]{follower.taken_over}[/]", soft_wrap=True)
+                break
             if follower.stop_reason:
                 follower.console.print(f"stopping early: {follower.stop_reason} (run.stop_on)")
                 control.stop()
@@ -300,7 +341,10 @@ def _wait_nonempty(path: Path, timeout_s: float) -> None:
 
 
 def _report(console: Console, system: System, options: RunOptions, out: Path, run_id: int,
-            lost: set[int], repaired: RepairResult) -> int:
+            lost: set[int], repaired: RepairResult, restarts: int = 0, problems: Sequence[str] = ()) -> int:
+    """The tables, with what makes the run's log or the run itself incomplete said first."""
+    for problem in problems:
+        console.print(f"[bold red]INCOMPLETE[/] {problem}", soft_wrap=True)
     try:
         report = analyze(out / "run.lcm", run_id=run_id)
     except LogError as error:
@@ -314,15 +358,19 @@ def _report(console: Console, system: System, options: RunOptions, out: Path, ru
         if options.compare_paper and system.reference is not None:
             paper = {i: row.model_dump() for i, row in system.reference.dpus.items()}
         print_report(report, console=console, paper=paper)
+        if restarts:
+            console.print(f"the logger died and was restarted {restarts} time{'s' if restarts > 1 else ''}")
         if repaired.asked:
             console.print(f"the logger missed {repaired.asked} messages; the DPUs sent them again"
                           + (f", {repaired.missing} still missing" if repaired.missing else ": all logged"))
         console.print(f"run written to {out}/ (system.yaml, run.lcm, report.json)")
     kinds = {f["kind"] for f in report.to_json()["faults"]}
+    if "delivery" in kinds:
+        return EXIT_FAILED  # what did not arrive locks its readers out: not the design's flaw
     if report.fatal:
         return EXIT_FATAL_FLAW
     # A lost DPU's part of the run is missing: the tables cover the others only.
-    return EXIT_FAILED if lost or "dpu_lost" in kinds else EXIT_OK
+    return EXIT_FAILED if lost or problems or kinds & set(FAILED_KINDS) else EXIT_OK
 
 
 def _external_summary(console: Console, out: Path, run_id: int, dpu_ids: list[int],

@@ -101,12 +101,14 @@ def start_dpu(dpu_id: int, url: str, log_dir: Path, extra: list[str] | None = No
 
 
 def start_logger(url: str, path: Path, channels: str = LOGGED_CHANNELS,
-                 deadline_s: float | None = None) -> Daemon:
-    """Start lcm-logger on `url` writing `path`, and wait until it has opened the file.
-    With `deadline_s`, it stops by itself (SIGINT: it flushes) that long after its start."""
+                 deadline_s: float | None = None, append: bool = False) -> Daemon:
+    """Start lcm-logger on `url` writing `path` (or appending to it), and wait until it has
+    opened the file. With `deadline_s`, it stops by itself (SIGINT: it flushes) that long
+    after its start."""
     path.parent.mkdir(parents=True, exist_ok=True)
     log_path = path.with_suffix(".logger.txt")
-    argv = [str(logger_binary()), "-f", "-q", "-l", url, "-c", channels, "--flush-interval=50", str(path)]
+    argv = [str(logger_binary()), "-a" if append else "-f", "-q", "-l", url, "-c", channels,
+            "--flush-interval=50", str(path)]
     with open(log_path, "ab") as log:
         process = subprocess.Popen(
             _with_deadline(argv, deadline_s, "INT"),

@@ -95,13 +95,17 @@ def test_netns_push_mid_run_switches_every_dpu_at_one_boundary(netns_hosts: Host
         raise AssertionError(run.communicate()[0]) from None
 
     # DPU 2 refuses the threads executive (the schema allows it): nothing is committed anywhere.
-    bad = _skel(netns_hosts, "skelh1", "push", str(system), "-s", "dpu.2.executive=threads")
+    # The run is skelh3's: a push from another host tool goes in only with --force (host/owner.py).
+    refused = _skel(netns_hosts, "skelh1", "push", str(system), "-s", "process.sensor.compute_us=500")
+    assert refused.returncode == 1 and "--force" in refused.stderr, refused.stdout + refused.stderr
+    bad = _skel(netns_hosts, "skelh1", "push", str(system), "-s", "dpu.2.executive=threads", "--force")
     assert bad.returncode == 1, bad.stdout + bad.stderr
     assert "DPU 2: rejected generation" in bad.stderr and "nothing was committed" in bad.stderr
     # DPU 2 cannot hear anything (all inbound multicast dropped on its host): nothing is committed,
     # so DPU 1, which had staged it, stays on the generation the run started with.
     netns_hosts.drop_inbound("skelh2", 100, udp_port=7667)
-    unreachable = _skel(netns_hosts, "skelh1", "push", str(system), "-s", "process.sensor.compute_us=500")
+    unreachable = _skel(netns_hosts, "skelh1", "push", str(system), "-s", "process.sensor.compute_us=500",
+                        "--force")
     netns_hosts.clear_drop("skelh2")
     assert unreachable.returncode == 1, unreachable.stdout + unreachable.stderr
     assert "DPU 2: did not answer" in unreachable.stderr, unreachable.stderr
@@ -111,7 +115,7 @@ def test_netns_push_mid_run_switches_every_dpu_at_one_boundary(netns_hosts: Host
     assert applied[1] == applied[2], applied
 
     good = _skel(netns_hosts, "skelh1", "push", str(system), "-s", "process.controller.compute_us=1500",
-                 "--at-ms", "500")
+                 "--at-ms", "500", "--force")
     assert good.returncode == 0, good.stdout + good.stderr
     new = int(re.search(r"generation (\d+): staged on every DPU, committed for", good.stdout).group(1))
     assert "mid-run" in good.stdout

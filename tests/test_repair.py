@@ -15,7 +15,7 @@ from pathlib import Path
 
 from conftest import skel_background
 
-from skeleton.host.repair import SeenBatches, seq_ranges
+from skeleton.host.repair import RESTARTS_MAX, SeenBatches, seq_ranges
 
 # Two DPUs, 1000 records a second each: ~20 timing batches a second of ~4.5 kB (four
 # datagrams), ~250 kB/s of the logger's socket buffer (net.core.rmem_default, 208 kB
@@ -80,6 +80,70 @@ def test_run_refills_what_a_stalled_logger_missed(tmp_path: Path, url: str) -> N
     expected = duration_s * 500 - 10
     short = {p["name"]: p["cycles"] for p in report["processes"] if p["cycles"] < expected - 2}
     assert len(report["processes"]) == 4 and not short, short
+
+
+def _kill_loggers(log: Path, count: int, first_after_s: float, timeout_s: float) -> int:
+    """SIGKILL the real lcm-logger writing `log`, `count` times (each new one as it appears)."""
+    killed = 0
+    deadline = time.monotonic() + timeout_s
+    time.sleep(first_after_s)
+    while killed < count and time.monotonic() < deadline:
+        try:
+            pid = _logger_pid(log, max(0.1, deadline - time.monotonic()))
+        except AssertionError:
+            break
+        os.kill(pid, signal.SIGKILL)
+        killed += 1
+        while Path(f"/proc/{pid}").exists() and time.monotonic() < deadline:
+            time.sleep(0.01)  # reaped by its `timeout` wrapper: then look for the next one
+    return killed
+
+
+def test_run_restarts_a_killed_logger_and_the_log_holds_every_cycle(tmp_path: Path, url: str) -> None:
+    duration_s = 6
+    system = tmp_path / "busy.yaml"
+    system.write_text(BUSY_SYSTEM)
+    out = tmp_path / "busy"
+    run = skel_background("run", str(system), "--spawn", "--url", url, "--duration", str(duration_s),
+                          "--out", str(out))
+    try:
+        _logger_pid(out / "run.lcm", 30)
+        # Killed 2 s in (clock estimate, START lead, a second of the run): mid-run.
+        assert _kill_loggers(out / "run.lcm", 1, 2.0, 20) == 1
+        code = run.wait(60 + duration_s)
+    finally:
+        if run.proc.poll() is None:
+            run.proc.kill()
+    assert code == 0, run.output
+    assert "the logger died (exit status" in run.output and "restarted it" in run.output, run.output
+    assert "INCOMPLETE" not in run.output, run.output
+    report = json.loads((out / "report.json").read_text())
+    assert report["integrity"]["lost_batches"] == [] and report["integrity"]["corrupt_ranges"] == []
+    expected = duration_s * 500 - 10
+    short = {p["name"]: p["cycles"] for p in report["processes"] if p["cycles"] < expected - 2}
+    assert len(report["processes"]) == 4 and not short, short
+
+
+def test_a_log_that_cannot_be_made_whole_is_said_first_and_fails(tmp_path: Path, url: str) -> None:
+    duration_s = 8
+    system = tmp_path / "busy.yaml"
+    system.write_text(BUSY_SYSTEM)
+    out = tmp_path / "busy"
+    run = skel_background("run", str(system), "--spawn", "--url", url, "--duration", str(duration_s),
+                          "--out", str(out))
+    try:
+        _logger_pid(out / "run.lcm", 30)
+        # Every logger killed as soon as it is up: the host tool gives up after RESTARTS_MAX.
+        assert _kill_loggers(out / "run.lcm", RESTARTS_MAX + 1, 2.0, duration_s) == RESTARTS_MAX + 1
+        code = run.wait(60 + duration_s)
+    finally:
+        if run.proc.poll() is None:
+            run.proc.kill()
+    assert code == 1, run.output
+    assert f"the logger died {RESTARTS_MAX + 1} times" in run.output, run.output
+    # Said before the tables, not under them.
+    first_table = run.output.index("per DPU") if "per DPU" in run.output else len(run.output)
+    assert -1 < run.output.find("INCOMPLETE") < first_table, run.output
 
 
 def test_holes_are_found_below_the_newest_batch_and_up_to_the_reported_count() -> None:

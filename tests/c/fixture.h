@@ -53,6 +53,7 @@ static void fixture_init(fixture_t *f)
     c->warmup_cycles = 2;
     c->lockout_cycles = 4;
     c->source = (char *)"system: fixture\n";
+    c->sender = (char *)"fixture pid 1";
     f->links[0] = (skelmsg_link_t){ 1, (char *)"net", (char *)"udpm://239.255.76.67:7799?ttl=0" };
     f->links[1] = (skelmsg_link_t){ 2, (char *)"mem", (char *)"" };
     c->nlinks = 2;

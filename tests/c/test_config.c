@@ -150,11 +150,48 @@ static void test_plan(void)
     plan_free(plan);
 }
 
+/* A link's socket is sized for the largest buffer on its URL (read or not), and only
+ * asked for when the kernel's default would not hold it. */
+static void test_link_recv_buf_size(void)
+{
+    fixture_t f;
+    fixture_init(&f);
+    char reason[SKEL_REASON_LEN], url[1024];
+    int32_t asked = -1;
+    skel_plan_t *plan = plan_build(&f.cfg, 0, reason, sizeof reason);
+    CHECK(plan != NULL);
+    if (plan == NULL) return;
+    CHECK_EQ(plan->links[0].largest, wire_buffer_encoded_size(2000));
+    CHECK_EQ(link_url(&plan->links[0], url, sizeof url, &asked), 0);
+    CHECK_EQ(asked, 0); /* 2 kB: the default holds it */
+    CHECK(strstr(url, "recv_buf_size") == NULL);
+    plan_free(plan);
+
+    f.buffers[1].bytes = 1000000; /* written by p3 on DPU 2: DPU 1's socket receives it all the same */
+    plan = plan_build(&f.cfg, 0, reason, sizeof reason);
+    CHECK(plan != NULL);
+    if (plan == NULL) return;
+    int32_t want = wire_buffer_encoded_size(1000000) + SKEL_RECV_SLACK_BYTES;
+    CHECK_EQ(link_url(&plan->links[0], url, sizeof url, &asked), 0);
+    CHECK_EQ(asked, want);
+    char expected[128];
+    snprintf(expected, sizeof expected, "udpm://239.255.76.67:7799?ttl=0&recv_buf_size=%d", want);
+    CHECK(strcmp(url, expected) == 0);
+    /* A recv_buf_size the system file gives is the user's choice: kept as it is. */
+    free(plan->links[0].url);
+    plan->links[0].url = strdup("udpm://239.255.76.67:7799?recv_buf_size=4096");
+    CHECK_EQ(link_url(&plan->links[0], url, sizeof url, &asked), 0);
+    CHECK_EQ(asked, 0);
+    CHECK(strcmp(url, "udpm://239.255.76.67:7799?recv_buf_size=4096") == 0);
+    plan_free(plan);
+}
+
 int main(void)
 {
     test_find_self();
     test_valid();
     test_rejections();
     test_plan();
+    test_link_recv_buf_size();
     return CHECK_DONE();
 }

@@ -62,13 +62,16 @@ static void test_config_mutations(void)
     CHECK(skelmsg_config_t_check(m, len) != 0);
     CHECK(wire_decode_config(m, len, &cfg) != 0);
     /* A foreign type on our channel: a command is not a config. */
-    skelmsg_command_t cmd = { .seq = 1, .kind = SKELMSG_COMMAND_T_PING, .dpu = -1, .ping_t1_ns = 5 };
+    skelmsg_command_t cmd = { .seq = 1, .kind = SKELMSG_COMMAND_T_PING, .dpu = -1, .ping_t1_ns = 5,
+                              .sender = (char *)"test pid 1" };
     uint8_t cbuf[128];
     int clen = skelmsg_command_t_encode(cbuf, 0, sizeof cbuf, &cmd);
     CHECK(wire_decode_config(cbuf, clen, &cfg) != 0);
     skelmsg_command_t back;
     CHECK_EQ(wire_decode_command(cbuf, clen, &back), 0);
     CHECK_EQ(back.ping_t1_ns, 5);
+    CHECK(strcmp(back.sender, "test pid 1") == 0);
+    skelmsg_command_t_decode_cleanup(&back);
     CHECK(wire_decode_command(cbuf, clen - 1, &back) != 0);
     CHECK(wire_decode_command(buf, len, &back) != 0);
     free(m);
@@ -147,7 +150,7 @@ static void test_fuzz(void)
         wire_buffer_hdr_t h;
         (void)wire_buffer_header(m, n, &h);
         skelmsg_command_t cmd;
-        (void)wire_decode_command(m, n, &cmd);
+        if (wire_decode_command(m, n, &cmd) == 0) skelmsg_command_t_decode_cleanup(&cmd);
     }
     CHECK_EQ(crashed, 0);
     CHECK(accepted < 20000);
