@@ -18,7 +18,6 @@ from .chains import ChainMetrics, chain_metrics
 from .faults import (
     Fault,
     Lockout,
-    dpu_lost_faults,
     jam_faults,
     lockout_faults,
     lockouts_from_records,
@@ -71,11 +70,11 @@ def build_window(
     records: np.ndarray,
     inputs: np.ndarray,
     lockouts: dict[int, Lockout] | None = None,
-    reported: set[int] | None = None,
+    lost: Sequence[Fault] = (),
     clock: ClockOffsets = NO_OFFSETS,
 ) -> WindowReport:
     """Every table of one generation window. `lockouts`: the ones status_t reported in
-    this window; `reported`: DPUs that sent their end-of-run report_t (last window only)."""
+    this window; `lost`: the run's lost DPUs (a fact of the whole run: last window only)."""
     processes = process_metrics(records, inputs, config)
     locks = lockouts_from_records(records, lockouts or {})
     start, end = _span(records, config.warmup_cycles, clock)
@@ -91,7 +90,7 @@ def build_window(
             lockout_faults(locks, config)
             + jam_faults(locks, config)
             + overrun_faults(processes)
-            + dpu_lost_faults(config, records, reported)
+            + list(lost)
         ),
     )
 
