@@ -234,18 +234,21 @@ def overrun_faults(processes: list[ProcessMetrics]) -> list[Fault]:
 # Five heartbeats (5 Hz) missed in a row: the host calls a DPU lost live after 0.6 s; the
 # logger may miss a heartbeat or two under load, so the log is judged with more margin.
 LOST_GAP_US = 1_000_000
+# No heartbeat of any DPU logged for this long: the logger was not recording (stalled,
+# starved of CPU), and that silence says nothing about any one DPU.
+LOG_SILENT_US = 400_000
 _IN_RUN = (skelmsg.status_t.STATE_ARMED, skelmsg.status_t.STATE_RUNNING)
 
 
 def dpu_lost_faults(config: Any, records: np.ndarray, heartbeats: Sequence[Heartbeat],
                     run_id: int) -> list[Fault]:
     """A DPU is lost when its heartbeats stopped during the run: a silence of more than
-    LOST_GAP_US, or a new daemon (pid) answering for it, between the run's first
-    heartbeat and the last one of a DPU still running it (one clock: when they were
-    heard). A DPU that kept heartbeating is not lost, whatever its timing records show
-    (a process waiting for data that never comes stops its timing, not its DPU).
-    Without heartbeat times (a live view) or heartbeats of this run (a log that does
-    not record them), only a DPU with no timing record and no heartbeat is lost."""
+    LOST_GAP_US while the log heard other DPUs, or a new daemon (pid) answering for it,
+    between the run's first heartbeat and the last one of a DPU still running it (one
+    clock: when they were heard). A DPU that kept heartbeating is not lost, whatever its
+    timing records show (a process waiting for data that never comes stops its timing,
+    not its DPU). Without heartbeat times (a live view) or heartbeats of this run (a log
+    that does not record them), only a DPU with no timing record and no heartbeat is lost."""
     dpus = sorted({int(p.dpu) for p in config.processes})
     timed = set(np.unique(records["dpu"]).tolist())
     heard = [(h.heard_us, h) for h in heartbeats if h.heard_us is not None]
@@ -256,22 +259,30 @@ def dpu_lost_faults(config: Any, records: np.ndarray, heartbeats: Sequence[Heart
                 for d in dpus if d not in timed and d not in alive]
     start = min(t for t, _ in run)
     end = max((t for t, h in run if h.state in _IN_RUN), default=start)
+    silences = [(a, b) for a, b in itertools.pairwise(sorted(t for t, _ in heard)) if b - a > LOG_SILENT_US]
     faults = []
     for dpu in dpus:
         mine = [(t, h) for t, h in heard if h.dpu == dpu and start <= t <= end]
         pids = list(dict.fromkeys(h.pid for _, h in mine))
         times = [start, *(t for t, _ in mine), end]
-        gap, since = max((b - a, a) for a, b in itertools.pairwise(times))
+        silent, since, gap = max((_unheard(a, b, silences), a, b - a) for a, b in itertools.pairwise(times))
         if len(pids) > 1:
             detail = f"restarted during the run (pid {pids[0]}, then {pids[-1]})"
-        elif not mine and (dpu not in timed or end - start > LOST_GAP_US):
+        elif silent > LOST_GAP_US and not mine:
             detail = "no heartbeat during the run"
-        elif gap > LOST_GAP_US:
+        elif silent > LOST_GAP_US:
             detail = f"not heard for {gap / 1e6:.2f} s from {(since - start) / 1e6:.2f} s into the run"
+        elif not mine and dpu not in timed:
+            detail = "no timing records and no heartbeat in this run"
         else:
             continue
         faults.append(Fault(kind="dpu_lost", dpu=dpu, detail=detail))
     return faults
+
+
+def _unheard(a: int, b: int, silences: list[tuple[int, int]]) -> int:
+    """How much of (a, b) the log was recording other heartbeats (not in a log silence)."""
+    return (b - a) - sum(max(0, min(b, y) - max(a, x)) for x, y in silences)
 
 
 def _index(config: Any) -> tuple[dict[int, str], dict[int, int], dict[int, Any]]:

@@ -235,6 +235,9 @@ def test_dpu_lost_when_its_heartbeats_stop_not_when_its_timing_does() -> None:
     assert [(f.kind, f.dpu) for f in faults] == [("dpu_lost", 2), ("dpu_lost", 4)], faults
     assert "not heard for 1.20 s from 0.80 s into the run" in faults[0].detail
     assert "restarted during the run (pid 100, then 101)" in faults[1].detail
+    # The logger stalled from 0.5 s to 2 s: it heard nobody then, so nobody is lost for it.
+    stalled = [h for h in beats if not 500_000 < h.heard_us < 2_000_000 and h.dpu != 4]
+    assert dpu_lost_faults(config, records, stalled, RUN_ID) == []
     # Heartbeats of another run, or none at all: only a DPU with no timing record is lost.
     no_times = [Heartbeat(1, None, 100, RUN_ID, 3), Heartbeat(3, None, 100, RUN_ID, 3)]
     assert [f.dpu for f in dpu_lost_faults(config, _spans({1: [0, 9]}), no_times, RUN_ID)] == [2, 4]
