@@ -225,21 +225,19 @@ def test_dpu_lost_when_its_heartbeats_stop_not_when_its_timing_does() -> None:
     from types import SimpleNamespace
 
     config = SimpleNamespace(processes=[SimpleNamespace(id=i, dpu=i, period_us=5000) for i in (1, 2, 3, 4)])
-    # DPU 3's timing stops 1.5 s early (a process waiting for data that never comes) while it
-    # heartbeats to the end; DPU 2 falls silent at 0.8 s; DPU 4 is restarted (a new pid) at 1 s.
-    records = _spans({1: [0, 2000], 2: [0, 1000], 3: [0, 500], 4: [0, 2000]})
-    beats = (_beats(1, 0, 2) + _beats(2, 0, 0.8) + _beats(3, 0, 2) + _beats(4, 0, 1)
-             + _beats(4, 1.2, 2, pid=101, run_id=0, state=skelmsg.status_t.STATE_READY)
-             + _beats(1, 2.2, 3, state=skelmsg.status_t.STATE_READY))
+    # DPU 3's timing stops 3.5 s early (a process waiting for data that never comes) while it
+    # heartbeats to the end; DPU 2 falls silent at 1.4 s; DPU 4 is restarted (a new pid) at 1 s.
+    records = _spans({1: [0, 4000], 2: [0, 1500], 3: [0, 500], 4: [0, 4000]})
+    beats = (_beats(1, 0, 4) + _beats(2, 0, 1.4) + _beats(3, 0, 4) + _beats(4, 0, 1)
+             + _beats(4, 1.2, 4, pid=101, run_id=0, state=skelmsg.status_t.STATE_READY)
+             + _beats(1, 4.2, 5, state=skelmsg.status_t.STATE_READY))
     faults = dpu_lost_faults(config, records, beats, RUN_ID)
     assert [(f.kind, f.dpu) for f in faults] == [("dpu_lost", 2), ("dpu_lost", 4)], faults
-    assert "not heard for 1.20 s from 0.80 s into the run" in faults[0].detail
+    assert "not heard for 2.60 s from 1.40 s into the run" in faults[0].detail
     assert "restarted during the run (pid 100, then 101)" in faults[1].detail
-    # The logger stalled from 0.5 s to 2 s: it heard nobody then, so nobody is lost for it.
-    stalled = [h for h in beats if not 500_000 < h.heard_us < 2_000_000 and h.dpu != 4]
+    # The logger stalled from 1 s to 3.5 s: it heard nobody then, so nobody is lost for it.
+    stalled = [h for h in beats if not 1_000_000 < h.heard_us < 3_500_000 and h.dpu != 4]
     assert dpu_lost_faults(config, records, stalled, RUN_ID) == []
     # Heartbeats of another run, or none at all: only a DPU with no timing record is lost.
     no_times = [Heartbeat(1, None, 100, RUN_ID, 3), Heartbeat(3, None, 100, RUN_ID, 3)]
     assert [f.dpu for f in dpu_lost_faults(config, _spans({1: [0, 9]}), no_times, RUN_ID)] == [2, 4]
-
-
