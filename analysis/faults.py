@@ -1,11 +1,19 @@
 """Fatal flaws: process lockouts, pipeline jams (with the chain back to the root
 cause), DPUs that run behind their schedule; and what is not the design's: stalls
-of the platform, overruns, lost DPUs. Definitions only; inputs are decoded
-messages, record arrays and a config_t, as in metrics.py."""
+of the platform, overruns, lost DPUs, buffers never delivered. Definitions only;
+inputs are decoded messages, record arrays and a config_t, as in metrics.py.
+
+What holds a locked-out process up, in order: the required input its DPU said it
+waits on; the process of its DPU whose data wait held it up (the cyclic executive
+is one thread: while one process waits, none of the others runs); for a
+data-synchronised process, a required input whose writer is locked out too (it
+cannot complete a cycle without that writer's new data). A jam is a chain of such
+links between locked-out processes."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import itertools
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -52,6 +60,26 @@ class Lockout:
     buffer: int | None  # the required input it waits on; None when not waiting for data
     cycle: int
     known_wait: bool = True  # False when only a timing record's flag told us
+    behind: int | None = None  # the process of its DPU whose data wait held it up
+
+
+@dataclass(frozen=True)
+class Heartbeat:
+    """One status_t as heard: when (one clock for every DPU: the logger's), from which
+    daemon, in which run and state."""
+
+    dpu: int
+    heard_us: int | None  # None: not known (a live view keeps no times)
+    pid: int
+    run_id: int
+    state: int
+
+
+def heartbeats_from_status(timed: Iterable[tuple[int | None, Any]]) -> list[Heartbeat]:
+    """(heard_us or None, status_t) pairs, as a log gives them, to heartbeats in time order."""
+    beats = [Heartbeat(int(s.dpu), None if t is None else int(t), int(s.pid), int(s.run_id), int(s.state))
+             for t, s in timed]
+    return sorted(beats, key=lambda h: -1 if h.heard_us is None else h.heard_us)
 
 
 def lockouts_from_status(statuses: Iterable[Any], run_id: int) -> dict[int, Lockout]:
@@ -63,7 +91,8 @@ def lockouts_from_status(statuses: Iterable[Any], run_id: int) -> dict[int, Lock
         for lock in status.lockouts:
             if lock.process not in out:
                 buffer = None if lock.buffer < 0 else int(lock.buffer)
-                out[int(lock.process)] = Lockout(int(lock.process), buffer, int(lock.cycle))
+                behind = None if lock.behind < 0 else int(lock.behind)
+                out[int(lock.process)] = Lockout(int(lock.process), buffer, int(lock.cycle), behind=behind)
     return out
 
 
@@ -86,6 +115,9 @@ def lockout_faults(lockouts: dict[int, Lockout], config: Any) -> list[Fault]:
         lock = lockouts[proc]
         if lock.buffer is not None:
             detail = f"waits on {_bname(buffers, lock.buffer)}"
+        elif lock.behind is not None:
+            detail = (f"held up behind {names.get(lock.behind, f'process {lock.behind}')}, which waits "
+                      f"for data on the same DPU: its one thread runs neither")
         elif lock.known_wait:
             detail = "not waiting for data: its DPU cannot run it"
         else:
@@ -107,19 +139,54 @@ def _where(proc: int, lock: Lockout, names: dict[int, str], dpus: dict[int, int]
     }
 
 
+@dataclass(frozen=True)
+class _Hold:
+    """What holds a locked-out process up: a process, through a buffer or not."""
+
+    process: int | None = None
+    buffer: int | None = None
+    how: str = ""
+
+
+def _holder(proc: int, lockouts: dict[int, Lockout], config: Any) -> _Hold:
+    """What holds locked-out `proc` up (see the module comment)."""
+    names, dpus, buffers = _index(config)
+    lock = lockouts[proc]
+
+    def name(p: int) -> str:
+        return names.get(p, f"process {p}")
+
+    if lock.buffer is not None:
+        buf = buffers.get(lock.buffer)
+        if buf is None:
+            return _Hold()
+        how = f"{name(proc)} waits on {buf.name} from {name(buf.writer)}"
+        return _Hold(int(buf.writer), lock.buffer, how)
+    if lock.behind is not None:
+        return _Hold(lock.behind, None,
+                     f"{name(proc)} is held up behind {name(lock.behind)} on DPU {dpus.get(proc)}")
+    desc = next((p for p in config.processes if p.id == proc), None)
+    if desc is None or desc.sync != skelmsg.process_t.SYNC_DATA:
+        return _Hold()
+    for buffer_id, required in zip(desc.inputs, desc.required, strict=False):
+        buf = buffers.get(buffer_id)
+        if required and buf is not None and buf.writer in lockouts:
+            how = f"{name(proc)} needs new {buf.name} from {name(buf.writer)}"
+            return _Hold(int(buf.writer), int(buffer_id), how)
+    return _Hold()
+
+
 def jam_faults(lockouts: dict[int, Lockout], config: Any) -> list[Fault]:
-    """A jam: a locked-out process waits on a buffer whose writer is locked out too.
+    """A jam: a locked-out process held up by another locked-out process.
 
     One fault per chain, reported from its head (a jammed process nobody jammed
     waits on) back to the root cause: a locked-out process not waiting for data (its
     DPU is overloaded), a writer that is not locked out, or a circular wait."""
     names, dpus, buffers = _index(config)
+    holders = {p: _holder(p, lockouts, config) for p in lockouts}
 
     def writer_of(proc: int) -> int | None:
-        lock = lockouts[proc]
-        if lock.buffer is None or lock.buffer not in buffers:
-            return None
-        return int(buffers[lock.buffer].writer)
+        return holders[proc].process
 
     jammed = {p for p in lockouts if (w := writer_of(p)) is not None and w in lockouts}
     waited_on = {writer_of(p) for p in jammed}
@@ -138,18 +205,23 @@ def jam_faults(lockouts: dict[int, Lockout], config: Any) -> list[Fault]:
         load = None
         if w is not None and w in chain:
             chain.append(w)
-            cause = "circular wait: " + " -> ".join(names.get(p, str(p)) for p in chain[chain.index(w) :])
+            cycle = chain[chain.index(w) :]
+            cause = "circular wait: " + " -> ".join(names.get(p, str(p)) for p in cycle)
+            cause += " (" + "; ".join(holders[p].how for p in cycle[:-1]) + ")"
         elif w is not None:
-            cause = f"{names.get(root)} waits on {names.get(w, str(w))}, which is not locked out"
+            cause = f"{holders[root].how}, which is not locked out"
         elif not lockouts[root].known_wait:
             cause = f"{names.get(root)} is locked out; what it waits on is unknown (no status_t)"
         else:
             load = static_load_pct(config, dpus.get(root, -1))
             cause = f"DPU {dpus.get(root)} overloaded (static load {load:.1f} %): {names.get(root)} can't run"
+        hold = holders[head]
+        where = _where(head, Lockout(head, hold.buffer, lockouts[head].cycle), names, dpus, buffers)
+        where["writer"] = names.get(hold.process, f"process {hold.process}")
         faults.append(
             Fault(
                 kind="jam",
-                **_where(head, lockouts[head], names, dpus, buffers),
+                **where,
                 chain=[names.get(p, f"process {p}") for p in chain],
                 detail=cause,
                 static_load_pct=load,
@@ -174,33 +246,59 @@ def overrun_faults(processes: list[ProcessMetrics]) -> list[Fault]:
     ]
 
 
-# Records that end this much (or three periods) before the other DPUs' mean a lost DPU.
-LOST_SPAN_NS = 500_000_000
+# Ten heartbeats (5 Hz) missed in a row. The host calls a DPU lost live after 0.6 s; a
+# logger starved of CPU drops messages (the newest, whoever sent them), so the log is
+# judged with more margin. A DPU restarted sooner is caught by its new pid.
+LOST_GAP_US = 2_000_000
+# No heartbeat of any DPU logged for this long: the logger was not recording (stalled,
+# starved of CPU), and that silence says nothing about any one DPU.
+LOG_SILENT_US = 400_000
+_IN_RUN = (skelmsg.status_t.STATE_ARMED, skelmsg.status_t.STATE_RUNNING)
 
 
-def dpu_lost_faults(config: Any, records: np.ndarray, reported: set[int] | None = None) -> list[Fault]:
-    """A DPU with processes but no timing record, or whose records stop well before the
-    others' (it died or was cut off mid-run). Each DPU's span is measured on its own clock
-    (first to last release), so hosts with different clocks compare. A missing report_t
-    alone is not a loss: the logger may miss one message under load while the DPU's
-    timing runs to the end (`reported` is kept for the signature; the cross-check shows it)."""
-    del reported
-    spans: dict[int, float] = {}
-    for dpu in np.unique(records["dpu"]).tolist():
-        release = records["release_ns"][records["dpu"] == dpu]
-        spans[int(dpu)] = float(release.max() - release.min())
-    longest = max(spans.values(), default=0.0)
+def dpu_lost_faults(config: Any, records: np.ndarray, heartbeats: Sequence[Heartbeat],
+                    run_id: int) -> list[Fault]:
+    """A DPU is lost when its heartbeats stopped during the run: a silence of more than
+    LOST_GAP_US while the log heard other DPUs, or a new daemon (pid) answering for it,
+    between the run's first heartbeat and the last one of a DPU still running it (one
+    clock: when they were heard). A DPU that kept heartbeating is not lost, whatever its
+    timing records show (a process waiting for data that never comes stops its timing,
+    not its DPU). Without heartbeat times (a live view) or heartbeats of this run (a log
+    that does not record them), only a DPU with no timing record and no heartbeat is lost."""
+    dpus = sorted({int(p.dpu) for p in config.processes})
+    timed = set(np.unique(records["dpu"]).tolist())
+    heard = [(h.heard_us, h) for h in heartbeats if h.heard_us is not None]
+    run = [(t, h) for t, h in heard if h.run_id == run_id]
+    if not run:
+        alive = {h.dpu for h in heartbeats if h.run_id == run_id}
+        return [Fault(kind="dpu_lost", dpu=d, detail="no timing records and no heartbeat in this run")
+                for d in dpus if d not in timed and d not in alive]
+    start = min(t for t, _ in run)
+    end = max((t for t, h in run if h.state in _IN_RUN), default=start)
+    silences = [(a, b) for a, b in itertools.pairwise(sorted(t for t, _ in heard)) if b - a > LOG_SILENT_US]
     faults = []
-    for dpu in sorted({p.dpu for p in config.processes}):
-        if dpu not in spans:
-            faults.append(Fault(kind="dpu_lost", dpu=dpu, detail="no timing records in this run"))
+    for dpu in dpus:
+        mine = [(t, h) for t, h in heard if h.dpu == dpu and start <= t <= end]
+        pids = list(dict.fromkeys(h.pid for _, h in mine))
+        times = [start, *(t for t, _ in mine), end]
+        silent, since, gap = max((_unheard(a, b, silences), a, b - a) for a, b in itertools.pairwise(times))
+        if len(pids) > 1:
+            detail = f"restarted during the run (pid {pids[0]}, then {pids[-1]})"
+        elif silent > LOST_GAP_US and not mine:
+            detail = "no heartbeat during the run"
+        elif silent > LOST_GAP_US:
+            detail = f"not heard for {gap / 1e6:.2f} s from {(since - start) / 1e6:.2f} s into the run"
+        elif not mine and dpu not in timed:
+            detail = "no timing records and no heartbeat in this run"
+        else:
             continue
-        period_ns = max(p.period_us for p in config.processes if p.dpu == dpu) * 1000
-        missing_ns = longest - spans[dpu]
-        if missing_ns > max(3 * period_ns, LOST_SPAN_NS):
-            faults.append(Fault(kind="dpu_lost", dpu=dpu,
-                                detail=f"timing stopped {missing_ns / 1e9:.2f} s before the other DPUs'"))
+        faults.append(Fault(kind="dpu_lost", dpu=dpu, detail=detail))
     return faults
+
+
+def _unheard(a: int, b: int, silences: list[tuple[int, int]]) -> int:
+    """How much of (a, b) the log was recording other heartbeats (not in a log silence)."""
+    return (b - a) - sum(max(0, min(b, y) - max(a, x)) for x, y in silences)
 
 
 def _index(config: Any) -> tuple[dict[int, str], dict[int, int], dict[int, Any]]:

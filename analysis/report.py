@@ -17,7 +17,7 @@ import numpy as np
 import skelmsg
 
 from .chains import ChainMetrics
-from .faults import Fault, lockouts_from_status
+from .faults import Fault, Heartbeat, dpu_lost_faults, heartbeats_from_status, lockouts_from_status
 from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets
 from .logreader import Integrity, Log, open_log
 from .metrics import DpuMetrics, ProcessMetrics, measured
@@ -126,12 +126,14 @@ def build_report(
     malformed: dict[str, int] | None = None,
     configs: Mapping[int, Any] | None = None,
     clock: ClockOffsets | None = None,
+    heartbeats: Sequence[Heartbeat] | None = None,
 ) -> RunReport:
     """The report of one run from decoded messages: shared by `analyze` and live views.
 
     `config` is the run's last generation; `configs` (generation -> config_t) adds a
     window for every earlier generation with timing records; `clock` holds the
-    clock-offset estimates (none: every DPU on the host's clock)."""
+    clock-offset estimates (none: every DPU on the host's clock); `heartbeats` the
+    statuses with when they were heard (none: `statuses`, times unknown)."""
     clock = clock or NO_OFFSETS
     earlier = (configs or {}).items()
     by_generation = {g: c for g, c in earlier if g in run.generations and g < config.generation}
@@ -141,10 +143,12 @@ def build_report(
     # A report the logger missed may have been re-sent (host/repair.py): one per DPU.
     mine = list({r.dpu: r for r in reports if r.run_id == run.run_id}.values())
     locks = split_lockouts(lockouts_from_status(statuses, run.run_id), [p[0] for p in parts])
-    # Only the last window can miss an end-of-run report_t.
-    reported: list[set[int] | None] = [None] * (len(generations) - 1) + [{r.dpu for r in mine}]
+    if heartbeats is None:
+        heartbeats = heartbeats_from_status((None, s) for s in statuses)
+    lost = dpu_lost_faults(config, run.records, heartbeats, run.run_id)
+    last_i = len(generations) - 1
     windows = [
-        build_window(by_generation[g], records, inputs, locks[i], reported[i], clock)
+        build_window(by_generation[g], records, inputs, locks[i], lost if i == last_i else (), clock)
         for i, (g, (records, inputs)) in enumerate(zip(generations, parts, strict=True))
     ]
     last = windows[-1]
@@ -236,21 +240,29 @@ def analyze_log(log: Log, run_id: int | None = None) -> RunReport:
             configs[g] = _config_for(log, g, malformed)
         except LogError:
             pass  # a window without its config cannot be named: only the others are reported
-    statuses = _decode_all(log, STATUS_CHANNEL, skelmsg.status_t.decode, malformed)
+    timed = _decode_timed(log, STATUS_CHANNEL, skelmsg.status_t.decode, malformed)
+    statuses = [s for _, s in timed]
     offsets = _decode_all(log, CLOCK_CHANNEL, skelmsg.clock_offset_t.decode, malformed)
     clock = ClockOffsets.from_messages(offsets)
-    return build_report(config, run, statuses, reports, log.integrity, malformed, configs, clock)
+    return build_report(config, run, statuses, reports, log.integrity, malformed, configs, clock,
+                        heartbeats_from_status(timed))
+
+
+def _decode_timed(log: Log, channel: str, decode: Callable[[bytes], T],
+                  malformed: dict[str, int]) -> list[tuple[int, T]]:
+    """(utime_us, message) of every message on a channel; malformed ones are counted and skipped."""
+    out = []
+    for utime, data in log.messages(channel):
+        try:
+            out.append((utime, decode(bytes(data))))
+        except Exception:  # any decoder failure means "malformed", never a crash
+            malformed[channel] = malformed.get(channel, 0) + 1
+    return out
 
 
 def _decode_all(log: Log, channel: str, decode: Callable[[bytes], T], malformed: dict[str, int]) -> list[T]:
     """Decode every message on a channel; malformed ones are counted and skipped."""
-    out = []
-    for _, data in log.messages(channel):
-        try:
-            out.append(decode(bytes(data)))
-        except Exception:  # any decoder failure means "malformed", never a crash
-            malformed[channel] = malformed.get(channel, 0) + 1
-    return out
+    return [message for _, message in _decode_timed(log, channel, decode, malformed)]
 
 
 _CONFIG_HEAD = struct.Struct(">q")  # config_t starts with its generation

@@ -20,7 +20,6 @@ from .faults import (
     Lockout,
     behind_faults,
     delivery_faults,
-    dpu_lost_faults,
     jam_faults,
     lockout_faults,
     lockouts_from_records,
@@ -74,11 +73,11 @@ def build_window(
     records: np.ndarray,
     inputs: np.ndarray,
     lockouts: dict[int, Lockout] | None = None,
-    reported: set[int] | None = None,
+    lost: Sequence[Fault] = (),
     clock: ClockOffsets = NO_OFFSETS,
 ) -> WindowReport:
     """Every table of one generation window. `lockouts`: the ones status_t reported in
-    this window; `reported`: DPUs that sent their end-of-run report_t (last window only)."""
+    this window; `lost`: the run's lost DPUs (a fact of the whole run: last window only)."""
     processes = process_metrics(records, inputs, config)
     locks = lockouts_from_records(records, lockouts or {})
     delivery, locks = delivery_faults(config, records, inputs, locks)
@@ -98,7 +97,7 @@ def build_window(
             + behind_faults(records, config)
             + stall_faults(records, config)
             + overrun_faults(processes)
-            + dpu_lost_faults(config, records, reported)
+            + list(lost)
         ),
     )
 

@@ -6,9 +6,19 @@
 
 #include "dpu.h"
 
+/* How long after its release a cycle is locked out: INT64_MAX when never (no
+ * rule, or a product past int64). */
 static int64_t process_lockout_ns(const skel_plan_t *plan, const skel_process_t *p)
 {
-    return plan->lockout_cycles > 0 ? plan->lockout_cycles * p->period_ns : INT64_MAX;
+    if (plan->lockout_cycles <= 0 || plan->lockout_cycles > INT64_MAX / p->period_ns) return INT64_MAX;
+    return plan->lockout_cycles * p->period_ns;
+}
+
+/* The instant a cycle released at RELEASE is locked out (saturated, never wraps). */
+static int64_t process_lockout_at(const skel_plan_t *plan, const skel_process_t *p, int64_t release)
+{
+    int64_t ns = process_lockout_ns(plan, p);
+    return release > INT64_MAX - ns ? INT64_MAX : release + ns;
 }
 
 /* A lockout is the design's: the lateness the platform's stalls explain (the
@@ -16,29 +26,71 @@ static int64_t process_lockout_ns(const skel_plan_t *plan, const skel_process_t 
 static int process_locked_out(const skel_exec_t *x, const skel_process_t *p, int64_t release,
                               int64_t now)
 {
-    return now - release - x->stall_debt_ns >= process_lockout_ns(x->plan, p);
+    return now - x->stall_debt_ns >= process_lockout_at(x->plan, p, release);
 }
 
-/* Recorded once per process per run; the process keeps trying and may recover. */
-void process_lockout(skel_exec_t *x, skel_process_t *p, int16_t buffer, int64_t k,
-                     int64_t release_ns)
+/* Recorded once per process per run (1 when new); the process keeps trying and may recover. */
+static int process_lockout_record(skel_exec_t *x, skel_process_t *p, int16_t buffer,
+                                  int16_t behind, int64_t k, int64_t release_ns)
 {
     skel_server_t *s = x->s;
-    if (p->locked_out) return;
+    if (p->locked_out) return 0;
     p->locked_out = 1;
-    if (pthread_mutex_lock(&s->lock) != 0) return;
+    if (pthread_mutex_lock(&s->lock) != 0) return 1;
     if (s->nlockouts < SKEL_MAX_LOCKOUTS) {
         skelmsg_lockout_t *l = &s->lockouts[s->nlockouts++];
         l->process = p->id;
         l->buffer = buffer;
+        l->behind = behind;
         l->cycle = k;
         l->release_ns = release_ns + s->clock_offset_ns;
     }
     pthread_mutex_unlock(&s->lock);
     server_fault(s, SKELMSG_STATUS_T_FAULT_LOCKOUT);
     server_wake(s->notify_fd);
-    skel_log("DPU %d: LOCKOUT process %d cycle %lld (waiting on buffer %d)", x->plan->dpu, p->id,
-             (long long)k, buffer);
+    return 1;
+}
+
+void process_lockout(skel_exec_t *x, skel_process_t *p, int16_t buffer, int64_t k,
+                     int64_t release_ns)
+{
+    if (!process_lockout_record(x, p, buffer, -1, k, release_ns)) return;
+    if (buffer >= 0)
+        skel_log("DPU %d: LOCKOUT process %d cycle %lld (waiting on buffer %d)", x->plan->dpu, p->id,
+                 (long long)k, buffer);
+    else
+        skel_log("DPU %d: LOCKOUT process %d cycle %lld (not run: its DPU is behind)", x->plan->dpu,
+                 p->id, (long long)k);
+}
+
+/* While P waits in minor J, the DPU's one thread runs nothing else: every other
+ * process's oldest release not yet started ages. A process after P in the order
+ * is due in J itself; one before it already ran in J and is next due after it.
+ * Each that is past its lockout threshold is locked out, held up behind P (its
+ * lockout names P, and no buffer: it is not waiting for data). Returns the next
+ * instant one would be (INT64_MAX: none in this run). Releases as executive_minor
+ * computes them: epoch_t0 + k * period. */
+static int64_t process_held_up(skel_exec_t *x, const skel_process_t *p, int64_t j, int64_t now)
+{
+    skel_plan_t *plan = x->plan;
+    const int me = (int)(p - plan->processes);
+    int64_t next = INT64_MAX;
+    for (int i = 0; i < plan->nprocesses; i++) {
+        skel_process_t *q = &plan->processes[i];
+        if (i == me || q->locked_out) continue;
+        int64_t k = i > me ? (j + q->ratio - 1) / q->ratio : j / q->ratio + 1;
+        int64_t release = plan->epoch_t0_ns + k * q->period_ns;
+        if (release >= x->end_mono_ns) continue; /* not due in this run */
+        int64_t at = process_lockout_at(plan, q, release);
+        if (now - x->stall_debt_ns < at) {
+            if (at < next) next = at;
+            continue;
+        }
+        if (process_lockout_record(x, q, -1, p->id, q->k_base + k, release))
+            skel_log("DPU %d: LOCKOUT process %d cycle %lld (held up behind process %d, which "
+                     "waits for data)", plan->dpu, q->id, (long long)(q->k_base + k), p->id);
+    }
+    return next;
 }
 
 static void process_peek_inputs(const skel_plan_t *plan, const skel_process_t *p, skel_rec_t *rec)
@@ -56,34 +108,38 @@ static int process_missing(const skel_process_t *p, const skel_rec_t *rec)
     return -1;
 }
 
-static int process_should_stop(const skel_exec_t *x, const skel_process_t *p, int64_t now)
+/* The run's end (or a STOP) ends every wait: past it the writers have stopped, so
+ * waiting on would only keep the DPU from reporting and becoming READY. */
+static int process_should_stop(const skel_exec_t *x, int64_t now)
 {
     if (atomic_load(&x->s->stop) || atomic_load(&x->s->quit)) return 1;
-    /* A jammed pipeline must not hold a timed run open forever. */
-    int64_t grace = x->plan->lockout_cycles > 0 ? process_lockout_ns(x->plan, p) : p->period_ns;
-    return x->end_mono_ns != INT64_MAX && now >= x->end_mono_ns + grace;
+    return now >= x->end_mono_ns;
 }
 
-/* Waits for new data on every required input: 1 when the run stopped first. */
+/* Waits for new data on every required input: 1 when the run ended or stopped
+ * first. Cycle K (minor J of the plan) was released at RELEASE. Meanwhile the
+ * processes it holds up are watched for lockout (process_held_up). */
 static int process_wait_data(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t release,
                              skel_rec_t *rec)
 {
     skel_plan_t *plan = x->plan;
-    int64_t lockout_at = release + process_lockout_ns(plan, p);
+    const int64_t j = (k - p->k_base) * p->ratio;
+    const int64_t lockout_at = process_lockout_at(plan, p, release);
     for (;;) {
         int missing = process_missing(p, rec);
         if (missing < 0) return 0;
         int64_t now = clock_mono_ns();
-        /* Past the run's end the writers have stopped: waiting on is not a design flaw. */
-        int run_over = x->end_mono_ns != INT64_MAX && now >= x->end_mono_ns;
-        if (!run_over && process_locked_out(x, p, release, now)) {
+        if (process_should_stop(x, now)) return 1;
+        if (process_locked_out(x, p, release, now)) {
             process_lockout(x, p, p->inputs[missing].buffer, k, release);
             rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
         }
-        if (process_should_stop(x, p, now)) return 1;
+        /* Wake for the next lockout to detect and for the run's end, polling at least every 10 ms. */
+        int64_t wake = process_held_up(x, p, j, now);
+        if (!p->locked_out && lockout_at < wake) wake = lockout_at;
+        if (x->end_mono_ns < wake) wake = x->end_mono_ns;
         int timeout_ms = 10;
-        if (!p->locked_out && lockout_at > now && (lockout_at - now) / 1000000 + 1 < timeout_ms)
-            timeout_ms = (int)((lockout_at - now) / 1000000 + 1);
+        if (wake - now < 10 * 1000000LL) timeout_ms = (int)((wake - now) / 1000000) + 1;
         int ready = link_wait(plan->links, plan->nlinks, x->s->wake_fd, timeout_ms);
         if (ready < 0) return 1;
         /* A poll that timed out far later than asked: the thread was kept from running. */

@@ -196,16 +196,9 @@ def cmd_push(args: argparse.Namespace) -> int:
               f"{result.at_utc_ns // 1_000_000 % 1000:03d} UTC ({args.at_ms:g} ms after the commit)"
               + (f", mid-run in run {run_id} (at the first cycle boundary all DPUs share from then)"
                  if run_id else ""))
-    for dpu_id in result.applied:
-        print(f"DPU {dpu_id}: applied generation {generation}")
-    for dpu_id, reason in sorted(result.rejected.items()):
-        print(f"DPU {dpu_id}: rejected generation {generation}: {reason}", file=sys.stderr)
-    for dpu_id in result.silent:
-        what = ("did not confirm the switch" if result.committed
-                else "did not answer (is it up? `skel status`)")
-        print(f"DPU {dpu_id}: {what}", file=sys.stderr)
+    for fine, text in result.outcome():
+        print(text, file=sys.stdout if fine else sys.stderr)
     if not result.committed:
-        print("nothing was committed: every DPU keeps its previous configuration", file=sys.stderr)
         return EXIT_FAILED
     spawn.remember_push(control_url(system), system.source_text, generation)
     return 0 if result.ok else EXIT_FAILED

@@ -73,16 +73,55 @@ class DpuView:
 
 @dataclass
 class PushResult:
+    """What every DPU did with one pushed generation. Each DPU is in exactly one of
+    applied, staged (accepted, not applied: not committed, or the switch not seen),
+    rejected (with its reason) or silent (never answered)."""
+
     generation: int
     applied: list[int] = field(default_factory=list)
     rejected: dict[int, str] = field(default_factory=dict)
     silent: list[int] = field(default_factory=list)
+    staged: list[int] = field(default_factory=list)
+    kept: dict[int, int] = field(default_factory=dict)  # DPU -> the generation it applies at the end
+    states: dict[int, str] = field(default_factory=dict)  # DPU -> its state at the end
     at_utc_ns: int = 0          # when the commit takes effect (0: at once)
     committed: bool = False     # the COMMIT was sent (every DPU had staged the generation)
 
     @property
     def ok(self) -> bool:
-        return not self.rejected and not self.silent
+        return not self.rejected and not self.silent and not (self.committed and self.staged)
+
+    def outcome(self) -> list[tuple[bool, str]]:
+        """One line per DPU, saying what it applies now, then whether anything was
+        committed: (fine, text)."""
+        g = self.generation
+        lines = [(True, f"DPU {d}: applied generation {g}") for d in self.applied]
+        for d in self.staged:
+            if self.committed:
+                text = (f"staged generation {g} but did not apply it: it still applies {self._kept(d)} "
+                        f"({self.states.get(d, 'not heard')})")
+            else:
+                text = f"staged generation {g}, not applied: it keeps {self._kept(d)}"
+            lines.append((False, f"DPU {d}: {text}"))
+        for d, reason in sorted(self.rejected.items()):
+            lines.append((False, f"DPU {d}: rejected generation {g}: {reason}"))
+        for d in self.silent:
+            after = f": it keeps {self._kept(d)}" if d in self.kept else " (is it up? `skel status`)"
+            lines.append((False, f"DPU {d}: did not answer generation {g}{after}"))
+        if not self.committed:
+            lines.append((False, "nothing was committed: every DPU keeps its previous configuration"))
+        elif not self.ok:
+            lines.append((False, f"generation {g} was committed: applied by DPU {_ids(self.applied)}; "
+                                 f"not by DPU {_ids(self.staged + self.silent)}"))
+        return lines
+
+    def _kept(self, dpu: int) -> str:
+        generation = self.kept.get(dpu, 0)
+        return f"generation {generation}" if generation > 0 else "no configuration"
+
+
+def _ids(ids: Iterable[int]) -> str:
+    return ", ".join(map(str, sorted(ids))) or "none"
 
 
 class Control:
@@ -292,16 +331,8 @@ class Control:
         while time.monotonic() < deadline and not settled():
             self.publish_config(config)
             self.wait_for(settled, 0.25)
-        snapshot = self.snapshot()
-        for i in wanted:
-            view = snapshot.get(i)
-            if view is None:
-                result.silent.append(i)
-            elif view.status.rejected_generation == generation:
-                result.rejected[i] = view.status.reject_reason or "rejected"
-            elif view.status.staged_generation < generation and view.status.generation < generation:
-                result.silent.append(i)
-        if not result.ok:
+        self._settle(result, wanted)
+        if result.rejected or result.silent:
             return result
         if at_ms is not None:
             result.at_utc_ns = time.time_ns() + int(at_ms * 1e6)
@@ -310,14 +341,29 @@ class Control:
         # The switch waits for the DPUs' common grid (their minor cycles' lcm, unused past 10 s).
         grid_s = math.lcm(*(d.minor_cycle_us for d in config.dpus if d.minor_cycle_us > 0)) / 1e6
         until_switch_s = max(0.0, (result.at_utc_ns - time.time_ns()) / 1e9) + min(grid_s, 10.0)
-        applied = self.wait_for(
-            lambda: all(self.dpus[i].status.generation >= generation for i in wanted),
-            until_switch_s + timeout_s)
-        snapshot = self.snapshot()
-        result.applied = [i for i in wanted if snapshot[i].status.generation >= generation]
-        if not applied:
-            result.silent = [i for i in wanted if i not in result.applied]
+        self.wait_for(lambda: all(self.dpus[i].status.generation >= generation for i in wanted),
+                      until_switch_s + timeout_s)
+        self._settle(result, wanted)
         return result
+
+    def _settle(self, result: PushResult, wanted: list[int]) -> None:
+        """Sort every wanted DPU by what its last heartbeat says about result.generation."""
+        generation = result.generation
+        result.applied, result.staged, result.silent, result.rejected = [], [], [], {}
+        for i in wanted:
+            view = self.snapshot().get(i)
+            if view is None:
+                result.silent.append(i)
+                continue
+            result.kept[i], result.states[i] = view.status.generation, view.state
+            if view.status.generation >= generation:
+                result.applied.append(i)
+            elif view.status.rejected_generation == generation:
+                result.rejected[i] = view.status.reject_reason or "rejected"
+            elif view.status.staged_generation >= generation:
+                result.staged.append(i)
+            else:
+                result.silent.append(i)
 
     def start(self, generation: int, run_id: int, at_utc_ns: int, duration_ns: int) -> None:
         self.command(skelmsg.command_t.START, generation=generation, run_id=run_id,

@@ -7,7 +7,7 @@ What outlives the host tool: the DPUs have the run's duration, so they finish
 their cycles if `skel run` dies. The logger is started (once the push has
 succeeded) in its own session under `timeout`: a killed host tool neither takes
 it down nor leaves it running for ever; it stops by itself about
-REPORT_GRACE_S + REPAIR_LIMIT_S + LOGGER_MARGIN_S (~20 s) after the run's planned end. On a
+SETTLE_S + REPORT_GRACE_S + REPAIR_LIMIT_S + LOGGER_MARGIN_S (~21 s) after the run's planned end. On a
 clean end it is stopped once the log holds everything the DPUs published: what
 the logger missed is asked for again (repair.py), during the run and after the
 reports. DPUs started with --spawn end the same way.
@@ -31,7 +31,13 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 import skelmsg
-from skeleton.analysis.faults import stall_threshold_ns
+from skeleton.analysis.faults import (
+    Lockout,
+    jam_faults,
+    lockout_faults,
+    lockouts_from_status,
+    stall_threshold_ns,
+)
 from skeleton.analysis.metrics import utilization_pct
 from skeleton.analysis.report import LogError, analyze
 from skeleton.analysis.tables import print_report
@@ -45,6 +51,7 @@ from skeleton.host.system import System
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_FATAL_FLAW = 0, 1, 2, 3
 START_LEAD_S = 0.5          # time for START to reach every DPU before cycle 0
 REPORT_GRACE_S = 5.0        # how long after the end we wait for the DPUs' reports
+SETTLE_S = 1.0              # ... before a DPU still running the run is sent STOP
 HEAR_TIMEOUT_S = 5.0
 CONFIG_RESEND_S = 1.0
 POLL_S = 0.1                # follower period: a lost DPU is reported within LOST_AFTER_S + this
@@ -55,6 +62,7 @@ REPAIR_STUCK_S = 3.0        # after the reports, the repair of the log gives up 
 REPAIR_LIMIT_S = 10.0       # ... or after this long in all
 BEHIND_POLLS = 5            # a DPU behind at this many polls in a row (0.5 s) is said to be behind
 FAILED_KINDS = ("dpu_lost", "delivery")    # the machine or network failed the run, not the design
+FAULT_WINDOW_MAX_S = 1.0    # a run stopped early (run.stop_on) goes on at most this long
 
 
 @dataclass
@@ -92,7 +100,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
     for warning in warmup_warnings(system, duration_ns) + delivery_warnings(system):
         console.print(f"[yellow]WARN[/] {warning}", soft_wrap=True)
     # From the logger's start: first event, clock estimate, START lead, the run, the reports, a margin.
-    logger_deadline_s = (LOGGER_READY_S + 1.0 + START_LEAD_S + duration_ns / 1e9 + REPORT_GRACE_S
+    logger_deadline_s = (LOGGER_READY_S + 1.0 + START_LEAD_S + duration_ns / 1e9 + SETTLE_S + REPORT_GRACE_S
                          + REPAIR_LIMIT_S + LOGGER_MARGIN_S)
     control = Control(url)
     daemons: list[spawn.Daemon] = []
@@ -137,8 +145,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         follower = RunFollower(system, control, console)
         committed = system.to_config(generation, run_id, committed=True)
         _follow(control, follower, clocks, committed, duration_ns, dpu_ids, repair)
-        control.wait_for(lambda: all((d, run_id) in control.reports for d in dpu_ids
-                                     if d not in follower.lost), REPORT_GRACE_S)
+        _finish(control, run_id, [d for d in dpu_ids if d not in follower.lost], console)
         reports = {d: r for (d, r_id), r in control.reports.items() if r_id == run_id}
         if repair is not None:
             repair.finish(reports, REPAIR_STUCK_S, REPAIR_LIMIT_S)
@@ -180,35 +187,41 @@ def _claim(control: Control, dpu_ids: list[int], force: bool, console: Console) 
 
 
 class RunFollower:
-    """Watches heartbeats during a run: faults as they happen, when to stop early."""
+    """Watches heartbeats during a run: faults as they happen, when to stop early.
+
+    A DPU is lost when its heartbeats stop (LOST_AFTER_S), and only then: one whose
+    processes wait for data that does not come still heartbeats, and is not lost.
+    Lockouts and jams are named by analysis/faults.py, as in the report."""
 
     def __init__(self, system: System, control: Control, console: Console) -> None:
         self.system = system
         self.control = control
         self.console = console
-        self.writer = {b.id: system.process(b.writer) for b in system.buffers}
-        self.names = {p.id: p.name for p in system.processes}
-        self.lockouts: dict[int, skelmsg.lockout_t] = {}
+        self.config = system.to_config(0, 0, committed=False)  # names and links, for the faults
+        self.lockouts: dict[int, Lockout] = {}
+        self.jams: set[tuple[str, ...]] = set()
         self.lost: set[int] = set()      # lost during this run (a restarted DPU stays in it)
         self.back: set[int] = set()
         self.stop_reason: str | None = None
         self.hosts = {d.id: d.host for d in system.dpus}
         self.minor_ns = {d.id: d.minor_cycle_us * 1000 for d in system.dpus}
-        self.config = system.to_config(0, 0, committed=False)  # what the fault definitions read
         self.stalled_ns: dict[int, int] = {}   # per DPU: the longest stall already heard
         self.behind_polls: dict[int, int] = {}  # per DPU: polls in a row it was behind
         self.taken_over: str | None = None  # another host tool ended our run (--force)
 
     def poll(self, run_id: int, dpu_ids: list[int]) -> None:
-        running = [v for v in self.control.snapshot().values() if v.status.run_id == run_id]
-        for view in running:
-            for lockout in view.status.lockouts:
-                if lockout.process not in self.lockouts:
-                    self.lockouts[lockout.process] = lockout
-                    self._announce_lockout(view.status.dpu, lockout)
-        self._follow_stalls(running)
-        self._follow_behind(running)
         views = self.control.snapshot()
+        heard = lockouts_from_status((v.status for v in views.values()), run_id)
+        new = {p: lock for p, lock in heard.items() if p not in self.lockouts}
+        self.lockouts.update(new)
+        for fault in lockout_faults(new, self.config):
+            writer = f" from {fault.writer}" if fault.writer else ""
+            self.console.print(f"[bold red]FAULT[/] lockout: {fault.process} (DPU {fault.dpu}) at cycle "
+                               f"{fault.cycle}: {fault.detail}{writer}", highlight=False)
+        if new:
+            self._jams()
+        if new and "lockout" in self.system.run.stop_on:
+            self.stop_reason = self.stop_reason or f"lockout of {next(iter(self._named(new)))}"
         silent = self.control.lost(dpu_ids)
         for dpu_id in silent:
             if dpu_id not in self.lost:
@@ -222,7 +235,11 @@ class RunFollower:
         for dpu_id in sorted(self.lost - set(silent) - self.back):
             # Restarted: it takes the re-sent config and joins the next run, not this one.
             self.back.add(dpu_id)
-            self.console.print(f"DPU {dpu_id} heard again ({views[dpu_id].state}): it joins the next run")
+            state = views[dpu_id].state if dpu_id in views else "?"
+            self.console.print(f"DPU {dpu_id} heard again ({state}): it joins the next run")
+        running = [v for v in views.values() if v.status.run_id == run_id]
+        self._follow_stalls(running)
+        self._follow_behind(running)
 
     def _follow_stalls(self, running: list[DpuView]) -> None:
         """A host's DPUs whose threads were kept from running for a stall (beyond
@@ -261,17 +278,27 @@ class RunFollower:
                 if "behind" in self.system.run.stop_on:
                     self.stop_reason = self.stop_reason or f"DPU {st.dpu} behind its schedule"
 
-    def _announce_lockout(self, dpu: int, lockout: skelmsg.lockout_t) -> None:
-        name = self.names.get(lockout.process, str(lockout.process))
-        waits = ""
-        if lockout.buffer >= 0:
-            writer = self.writer.get(lockout.buffer)
-            waits = f", waiting on buffer {lockout.buffer}" + (f" from {writer.name}" if writer else "")
-        self.console.print(f"[bold red]FAULT[/] lockout: {name} (DPU {dpu}) at cycle {lockout.cycle}{waits}")
-        stop_on = self.system.run.stop_on
-        jam = lockout.buffer >= 0 and getattr(self.writer.get(lockout.buffer), "id", None) in self.lockouts
-        if "lockout" in stop_on or ("jam" in stop_on and jam):
-            self.stop_reason = self.stop_reason or f"lockout of {name}"
+    def fault_window_s(self) -> float:
+        """How long a run stopped early goes on: one lockout window of its slowest process
+        (at most FAULT_WINDOW_MAX_S), so the lockouts that come with the first (the rest of
+        a jam: processes downstream, or on a DPU that falls behind a little later) are
+        recorded too."""
+        slowest_us = max(p.period_us for p in self.system.processes)
+        return min(FAULT_WINDOW_MAX_S, self.system.run.lockout_cycles * slowest_us / 1e6)
+
+    def _named(self, locks: dict[int, Lockout]) -> list[str]:
+        names = {p.id: p.name for p in self.config.processes}
+        return [names.get(p, str(p)) for p in sorted(locks)]
+
+    def _jams(self) -> None:
+        for jam in jam_faults(self.lockouts, self.config):
+            if tuple(jam.chain) in self.jams:
+                continue
+            self.jams.add(tuple(jam.chain))
+            chain = " -> ".join(jam.chain)
+            self.console.print(f"[bold red]FAULT[/] jam: {chain}: {jam.detail}", highlight=False)
+            if "jam" in self.system.run.stop_on:
+                self.stop_reason = self.stop_reason or f"jam of {jam.process}"
 
 
 def _adopt_pushed(control: Control, config: skelmsg.config_t, dpu_ids: list[int],
@@ -311,14 +338,19 @@ def _follow(control: Control, follower: RunFollower, clocks: ClockKeeper, config
                TimeRemainingColumn()]
     with Progress(*columns, console=follower.console, transient=True) as progress:
         task = progress.add_task(f"run {run_id}", total=duration_ns / 1e9)
+        stop_at = None
         while time.time_ns() < end_utc + 200_000_000:
             follower.poll(run_id, dpu_ids)
             follower.taken_over = owner.taken_over(control, run_id, dpu_ids)
             if follower.taken_over:
                 follower.console.print(f"[bold red]{follower.taken_over}[/]", soft_wrap=True)
                 break
-            if follower.stop_reason:
-                follower.console.print(f"stopping early: {follower.stop_reason} (run.stop_on)")
+            if follower.stop_reason and stop_at is None:
+                window_s = follower.fault_window_s()
+                follower.console.print(f"stopping early: {follower.stop_reason} (run.stop_on), in "
+                                       f"{window_s * 1000:.0f} ms (one lockout window)")
+                stop_at = time.monotonic() + window_s
+            if stop_at is not None and time.monotonic() >= stop_at:
                 control.stop()
                 break
             progress.update(task, completed=max(0.0, (time.time_ns() - start_utc) / 1e9))
@@ -332,6 +364,31 @@ def _follow(control: Control, follower: RunFollower, clocks: ClockKeeper, config
                 repair.poll()
             time.sleep(POLL_S)
     follower.poll(run_id, dpu_ids)
+
+
+def _finish(control: Control, run_id: int, dpu_ids: list[int], console: Console) -> None:
+    """Wait until every DPU has reported the run and is idle (READY) again. One still
+    running it SETTLE_S after its end (a DPU behind its releases, or a long computation)
+    is sent STOP: when `skel run` returns, the DPUs are ready for the next run."""
+    in_run = (skelmsg.status_t.STATE_ARMED, skelmsg.status_t.STATE_RUNNING)
+
+    def running(views: dict[int, DpuView]) -> list[int]:
+        return [d for d in dpu_ids if d in views and views[d].status.run_id == run_id
+                and views[d].status.state in in_run]
+
+    def done() -> bool:  # evaluated under the Control's lock: its own dicts, no snapshot
+        return all((d, run_id) in control.reports for d in dpu_ids) and not running(control.dpus)
+
+    if control.wait_for(done, SETTLE_S):
+        return
+    for dpu_id in running(control.snapshot()):
+        control.command(skelmsg.command_t.STOP, dpu=dpu_id)
+        console.print(f"[yellow]DPU {dpu_id} was still running the run {SETTLE_S:g} s after its end: "
+                      "stopped it[/]")
+    control.wait_for(done, REPORT_GRACE_S)
+    for dpu_id in running(control.snapshot()):
+        console.print(f"[red]DPU {dpu_id} is still running run {run_id} after STOP[/]: "
+                      "`skel status` shows when it is ready again")
 
 
 def _wait_nonempty(path: Path, timeout_s: float) -> None:
@@ -419,8 +476,5 @@ def _pct(value: float | None) -> str:
 
 
 def _print_push_failure(console: Console, pushed: PushResult) -> None:
-    for dpu_id, reason in sorted(pushed.rejected.items()):
-        console.print(f"[red]DPU {dpu_id} rejected generation {pushed.generation}[/]: {reason}")
-    for dpu_id in pushed.silent:
-        console.print(f"[red]DPU {dpu_id} did not answer generation {pushed.generation}[/]")
-    console.print("nothing was committed: every DPU keeps its previous configuration")
+    for fine, text in pushed.outcome():
+        console.print(text if fine else f"[red]{text}[/]", highlight=False)

@@ -119,15 +119,17 @@ def batches(dpu: int, recs: list[Rec], size: int, run_id: int = RUN_ID,
     return out
 
 
-def status(dpu: int, lockouts: list[tuple[int, int, int]], run_id: int = RUN_ID) -> skelmsg.status_t:
-    """A heartbeat with lockouts [(process, buffer or -1, cycle)]."""
+def status(dpu: int, lockouts: list[tuple[int, ...]], run_id: int = RUN_ID) -> skelmsg.status_t:
+    """A heartbeat with lockouts [(process, buffer or -1, cycle[, behind])]: behind, the
+    process whose data wait held it up, -1 when none (the default)."""
     s = skelmsg.status_t()
     s.dpu, s.host, s.state, s.generation, s.run_id = dpu, "h", 3, GENERATION, run_id
     s.reject_reason = ""
     locks = []
-    for proc, buf, cycle in lockouts:
+    for proc, buf, cycle, *behind in lockouts:
         lo = skelmsg.lockout_t()
         lo.process, lo.buffer, lo.cycle, lo.release_ns = proc, buf, cycle, 0
+        lo.behind = behind[0] if behind else -1
         locks.append(lo)
     s.nlockouts, s.lockouts = len(locks), locks
     return s

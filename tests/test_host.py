@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import time
 from pathlib import Path
@@ -16,6 +17,8 @@ from pathlib import Path
 import pytest
 from conftest import EXAMPLES, DpuFarm, skel, skel_background
 
+from skeleton.analysis.logreader import open_log
+from skeleton.analysis.records import FLAG_SKIPPED, load_run
 from skeleton.host import spawn
 from skeleton.host.control import Control
 
@@ -207,3 +210,93 @@ def _alive(pid: int) -> bool:
     except OSError:
         return False
     return state != "Z"
+
+
+# A fan-in whose slow input is written once (at the run's start): after its first cycle the
+# reader waits for data that never comes. Lockout rules relaxed, so the run goes on to its end.
+STALLED_SYSTEM = """\
+system: stalled
+dpus: [{id: 1}, {id: 2}]
+buffers: [{id: 1, name: fast, bytes: 64}, {id: 2, name: once, bytes: 64}]
+processes:
+  - {id: 1, name: fast_writer, dpu: 1, period_us: 10000, compute_us: 300, outputs: [fast]}
+  - {id: 2, name: once_writer, dpu: 1, period_us: 60000000, compute_us: 300, outputs: [once]}
+  - {id: 3, name: fan_in, dpu: 2, period_us: 10000, compute_us: 300, sync: data, inputs: [fast, once]}
+run: {warmup_cycles: 0, lockout_cycles: 1000000, stop_on: []}
+"""
+
+
+def _states(url: str, ids: list[int]) -> dict[int, str]:
+    """Each DPU's state from its first heartbeat heard now (sent at once on every change)."""
+    control = Control(url)
+    try:
+        assert control.wait_for(lambda: set(ids) <= control.dpus.keys(), 3.0), "a DPU is not heard"
+        return {i: v.state for i, v in control.snapshot().items() if i in ids}
+    finally:
+        control.close()
+
+
+def test_a_data_wait_whose_writer_stopped_ends_with_the_run(dpus: DpuFarm, url: str, tmp_path: Path) -> None:
+    """The run's end ends the wait: the DPU that waits is not lost (it heartbeats), it
+    reports on time and is READY when `skel run` returns, and the next run works."""
+    system = tmp_path / "stalled.yaml"
+    system.write_text(STALLED_SYSTEM)
+    dpus.start(1, 2)
+    out = tmp_path / "first"
+    first = skel("run", str(system), "--url", url, "--duration", "2", "--out", str(out))
+    states = _states(url, [1, 2])
+    assert first.returncode == 0, first.stdout + first.stderr
+    assert states == {1: "ready", 2: "ready"}, states
+    assert "dpu_lost" not in first.stdout and "stopped it" not in first.stdout, first.stdout
+    report = json.loads((out / "report.json").read_text())
+    assert not [f for f in report["faults"] if f["kind"] == "dpu_lost"], report["faults"]
+    # The wait itself ended at the run's end (its cycle is recorded, cut short), not later.
+    records = load_run(open_log(out / "run.lcm"), report["run_id"]).records
+    mine = records[records["process"] == 3]
+    last = mine[mine["cycle"].argmax()]
+    waited_until = int(last["start_ns"] + last["comm_in_ns"] + last["blocked_ns"])
+    end = int(records["release_ns"].min()) + 2_000_000_000
+    assert last["flags"] & FLAG_SKIPPED and waited_until - end < 100_000_000, (waited_until - end) / 1e6
+
+    second = skel("run", str(system), "--url", url, "--duration", "1", "--out", str(tmp_path / "second"))
+    assert second.returncode == 0, second.stdout + second.stderr
+
+
+def test_a_push_says_what_each_dpu_did_with_it(dpus: DpuFarm, url: str, tmp_path: Path) -> None:
+    system = tmp_path / "stalled.yaml"
+    system.write_text(STALLED_SYSTEM)
+    three = tmp_path / "three.yaml"  # DPU 3 is never started
+    three.write_text(STALLED_SYSTEM.replace("[{id: 1}, {id: 2}]", "[{id: 1}, {id: 2}, {id: 3}]").replace(
+        "processes:\n", "processes:\n  - {id: 4, name: idle, dpu: 3, period_us: 10000, compute_us: 100}\n"))
+    dpus.start(1, 2)
+    ok = skel("push", str(system), "--url", url)
+    assert ok.returncode == 0, ok.stdout + ok.stderr
+    generation = int(re.search(r"DPU 1: applied generation (\d+)", ok.stdout).group(1))
+
+    # Not committed: DPU 1 staged it, DPU 2 refused it, DPU 3 never answered; each is named.
+    bad = skel("push", str(three), "--url", url, "-s", "dpu.2.executive=threads")
+    assert bad.returncode == 1, bad.stdout + bad.stderr
+    g = generation + 1
+    assert f"DPU 1: staged generation {g}, not applied: it keeps generation {generation}" in bad.stderr
+    assert f"DPU 2: rejected generation {g}: " in bad.stderr
+    assert f"DPU 3: did not answer generation {g}" in bad.stderr
+    assert "nothing was committed" in bad.stderr
+
+    # Committed, but DPU 2 waits for data inside a cycle and never reaches the boundary where
+    # it would switch: DPU 1 applied it, DPU 2 did not, and the push says both.
+    control = Control(url)
+    try:
+        control.start(generation, 77, time.time_ns() + 300_000_000, 0)  # until STOP
+        _wait_running(url, 2, min_cycles=1)
+        partial = skel("push", str(system), "--url", url, "-s", "process.fast_writer.compute_us=400")
+    finally:
+        control.stop()
+        control.close()
+    assert partial.returncode == 1, partial.stdout + partial.stderr
+    # Its generation is one above the refused one: every DPU heard of that.
+    g = generation + 2
+    assert f"DPU 1: applied generation {g}" in partial.stdout, partial.stdout + partial.stderr
+    assert (f"DPU 2: staged generation {g} but did not apply it: it still applies generation "
+            f"{generation} (running)") in partial.stderr, partial.stderr
+    assert f"generation {g} was committed: applied by DPU 1; not by DPU 2" in partial.stderr
+    assert "nothing was committed" not in partial.stderr

@@ -9,7 +9,13 @@ import pytest
 from analysis_synth import MS, RUN_ID, US, Rec, batches, small_config, small_run, status
 
 import skelmsg
-from skeleton.analysis.faults import jam_faults, lockout_faults, lockouts_from_status
+from skeleton.analysis.faults import (
+    Heartbeat,
+    dpu_lost_faults,
+    jam_faults,
+    lockout_faults,
+    lockouts_from_status,
+)
 from skeleton.analysis.metrics import dpu_metrics, process_metrics, static_load_pct
 from skeleton.analysis.records import RECORD_DTYPE, RunRecords, decode_run, lost_batches
 
@@ -164,6 +170,36 @@ def test_circular_wait_is_one_jam_and_other_runs_are_ignored() -> None:
     assert jam.detail.startswith("circular wait")
 
 
+def test_deadlock_on_one_dpu_names_both_processes_and_the_circular_wait() -> None:
+    config = small_config()
+    config.processes[0].sync = 1  # A waits for c_out, now written by B; B waits for A's a_out
+    config.buffers[2].writer = 1
+    # A blocks DPU 1's one thread in its wait; B, held up behind it, never runs.
+    locks = lockouts_from_status([status(1, [(0, 2, 0), (1, -1, 0, 0)])], RUN_ID)
+    a, b = lockout_faults(locks, config)
+    assert (a.process, a.buffer, a.writer) == ("A", "c_out", "B")
+    assert (b.process, b.dpu, b.buffer) == ("B", 1, None)
+    assert b.detail.startswith("held up behind A"), b.detail
+    (jam,) = jam_faults(locks, config)
+    assert jam.chain == ["A", "B", "A"]
+    assert jam.detail == ("circular wait: A -> B -> A (A waits on c_out from B; "
+                          "B is held up behind A on DPU 1)"), jam.detail
+
+
+def test_a_data_synchronised_process_is_jammed_by_its_locked_out_writer() -> None:
+    config = small_config()
+    # Both found late at their start (no buffer named): C cannot complete a cycle without
+    # new b_out, and B, its writer, is locked out on an overloaded DPU.
+    locks = lockouts_from_status([status(1, [(1, -1, 7)]), status(2, [(2, -1, 4)])], RUN_ID)
+    (jam,) = jam_faults(locks, config)
+    assert jam.chain == ["C", "B"]
+    assert (jam.process, jam.buffer, jam.writer, jam.root_dpu) == ("C", "b_out", "B", 1)
+    assert jam.detail.startswith("DPU 1 overloaded"), jam.detail
+    # A periodic reader does not wait for its writer: no jam through it.
+    config.processes[2].sync = 0
+    assert jam_faults(locks, config) == []
+
+
 def test_lockout_without_locked_writer_is_not_a_jam() -> None:
     locks = lockouts_from_status([status(1, [(1, 0, 5)])], RUN_ID)
     assert jam_faults(locks, small_config()) == []
@@ -178,16 +214,30 @@ def _spans(dpu_releases_ms: dict[int, list[float]]) -> np.ndarray:
     return records
 
 
-def test_dpu_lost_when_its_timing_stops_early_not_when_its_report_is_missing() -> None:
+def _beats(dpu: int, from_s: float, to_s: float, pid: int = 100, run_id: int = RUN_ID,
+           state: int = skelmsg.status_t.STATE_RUNNING) -> list[Heartbeat]:
+    """A DPU's heartbeats at 5 Hz from `from_s` to `to_s` (heard time)."""
+    steps = round((to_s - from_s) * 5)
+    return [Heartbeat(dpu, int((from_s + i / 5) * 1e6), pid, run_id, state) for i in range(steps + 1)]
+
+
+def test_dpu_lost_when_its_heartbeats_stop_not_when_its_timing_does() -> None:
     from types import SimpleNamespace
 
-    from skeleton.analysis.faults import dpu_lost_faults
-
-    config = SimpleNamespace(processes=[SimpleNamespace(id=1, dpu=1, period_us=5000),
-                                        SimpleNamespace(id=2, dpu=2, period_us=5000),
-                                        SimpleNamespace(id=3, dpu=3, period_us=5000)])
-    # DPU 2's clock is 7 s off: spans are compared, not instants. DPU 3 stops 1 s early.
-    records = _spans({1: [0, 2000], 2: [7000, 9000], 3: [0, 1000]})
-    faults = dpu_lost_faults(config, records, reported={1})
-    assert [(f.kind, f.dpu) for f in faults] == [("dpu_lost", 3)]
-    assert "1.00 s before" in (faults[0].detail or "")
+    config = SimpleNamespace(processes=[SimpleNamespace(id=i, dpu=i, period_us=5000) for i in (1, 2, 3, 4)])
+    # DPU 3's timing stops 3.5 s early (a process waiting for data that never comes) while it
+    # heartbeats to the end; DPU 2 falls silent at 1.4 s; DPU 4 is restarted (a new pid) at 1 s.
+    records = _spans({1: [0, 4000], 2: [0, 1500], 3: [0, 500], 4: [0, 4000]})
+    beats = (_beats(1, 0, 4) + _beats(2, 0, 1.4) + _beats(3, 0, 4) + _beats(4, 0, 1)
+             + _beats(4, 1.2, 4, pid=101, run_id=0, state=skelmsg.status_t.STATE_READY)
+             + _beats(1, 4.2, 5, state=skelmsg.status_t.STATE_READY))
+    faults = dpu_lost_faults(config, records, beats, RUN_ID)
+    assert [(f.kind, f.dpu) for f in faults] == [("dpu_lost", 2), ("dpu_lost", 4)], faults
+    assert "not heard for 2.60 s from 1.40 s into the run" in faults[0].detail
+    assert "restarted during the run (pid 100, then 101)" in faults[1].detail
+    # The logger stalled from 1 s to 3.5 s: it heard nobody then, so nobody is lost for it.
+    stalled = [h for h in beats if not 1_000_000 < h.heard_us < 3_500_000 and h.dpu != 4]
+    assert dpu_lost_faults(config, records, stalled, RUN_ID) == []
+    # Heartbeats of another run, or none at all: only a DPU with no timing record is lost.
+    no_times = [Heartbeat(1, None, 100, RUN_ID, 3), Heartbeat(3, None, 100, RUN_ID, 3)]
+    assert [f.dpu for f in dpu_lost_faults(config, _spans({1: [0, 9]}), no_times, RUN_ID)] == [2, 4]

@@ -46,12 +46,17 @@ def test_servo_at_2_5ms_jams_and_locks_out(tmp_path: Path, url: str) -> None:
     run = skel("run", str(EXAMPLES / "servo-2.5ms.yaml"), "--spawn", "--url", url, "--out", str(out))
     assert run.returncode == 3, run.stdout + run.stderr
     faults = _report(out)["faults"]
-    kinds = {f["kind"] for f in faults}
-    assert "lockout" in kinds, faults
+    # The paper's result: process lockout on the overloaded DPUs 1-3 (180.6, 146.8 and 172.0 %
+    # loaded); DPU 4 keeps its 23.8 ms cycle and is not overloaded: none of its processes.
+    assert {f["dpu"] for f in faults if f["kind"] == "lockout"} == {1, 2, 3}, faults
     assert "lockout" in run.stdout
-    locked = {f["process"] for f in faults if f["kind"] == "lockout"}
-    # DPU 4 keeps its 23.8 ms cycle and is not overloaded: none of its processes locks out.
-    assert not locked & {"dynamics", "gravity_comp", "jacobian_update"}, faults
+    # ... and a pipeline jam: the Jacobian transpose (DPU 3) needs new joint_state every cycle,
+    # and its writer, the joint sensors on overloaded DPU 2, is locked out too.
+    jams = [f for f in faults if f["kind"] == "jam"]
+    assert [(j["chain"], j["buffer"], j["root_dpu"]) for j in jams] == [
+        (["jacobian_transpose", "joint_sensors"], "joint_state", 2)], faults
+    assert jams[0]["detail"].startswith("DPU 2 overloaded"), jams[0]
+    assert "FAULT jam: jacobian_transpose -> joint_sensors" in run.stdout, run.stdout
 
 
 def test_mismatched_rates_give_stale_and_dropped(tmp_path: Path, url: str) -> None:
@@ -85,6 +90,58 @@ def test_lockout_of_a_data_synchronised_reader(tmp_path: Path, url: str) -> None
     assert fault["writer"] == "slow_writer"
     # stop_on: lockout ends the run early instead of running the full 3 s.
     assert "stopping early" in run.stdout
+
+
+# Two data-synchronised processes, each waiting for the other's output: a deadlock.
+DEADLOCK_SYSTEM = """\
+system: deadlock
+dpus: [{{id: 1}}, {{id: 2}}]
+buffers: [{{id: 1, name: ping, bytes: 64}}, {{id: 2, name: pong, bytes: 64}}]
+processes:
+  - {{id: 1, name: left, dpu: 1, period_us: 10000, compute_us: 300, sync: data, inputs: [pong],
+     outputs: [ping]}}
+  - {{id: 2, name: right, dpu: {right_dpu}, period_us: 10000, compute_us: 300, sync: data, inputs: [ping],
+     outputs: [pong]}}
+  - {{id: 3, name: bystander, dpu: 2, period_us: 10000, compute_us: 300}}
+run: {{duration_s: 3, warmup_cycles: 0, lockout_cycles: 10, stop_on: [jam]}}
+"""
+
+
+def _deadlock(tmp_path: Path, url: str, right_dpu: int) -> tuple[str, list[dict]]:
+    path = tmp_path / f"deadlock-{right_dpu}.yaml"
+    path.write_text(DEADLOCK_SYSTEM.format(right_dpu=right_dpu))
+    out = tmp_path / f"run-{right_dpu}"
+    run = skel("run", str(path), "--spawn", "--url", url, "--out", str(out))
+    assert run.returncode == 3, run.stdout + run.stderr
+    assert "stopping early: jam of" in run.stdout, run.stdout
+    return run.stdout, _report(out)["faults"]
+
+
+def test_a_deadlock_on_one_dpu_names_both_processes_and_the_circular_wait(tmp_path: Path, url: str) -> None:
+    stdout, faults = _deadlock(tmp_path, url, right_dpu=1)
+    lockouts = {f["process"]: f for f in faults if f["kind"] == "lockout"}
+    assert sorted(lockouts) == ["left", "right"], faults
+    # Left blocks DPU 1's one thread waiting for pong; right, behind it, never runs.
+    assert (lockouts["left"]["buffer"], lockouts["left"]["writer"]) == ("pong", "right")
+    assert lockouts["right"]["buffer"] is None and lockouts["right"]["dpu"] == 1
+    assert lockouts["right"]["detail"].startswith("held up behind left"), lockouts["right"]
+    (jam,) = [f for f in faults if f["kind"] == "jam"]
+    assert jam["chain"] == ["left", "right", "left"], jam
+    assert jam["detail"] == ("circular wait: left -> right -> left (left waits on pong from right; "
+                             "right is held up behind left on DPU 1)"), jam
+    assert "FAULT lockout: right (DPU 1)" in stdout and "FAULT jam: left -> right -> left" in stdout
+
+
+def test_a_deadlock_on_two_dpus_names_both_processes_and_the_circular_wait(tmp_path: Path, url: str) -> None:
+    _, faults = _deadlock(tmp_path, url, right_dpu=2)
+    lockouts = {f["process"]: (f["dpu"], f["buffer"], f["writer"]) for f in faults if f["kind"] == "lockout"}
+    # The bystander shares DPU 2 with right, whose wait holds it up too.
+    assert lockouts == {"left": (1, "pong", "right"), "right": (2, "ping", "left"),
+                        "bystander": (2, None, None)}, faults
+    jams = [(f["chain"], f["detail"]) for f in faults if f["kind"] == "jam"]
+    assert jams == [(["bystander", "right", "left", "right"],
+                     "circular wait: right -> left -> right (right waits on ping from left; "
+                     "left waits on pong from right)")], faults
 
 
 def test_bad_system_file_is_one_line_exit_2(tmp_path: Path) -> None:
