@@ -30,6 +30,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 import skelmsg
+from skeleton.analysis.exitcodes import EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
 from skeleton.analysis.metrics import utilization_pct
 from skeleton.analysis.report import LogError, analyze
 from skeleton.analysis.tables import print_report
@@ -40,7 +41,6 @@ from skeleton.host.control import Control, PushResult
 from skeleton.host.repair import LogRepair, RepairResult
 from skeleton.host.system import System
 
-EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_FATAL_FLAW = 0, 1, 2, 3
 START_LEAD_S = 0.5          # time for START to reach every DPU before cycle 0
 REPORT_GRACE_S = 5.0        # how long after the end we wait for the DPUs' reports
 HEAR_TIMEOUT_S = 5.0
@@ -97,6 +97,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
                    for d in system.dpus if spawn.is_local(d.host)]
     logger = None
     repair = None
+    interrupted = False
     control = Control(url)
     try:
         silent = control.wait_heard(dpu_ids, options.wait_dpus_s,
@@ -125,7 +126,12 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         clocks.refresh()  # before START, so the log has offsets for the whole run
         follower = RunFollower(system, control, console)
         committed = system.to_config(generation, run_id, committed=True)
-        _follow(control, follower, clocks, committed, duration_ns, dpu_ids, repair)
+        try:
+            _follow(control, follower, clocks, committed, duration_ns, dpu_ids, repair)
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM: end the run, keep what ran, and say so
+            interrupted = True
+            console.print("interrupted: stopping the run; its report covers what ran")
+            control.stop()
         control.wait_for(lambda: all((d, run_id) in control.reports for d in dpu_ids
                                      if d not in follower.lost), REPORT_GRACE_S)
         reports = {d: r for (d, r_id), r in control.reports.items() if r_id == run_id}
@@ -138,9 +144,11 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         for daemon in daemons:
             spawn.stop(daemon)
     if logger is None:
-        return _external_summary(console, out, run_id, dpu_ids, reports, follower.lost, options.as_json)
-    return _report(console, system, options, out, run_id, follower.lost,
-                   repair.result if repair is not None else RepairResult())
+        code = _external_summary(console, out, run_id, dpu_ids, reports, follower.lost, options.as_json)
+    else:
+        code = _report(console, system, options, out, run_id, follower.lost,
+                       repair.result if repair is not None else RepairResult())
+    return EXIT_INTERRUPTED if interrupted else code
 
 
 class RunFollower:
