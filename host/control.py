@@ -104,6 +104,11 @@ class PushResult:
         return not self.rejected and not self.silent
 
 
+def _reached(dpu_generation: int, generation: int) -> bool:
+    """The DPU has `generation` or a newer one a host tool made (a stray 2**63-1 is not newer)."""
+    return is_generation(dpu_generation) and dpu_generation >= generation
+
+
 def _plausible(sample: PingSample, t1_sent: int | None) -> bool:
     """An answer to our ping: it echoes our t1, the DPU replied after it received, within
     our round trip, and the offset fits a clock_offset_t."""
@@ -362,8 +367,8 @@ class Control:
 
         def settled() -> bool:
             return all(
-                i in self.dpus and (self.dpus[i].status.staged_generation >= generation
-                                    or self.dpus[i].status.generation >= generation
+                i in self.dpus and (_reached(self.dpus[i].status.staged_generation, generation)
+                                    or _reached(self.dpus[i].status.generation, generation)
                                     or self.dpus[i].status.rejected_generation == generation)
                 for i in wanted)
 
@@ -379,7 +384,8 @@ class Control:
                 result.silent.append(i)
             elif view.status.rejected_generation == generation:
                 result.rejected[i] = view.status.reject_reason or "rejected"
-            elif view.status.staged_generation < generation and view.status.generation < generation:
+            elif not (_reached(view.status.staged_generation, generation)
+                      or _reached(view.status.generation, generation)):
                 result.silent.append(i)
         if not result.ok:
             return result
@@ -391,10 +397,10 @@ class Control:
         grid_s = math.lcm(*(d.minor_cycle_us for d in config.dpus if d.minor_cycle_us > 0)) / 1e6
         until_switch_s = max(0.0, (result.at_utc_ns - time.time_ns()) / 1e9) + min(grid_s, 10.0)
         applied = self.wait_for(
-            lambda: all(self.dpus[i].status.generation >= generation for i in wanted),
+            lambda: all(_reached(self.dpus[i].status.generation, generation) for i in wanted),
             until_switch_s + timeout_s)
         snapshot = self.snapshot()
-        result.applied = [i for i in wanted if snapshot[i].status.generation >= generation]
+        result.applied = [i for i in wanted if _reached(snapshot[i].status.generation, generation)]
         if not applied:
             result.silent = [i for i in wanted if i not in result.applied]
         return result
