@@ -111,7 +111,7 @@ def test_watch_ended_by_sigterm_ends_as_by_ctrl_c(dpus: DpuFarm, url: str, tmp_p
         for (_, signum), watcher in watchers.items():
             watcher.send_signal(signum)
         for (mode, signum), watcher in watchers.items():
-            stdout, stderr = watcher.communicate(timeout=30)
+            _, stderr = watcher.communicate(timeout=30)
             what = f"watch {mode} ended by {signal.Signals(signum).name}: exit {watcher.returncode}\n{stderr}"
             assert watcher.returncode == exitcodes.EXIT_INTERRUPTED, what
             assert not DUMP.search(stderr), what

@@ -130,10 +130,10 @@ def test_ping_answers_must_echo_our_ping_and_fit_a_clock_offset(url: str) -> Non
         seq = control.ping()
         t1 = control._ping_t1[seq]
         fakes = [
-            _heartbeat(5, ping_seq=seq, ping_t1_ns=t1 + 1, ping_t2_ns=t1, ping_t3_ns=t1),          # not our t1
+            _heartbeat(5, ping_seq=seq, ping_t1_ns=t1 + 1, ping_t2_ns=t1, ping_t3_ns=t1),  # not our t1
             _heartbeat(6, ping_seq=seq, ping_t1_ns=t1, ping_t2_ns=-(2**63), ping_t3_ns=-(2**63)),  # overflow
-            _heartbeat(8, ping_seq=seq, ping_t1_ns=t1, ping_t2_ns=t1 + 9, ping_t3_ns=t1 + 1),      # t3 < t2
-            _heartbeat(9, ping_seq=seq, ping_t1_ns=t1, ping_t2_ns=t1 + 1, ping_t3_ns=t1 + 2),      # plausible
+            _heartbeat(8, ping_seq=seq, ping_t1_ns=t1, ping_t2_ns=t1 + 9, ping_t3_ns=t1 + 1),  # t3 < t2
+            _heartbeat(9, ping_seq=seq, ping_t1_ns=t1, ping_t2_ns=t1 + 1, ping_t3_ns=t1 + 2),  # plausible
         ]
         _publish(url, STATUS, *fakes, repeats=1)
         assert control.wait_pongs([seq], [9], 3.0)

@@ -28,7 +28,8 @@ def _bomb(levels: int = 7) -> str:
 SERVO = (EXAMPLES / "servo.yaml").read_text()
 CASES = {
     # A 1 KB file: a list nested 500 levels deep.
-    "deep list": ("dpus: " + "[" * 500 + "]" * 500 + "\n", rf"line 1 column \d+: nested more than {MAX_DEPTH} levels"),
+    "deep list": ("dpus: " + "[" * 500 + "]" * 500 + "\n",
+                  rf"line 1 column \d+: nested more than {MAX_DEPTH} levels"),
     "deep mapping": ("".join("  " * i + f"k{i}:\n" for i in range(60)) + "  " * 60 + "v: 1\n",
                      rf"nested more than {MAX_DEPTH} levels"),
     "unclosed deep list": ("processes: " + "[{a: " * 300, rf"nested more than {MAX_DEPTH} levels"),
@@ -36,7 +37,8 @@ CASES = {
     "alias nesting": ("a: &a " + "[" * 30 + "]" * 30 + "\nb: [[[[[*a]]]]]\n",
                       rf"alias \*a nests more than {MAX_DEPTH} levels"),
     "NUL in UTF-8": ("system: x\ndpus: \x00\x01\n", r"line 2 column 7: character #x0000 is not allowed"),
-    "integer of 5000 digits": ("system: x\nrun: {cycles: " + "9" * 5000 + "}\n", r"YAML: a value cannot be read"),
+    "integer of 5000 digits": ("system: x\nrun: {cycles: " + "9" * 5000 + "}\n",
+                               r"YAML: a value cannot be read"),
     "broken YAML past the rewording size": (SERVO * 10 + "processes: [\n", r"line \d+ column 1: "),
 }
 
