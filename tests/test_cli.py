@@ -150,3 +150,15 @@ def test_tables_through_a_pipe_keep_every_column(tmp_path: Path) -> None:
     for column in process_table(rep).columns:
         for word in str(column.header).split("\n"):
             assert word in done.stdout, f"column {column.header!r} lost:\n{done.stdout}"
+
+
+# --- exit codes ------------------------------------------------------------------------------------
+def test_exit_codes_are_defined_in_one_module() -> None:
+    """host/ and analysis/ return the codes of analysis/exitcodes.py, never their own."""
+    definition = re.compile(r"^\s*(EXIT_\w+\s*(,\s*EXIT_\w+\s*)*=|return 13\d\b)", re.MULTILINE)
+    found = {str(path.relative_to(REPO)): definition.findall(path.read_text())
+             for folder in ("host", "analysis") for path in sorted((REPO / folder).glob("*.py"))}
+    elsewhere = {path: hits for path, hits in found.items() if hits and path != "analysis/exitcodes.py"}
+    assert not elsewhere, elsewhere
+    assert (exitcodes.EXIT_OK, exitcodes.EXIT_FAILED, exitcodes.EXIT_BAD_INPUT, exitcodes.EXIT_FATAL_FLAW,
+            exitcodes.EXIT_INTERRUPTED) == (0, 1, 2, 3, 130)
