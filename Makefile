@@ -1,5 +1,6 @@
 # skeleton: the one entry point. `make demo` and `make test` on a fresh Debian
-# machine with gcc, make and python3; everything else is installed from here.
+# machine with gcc, make and python3; everything else is installed from here
+# (`make test`, as root, also what the multi-host tests run: ip and nft).
 
 PYTHON3 ?= python3
 VENV    := .venv
@@ -29,7 +30,7 @@ SAN     := -fsanitize=address,undefined -fno-sanitize=nonnull-attribute -fno-omi
 
 C_TESTS := $(patsubst tests/c/%.c,$(BUILD)/asan/%,$(wildcard tests/c/test_*.c))
 
-.PHONY: all demo test test-c test-py lint bench soak spy clean distclean
+.PHONY: all demo test test-c test-py test-tools lint bench soak spy clean distclean
 
 all: $(BUILD)/skel-dpu
 
@@ -39,6 +40,14 @@ all: $(BUILD)/skel-dpu
 define need_deb
 	if [ "$$(id -u)" = 0 ]; then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(1); \
 	else echo "skeleton needs the Debian package(s) $(1): sudo apt-get install $(1)" >&2; exit 1; fi
+endef
+
+# Commands some tests or benchmarks run (`command:package ...`): installed when missing if we
+# are root with apt-get; otherwise the tests that need them skip and say why.
+define want_commands
+	if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then missing=""; \
+	for pair in $(1); do command -v "$${pair%%:*}" >/dev/null || missing="$$missing $${pair#*:}"; done; \
+	if [ -n "$$missing" ]; then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing; fi; fi
 endef
 
 $(STAMP): pyproject.toml $(GEN)/python/skelmsg/__init__.py
@@ -92,13 +101,19 @@ test: test-c test-py
 test-c: $(C_TESTS)
 	@set -e; for t in $(C_TESTS); do echo "== $$t"; $$t; done
 
-test-py: $(BUILD)/skel-dpu $(BUILD)/asan/skel-dpu $(STAMP)
+test-py: $(BUILD)/skel-dpu $(BUILD)/asan/skel-dpu $(STAMP) test-tools
 	$(VENV)/bin/pytest -q $(PYTEST_ARGS)
+
+# The multi-host tests (network namespaces, root only) run ip, and nft to lose packets.
+test-tools:
+	@$(call want_commands,ip:iproute2 nft:nftables)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check host analysis tests lcmtypes bench
 
+# cyclictest is the wake-up baseline (Debian rt-tests).
 bench: $(BUILD)/skel-dpu $(STAMP)
+	@$(call want_commands,cyclictest:rt-tests)
 	$(PY) bench/run.py
 
 # SERVO for 10 minutes (CI runs the same check for 20 s): no process a period behind,

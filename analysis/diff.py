@@ -15,7 +15,8 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
-from .report import EXIT_OK, EXIT_UNREADABLE, LogError, RunReport, analyze
+from .exitcodes import EXIT_BAD_INPUT, EXIT_OK
+from .report import LogError, RunReport, analyze
 
 T = TypeVar("T")
 
@@ -109,7 +110,7 @@ def diff_command(a: str | os.PathLike[str], b: str | os.PathLike[str], as_json: 
             reports.append(analyze(path))
         except LogError as e:
             print(f"{path}: {e}", file=sys.stderr)
-            return EXIT_UNREADABLE
+            return EXIT_BAD_INPUT
     diff = diff_reports(reports[0], reports[1], a, b)
     if as_json:
         json.dump(diff, sys.stdout, indent=2)
@@ -181,10 +182,11 @@ def diff_rows(
 
 
 def print_diff(diff: dict[str, Any], console: Any = None) -> None:
-    from rich.console import Console
     from rich.table import Table
 
-    console = console or Console()
+    from .tables import output_console  # rich is only needed for tables
+
+    console = console or output_console()
     for side in ("a", "b"):
         s = diff[side]
         head = f"{side.upper()}: {s['path']} ({s['system']}, run {s['run_id']}, generation {s['generation']})"

@@ -34,6 +34,7 @@ from mcap.writer import Writer
 
 import skelmsg
 
+from .exitcodes import EXIT_BAD_INPUT, EXIT_OK
 from .flatdecode import decode_heads
 from .lcmjson import schema_of, to_json, type_name
 from .metrics import cycle_end_ns
@@ -49,7 +50,6 @@ from .records import (
 from .report import LogError
 from .rundata import RunData, load_run_data
 
-EXIT_OK, EXIT_BAD_INPUT = 0, 2
 METADATA = "skeleton"
 RAW_TOPIC = "/lcm/raw"
 # LCM channel -> (type, topic prefix); the DPU id completes per-DPU topics.

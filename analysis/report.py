@@ -17,6 +17,7 @@ import numpy as np
 import skelmsg
 
 from .chains import ChainMetrics
+from .exitcodes import EXIT_BAD_INPUT, EXIT_FATAL_FLAW, EXIT_OK
 from .faults import Fault, Heartbeat, dpu_lost_faults, heartbeats_from_status, lockouts_from_status
 from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets
 from .logreader import Integrity, Log, open_log
@@ -29,7 +30,6 @@ STATUS_CHANNEL = "SKEL_STATUS"
 REPORT_CHANNEL = "SKEL_REPORT"
 CLOCK_CHANNEL = "SKEL_CLOCK"
 COMPUTE_MODES = {0: "sleep", 1: "wall", 2: "cpu", 3: "work"}
-EXIT_OK, EXIT_UNREADABLE, EXIT_FATAL = 0, 2, 3
 
 T = TypeVar("T")
 
@@ -291,7 +291,7 @@ def report_command(path: str | os.PathLike[str], as_json: bool, run_id: int | No
         report = analyze(path, run_id)
     except LogError as e:
         print(f"{path}: {e}", file=sys.stderr)
-        return EXIT_UNREADABLE
+        return EXIT_BAD_INPUT
     if as_json:
         json.dump(report.to_json(), sys.stdout, indent=2)
         sys.stdout.write("\n")
@@ -299,4 +299,4 @@ def report_command(path: str | os.PathLike[str], as_json: bool, run_id: int | No
         from .tables import print_report  # rich is only needed for tables
 
         print_report(report)
-    return EXIT_FATAL if report.fatal else EXIT_OK
+    return EXIT_FATAL_FLAW if report.fatal else EXIT_OK

@@ -25,13 +25,11 @@ from rich.live import Live
 import skelmsg
 
 from .coltable import ColumnTable
+from .exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
 from .records import INPUT_DTYPE, RECORD_DTYPE, TIMING_CHANNEL, RunRecords, decode_run, lost_batches
 from .report import (
     CLOCK_CHANNEL,
     CONFIG_CHANNEL,
-    EXIT_FATAL,
-    EXIT_OK,
-    EXIT_UNREADABLE,
     REPORT_CHANNEL,
     STATUS_CHANNEL,
     LogError,
@@ -43,7 +41,6 @@ from .watch_view import render
 
 # Clock-offset estimates too: the report corrects cross-host latencies with them.
 CHANNELS = (CONFIG_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL, REPORT_CHANNEL, CLOCK_CHANNEL)
-EXIT_NO_RUN = 1
 REFRESH_S = 0.4  # redraw period: at least twice a second
 QUIET_S = 2.0  # no timing for this long after data stopped: the run ended
 REPORT_GRACE_S = 0.5  # after the last report_t, for the messages logged behind it
@@ -340,26 +337,36 @@ def _subscribe(url: str, heard: Heard) -> Any:
 
 def _pump(lc: Any, until: float) -> None:
     """Handle messages until the monotonic instant `until`."""
+    failures = 0
     while (left := until - time.monotonic()) > 0:
-        lc.handle_timeout(max(1, int(left * 1000)))
+        try:
+            lc.handle_timeout(max(1, int(left * 1000)))
+            failures = 0
+        except OSError:
+            # A signal cut the wait short (EINTR; LCM calls it an error): its handler runs at
+            # this loop's next turn, SIGINT and SIGTERM raising KeyboardInterrupt. A real
+            # failure repeats.
+            failures += 1
+            if failures > 3:
+                raise
 
 
 def watch_command(url: str, once: bool, duration_s: float | None) -> int:
     """`skel watch [--url URL] [--once] [--duration S]`: 0; 3 (--once) on a lockout or jam;
-    1 when --once heard no run; 2 on a bad URL."""
+    1 when --once heard no run; 2 on a bad URL; 130 when ended by Ctrl-C or SIGTERM."""
     heard = Heard(keep_events=once)
     try:
         lc = _subscribe(url, heard)
     except Exception as e:  # lcm raises IOError/ValueError for a URL it cannot open
         print(f"skel watch: cannot open LCM URL {url}: {e}", file=sys.stderr)
-        return EXIT_UNREADABLE
+        return EXIT_BAD_INPUT
     deadline = None if duration_s is None else time.monotonic() + duration_s
     try:
         if once:
             return _once(lc, heard, url, deadline)
         _live(lc, heard, url, deadline)
     except KeyboardInterrupt:
-        pass
+        return EXIT_INTERRUPTED
     return EXIT_OK
 
 
@@ -395,13 +402,13 @@ def _once(lc: Any, heard: Heard, url: str, deadline: float | None) -> int:
             print(f"skel watch: following run {announced} on {url}", file=sys.stderr)
     if heard.run_id is None:
         print(f"skel watch: no run heard on {url}", file=sys.stderr)
-        return EXIT_NO_RUN
+        return EXIT_FAILED
     try:
         report = heard.final()
     except LogError as e:
         print(f"skel watch: run {heard.run_id}: {e}", file=sys.stderr)
-        return EXIT_NO_RUN
+        return EXIT_FAILED
     from .tables import print_report
 
     print_report(report)
-    return EXIT_FATAL if report.fatal else EXIT_OK
+    return EXIT_FATAL_FLAW if report.fatal else EXIT_OK

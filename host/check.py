@@ -20,6 +20,8 @@ from urllib.parse import parse_qs, urlsplit
 from rich.console import Console, JustifyMethod
 from rich.table import Table
 
+from skeleton.analysis.exitcodes import EXIT_BAD_INPUT, EXIT_OK
+
 from .doctor import check_buffer_socket, rmem_max
 from .system import System, SystemFileError, load
 
@@ -35,13 +37,13 @@ def check(path: str | Path, overrides: Sequence[str] = (), as_json: bool = False
         system = load(path, overrides)
     except SystemFileError as e:
         print(e, file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     summary = summarize(system)
     if as_json:
         out.write(json.dumps(summary, indent=2) + "\n")  # one write: `| head` is no broken pipe
     else:
         _print(system, summary, out)
-    return 0
+    return EXIT_OK
 
 
 def summarize(system: System) -> dict[str, Any]:

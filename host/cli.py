@@ -1,8 +1,8 @@
 """`skel`: the operator's command line (check, up, down, push, run, status, clock, report...).
 
-Exit codes: 0 fine, 1 an operation failed (a DPU did not answer...), 2 bad
-input (the one-line message names the file and field), 3 a fatal flaw (lockout
-or jam) was measured.
+Exit codes (analysis/exitcodes.py): 0 fine, 1 an operation failed (a DPU did not
+answer...), 2 bad input (the one-line message names the file and field), 3 a fatal
+flaw (lockout or jam) was measured, 130 interrupted (Ctrl-C or SIGTERM).
 """
 
 from __future__ import annotations
@@ -15,13 +15,18 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from rich.console import Console
 from rich.table import Table
 
+from skeleton.analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED
 from skeleton.host import spawn
+from skeleton.host.control import QUIET_S, Control, is_run_id
 from skeleton.host.system import DEFAULT_URL, SystemFileError, load
 
-EXIT_FAILED, EXIT_BAD_INPUT = 1, 2
+LISTEN_LIMIT_S = 5.0  # `skel status`/`skel clock` listen at most this long by default
+
+# Set once the command has returned: a signal that arrives while the interpreter shuts
+# down must not raise into its clean-up (that printed a dump and exited 1).
+_exiting = False
 
 
 def _system_args(parser: argparse.ArgumentParser, optional: bool = False) -> None:
@@ -76,17 +81,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true",
                    help="take over the DPUs when another host tool's run holds them: stop it, then run")
 
+    listen = (f"listen until no new DPU was heard for {QUIET_S:g} s, at most S seconds "
+              f"(default {LISTEN_LIMIT_S:g})")
     p = sub.add_parser("clock", help="estimate each DPU's clock offset and round trip (ping, best of N)")
     p.add_argument("--url", default=DEFAULT_URL)
     p.add_argument("--samples", type=int, default=8, help="pings per DPU (default 8)")
-    p.add_argument("--wait", type=float, default=1.0, metavar="S",
-                   help="how long to listen for DPUs (default 1 s)")
+    p.add_argument("--wait", type=float, default=LISTEN_LIMIT_S, metavar="S", help=listen)
     p.add_argument("--json", action="store_true")
 
     p = sub.add_parser("status", help="the DPUs heard on the control channel")
     p.add_argument("--url", default=DEFAULT_URL)
     p.add_argument("--json", action="store_true")
-    p.add_argument("--wait", type=float, default=1.0, metavar="S", help="how long to listen (default 1 s)")
+    p.add_argument("--wait", type=float, default=LISTEN_LIMIT_S, metavar="S", help=listen)
 
     p = sub.add_parser("report", help="the tables of a recorded run, from its log alone")
     p.add_argument("log", type=Path, help="run.lcm, run.mcap, or a run directory")
@@ -116,13 +122,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _interrupted(_signum: int, _frame: object) -> None:
-    # SIGTERM (systemd, timeout, kill) ends us like Ctrl-C: `skel run` stops its logger and DPUs.
-    raise KeyboardInterrupt
+    # SIGTERM (systemd, timeout, kill, a CI runner) ends us like Ctrl-C: `skel run` stops the
+    # run, writes its report and its logger and DPUs stop; every command exits EXIT_INTERRUPTED.
+    if not _exiting:
+        raise KeyboardInterrupt
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    global _exiting
     args = build_parser().parse_args(argv)
     signal.signal(signal.SIGTERM, _interrupted)
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not when started ignoring it
+        signal.signal(signal.SIGINT, _interrupted)
     try:
         return COMMANDS[args.command](args)
     except SystemFileError as error:
@@ -132,7 +143,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"skel: {error}", file=sys.stderr)
         return EXIT_FAILED
     except KeyboardInterrupt:
-        return 130
+        return EXIT_INTERRUPTED
+    finally:
+        _exiting = True
 
 
 def _load(args: argparse.Namespace):  # type: ignore[no-untyped-def]
@@ -166,7 +179,6 @@ def cmd_down(args: argparse.Namespace) -> int:
 
 def cmd_push(args: argparse.Namespace) -> int:
     from skeleton.host import owner
-    from skeleton.host.control import Control
     from skeleton.host.run import HEAR_TIMEOUT_S, control_url
 
     if args.at_ms < 0:
@@ -182,10 +194,13 @@ def cmd_push(args: argparse.Namespace) -> int:
             print(owner.refusal(foreign, "push"), file=sys.stderr)
             return EXIT_FAILED
         control.force = args.force
+        for dpu_id, stray in sorted(control.foreign_generations(ids).items()):
+            print(f"DPU {dpu_id}: applied generation {stray}, which no host tool makes (a stray "
+                  "config?): it takes no newer one until restarted", file=sys.stderr)
         generation = control.next_generation()
         # Pushed during a run, the config names that run, so its log pairs them.
         runs = {v.status.run_id for i, v in control.snapshot().items()
-                if i in ids and v.state in ("armed", "running")}
+                if i in ids and v.state in ("armed", "running") and is_run_id(v.status.run_id)}
         run_id = runs.pop() if len(runs) == 1 else 0
         result = control.push(system.to_config(generation, run_id, committed=False), ids, at_ms=args.at_ms)
     finally:
@@ -205,6 +220,7 @@ def cmd_push(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from skeleton.analysis.tables import output_console
     from skeleton.host.run import RunOptions, run
 
     pushed_generation = None
@@ -223,34 +239,50 @@ def cmd_run(args: argparse.Namespace) -> int:
                          as_json=args.json, compare_paper=args.compare_paper,
                          pushed_generation=pushed_generation, wait_dpus_s=args.wait_dpus,
                          logger=args.logger, force=args.force)
-    return run(system, options)
+    return run(system, options, console=output_console())
+
+
+def _listen(control: Control, args: argparse.Namespace) -> float:
+    """Listen for the DPUs as --wait says; the seconds listened, said on stderr."""
+    listened = control.listen(args.wait)
+    print(f"listened {listened:.1f} s on {args.url} (until no new DPU for {QUIET_S:g} s, "
+          f"at most {args.wait:g} s)", file=sys.stderr)
+    return listened
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    from skeleton.host.control import Control
+    from skeleton.analysis.tables import output_console
 
+    if args.wait < 0:
+        print(f"skel status: --wait {args.wait:g}: must be >= 0", file=sys.stderr)
+        return EXIT_BAD_INPUT
     control = Control(args.url)
-    time.sleep(args.wait)
-    views = control.snapshot()
-    control.close()
-    rows = [{"dpu": i, "host": v.status.host, "pid": v.status.pid, "state": v.state,
+    try:
+        listened = _listen(control, args)
+        views = control.daemons()
+    finally:
+        control.close()
+    now = time.monotonic()
+    # Every daemon heard: DPUs started with --id auto are DPU -1 until a config names them.
+    rows = [{"dpu": v.status.dpu, "host": v.status.host, "pid": v.status.pid, "state": v.state,
              "generation": v.status.generation, "staged": v.status.staged_generation,
              "run_id": v.status.run_id, "minor_cycles": v.status.minor_cycles,
              "faults": v.status.faults, "rejected_messages": v.status.rejected_messages,
              "reject_reason": v.status.reject_reason, "run_owner": v.status.run_owner,
-             "run_end_utc_ns": v.status.run_end_utc_ns}
-            for i, v in sorted(views.items())]
-    done = _json_or_nothing(rows, args.json, f"no DPU heard on {args.url} in {args.wait:g} s")
+             "run_end_utc_ns": v.status.run_end_utc_ns,
+             "heard_s_ago": round(now - v.heard_mono, 2)}
+            for v in views]
+    done = _json_or_nothing(rows, args.json, f"no DPU heard on {args.url} in {listened:.1f} s")
     if done is not None:
         return done
     table = Table(title=f"DPUs on {args.url}")
     columns = ("dpu", "host", "pid", "state", "generation", "run_id", "run_owner", "minor_cycles", "faults",
-               "rejected_messages", "reject_reason")
+               "rejected_messages", "reject_reason", "heard_s_ago")
     for column in columns:
         table.add_column(column)
     for row in rows:
-        table.add_row(*(str(row[c]) for c in columns))
-    Console().print(table)
+        table.add_row(*("auto" if c == "dpu" and row[c] == -1 else str(row[c]) for c in columns))
+    output_console().print(table)
     return 0
 
 
@@ -266,15 +298,17 @@ def _json_or_nothing(rows: list[dict], as_json: bool, nothing: str) -> int | Non
 
 
 def cmd_clock(args: argparse.Namespace) -> int:
+    from skeleton.analysis.tables import output_console
     from skeleton.host import clock
-    from skeleton.host.control import Control
 
-    if args.samples < 1:
-        print(f"skel clock: --samples {args.samples}: must be >= 1", file=sys.stderr)
+    if args.samples < 1 or args.wait < 0:
+        what = (f"--samples {args.samples}: must be >= 1" if args.samples < 1
+                else f"--wait {args.wait:g}: must be >= 0")
+        print(f"skel clock: {what}", file=sys.stderr)
         return EXIT_BAD_INPUT
     control = Control(args.url)
     try:
-        time.sleep(args.wait)
+        listened = _listen(control, args)
         ids = sorted(i for i in control.snapshot() if i >= 0)
         found = clock.estimate(control, ids, samples=args.samples)
         clock.publish(control, found)  # a logger on the URL records them too
@@ -282,7 +316,7 @@ def cmd_clock(args: argparse.Namespace) -> int:
         control.close()
     rows = [e.to_json() for _, e in sorted(found.items())]
     done = _json_or_nothing(rows, args.json,
-                            f"no DPU heard on {args.url} in {args.wait:g} s (or none answered the pings)")
+                            f"no DPU heard on {args.url} in {listened:.1f} s (or none answered the pings)")
     if done is not None:
         return done
     table = Table(title=f"clock offsets on {args.url} (DPU - host, best of {args.samples})")
@@ -290,7 +324,7 @@ def cmd_clock(args: argparse.Namespace) -> int:
         table.add_column(column, justify="right")
     for row in rows:
         table.add_row(str(row["dpu"]), f"{row['offset_ns'] / 1e3:+.1f} µs", f"{row['rtt_ns'] / 1e3:.1f} µs")
-    Console().print(table)
+    output_console().print(table)
     missing = sorted(set(ids) - set(found))
     if missing:
         print(f"no answer to the pings from DPU {', '.join(map(str, missing))}")

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import os
 import secrets
+import signal
 import socket
 import struct
 import threading
@@ -33,10 +34,22 @@ STATE_NAMES = {
     skelmsg.status_t.STATE_RUNNING: "running",
 }
 COMMAND_REPEATS = 3
-# A DPU heartbeats at 5 Hz: three missed beats and it is reported lost.
-LOST_AFTER_S = 0.6
+HEARTBEAT_S = 0.2           # a DPU heartbeats at 5 Hz ...
+LOST_AFTER_S = 0.6          # ... three missed beats and it is reported lost
+# `skel status`/`skel clock` listen until no DPU not heard before has been heard for this
+# long (five heartbeats: a DPU that is up is heard even when a beat or two are lost).
+QUIET_S = 5 * HEARTBEAT_S
 # Pushed configs kept (by generation) so a running follower can re-send the one committed mid-run.
 CONFIGS_KEPT = 4
+# What anyone on the group may send is bounded before the host tool keeps or uses it: a stray
+# generation of 2**63-1 once made every later push overflow int64. The host's own generations
+# count pushes and its run ids are milliseconds since 1970: both far inside these ranges
+# (integers a JSON reader or a double holds exactly).
+GENERATION_MAX = 2**53 - 1
+RUN_ID_MAX = 2**53 - 1
+CLOCK_OFFSET_MAX_NS = 2**62  # |DPU clock - host clock|; a clock_offset_t holds it with room to spare
+REPORTS_KEPT = 1024          # report_t kept, newest first out: a flood of them cannot grow memory
+PROCESSES_KEPT = 4096        # daemons (host, pid) remembered for `skel status`, likewise
 
 
 @dataclass(frozen=True)
@@ -57,6 +70,15 @@ class PingSample:
     def rtt_ns(self) -> int:
         """Time on the wire (both legs), the DPU's own handling time taken out."""
         return (self.t4 - self.t1) - (self.t3 - self.t2)
+
+
+def is_generation(value: int) -> bool:
+    """A generation the host tool may have made (not a stray message's)."""
+    return 0 <= value <= GENERATION_MAX
+
+
+def is_run_id(value: int) -> bool:
+    return 0 < value <= RUN_ID_MAX
 
 
 @dataclass
@@ -124,6 +146,18 @@ def _ids(ids: Iterable[int]) -> str:
     return ", ".join(map(str, sorted(ids))) or "none"
 
 
+def _reached(dpu_generation: int, generation: int) -> bool:
+    """The DPU has `generation` or a newer one a host tool made (a stray 2**63-1 is not newer)."""
+    return is_generation(dpu_generation) and dpu_generation >= generation
+
+
+def _plausible(sample: PingSample, t1_sent: int | None) -> bool:
+    """An answer to our ping: it echoes our t1, the DPU replied after it received, within
+    our round trip, and the offset fits a clock_offset_t."""
+    return (sample.t1 == t1_sent and 0 <= sample.t3 - sample.t2 <= sample.t4 - sample.t1
+            and abs(sample.offset_ns) <= CLOCK_OFFSET_MAX_NS)
+
+
 class Control:
     """The host's side of the control channels."""
 
@@ -137,13 +171,19 @@ class Control:
         self._lock = threading.Lock()
         self._changed = threading.Condition(self._lock)
         self.dpus: dict[int, DpuView] = {}
+        # Every daemon heard, by (host, pid): DPUs started with --id auto all heartbeat as
+        # DPU -1 until a config names them, and two daemons may claim one id.
+        self.processes: dict[tuple[str, int], DpuView] = {}
+        self._new_process_mono = time.monotonic()   # when the last daemon not heard before was
         self.reports: dict[tuple[int, int], skelmsg.report_t] = {}
         self.rejected_messages = 0
         self.on_status: Callable[[skelmsg.status_t], None] | None = None
         # Every config heard on the wire (ours and other `skel push`es'), newest generations only.
         self.configs: dict[int, skelmsg.config_t] = {}
-        # seq of each PING we sent -> the first answer of each DPU (later heartbeats repeat it).
+        # seq of each PING we sent -> the first answer of each DPU (later heartbeats repeat it),
+        # and -> its t1, which an answer must echo.
         self._pings: dict[int, dict[int, PingSample]] = {}
+        self._ping_t1: dict[int, int] = {}
         for channel, handler in ((STATUS, self._handle_status), (REPORT, self._handle_report),
                                  (CONFIG, self._handle_config)):
             self._lcm.subscribe(channel, handler).set_queue_capacity(0)
@@ -153,6 +193,9 @@ class Control:
 
     # --- receiving ----------------------------------------------------------------
     def _drain(self) -> None:
+        # Ctrl-C and SIGTERM go to the main thread, which ends the command: delivered here,
+        # they would only cut LCM's wait short, and it reports that as an error.
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
         while self._running:
             self._lcm.handle_timeout(50)
 
@@ -165,17 +208,34 @@ class Control:
                 self.rejected_messages += 1
             return None
 
+    def _refuse(self) -> None:
+        with self._lock:
+            self.rejected_messages += 1
+
     def _handle_status(self, _channel: str, data: bytes) -> None:
         # t4 of a ping: first thing, before decoding, so only the wire and LCM are in the round trip.
         t4 = time.monotonic_ns()
         status = self._decode(skelmsg.status_t, data)
         if not isinstance(status, skelmsg.status_t):
             return
+        if not (status.dpu == -1 or status.dpu > 0):  # ids are 1..32767, -1 before --id auto found its own
+            self._refuse()
+            return
+        now = time.monotonic()
         with self._changed:
-            self.dpus[status.dpu] = DpuView(status, time.monotonic())
+            view = DpuView(status, now)
+            self.dpus[status.dpu] = view
+            key = (status.host, status.pid)
+            if key not in self.processes:
+                self._new_process_mono = now
+                if len(self.processes) >= PROCESSES_KEPT:
+                    del self.processes[next(iter(self.processes))]
+            self.processes[key] = view
             answers = self._pings.get(status.ping_seq)
             if answers is not None and status.dpu not in answers:
-                answers[status.dpu] = PingSample(status.ping_t1_ns, status.ping_t2_ns, status.ping_t3_ns, t4)
+                sample = PingSample(status.ping_t1_ns, status.ping_t2_ns, status.ping_t3_ns, t4)
+                if _plausible(sample, self._ping_t1.get(status.ping_seq)):
+                    answers[status.dpu] = sample
             self._changed.notify_all()
         if self.on_status is not None:
             self.on_status(status)
@@ -184,13 +244,22 @@ class Control:
         report = self._decode(skelmsg.report_t, data)
         if not isinstance(report, skelmsg.report_t):
             return
+        if report.dpu <= 0 or not is_run_id(report.run_id):
+            self._refuse()
+            return
         with self._changed:
+            self.reports.pop((report.dpu, report.run_id), None)
             self.reports[(report.dpu, report.run_id)] = report
+            while len(self.reports) > REPORTS_KEPT:
+                del self.reports[next(iter(self.reports))]
             self._changed.notify_all()
 
     def _handle_config(self, _channel: str, data: bytes) -> None:
         config = self._decode(skelmsg.config_t, data)
         if not isinstance(config, skelmsg.config_t):
+            return
+        if not is_generation(config.generation):  # not one of ours, and it would crowd ours out
+            self._refuse()
             return
         with self._changed:
             self.configs[config.generation] = config
@@ -218,6 +287,20 @@ class Control:
         with self._lock:
             return dict(self.dpus)
 
+    def listen(self, limit_s: float, quiet_s: float = QUIET_S) -> float:
+        """Listen until no daemon not heard before has been heard for `quiet_s` (from the
+        start, or from the last new one), or `limit_s` in all; the seconds listened."""
+        start = time.monotonic()
+        self.wait_for(lambda: time.monotonic() - max(start, self._new_process_mono) >= quiet_s,
+                      limit_s)
+        return time.monotonic() - start
+
+    def daemons(self) -> list[DpuView]:
+        """The latest heartbeat of every daemon heard, by DPU id, then host and pid."""
+        with self._lock:
+            views = list(self.processes.values())
+        return sorted(views, key=lambda v: (v.status.dpu, v.status.host, v.status.pid))
+
     def lost(self, ids: Iterable[int]) -> list[int]:
         """DPUs among `ids` not heard for LOST_AFTER_S (or never)."""
         now = time.monotonic()
@@ -244,11 +327,23 @@ class Control:
             return sorted(wanted - self.dpus.keys())
 
     def next_generation(self) -> int:
-        """One above any generation a DPU has heard of, so every push is new to all."""
+        """One above any generation a DPU has heard of, so every push is new to all.
+
+        Only generations the host tool may have made count: a stray config (a DPU that
+        refused or staged it reports its generation) must neither choose our numbers nor
+        push them past int64."""
         with self._lock:
-            seen = [max(v.status.generation, v.status.staged_generation, v.status.rejected_generation)
-                    for v in self.dpus.values()]
+            seen = [g for v in self.dpus.values()
+                    for g in (v.status.generation, v.status.staged_generation, v.status.rejected_generation)
+                    if is_generation(g)]
         return max(seen, default=0) + 1
+
+    def foreign_generations(self, ids: Iterable[int]) -> dict[int, int]:
+        """DPUs among `ids` that applied a generation no host tool makes (a stray committed
+        config): they take nothing newer until restarted."""
+        with self._lock:
+            return {i: self.dpus[i].status.generation for i in ids
+                    if i in self.dpus and not is_generation(self.dpus[i].status.generation)}
 
     # --- sending --------------------------------------------------------------------
     def _sign(self, message: skelmsg.config_t | skelmsg.command_t) -> None:
@@ -290,6 +385,7 @@ class Control:
         with self._lock:
             self._pings[cmd.seq] = {}
         cmd.ping_t1_ns = time.monotonic_ns()
+        self._ping_t1[cmd.seq] = cmd.ping_t1_ns  # before the publish, so before any answer
         self._lcm.publish(COMMAND, cmd.encode())
         return cmd.seq
 
@@ -304,6 +400,8 @@ class Control:
         with self._lock:
             for seq in seqs:
                 answers = self._pings.pop(seq, {}) if forget else dict(self._pings.get(seq, {}))
+                if forget:
+                    self._ping_t1.pop(seq, None)
                 for dpu, sample in answers.items():
                     samples.setdefault(dpu, []).append(sample)
         return samples
@@ -321,8 +419,8 @@ class Control:
 
         def settled() -> bool:
             return all(
-                i in self.dpus and (self.dpus[i].status.staged_generation >= generation
-                                    or self.dpus[i].status.generation >= generation
+                i in self.dpus and (_reached(self.dpus[i].status.staged_generation, generation)
+                                    or _reached(self.dpus[i].status.generation, generation)
                                     or self.dpus[i].status.rejected_generation == generation)
                 for i in wanted)
 
@@ -341,7 +439,7 @@ class Control:
         # The switch waits for the DPUs' common grid (their minor cycles' lcm, unused past 10 s).
         grid_s = math.lcm(*(d.minor_cycle_us for d in config.dpus if d.minor_cycle_us > 0)) / 1e6
         until_switch_s = max(0.0, (result.at_utc_ns - time.time_ns()) / 1e9) + min(grid_s, 10.0)
-        self.wait_for(lambda: all(self.dpus[i].status.generation >= generation for i in wanted),
+        self.wait_for(lambda: all(_reached(self.dpus[i].status.generation, generation) for i in wanted),
                       until_switch_s + timeout_s)
         self._settle(result, wanted)
         return result
@@ -350,17 +448,18 @@ class Control:
         """Sort every wanted DPU by what its last heartbeat says about result.generation."""
         generation = result.generation
         result.applied, result.staged, result.silent, result.rejected = [], [], [], {}
+        snapshot = self.snapshot()
         for i in wanted:
-            view = self.snapshot().get(i)
+            view = snapshot.get(i)
             if view is None:
                 result.silent.append(i)
                 continue
             result.kept[i], result.states[i] = view.status.generation, view.state
-            if view.status.generation >= generation:
+            if _reached(view.status.generation, generation):
                 result.applied.append(i)
             elif view.status.rejected_generation == generation:
                 result.rejected[i] = view.status.reject_reason or "rejected"
-            elif view.status.staged_generation >= generation:
+            elif _reached(view.status.staged_generation, generation):
                 result.staged.append(i)
             else:
                 result.silent.append(i)

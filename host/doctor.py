@@ -28,6 +28,7 @@ from urllib.parse import parse_qs, urlsplit
 from rich.console import Console
 from rich.text import Text
 
+from skeleton.analysis.exitcodes import EXIT_FAILED, EXIT_OK
 from skeleton.analysis.faults import recv_buf_needed
 
 LCM_DEFAULT_URL = "udpm://239.255.76.67:7667?ttl=0"  # what liblcm uses for an empty URL
@@ -363,7 +364,7 @@ def doctor(url: str, out: TextIO = sys.stdout, as_json: bool = False) -> int:
     if as_json:
         doc = {"url": url, "ok": healthy, "checks": [{**asdict(c), "level": c.level} for c in checks]}
         out.write(json.dumps(doc, indent=2) + "\n")
-        return 0 if healthy else 1
+        return EXIT_OK if healthy else EXIT_FAILED
     console = Console(file=out, highlight=False, soft_wrap=True)  # soft_wrap: one line per finding
     for check in checks:
         line = Text(f"{check.level:<5}", style=STYLE[check.level])
@@ -371,7 +372,7 @@ def doctor(url: str, out: TextIO = sys.stdout, as_json: bool = False) -> int:
         if not check.ok and check.fix:
             line.append(f"  fix: {check.fix}", style="bold")
         console.print(line)
-    return 0 if healthy else 1
+    return EXIT_OK if healthy else EXIT_FAILED
 
 
 def main(argv: Sequence[str] | None = None) -> int:

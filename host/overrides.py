@@ -19,6 +19,8 @@ from typing import Any
 
 import yaml
 
+from .yamlfile import safe_load
+
 SECTIONS = {
     "process": "processes", "processes": "processes",
     "dpu": "dpus", "dpus": "dpus",
@@ -72,8 +74,8 @@ def apply_overrides(
 
 def _parse_value(text: str, raw: str) -> Any:
     try:
-        return yaml.safe_load(raw) if raw.strip() else None
-    except yaml.YAMLError as e:
+        return safe_load(raw) if raw.strip() else None
+    except (yaml.YAMLError, ValueError, OverflowError) as e:
         problem = getattr(e, "problem", None) or "invalid YAML"
         raise OverrideError(text, f"value is not valid YAML: {problem}") from None
 

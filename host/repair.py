@@ -38,6 +38,9 @@ from skeleton.host.control import Control
 ASK_FIRST, ASK_MIN, ASK_MAX = 16, 4, 512
 ROUND_S = 0.25          # the logger writes what it heard within its 100 ms flush interval
 POLL_EVERY_S = 0.5      # during the run
+# A DPU numbers its batches 0, 1, 2...: a batch_seq (or a report's count) this far past what
+# the log holds is a stray message's, and counting the holes up to it would never end.
+SEQ_AHEAD_MAX = 1 << 20
 
 
 @dataclass
@@ -48,7 +51,7 @@ class SeenBatches:
     above: set[int] = field(default_factory=set)
 
     def add(self, seq: int) -> None:
-        if seq >= self.whole:
+        if self.whole <= seq < self.whole + SEQ_AHEAD_MAX:
             self.above.add(seq)
         while self.whole in self.above:
             self.above.remove(self.whole)
@@ -60,7 +63,7 @@ class SeenBatches:
     def missing(self, published: int | None) -> list[int]:
         """Holes below the newest seen, and up to `published` (report_t's count) when known."""
         end = max(self.above, default=self.whole - 1) + 1
-        if published is not None:
+        if published is not None and published <= self.whole + SEQ_AHEAD_MAX:
             end = max(end, published)
         return [s for s in range(self.whole, end) if s not in self.above]
 

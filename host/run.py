@@ -31,6 +31,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 import skelmsg
+from skeleton.analysis.exitcodes import EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
 from skeleton.analysis.faults import (
     Lockout,
     jam_faults,
@@ -48,7 +49,6 @@ from skeleton.host.control import Control, DpuView, PushResult
 from skeleton.host.repair import LoggerKeeper, LogRepair, RepairResult
 from skeleton.host.system import System
 
-EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_FATAL_FLAW = 0, 1, 2, 3
 START_LEAD_S = 0.5          # time for START to reach every DPU before cycle 0
 REPORT_GRACE_S = 5.0        # how long after the end we wait for the DPUs' reports
 SETTLE_S = 1.0              # ... before a DPU still running the run is sent STOP
@@ -102,6 +102,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
     # From the logger's start: first event, clock estimate, START lead, the run, the reports, a margin.
     logger_deadline_s = (LOGGER_READY_S + 1.0 + START_LEAD_S + duration_ns / 1e9 + SETTLE_S + REPORT_GRACE_S
                          + REPAIR_LIMIT_S + LOGGER_MARGIN_S)
+    interrupted = False
     control = Control(url)
     daemons: list[spawn.Daemon] = []
     keeper = None
@@ -144,7 +145,12 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         clocks.refresh()  # before START, so the log has offsets for the whole run
         follower = RunFollower(system, control, console)
         committed = system.to_config(generation, run_id, committed=True)
-        _follow(control, follower, clocks, committed, duration_ns, dpu_ids, repair)
+        try:
+            _follow(control, follower, clocks, committed, duration_ns, dpu_ids, repair)
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM: end the run, keep what ran, and say so
+            interrupted = True
+            console.print("interrupted: stopping the run; its report covers what ran")
+            control.stop()
         _finish(control, run_id, [d for d in dpu_ids if d not in follower.lost], console)
         reports = {d: r for (d, r_id), r in control.reports.items() if r_id == run_id}
         if repair is not None:
@@ -158,7 +164,8 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         for daemon in daemons:
             spawn.stop(daemon)
     if keeper is None:
-        return _external_summary(console, out, run_id, dpu_ids, reports, follower.lost, options.as_json)
+        code = _external_summary(console, out, run_id, dpu_ids, reports, follower.lost, options.as_json)
+        return EXIT_INTERRUPTED if interrupted else code
     repaired = repair.result if repair is not None else RepairResult()
     if keeper.failure:
         problems.append(keeper.failure)
@@ -166,7 +173,8 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         problems.append(f"the log is incomplete: {repaired.missing} of what the DPUs published never "
                         f"reached it (the logger missed {repaired.asked}; asked again, "
                         f"{repaired.missing} could not be had again)")
-    return _report(console, system, options, out, run_id, follower.lost, repaired, keeper.restarts, problems)
+    code = _report(console, system, options, out, run_id, follower.lost, repaired, keeper.restarts, problems)
+    return EXIT_INTERRUPTED if interrupted else code
 
 
 def _claim(control: Control, dpu_ids: list[int], force: bool, console: Console) -> bool:

@@ -1,7 +1,8 @@
 """Shared fixtures: real skel-dpu daemons (under ASan/UBSan) on a private multicast port.
 
 Every test gets its own LCM port with ttl=0, so multicast never leaves the host
-and tests never hear each other's DPUs.
+and tests never hear each other's DPUs. The sanitizer build is made (by make) when
+missing or older than dpu/, so `pytest` works after a plain `make`.
 """
 
 from __future__ import annotations
@@ -25,6 +26,16 @@ ASAN_DPU = REPO / "build" / "asan" / "skel-dpu"
 EXAMPLES = REPO / "examples"
 _ports = itertools.count(7700 + (os.getpid() % 400) * 4)
 SANITIZER_ERROR = re.compile(rb"ERROR: AddressSanitizer|runtime error:|ERROR: LeakSanitizer")
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _asan_dpu_built() -> None:
+    """`make` builds build/skel-dpu only; the tests run the sanitizer build. Asking make for it
+    costs nothing when `make test` just built it and rebuilds it when dpu/ changed since."""
+    done = subprocess.run(["make", "--no-print-directory", "-s", str(ASAN_DPU.relative_to(REPO))],
+                          cwd=REPO, capture_output=True, text=True)
+    if done.returncode != 0:
+        pytest.exit(f"`make {ASAN_DPU.relative_to(REPO)}` failed:\n{done.stdout}{done.stderr}", returncode=1)
 
 
 @pytest.fixture(autouse=True)

@@ -9,7 +9,7 @@ import shlex
 import sys
 
 import pytest
-from netns import Hosts, hosts_fixture
+from netns import Hosts, hosts_fixture, require_command
 
 from skeleton.host.doctor import (
     Check,
@@ -183,6 +183,7 @@ def test_netns_doctor_strict_rp_filter(netns_host: Hosts) -> None:
 
 
 def test_netns_doctor_firewall_drop_on_the_port(netns_host: Hosts) -> None:
+    require_command("nft", "nftables")
     script = "table inet fw { chain input { type filter hook input priority 0; udp dport 7667 drop; }; }"
     netns_host.run("skelh1", ["nft", "-f", "-"], input=script, text=True, check=True)
     code, out = _doctor_in(netns_host)

@@ -16,7 +16,7 @@ import importlib
 from collections.abc import Callable, Iterator
 from typing import Any
 
-__all__ = ["HarnessError", "Hosts", "cleanup_stale", "hosts_fixture", "require_root"]
+__all__ = ["HarnessError", "Hosts", "cleanup_stale", "hosts_fixture", "require_command", "require_root"]
 
 
 def __getattr__(name: str) -> Any:

@@ -33,6 +33,7 @@ import atexit
 import os
 import re
 import secrets
+import shutil
 import signal
 import subprocess
 import sys
@@ -134,11 +135,20 @@ def cleanup_stale(prefix: str = "skel", include_cli: bool = False) -> list[str]:
 
 
 def require_root() -> None:
-    """Skip (under pytest) or fail clearly where namespaces cannot be made."""
+    """Skip (under pytest) where namespaces cannot be made: not root, or no `ip`."""
     if os.geteuid() != 0:
         import pytest
 
         pytest.skip("network namespaces need root (CI runs as root)")
+    require_command("ip", "iproute2")
+
+
+def require_command(name: str, package: str) -> None:
+    """Skip (under pytest) a test that needs a command this machine lacks, saying why."""
+    if shutil.which(name) is None:
+        import pytest
+
+        pytest.skip(f"`{name}` is not installed (Debian {package}; `make test` installs it when run as root)")
 
 
 class Hosts:
@@ -239,6 +249,7 @@ class Hosts:
         """
         if not 0 <= percent <= 100:
             raise ValueError(f"drop_inbound: percent={percent}, expected 0..100")
+        require_command("nft", "nftables")
         if percent == 0:
             self.clear_drop(host)
             return

@@ -1,0 +1,152 @@
+"""control.py against what anyone on the group may send: stray configs, heartbeats, reports and
+ping answers (published for real with the lcm module on the test's private URL) never crash the
+host tool nor choose its numbers, and real DPUs are pushed to and run afterwards."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import lcm
+from conftest import EXAMPLES, DpuFarm, skel
+
+import skelmsg
+from skeleton.host.control import (
+    CONFIG,
+    REPORT,
+    REPORTS_KEPT,
+    STATUS,
+    Control,
+)
+from skeleton.host.repair import SeenBatches
+from skeleton.host.system import load
+
+INT64_MAX = 2**63 - 1
+PAIR = EXAMPLES / "pair-10ms-5ms.yaml"
+
+
+def _publish(url: str, channel: str, *messages: object, repeats: int = 3) -> None:
+    lc = lcm.LCM(url)
+    for _ in range(repeats):  # multicast may lose one
+        for message in messages:
+            lc.publish(channel, message.encode())  # type: ignore[attr-defined]
+        time.sleep(0.05)
+
+
+def _stray_config(url: str, generation: int, committed: bool, valid: bool) -> skelmsg.config_t:
+    """A well-formed config of the test's own system: every DPU refuses it unless `valid`."""
+    config = load(PAIR).with_url(url).to_config(generation, 0, committed=committed)
+    if not valid:
+        for process in config.processes:
+            process.compute_us = -1
+    return config
+
+
+def _heartbeat(dpu: int, **fields: int) -> skelmsg.status_t:
+    status = skelmsg.status_t()
+    status.dpu, status.host, status.pid, status.state = dpu, "stray", 4242, skelmsg.status_t.STATE_RUNNING
+    status.reject_reason = ""
+    status.nlockouts, status.lockouts = 0, []
+    for name, value in fields.items():
+        setattr(status, name, value)
+    return status
+
+
+def test_a_stray_config_of_generation_int64_max_stops_neither_push_nor_run(dpus: DpuFarm, url: str,
+                                                                          tmp_path: Path) -> None:
+    dpus.start(1, 2)
+    control = Control(url)
+    try:
+        assert not control.wait_heard([1, 2], 10.0)
+        _publish(url, CONFIG, _stray_config(url, INT64_MAX, committed=False, valid=False))
+        assert control.wait_for(lambda: all(control.dpus[i].status.rejected_generation == INT64_MAX
+                                            for i in (1, 2)), 5.0), "the DPUs did not refuse the stray config"
+        assert control.next_generation() == 1
+        assert INT64_MAX not in control.configs and control.rejected_messages >= 1
+    finally:
+        control.close()
+    pushed = skel("push", str(PAIR), "--url", url)
+    assert pushed.returncode == 0, pushed.stdout + pushed.stderr
+    assert "generation 1: staged on every DPU" in pushed.stdout, pushed.stdout
+    run = skel("run", str(PAIR), "--url", url, "--duration", "1", "-s", "run.warmup_cycles=5",
+               "--out", str(tmp_path / "run"))
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "Traceback" not in run.stderr and (tmp_path / "run" / "report.json").exists()
+
+
+def test_a_dpu_that_applied_a_stray_generation_is_named_not_a_crash(dpus: DpuFarm, url: str) -> None:
+    dpus.start(1, 2)
+    control = Control(url)
+    try:
+        assert not control.wait_heard([1, 2], 10.0)
+        _publish(url, CONFIG, _stray_config(url, INT64_MAX, committed=True, valid=True))
+        assert control.wait_for(lambda: all(control.dpus[i].status.generation == INT64_MAX for i in (1, 2)),
+                                5.0), "the DPUs did not apply the stray config"
+    finally:
+        control.close()
+    pushed = skel("push", str(PAIR), "--url", url)
+    assert pushed.returncode == 1 and "Traceback" not in pushed.stderr, pushed.stdout + pushed.stderr
+    assert f"DPU 1: applied generation {INT64_MAX}, which no host tool makes" in pushed.stderr, pushed.stderr
+    assert "nothing was committed" in pushed.stderr, pushed.stderr
+
+
+def test_stray_heartbeats_reports_and_configs_are_bounded(url: str) -> None:
+    control = Control(url)
+    try:
+        huge = {"generation": INT64_MAX, "staged_generation": INT64_MAX, "rejected_generation": INT64_MAX,
+                "run_id": INT64_MAX}
+        _publish(url, STATUS, _heartbeat(7, **huge), _heartbeat(0), _heartbeat(-9), _heartbeat(-1, pid=1))
+        assert control.wait_for(lambda: 7 in control.dpus and -1 in control.dpus, 3.0)
+        # Neither a stray DPU's generations nor its run choose our numbers.
+        assert control.next_generation() == 1
+        assert 0 not in control.dpus and -9 not in control.dpus
+        assert control.foreign_generations([7]) == {7: INT64_MAX}
+        # A flood of reports of made-up runs cannot grow without bound; nonsense ones are refused.
+        flood = []
+        for run_id in range(1, REPORTS_KEPT + 50):
+            report = skelmsg.report_t()
+            report.dpu, report.run_id, report.nprocesses, report.processes = 3, run_id, 0, []
+            flood.append(report)
+        bad = skelmsg.report_t()
+        bad.dpu, bad.run_id, bad.nprocesses, bad.processes = 3, -1, 0, []
+        for i in range(0, len(flood), 50):  # in slices the socket buffer holds
+            _publish(url, REPORT, *flood[i:i + 50], repeats=1)
+        _publish(url, REPORT, flood[-1], bad)
+        assert control.wait_for(lambda: (3, REPORTS_KEPT + 49) in control.reports, 5.0)
+        assert len(control.reports) <= REPORTS_KEPT
+        # Generations no host tool makes are not kept as configs to re-send.
+        for generation in (-5, INT64_MAX):
+            _publish(url, CONFIG, _stray_config(url, generation, committed=True, valid=True), repeats=1)
+        time.sleep(0.3)
+        assert not control.configs
+        assert control.rejected_messages >= 4  # DPU ids 0 and -9, the bad report, the configs
+    finally:
+        control.close()
+
+
+def test_ping_answers_must_echo_our_ping_and_fit_a_clock_offset(url: str) -> None:
+    control = Control(url)
+    try:
+        seq = control.ping()
+        t1 = control._ping_t1[seq]
+        fakes = [
+            _heartbeat(5, ping_seq=seq, ping_t1_ns=t1 + 1, ping_t2_ns=t1, ping_t3_ns=t1),  # not our t1
+            _heartbeat(6, ping_seq=seq, ping_t1_ns=t1, ping_t2_ns=-(2**63), ping_t3_ns=-(2**63)),  # overflow
+            _heartbeat(8, ping_seq=seq, ping_t1_ns=t1, ping_t2_ns=t1 + 9, ping_t3_ns=t1 + 1),  # t3 < t2
+            _heartbeat(9, ping_seq=seq, ping_t1_ns=t1, ping_t2_ns=t1 + 1, ping_t3_ns=t1 + 2),  # plausible
+        ]
+        _publish(url, STATUS, *fakes, repeats=1)
+        assert control.wait_pongs([seq], [9], 3.0)
+        assert set(control.pongs([seq])) == {9}
+    finally:
+        control.close()
+
+
+def test_the_log_repair_ignores_a_stray_batch_number() -> None:
+    seen = SeenBatches()
+    for seq in (0, 1, 2, 4, 2**62, -3):
+        seen.add(seq)
+    # Counting the holes up to 2**62 would never end: the stray number is not one of the DPU's.
+    assert seen.missing(None) == [3]
+    assert seen.missing(INT64_MAX) == [3]
+    assert seen.missing(8) == [3, 5, 6, 7]
