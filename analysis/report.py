@@ -233,13 +233,20 @@ def analyze_log(log: Log, run_id: int | None = None) -> RunReport:
     expected = {r.dpu: r.timing_batches for r in reports if r.run_id == run_id}
     run = load_run(log, run_id, expected_batches=expected)
     malformed["SKEL_TIMING"] = run.malformed
-    config = _config_for(log, max(run.generations), malformed)
     configs = {}
-    for g in run.generations[:-1]:
+    for g in run.generations:
         try:
             configs[g] = _config_for(log, g, malformed)
         except LogError:
-            pass  # a window without its config cannot be named: only the others are reported
+            # A window without its config cannot be named (a stray batch, or the config was
+            # never logged): only the others are reported, and the stray ones are counted.
+            unnamed = int((run.records["generation"] == g).sum())
+            malformed["SKEL_TIMING (no config for its generation)"] = (
+                malformed.get("SKEL_TIMING (no config for its generation)", 0) + unnamed)
+    if not configs:
+        raise LogError(f"no config_t (channel SKEL_CONFIG) for generation {max(run.generations)}: "
+                       "cannot name anything")
+    config = configs.pop(max(configs))
     timed = _decode_timed(log, STATUS_CHANNEL, skelmsg.status_t.decode, malformed)
     statuses = [s for _, s in timed]
     offsets = _decode_all(log, CLOCK_CHANNEL, skelmsg.clock_offset_t.decode, malformed)

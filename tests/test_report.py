@@ -178,3 +178,19 @@ def test_process_response_slack_and_histograms(tmp_path: Path) -> None:
         hist = a["histograms"][name]
         assert len(hist["bins"]) == 41 and sum(hist["counts"]) == 8
     assert a["histograms"]["response_us"]["bins"][0] == pytest.approx(4620.0)  # the smallest sample
+
+
+def test_a_stray_timing_batch_of_an_unknown_generation_is_counted_not_fatal(tmp_path: Path) -> None:
+    """A well-formed timing_t of this run with a generation no config names (2**63-1) made
+    the whole report fail; it is now counted and the run's tables are as without it."""
+    clean = analyze(str(_log(tmp_path / "clean.lcm"))).to_json()
+    dpu1, _ = small_run()
+    stray = batches(1, dpu1[:2], 2, generation=2**63 - 1, first_seq=900)
+    path = _log(tmp_path / "run.lcm")
+    events_log = path.read_bytes()
+    write_log(tmp_path / "stray.lcm", [("SKEL_TIMING", t) for t in stray])
+    (tmp_path / "both.lcm").write_bytes(events_log + (tmp_path / "stray.lcm").read_bytes())
+    rep = analyze(str(tmp_path / "both.lcm")).to_json()
+    assert rep["generation"] == GENERATION
+    assert rep["dpus"] == clean["dpus"] and rep["processes"] == clean["processes"]
+    assert rep["integrity"]["malformed"].get("SKEL_TIMING (no config for its generation)") == 2
