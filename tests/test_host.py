@@ -226,6 +226,17 @@ run: {warmup_cycles: 0, lockout_cycles: 1000000, stop_on: []}
 """
 
 
+# DPU 2's next release is 20 s after its first: a switch waits for it.
+SLOW_SYSTEM = """\
+system: slow
+dpus: [{id: 1}, {id: 2}]
+processes:
+  - {id: 1, name: fast_writer, dpu: 1, period_us: 10000, compute_us: 300}
+  - {id: 2, name: rare, dpu: 2, period_us: 20000000, compute_us: 300}
+run: {warmup_cycles: 0, stop_on: []}
+"""
+
+
 def _states(url: str, ids: list[int]) -> dict[int, str]:
     """Each DPU's state from its first heartbeat heard now (sent at once on every change)."""
     control = Control(url)
@@ -282,19 +293,26 @@ def test_a_push_says_what_each_dpu_did_with_it(dpus: DpuFarm, url: str, tmp_path
     assert f"DPU 3: did not answer generation {g}" in bad.stderr
     assert "nothing was committed" in bad.stderr
 
-    # Committed, but DPU 2 waits for data inside a cycle and never reaches the boundary where
-    # it would switch: DPU 1 applied it, DPU 2 did not, and the push says both.
+    # Committed, but DPU 2 cannot switch in time: its next release (where it would) is 20 s
+    # away, past the common grid's 10 s cap (a DPU waiting inside a data wait is the same
+    # case, but cycle skipping lets it catch up once its data comes). DPU 1 applied it, DPU 2
+    # did not, and the push says both. The run is this test's own Control's, another
+    # session: a push into it needs --force.
+    slow = tmp_path / "slow.yaml"
+    slow.write_text(SLOW_SYSTEM)
+    base = skel("push", str(slow), "--url", url)
+    assert base.returncode == 0, base.stdout + base.stderr
+    generation = int(re.search(r"DPU 1: applied generation (\d+)", base.stdout).group(1))
     control = Control(url)
     try:
         control.start(generation, 77, time.time_ns() + 300_000_000, 0)  # until STOP
         _wait_running(url, 2, min_cycles=1)
-        partial = skel("push", str(system), "--url", url, "-s", "process.fast_writer.compute_us=400")
+        partial = skel("push", str(slow), "--url", url, "-s", "process.fast_writer.compute_us=400", "--force")
     finally:
         control.stop()
         control.close()
     assert partial.returncode == 1, partial.stdout + partial.stderr
-    # Its generation is one above the refused one: every DPU heard of that.
-    g = generation + 2
+    g = generation + 1
     assert f"DPU 1: applied generation {g}" in partial.stdout, partial.stdout + partial.stderr
     assert (f"DPU 2: staged generation {g} but did not apply it: it still applies generation "
             f"{generation} (running)") in partial.stderr, partial.stderr
