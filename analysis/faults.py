@@ -26,12 +26,12 @@ from .records import FLAG_LOCKOUT
 
 # A fault of these kinds says the architecture does not work (exit 3); `behind` only
 # when no stall of the platform explains it (Fault.fatal).
-FATAL_KINDS = ("lockout", "jam", "behind")
+FATAL_KINDS = ("lockout", "jam", "behind", "skipping")
 
 
 @dataclass
 class Fault:
-    kind: str  # "lockout" | "jam" | "behind" | "stall" | "overrun" | "dpu_lost" | "delivery"
+    kind: str  # "lockout" | "jam" | "behind" | "skipping" | "stall" | "overrun" | "dpu_lost" | "delivery"
     process: str | None = None
     dpu: int | None = None
     buffer: str | None = None
@@ -50,7 +50,7 @@ class Fault:
     fatal: bool = False  # the design's flaw (exit 3), not the platform's
 
     def __post_init__(self) -> None:
-        if self.kind in ("lockout", "jam"):
+        if self.kind in ("lockout", "jam", "skipping"):
             self.fatal = True
 
 
@@ -228,6 +228,28 @@ def jam_faults(lockouts: dict[int, Lockout], config: Any) -> list[Fault]:
                 root_dpu=dpus.get(root),
             )
         )
+    return faults
+
+
+# A data-synchronised process that skips this share of its releases or more does not run
+# at its rate: its DPU cannot keep it (cycle skipping sheds the load a periodic process
+# would pile up as a backlog and a lockout).
+SKIPPING_MIN_PCT = 10.0
+
+
+def skipping_faults(processes: list[ProcessMetrics], config: Any) -> list[Fault]:
+    faults = []
+    for p in processes:
+        released = p.cycles + p.releases_skipped
+        if not released or 100.0 * p.releases_skipped < SKIPPING_MIN_PCT * released:
+            continue
+        load = static_load_pct(config, p.dpu)
+        cause = (f"DPU {p.dpu} overloaded (static load {load:.1f} %)" if load > 100.0
+                 else f"DPU {p.dpu} keeps falling a period behind")
+        faults.append(Fault(
+            kind="skipping", process=p.name, dpu=p.dpu, count=p.releases_skipped, static_load_pct=load,
+            detail=f"{p.name} skipped {p.releases_skipped} of {released} releases "
+                   f"({100.0 * p.releases_skipped / released:.0f} %): it does not run at its rate; {cause}"))
     return faults
 
 

@@ -24,6 +24,7 @@ from .faults import (
     lockout_faults,
     lockouts_from_records,
     overrun_faults,
+    skipping_faults,
     stall_faults,
 )
 from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets, buffer_metrics
@@ -95,6 +96,7 @@ def build_window(
             + lockout_faults(locks, config)
             + jam_faults(locks, config)
             + behind_faults(records, config)
+            + skipping_faults(processes, config)
             + stall_faults(records, config)
             + overrun_faults(processes)
             + list(lost)

@@ -292,6 +292,7 @@ typedef struct skel_plan {
     double speed;
     int64_t minor_ns;
     int64_t common_ns;          /* the grid all DPUs share (a multiple of minor_ns): live switches */
+    int fits;                   /* the configured load fits (<= 100 %): cycle skipping applies */
     int32_t warmup_cycles;
     int32_t lockout_cycles;
     int nprocesses;

@@ -110,13 +110,16 @@ static void executive_record(skel_server_t *s, const skel_rec_t *rec)
 /* Cycle skipping: a data-synchronised process runs on the newest sample of its
  * inputs, so a release whose period has already passed when its turn comes would
  * only repeat old work and keep the DPU behind for good (it gets at most one new
- * sample per writer period, so a lag never shrinks). It skips that release, as a
- * real data-driven executive would, and its readers see the skipped sequence as
- * dropped. Periodic processes run every release: an overloaded DPU falls ever
- * further behind, which is how the paper's pipeline jam shows up. */
-static int executive_skips(const skel_process_t *p, int64_t release, int64_t now)
+ * sample per writer period, so a lag after a hiccup never shrinks). It skips that
+ * release, as a real data-driven executive would, and its readers see the skipped
+ * sequence as dropped. Only on a DPU whose configured load fits: an overloaded one
+ * runs every release and falls ever further behind, so its overload shows as the
+ * paper's lockout and pipeline jam instead of being shed. Periodic processes run
+ * every release. */
+static int executive_skips(const skel_plan_t *plan, const skel_process_t *p, int64_t release,
+                           int64_t now)
 {
-    return p->sync == SKELMSG_PROCESS_T_SYNC_DATA && now >= release + p->period_ns;
+    return plan->fits && p->sync == SKELMSG_PROCESS_T_SYNC_DATA && now >= release + p->period_ns;
 }
 
 static void executive_skip_record(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor,
@@ -158,7 +161,7 @@ static int executive_minor(skel_exec_t *x, int64_t j, int64_t next_r)
         skel_rec_t rec;
         int64_t now = clock_mono_ns(), end;
         int rc = PROCESS_DONE;
-        if (executive_skips(p, release, now)) {
+        if (executive_skips(plan, p, release, now)) {
             executive_skip_record(x, p, p->k_base + k, plan->minor_base + j, release, sched, now, &rec);
             end = now;
         } else {

@@ -116,6 +116,16 @@ static int plan_add_processes(skel_plan_t *plan, const skelmsg_config_t *cfg, in
     return 0;
 }
 
+/* Whether the configured load fits the DPU (Σ compute / period <= 1): executive.c
+ * skips a data-synchronised process's late releases only then. */
+static int plan_fits(const skel_plan_t *plan)
+{
+    double load = 0.0;
+    for (int i = 0; i < plan->nprocesses; i++)
+        load += (double)plan->processes[i].compute_ns / (double)plan->processes[i].period_ns;
+    return load <= 1.0;
+}
+
 /* CFG must have passed config_validate for DPU_INDEX. */
 skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason, size_t len)
 {
@@ -136,6 +146,7 @@ skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason
     plan->slots = calloc(SKEL_MAX_SLOTS, sizeof *plan->slots);
     if (plan->processes == NULL || plan->slots == NULL) goto oom;
     if (plan_add_processes(plan, cfg, d->id) != 0) goto oom;
+    plan->fits = plan_fits(plan);
     plan_size_links(plan, cfg);
     int32_t max_bytes = 1;
     for (int i = 0; i < cfg->nbuffers; i++)

@@ -183,9 +183,10 @@ def test_netns_host_tool_killed_dpus_and_logger_finish_the_run(netns_three_hosts
     report = report_json(lab, tool, out / "run.lcm")
     assert sorted(d["id"] for d in report["dpus"]) == [1, 2]
     assert not [f for f in report["faults"] if f["kind"] == "dpu_lost"], report["faults"]
-    # 3 s: 600 cycles of the 5 ms processes, 300 of the 10 ms ones, each less its 10 warm-up cycles.
+    # 3 s: 600 cycles of the 5 ms processes, 300 of the 10 ms ones, each less its DPU's warm-up:
+    # 10 cycles of the DPU's slowest process (10 ms), so 20 of the 5 ms ones.
     cycles = {name: p["cycles"] for name, p in _processes(report).items()}
-    assert cycles["fast_writer"] >= 588 and cycles["fast_reader"] >= 588, cycles
+    assert cycles["fast_writer"] >= 578 and cycles["fast_reader"] >= 578, cycles
     assert cycles["slow_writer"] >= 288 and cycles["slow_reader"] >= 288, cycles
     lab.check_dpu_logs()
 
