@@ -35,6 +35,7 @@ from mcap.writer import Writer
 import skelmsg
 
 from .exitcodes import EXIT_BAD_INPUT, EXIT_OK
+from .faults import KINDS
 from .flatdecode import decode_heads
 from .lcmjson import schema_of, to_json, type_name
 from .metrics import cycle_end_ns
@@ -98,10 +99,14 @@ FAULT_SCHEMA: dict[str, Any] = {
     "description": "A fatal flaw or overrun found by the analysis (analysis/faults.py)",
     "type": "object",
     "properties": {
-        "kind": {"type": "string", "enum": ["lockout", "jam", "overrun", "dpu_lost"]},
+        "kind": {"type": "string", "enum": list(KINDS)},
         "process": _OPT_STR, "dpu": _OPT_INT, "buffer": _OPT_STR, "writer": _OPT_STR, "cycle": _OPT_INT,
         "chain": {"type": "array", "items": {"type": "string"}}, "detail": {"type": "string"},
         "count": _OPT_INT, "static_load_pct": {"type": ["number", "null"]}, "root_dpu": _OPT_INT,
+        "host": _OPT_STR, "dpus": {"type": "array", "items": {"type": "integer"}},
+        "at_s": {"type": ["number", "null"], "description": "s from the run's first release"},
+        "duration_ms": {"type": ["number", "null"]}, "behind_ms": {"type": ["number", "null"]},
+        "fatal": {"type": "boolean", "description": "the design's flaw (exit 3), not the platform's"},
     },
     "required": ["kind", "detail"],
 }  # fmt: skip

@@ -24,8 +24,9 @@ import skelmsg
 from .metrics import ProcessMetrics, completed, frame_release_latency_ns, measured, static_load_pct
 from .records import FLAG_LOCKOUT
 
-# A fault of these kinds says the architecture does not work (exit 3); `behind` only
-# when no stall of the platform explains it (Fault.fatal).
+# Every kind of fault, and those that say the architecture does not work (exit 3);
+# `behind` only when the platform does not explain it (Fault.fatal).
+KINDS = ("lockout", "jam", "behind", "skipping", "stall", "overrun", "dpu_lost", "delivery")
 FATAL_KINDS = ("lockout", "jam", "behind", "skipping")
 
 
