@@ -99,8 +99,10 @@ def _kill_loggers(log: Path, count: int, first_after_s: float, timeout_s: float)
     return killed
 
 
-def test_run_restarts_a_killed_logger_and_the_log_holds_every_cycle(tmp_path: Path, url: str) -> None:
-    duration_s = 6
+def _busy_run_killing_loggers(tmp_path: Path, url: str, duration_s: int, kills: int,
+                              until_s: float) -> tuple[int, str, Path]:
+    """A real `skel run --spawn` of BUSY_SYSTEM whose loggers are killed `kills` times, the
+    first 2 s in (clock estimate, START lead, a second of the run): its exit code, output, run dir."""
     system = tmp_path / "busy.yaml"
     system.write_text(BUSY_SYSTEM)
     out = tmp_path / "busy"
@@ -108,15 +110,20 @@ def test_run_restarts_a_killed_logger_and_the_log_holds_every_cycle(tmp_path: Pa
                           "--out", str(out))
     try:
         _logger_pid(out / "run.lcm", 30)
-        # Killed 2 s in (clock estimate, START lead, a second of the run): mid-run.
-        assert _kill_loggers(out / "run.lcm", 1, 2.0, 20) == 1
+        assert _kill_loggers(out / "run.lcm", kills, 2.0, until_s) == kills
         code = run.wait(60 + duration_s)
     finally:
         if run.proc.poll() is None:
             run.proc.kill()
-    assert code == 0, run.output
-    assert "the logger died (exit status" in run.output and "restarted it" in run.output, run.output
-    assert "INCOMPLETE" not in run.output, run.output
+    return code, run.output, out
+
+
+def test_run_restarts_a_killed_logger_and_the_log_holds_every_cycle(tmp_path: Path, url: str) -> None:
+    duration_s = 6
+    code, output, out = _busy_run_killing_loggers(tmp_path, url, duration_s, 1, 20)
+    assert code == 0, output
+    assert "the logger died (exit status" in output and "restarted it" in output, output
+    assert "INCOMPLETE" not in output, output
     report = json.loads((out / "report.json").read_text())
     assert report["integrity"]["lost_batches"] == [] and report["integrity"]["corrupt_ranges"] == []
     expected = duration_s * 500 - 10
@@ -126,24 +133,13 @@ def test_run_restarts_a_killed_logger_and_the_log_holds_every_cycle(tmp_path: Pa
 
 def test_a_log_that_cannot_be_made_whole_is_said_first_and_fails(tmp_path: Path, url: str) -> None:
     duration_s = 8
-    system = tmp_path / "busy.yaml"
-    system.write_text(BUSY_SYSTEM)
-    out = tmp_path / "busy"
-    run = skel_background("run", str(system), "--spawn", "--url", url, "--duration", str(duration_s),
-                          "--out", str(out))
-    try:
-        _logger_pid(out / "run.lcm", 30)
-        # Every logger killed as soon as it is up: the host tool gives up after RESTARTS_MAX.
-        assert _kill_loggers(out / "run.lcm", RESTARTS_MAX + 1, 2.0, duration_s) == RESTARTS_MAX + 1
-        code = run.wait(60 + duration_s)
-    finally:
-        if run.proc.poll() is None:
-            run.proc.kill()
-    assert code == 1, run.output
-    assert f"the logger died {RESTARTS_MAX + 1} times" in run.output, run.output
+    # Every logger killed as soon as it is up: the host tool gives up after RESTARTS_MAX.
+    code, output, _ = _busy_run_killing_loggers(tmp_path, url, duration_s, RESTARTS_MAX + 1, duration_s)
+    assert code == 1, output
+    assert f"the logger died {RESTARTS_MAX + 1} times" in output, output
     # Said before the tables, not under them.
-    first_table = run.output.index("per DPU") if "per DPU" in run.output else len(run.output)
-    assert -1 < run.output.find("INCOMPLETE") < first_table, run.output
+    first_table = output.index("per DPU") if "per DPU" in output else len(output)
+    assert -1 < output.find("INCOMPLETE") < first_table, output
 
 
 def test_holes_are_found_below_the_newest_batch_and_up_to_the_reported_count() -> None:
