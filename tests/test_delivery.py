@@ -12,7 +12,7 @@ import json
 from pathlib import Path
 
 import pytest
-from conftest import _ports, skel
+from conftest import _ports, faults_but_stalls, skel
 
 from skeleton.analysis.faults import recv_buf_needed
 from skeleton.host.doctor import rmem_max
@@ -57,7 +57,7 @@ def test_a_dpu_sizes_its_socket_for_a_large_buffer_and_it_arrives(tmp_path: Path
         log = (out / "logs" / f"dpu{dpu}.log").read_text()
         assert f"socket receive buffer of {need} bytes asked (recv_buf_size)" in log, log
     report = json.loads((out / "report.json").read_text())
-    assert report["faults"] == [], report["faults"]
+    assert faults_but_stalls(report) == [], report["faults"]
     reader = next(p for p in report["processes"] if p["name"] == "jacobian_transpose")
     assert reader["cycles"] > 50 and reader["inputs"][0]["new"] > 50, reader
 
