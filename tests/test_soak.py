@@ -7,11 +7,13 @@ import json
 import os
 from pathlib import Path
 
+import pytest
 from conftest import EXAMPLES, skel
 
 SOAK_S = float(os.environ.get("SKEL_SOAK_S", "20"))
 
 
+@pytest.mark.timeout(SOAK_S + 300)
 def test_servo_runs_long_with_no_process_behind(tmp_path: Path, url: str) -> None:
     out = tmp_path / "soak"
     run = skel("run", str(EXAMPLES / "servo.yaml"), "--spawn", "--url", url, "--duration", f"{SOAK_S:g}",
