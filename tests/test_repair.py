@@ -13,7 +13,7 @@ import signal
 import time
 from pathlib import Path
 
-from conftest import skel_background
+from conftest import Background, skel_background
 
 from skeleton.host.repair import RESTARTS_MAX, SeenBatches, seq_ranges
 
@@ -49,15 +49,20 @@ def _logger_pid(log: Path, timeout_s: float) -> int:
     raise AssertionError(f"no lcm-logger writing {log} within {timeout_s} s")
 
 
+def _start_busy_run(tmp_path: Path, url: str, duration_s: int) -> tuple[Background, Path]:
+    """A real `skel run --spawn` of BUSY_SYSTEM in the background, and its run directory."""
+    system = tmp_path / "busy.yaml"
+    system.write_text(BUSY_SYSTEM)
+    out = tmp_path / "busy"
+    return skel_background("run", str(system), "--spawn", "--url", url, "--duration", str(duration_s),
+                           "--out", str(out)), out
+
+
 def test_run_refills_what_a_stalled_logger_missed(tmp_path: Path, url: str) -> None:
     rmem = int(Path("/proc/sys/net/core/rmem_default").read_text())
     stopped_s = min(20.0, max(2.0, 3 * rmem / BYTES_PER_S))
     duration_s = int(stopped_s) + 3
-    system = tmp_path / "busy.yaml"
-    system.write_text(BUSY_SYSTEM)
-    out = tmp_path / "busy"
-    run = skel_background("run", str(system), "--spawn", "--url", url, "--duration", str(duration_s),
-                          "--out", str(out))
+    run, out = _start_busy_run(tmp_path, url, duration_s)
     try:
         pid = _logger_pid(out / "run.lcm", 30)
         time.sleep(2.0)  # the clock estimate, the START lead, a second of the run
@@ -103,11 +108,7 @@ def _busy_run_killing_loggers(tmp_path: Path, url: str, duration_s: int, kills: 
                               until_s: float) -> tuple[int, str, Path]:
     """A real `skel run --spawn` of BUSY_SYSTEM whose loggers are killed `kills` times, the
     first 2 s in (clock estimate, START lead, a second of the run): its exit code, output, run dir."""
-    system = tmp_path / "busy.yaml"
-    system.write_text(BUSY_SYSTEM)
-    out = tmp_path / "busy"
-    run = skel_background("run", str(system), "--spawn", "--url", url, "--duration", str(duration_s),
-                          "--out", str(out))
+    run, out = _start_busy_run(tmp_path, url, duration_s)
     try:
         _logger_pid(out / "run.lcm", 30)
         assert _kill_loggers(out / "run.lcm", kills, 2.0, until_s) == kills
