@@ -368,22 +368,35 @@ def stall_faults(records: np.ndarray, config: Any) -> list[Fault]:
     faults = []
     for host, evs in sorted(events.items()):
         evs.sort(key=lambda e: e[1])
-        group: list[tuple[int, int, int]] = []
-        for ev in [*evs, None]:
+        groups: list[list[tuple[int, int, int]]] = []
+        for ev in evs:
             # Stalls of one instant overlap; the measure of each is up to a cycle's work apart.
-            if ev is not None and (not group or ev[1] <= max(g[0] for g in group)):
-                group.append(ev)
+            if groups and ev[1] <= max(g[0] for g in groups[-1]):
+                groups[-1].append(ev)
+            else:
+                groups.append([ev])
+        # A stall as long as a minor cycle of its DPUs is a fault of its own; shorter ones
+        # (a busy VM has many) are one fault per host that counts them.
+        minor_ns = min((d.minor_cycle_us * 1000 for d in config.dpus if d.host == host), default=0)
+        short: list[int] = []
+        for group in groups:
+            start = min(g[1] for g in group)
+            longest = max(g[0] - g[1] for g in group)
+            dpus = sorted({g[2] for g in group})
+            if longest < minor_ns:
+                short.append(longest)
                 continue
-            if group:
-                start = min(g[1] for g in group)
-                longest = max(g[0] - g[1] for g in group)
-                dpus = sorted({g[2] for g in group})
-                faults.append(Fault(
-                    kind="stall", host=host, dpus=dpus, dpu=dpus[0], at_s=start / 1e9,
-                    duration_ms=longest / 1e6,
-                    detail=f"host {host}: DPU {', '.join(map(str, dpus))} could not run for "
-                           f"{longest / 1e6:.1f} ms at {start / 1e9:.2f} s (the platform, not the design)"))
-            group = [ev] if ev is not None else []
+            who = ", ".join(map(str, dpus))
+            faults.append(Fault(
+                kind="stall", host=host, dpus=dpus, dpu=dpus[0], at_s=start / 1e9, duration_ms=longest / 1e6,
+                detail=f"host {host}: DPU {who} could not run for {longest / 1e6:.1f} ms at "
+                       f"{start / 1e9:.2f} s (the platform, not the design)"))
+        if short:
+            dpus = sorted({g[2] for group in groups for g in group})
+            faults.append(Fault(
+                kind="stall", host=host, dpus=dpus, dpu=dpus[0], count=len(short), duration_ms=max(short) / 1e6,
+                detail=f"host {host}: {len(short)} shorter stalls of its DPUs ({min(short) / 1e6:.1f} to "
+                       f"{max(short) / 1e6:.1f} ms, each under a minor cycle; the platform, not the design)"))
     return faults
 
 
