@@ -393,10 +393,12 @@ def stall_faults(records: np.ndarray, config: Any) -> list[Fault]:
                        f"{start / 1e9:.2f} s (the platform, not the design)"))
         if short:
             dpus = sorted({g[2] for group in groups for g in group})
+            span = f"{min(short) / 1e6:.1f} to {max(short) / 1e6:.1f} ms"
             faults.append(Fault(
                 kind="stall", host=host, dpus=dpus, dpu=dpus[0], count=len(short),
-                duration_ms=max(short) / 1e6, detail=f"host {host}: {len(short)} shorter stalls of its DPUs ({min(short) / 1e6:.1f} to "
-                       f"{max(short) / 1e6:.1f} ms, each under a minor cycle; the platform, not the design)"))
+                duration_ms=max(short) / 1e6,
+                detail=f"host {host}: {len(short)} shorter stalls of its DPUs ({span}, each under a "
+                       "minor cycle; the platform, not the design)"))
     return faults
 
 
