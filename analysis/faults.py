@@ -21,7 +21,7 @@ import numpy as np
 
 import skelmsg
 
-from .metrics import ProcessMetrics, completed, frame_release_latency_ns, measured, static_load_pct
+from .metrics import ProcessMetrics, completed, frame_release_latency_ns, measured, per_id, static_load_pct
 from .records import FLAG_LOCKOUT
 
 # Every kind of fault, and those that say the architecture does not work (exit 3);
@@ -359,8 +359,8 @@ def stall_faults(records: np.ndarray, config: Any) -> list[Fault]:
     hosts = {d.id: d.host for d in config.dpus}
     t0 = _run_t0(records)
     events: dict[str, list[tuple[int, int, int]]] = {}  # host -> (end, start, dpu), run-relative
-    limit = np.array([stall_threshold_ns(config, int(d)) for d in records["dpu"]], dtype=np.int64)
-    hit = records[records["stall_ns"] >= limit] if len(records) else records
+    limit = per_id(records["dpu"], {d.id: stall_threshold_ns(config, d.id) for d in config.dpus})
+    hit = records[(records["stall_ns"] > 0) & (records["stall_ns"] >= limit)] if len(records) else records
     for rec in hit:
         dpu = int(rec["dpu"])
         end = int(rec["start_ns"] - t0[dpu] + rec["comm_in_ns"] + rec["blocked_ns"] + rec["compute_ns"])

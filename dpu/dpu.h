@@ -423,6 +423,8 @@ typedef struct {
 enum { PROCESS_DONE = 0, PROCESS_STOPPED = 1 };
 int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, int64_t release_ns,
                   int64_t sched_ns, skel_rec_t *rec);
+void process_record_begin(skel_exec_t *x, const skel_process_t *p, int64_t k, int64_t minor,
+                          int64_t release_ns, int64_t sched_ns, int64_t start_ns, skel_rec_t *rec);
 void process_lockout(skel_exec_t *x, skel_process_t *p, int16_t buffer, int64_t k,
                      int64_t release_ns);
 

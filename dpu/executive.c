@@ -125,18 +125,8 @@ static int executive_skips(const skel_plan_t *plan, const skel_process_t *p, int
 static void executive_skip_record(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor,
                                   int64_t release, int64_t sched, int64_t now, skel_rec_t *rec)
 {
-    const int64_t off = x->s->clock_offset_ns;
-    memset(rec, 0, offsetof(skel_rec_t, in));
-    rec->process = p->id;
-    rec->generation = x->plan->generation;
-    rec->cycle = k;
-    rec->minor = minor;
-    rec->release_ns = release + off;
-    rec->sched_ns = sched + off;
-    rec->start_ns = now + off;
+    process_record_begin(x, p, k, minor, release, sched, now, rec);
     rec->slack_ns = release + p->period_ns - now;
-    rec->stall_ns = x->wake_stall_ns;
-    x->wake_stall_ns = 0;
     rec->flags = SKELMSG_TIMING_T_FLAG_RELEASE_SKIPPED;
     if (k >= p->measure_from_k) p->sums.releases_skipped++;
 }

@@ -186,23 +186,31 @@ static void process_commit(skel_plan_t *plan, skel_process_t *p, const skel_rec_
 /* Runs cycle K of P released at RELEASE (monotonic ns) in the run's minor
  * cycle MINOR, due to start at SCHED by the schedule, and fills REC (times
  * reported with the clock offset). The executive adds idle. */
-int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, int64_t release,
-                  int64_t sched, skel_rec_t *rec)
+/* A fresh record of cycle K of P started at START (times reported with the
+ * clock offset); it carries the stall of the minor cycle's wake-up, if first. */
+void process_record_begin(skel_exec_t *x, const skel_process_t *p, int64_t k, int64_t minor,
+                          int64_t release, int64_t sched, int64_t start, skel_rec_t *rec)
 {
-    skel_plan_t *plan = x->plan;
     const int64_t off = x->s->clock_offset_ns;
-    const int measured = k >= p->measure_from_k;
     memset(rec, 0, offsetof(skel_rec_t, in));
     rec->process = p->id;
-    rec->generation = plan->generation;
+    rec->generation = x->plan->generation;
     rec->cycle = k;
     rec->minor = minor;
     rec->release_ns = release + off;
     rec->sched_ns = sched + off;
+    rec->start_ns = start + off;
     rec->stall_ns = x->wake_stall_ns;
     x->wake_stall_ns = 0;
+}
+
+int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, int64_t release,
+                  int64_t sched, skel_rec_t *rec)
+{
+    skel_plan_t *plan = x->plan;
+    const int measured = k >= p->measure_from_k;
     int64_t start = clock_mono_ns();
-    rec->start_ns = start + off;
+    process_record_begin(x, p, k, minor, release, sched, start, rec);
     if (process_locked_out(x, p, release, start)) {
         process_lockout(x, p, -1, k, release);
         rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
