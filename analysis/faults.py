@@ -393,12 +393,13 @@ def stall_faults(records: np.ndarray, config: Any) -> list[Fault]:
                        f"{start / 1e9:.2f} s (the platform, not the design)"))
         if short:
             dpus = sorted({g[2] for group in groups for g in group})
-            span = f"{min(short) / 1e6:.1f} to {max(short) / 1e6:.1f} ms"
+            span = (f"{min(short) / 1e6:.1f} to {max(short) / 1e6:.1f} ms" if len(short) > 1
+                    else f"{short[0] / 1e6:.1f} ms")
             faults.append(Fault(
                 kind="stall", host=host, dpus=dpus, dpu=dpus[0], count=len(short),
                 duration_ms=max(short) / 1e6,
-                detail=f"host {host}: {len(short)} shorter stalls of its DPUs ({span}, each under a "
-                       "minor cycle; the platform, not the design)"))
+                detail=f"host {host}: {len(short)} shorter stall{'s' if len(short) > 1 else ''} of its "
+                       f"DPUs ({span}, under a minor cycle; the platform, not the design)"))
     return faults
 
 
