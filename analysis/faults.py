@@ -262,7 +262,8 @@ def overrun_faults(processes: list[ProcessMetrics]) -> list[Fault]:
             dpu=p.dpu,
             cycle=p.first_overrun_cycle,
             count=p.overruns,
-            detail=f"{p.overruns} of {p.cycles} cycles ended after the next release",
+            detail=f"{p.overruns} of {p.cycles} cycles ended after the next release"
+            + (f" ({p.overruns_stalled} of them by a stall: the platform)" if p.overruns_stalled else ""),
         )
         for p in processes
         if p.overruns > 0

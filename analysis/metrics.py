@@ -67,6 +67,7 @@ class ProcessMetrics:
     first_overrun_cycle: int | None = None
     lateness_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))  # start - sched
     releases_skipped: int = 0  # cycle skipping: a data-synchronised process a period behind
+    overruns_stalled: int = 0  # overruns whose cycle lost at least its overshoot to stalls
     stall_ms: float = 0.0  # time its cycles' thread was kept from running
     inputs: list[InputMetrics] = field(default_factory=list)
     response_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))  # end - release
@@ -297,6 +298,7 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
                 histograms={"release_latency_us": histogram(latency), "response_us": histogram(response)},
                 lateness_us=_latency(lateness),
                 releases_skipped=int(np.count_nonzero((mine["flags"] & FLAG_RELEASE_SKIPPED) != 0)),
+                overruns_stalled=int(np.count_nonzero(overran & (done["stall_ns"] >= -done["slack_ns"]))),
                 stall_ms=float(mine["stall_ns"].sum()) / 1e6,
             )
         )
