@@ -38,9 +38,12 @@ def test_netns_scale_16_hosts_2_dpus_64_processes_at_100hz(netns_sixteen_hosts: 
     assert not design_flaws(report), report["faults"]
     assert done.returncode in (0, 3), done.stdout + done.stderr
     assert sorted(d["id"] for d in report["dpus"]) == list(range(1, 33))
-    # Every process ran the whole run (less the warm-up and a stalled last cycle or two).
+    # Every process accounted for every release of the run (less the warm-up and a stalled last
+    # cycle or two): it ran it, or, a period behind after a stall of this shared machine,
+    # skipped it (cycle skipping; the skips are bounded by the drop count below).
     expected = cycles - run["warmup_cycles"] - 2
-    short = {p["name"]: p["cycles"] for p in report["processes"] if p["cycles"] < expected}
+    short = {p["name"]: (p["cycles"], p["releases_skipped"]) for p in report["processes"]
+             if p["cycles"] + p["releases_skipped"] < expected}
     assert len(report["processes"]) == 64 and not short, short
     inputs = [i for p in report["processes"] for i in p["inputs"]]
     dropped = sum(i["dropped"] for i in inputs)
