@@ -21,8 +21,8 @@ import numpy as np
 
 import skelmsg
 
+from ..read.records import FLAG_LOCKOUT
 from .metrics import ProcessMetrics, completed, frame_release_latency_ns, measured, per_id, static_load_pct
-from .records import FLAG_LOCKOUT
 
 # Every kind of fault, and those that say the architecture does not work (exit 3);
 # `behind` only when the platform does not explain it (Fault.fatal).
