@@ -106,10 +106,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_b", type=Path)
     p.add_argument("--json", action="store_true")
 
-    p = sub.add_parser("export", help="convert a run log to MCAP for Foxglove")
-    p.add_argument("log", type=Path)
-    p.add_argument("mcap", type=Path)
+    p = sub.add_parser("export", help="a run as MCAP (Foxglove), Parquet tables or a Perfetto trace")
+    p.add_argument("log", type=Path, help="run.lcm, or a run directory")
+    p.add_argument("mcap", type=Path, nargs="?", help="write the run as this MCAP file")
     p.add_argument("--run-id", type=int)
+    p.add_argument("--parquet", type=Path, metavar="DIR", help="write its tables as DIR/<table>.parquet")
+    p.add_argument("--trace", type=Path, metavar="FILE.json", help="write a Chrome/Perfetto trace of the run")
 
     p = sub.add_parser("watch", help="live view of a run (or of lcm-logplayer replaying one)")
     p.add_argument("--url", default=DEFAULT_URL)
@@ -345,9 +347,10 @@ def cmd_diff(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from skeleton.analysis.views.export_mcap import export_command
+    from skeleton.analysis.views.export import export_command
 
-    return export_command(run_log_path(args.log), args.mcap, run_id=args.run_id)
+    return export_command(run_log_path(args.log), args.mcap, run_id=args.run_id, parquet=args.parquet,
+                          trace=args.trace)
 
 
 def cmd_watch(args: argparse.Namespace) -> int:

@@ -17,7 +17,7 @@ import numpy as np
 import pyarrow as pa
 
 from ..read.records import CYCLE_FIELDS, FLAG_LOCKOUT, FLAG_OVERRUN, FLAG_RELEASE_SKIPPED, FLAG_SKIPPED
-from .metrics import cycle_end_ns, measured
+from .metrics import completed, cycle_end_ns, measured
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -45,7 +45,9 @@ COLUMNS: dict[str, dict[str, str]] = {
         "overrun": "the cycle missed its deadline", "skipped": "the cycle did not run (DPU behind)",
         "lockout": "the process was locked out in this cycle",
         "release_skipped": "a data process a period behind skipped this release",
-        "measured": "inside the DPU's measurement window (after warm-up): what the report counts",
+        "measured": "inside the DPU's measurement window (after warm-up)",
+        "completed": "ran to its end (not skipped, not a skipped release): with `measured`, the "
+                     "cycles the report's latencies count",
         "release_latency_us": "start - release", "response_us": "end of the cycle's work - release",
         "start_utc_ns": "start, on the wall clock",
     },
@@ -74,6 +76,12 @@ COLUMNS: dict[str, dict[str, str]] = {
 # dpus, processes, buffers, chains: the rows of report.json, nested fields joined with "_"
 # (release_latency_us_p99); their columns are documented with report.json in the README.
 REPORT_TABLES = ("dpus", "processes", "buffers", "chains")
+# A list of rows inside a report row is a table of its own, keyed by its parent's name:
+# table -> (field, the child table's name, parent column, its name in the child).
+CHILD_TABLES = {
+    "processes": ("inputs", "process_inputs", "name", "process"),
+    "buffers": ("readers", "buffer_readers", "buffer", "buffer"),
+}
 
 
 class Table:
@@ -127,6 +135,7 @@ def timing_table(run: RunAnalysis) -> Table:
         "overrun": (flags & FLAG_OVERRUN) != 0, "skipped": (flags & FLAG_SKIPPED) != 0,
         "lockout": (flags & FLAG_LOCKOUT) != 0, "release_skipped": (flags & FLAG_RELEASE_SKIPPED) != 0,
         "measured": measured(recs, run.config) if n else np.zeros(0, dtype=bool),
+        "completed": completed(recs) if n else np.zeros(0, dtype=bool),
         "release_latency_us": (start - release) / 1e3,
         "response_us": (cycle_end_ns(recs) - release) / 1e3 if n else np.zeros(0),
         "start_utc_ns": run.to_utc_ns(np.asarray(recs["dpu"]), start) if n else np.zeros(0, np.int64),
@@ -184,9 +193,23 @@ def _empty_faults() -> dict[str, pa.Array]:
     return {c: pa.array([], type=types.get(c, pa.null())) for c in COLUMNS["faults"]}
 
 
-def report_table(run: RunAnalysis, name: str) -> Table:
-    """One of REPORT_TABLES: the rows report.json holds, flattened."""
-    rows = [_flat(row) for row in run.report.to_json()[name]]
+def report_tables(run: RunAnalysis) -> dict[str, Table]:
+    """REPORT_TABLES and their CHILD_TABLES: the rows report.json holds, flattened."""
+    report = run.report.to_json()
+    out = {}
+    for name in REPORT_TABLES:
+        rows = report[name]
+        child = CHILD_TABLES.get(name)
+        if child is not None:
+            field, child_name, parent, as_name = child
+            out[child_name] = _rows_table(child_name, [{as_name: row[parent], **_flat(c)} for row in rows
+                                                        for c in row[field]])
+            rows = [{k: v for k, v in row.items() if k != field} for row in rows]
+        out[name] = _rows_table(name, [_flat(row) for row in rows])
+    return out
+
+
+def _rows_table(name: str, rows: list[dict[str, Any]]) -> Table:
     keys: dict[str, None] = {}
     for row in rows:
         keys.update(dict.fromkeys(row))
@@ -207,6 +230,6 @@ def _flat(row: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 def tables(run: RunAnalysis) -> dict[str, Table]:
     """Every table of a run, by name (the Parquet files' names)."""
-    out = {name: report_table(run, name) for name in REPORT_TABLES}
+    out = report_tables(run)
     out.update(timing=timing_table(run), receptions=receptions_table(run), faults=faults_table(run))
     return out

@@ -25,7 +25,7 @@ import numpy as np
 from ..read.logreader import Log
 from ..read.messages import LogError, Messages, open_run_log, read_messages
 from ..read.records import TIMING_CHANNEL, Heads, RunRecords, load_records, run_ids, timing_heads
-from .columns import Table, faults_table, receptions_table, report_table, tables, timing_table
+from .columns import Table, faults_table, receptions_table, report_tables, tables, timing_table
 from .faults import heartbeats_from_status
 from .latency import ClockOffsets
 from .report import RunReport, build_report
@@ -87,11 +87,11 @@ class RunAnalysis:
     # The tables of the public API (skeleton/__init__.py) and of `skel export --parquet`.
     @property
     def dpus(self) -> Table:
-        return report_table(self, "dpus")
+        return report_tables(self)["dpus"]
 
     @property
     def processes(self) -> Table:
-        return report_table(self, "processes")
+        return report_tables(self)["processes"]
 
     @cached_property
     def timing(self) -> Table:

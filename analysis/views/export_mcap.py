@@ -23,7 +23,6 @@ from __future__ import annotations
 import base64
 import json
 import os
-import sys
 from collections.abc import Iterator
 from dataclasses import asdict
 from pathlib import Path
@@ -34,13 +33,11 @@ from mcap.writer import Writer
 
 import skelmsg
 
-from ..exitcodes import EXIT_BAD_INPUT, EXIT_OK
 from ..measure.faults import KINDS
 from ..measure.metrics import cycle_end_ns
-from ..measure.run import RunAnalysis, load_run
+from ..measure.run import RunAnalysis
 from ..read.lcmjson import schema_of, to_json, type_name
 from ..read.mcapformat import FAULTS_TOPIC, INPUT_FIELDS, METADATA, RAW_TOPIC, TIMING_PREFIX
-from ..read.messages import LogError
 from ..read.records import (
     CYCLE_FIELDS,
     FLAG_LOCKOUT,
@@ -136,25 +133,6 @@ class _Out:
                 topic=topic, message_encoding="json", schema_id=self.schemas[title], metadata=meta
             )
         return self.channels[topic]
-
-
-def export_command(log: Path, mcap: Path, run_id: int | None) -> int:
-    """`skel export`: 0, or 2 with one line when the log cannot be read or written."""
-    if Path(log).suffix == ".mcap":
-        print(f"{log}: already an MCAP file; export reads an LCM log (run.lcm)", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    try:
-        data = load_run(log, run_id)
-        counts = export(data, mcap)
-    except LogError as e:
-        print(f"{log}: {e}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except OSError as e:
-        print(f"{mcap}: {e.strerror or e}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    print(f"{mcap}: run {data.report.run_id}, {counts['timing']} timing records, "
-          f"{counts['messages']} messages on {counts['topics']} topics")  # fmt: skip
-    return EXIT_OK
 
 
 def export(data: RunAnalysis, mcap: str | os.PathLike[str]) -> dict[str, int]:
