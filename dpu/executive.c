@@ -1,8 +1,9 @@
 /* executive.c: the cyclic executive, the paper's procedural model. One thread
  * per DPU runs its processes in their configured order on an absolute grid of
- * minor cycles t0 + j*m (CLOCK_MONOTONIC, TIMER_ABSTIME). Releases are never
- * skipped: a late DPU runs the next due release at once and falls further
- * behind, and that backlog is what turns an overload into a lockout. A COMMIT
+ * minor cycles t0 + j*m (CLOCK_MONOTONIC, TIMER_ABSTIME). A late DPU runs the
+ * next due release at once and falls further behind, and on an overloaded DPU
+ * that backlog is what turns an overload into a lockout; only a `sync: data`
+ * process a whole period late on a DPU whose load fits skips a release. A COMMIT
  * during a run switches to the next plan at one boundary (swap.c). Between
  * runs the thread waits for a START and keeps the link queues drained. */
 #include <errno.h>
