@@ -161,3 +161,18 @@ processes:
   - {id: 2, name: hungry_reader, dpu: 2, period_us: 5000, compute_us: 500, sync: data, inputs: [1]}
 run: {duration_s: 3, warmup_cycles: 0, lockout_cycles: 5, stop_on: [lockout]}
 """
+
+
+def short_servo_run(out: Path, speed: int = 3) -> subprocess.CompletedProcess[str]:
+    """A real SERVO run of 300 cycles (sanitizer DPUs, a private port) into `out`. Speed 3
+    (~30 % load) keeps a busy shared machine from locking it out."""
+    assert ASAN_DPU.exists(), f"{ASAN_DPU} missing: run `make test` (it builds it)"
+    url = f"udpm://239.255.76.67:{next(_ports)}?ttl=0"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("SKEL_DPU", str(ASAN_DPU))
+        fast = [arg for d in (1, 2, 3, 4) for arg in ("-s", f"dpu.{d}.speed={speed}")]
+        run = skel("run", str(EXAMPLES / "servo.yaml"), "--spawn", "--url", url, "--cycles", "300",
+                   "-s", "run.warmup_cycles=20", *fast, "--out", str(out))  # fmt: skip
+    assert run.returncode in (0, 3), run.stderr  # 3: a fault was measured; the log is as good
+    return run
+

@@ -3,7 +3,6 @@ of the log per `skel report --plots`, on two real SERVO runs."""
 
 from __future__ import annotations
 
-import itertools
 import json
 import subprocess
 import sys
@@ -14,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import ASAN_DPU, EXAMPLES, REPO, skel
+from conftest import REPO, short_servo_run, skel
 
 import skeleton
 from skeleton.analysis.measure.columns import COLUMNS
@@ -22,25 +21,14 @@ from skeleton.analysis.read import logreader, records
 from skeleton.analysis.views.report import report_command
 from skeleton.analysis.views.trace import PHASES
 
-_ports = itertools.count(7960)
-
 
 @pytest.fixture(scope="module")
 def two_runs(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, Path]]:
     """SERVO at two DPU speeds (the same design on faster and slower processors)."""
-    assert ASAN_DPU.exists(), f"{ASAN_DPU} missing: run `make test` (it builds it)"
     base = tmp_path_factory.mktemp("api")
-    outs = []
-    for speed in (3, 2):
-        out = base / f"speed{speed}"
-        url = f"udpm://239.255.76.67:{next(_ports)}?ttl=0"
-        with pytest.MonkeyPatch.context() as mp:
-            mp.setenv("SKEL_DPU", str(ASAN_DPU))
-            fast = [arg for d in (1, 2, 3, 4) for arg in ("-s", f"dpu.{d}.speed={speed}")]
-            run = skel("run", str(EXAMPLES / "servo.yaml"), "--spawn", "--url", url, "--cycles", "300",
-                       "-s", "run.warmup_cycles=20", *fast, "--out", str(out))  # fmt: skip
-        assert run.returncode in (0, 3), run.stderr
-        outs.append(out)
+    outs = [base / "speed3", base / "speed2"]
+    short_servo_run(outs[0], speed=3)
+    short_servo_run(outs[1], speed=2)
     yield outs[0], outs[1]
 
 

@@ -12,7 +12,7 @@ from typing import Any
 import jsonschema
 import numpy as np
 import pytest
-from conftest import ASAN_DPU, EXAMPLES, _ports, skel
+from conftest import short_servo_run, skel
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
@@ -33,16 +33,8 @@ INPUT_FIELDS = ["buffer", "seq", "new", "dropped", "received", "sent_ns", "recv_
 @pytest.fixture(scope="module")
 def servo_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     """One short real SERVO run (sanitizer DPUs) and its export, shared by this module."""
-    assert ASAN_DPU.exists(), f"{ASAN_DPU} missing: run `make test` (it builds it)"
     out = tmp_path_factory.mktemp("servo") / "run"
-    url = f"udpm://239.255.76.67:{next(_ports)}?ttl=0"
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("SKEL_DPU", str(ASAN_DPU))
-        # Faster DPUs (speed 3: ~30 % load) so a busy shared machine does not lock it out.
-        fast = [arg for d in (1, 2, 3, 4) for arg in ("-s", f"dpu.{d}.speed=3")]
-        run = skel("run", str(EXAMPLES / "servo.yaml"), "--spawn", "--url", url, "--cycles", "300",
-                   "-s", "run.warmup_cycles=20", *fast, "--out", str(out))  # fmt: skip
-    assert run.returncode in (0, 3), run.stderr  # 3: a fault was measured; the export is the same
+    short_servo_run(out)
     exported = skel("export", str(out / "run.lcm"), str(out / "run.mcap"))
     assert exported.returncode == 0, exported.stderr
     assert "timing records" in exported.stdout
