@@ -11,18 +11,34 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import pyarrow as pa
 
 from ..read.records import CYCLE_FIELDS, FLAG_LOCKOUT, FLAG_OVERRUN, FLAG_RELEASE_SKIPPED, FLAG_SKIPPED
+from .latency import ClockOffsets
 from .metrics import completed, cycle_end_ns, measured
+from .report import RunReport
 
 if TYPE_CHECKING:
     import pandas as pd
 
-    from .run import RunAnalysis
+
+class RunAnalysis(Protocol):
+    """What the tables need of a run (run.RunAnalysis, which builds its tables from here)."""
+
+    report: RunReport
+    clock: ClockOffsets
+
+    @property
+    def config(self) -> Any: ...
+    @property
+    def records(self) -> Any: ...
+    @property
+    def inputs(self) -> Any: ...
+    def process_names(self) -> dict[int, str]: ...
+    def to_utc_ns(self, dpu: np.ndarray | int, mono_ns: np.ndarray | int) -> np.ndarray: ...
 
 _RUN = {
     "run_id": "the run", "generation": "config generation the row belongs to",
