@@ -151,9 +151,9 @@ def test_trace_holds_one_complete_event_per_cycle_phase(two_runs: tuple[Path, Pa
     assert comm_in["dur"] == pytest.approx(first.comm_in_ns / 1e3)
     names = {e["args"]["name"] for e in events if e["ph"] == "M" and e["name"] == "thread_name"}
     assert names == set(run.process_names().values())
-    overruns = [e for e in events if e["ph"] == "i" and e["name"] == "overrun"]
-    assert len(overruns) == int(cycles.overrun.sum())
-    faults = Counter(e["name"] for e in events if e["ph"] == "i" and e["name"] != "overrun")
+    overruns = [e for e in events if e["ph"] == "i" and e["cat"] == "overrun"]
+    assert len(overruns) == int(ran.overrun.sum())
+    faults = Counter(e["name"] for e in events if e["ph"] == "i" and e["cat"] == "fault")
     assert faults == Counter(f.kind for f in run.report.faults)
 
 

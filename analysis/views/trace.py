@@ -3,8 +3,8 @@
 Trace Event Format (JSON), which ui.perfetto.dev and chrome://tracing open: one track
 group per DPU ("pid") and one track per process on it ("tid"). Every cycle that ran is
 four complete events ("ph": "X"), one per phase: comm in, blocked, compute, comm out.
-An overrun is an instant event at its cycle's end; every fault of the report is an
-instant event at when it happened, on its DPU's track group (or the whole trace's when
+An overrun is an instant event at its cycle's end (category "overrun"); every fault of
+the report is an instant event (category "fault", named by its kind) at when it happened, on its DPU's track group (or the whole trace's when
 it has no DPU). Times are microseconds on the host's clock: each DPU's monotonic clock
 mapped through the clock-offset estimates the report uses (identity on one machine).
 """
@@ -71,7 +71,7 @@ def _phases(run: RunAnalysis) -> Iterator[dict[str, Any]]:
         at = at + length
     end_us = _host_us(run, dpus, at).tolist()
     for i in np.flatnonzero(np.asarray(recs["flags"]).astype(np.int64) & FLAG_OVERRUN).tolist():
-        yield {"ph": "i", "s": "t", "cat": "fault", "name": "overrun", "pid": cols["dpu"][i],
+        yield {"ph": "i", "s": "t", "cat": "overrun", "name": "overrun", "pid": cols["dpu"][i],
                "tid": cols["process"][i], "ts": end_us[i], "args": {"cycle": cols["cycle"][i]}}  # fmt: skip
 
 
