@@ -31,24 +31,26 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 import skelmsg
-from skeleton.analysis.exitcodes import EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
-from skeleton.analysis.measure.faults import (
+
+from ..analysis.exitcodes import EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
+from ..analysis.measure.faults import (
     Lockout,
     jam_faults,
     lockout_faults,
     lockouts_from_status,
     stall_threshold_ns,
 )
-from skeleton.analysis.measure.metrics import utilization_pct
-from skeleton.analysis.measure.run import load_run
-from skeleton.analysis.read.messages import LogError
-from skeleton.analysis.views.tables import print_report
-from skeleton.host import owner, spawn
-from skeleton.host.check import delivery_warnings, warmup_warnings
-from skeleton.host.clock import ClockKeeper
-from skeleton.host.control import Control, DpuView, PushResult
-from skeleton.host.repair import LoggerKeeper, LogRepair, RepairResult
-from skeleton.host.system import System
+from ..analysis.measure.metrics import utilization_pct
+from ..analysis.measure.run import load_run
+from ..analysis.read.messages import LogError
+from ..analysis.views.tables import print_report
+from . import owner, spawn
+from .check import delivery_warnings, warmup_warnings
+from .clock import ClockKeeper
+from .control import Control, DpuView, PushResult
+from .repair import LoggerKeeper, LogRepair, RepairResult
+from .system import System
+from .wire import config_message
 
 START_LEAD_S = 0.5          # time for START to reach every DPU before cycle 0
 REPORT_GRACE_S = 5.0        # how long after the end we wait for the DPUs' reports
@@ -119,7 +121,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
             daemons = [spawn.start_dpu(d.id, url, out / "logs", options.dpu_args, deadline_s=dpu_deadline_s)
                        for d in system.dpus if spawn.is_local(d.host)]
         silent = control.wait_heard(dpu_ids, options.wait_dpus_s,
-                                    introduce=lambda g: system.to_config(g, 0, committed=False))
+                                    introduce=lambda g: config_message(system, g, 0, committed=False))
         if silent:
             console.print(f"[red]no heartbeat from DPU {', '.join(map(str, silent))} on {url} in "
                           f"{options.wait_dpus_s:g} s[/]: start them (`skel up FILE` or skel-dpu --id N "
@@ -132,7 +134,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         current = {v.status.generation for i, v in control.snapshot().items() if i in dpu_ids}
         if generation is None or current != {generation}:
             generation = control.next_generation()
-            pushed = control.push(system.to_config(generation, run_id, committed=False), dpu_ids,
+            pushed = control.push(config_message(system, generation, run_id, committed=False), dpu_ids,
                                   timeout_s=PUSH_TIMEOUT_S)
             if not pushed.ok:
                 _print_push_failure(console, pushed)
@@ -145,7 +147,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         clocks = ClockKeeper(control, dpu_ids)
         clocks.refresh()  # before START, so the log has offsets for the whole run
         follower = RunFollower(system, control, console)
-        committed = system.to_config(generation, run_id, committed=True)
+        committed = config_message(system, generation, run_id, committed=True)
         try:
             _follow(control, follower, clocks, committed, duration_ns, dpu_ids, repair)
         except KeyboardInterrupt:  # Ctrl-C or SIGTERM: end the run, keep what ran, and say so
@@ -206,7 +208,7 @@ class RunFollower:
         self.system = system
         self.control = control
         self.console = console
-        self.config = system.to_config(0, 0, committed=False)  # names and links, for the faults
+        self.config = config_message(system, 0, 0, committed=False)  # names and links, for the faults
         self.lockouts: dict[int, Lockout] = {}
         self.jams: set[tuple[str, ...]] = set()
         self.lost: set[int] = set()      # lost during this run (a restarted DPU stays in it)
