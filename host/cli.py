@@ -20,7 +20,8 @@ from rich.table import Table
 from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED
 from ..analysis.read.messages import run_log_path
 from . import spawn
-from .control import QUIET_S, Control, is_run_id
+from .control import Control
+from .listener import QUIET_S, is_run_id
 from .schema import DEFAULT_URL
 from .system import SystemFileError, load
 from .wire import config_message
@@ -117,6 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--url", default=DEFAULT_URL)
     p.add_argument("--once", action="store_true", help="print the final table when the run ends, then exit")
     p.add_argument("--duration", type=float, metavar="S", help="stop watching after S seconds")
+    p.add_argument("--json", action="store_true", help="with --once: the final report as JSON (report.json)")
 
     p = sub.add_parser("doctor", help="check what would break LCM multicast here, with the fix for each")
     p.add_argument("--url", default=DEFAULT_URL)
@@ -355,9 +357,12 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_watch(args: argparse.Namespace) -> int:
-    from ..analysis.views.watch import watch_command
+    from .watch import watch_command
 
-    return watch_command(args.url, once=args.once, duration_s=args.duration)
+    if args.json and not args.once:
+        print("skel watch: --json needs --once (a live view has no final report)", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    return watch_command(args.url, once=args.once, duration_s=args.duration, as_json=args.json)
 
 
 def cmd_doctor(args: argparse.Namespace) -> int:

@@ -14,10 +14,10 @@ import skelmsg
 from skeleton.host.control import (
     CONFIG,
     REPORT,
-    REPORTS_KEPT,
     STATUS,
     Control,
 )
+from skeleton.host.listener import REPORTS_KEPT
 from skeleton.host.repair import SeenBatches
 from skeleton.host.system import load
 from skeleton.host.wire import config_message
