@@ -25,7 +25,8 @@ from ..analysis.measure.run import analyze_log
 from ..analysis.read.logreader import encode_events, read_bytes
 from ..analysis.read.messages import LogError
 from ..analysis.views.tables import print_report
-from .listener import CHANNELS, LOST_AFTER_S, Listener, RecordStore
+from .listener import CHANNELS, LOST_AFTER_S, Listener
+from .recordstore import RecordStore
 from .watch_view import render
 
 REFRESH_S = 0.4  # redraw period: at least twice a second

@@ -20,7 +20,7 @@ from rich.console import Console
 
 from skeleton.analysis.measure.report import build_report
 from skeleton.analysis.read.records import decode_run
-from skeleton.host.listener import RecordStore
+from skeleton.host.recordstore import RecordStore
 from skeleton.host.watch import Heard
 from skeleton.host.watch_view import render
 
