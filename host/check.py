@@ -20,8 +20,7 @@ from urllib.parse import parse_qs, urlsplit
 from rich.console import Console, JustifyMethod
 from rich.table import Table
 
-from skeleton.analysis.exitcodes import EXIT_BAD_INPUT, EXIT_OK
-
+from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_OK
 from .doctor import check_buffer_socket, rmem_max
 from .system import System, SystemFileError, load
 

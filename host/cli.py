@@ -17,11 +17,14 @@ from pathlib import Path
 
 from rich.table import Table
 
-from skeleton.analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED
-from skeleton.analysis.read.messages import run_log_path
-from skeleton.host import spawn
-from skeleton.host.control import QUIET_S, Control, is_run_id
-from skeleton.host.system import DEFAULT_URL, SystemFileError, load
+from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED
+from ..analysis.read.messages import run_log_path
+from . import spawn
+from .control import Control
+from .listener import QUIET_S, is_run_id
+from .schema import DEFAULT_URL
+from .system import SystemFileError, load
+from .wire import config_message
 
 LISTEN_LIMIT_S = 5.0  # `skel status`/`skel clock` listen at most this long by default
 
@@ -117,6 +120,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--url", default=DEFAULT_URL)
     p.add_argument("--once", action="store_true", help="print the final table when the run ends, then exit")
     p.add_argument("--duration", type=float, metavar="S", help="stop watching after S seconds")
+    p.add_argument("--json", action="store_true", help="with --once: the final report as JSON (report.json)")
 
     p = sub.add_parser("doctor", help="check what would break LCM multicast here, with the fix for each")
     p.add_argument("--url", default=DEFAULT_URL)
@@ -157,13 +161,13 @@ def _load(args: argparse.Namespace):  # type: ignore[no-untyped-def]
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from skeleton.host.check import check
+    from .check import check
 
     return check(args.file, args.overrides, as_json=args.json)
 
 
 def cmd_up(args: argparse.Namespace) -> int:
-    from skeleton.host.run import control_url
+    from .run import control_url
 
     system = _load(args)
     url = control_url(system)
@@ -181,8 +185,8 @@ def cmd_down(args: argparse.Namespace) -> int:
 
 
 def cmd_push(args: argparse.Namespace) -> int:
-    from skeleton.host import owner
-    from skeleton.host.run import HEAR_TIMEOUT_S, control_url
+    from . import owner
+    from .run import HEAR_TIMEOUT_S, control_url
 
     if args.at_ms < 0:
         print(f"skel push: --at-ms {args.at_ms:g}: must be >= 0", file=sys.stderr)
@@ -191,7 +195,8 @@ def cmd_push(args: argparse.Namespace) -> int:
     control = Control(control_url(system))
     try:
         ids = sorted(d.id for d in system.dpus)
-        control.wait_heard(ids, HEAR_TIMEOUT_S, introduce=lambda g: system.to_config(g, 0, committed=False))
+        control.wait_heard(ids, HEAR_TIMEOUT_S,
+                           introduce=lambda g: config_message(system, g, 0, committed=False))
         foreign = owner.foreign_runs(control, ids)
         if foreign and not args.force:
             print(owner.refusal(foreign, "push"), file=sys.stderr)
@@ -205,7 +210,8 @@ def cmd_push(args: argparse.Namespace) -> int:
         runs = {v.status.run_id for i, v in control.snapshot().items()
                 if i in ids and v.state in ("armed", "running") and is_run_id(v.status.run_id)}
         run_id = runs.pop() if len(runs) == 1 else 0
-        result = control.push(system.to_config(generation, run_id, committed=False), ids, at_ms=args.at_ms)
+        config = config_message(system, generation, run_id, committed=False)
+        result = control.push(config, ids, at_ms=args.at_ms)
     finally:
         control.close()
     if result.committed:
@@ -223,8 +229,8 @@ def cmd_push(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from skeleton.analysis.views.tables import output_console
-    from skeleton.host.run import RunOptions, run
+    from ..analysis.views.tables import output_console
+    from .run import RunOptions, run
 
     pushed_generation = None
     if args.file is None:
@@ -254,7 +260,7 @@ def _listen(control: Control, args: argparse.Namespace) -> float:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    from skeleton.analysis.views.tables import output_console
+    from ..analysis.views.tables import output_console
 
     if args.wait < 0:
         print(f"skel status: --wait {args.wait:g}: must be >= 0", file=sys.stderr)
@@ -301,8 +307,8 @@ def _json_or_nothing(rows: list[dict], as_json: bool, nothing: str) -> int | Non
 
 
 def cmd_clock(args: argparse.Namespace) -> int:
-    from skeleton.analysis.views.tables import output_console
-    from skeleton.host import clock
+    from ..analysis.views.tables import output_console
+    from . import clock
 
     if args.samples < 1 or args.wait < 0:
         what = (f"--samples {args.samples}: must be >= 1" if args.samples < 1
@@ -335,32 +341,35 @@ def cmd_clock(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from skeleton.analysis.views.report import report_command
+    from ..analysis.views.report import report_command
 
     return report_command(run_log_path(args.log), as_json=args.json, run_id=args.run_id, plots=args.plots)
 
 
 def cmd_diff(args: argparse.Namespace) -> int:
-    from skeleton.analysis.views.diff import diff_command
+    from ..analysis.views.diff import diff_command
 
     return diff_command(run_log_path(args.run_a), run_log_path(args.run_b), as_json=args.json)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from skeleton.analysis.views.export import export_command
+    from ..analysis.views.export import export_command
 
     return export_command(run_log_path(args.log), args.mcap, run_id=args.run_id, parquet=args.parquet,
                           trace=args.trace)
 
 
 def cmd_watch(args: argparse.Namespace) -> int:
-    from skeleton.analysis.views.watch import watch_command
+    from .watch import watch_command
 
-    return watch_command(args.url, once=args.once, duration_s=args.duration)
+    if args.json and not args.once:
+        print("skel watch: --json needs --once (a live view has no final report)", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    return watch_command(args.url, once=args.once, duration_s=args.duration, as_json=args.json)
 
 
 def cmd_doctor(args: argparse.Namespace) -> int:
-    from skeleton.host.doctor import doctor
+    from .doctor import doctor
 
     return doctor(args.url, as_json=args.json)
 

@@ -16,7 +16,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 import skelmsg
-from skeleton.host.control import CLOCK, Control, PingSample
+
+from .control import CLOCK, Control, PingSample
 
 SAMPLES = 8
 SPACING_S = 0.004          # between pings: a burst would queue behind itself

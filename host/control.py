@@ -1,8 +1,8 @@
-"""Talking to the DPUs: config broadcast, commands, and what their heartbeats say.
+"""Talking to the DPUs: config broadcast, commands and pings.
 
 One `Control` owns one LCM instance on the control URL and a thread that drains
-it. Everything the host knows about the DPUs comes from their status_t
-heartbeats and report_t messages; everything it asks goes out as config_t and
+it into the Listener it is (listener.py: what the heartbeats, reports and configs
+say, decoded once and kept). Everything it asks goes out as config_t and
 command_t. Commands are repeated a few times (multicast may lose one) and the
 DPUs act on each command sequence number once.
 """
@@ -14,7 +14,6 @@ import os
 import secrets
 import signal
 import socket
-import struct
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -24,32 +23,13 @@ import lcm
 
 import skelmsg
 
+from .listener import CHANNELS, Listener, is_generation
+
 CONFIG, COMMAND, STATUS, REPORT, CLOCK = (
     "SKEL_CONFIG", "SKEL_COMMAND", "SKEL_STATUS", "SKEL_REPORT", "SKEL_CLOCK",
 )
-STATE_NAMES = {
-    skelmsg.status_t.STATE_UNCONFIGURED: "unconfigured",
-    skelmsg.status_t.STATE_READY: "ready",
-    skelmsg.status_t.STATE_ARMED: "armed",
-    skelmsg.status_t.STATE_RUNNING: "running",
-}
 COMMAND_REPEATS = 3
-HEARTBEAT_S = 0.2           # a DPU heartbeats at 5 Hz ...
-LOST_AFTER_S = 0.6          # ... three missed beats and it is reported lost
-# `skel status`/`skel clock` listen until no DPU not heard before has been heard for this
-# long (five heartbeats: a DPU that is up is heard even when a beat or two are lost).
-QUIET_S = 5 * HEARTBEAT_S
-# Pushed configs kept (by generation) so a running follower can re-send the one committed mid-run.
-CONFIGS_KEPT = 4
-# What anyone on the group may send is bounded before the host tool keeps or uses it: a stray
-# generation of 2**63-1 once made every later push overflow int64. The host's own generations
-# count pushes and its run ids are milliseconds since 1970: both far inside these ranges
-# (integers a JSON reader or a double holds exactly).
-GENERATION_MAX = 2**53 - 1
-RUN_ID_MAX = 2**53 - 1
 CLOCK_OFFSET_MAX_NS = 2**62  # |DPU clock - host clock|; a clock_offset_t holds it with room to spare
-REPORTS_KEPT = 1024          # report_t kept, newest first out: a flood of them cannot grow memory
-PROCESSES_KEPT = 4096        # daemons (host, pid) remembered for `skel status`, likewise
 
 
 @dataclass(frozen=True)
@@ -70,27 +50,6 @@ class PingSample:
     def rtt_ns(self) -> int:
         """Time on the wire (both legs), the DPU's own handling time taken out."""
         return (self.t4 - self.t1) - (self.t3 - self.t2)
-
-
-def is_generation(value: int) -> bool:
-    """A generation the host tool may have made (not a stray message's)."""
-    return 0 <= value <= GENERATION_MAX
-
-
-def is_run_id(value: int) -> bool:
-    return 0 < value <= RUN_ID_MAX
-
-
-@dataclass
-class DpuView:
-    """The latest heartbeat of one DPU, and when it came."""
-
-    status: skelmsg.status_t
-    heard_mono: float
-
-    @property
-    def state(self) -> str:
-        return STATE_NAMES.get(self.status.state, f"state {self.status.state}")
 
 
 @dataclass
@@ -158,35 +117,23 @@ def _plausible(sample: PingSample, t1_sent: int | None) -> bool:
             and abs(sample.offset_ns) <= CLOCK_OFFSET_MAX_NS)
 
 
-class Control:
-    """The host's side of the control channels."""
+class Control(Listener):
+    """The host's side of the control channels: it hears as a Listener and sends."""
 
     def __init__(self, url: str) -> None:
+        super().__init__()
         self.url = url
         # Who we are on the wire: a run belongs to the session that started it (dpu/owner.c).
         self.session = secrets.randbits(62) + 1
         self.sender = f"{socket.gethostname()} pid {os.getpid()}"
         self.force = False  # `--force`: act during another session's run
         self._lcm = lcm.LCM(url)
-        self._lock = threading.Lock()
-        self._changed = threading.Condition(self._lock)
-        self.dpus: dict[int, DpuView] = {}
-        # Every daemon heard, by (host, pid): DPUs started with --id auto all heartbeat as
-        # DPU -1 until a config names them, and two daemons may claim one id.
-        self.processes: dict[tuple[str, int], DpuView] = {}
-        self._new_process_mono = time.monotonic()   # when the last daemon not heard before was
-        self.reports: dict[tuple[int, int], skelmsg.report_t] = {}
-        self.rejected_messages = 0
-        self.on_status: Callable[[skelmsg.status_t], None] | None = None
-        # Every config heard on the wire (ours and other `skel push`es'), newest generations only.
-        self.configs: dict[int, skelmsg.config_t] = {}
         # seq of each PING we sent -> the first answer of each DPU (later heartbeats repeat it),
         # and -> its t1, which an answer must echo.
         self._pings: dict[int, dict[int, PingSample]] = {}
         self._ping_t1: dict[int, int] = {}
-        for channel, handler in ((STATUS, self._handle_status), (REPORT, self._handle_report),
-                                 (CONFIG, self._handle_config)):
-            self._lcm.subscribe(channel, handler).set_queue_capacity(0)
+        for channel in CHANNELS:
+            self._lcm.subscribe(channel, self.handle).set_queue_capacity(0)
         self._running = True
         self._thread = threading.Thread(target=self._drain, name="lcm-control", daemon=True)
         self._thread.start()
@@ -199,113 +146,12 @@ class Control:
         while self._running:
             self._lcm.handle_timeout(50)
 
-    def _decode(self, cls: type, data: bytes) -> object | None:
-        """Decode, or count a malformed/foreign message and return None: never crash."""
-        try:
-            return cls.decode(data)
-        except (ValueError, struct.error, UnicodeDecodeError, IndexError):
-            with self._lock:
-                self.rejected_messages += 1
-            return None
-
-    def _refuse(self) -> None:
-        with self._lock:
-            self.rejected_messages += 1
-
-    def _handle_status(self, _channel: str, data: bytes) -> None:
-        # t4 of a ping: first thing, before decoding, so only the wire and LCM are in the round trip.
-        t4 = time.monotonic_ns()
-        status = self._decode(skelmsg.status_t, data)
-        if not isinstance(status, skelmsg.status_t):
-            return
-        if not (status.dpu == -1 or status.dpu > 0):  # ids are 1..32767, -1 before --id auto found its own
-            self._refuse()
-            return
-        now = time.monotonic()
-        with self._changed:
-            view = DpuView(status, now)
-            self.dpus[status.dpu] = view
-            key = (status.host, status.pid)
-            if key not in self.processes:
-                self._new_process_mono = now
-                if len(self.processes) >= PROCESSES_KEPT:
-                    del self.processes[next(iter(self.processes))]
-            self.processes[key] = view
-            answers = self._pings.get(status.ping_seq)
-            if answers is not None and status.dpu not in answers:
-                sample = PingSample(status.ping_t1_ns, status.ping_t2_ns, status.ping_t3_ns, t4)
-                if _plausible(sample, self._ping_t1.get(status.ping_seq)):
-                    answers[status.dpu] = sample
-            self._changed.notify_all()
-        if self.on_status is not None:
-            self.on_status(status)
-
-    def _handle_report(self, _channel: str, data: bytes) -> None:
-        report = self._decode(skelmsg.report_t, data)
-        if not isinstance(report, skelmsg.report_t):
-            return
-        if report.dpu <= 0 or not is_run_id(report.run_id):
-            self._refuse()
-            return
-        with self._changed:
-            self.reports.pop((report.dpu, report.run_id), None)
-            self.reports[(report.dpu, report.run_id)] = report
-            while len(self.reports) > REPORTS_KEPT:
-                del self.reports[next(iter(self.reports))]
-            self._changed.notify_all()
-
-    def _handle_config(self, _channel: str, data: bytes) -> None:
-        config = self._decode(skelmsg.config_t, data)
-        if not isinstance(config, skelmsg.config_t):
-            return
-        if not is_generation(config.generation):  # not one of ours, and it would crowd ours out
-            self._refuse()
-            return
-        with self._changed:
-            self.configs[config.generation] = config
-            for old in sorted(self.configs)[:-CONFIGS_KEPT]:
-                del self.configs[old]
-            self._changed.notify_all()
-
-    def config_of(self, generation: int) -> skelmsg.config_t | None:
-        """The config of `generation` if it was heard on the wire (pushed by any host)."""
-        with self._lock:
-            return self.configs.get(generation)
-
-    def wait_for(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
-        """Wait until predicate() (evaluated under the lock) holds, or time out."""
-        deadline = time.monotonic() + timeout_s
-        with self._changed:
-            while not predicate():
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return False
-                self._changed.wait(min(left, 0.1))
-        return True
-
-    def snapshot(self) -> dict[int, DpuView]:
-        with self._lock:
-            return dict(self.dpus)
-
-    def listen(self, limit_s: float, quiet_s: float = QUIET_S) -> float:
-        """Listen until no daemon not heard before has been heard for `quiet_s` (from the
-        start, or from the last new one), or `limit_s` in all; the seconds listened."""
-        start = time.monotonic()
-        self.wait_for(lambda: time.monotonic() - max(start, self._new_process_mono) >= quiet_s,
-                      limit_s)
-        return time.monotonic() - start
-
-    def daemons(self) -> list[DpuView]:
-        """The latest heartbeat of every daemon heard, by DPU id, then host and pid."""
-        with self._lock:
-            views = list(self.processes.values())
-        return sorted(views, key=lambda v: (v.status.dpu, v.status.host, v.status.pid))
-
-    def lost(self, ids: Iterable[int]) -> list[int]:
-        """DPUs among `ids` not heard for LOST_AFTER_S (or never)."""
-        now = time.monotonic()
-        with self._lock:
-            return [i for i in ids if i not in self.dpus or now - self.dpus[i].heard_mono > LOST_AFTER_S]
+    def status_heard(self, status: skelmsg.status_t, heard_ns: int) -> None:
+        answers = self._pings.get(status.ping_seq)
+        if answers is not None and status.dpu not in answers:
+            sample = PingSample(status.ping_t1_ns, status.ping_t2_ns, status.ping_t3_ns, heard_ns)
+            if _plausible(sample, self._ping_t1.get(status.ping_seq)):
+                answers[status.dpu] = sample
 
     def wait_heard(self, ids: Iterable[int], timeout_s: float,
                    introduce: Callable[[int], skelmsg.config_t] | None = None) -> list[int]:
@@ -323,7 +169,7 @@ class Control:
             if introduce is not None and -1 in self.dpus:
                 generation = generation or self.next_generation()
                 self.publish_config(introduce(generation))
-        with self._lock:
+        with self.lock:
             return sorted(wanted - self.dpus.keys())
 
     def next_generation(self) -> int:
@@ -332,7 +178,7 @@ class Control:
         Only generations the host tool may have made count: a stray config (a DPU that
         refused or staged it reports its generation) must neither choose our numbers nor
         push them past int64."""
-        with self._lock:
+        with self.lock:
             seen = [g for v in self.dpus.values()
                     for g in (v.status.generation, v.status.staged_generation, v.status.rejected_generation)
                     if is_generation(g)]
@@ -341,7 +187,7 @@ class Control:
     def foreign_generations(self, ids: Iterable[int]) -> dict[int, int]:
         """DPUs among `ids` that applied a generation no host tool makes (a stray committed
         config): they take nothing newer until restarted."""
-        with self._lock:
+        with self.lock:
             return {i: self.dpus[i].status.generation for i in ids
                     if i in self.dpus and not is_generation(self.dpus[i].status.generation)}
 
@@ -382,7 +228,7 @@ class Control:
         cmd.kind = skelmsg.command_t.PING
         cmd.dpu = dpu
         self._sign(cmd)
-        with self._lock:
+        with self.lock:
             self._pings[cmd.seq] = {}
         cmd.ping_t1_ns = time.monotonic_ns()
         self._ping_t1[cmd.seq] = cmd.ping_t1_ns  # before the publish, so before any answer
@@ -397,7 +243,7 @@ class Control:
     def pongs(self, seqs: Iterable[int], forget: bool = True) -> dict[int, list[PingSample]]:
         """The answers to the pings `seqs`, per DPU; forget those pings unless told not to."""
         samples: dict[int, list[PingSample]] = {}
-        with self._lock:
+        with self.lock:
             for seq in seqs:
                 answers = self._pings.pop(seq, {}) if forget else dict(self._pings.get(seq, {}))
                 if forget:

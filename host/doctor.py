@@ -28,8 +28,8 @@ from urllib.parse import parse_qs, urlsplit
 from rich.console import Console
 from rich.text import Text
 
-from skeleton.analysis.exitcodes import EXIT_FAILED, EXIT_OK
-from skeleton.analysis.measure.faults import recv_buf_needed
+from ..analysis.exitcodes import EXIT_FAILED, EXIT_OK
+from ..analysis.measure.faults import recv_buf_needed
 
 LCM_DEFAULT_URL = "udpm://239.255.76.67:7667?ttl=0"  # what liblcm uses for an empty URL
 MIN_RMEM_BYTES = 2 * 1024 * 1024
@@ -377,7 +377,7 @@ def doctor(url: str, out: TextIO = sys.stdout, as_json: bool = False) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """`python -m skeleton.host.doctor [--url URL] [--json]` (the same as `skel doctor`)."""
-    from skeleton.host.system import DEFAULT_URL  # late: the schema is not needed to diagnose a network
+    from .schema import DEFAULT_URL  # late: the schema is not needed to diagnose a network
 
     parser = argparse.ArgumentParser(prog="skel doctor", description="Check what stops LCM multicast here.")
     parser.add_argument("--url", default=DEFAULT_URL, help=f"LCM URL to check (default {DEFAULT_URL})")

@@ -16,7 +16,8 @@ import time
 from dataclasses import dataclass
 
 import skelmsg
-from skeleton.host.control import Control
+
+from .control import Control
 
 BUSY = ("armed", "running")
 STOP_WAIT_S = 5.0           # a taken-over run's DPUs are idle well within this after STOP

@@ -27,11 +27,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import skelmsg
-from skeleton.analysis.read.logreader import read_bytes
-from skeleton.analysis.read.messages import REPORT_CHANNEL
-from skeleton.analysis.read.records import timing_heads
-from skeleton.host import spawn
-from skeleton.host.control import Control
+
+from ..analysis.read.logreader import read_bytes
+from ..analysis.read.messages import REPORT_CHANNEL
+from ..analysis.read.records import timing_heads
+from . import spawn
+from .control import Control
 
 # Batches asked for per round, over all DPUs. Like TCP's window: it starts well under the
 # logger's queue of 30, doubles while every ask arrives and halves when one is lost again.

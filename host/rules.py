@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from .system import (
+from .schema import (
     ABSURD_COMPUTE_PERIODS,
     DEFAULT_LINK,
     DEFAULT_URL,

@@ -31,24 +31,21 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 import skelmsg
-from skeleton.analysis.exitcodes import EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
-from skeleton.analysis.measure.faults import (
-    Lockout,
-    jam_faults,
-    lockout_faults,
-    lockouts_from_status,
-    stall_threshold_ns,
-)
-from skeleton.analysis.measure.metrics import utilization_pct
-from skeleton.analysis.measure.run import load_run
-from skeleton.analysis.read.messages import LogError
-from skeleton.analysis.views.tables import print_report
-from skeleton.host import owner, spawn
-from skeleton.host.check import delivery_warnings, warmup_warnings
-from skeleton.host.clock import ClockKeeper
-from skeleton.host.control import Control, DpuView, PushResult
-from skeleton.host.repair import LoggerKeeper, LogRepair, RepairResult
-from skeleton.host.system import System
+
+from ..analysis.exitcodes import EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
+from ..analysis.measure.faults import Fault
+from ..analysis.measure.metrics import utilization_pct
+from ..analysis.measure.run import load_run
+from ..analysis.read.messages import LogError
+from ..analysis.views.tables import print_report
+from . import owner, spawn
+from .check import delivery_warnings, warmup_warnings
+from .clock import ClockKeeper
+from .control import Control, PushResult
+from .listener import DpuView, fault_line
+from .repair import LoggerKeeper, LogRepair, RepairResult
+from .system import System
+from .wire import config_message
 
 START_LEAD_S = 0.5          # time for START to reach every DPU before cycle 0
 REPORT_GRACE_S = 5.0        # how long after the end we wait for the DPUs' reports
@@ -61,8 +58,9 @@ LOGGER_MARGIN_S = 5.0       # an orphaned logger ends this long after the report
 LOGGER_READY_S = 2.0        # heartbeats come at 5 Hz: the logger has one well within this
 REPAIR_STUCK_S = 3.0        # after the reports, the repair of the log gives up this long without progress
 REPAIR_LIMIT_S = 10.0       # ... or after this long in all
-BEHIND_POLLS = 5            # a DPU behind at this many polls in a row (0.5 s) is said to be behind
 FAILED_KINDS = ("dpu_lost", "delivery")    # the machine or network failed the run, not the design
+# The faults said while a run goes on: those run.stop_on may name, and a buffer never delivered.
+LIVE_KINDS = ("lockout", "jam", "behind", "stall", "dpu_lost", "delivery")
 FAULT_WINDOW_MAX_S = 1.0    # a run stopped early (run.stop_on) goes on at most this long
 
 
@@ -119,7 +117,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
             daemons = [spawn.start_dpu(d.id, url, out / "logs", options.dpu_args, deadline_s=dpu_deadline_s)
                        for d in system.dpus if spawn.is_local(d.host)]
         silent = control.wait_heard(dpu_ids, options.wait_dpus_s,
-                                    introduce=lambda g: system.to_config(g, 0, committed=False))
+                                    introduce=lambda g: config_message(system, g, 0, committed=False))
         if silent:
             console.print(f"[red]no heartbeat from DPU {', '.join(map(str, silent))} on {url} in "
                           f"{options.wait_dpus_s:g} s[/]: start them (`skel up FILE` or skel-dpu --id N "
@@ -132,7 +130,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         current = {v.status.generation for i, v in control.snapshot().items() if i in dpu_ids}
         if generation is None or current != {generation}:
             generation = control.next_generation()
-            pushed = control.push(system.to_config(generation, run_id, committed=False), dpu_ids,
+            pushed = control.push(config_message(system, generation, run_id, committed=False), dpu_ids,
                                   timeout_s=PUSH_TIMEOUT_S)
             if not pushed.ok:
                 _print_push_failure(console, pushed)
@@ -145,7 +143,8 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         clocks = ClockKeeper(control, dpu_ids)
         clocks.refresh()  # before START, so the log has offsets for the whole run
         follower = RunFollower(system, control, console)
-        committed = system.to_config(generation, run_id, committed=True)
+        control.follow(run_id)
+        committed = config_message(system, generation, run_id, committed=True)
         try:
             _follow(control, follower, clocks, committed, duration_ns, dpu_ids, repair)
         except KeyboardInterrupt:  # Ctrl-C or SIGTERM: end the run, keep what ran, and say so
@@ -153,6 +152,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
             console.print("interrupted: stopping the run; its report covers what ran")
             control.stop()
         _finish(control, run_id, [d for d in dpu_ids if d not in follower.lost], console)
+        follower.poll(dpu_ids, running=False)  # what the last heartbeats and batches said
         reports = {d: r for (d, r_id), r in control.reports.items() if r_id == run_id}
         if repair is not None:
             repair.finish(reports, REPAIR_STUCK_S, REPAIR_LIMIT_S)
@@ -196,96 +196,39 @@ def _claim(control: Control, dpu_ids: list[int], force: bool, console: Console) 
 
 
 class RunFollower:
-    """Watches heartbeats during a run: faults as they happen, when to stop early.
+    """Follows a run through what the Control hears (listener.py): each fault as it
+    appears, as the report will name it, and when to stop early (run.stop_on).
 
-    A DPU is lost when its heartbeats stop (LOST_AFTER_S), and only then: one whose
-    processes wait for data that does not come still heartbeats, and is not lost.
-    Lockouts and jams are named by analysis/measure/faults.py, as in the report."""
+    A DPU is lost when its heartbeats stop (listener.LOST_AFTER_S), and only then: one
+    whose processes wait for data that does not come still heartbeats, and is not lost."""
 
     def __init__(self, system: System, control: Control, console: Console) -> None:
         self.system = system
         self.control = control
         self.console = console
-        self.config = system.to_config(0, 0, committed=False)  # names and links, for the faults
-        self.lockouts: dict[int, Lockout] = {}
-        self.jams: set[tuple[str, ...]] = set()
         self.lost: set[int] = set()      # lost during this run (a restarted DPU stays in it)
         self.back: set[int] = set()
         self.stop_reason: str | None = None
-        self.hosts = {d.id: d.host for d in system.dpus}
-        self.minor_ns = {d.id: d.minor_cycle_us * 1000 for d in system.dpus}
-        self.stalled_ns: dict[int, int] = {}   # per DPU: the longest stall already heard
-        self.behind_polls: dict[int, int] = {}  # per DPU: polls in a row it was behind
         self.taken_over: str | None = None  # another host tool ended our run (--force)
 
-    def poll(self, run_id: int, dpu_ids: list[int]) -> None:
+    def poll(self, dpu_ids: list[int], running: bool = True) -> None:
+        for fault in self.control.new_faults(running):
+            if fault.kind not in LIVE_KINDS:
+                continue
+            style = "bold red" if fault.fatal or fault.kind in FAILED_KINDS else "yellow"
+            tail = "; the run goes on without it" if fault.kind == "dpu_lost" and running else ""
+            self.console.print(f"[{style}]FAULT[/] {fault_line(fault)}{tail}", highlight=False,
+                               soft_wrap=True)
+            if fault.kind == "dpu_lost" and fault.dpu is not None:
+                self.lost.add(fault.dpu)
+            if fault.kind in self.system.run.stop_on:
+                self.stop_reason = self.stop_reason or _stop_reason(fault)
         views = self.control.snapshot()
-        heard = lockouts_from_status((v.status for v in views.values()), run_id)
-        new = {p: lock for p, lock in heard.items() if p not in self.lockouts}
-        self.lockouts.update(new)
-        for fault in lockout_faults(new, self.config):
-            writer = f" from {fault.writer}" if fault.writer else ""
-            self.console.print(f"[bold red]FAULT[/] lockout: {fault.process} (DPU {fault.dpu}) at cycle "
-                               f"{fault.cycle}: {fault.detail}{writer}", highlight=False)
-        if new:
-            self._jams()
-        if new and "lockout" in self.system.run.stop_on:
-            self.stop_reason = self.stop_reason or f"lockout of {next(iter(self._named(new)))}"
-        silent = self.control.lost(dpu_ids)
-        for dpu_id in silent:
-            if dpu_id not in self.lost:
-                self.lost.add(dpu_id)
-                view = views.get(dpu_id)
-                since = f" for {time.monotonic() - view.heard_mono:.2f} s" if view else ""
-                self.console.print(f"[bold red]FAULT[/] dpu_lost: DPU {dpu_id} not heard{since}; "
-                                   "the run goes on without it")
-                if "dpu_lost" in self.system.run.stop_on:
-                    self.stop_reason = self.stop_reason or f"DPU {dpu_id} lost"
-        for dpu_id in sorted(self.lost - set(silent) - self.back):
+        for dpu_id in sorted(self.lost - set(self.control.lost(dpu_ids)) - self.back):
             # Restarted: it takes the re-sent config and joins the next run, not this one.
             self.back.add(dpu_id)
             state = views[dpu_id].state if dpu_id in views else "?"
             self.console.print(f"DPU {dpu_id} heard again ({state}): it joins the next run")
-        running = [v for v in views.values() if v.status.run_id == run_id]
-        self._follow_stalls(running)
-        self._follow_behind(running)
-
-    def _follow_stalls(self, running: list[DpuView]) -> None:
-        """A host's DPUs whose threads were kept from running for a stall (beyond
-        faults.stall_threshold_ns) since the last poll: one line per host, the platform
-        stalled, not the design (faults.stall_faults in the report)."""
-        by_host: dict[str, list[tuple[int, int]]] = {}
-        for view in running:
-            st = view.status
-            if st.longest_stall_ns <= self.stalled_ns.get(st.dpu, 0):
-                continue
-            self.stalled_ns[st.dpu] = st.longest_stall_ns
-            if st.longest_stall_ns >= stall_threshold_ns(self.config, st.dpu):
-                by_host.setdefault(self.hosts.get(st.dpu, st.host), []).append((st.dpu, st.longest_stall_ns))
-        for host, hit in sorted(by_host.items()):
-            dpus = ", ".join(str(d) for d, _ in sorted(hit))
-            longest = max(ns for _, ns in hit) / 1e6
-            self.console.print(f"[yellow]STALL[/] host {host}: DPU {dpus} could not run for up to "
-                               f"{longest:.1f} ms (the platform, not the design)")
-            if "stall" in self.system.run.stop_on:
-                self.stop_reason = self.stop_reason or f"stall of host {host}"
-
-    def _follow_behind(self, running: list[DpuView]) -> None:
-        """A DPU whose minor cycles start more than a minor cycle late, heartbeat after
-        heartbeat: said once per episode (faults.behind_faults in the report says why)."""
-        for view in running:
-            st = view.status
-            minor_ns = self.minor_ns.get(st.dpu, 0)
-            if minor_ns <= 0 or st.behind_ns <= minor_ns:
-                self.behind_polls[st.dpu] = 0
-                continue
-            self.behind_polls[st.dpu] = self.behind_polls.get(st.dpu, 0) + 1
-            if self.behind_polls[st.dpu] == BEHIND_POLLS:
-                self.console.print(f"[bold red]FAULT[/] behind: DPU {st.dpu} is {st.behind_ns / 1e6:.1f} ms "
-                                   f"({st.behind_ns / minor_ns:.1f} minor cycles) behind its schedule "
-                                   f"(kept from running {st.stall_ns / 1e6:.1f} ms in this run)")
-                if "behind" in self.system.run.stop_on:
-                    self.stop_reason = self.stop_reason or f"DPU {st.dpu} behind its schedule"
 
     def fault_window_s(self) -> float:
         """How long a run stopped early goes on: one lockout window of its slowest process
@@ -295,19 +238,15 @@ class RunFollower:
         slowest_us = max(p.period_us for p in self.system.processes)
         return min(FAULT_WINDOW_MAX_S, self.system.run.lockout_cycles * slowest_us / 1e6)
 
-    def _named(self, locks: dict[int, Lockout]) -> list[str]:
-        names = {p.id: p.name for p in self.config.processes}
-        return [names.get(p, str(p)) for p in sorted(locks)]
 
-    def _jams(self) -> None:
-        for jam in jam_faults(self.lockouts, self.config):
-            if tuple(jam.chain) in self.jams:
-                continue
-            self.jams.add(tuple(jam.chain))
-            chain = " -> ".join(jam.chain)
-            self.console.print(f"[bold red]FAULT[/] jam: {chain}: {jam.detail}", highlight=False)
-            if "jam" in self.system.run.stop_on:
-                self.stop_reason = self.stop_reason or f"jam of {jam.process}"
+def _stop_reason(fault: Fault) -> str:
+    if fault.kind in ("lockout", "jam"):
+        return f"{fault.kind} of {fault.process}"
+    if fault.kind == "stall":
+        return f"stall of host {fault.host}"
+    if fault.kind == "behind":
+        return f"DPU {fault.dpu} behind its schedule"
+    return f"DPU {fault.dpu} lost"
 
 
 def _adopt_pushed(control: Control, config: skelmsg.config_t, dpu_ids: list[int],
@@ -349,7 +288,7 @@ def _follow(control: Control, follower: RunFollower, clocks: ClockKeeper, config
         task = progress.add_task(f"run {run_id}", total=duration_ns / 1e9)
         stop_at = None
         while time.time_ns() < end_utc + 200_000_000:
-            follower.poll(run_id, dpu_ids)
+            follower.poll(dpu_ids)
             follower.taken_over = owner.taken_over(control, run_id, dpu_ids)
             if follower.taken_over:
                 follower.console.print(f"[bold red]{follower.taken_over}[/]", soft_wrap=True)
@@ -372,7 +311,7 @@ def _follow(control: Control, follower: RunFollower, clocks: ClockKeeper, config
             if repair is not None:
                 repair.poll()
             time.sleep(POLL_S)
-    follower.poll(run_id, dpu_ids)
+    follower.poll(dpu_ids)
 
 
 def _finish(control: Control, run_id: int, dpu_ids: list[int], console: Console) -> None:

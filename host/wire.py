@@ -8,14 +8,13 @@ DPUs see ids and enums only, never names they would have to resolve.
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import yaml
 
 import skelmsg
 
-if TYPE_CHECKING:
-    from .system import System
+from .system import System
 
 COMPUTE = {
     "sleep": skelmsg.dpu_t.COMPUTE_SLEEP,

@@ -3,7 +3,7 @@
 Every problem with a system file becomes a SystemFileError whose text is
 `FILE: field.path: problem`, with list items named by their `name` (or a DPU by
 its id) so the user finds the line without counting. The schema itself lives
-in system.py; this module only knows how to read YAML and word errors.
+in schema.py; this module only knows how to read YAML and word errors.
 
 Size, nesting depth and the number of values (aliases expanded) are limited before
 the document is built: PyYAML builds nested nodes recursively (a list nested 500

@@ -14,12 +14,13 @@ import skelmsg
 from skeleton.host.control import (
     CONFIG,
     REPORT,
-    REPORTS_KEPT,
     STATUS,
     Control,
 )
+from skeleton.host.listener import REPORTS_KEPT
 from skeleton.host.repair import SeenBatches
 from skeleton.host.system import load
+from skeleton.host.wire import config_message
 
 INT64_MAX = 2**63 - 1
 PAIR = EXAMPLES / "pair-10ms-5ms.yaml"
@@ -35,7 +36,7 @@ def _publish(url: str, channel: str, *messages: object, repeats: int = 3) -> Non
 
 def _stray_config(url: str, generation: int, committed: bool, valid: bool) -> skelmsg.config_t:
     """A well-formed config of the test's own system: every DPU refuses it unless `valid`."""
-    config = load(PAIR).with_url(url).to_config(generation, 0, committed=committed)
+    config = config_message(load(PAIR).with_url(url), generation, 0, committed=committed)
     if not valid:
         for process in config.processes:
             process.compute_us = -1

@@ -13,6 +13,7 @@ from conftest import EXAMPLES, DpuFarm
 import skelmsg
 from skeleton.host.control import CONFIG, Control
 from skeleton.host.system import load
+from skeleton.host.wire import config_message
 
 
 def _servo(url: str):  # type: ignore[no-untyped-def]
@@ -26,7 +27,7 @@ def test_dpus_configure_themselves_from_one_broadcast(dpus: DpuFarm, url: str) -
     try:
         assert control.wait_heard([1, 2, 3, 4], 5.0) == []
         generation = control.next_generation()
-        result = control.push(system.to_config(generation, 0, committed=False), [1, 2, 3, 4])
+        result = control.push(config_message(system, generation, 0, committed=False), [1, 2, 3, 4])
         assert result.ok and result.applied == [1, 2, 3, 4], result
         run_id = 4242
         control.start(generation, run_id, time.time_ns() + 200_000_000, 300_000_000)
@@ -51,7 +52,7 @@ def _negative_length_buffer() -> bytes:
 
 
 def _huge_length_config(system) -> bytes:  # type: ignore[no-untyped-def]
-    data = bytearray(system.to_config(99, 0, committed=False).encode())
+    data = bytearray(config_message(system, 99, 0, committed=False).encode())
     # fingerprint, generation, run_id, sent_utc_ns, committed, system string, four int32 -> nlinks
     name_len = struct.unpack_from(">i", data, 33)[0]
     offset = 33 + 4 + name_len + 16
@@ -77,7 +78,7 @@ def test_dpu_ignores_undecodable_messages(dpus: DpuFarm, url: str) -> None:
         hostile += [(ch, _negative_length_buffer()) for ch in buffer_channels]
         hostile += [(ch, b"garbage") for ch in buffer_channels]
         generation = control.next_generation()
-        assert control.push(system.to_config(generation, 0, committed=False), [2]).ok
+        assert control.push(config_message(system, generation, 0, committed=False), [2]).ok
         # During a run the DPU drains its buffer channels too: send everything then.
         control.start(generation, 6, time.time_ns() + 100_000_000, 1_000_000_000)
         assert control.wait_for(lambda: control.dpus[2].status.run_id == 6
@@ -88,7 +89,7 @@ def test_dpu_ignores_undecodable_messages(dpus: DpuFarm, url: str) -> None:
         assert control.reports[(2, 6)].rejected_messages >= len(hostile), control.reports[(2, 6)]
         assert dpus.daemons[2].alive()
         # Still fully working: a new generation is applied and a run completes.
-        result = control.push(system.to_config(generation + 1, 0, committed=False), [2])
+        result = control.push(config_message(system, generation + 1, 0, committed=False), [2])
         assert result.ok, result
         control.start(generation + 1, 7, time.time_ns() + 100_000_000, 200_000_000)
         assert control.wait_for(lambda: (2, 7) in control.reports, 5.0)
@@ -129,7 +130,7 @@ def test_sleep_mode_cycles_run_sched_fifo_where_permitted(dpus: DpuFarm, url: st
     try:
         assert control.wait_heard([1, 2], 5.0) == []
         generation = control.next_generation()
-        assert control.push(system.to_config(generation, 0, committed=False), [1, 2]).ok
+        assert control.push(config_message(system, generation, 0, committed=False), [1, 2]).ok
         assert {i: _exec_sched(pids[i])[0] for i in (1, 2)} == {1: 0, 2: 0}  # between runs
         control.start(generation, 77, time.time_ns() + 200_000_000, 2_000_000_000)
         assert control.wait_for(lambda: all(control.dpus[i].status.state == skelmsg.status_t.STATE_RUNNING

@@ -19,6 +19,7 @@ from conftest import EXAMPLES, DpuFarm
 import skelmsg
 from skeleton.host.control import Control
 from skeleton.host.system import System, load
+from skeleton.host.wire import config_message
 
 PAIR = EXAMPLES / "pair-10ms-5ms.yaml"
 MS = 1_000_000
@@ -108,7 +109,7 @@ def _stage(control: Control, config: skelmsg.config_t, ids: list[int]) -> None:
 
 def _begin_run(control: Control, system: System, ids: list[int], run_id: int, duration_s: float) -> int:
     generation = control.next_generation()
-    pushed = control.push(system.to_config(generation, 0, committed=False), ids)
+    pushed = control.push(config_message(system, generation, 0, committed=False), ids)
     assert pushed.ok and pushed.applied == ids, pushed
     control.start(generation, run_id, time.time_ns() + 200 * MS, int(duration_s * 1e9))
     assert control.wait_for(lambda: all(control.dpus[i].status.state == RUNNING
@@ -142,7 +143,7 @@ def _switch_mid_run(dpus: DpuFarm, url: str, run_id: int, before: System, after:
     try:
         assert control.wait_heard(ids, 5.0) == []
         g = _begin_run(control, before, ids, run_id, duration_s)
-        _stage(control, after.to_config(g + 1, run_id, committed=False), ids)
+        _stage(control, config_message(after, g + 1, run_id, committed=False), ids)
         assert all(control.dpus[i].status.generation == g for i in ids)  # staged, not applied
         at_utc = time.time_ns() + 300 * MS
         control.command(skelmsg.command_t.COMMIT, generation=g + 1, at_utc_ns=at_utc)
@@ -230,7 +231,7 @@ def test_commit_for_a_generation_not_staged_changes_nothing(dpus: DpuFarm, url: 
         assert control.wait_heard(ids, 5.0) == []
         g = _begin_run(control, _pair(url), ids, run_id, 1.5)
         # DPU 2 refuses generation g+1 (its part asks for an executive it lacks); DPU 1 stages it.
-        bad = _slower(url).to_config(g + 1, run_id, committed=False)
+        bad = config_message(_slower(url), g + 1, run_id, committed=False)
         bad.dpus[[d.id for d in bad.dpus].index(2)].executive = skelmsg.dpu_t.EXECUTIVE_THREADS
         _stage(control, bad, ids)
         assert control.dpus[1].status.staged_generation == g + 1
@@ -250,7 +251,7 @@ def test_commit_for_a_generation_not_staged_changes_nothing(dpus: DpuFarm, url: 
         assert control.dpus[1].status.state == READY
         # ... and a newer generation discards it: committing it afterwards is refused too.
         g2 = g + 2
-        assert control.push(_pair(url).to_config(g2, 0, committed=False), ids).ok
+        assert control.push(config_message(_pair(url), g2, 0, committed=False), ids).ok
         control.command(skelmsg.command_t.COMMIT, generation=g + 1)
         assert control.wait_for(lambda: "COMMIT for generation" in control.dpus[1].status.reject_reason, 2.0)
         assert control.dpus[1].status.generation == g2
@@ -274,7 +275,7 @@ def test_restarted_dpu_catches_up_without_joining_the_run(dpus: DpuFarm, url: st
         dpus.start(2)
         assert control.wait_for(lambda: control.dpus[2].status.pid == dpus.daemons[2].process.pid, 5.0)
         # The host's periodic re-send of the committed config, during DPU 1's run.
-        committed = system.to_config(g, run_id, committed=True)
+        committed = config_message(system, g, run_id, committed=True)
         for _ in range(20):
             control.publish_config(committed)
             if control.wait_for(lambda: control.dpus[2].status.generation == g, 0.2):

@@ -19,6 +19,7 @@ from conftest import DpuFarm, faults_but_stalls, skel, skel_background
 import skelmsg
 from skeleton.host.control import Control
 from skeleton.host.system import load
+from skeleton.host.wire import config_message
 
 SYSTEM = """\
 system: shared
@@ -105,11 +106,12 @@ def test_dpus_refuse_another_sessions_config_and_stop_during_a_run(tmp_path: Pat
     try:
         owner.wait_heard([1, 2], 10)
         generation = owner.next_generation()
-        assert owner.push(system.to_config(generation, 0, committed=False), [1, 2]).ok
+        assert owner.push(config_message(system, generation, 0, committed=False), [1, 2]).ok
         owner.start(generation, 42, time.time_ns() + 200_000_000, 3_000_000_000)
         assert owner.wait_for(lambda: all(owner.dpus[i].state == "running" for i in (1, 2)), 10)
 
-        pushed = intruder.push(system.to_config(generation + 1, 42, committed=False), [1, 2], timeout_s=2)
+        config = config_message(system, generation + 1, 42, committed=False)
+        pushed = intruder.push(config, [1, 2], timeout_s=2)
         assert not pushed.committed and sorted(pushed.rejected) == [1, 2], pushed
         assert f"run 42 of {owner.sender} is in progress until" in pushed.rejected[1], pushed.rejected
         intruder.stop()

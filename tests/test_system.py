@@ -1,4 +1,4 @@
-"""host/system.py: the system-file schema, its rules, overrides and config_t."""
+"""host/schema, rules, system and wire: the system-file schema, its rules, overrides and config_t."""
 
 from __future__ import annotations
 
@@ -11,7 +11,9 @@ import pytest
 import yaml
 
 import skelmsg
-from skeleton.host.system import DEFAULT_URL, System, SystemFileError, dump_yaml, load
+from skeleton.host.schema import DEFAULT_URL
+from skeleton.host.system import System, SystemFileError, load
+from skeleton.host.wire import config_message, dump_yaml
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 SERVO = EXAMPLES / "servo.yaml"
@@ -233,7 +235,7 @@ def test_local_link_inside_one_dpu(tmp_path: Path) -> None:
     system = load(write(tmp_path, doc))
     assert system.buffer("b_out").link == system.link("mem").id
     assert system.link("mem").local
-    config = system.to_config(1, 0, committed=False)
+    config = config_message(system, 1, 0, committed=False)
     assert [link.url for link in config.links] == [DEFAULT_URL, ""]
 
 
@@ -380,13 +382,13 @@ def test_with_url() -> None:
     moved = system.with_url(url)
     assert moved.default_link.url == url and system.default_link.url != url
     assert url in moved.source_text and moved.processes == system.processes
-    assert moved.to_config(1, 0, committed=False).links[0].url == url
+    assert config_message(moved, 1, 0, committed=False).links[0].url == url
     assert system.with_url(system.default_link.url) is system
 
 
 def test_to_config_round_trip() -> None:
     system = load(SERVO)
-    sent = system.to_config(generation=7, run_id=42, committed=True)
+    sent = config_message(system, generation=7, run_id=42, committed=True)
     got = skelmsg.config_t.decode(sent.encode())
     assert (got.generation, got.run_id, got.committed, got.system) == (7, 42, 1, "servo")
     assert got.sent_utc_ns > 0 and got.source == system.source_text

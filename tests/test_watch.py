@@ -20,8 +20,9 @@ from rich.console import Console
 
 from skeleton.analysis.measure.report import build_report
 from skeleton.analysis.read.records import decode_run
-from skeleton.analysis.views.watch import Heard, RecordStore
-from skeleton.analysis.views.watch_view import render
+from skeleton.host.recordstore import RecordStore
+from skeleton.host.watch import Heard
+from skeleton.host.watch_view import render
 
 LOGPLAYER = Path(lcm.__file__).parent.parent / "bin" / "lcm-logplayer"
 ENV = {**os.environ, "COLUMNS": "160"}

@@ -4,9 +4,10 @@ Trace Event Format (JSON), which ui.perfetto.dev and chrome://tracing open: one 
 group per DPU ("pid") and one track per process on it ("tid"). Every cycle that ran is
 four complete events ("ph": "X"), one per phase: comm in, blocked, compute, comm out.
 An overrun is an instant event at its cycle's end (category "overrun"); every fault of
-the report is an instant event (category "fault", named by its kind) at when it happened, on its DPU's track group (or the whole trace's when
-it has no DPU). Times are microseconds on the host's clock: each DPU's monotonic clock
-mapped through the clock-offset estimates the report uses (identity on one machine).
+the report is an instant event (category "fault", named by its kind) at when it
+happened, on its DPU's track group (or the whole trace's when it has no DPU). Times are
+microseconds on the host's clock: each DPU's monotonic clock mapped through the
+clock-offset estimates the report uses (identity on one machine).
 """
 
 from __future__ import annotations

@@ -3,18 +3,24 @@ latency, faults as they happened (rich renderables, no terminal I/O here)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 
-from ..measure.report import RunReport
+from ..analysis.measure.report import RunReport
+from .listener import STATE_NAMES, RecordStore
 
-if TYPE_CHECKING:
-    from .watch import Heard
 
-STATES = {0: "unconfigured", 1: "ready", 2: "armed", 3: "running"}
+class Heard(Protocol):
+    """What the view shows of what was heard (watch.Heard)."""
+
+    run_id: int | None
+    store: RecordStore | None
+    latest: dict[int, Any]
+    covered: int
+    faults: list[tuple[float, str]]
 
 BAR_WIDTH = 40
 SHARES = (("compute", "green"), ("communicate", "cyan"), ("wait", "grey50"), ("overhead", "red"))
@@ -40,7 +46,8 @@ def _num(value: float | None, digits: int = 1) -> str:
 
 def render(heard: Heard, report: RunReport | None, url: str) -> Group:
     if heard.store is None:
-        dpus = ", ".join(f"DPU {d} {STATES.get(s.state, s.state)}" for d, s in sorted(heard.latest.items()))
+        dpus = ", ".join(f"DPU {d} {STATE_NAMES.get(s.state, s.state)}"
+                         for d, s in sorted(heard.latest.items()))
         return Group(Text(f"skel watch {url}: waiting for a run" + (f" ({dpus})" if dpus else "")))
     elapsed = max((d.elapsed_ms or 0.0 for d in report.dpus), default=0.0) / 1000 if report else 0.0
     head = Text(f"run {heard.run_id}")
@@ -77,7 +84,7 @@ def _dpu_view(heard: Heard, report: RunReport) -> Table:
     for d in report.dpus:
         shares = [d.compute_pct, d.communicate_pct, d.wait_pct, d.overhead_pct]
         status = heard.latest.get(d.id)
-        state = "-" if status is None else STATES.get(status.state, str(status.state))
+        state = "-" if status is None else STATE_NAMES.get(status.state, str(status.state))
         table.add_row(str(d.id), state, _bar(shares), *(_num(s) for s in shares), str(d.overruns),
                       str(d.records))
     return table

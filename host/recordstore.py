@@ -1,0 +1,84 @@
+"""The timing records of one followed run, kept as they arrive: a live view appends each
+refresh's new batches instead of decoding every batch again."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..analysis.read.coltable import ColumnTable
+from ..analysis.read.records import INPUT_DTYPE, RECORD_DTYPE, RunRecords, decode_run, lost_batches
+
+
+class RecordStore:
+    """The timing records of one run, decoded batch by batch as they arrive, in numpy
+    arrays grown in chunks (doubling), so a refresh costs the new batches only."""
+
+    def __init__(self, run_id: int) -> None:
+        self.run_id = run_id
+        self.records = {name: np.empty(4096, dtype=RECORD_DTYPE[name]) for name in RECORD_DTYPE.names or ()}
+        self.inputs = {name: np.empty(8192, dtype=INPUT_DTYPE[name]) for name in INPUT_DTYPE.names or ()}
+        self.n_records = 0
+        self.n_inputs = 0
+        self.batch_keys: set[tuple[int, int]] = set()
+        self.batch_dpu: list[int] = []
+        self.batch_seq: list[int] = []
+        self.generations: set[int] = set()
+        self.malformed = 0
+        self.duplicates = 0
+
+    def add(self, messages: list[bytes]) -> None:
+        if not messages:
+            return
+        chunk = decode_run(messages, self.run_id)
+        self.malformed += chunk.malformed
+        self.duplicates += chunk.duplicates
+        rec = chunk.records
+        keys = np.stack([rec["dpu"].astype(np.int64), rec["batch_seq"]], axis=1)
+        fresh = np.ones(len(rec), dtype=bool)
+        for dpu, seq in np.unique(keys, axis=0).tolist() if len(rec) else []:
+            if (dpu, seq) in self.batch_keys:  # heard twice (re-sent or replayed twice)
+                fresh &= ~((keys[:, 0] == dpu) & (keys[:, 1] == seq))
+                self.duplicates += 1
+            else:
+                self.batch_keys.add((dpu, seq))
+                self.batch_dpu.append(dpu)
+                self.batch_seq.append(seq)
+        renumber = np.cumsum(fresh) - 1 + self.n_records
+        inputs = chunk.inputs[fresh[chunk.inputs["record"]]] if len(chunk.inputs) else chunk.inputs
+        inputs = inputs.copy()
+        inputs["record"] = renumber[inputs["record"]]
+        self.records, self.n_records = _append(self.records, self.n_records, rec[fresh])
+        self.inputs, self.n_inputs = _append(self.inputs, self.n_inputs, inputs)
+        self.generations.update(np.unique(rec["generation"][fresh]).tolist())
+
+    def run(self, expected_batches: dict[int, int] | None = None) -> RunRecords:
+        return RunRecords(
+            run_id=self.run_id,
+            records=ColumnTable({k: v[: self.n_records] for k, v in self.records.items()}, RECORD_DTYPE),
+            inputs=ColumnTable({k: v[: self.n_inputs] for k, v in self.inputs.items()}, INPUT_DTYPE),
+            batches=len(self.batch_keys),
+            generations=sorted(self.generations),
+            lost_batches=lost_batches(
+                np.asarray(self.batch_dpu, dtype=np.int64), np.asarray(self.batch_seq, dtype=np.int64),
+                expected_batches,
+            ),
+            malformed=self.malformed,
+            duplicates=self.duplicates,
+        )
+
+
+def _append(
+    columns: dict[str, np.ndarray], used: int, rows: ColumnTable
+) -> tuple[dict[str, np.ndarray], int]:
+    """Append rows, doubling the capacity when full (amortised O(1) per row). Rows
+    below `used` are never written again, so earlier snapshots (views) stay valid."""
+    need = used + len(rows)
+    out = {}
+    for name, array in columns.items():
+        if need > len(array):
+            grown = np.empty(max(need, 2 * len(array)), dtype=array.dtype)
+            grown[:used] = array[:used]
+            array = grown
+        array[used:need] = rows[name]
+        out[name] = array
+    return out, need

@@ -1,0 +1,298 @@
+"""The system file's schema: what each section may say (the pydantic models, the only
+place the file's schema lives) and the plain records rules.resolve() turns it into.
+
+Per-field checks (types, ranges, names, URLs) are here; checks across sections
+(references, writers, reachability, minor cycles) are rules.py's.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import math
+import re
+import urllib.parse
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    PlainValidator,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+
+from .yamlfile import show
+
+DEFAULT_LINK = "bus"
+DEFAULT_URL = "udpm://239.255.76.67:7667?ttl=0"
+MAX_ID = 32767                      # ids travel as int16
+MAX_INT32 = 2**31 - 1               # periods, compute times and run counts travel as int32
+MAX_BYTES = 4 * 1024 * 1024         # beyond this a "buffer" is a file transfer
+MIN_MINOR_CYCLE_US = 100            # below this the OS timer, not the design, is measured
+MAX_PROCESSES_PER_DPU = 64
+MAX_PORTS = 16                      # inputs or outputs per process
+ABSURD_COMPUTE_PERIODS = 100        # compute_us beyond this many periods is a units mistake
+DEFAULT_RUN_CYCLES = 2000               # when the file gives neither cycles nor duration_s
+
+
+# --- field types ---------------------------------------------------------------------------
+
+def _id(v: int) -> int:
+    if not 1 <= v <= MAX_ID:
+        raise ValueError(f"must be an id from 1 to {MAX_ID}, got {v}")
+    return v
+
+
+def _micros(v: int) -> int:
+    if v <= 0:
+        raise ValueError(f"must be a positive number of microseconds, got {v}")
+    if v > MAX_INT32:
+        raise ValueError(f"must be at most {MAX_INT32} microseconds, got {v}")
+    return v
+
+
+def _bytes(v: int) -> int:
+    if v <= 0:
+        raise ValueError(f"must be a positive number of bytes, got {v}")
+    if v > MAX_BYTES:
+        raise ValueError(f"{v} bytes is absurd for one buffer (limit 4 MiB = {MAX_BYTES})")
+    return v
+
+
+def _name(v: str) -> str:
+    # Names become LCM channels (SKEL_BUF_<name>) and -s targets (dots, '=').
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,63}", v):
+        raise ValueError(f"must be a name of letters, digits and _ not starting with a digit, got {show(v)}")
+    return v
+
+
+def _ref(v: Any) -> int | str:
+    if isinstance(v, bool) or not isinstance(v, int | str):
+        raise ValueError(f"must be a buffer id or name, got {show(v)}")
+    return v
+
+
+def _between(low: int, high: int, unit: str = "") -> Any:
+    """An int in [low, high]; `high` is the wire field's limit, so encoding never overflows."""
+    def check(v: int) -> int:
+        if v < low:
+            raise ValueError(f"must be at least {low}{unit}, got {v}")
+        if v > high:
+            raise ValueError(f"must be at most {high}{unit}, got {v}")
+        return v
+    return AfterValidator(check)
+
+
+def _at_least_items(n: int) -> Any:
+    def check(v: list[Any]) -> list[Any]:
+        if len(v) < n:
+            raise ValueError(f"needs at least {n} item(s)")
+        return v
+    return AfterValidator(check)
+
+
+def _nonempty(v: str) -> str:
+    if not v.strip():
+        raise ValueError("must not be empty")
+    return v
+
+
+def _positive(v: float) -> float:
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"must be a positive number, got {show(v)}")
+    return v
+
+
+Id = Annotated[int, AfterValidator(_id)]
+Name = Annotated[str, AfterValidator(_name)]
+Micros = Annotated[int, AfterValidator(_micros)]
+Bytes = Annotated[int, AfterValidator(_bytes)]
+Ref = Annotated[int | str, PlainValidator(_ref)]
+Positive = Annotated[float, AfterValidator(_positive)]
+NonEmpty = Annotated[str, AfterValidator(_nonempty)]
+
+
+class _Spec(BaseModel):
+    # strict: a quoted "5000" or a `yes` is a mistake to report, not to coerce.
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+
+# --- the schema ----------------------------------------------------------------------------
+
+class LinkSpec(_Spec):
+    name: Name
+    url: str
+
+    @field_validator("url")
+    @classmethod
+    def _url(cls, v: str) -> str:
+        if v == "local":
+            return v
+        if not re.fullmatch(r"udpm://\S*", v):
+            raise ValueError(f"must be `local` or an udpm:// URL, got {show(v)}")
+        try:  # LCM would only fail later, on every DPU at once
+            where = urllib.parse.urlsplit(v)
+            port, group = where.port, where.hostname
+            if group and not ipaddress.ip_address(group).is_multicast:
+                raise ValueError(f"{group} is not a multicast group (224.0.0.0 to 239.255.255.255)")
+        except ValueError as e:
+            raise ValueError(f"{v}: {e}") from None
+        if port == 0:
+            raise ValueError(f"{v}: port 0 cannot be joined")
+        return v
+
+
+class DpuSpec(_Spec):
+    id: Id
+    host: NonEmpty = "localhost"
+    cpu: Annotated[int, _between(0, MAX_ID)] | None = None
+    compute: Literal["sleep", "wall", "cpu", "work"] = "sleep"
+    executive: Literal["cyclic", "threads"] = "cyclic"
+    speed: Positive = 1.0
+    minor_cycle_us: Micros | None = None
+    links: list[Name] | None = None
+
+
+class BufferSpec(_Spec):
+    id: Id
+    name: Name
+    bytes: Bytes
+    link: Name | None = None
+
+
+class ProcessSpec(_Spec):
+    id: Id
+    name: Name
+    dpu: Id
+    period_us: Micros
+    compute_us: Micros
+    sync: Literal["periodic", "data"] = "periodic"
+    inputs: list[Ref] = []
+    required: list[Ref] | None = None
+    outputs: list[Ref] = []
+    order: Annotated[int, _between(1, MAX_ID)] | None = None
+
+
+class Run(_Spec):
+    """The run: its length, warm-up, lockout rule and when to stop early."""
+    cycles: Annotated[int, _between(1, MAX_INT32, " cycle")] | None = None   # of the critical period
+    duration_s: Positive | None = None
+    warmup_cycles: Annotated[int, _between(0, MAX_INT32)] = 50
+    lockout_cycles: Annotated[int, _between(1, MAX_INT32, " cycle")] = 10
+    stop_on: list[Literal["lockout", "jam", "behind", "stall", "dpu_lost"]] = ["lockout"]
+    late_pct: Annotated[int, _between(1, MAX_INT32, " %")] = 20
+    too_late_pct: Annotated[int, _between(1, MAX_INT32, " %")] = 100
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Run:
+        if self.cycles is not None and self.duration_s is not None:
+            raise ValueError("give cycles or duration_s, not both")
+        if self.too_late_pct < self.late_pct:
+            raise ValueError(f"too_late_pct ({self.too_late_pct}) must be at least "
+                             f"late_pct ({self.late_pct})")
+        return self
+
+
+class ChainSpec(_Spec):
+    name: NonEmpty | None = None
+    processes: list[Name]
+
+    @model_validator(mode="before")
+    @classmethod
+    def _plain_list(cls, data: Any) -> Any:
+        return {"processes": data} if isinstance(data, list) else data
+
+
+class ReferenceDpu(_Spec):
+    """One DPU's row of a published measurement (e.g. the paper's Table 1)."""
+    compute_pct: float
+    communicate_pct: float
+    wait_pct: float
+    cycle_ms: float | None = None            # measured cycle
+    modeled_cycle_ms: float | None = None
+
+
+class Reference(_Spec):
+    """Published results to compare a run with (`skel run --compare-paper`); not sent to DPUs."""
+    source: str
+    dpus: dict[int, ReferenceDpu] = {}
+
+
+class SystemSpec(_Spec):
+    system: NonEmpty
+    links: list[LinkSpec] | None = None
+    dpus: Annotated[list[DpuSpec], _at_least_items(1)]
+    buffers: list[BufferSpec] = []
+    processes: Annotated[list[ProcessSpec], _at_least_items(1)]
+    run: Run = Run()
+    chains: list[ChainSpec] = []
+    reference: Reference | None = None
+
+    @field_validator("buffers", "chains", "run", mode="before")
+    @classmethod
+    def _empty_section(cls, v: Any, info: ValidationInfo) -> Any:
+        # `run:` with every line commented out is an empty section, not an error.
+        if v is None:
+            return {} if info.field_name == "run" else []
+        return v
+
+
+# --- the validated system ------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Link:
+    id: int                 # position in the file, from 1
+    name: str
+    url: str                # "local" or an udpm:// URL
+
+    @property
+    def local(self) -> bool:
+        return self.url == "local"
+
+
+@dataclass(frozen=True)
+class Dpu:
+    id: int
+    host: str
+    cpu: int | None
+    compute: str            # sleep | wall | cpu | work
+    executive: str          # cyclic | threads
+    speed: float
+    minor_cycle_us: int     # resolved: given, or the gcd of its processes' periods
+    links: tuple[int, ...]  # link ids it can reach
+
+
+@dataclass(frozen=True)
+class Buffer:
+    id: int
+    name: str
+    bytes: int
+    link: int               # link id
+    writer: int             # process id
+
+    @property
+    def channel(self) -> str:
+        return f"SKEL_BUF_{self.name}"
+
+
+@dataclass(frozen=True)
+class Process:
+    id: int
+    name: str
+    dpu: int
+    order: int              # 1.. within its DPU's minor cycle
+    period_us: int
+    compute_us: int
+    sync: str               # periodic | data
+    inputs: tuple[int, ...]     # buffer ids
+    required: tuple[int, ...]   # buffer ids a data-synchronised cycle waits for
+    outputs: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class Chain:
+    name: str
+    processes: tuple[int, ...]  # process ids, head first

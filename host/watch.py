@@ -1,0 +1,187 @@
+"""`skel watch`: a live view of a run (or of lcm-logplayer replaying one): what a
+Listener hears (listener.py), its tables computed by `skel report`'s code
+(report.build_report over the records heard so far, appended batch by batch).
+
+The view subscribes to config, status, timing, report and clock (queues unlimited: a
+timing batch must never be dropped by LCM) and redraws twice a second. `--once`
+follows one run without a display and, when it ends, prints the final tables by
+running `skel report`'s analysis over an in-memory log of what it heard, so both
+print the same tables for the same messages.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from typing import Any
+
+from rich.console import Console
+from rich.live import Live
+
+from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
+from ..analysis.measure.report import RunReport
+from ..analysis.measure.run import analyze_log
+from ..analysis.read.logreader import encode_events, read_bytes
+from ..analysis.read.messages import LogError
+from ..analysis.views.tables import print_report
+from .listener import CHANNELS, LOST_AFTER_S, Listener
+from .recordstore import RecordStore
+from .watch_view import render
+
+REFRESH_S = 0.4  # redraw period: at least twice a second
+QUIET_S = 2.0  # no timing for this long after data stopped: the run ended
+REPORT_GRACE_S = 0.5  # after the last report_t, for the messages logged behind it
+
+
+class Heard:
+    """What `skel watch` heard: a Listener following the newest run (with `keep_events`,
+    --once, its first run only, and every message kept for the final analysis)."""
+
+    def __init__(self, keep_events: bool) -> None:
+        self.listener = Listener(auto_follow=True, stay=keep_events)
+        self.keep_events = keep_events
+        self.events: list[tuple[int, str, bytes]] = []
+        self.covered = 0  # records the last snapshot's tables cover
+
+    @property
+    def run_id(self) -> int | None:
+        return self.listener.run_id
+
+    @property
+    def store(self) -> RecordStore | None:
+        return self.listener.store
+
+    @property
+    def latest(self) -> dict[int, Any]:
+        return self.listener.latest
+
+    @property
+    def faults(self) -> list[tuple[float, str]]:
+        return self.listener.faults
+
+    def handle(self, channel: str, data: bytes) -> None:
+        if self.keep_events:
+            self.events.append((time.time_ns() // 1000, channel, data))
+        self.listener.handle(channel, data)
+
+    def ended(self) -> bool:
+        """Every DPU of the run sent its report_t (and the grace passed), or the timing
+        stopped for QUIET_S, or a newer run began."""
+        heard = self.listener
+        if heard.store is None:
+            return False
+        now = time.monotonic()
+        if heard.next_run is not None or (heard.last_timing and now - heard.last_timing > QUIET_S):
+            return True
+        config = heard.config_of(max(heard.generations, default=-1))
+        reported = {d for (d, run_id) in heard.reports if run_id == heard.run_id}
+        everyone = bool(config and reported >= {d.id for d in config.dpus})
+        return everyone and now - heard.last_report > REPORT_GRACE_S
+
+    def snapshot(self) -> RunReport | None:
+        """The report of the records heard so far (None before a run and its config);
+        the faults it finds are listed (`faults`) as they appear."""
+        if self.listener.store is None:
+            return None
+        report = self.listener.report()
+        self.covered = self.listener.store.n_records
+        # A DPU is lost while the others' timing still flows; when the whole run stopped
+        # (or the replay ended), nobody is.
+        flowing = time.monotonic() - self.listener.last_timing <= LOST_AFTER_S
+        self.listener.announce(report, running=flowing and not self.ended())
+        return report
+
+    def final(self) -> RunReport:
+        """`skel report`'s analysis over an in-memory log of everything heard."""
+        return analyze_log(read_bytes(encode_events(self.events), "<heard>"), self.run_id).report
+
+
+def _subscribe(url: str, heard: Heard) -> Any:
+    import lcm
+
+    lc = lcm.LCM(url)
+    for channel in CHANNELS:
+        sub = lc.subscribe(channel, heard.handle)
+        sub.set_queue_capacity(0)  # unlimited: LCM would drop the newest batches when full
+    return lc
+
+
+def _pump(lc: Any, until: float) -> None:
+    """Handle messages until the monotonic instant `until`."""
+    failures = 0
+    while (left := until - time.monotonic()) > 0:
+        try:
+            lc.handle_timeout(max(1, int(left * 1000)))
+            failures = 0
+        except OSError:
+            # A signal cut the wait short (EINTR; LCM calls it an error): its handler runs at
+            # this loop's next turn, SIGINT and SIGTERM raising KeyboardInterrupt. A real
+            # failure repeats.
+            failures += 1
+            if failures > 3:
+                raise
+
+
+def watch_command(url: str, once: bool, duration_s: float | None, as_json: bool = False) -> int:
+    """`skel watch [--url URL] [--once [--json]] [--duration S]`: 0; 3 (--once) on a lockout or jam;
+    1 when --once heard no run; 2 on a bad URL; 130 when ended by Ctrl-C or SIGTERM."""
+    heard = Heard(keep_events=once)
+    try:
+        lc = _subscribe(url, heard)
+    except Exception as e:  # lcm raises IOError/ValueError for a URL it cannot open
+        print(f"skel watch: cannot open LCM URL {url}: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    deadline = None if duration_s is None else time.monotonic() + duration_s
+    try:
+        if once:
+            return _once(lc, heard, url, deadline, as_json)
+        _live(lc, heard, url, deadline)
+    except KeyboardInterrupt:
+        return EXIT_INTERRUPTED
+    return EXIT_OK
+
+
+def _live(lc: Any, heard: Heard, url: str, deadline: float | None) -> None:
+    console = Console()
+    report, due = None, 0.0
+    with Live(render(heard, None, url), console=console, auto_refresh=False, transient=False) as live:
+        while deadline is None or time.monotonic() < deadline:
+            tick = time.monotonic() + REFRESH_S
+            _pump(lc, tick if deadline is None else min(tick, deadline))
+            heard.listener.absorb()
+            if report is not None and report.run_id != heard.run_id:
+                report, due = None, 0.0  # a new run: the old tables are not its tables
+            start = time.monotonic()
+            if start >= due:
+                # The tables cost O(records so far): once they take more than a third of
+                # the time, recompute less often; the view (records, faults, states)
+                # still refreshes every REFRESH_S.
+                report = heard.snapshot() or report
+                due = start + 2 * (time.monotonic() - start)
+            live.update(render(heard, report, url), refresh=True)
+
+
+def _once(lc: Any, heard: Heard, url: str, deadline: float | None, as_json: bool) -> int:
+    # Subscribed: say so, so a script may start a replay now without losing its first messages.
+    print(f"skel watch: waiting for a run on {url}", file=sys.stderr, flush=True)
+    announced = None
+    while not heard.ended() and (deadline is None or time.monotonic() < deadline):
+        tick = time.monotonic() + REFRESH_S
+        _pump(lc, tick if deadline is None else min(tick, deadline))
+        if heard.run_id is not None and heard.run_id != announced:
+            announced = heard.run_id
+            print(f"skel watch: following run {announced} on {url}", file=sys.stderr)
+    if heard.run_id is None:
+        print(f"skel watch: no run heard on {url}", file=sys.stderr)
+        return EXIT_FAILED
+    try:
+        report = heard.final()
+    except LogError as e:
+        print(f"skel watch: run {heard.run_id}: {e}", file=sys.stderr)
+        return EXIT_FAILED
+    if as_json:
+        print(json.dumps(report.to_json(), indent=2))
+    else:
+        print_report(report)
+    return EXIT_FATAL_FLAW if report.fatal else EXIT_OK

@@ -1,0 +1,112 @@
+"""host/listener.py: one live listener. `skel watch`, `skel run` and `skel report` name the same
+faults of the same run (one definition); the listener's faults are the report's; a DPU is lost
+after LOST_AFTER_S without a heartbeat, and each fault is said once."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from analysis_synth import RUN_ID, batches, small_config, small_run, status
+from conftest import LOCKOUT_SYSTEM, REPO, skel
+from test_run import DEADLOCK_SYSTEM
+
+from skeleton.analysis.measure.report import build_report
+from skeleton.analysis.read.records import decode_run
+from skeleton.host.listener import LOST_AFTER_S, Listener, fault_line
+
+FaultKey = tuple[str, ...]
+
+
+def _keys(faults: list[dict]) -> set[FaultKey]:
+    """The lockouts and jams: (kind, process, DPU) and (kind, chain...)."""
+    out: set[FaultKey] = set()
+    for f in faults:
+        if f["kind"] == "lockout":
+            out.add(("lockout", f["process"], str(f["dpu"])))
+        elif f["kind"] == "jam":
+            out.add(("jam", *f["chain"]))
+    return out
+
+
+def _printed(stdout: str) -> set[FaultKey]:
+    lockouts = re.findall(r"FAULT lockout: (\w+) \(DPU (\d+)\)", stdout)
+    out: set[FaultKey] = {("lockout", name, dpu) for name, dpu in lockouts}
+    out |= {("jam", *m.split(" -> ")) for m in re.findall(r"FAULT jam: ([\w >-]+?): ", stdout)}
+    return out
+
+
+def _run_watched(tmp_path: Path, url: str, system_text: str, name: str) -> None:
+    system = tmp_path / f"{name}.yaml"
+    system.write_text(system_text)
+    out = tmp_path / name
+    watch = subprocess.Popen([sys.executable, "-m", "skeleton.host.cli", "watch", "--once", "--json",
+                              "--url", url, "--duration", "60"], cwd=REPO, text=True,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert watch.stderr is not None
+    assert "waiting for a run" in watch.stderr.readline()  # subscribed: it hears the whole run
+    run = skel("run", str(system), "--spawn", "--url", url, "--out", str(out))
+    watched, err = watch.communicate(timeout=90)
+    assert run.returncode == 3, run.stdout + run.stderr
+    assert watch.returncode == 3, err
+    report = json.loads((out / "report.json").read_text())
+    again = json.loads(skel("report", str(out / "run.lcm"), "--json").stdout)
+    faults = _keys(report["faults"])
+    assert faults and any(k[0] == "lockout" for k in faults), report["faults"]
+    assert _keys(again["faults"]) == faults, again["faults"]
+    assert _printed(run.stdout) == faults, run.stdout
+    assert _keys(json.loads(watched)["faults"]) == faults, watched
+
+
+def test_watch_run_and_report_agree_on_a_lockout(tmp_path: Path, url: str) -> None:
+    _run_watched(tmp_path, url, LOCKOUT_SYSTEM, "lockout")
+
+
+def test_watch_run_and_report_agree_on_a_jam(tmp_path: Path, url: str) -> None:
+    _run_watched(tmp_path, url, DEADLOCK_SYSTEM.format(right_dpu=1), "deadlock")
+
+
+def _heard(listener: Listener) -> None:
+    listener.handle("SKEL_CONFIG", small_config().encode())
+    listener.handle("SKEL_STATUS", status(2, [(2, 1, 7)]).encode())
+    dpu1, dpu2 = small_run()
+    for t in batches(1, dpu1, 3) + batches(2, dpu2, 2):
+        listener.handle("SKEL_TIMING", t.encode())
+
+
+def test_the_listeners_faults_are_the_reports_and_said_once() -> None:
+    listener = Listener()
+    listener.follow(RUN_ID)
+    _heard(listener)
+    found = listener.new_faults(running=False)
+    dpu1, dpu2 = small_run()
+    messages = [t.encode() for t in batches(1, dpu1, 3) + batches(2, dpu2, 2)]
+    expected = build_report(small_config(), decode_run(messages, RUN_ID), [status(2, [(2, 1, 7)])]).faults
+    assert [fault_line(f) for f in found] == [fault_line(f) for f in expected]
+    assert any(f.kind == "lockout" for f in found)
+    assert "lockout: C (DPU 2) at cycle 7, waiting on b_out" in fault_line(found[0])
+    _heard(listener)  # heard again (re-sent): nothing new to say
+    assert listener.new_faults(running=False) == []
+    assert [text for _, text in listener.faults] == [fault_line(f) for f in found]
+
+
+def test_a_dpu_is_lost_after_lost_after_s_without_a_heartbeat() -> None:
+    listener = Listener()
+    listener.follow(RUN_ID)
+    _heard(listener)
+    listener.handle("SKEL_STATUS", status(1, []).encode())
+    deadline = time.monotonic() + LOST_AFTER_S + 0.2
+    while time.monotonic() < deadline:  # DPU 2 heartbeats, DPU 1 is silent
+        listener.handle("SKEL_STATUS", status(2, []).encode())
+        time.sleep(0.05)
+    assert listener.lost([1, 2]) == [1]
+    lost = [f for f in listener.new_faults(running=True) if f.kind == "dpu_lost"]
+    assert [f.dpu for f in lost] == [1]
+    line = fault_line(lost[0])
+    assert re.fullmatch(r"dpu_lost: DPU 1 not heard for 0\.[6-9]\d s", line), line
+    listener.handle("SKEL_STATUS", b"junk")   # a malformed message is counted, not a crash
+    assert listener.malformed == {"SKEL_STATUS": 1}
