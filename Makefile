@@ -118,7 +118,7 @@ test-tools:
 	@$(call want_commands,ip:iproute2 nft:nftables)
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check host analysis tests lcmtypes bench
+	$(VENV)/bin/ruff check skeleton host analysis tests lcmtypes bench examples
 
 # cyclictest is the wake-up baseline (Debian rt-tests).
 bench: $(BUILD)/skel-dpu $(STAMP)

@@ -1,4 +1,4 @@
-"""Throughput of analysis/logreader.py + records.py against lcm.EventLog with the
+"""Throughput of analysis/read/logreader.py + records.py against lcm.EventLog with the
 generated decoders, on synthetic SERVO-like logs (9 processes on 4 DPUs, 5 ms).
 
 Two logs: "timing" (what a logger restricted to SKEL_TIMING/STATUS/CONFIG holds)
@@ -20,9 +20,9 @@ import lcm
 import numpy as np
 
 import skelmsg
-from skeleton.analysis.flatdecode import decode_heads, decode_many
-from skeleton.analysis.logreader import read_log
-from skeleton.analysis.records import TIMING, TIMING_CHANNEL, load_run
+from skeleton.analysis.read.flatdecode import decode_heads, decode_many
+from skeleton.analysis.read.logreader import read_log
+from skeleton.analysis.read.records import TIMING, TIMING_CHANNEL, load_records
 
 RESULTS = Path(__file__).resolve().parent / "results" / "logreader.txt"
 BATCH = 64  # records per timing_t batch
@@ -67,7 +67,7 @@ def write_log(path: Path, records: int, with_buffers: bool) -> None:
 def ours(path: Path) -> dict[str, np.ndarray]:
     """Up to records.RunRecords: the record and input tables the metrics take, every
     column of both in hand (not only the two compared)."""
-    run = load_run(read_log(path))
+    run = load_records(read_log(path))
     columns = [table[name] for table in (run.records, run.inputs) for name in table.names]
     assert all(isinstance(c, np.ndarray) for c in columns)
     return {"start_ns": run.records["start_ns"], "in_seq": run.inputs["seq"]}

@@ -34,8 +34,8 @@ import lcm
 import numpy as np
 
 import skelmsg
-from skeleton.analysis.logreader import read_log
-from skeleton.analysis.records import load_run
+from skeleton.analysis.read.logreader import read_log
+from skeleton.analysis.read.records import load_records
 from skeleton.host import spawn
 
 BENCH = Path(__file__).resolve().parent
@@ -95,7 +95,7 @@ def skel_run(tmp: Path, mode: str, seconds: float, text: str = SYSTEM, name: str
                           env={**os.environ, "SKEL_DPU": str(REPO / "build" / "skel-dpu")})
     if done.returncode not in (0, 3):
         raise SystemExit(f"bench: skel run ({mode}) failed:\n{done.stdout}{done.stderr}")
-    records = load_run(read_log(out / "run.lcm")).records
+    records = load_records(read_log(out / "run.lcm")).records
     return records[records["cycle"] >= WARMUP_CYCLES]
 
 
@@ -285,7 +285,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="skel-bench-") as name:
         tmp = Path(name)
         wake = part_wakeup(tmp, args.seconds)
-        records = load_run(read_log(tmp / "sleep" / "run.lcm")).records
+        records = load_records(read_log(tmp / "sleep" / "run.lcm")).records
         parts = {
             "wakeup": wake,
             "publish": part_publish(tmp, args.seconds, records[records["cycle"] >= WARMUP_CYCLES]),

@@ -18,6 +18,7 @@ from pathlib import Path
 from rich.table import Table
 
 from skeleton.analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED
+from skeleton.analysis.read.messages import run_log_path
 from skeleton.host import spawn
 from skeleton.host.control import QUIET_S, Control, is_run_id
 from skeleton.host.system import DEFAULT_URL, SystemFileError, load
@@ -105,10 +106,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_b", type=Path)
     p.add_argument("--json", action="store_true")
 
-    p = sub.add_parser("export", help="convert a run log to MCAP for Foxglove")
-    p.add_argument("log", type=Path)
-    p.add_argument("mcap", type=Path)
+    p = sub.add_parser("export", help="a run as MCAP (Foxglove), Parquet tables or a Perfetto trace")
+    p.add_argument("log", type=Path, help="run.lcm, or a run directory")
+    p.add_argument("mcap", type=Path, nargs="?", help="write the run as this MCAP file")
     p.add_argument("--run-id", type=int)
+    p.add_argument("--parquet", type=Path, metavar="DIR", help="write its tables as DIR/<table>.parquet")
+    p.add_argument("--trace", type=Path, metavar="FILE.json", help="write a Chrome/Perfetto trace of the run")
 
     p = sub.add_parser("watch", help="live view of a run (or of lcm-logplayer replaying one)")
     p.add_argument("--url", default=DEFAULT_URL)
@@ -220,7 +223,7 @@ def cmd_push(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from skeleton.analysis.tables import output_console
+    from skeleton.analysis.views.tables import output_console
     from skeleton.host.run import RunOptions, run
 
     pushed_generation = None
@@ -251,7 +254,7 @@ def _listen(control: Control, args: argparse.Namespace) -> float:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    from skeleton.analysis.tables import output_console
+    from skeleton.analysis.views.tables import output_console
 
     if args.wait < 0:
         print(f"skel status: --wait {args.wait:g}: must be >= 0", file=sys.stderr)
@@ -298,7 +301,7 @@ def _json_or_nothing(rows: list[dict], as_json: bool, nothing: str) -> int | Non
 
 
 def cmd_clock(args: argparse.Namespace) -> int:
-    from skeleton.analysis.tables import output_console
+    from skeleton.analysis.views.tables import output_console
     from skeleton.host import clock
 
     if args.samples < 1 or args.wait < 0:
@@ -331,36 +334,27 @@ def cmd_clock(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_log(path: Path) -> Path:
-    return path / "run.lcm" if path.is_dir() else path
-
-
 def cmd_report(args: argparse.Namespace) -> int:
-    from skeleton.analysis.report import report_command
+    from skeleton.analysis.views.report import report_command
 
-    log = _run_log(args.log)
-    code = report_command(log, as_json=args.json, run_id=args.run_id)
-    if args.plots is not None and code != EXIT_BAD_INPUT:
-        from skeleton.analysis.plots import plots_command
-
-        plots_command(log, args.plots, run_id=args.run_id)
-    return code
+    return report_command(run_log_path(args.log), as_json=args.json, run_id=args.run_id, plots=args.plots)
 
 
 def cmd_diff(args: argparse.Namespace) -> int:
-    from skeleton.analysis.diff import diff_command
+    from skeleton.analysis.views.diff import diff_command
 
-    return diff_command(_run_log(args.run_a), _run_log(args.run_b), as_json=args.json)
+    return diff_command(run_log_path(args.run_a), run_log_path(args.run_b), as_json=args.json)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from skeleton.analysis.export_mcap import export_command
+    from skeleton.analysis.views.export import export_command
 
-    return export_command(_run_log(args.log), args.mcap, run_id=args.run_id)
+    return export_command(run_log_path(args.log), args.mcap, run_id=args.run_id, parquet=args.parquet,
+                          trace=args.trace)
 
 
 def cmd_watch(args: argparse.Namespace) -> int:
-    from skeleton.analysis.watch import watch_command
+    from skeleton.analysis.views.watch import watch_command
 
     return watch_command(args.url, once=args.once, duration_s=args.duration)
 

@@ -29,7 +29,7 @@ from rich.console import Console
 from rich.text import Text
 
 from skeleton.analysis.exitcodes import EXIT_FAILED, EXIT_OK
-from skeleton.analysis.faults import recv_buf_needed
+from skeleton.analysis.measure.faults import recv_buf_needed
 
 LCM_DEFAULT_URL = "udpm://239.255.76.67:7667?ttl=0"  # what liblcm uses for an empty URL
 MIN_RMEM_BYTES = 2 * 1024 * 1024

@@ -27,9 +27,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import skelmsg
-from skeleton.analysis.logreader import read_bytes
-from skeleton.analysis.records import timing_heads
-from skeleton.analysis.report import REPORT_CHANNEL
+from skeleton.analysis.read.logreader import read_bytes
+from skeleton.analysis.read.messages import REPORT_CHANNEL
+from skeleton.analysis.read.records import timing_heads
 from skeleton.host import spawn
 from skeleton.host.control import Control
 
@@ -200,8 +200,9 @@ class LogRepair:
         if not len(log):
             return
         self._read_to += int(log.data_offset[-1] + log.data_len[-1])
-        dpus, seqs = timing_heads(log, self.run_id)
-        for d, s in zip(dpus.tolist(), seqs.tolist(), strict=True):
+        ok, heads = timing_heads(log)
+        mine = ok & (heads["run_id"] == self.run_id)
+        for d, s in zip(heads["dpu"][mine].tolist(), heads["batch_seq"][mine].tolist(), strict=True):
             if d in self.batches:
                 self.batches[d].add(s)
         for _, msg in log.messages(REPORT_CHANNEL):

@@ -32,16 +32,17 @@ from rich.table import Table
 
 import skelmsg
 from skeleton.analysis.exitcodes import EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
-from skeleton.analysis.faults import (
+from skeleton.analysis.measure.faults import (
     Lockout,
     jam_faults,
     lockout_faults,
     lockouts_from_status,
     stall_threshold_ns,
 )
-from skeleton.analysis.metrics import utilization_pct
-from skeleton.analysis.report import LogError, analyze
-from skeleton.analysis.tables import print_report
+from skeleton.analysis.measure.metrics import utilization_pct
+from skeleton.analysis.measure.run import load_run
+from skeleton.analysis.read.messages import LogError
+from skeleton.analysis.views.tables import print_report
 from skeleton.host import owner, spawn
 from skeleton.host.check import delivery_warnings, warmup_warnings
 from skeleton.host.clock import ClockKeeper
@@ -199,7 +200,7 @@ class RunFollower:
 
     A DPU is lost when its heartbeats stop (LOST_AFTER_S), and only then: one whose
     processes wait for data that does not come still heartbeats, and is not lost.
-    Lockouts and jams are named by analysis/faults.py, as in the report."""
+    Lockouts and jams are named by analysis/measure/faults.py, as in the report."""
 
     def __init__(self, system: System, control: Control, console: Console) -> None:
         self.system = system
@@ -411,7 +412,7 @@ def _report(console: Console, system: System, options: RunOptions, out: Path, ru
     for problem in problems:
         console.print(f"[bold red]INCOMPLETE[/] {problem}", soft_wrap=True)
     try:
-        report = analyze(out / "run.lcm", run_id=run_id)
+        report = load_run(out / "run.lcm", run_id=run_id).report
     except LogError as error:
         console.print(f"[red]{out / 'run.lcm'}: {error}[/]")
         return EXIT_FAILED

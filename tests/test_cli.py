@@ -19,8 +19,8 @@ from conftest import EXAMPLES, REPO, SANITIZER_ERROR, DpuFarm, skel
 from rich.console import Console
 
 from skeleton.analysis import exitcodes
-from skeleton.analysis.report import analyze
-from skeleton.analysis.tables import UNLIMITED_WIDTH, print_report, process_table
+from skeleton.analysis.measure.run import load_run
+from skeleton.analysis.views.tables import UNLIMITED_WIDTH, print_report, process_table
 from skeleton.host import spawn
 from skeleton.host.control import Control
 
@@ -141,7 +141,7 @@ def test_tables_through_a_pipe_keep_every_column(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "skeleton.host.cli", "report", str(log)], cwd=REPO,
                           capture_output=True, text=True, env=env, timeout=60)
     assert done.returncode == 0, done.stderr
-    rep = analyze(str(log), None)
+    rep = load_run(str(log), None).report
     wide = Console(file=io.StringIO(), width=UNLIMITED_WIDTH)
     print_report(rep, console=wide)
     assert done.stdout == wide.file.getvalue()  # type: ignore[attr-defined]

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from conftest import _ports, faults_but_stalls, skel
 
-from skeleton.analysis.faults import recv_buf_needed
+from skeleton.analysis.measure.faults import recv_buf_needed
 from skeleton.host.doctor import rmem_max
 
 BIG = 1_000_000

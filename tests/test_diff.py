@@ -12,8 +12,8 @@ from analysis_synth import MS, batches, chain, report, small_config, small_run, 
 from conftest import skel
 from rich.console import Console
 
-from skeleton.analysis.diff import diff_command, diff_reports, print_diff
-from skeleton.analysis.report import analyze
+from skeleton.analysis.measure.run import load_run
+from skeleton.analysis.views.diff import diff_command, diff_reports, print_diff
 
 
 def _run(path: Path, changed: bool) -> Path:
@@ -38,7 +38,7 @@ def _by(rows: list[dict], key: str) -> dict:
 
 
 def test_deltas_are_exact_and_added_removed_are_marked(tmp_path: Path) -> None:
-    a, b = analyze(_run(tmp_path / "a.lcm", False)), analyze(_run(tmp_path / "b.lcm", True))
+    a, b = load_run(_run(tmp_path / "a.lcm", False)).report, load_run(_run(tmp_path / "b.lcm", True)).report
     diff = diff_reports(a, b, "a.lcm", "b.lcm")
     assert diff["a"] == {"path": "a.lcm", "system": "small", "run_id": 42, "generation": 3}
     d1, d2 = diff["dpus"]
@@ -69,7 +69,7 @@ def test_deltas_are_exact_and_added_removed_are_marked(tmp_path: Path) -> None:
 def test_diff_tables_and_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     a, b = _run(tmp_path / "a.lcm", False), _run(tmp_path / "b.lcm", True)
     console = Console(file=io.StringIO(), width=120, record=True, color_system=None)
-    print_diff(diff_reports(analyze(a), analyze(b), a, b), console)
+    print_diff(diff_reports(load_run(a).report, load_run(b).report, a, b), console)
     text = console.export_text()
     for title in ("per DPU: B - A", "per process: B - A", "per buffer: B - A", "per chain: B - A"):
         assert title in text
@@ -80,7 +80,8 @@ def test_diff_tables_and_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str])
     # The real CLI: JSON with the same content, one line and exit 2 for a bad file.
     cli = skel("diff", str(a), str(b), "--json")
     assert cli.returncode == 0, cli.stderr
-    assert json.loads(cli.stdout) == json.loads(json.dumps(diff_reports(analyze(a), analyze(b), a, b)))
+    want = diff_reports(load_run(a).report, load_run(b).report, a, b)
+    assert json.loads(cli.stdout) == json.loads(json.dumps(want))
     same = skel("diff", str(a), str(a))
     assert same.returncode == 0 and "+" not in same.stdout.replace("+-", "").replace("-+", "")
     junk = tmp_path / "junk.lcm"

@@ -17,13 +17,12 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 
 import skelmsg
-from skeleton.analysis.export_mcap import export
-from skeleton.analysis.lcmjson import from_json, schema_of, to_json
-from skeleton.analysis.logreader import encode_events, read_bytes, read_log
-from skeleton.analysis.mcapsource import read_as_log
-from skeleton.analysis.records import load_run
-from skeleton.analysis.report import analyze, analyze_log
-from skeleton.analysis.rundata import run_data
+from skeleton.analysis.measure.run import analyze_log, load_run
+from skeleton.analysis.read.lcmjson import from_json, schema_of, to_json
+from skeleton.analysis.read.logreader import encode_events, read_bytes, read_log
+from skeleton.analysis.read.mcapsource import read_as_log
+from skeleton.analysis.read.records import load_records
+from skeleton.analysis.views.export_mcap import export
 
 RECORD_FIELDS = ["dpu", "process", "generation", "batch_seq", "cycle", "minor", "release_ns",
                  "start_ns", "comm_in_ns", "blocked_ns", "compute_ns", "comm_out_ns", "idle_ns",
@@ -61,7 +60,7 @@ def _messages(path: Path) -> dict[str, list[tuple[Any, Any]]]:
 
 def test_every_timing_record_and_input_matches_the_log(servo_run: Path) -> None:
     log = read_log(servo_run / "run.lcm")
-    run = load_run(log)
+    run = load_records(log)
     config = skelmsg.config_t.decode(bytes(log.messages("SKEL_CONFIG")[-1][1]))
     names = {p.id: p.name for p in config.processes}
     topics = _messages(servo_run / "run.mcap")
@@ -134,7 +133,7 @@ def test_status_config_faults_attachment_and_metadata(servo_run: Path) -> None:
     assert len(configs) == len(log.messages("SKEL_CONFIG"))
     reports = [t for t in topics if t.endswith("/report")]
     assert sorted(reports) == ["/dpu/1/report", "/dpu/2/report", "/dpu/3/report", "/dpu/4/report"]
-    rep = analyze(servo_run / "run.lcm")
+    rep = load_run(servo_run / "run.lcm").report
     faults = [json.loads(m.data) for _, m in topics.get("/faults", [])]
     # in time order in the MCAP, in kind order in the report
     assert sorted((f["kind"], f["process"] or "") for f in faults) == sorted(
@@ -152,8 +151,8 @@ def test_status_config_faults_attachment_and_metadata(servo_run: Path) -> None:
 
 
 def test_report_of_the_mcap_equals_report_of_the_log(servo_run: Path) -> None:
-    want = analyze(servo_run / "run.lcm").to_json()
-    assert analyze_log(read_as_log(servo_run / "run.mcap")).to_json() == want
+    want = load_run(servo_run / "run.lcm").report.to_json()
+    assert analyze_log(read_as_log(servo_run / "run.mcap")).report.to_json() == want
     original, rebuilt = read_log(servo_run / "run.lcm"), read_as_log(servo_run / "run.mcap")
     assert [(e.channel, e.data, e.utime_us) for e in rebuilt.events] == [
         (e.channel, e.data, e.utime_us) for e in original.events
@@ -176,11 +175,11 @@ def test_damaged_events_survive_the_round_trip(servo_run: Path, tmp_path: Path) 
     events.insert(3, (events[3][0], "SKEL_STATUS", b"not a status"))
     events.insert(5, (events[5][0], "SKEL_TIMING", b"\x00" * 40))
     damaged = read_bytes(encode_events(events), "damaged.lcm")
-    want = analyze_log(damaged).to_json()
+    want = analyze_log(damaged).report.to_json()
     assert want["integrity"]["duplicate_batches"] == 1
     assert want["integrity"]["malformed"] == {"SKEL_STATUS": 1, "SKEL_TIMING": 1}
-    export(run_data(damaged), tmp_path / "damaged.mcap")
-    assert analyze_log(read_as_log(tmp_path / "damaged.mcap")).to_json() == want
+    export(analyze_log(damaged), tmp_path / "damaged.mcap")
+    assert analyze_log(read_as_log(tmp_path / "damaged.mcap")).report.to_json() == want
     raw = [json.loads(m.data)["channel"] for _, m in _messages(tmp_path / "damaged.mcap")["/lcm/raw"]]
     assert sorted(raw) == ["SKEL_STATUS", "SKEL_TIMING", "SKEL_TIMING"]
 

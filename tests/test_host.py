@@ -17,8 +17,8 @@ from pathlib import Path
 import pytest
 from conftest import EXAMPLES, DpuFarm, skel, skel_background
 
-from skeleton.analysis.logreader import open_log
-from skeleton.analysis.records import FLAG_SKIPPED, load_run
+from skeleton.analysis.read.messages import open_run_log
+from skeleton.analysis.read.records import FLAG_SKIPPED, load_records
 from skeleton.host import spawn
 from skeleton.host.control import Control
 
@@ -262,7 +262,7 @@ def test_a_data_wait_whose_writer_stopped_ends_with_the_run(dpus: DpuFarm, url: 
     report = json.loads((out / "report.json").read_text())
     assert not [f for f in report["faults"] if f["kind"] == "dpu_lost"], report["faults"]
     # The wait itself ended at the run's end (its cycle is recorded, cut short), not later.
-    records = load_run(open_log(out / "run.lcm"), report["run_id"]).records
+    records = load_records(open_run_log(out / "run.lcm"), report["run_id"]).records
     mine = records[records["process"] == 3]
     last = mine[mine["cycle"].argmax()]
     waited_until = int(last["start_ns"] + last["comm_in_ns"] + last["blocked_ns"])

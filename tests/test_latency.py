@@ -24,11 +24,11 @@ from analysis_synth import (
 from conftest import skel
 from rich.console import Console
 
-from skeleton.analysis.chains import chain_metrics
-from skeleton.analysis.latency import ClockOffsets, buffer_metrics
-from skeleton.analysis.records import decode_run
-from skeleton.analysis.report import analyze
-from skeleton.analysis.tables import print_report
+from skeleton.analysis.measure.chains import chain_metrics
+from skeleton.analysis.measure.latency import ClockOffsets, buffer_metrics
+from skeleton.analysis.measure.run import load_run
+from skeleton.analysis.read.records import decode_run
+from skeleton.analysis.views.tables import print_report
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 T0 = 1_000 * MS  # host clock
@@ -58,7 +58,7 @@ def _cross_dpu_log(path: Path, dpu1_offsets: list[tuple[int, int]] | None) -> Pa
 
 
 def _b_out(path: Path) -> dict:
-    return next(b for b in analyze(path).to_json()["buffers"] if b["buffer"] == "b_out")
+    return next(b for b in load_run(path).report.to_json()["buffers"] if b["buffer"] == "b_out")
 
 
 def test_clock_offset_of_the_writers_dpu_is_removed(tmp_path: Path) -> None:
@@ -160,7 +160,7 @@ def test_chain_in_report_json_has_summary_not_series(tmp_path: Path) -> None:
     dpu1, dpu2 = _lineage_run(c_ahead_ns=0)
     events: list[tuple[str, object]] = [("SKEL_CONFIG", config)]
     events += [("SKEL_TIMING", t) for t in batches(1, dpu1, 5) + batches(2, dpu2, 5)]
-    rep = analyze(write_log(tmp_path / "run.lcm", events))
+    rep = load_run(write_log(tmp_path / "run.lcm", events)).report
     (c,) = rep.to_json()["chains"]
     assert (c["name"], c["processes"], c["samples"]) == ("A-B-C", ["A", "B", "C"], 3)
     assert c["latency_us"]["max"] == pytest.approx(51_100.0) and "series" not in c

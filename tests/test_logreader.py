@@ -10,10 +10,17 @@ import pytest
 from analysis_synth import RUN_ID, batches, small_config, small_run, status, write_log
 
 import skelmsg
-from skeleton.analysis import logreader, parallel
-from skeleton.analysis.flatdecode import FlatLayout
-from skeleton.analysis.logreader import SYNC_BYTES, encode_events, read_bytes, read_log
-from skeleton.analysis.records import INPUT_DTYPE, RECORD_DTYPE, TIMING, decode_run, load_run, run_ids
+from skeleton.analysis.read import logreader, parallel
+from skeleton.analysis.read.flatdecode import FlatLayout
+from skeleton.analysis.read.logreader import SYNC_BYTES, encode_events, read_bytes, read_log
+from skeleton.analysis.read.records import (
+    INPUT_DTYPE,
+    RECORD_DTYPE,
+    TIMING,
+    decode_run,
+    load_records,
+    run_ids,
+)
 
 
 @pytest.fixture(params=["walk", "scan"], autouse=True)
@@ -176,8 +183,8 @@ def test_run_selection_default_is_last_run(tmp_path: Path) -> None:
     events += [("SKEL_TIMING", b"garbage")]
     log = read_log(write_log(tmp_path / "runs.lcm", events))
     assert run_ids(log) == [9, RUN_ID]
-    assert load_run(log).run_id == RUN_ID
-    first = load_run(log, 9)
+    assert load_records(log).run_id == RUN_ID
+    first = load_records(log, 9)
     assert first.run_id == 9 and len(first.records) == 20 and first.malformed == 1
 
 
@@ -274,7 +281,7 @@ def test_run_records_equal_the_structured_arrays_field_by_field(tmp_path: Path) 
     msgs[2] = bad.encode()
     msgs += [msgs[1], msgs[4][:-3], b"junk"]  # a duplicate, a cut one, garbage
     log = read_log(write_log(tmp_path / "t.lcm", [("SKEL_TIMING", m) for m in msgs]))
-    for run in (load_run(log), decode_run(msgs, RUN_ID)):
+    for run in (load_records(log), decode_run(msgs, RUN_ID)):
         want_recs, want_ins = _structured(msgs, RUN_ID)
         assert run.malformed == 3 and run.duplicates == 1 and len(run.records) == len(want_recs) > 100
         for got, want in ((run.records, want_recs), (run.inputs, want_ins)):

@@ -9,15 +9,15 @@ import pytest
 from analysis_synth import MS, RUN_ID, US, Rec, batches, small_config, small_run, status
 
 import skelmsg
-from skeleton.analysis.faults import (
+from skeleton.analysis.measure.faults import (
     Heartbeat,
     dpu_lost_faults,
     jam_faults,
     lockout_faults,
     lockouts_from_status,
 )
-from skeleton.analysis.metrics import dpu_metrics, process_metrics, static_load_pct
-from skeleton.analysis.records import RECORD_DTYPE, RunRecords, decode_run, lost_batches
+from skeleton.analysis.measure.metrics import dpu_metrics, process_metrics, static_load_pct
+from skeleton.analysis.read.records import RECORD_DTYPE, RunRecords, decode_run, lost_batches
 
 
 def _run(dpu1: list[Rec], dpu2: list[Rec], size: int = 4) -> RunRecords:

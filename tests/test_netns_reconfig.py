@@ -19,8 +19,8 @@ from conftest import ASAN_DPU, REPO, SANITIZER_ERROR
 from netns import Hosts, hosts_fixture
 
 import skelmsg
-from skeleton.analysis.logreader import read_log
-from skeleton.analysis.records import load_run
+from skeleton.analysis.read.logreader import read_log
+from skeleton.analysis.read.records import load_records
 
 netns_hosts = hosts_fixture(3)
 
@@ -61,7 +61,7 @@ def _switch_facts(log_path: Path, run_id: int, old: int, new: int) -> dict[int, 
     commits = [skelmsg.command_t.decode(bytes(d)) for _, d in log.messages("SKEL_COMMAND")]
     at_utc = next(c.at_utc_ns for c in commits if c.kind == c.COMMIT and c.generation == new)
     statuses = [skelmsg.status_t.decode(bytes(d)) for _, d in log.messages("SKEL_STATUS")]
-    records = load_run(log, run_id).records
+    records = load_records(log, run_id).records
     facts = {}
     for dpu in (1, 2):
         mine = records[records["dpu"] == dpu]
@@ -146,7 +146,7 @@ def test_netns_push_mid_run_switches_every_dpu_at_one_boundary(netns_hosts: Host
     assert abs(facts[1]["first_new"] - facts[2]["first_new"]) < 1_000_000, facts
 
     log = read_log(out / "run.lcm")
-    records = load_run(log, report["run_id"]).records
+    records = load_records(log, report["run_id"]).records
     controller = records[records["process"] == 2]
     for generation, low, high in ((old, 200_000, 900_000), (new, 1_300_000, 3_000_000)):
         mean = controller["compute_ns"][controller["generation"] == generation].mean()

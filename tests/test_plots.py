@@ -12,9 +12,10 @@ from pathlib import Path
 import pytest
 from conftest import ASAN_DPU, EXAMPLES, _ports, skel
 
-from skeleton.analysis.export_mcap import export
-from skeleton.analysis.plots import default_window_ns, plots_command, write_plots
-from skeleton.analysis.rundata import load_run_data
+from skeleton.analysis.measure.run import load_run
+from skeleton.analysis.views.export_mcap import export
+from skeleton.analysis.views.plots import default_window_ns, write_plots
+from skeleton.analysis.views.report import report_command, write_plot_dir
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 ALL_PLOTS = ["utilization.png", "timeline.png", "schedule.png", "release_latency.png", "buffer_latency.png",
@@ -70,7 +71,7 @@ def test_a_run_without_chains_skips_the_chain_plot_with_a_note(tmp_path: Path) -
     system.write_text(text[: text.index("chains:")])
     log = _run(tmp_path / "run", system, "--cycles", "120")
     out = tmp_path / "plots"
-    plots_command(log, out, None)
+    write_plot_dir(load_run(log), out, str(log))
     assert not (out / "chain_latency.png").exists()
     for name in ALL_PLOTS[:-1]:
         _png_size(out / name)
@@ -80,7 +81,7 @@ def test_a_run_without_chains_skips_the_chain_plot_with_a_note(tmp_path: Path) -
 
 
 def test_timeline_window_is_an_option(servo_log: Path, tmp_path: Path) -> None:
-    data = load_run_data(servo_log)
+    data = load_run(servo_log)
     start, length = default_window_ns(data)
     assert length == 4 * 23_800_000  # 4 minor cycles of the slowest DPU (DPU 4)
     assert start > 0
@@ -97,9 +98,9 @@ def test_json_report_with_plots_keeps_stdout_json(servo_log: Path, tmp_path: Pat
 
 
 def test_plots_from_the_mcap_export_are_the_same(servo_log: Path, tmp_path: Path) -> None:
-    export(load_run_data(servo_log), tmp_path / "run.mcap")
-    plots_command(servo_log, tmp_path / "from-lcm", None)
-    plots_command(tmp_path / "run.mcap", tmp_path / "from-mcap", None)
+    export(load_run(servo_log), tmp_path / "run.mcap")
+    write_plot_dir(load_run(servo_log), tmp_path / "from-lcm", str(servo_log))
+    write_plot_dir(load_run(tmp_path / "run.mcap"), tmp_path / "from-mcap", str(tmp_path / "run.mcap"))
     for name in ALL_PLOTS:
         mcap_png, lcm_png = (tmp_path / d / name for d in ("from-mcap", "from-lcm"))
         assert mcap_png.read_bytes() == lcm_png.read_bytes(), name
@@ -108,8 +109,7 @@ def test_plots_from_the_mcap_export_are_the_same(servo_log: Path, tmp_path: Path
 def test_unreadable_log_is_one_line_and_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     junk = tmp_path / "junk.lcm"
     junk.write_bytes(b"not a log" * 30)
-    with pytest.raises(SystemExit) as stop:
-        plots_command(junk, tmp_path / "plots", None)
-    assert stop.value.code == 2
+    code = report_command(junk, as_json=True, run_id=None, plots=tmp_path / "plots")
+    assert code == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "junk.lcm" in err

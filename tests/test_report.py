@@ -11,8 +11,9 @@ import pytest
 from analysis_synth import GENERATION, RUN_ID, batches, report, small_config, small_run, status, write_log
 from rich.console import Console
 
-from skeleton.analysis.report import analyze, report_command
-from skeleton.analysis.tables import print_report
+from skeleton.analysis.measure.run import load_run
+from skeleton.analysis.views.report import report_command
+from skeleton.analysis.views.tables import print_report
 
 
 def _log(path: Path, lockouts: bool = False, drop_batch: int | None = None) -> Path:
@@ -37,7 +38,7 @@ def _render(rep: object, paper: dict | None = None) -> str:
 
 
 def test_analyze_json_fields(tmp_path: Path) -> None:
-    rep = analyze(str(_log(tmp_path / "run.lcm")), None)
+    rep = load_run(str(_log(tmp_path / "run.lcm")), None).report
     out = rep.to_json()
     json.dumps(out)  # serialisable as is
     assert (out["run_id"], out["system"], out["generation"]) == (RUN_ID, "small", GENERATION)
@@ -58,12 +59,12 @@ def test_analyze_json_fields(tmp_path: Path) -> None:
     assert [f["kind"] for f in out["faults"]] == ["overrun"]
     assert out["faults"][0]["process"] == "C" and out["faults"][0]["count"] == 1
     assert out["cross_check"][0]["dpu"] == 1
-    assert analyze(str(tmp_path / "run.lcm"), 7).run_id == 7
+    assert load_run(str(tmp_path / "run.lcm"), 7).report.run_id == 7
 
 
 def test_jam_report_and_exit_code(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = _log(tmp_path / "jam.lcm", lockouts=True)
-    rep = analyze(str(path))
+    rep = load_run(str(path)).report
     jam = [f for f in rep.to_json()["faults"] if f["kind"] == "jam"]
     assert len(jam) == 1 and jam[0]["chain"] == ["C", "B", "A"]
     assert rep.fatal
@@ -92,7 +93,7 @@ def test_damaged_log_still_reports_and_says_so(tmp_path: Path) -> None:
     raw = path.read_bytes()
     mid = raw.index(b"SKEL_STATUS") - 28  # a header: garbage goes right before it
     path.write_bytes(raw[:mid] + b"\x00" * 100 + raw[mid:])
-    rep = analyze(str(path))
+    rep = load_run(str(path)).report
     assert rep.integrity.corrupt_ranges == [(mid, mid + 100)]
     assert rep.integrity.lost_batches == [{"dpu": 1, "from_seq": 1, "to_seq": 1}]
     text = _render(rep)
@@ -103,13 +104,13 @@ def test_damaged_log_still_reports_and_says_so(tmp_path: Path) -> None:
 def test_tables_are_deterministic_and_show_the_paper(tmp_path: Path) -> None:
     path = _log(tmp_path / "jam.lcm", lockouts=True)
     paper = {1: {"compute_pct": 90.3, "communicate_pct": 9.0, "wait_pct": 0.0, "cycle_ms": 5.0}}
-    first, second = _render(analyze(str(path)), paper), _render(analyze(str(path)), paper)
+    first, second = _render(load_run(str(path)).report, paper), _render(load_run(str(path)).report, paper)
     assert first == second
     # The paper's row beside ours: cycle paper/ours, % compute paper/ours/delta.
     assert re.search(r"│ +1 │ +5\.00 │ +10\.01 │ +90\.3 │ +60\.0 │ +-30\.3 │", first), first
     assert "C -> B -> A" in first and "overloaded" in first
     assert re.search(r"B +│ a_out +│ +6 │ +2 │ +2 │ +6 │", first)
-    clean = _render(analyze(str(_log(tmp_path / "ok.lcm"))))
+    clean = _render(load_run(str(_log(tmp_path / "ok.lcm"))).report)
     assert "log damaged" not in clean and "malformed messages skipped: SKEL_STATUS: 1" in clean
 
 
@@ -129,7 +130,7 @@ def _two_generation_log(path: Path) -> Path:
 
 
 def test_generation_windows_split_the_run(tmp_path: Path) -> None:
-    rep = analyze(str(_two_generation_log(tmp_path / "run.lcm")))
+    rep = load_run(str(_two_generation_log(tmp_path / "run.lcm"))).report
     assert rep.generations == [GENERATION, GENERATION + 1] and rep.generation == GENERATION + 1
     first, last = rep.windows
     assert (first.generation, last.generation) == (GENERATION, GENERATION + 1)
@@ -158,7 +159,7 @@ def test_generation_windows_split_the_run(tmp_path: Path) -> None:
 
 
 def test_one_generation_prints_no_window_header(tmp_path: Path) -> None:
-    rep = analyze(str(_log(tmp_path / "run.lcm")))
+    rep = load_run(str(_log(tmp_path / "run.lcm"))).report
     assert len(rep.windows) == 1 and rep.windows[0].dpus == rep.dpus
     text = _render(rep)
     assert "== generation" not in text and "per chain" not in text  # no chain in this system
@@ -167,7 +168,7 @@ def test_one_generation_prints_no_window_header(tmp_path: Path) -> None:
 
 
 def test_process_response_slack_and_histograms(tmp_path: Path) -> None:
-    out = analyze(str(_log(tmp_path / "run.lcm"))).to_json()
+    out = load_run(str(_log(tmp_path / "run.lcm"))).report.to_json()
     a = out["processes"][0]
     # A: response = start latency (100 + 10 k µs) + 200 + 4000 + 300 µs, k = 2..9
     assert a["response_us"]["p50"] == pytest.approx(4655.0)
@@ -183,14 +184,14 @@ def test_process_response_slack_and_histograms(tmp_path: Path) -> None:
 def test_a_stray_timing_batch_of_an_unknown_generation_is_counted_not_fatal(tmp_path: Path) -> None:
     """A well-formed timing_t of this run with a generation no config names (2**63-1) made
     the whole report fail; it is now counted and the run's tables are as without it."""
-    clean = analyze(str(_log(tmp_path / "clean.lcm"))).to_json()
+    clean = load_run(str(_log(tmp_path / "clean.lcm"))).report.to_json()
     dpu1, _ = small_run()
     stray = batches(1, dpu1[:2], 2, generation=2**63 - 1, first_seq=900)
     path = _log(tmp_path / "run.lcm")
     events_log = path.read_bytes()
     write_log(tmp_path / "stray.lcm", [("SKEL_TIMING", t) for t in stray])
     (tmp_path / "both.lcm").write_bytes(events_log + (tmp_path / "stray.lcm").read_bytes())
-    rep = analyze(str(tmp_path / "both.lcm")).to_json()
+    rep = load_run(str(tmp_path / "both.lcm")).report.to_json()
     assert rep["generation"] == GENERATION
     assert rep["dpus"] == clean["dpus"] and rep["processes"] == clean["processes"]
     assert rep["integrity"]["malformed"].get("SKEL_TIMING (no config for its generation)") == 2

@@ -18,10 +18,10 @@ from analysis_synth import RUN_ID, batches, small_config, small_run, status
 from conftest import EXAMPLES, LOCKOUT_SYSTEM, REPO, skel
 from rich.console import Console
 
-from skeleton.analysis.records import decode_run
-from skeleton.analysis.report import build_report
-from skeleton.analysis.watch import Heard, RecordStore
-from skeleton.analysis.watch_view import render
+from skeleton.analysis.measure.report import build_report
+from skeleton.analysis.read.records import decode_run
+from skeleton.analysis.views.watch import Heard, RecordStore
+from skeleton.analysis.views.watch_view import render
 
 LOGPLAYER = Path(lcm.__file__).parent.parent / "bin" / "lcm-logplayer"
 ENV = {**os.environ, "COLUMNS": "160"}

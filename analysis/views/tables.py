@@ -14,8 +14,8 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from .report import RunReport
-from .windows import WindowReport
+from ..measure.report import RunReport
+from ..measure.windows import WindowReport
 
 # Not a terminal: rich would render at $COLUMNS or 80 columns and drop the columns of a
 # wider table; a file or a CI log has no edge, so it gets every column.

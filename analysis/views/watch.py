@@ -24,19 +24,12 @@ from rich.live import Live
 
 import skelmsg
 
-from .coltable import ColumnTable
-from .exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
-from .records import INPUT_DTYPE, RECORD_DTYPE, TIMING_CHANNEL, RunRecords, decode_run, lost_batches
-from .report import (
-    CLOCK_CHANNEL,
-    CONFIG_CHANNEL,
-    REPORT_CHANNEL,
-    STATUS_CHANNEL,
-    LogError,
-    RunReport,
-    analyze_log,
-    build_report,
-)
+from ..exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
+from ..measure.report import RunReport, build_report
+from ..measure.run import analyze_log
+from ..read.coltable import ColumnTable
+from ..read.messages import CLOCK_CHANNEL, CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, LogError
+from ..read.records import INPUT_DTYPE, RECORD_DTYPE, TIMING_CHANNEL, RunRecords, decode_run, lost_batches
 from .watch_view import render
 
 # Clock-offset estimates too: the report corrects cross-host latencies with them.
@@ -308,9 +301,9 @@ class Heard:
 
     def final(self) -> RunReport:
         """`skel report`'s analysis over an in-memory log of everything heard."""
-        from .logreader import encode_events, read_bytes
+        from ..read.logreader import encode_events, read_bytes
 
-        return analyze_log(read_bytes(encode_events(self.events), "<heard>"), self.run_id)
+        return analyze_log(read_bytes(encode_events(self.events), "<heard>"), self.run_id).report
 
 
 def _fault_text(fault: Any) -> str:

@@ -15,8 +15,10 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
-from .exitcodes import EXIT_BAD_INPUT, EXIT_OK
-from .report import LogError, RunReport, analyze
+from ..exitcodes import EXIT_BAD_INPUT, EXIT_OK
+from ..measure.report import RunReport
+from ..measure.run import RunAnalysis, load_run
+from ..read.messages import LogError
 
 T = TypeVar("T")
 
@@ -104,20 +106,25 @@ def diff_reports(
 
 def diff_command(a: str | os.PathLike[str], b: str | os.PathLike[str], as_json: bool) -> int:
     """`skel diff RUN_A RUN_B`: 0, or 2 (one line) when either log cannot be analysed."""
-    reports = []
+    runs = []
     for path in (a, b):
         try:
-            reports.append(analyze(path))
+            runs.append(load_run(path))
         except LogError as e:
             print(f"{path}: {e}", file=sys.stderr)
             return EXIT_BAD_INPUT
-    diff = diff_reports(reports[0], reports[1], a, b)
+    diff = compare(*runs)
     if as_json:
         json.dump(diff, sys.stdout, indent=2)
         sys.stdout.write("\n")
     else:
         print_diff(diff)
     return EXIT_OK
+
+
+def compare(a: RunAnalysis, b: RunAnalysis) -> dict[str, Any]:
+    """Two runs side by side with deltas: what `skel diff` prints, as `--json` writes it."""
+    return diff_reports(a.report, b.report, a.path, b.path)
 
 
 LABELS = {

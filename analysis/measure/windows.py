@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from ..read.records import RunRecords
 from .chains import ChainMetrics, chain_metrics
 from .faults import (
     Fault,
@@ -29,7 +30,6 @@ from .faults import (
 )
 from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets, buffer_metrics
 from .metrics import DpuMetrics, ProcessMetrics, cycle_end_ns, dpu_metrics, measured, process_metrics
-from .records import RunRecords
 
 
 @dataclass

@@ -10,8 +10,8 @@ from pathlib import Path
 
 from rich.console import Console
 
+from ..measure.run import RunAnalysis
 from .plots import PlotSet
-from .rundata import RunData
 from .tables import print_report
 
 _STYLE = """
@@ -23,7 +23,7 @@ p.note { background: #fff6d5; padding: 0.5em 1em; border-left: 4px solid #e0b400
 """
 
 
-def tables_html(data: RunData, width: int = 150) -> str:
+def tables_html(data: RunAnalysis, width: int = 150) -> str:
     """The same tables `skel report` prints, as an HTML <pre> block with inline colours."""
     console = Console(file=io.StringIO(), width=width, record=True, color_system="truecolor")
     print_report(data.report, console=console)
@@ -34,7 +34,7 @@ def _image(path: Path) -> str:
     return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
 
 
-def write_html(data: RunData, made: PlotSet, out_dir: Path, source: str) -> Path:
+def write_html(data: RunAnalysis, made: PlotSet, out_dir: Path, source: str) -> Path:
     rep = data.report
     esc = html.escape
     title = f"{rep.system}: run {rep.run_id}"

@@ -9,7 +9,7 @@ from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 
-from .report import RunReport
+from ..measure.report import RunReport
 
 if TYPE_CHECKING:
     from .watch import Heard

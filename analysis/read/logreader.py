@@ -116,16 +116,6 @@ class Log:
         return list(self.iter_events())
 
 
-def open_log(path: str | os.PathLike[str]) -> Log:
-    """An LCM log, or an MCAP written by `skel export` served as one. OSError when unreadable."""
-    if os.fspath(path).endswith(".mcap"):
-        # Imported here: mcapsource -> export_mcap -> rundata -> report -> this module.
-        from .mcapsource import read_as_log
-
-        return read_as_log(path)
-    return read_log(path)
-
-
 def read_log(path: str | os.PathLike[str]) -> Log:
     """Read an LCM log file. Raises OSError when the file cannot be opened."""
     path = os.fspath(path)

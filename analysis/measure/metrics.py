@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from .records import FLAG_OVERRUN, FLAG_RELEASE_SKIPPED, FLAG_SKIPPED
+from ..read.records import FLAG_OVERRUN, FLAG_RELEASE_SKIPPED, FLAG_SKIPPED
 from .stats import Histogram, LatencyUs, group_slices, histogram
 from .stats import latency_us as _latency
 

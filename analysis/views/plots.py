@@ -1,4 +1,4 @@
-"""`skel report RUN --plots DIR`: PNG figures of one run and a self-contained report.html.
+"""PNG figures of one run (`skel report RUN --plots DIR`, with report.html from html.py).
 
 Every number plotted comes from the report (metrics.py, latency.py, chains.py: the
 same definitions as the tables) or, for the timeline, straight from the timing
@@ -7,8 +7,6 @@ records. Figures are drawn with matplotlib's Agg backend (no display needed).
 
 from __future__ import annotations
 
-import os
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,10 +20,9 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
-from .metrics import cycle_end_ns, frames, measured
-from .records import FLAG_OVERRUN, FLAG_SKIPPED
-from .report import LogError
-from .rundata import RunData, load_run_data
+from ..measure.metrics import cycle_end_ns, frames, measured
+from ..measure.run import RunAnalysis
+from ..read.records import FLAG_OVERRUN, FLAG_SKIPPED
 
 DPI = 100
 COMPUTE, COMMUNICATE, WAIT, OVERHEAD = "#4C72B0", "#DD8452", "#C8C8C8", "#C44E52"
@@ -64,27 +61,7 @@ class PlotSet:
     notes: list[str] = field(default_factory=list)  # what was skipped, and why
 
 
-def plots_command(log: Path, out_dir: Path, run_id: int | None) -> None:
-    """Write every plot and report.html to out_dir; one line and exit 2 on bad input."""
-    try:
-        data = load_run_data(log, run_id)
-    except LogError as e:
-        print(f"{log}: {e}", file=sys.stderr)
-        raise SystemExit(2) from e
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        made = write_plots(data, out_dir)
-        from .html import write_html
-
-        page = write_html(data, made, out_dir, source=os.fspath(log))
-    except OSError as e:
-        print(f"{out_dir}: {e.strerror or e}", file=sys.stderr)
-        raise SystemExit(2) from e
-    # stderr: `skel report --json --plots DIR` keeps stdout pure JSON
-    print(f"plots: {len(made.plots)} PNG and {page.name} written to {out_dir}/", file=sys.stderr)
-
-
-def write_plots(data: RunData, out_dir: Path, window_ms: tuple[float, float] | None = None) -> PlotSet:
+def write_plots(data: RunAnalysis, out_dir: Path, window_ms: tuple[float, float] | None = None) -> PlotSet:
     """Every figure as out_dir/NAME.png. `window_ms` = (start, length) of the timeline,
     in ms after the measured window's start (default: 4 minor cycles of the slowest DPU)."""
     made = PlotSet()
@@ -120,7 +97,7 @@ def _figure(width: float, height: float) -> Figure:
     return plt.figure(figsize=(width, height), layout="constrained")
 
 
-def _title(data: RunData, what: str) -> str:
+def _title(data: RunAnalysis, what: str) -> str:
     rep = data.report
     return f"{rep.system}, run {rep.run_id}: {what}"
 
@@ -128,7 +105,7 @@ def _title(data: RunData, what: str) -> str:
 # --- utilization -----------------------------------------------------------------------
 
 
-def utilization(data: RunData) -> Figure:
+def utilization(data: RunAnalysis) -> Figure:
     dpus = data.report.dpus
     fig = _figure(max(6.0, 1.6 * len(dpus) + 2.5), 4.6)
     ax = fig.add_subplot()
@@ -169,11 +146,11 @@ def utilization(data: RunData) -> Figure:
 # --- timeline --------------------------------------------------------------------------
 
 
-def _host_ns(data: RunData, recs: np.ndarray, field_ns: np.ndarray) -> np.ndarray:
+def _host_ns(data: RunAnalysis, recs: np.ndarray, field_ns: np.ndarray) -> np.ndarray:
     return data.clock.to_host_many(recs["dpu"], field_ns)
 
 
-def default_window_ns(data: RunData) -> tuple[int, int]:
+def default_window_ns(data: RunAnalysis) -> tuple[int, int]:
     """From the moment every process is past warm-up, 4 minor cycles of the slowest DPU."""
     recs = data.records
     in_window = recs[measured(recs, data.config)]
@@ -186,7 +163,7 @@ def default_window_ns(data: RunData) -> tuple[int, int]:
     return int(max(firsts)), int(4 * slowest_us * 1000)
 
 
-def timeline(data: RunData, window_ms: tuple[float, float] | None = None) -> tuple[Figure, str]:
+def timeline(data: RunAnalysis, window_ms: tuple[float, float] | None = None) -> tuple[Figure, str]:
     """A Gantt of every process's phases over a short window, one row per process."""
     start, length = default_window_ns(data)
     if window_ms is not None:
@@ -265,7 +242,7 @@ def _log_counts(ax: plt.Axes, highest: int) -> None:
     ax.yaxis.set_minor_formatter(NullFormatter())
 
 
-def schedule(data: RunData) -> Figure:
+def schedule(data: RunAnalysis) -> Figure:
     """Per DPU: each minor cycle's frame release latency over the run, with the faults
     `behind` and `stall` of the report marked where they happened."""
     dpus = sorted(data.config.dpus, key=lambda d: d.id)
@@ -294,7 +271,7 @@ def schedule(data: RunData) -> Figure:
     return fig
 
 
-def release_latency(data: RunData) -> Figure:
+def release_latency(data: RunAnalysis) -> Figure:
     procs = [p for p in data.report.processes if p.histograms.get("release_latency_us", None)]
     fig, axes = _grid(max(1, len(procs)))
     for ax, p in zip(axes, procs, strict=False):
@@ -321,7 +298,7 @@ def release_latency(data: RunData) -> Figure:
     return fig
 
 
-def buffer_latency(data: RunData) -> Figure | None:
+def buffer_latency(data: RunAnalysis) -> Figure | None:
     buffers = [b for b in data.report.buffers if any(r.samples for r in b.readers)]
     if not buffers:
         return None
@@ -345,7 +322,7 @@ def buffer_latency(data: RunData) -> Figure | None:
 # --- chains ------------------------------------------------------------------------------
 
 
-def chain_latency(data: RunData) -> Figure | None:
+def chain_latency(data: RunAnalysis) -> Figure | None:
     """One row per chain (they often overlap), latency of every value over time."""
     chains = [c for c in data.report.chains if c.series is not None and len(c.series.latency_ns)]
     if not chains:

@@ -27,7 +27,7 @@ FLAG_RELEASE_SKIPPED = skelmsg.timing_t.FLAG_RELEASE_SKIPPED
 
 # The scalars in front of the first array: enough to pick a run without decoding arrays.
 if TIMING.head[0][:4] != ("dpu", "run_id", "generation", "batch_seq"):
-    raise ImportError(f"timing_t changed: its header is now {TIMING.head[0]}; update analysis/records.py")
+    raise ImportError(f"timing_t changed: its header is now {TIMING.head[0]}; update {__file__}")
 
 # The per-cycle fields of timing_t, in its order: the record tables, the MCAP export and
 # its reader all follow this list.
@@ -71,37 +71,42 @@ class RunRecords:
     duplicates: int = 0  # batches seen twice (same dpu, batch_seq)
 
 
+Heads = tuple[np.ndarray, np.ndarray]  # (decoded ok, the scalars in front of the arrays) per batch
+
+
 def _timing_events(log: Log) -> tuple[np.ndarray, np.ndarray]:
     idx = log.indices(TIMING_CHANNEL)
     return log.data_offset[idx], log.data_len[idx]
 
 
-def timing_heads(log: Log, run_id: int) -> tuple[np.ndarray, np.ndarray]:
-    """(dpu, batch_seq) of each good timing batch of `run_id` in the log, in file order."""
-    ok, heads = decode_heads(TIMING, log.buf, *_timing_events(log))
-    mine = ok & (heads["run_id"] == run_id)
-    return heads["dpu"][mine].astype(np.int64), heads["batch_seq"][mine].astype(np.int64)
+def timing_heads(log: Log) -> Heads:
+    """The header of every timing batch in the log, in file order: enough to pick a run,
+    its generations and its DPUs' batches without decoding a record."""
+    return decode_heads(TIMING, log.buf, *_timing_events(log))
 
 
-def run_ids(log: Log) -> list[int]:
+def run_ids(log: Log, heads: Heads | None = None) -> list[int]:
     """Run ids with timing records, ordered by their last batch in the log."""
-    ok, heads = decode_heads(TIMING, log.buf, *_timing_events(log))
+    ok, head = heads or timing_heads(log)
     order: dict[int, None] = {}
-    for run in heads["run_id"][ok].tolist():
+    for run in head["run_id"][ok].tolist():
         order.pop(run, None)
         order[run] = None
     return list(order)
 
 
-def load_run(
-    log: Log, run_id: int | None = None, expected_batches: dict[int, int] | None = None
+def load_records(
+    log: Log, run_id: int | None = None, expected_batches: dict[int, int] | None = None,
+    heads: Heads | None = None,
 ) -> RunRecords:
     """The records of one run (default: the last run with timing records), straight
     from the log's memory map."""
+    heads = heads or timing_heads(log)
     if run_id is None:
-        runs = run_ids(log)
+        runs = run_ids(log, heads)
         run_id = runs[-1] if runs else 0
-    return decode_timing(log.buf, *_timing_events(log), run_id=run_id, expected_batches=expected_batches)
+    return decode_timing(log.buf, *_timing_events(log), run_id=run_id, expected_batches=expected_batches,
+                         heads=heads)
 
 
 def decode_run(
@@ -126,11 +131,12 @@ def decode_timing(
     lengths: np.ndarray,
     run_id: int,
     expected_batches: dict[int, int] | None = None,
+    heads: Heads | None = None,
 ) -> RunRecords:
     """The timing_t messages at buf[starts[i]:+lengths[i]] that belong to `run_id`.
     `expected_batches` (dpu -> batches the DPU says it published, from report_t)
-    reveals batches lost at the end of a run."""
-    ok, heads = decode_heads(TIMING, buf, starts, lengths)
+    reveals batches lost at the end of a run; `heads`, when known, are those messages'."""
+    ok, heads = heads or decode_heads(TIMING, buf, starts, lengths)
     malformed = int(np.count_nonzero(~ok))
     chosen = np.flatnonzero(ok & (heads["run_id"] == run_id))
     dec = decode_many(TIMING, buf, np.asarray(starts)[chosen], np.asarray(lengths)[chosen])

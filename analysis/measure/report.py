@@ -1,41 +1,27 @@
-"""One run's report from an LCM log alone: `analyze(path)` -> RunReport, and the
-`skel report` command (`report_command`)."""
+"""The report of one run: RunReport (what report.json holds) built from decoded
+messages and timing records by `build_report`, for a log (run.py) and live views alike."""
 
 from __future__ import annotations
 
 import dataclasses
-import json
-import os
-import struct
-import sys
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 
 import skelmsg
 
+from ..read.logreader import Integrity
+from ..read.records import RunRecords
 from .chains import ChainMetrics
-from .exitcodes import EXIT_BAD_INPUT, EXIT_FATAL_FLAW, EXIT_OK
 from .faults import Fault, Heartbeat, dpu_lost_faults, heartbeats_from_status, lockouts_from_status
 from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets
-from .logreader import Integrity, Log, open_log
 from .metrics import DpuMetrics, ProcessMetrics, measured
-from .records import RunRecords, load_run, run_ids
 from .windows import WindowReport, build_window, split_lockouts, window_records
 
-CONFIG_CHANNEL = "SKEL_CONFIG"
-STATUS_CHANNEL = "SKEL_STATUS"
-REPORT_CHANNEL = "SKEL_REPORT"
-CLOCK_CHANNEL = "SKEL_CLOCK"
 COMPUTE_MODES = {0: "sleep", 1: "wall", 2: "cpu", 3: "work"}
 
-T = TypeVar("T")
-
-
-class LogError(Exception):
-    """The file cannot be analysed (unreadable, not an LCM log, no run in it)."""
 
 
 @dataclass
@@ -201,109 +187,3 @@ def _cross_check(records: np.ndarray, config: Any, reports: Sequence[Any]) -> li
             }
         )
     return out
-
-
-def read_run_log(log_path: str | os.PathLike[str]) -> Log:
-    """The log (or exported MCAP) of a run; LogError, one line for the user, when unreadable."""
-    try:
-        return open_log(log_path)
-    except OSError as e:
-        raise LogError(e.strerror or str(e)) from e
-
-
-def analyze(log_path: str | os.PathLike[str], run_id: int | None = None) -> RunReport:
-    """Analyse one run (default: the last run with timing records) from the log alone."""
-    return analyze_log(read_run_log(log_path), run_id)
-
-
-def analyze_log(log: Log, run_id: int | None = None) -> RunReport:
-    if log.size == 0:
-        raise LogError("empty file")
-    if len(log) == 0:
-        raise LogError("not an LCM log (no event found)")
-    runs = run_ids(log)
-    if not runs:
-        raise LogError("no timing records (channel SKEL_TIMING) in this log")
-    if run_id is None:
-        run_id = runs[-1]
-    elif run_id not in runs:
-        raise LogError(f"no timing records for run {run_id} (runs in this log: {', '.join(map(str, runs))})")
-    malformed: dict[str, int] = {}
-    reports = _decode_all(log, REPORT_CHANNEL, skelmsg.report_t.decode, malformed)
-    expected = {r.dpu: r.timing_batches for r in reports if r.run_id == run_id}
-    run = load_run(log, run_id, expected_batches=expected)
-    malformed["SKEL_TIMING"] = run.malformed
-    configs = {}
-    for g in run.generations:
-        try:
-            configs[g] = _config_for(log, g, malformed)
-        except LogError:
-            # A window without its config cannot be named (a stray batch, or the config was
-            # never logged): only the others are reported, and the stray ones are counted.
-            unnamed = int((run.records["generation"] == g).sum())
-            malformed["SKEL_TIMING (no config for its generation)"] = (
-                malformed.get("SKEL_TIMING (no config for its generation)", 0) + unnamed)
-    if not configs:
-        raise LogError(f"no config_t (channel SKEL_CONFIG) for generation {max(run.generations)}: "
-                       "cannot name anything")
-    config = configs.pop(max(configs))
-    timed = _decode_timed(log, STATUS_CHANNEL, skelmsg.status_t.decode, malformed)
-    statuses = [s for _, s in timed]
-    offsets = _decode_all(log, CLOCK_CHANNEL, skelmsg.clock_offset_t.decode, malformed)
-    clock = ClockOffsets.from_messages(offsets)
-    return build_report(config, run, statuses, reports, log.integrity, malformed, configs, clock,
-                        heartbeats_from_status(timed))
-
-
-def _decode_timed(log: Log, channel: str, decode: Callable[[bytes], T],
-                  malformed: dict[str, int]) -> list[tuple[int, T]]:
-    """(utime_us, message) of every message on a channel; malformed ones are counted and skipped."""
-    out = []
-    for utime, data in log.messages(channel):
-        try:
-            out.append((utime, decode(bytes(data))))
-        except Exception:  # any decoder failure means "malformed", never a crash
-            malformed[channel] = malformed.get(channel, 0) + 1
-    return out
-
-
-def _decode_all(log: Log, channel: str, decode: Callable[[bytes], T], malformed: dict[str, int]) -> list[T]:
-    """Decode every message on a channel; malformed ones are counted and skipped."""
-    return [message for _, message in _decode_timed(log, channel, decode, malformed)]
-
-
-_CONFIG_HEAD = struct.Struct(">q")  # config_t starts with its generation
-
-
-def _config_for(log: Log, generation: int, malformed: dict[str, int]) -> Any:
-    """The last config_t of a generation. Only its header is read for the others: a
-    config (with the system file text) is re-sent periodically and is slow to decode."""
-    fingerprint = skelmsg.config_t._get_packed_fingerprint()
-    for _, data in reversed(log.messages(CONFIG_CHANNEL)):
-        if len(data) < 16 or data[:8] != fingerprint:
-            malformed[CONFIG_CHANNEL] = malformed.get(CONFIG_CHANNEL, 0) + 1
-            continue
-        if _CONFIG_HEAD.unpack_from(data, 8)[0] != generation:
-            continue
-        try:
-            return skelmsg.config_t.decode(bytes(data))
-        except Exception:
-            malformed[CONFIG_CHANNEL] = malformed.get(CONFIG_CHANNEL, 0) + 1
-    raise LogError(f"no config_t (channel SKEL_CONFIG) for generation {generation}: cannot name anything")
-
-
-def report_command(path: str | os.PathLike[str], as_json: bool, run_id: int | None) -> int:
-    """`skel report RUN.lcm [--json] [--run N]`: 0, 3 on a lockout/jam, 2 when unreadable."""
-    try:
-        report = analyze(path, run_id)
-    except LogError as e:
-        print(f"{path}: {e}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    if as_json:
-        json.dump(report.to_json(), sys.stdout, indent=2)
-        sys.stdout.write("\n")
-    else:
-        from .tables import print_report  # rich is only needed for tables
-
-        print_report(report)
-    return EXIT_FATAL_FLAW if report.fatal else EXIT_OK

@@ -21,8 +21,8 @@ import numpy as np
 
 import skelmsg
 
+from ..read.records import FLAG_LOCKOUT
 from .metrics import ProcessMetrics, completed, frame_release_latency_ns, measured, per_id, static_load_pct
-from .records import FLAG_LOCKOUT
 
 # Every kind of fault, and those that say the architecture does not work (exit 3);
 # `behind` only when the platform does not explain it (Fault.fatal).
@@ -342,7 +342,8 @@ def _bname(buffers: dict[int, Any], buffer_id: int) -> str:
 BEHIND_MIN_FRAMES = 20
 
 
-def _run_t0(records: np.ndarray) -> dict[int, int]:
+def first_release_ns(records: np.ndarray) -> dict[int, int]:
+    """Per DPU, its first release: the origin of a fault's `at_s`."""
     return {int(d): int(records["release_ns"][records["dpu"] == d].min()) for d in np.unique(records["dpu"])}
 
 
@@ -358,7 +359,7 @@ def stall_faults(records: np.ndarray, config: Any) -> list[Fault]:
     timing_t.stall_ns) beyond stall_threshold_ns. The stalls of one host's DPUs that overlap
     in time are one fault naming the host, when and how long: the platform, not the design."""
     hosts = {d.id: d.host for d in config.dpus}
-    t0 = _run_t0(records)
+    t0 = first_release_ns(records)
     events: dict[str, list[tuple[int, int, int]]] = {}  # host -> (end, start, dpu), run-relative
     limit = per_id(records["dpu"], {d.id: stall_threshold_ns(config, d.id) for d in config.dpus})
     hit = records[(records["stall_ns"] > 0) & (records["stall_ns"] >= limit)] if len(records) else records
@@ -409,7 +410,7 @@ def behind_faults(records: np.ndarray, config: Any) -> list[Fault]:
     row or more: how far behind, since when, for how long, and why (a stall of the
     platform, an overload, a data wait or an overrun)."""
     faults = []
-    t0 = _run_t0(records)
+    t0 = first_release_ns(records)
     window = records[measured(records, config)]
     for dpu in sorted(config.dpus, key=lambda d: d.id):
         mine = window[window["dpu"] == dpu.id]

@@ -10,7 +10,7 @@ with a JSON Schema (lcmjson.py derives both from the generated types). Topics:
   /lcm/raw                  LCM events kept as bytes: undecodable ones and duplicate batches
 
 Times: a timing message's log_time is the cycle's start mapped to wall clock (see
-rundata.py: per-DPU utc - mono offset from status_t), publish_time its release;
+measure/run.py: per-DPU utc - mono offset from status_t), publish_time its release;
 every other message's log_time is the lcm-logger receive time. `sequence` is the
 index of the LCM event the message came from, so mcapsource.py can rebuild the
 log (same events, same order, same bytes) and `skel report RUN.mcap` gives the
@@ -23,7 +23,6 @@ from __future__ import annotations
 import base64
 import json
 import os
-import sys
 from collections.abc import Iterator
 from dataclasses import asdict
 from pathlib import Path
@@ -34,25 +33,20 @@ from mcap.writer import Writer
 
 import skelmsg
 
-from .exitcodes import EXIT_BAD_INPUT, EXIT_OK
-from .faults import KINDS
-from .flatdecode import decode_heads
-from .lcmjson import schema_of, to_json, type_name
-from .metrics import cycle_end_ns
-from .records import (
+from ..measure.faults import KINDS
+from ..measure.metrics import cycle_end_ns
+from ..measure.run import RunAnalysis
+from ..read.lcmjson import schema_of, to_json, type_name
+from ..read.mcapformat import FAULTS_TOPIC, INPUT_FIELDS, METADATA, RAW_TOPIC, TIMING_PREFIX
+from ..read.records import (
     CYCLE_FIELDS,
     FLAG_LOCKOUT,
     FLAG_OVERRUN,
     FLAG_SKIPPED,
-    TIMING,
     TIMING_CHANNEL,
     decode_timing,
 )
-from .report import LogError
-from .rundata import RunData, load_run_data
 
-METADATA = "skeleton"
-RAW_TOPIC = "/lcm/raw"
 # LCM channel -> (type, topic prefix); the DPU id completes per-DPU topics.
 MESSAGE_CHANNELS: dict[str, tuple[type, str]] = {
     "SKEL_CONFIG": (skelmsg.config_t, "/config"),
@@ -64,7 +58,6 @@ MESSAGE_CHANNELS: dict[str, tuple[type, str]] = {
 _INT = {"type": "integer"}
 _NS = {"type": "integer", "description": "DPU CLOCK_MONOTONIC, ns"}
 _CYCLE = [*CYCLE_FIELDS, "flags"]
-_INPUT = ["buffer", "seq", "new", "dropped", "received", "sent_ns", "recv_ns"]
 TIMING_SCHEMA: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
     "title": "skeleton.timing_record",
@@ -82,9 +75,9 @@ TIMING_SCHEMA: dict[str, Any] = {
             "type": "array",
             "items": {
                 "type": "object",
-                "properties": {**{k: _INT for k in _INPUT}, "buffer_name": {"type": "string"},
+                "properties": {**{k: _INT for k in INPUT_FIELDS}, "buffer_name": {"type": "string"},
                                "transport_us": {"type": "number", "description": "recv_ns - sent_ns"}},
-                "required": [*_INPUT, "buffer_name"],
+                "required": [*INPUT_FIELDS, "buffer_name"],
             },
         },
     },
@@ -96,7 +89,7 @@ _OPT_INT = {"type": ["integer", "null"]}
 FAULT_SCHEMA: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
     "title": "skeleton.fault",
-    "description": "A fatal flaw or overrun found by the analysis (analysis/faults.py)",
+    "description": "A fatal flaw or overrun found by the analysis (analysis/measure/faults.py)",
     "type": "object",
     "properties": {
         "kind": {"type": "string", "enum": list(KINDS)},
@@ -142,26 +135,7 @@ class _Out:
         return self.channels[topic]
 
 
-def export_command(log: Path, mcap: Path, run_id: int | None) -> int:
-    """`skel export`: 0, or 2 with one line when the log cannot be read or written."""
-    if Path(log).suffix == ".mcap":
-        print(f"{log}: already an MCAP file; export reads an LCM log (run.lcm)", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    try:
-        data = load_run_data(log, run_id)
-        counts = export(data, mcap)
-    except LogError as e:
-        print(f"{log}: {e}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except OSError as e:
-        print(f"{mcap}: {e.strerror or e}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    print(f"{mcap}: run {data.report.run_id}, {counts['timing']} timing records, "
-          f"{counts['messages']} messages on {counts['topics']} topics")  # fmt: skip
-    return EXIT_OK
-
-
-def export(data: RunData, mcap: str | os.PathLike[str]) -> dict[str, int]:
+def export(data: RunAnalysis, mcap: str | os.PathLike[str]) -> dict[str, int]:
     """Write the MCAP; returns counts of what was written."""
     messages = sorted(_messages(data), key=lambda m: (m[0], m[1]))
     tmp = Path(f"{os.fspath(mcap)}.part")
@@ -177,14 +151,14 @@ def export(data: RunData, mcap: str | os.PathLike[str]) -> dict[str, int]:
         _attach(out.writer, data)
         out.writer.finish()
     tmp.replace(mcap)  # never leave a half-written file under the final name
-    timing = sum(1 for m in messages if m[2].startswith("/timing/"))
+    timing = sum(1 for m in messages if m[2].startswith(TIMING_PREFIX))
     return {"messages": len(messages), "timing": timing, "topics": len(out.channels)}
 
 
 Message = tuple[int, int, str, dict[str, Any], dict[str, str], int, dict[str, Any]]
 
 
-def _messages(data: RunData) -> Iterator[Message]:
+def _messages(data: RunAnalysis) -> Iterator[Message]:
     log = data.log
     raw = set(_raw_timing_events(data))
     for channel, (cls, pattern) in MESSAGE_CHANNELS.items():
@@ -210,11 +184,11 @@ def _messages(data: RunData) -> Iterator[Message]:
     yield from _fault_messages(data)
 
 
-def _batch_events(data: RunData) -> dict[tuple[int, int], int]:
+def _batch_events(data: RunAnalysis) -> dict[tuple[int, int], int]:
     """(dpu, batch_seq) of every kept batch -> index of its LCM event (the first good copy)."""
-    log, run = data.log, data.run
+    log, run = data.log, data.recorded
     idx = log.indices(TIMING_CHANNEL)
-    ok, heads = decode_heads(TIMING, log.buf, log.data_offset[idx], log.data_len[idx])
+    ok, heads = data.heads
     kept = set(zip(run.records["dpu"].tolist(), run.records["batch_seq"].tolist(), strict=True))
     out: dict[tuple[int, int], int] = {}
     mine = np.flatnonzero(ok & (heads["run_id"] == run.run_id))
@@ -225,26 +199,26 @@ def _batch_events(data: RunData) -> dict[tuple[int, int], int]:
     return out
 
 
-def _decodes(data: RunData, i: int) -> bool:
+def _decodes(data: RunAnalysis, i: int) -> bool:
     log = data.log
-    one = decode_timing(log.buf, log.data_offset[i : i + 1], log.data_len[i : i + 1], data.run.run_id)
+    one = decode_timing(log.buf, log.data_offset[i : i + 1], log.data_len[i : i + 1], data.recorded.run_id)
     return one.batches == 1 and one.malformed == 0
 
 
-def _raw_timing_events(data: RunData) -> list[int]:
+def _raw_timing_events(data: RunAnalysis) -> list[int]:
     """Timing events the records do not represent: undecodable (any run) and repeated
     batches of this run. Other runs' good batches are not exported."""
     log = data.log
     idx = log.indices(TIMING_CHANNEL)
-    ok, heads = decode_heads(TIMING, log.buf, log.data_offset[idx], log.data_len[idx])
+    ok, heads = data.heads
     used = set(_batch_events(data).values())
-    mine = ok & (heads["run_id"] == data.run.run_id)
+    mine = ok & (heads["run_id"] == data.recorded.run_id)
     return [int(i) for i, m, good in zip(idx.tolist(), mine.tolist(), ok.tolist(), strict=True)
             if not good or (m and i not in used)]  # fmt: skip
 
 
-def _timing_messages(data: RunData) -> Iterator[Message]:
-    run, log = data.run, data.log
+def _timing_messages(data: RunAnalysis) -> Iterator[Message]:
+    run, log = data.recorded, data.log
     recs = run.records
     if not len(recs):
         return
@@ -258,7 +232,7 @@ def _timing_messages(data: RunData) -> Iterator[Message]:
     order = np.argsort(run.inputs["record"], kind="stable")
     ins = run.inputs[order]
     in_bounds = np.searchsorted(ins["record"], np.arange(len(recs) + 1)).tolist()
-    in_cols = {k: ins[k].tolist() for k in _INPUT}
+    in_cols = {k: ins[k].tolist() for k in INPUT_FIELDS}
     cols = {k: recs[k].tolist() for k in ("dpu", "process", "generation", "batch_seq", *_CYCLE)}
     log_times = data.to_utc_ns(recs["dpu"], recs["start_ns"]).tolist()
     releases = data.to_utc_ns(recs["dpu"], recs["release_ns"]).tolist()
@@ -269,7 +243,7 @@ def _timing_messages(data: RunData) -> Iterator[Message]:
         a, b = in_bounds[r], in_bounds[r + 1]
         inputs = []
         for k in range(a, b):
-            item = {f: in_cols[f][k] for f in _INPUT}
+            item = {f: in_cols[f][k] for f in INPUT_FIELDS}
             item["buffer_name"] = buffers.get(item["buffer"], f"buffer {item['buffer']}")
             item["transport_us"] = (item["recv_ns"] - item["sent_ns"]) / 1000.0
             inputs.append(item)
@@ -285,12 +259,12 @@ def _timing_messages(data: RunData) -> Iterator[Message]:
             "response_us": response_us[r],
             "inputs": inputs,
         }  # fmt: skip
-        topic = f"/timing/{dpu}/{body['process_name']}"
+        topic = f"{TIMING_PREFIX}{dpu}/{body['process_name']}"
         meta = {"lcm_channel": TIMING_CHANNEL, "lcm_type": "skelmsg.timing_t (one record)"}
         yield max(log_times[r], 0), event, topic, TIMING_SCHEMA, meta, max(releases[r], 0), body
 
 
-def _fault_messages(data: RunData) -> Iterator[Message]:
+def _fault_messages(data: RunAnalysis) -> Iterator[Message]:
     """One message per fault, at the start of the cycle it names (else at the run's end)."""
     recs = data.records
     ids = {p.name: p.id for p in data.config.processes}
@@ -301,10 +275,10 @@ def _fault_messages(data: RunData) -> Iterator[Message]:
             hit = recs[(recs["process"] == ids[fault.process]) & (recs["cycle"] == fault.cycle)]
             if len(hit):
                 when = int(data.to_utc_ns(hit["dpu"][:1], hit["start_ns"][:1])[0])
-        yield max(when, 0), 0, "/faults", FAULT_SCHEMA, {}, max(when, 0), asdict(fault)
+        yield max(when, 0), 0, FAULTS_TOPIC, FAULT_SCHEMA, {}, max(when, 0), asdict(fault)
 
 
-def _attach(writer: Writer, data: RunData) -> None:
+def _attach(writer: Writer, data: RunAnalysis) -> None:
     config, integ = data.config, data.log.integrity
     when = int(config.sent_utc_ns) if config.sent_utc_ns > 0 else 0
     writer.add_attachment(create_time=when, log_time=when, name="system.yaml",

@@ -24,13 +24,9 @@ from mcap.reader import make_reader
 
 import skelmsg
 
-from .export_mcap import METADATA, RAW_TOPIC
 from .lcmjson import from_json, lcm_class
 from .logreader import Integrity, Log, encode_events, read_bytes
-from .records import CYCLE_FIELDS
-
-_RECORD = ["process", *CYCLE_FIELDS, "flags"]
-_INPUT = ["buffer", "seq", "new", "dropped", "received", "sent_ns", "recv_ns"]
+from .mcapformat import FAULTS_TOPIC, INPUT_FIELDS, METADATA, RAW_TOPIC, RECORD_FIELDS, TIMING_PREFIX
 
 
 class McapSourceError(OSError):
@@ -70,12 +66,12 @@ def read_as_log(path: str | os.PathLike[str]) -> Log:
 def _collect(channel: Any, message: Any, events: list[tuple[int, int, str, bytes]],
              batches: dict[int, list[dict[str, Any]]]) -> None:  # fmt: skip
     topic = channel.topic
-    if topic == "/faults":
+    if topic == FAULTS_TOPIC:
         return  # derived by the analysis, not an LCM event
     body = json.loads(message.data)
     if topic == RAW_TOPIC:
         events.append((message.sequence, body["utime_us"], body["channel"], base64.b64decode(body["data"])))
-    elif topic.startswith("/timing/"):
+    elif topic.startswith(TIMING_PREFIX):
         batches[message.sequence].append(body)
     else:
         cls = lcm_class(channel.metadata["lcm_type"])
@@ -91,12 +87,12 @@ def _timing_batch(records: list[dict[str, Any]]) -> tuple[int, bytes]:
     for name in ("dpu", "run_id", "generation", "batch_seq"):
         setattr(t, name, head[name])
     t.n = len(records)
-    for name in _RECORD:
+    for name in RECORD_FIELDS:
         setattr(t, name, [r[name] for r in records])
     inputs = [(r["index"], i) for r in records for i in r["inputs"]]
     t.ninputs = len(inputs)
     t.in_record = [index for index, _ in inputs]
-    for name in _INPUT:
+    for name in INPUT_FIELDS:
         setattr(t, f"in_{name}", [i[name] for _, i in inputs])
     return head["logged_us"], t.encode()
 

@@ -1,0 +1,189 @@
+"""One run read once: `load_run(path)` -> RunAnalysis, the one result every view takes.
+
+A RunAnalysis holds the log's events, the run's timing records (every generation),
+the decoded control-plane messages (configs by generation, statuses, DPU reports,
+clock estimates), the report (report.json) and a map from each DPU's clock to wall
+clock, all from one read of the file and one decode of each message.
+
+Wall clock: timing records are stamped with the DPU's CLOCK_MONOTONIC, which means
+nothing outside the DPU. Each status_t carries a (mono_ns, utc_ns) pair read at one
+instant, so utc - mono is that DPU's offset; the median over its status messages is
+robust to a stalled heartbeat. A DPU with no status message falls back to its timing
+batches: a batch is logged after every record in it started, so
+min(logged utime - latest start) bounds the offset from above (by the batching delay).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+
+from ..read.logreader import Log
+from ..read.messages import LogError, Messages, open_run_log, read_messages
+from ..read.records import TIMING_CHANNEL, Heads, RunRecords, load_records, run_ids, timing_heads
+from .columns import Table, faults_table, receptions_table, report_tables, tables, timing_table
+from .faults import heartbeats_from_status
+from .latency import ClockOffsets
+from .report import RunReport, build_report
+
+NO_CONFIG = "SKEL_TIMING (no config for its generation)"
+
+
+@dataclass
+class RunAnalysis:
+    """A run as read from its log: see the module comment."""
+
+    log: Log
+    recorded: RunRecords  # every generation of the run
+    heads: Heads  # the header of every timing batch in the log (records.timing_heads)
+    messages: Messages
+    report: RunReport
+    clock: ClockOffsets  # DPU clock -> host clock (SKEL_CLOCK estimates), as the report uses
+    utc_offset_ns: dict[int, int] = field(default_factory=dict)  # dpu -> utc_ns - mono_ns
+
+    @property
+    def path(self) -> str:
+        return self.log.path
+
+    @property
+    def config(self) -> Any:
+        """The config_t of the report's generation (the run's last)."""
+        return self.messages.configs[self.report.generation]
+
+    @property
+    def statuses(self) -> list[Any]:
+        """Every decodable status_t in the log, in log order."""
+        return [s for _, s in self.messages.statuses]
+
+    @cached_property
+    def _kept(self) -> np.ndarray:
+        return np.flatnonzero(self.recorded.records["generation"] == self.report.generation)
+
+    @cached_property
+    def records(self) -> Any:
+        """The process-cycle records of the report's generation (a ColumnTable)."""
+        return self.recorded.records[self._kept]
+
+    @cached_property
+    def inputs(self) -> Any:
+        """Their input records; "record" indexes `records`."""
+        inputs = self.recorded.inputs[np.isin(self.recorded.inputs["record"], self._kept)].copy()
+        inputs["record"] = np.searchsorted(self._kept, inputs["record"])
+        return inputs
+
+    def to_utc_ns(self, dpu: np.ndarray | int, mono_ns: np.ndarray | int) -> np.ndarray:
+        """Wall-clock ns (UTC) of DPU monotonic times."""
+        dpus = np.asarray(dpu)
+        offsets = np.vectorize(lambda d: self.utc_offset_ns.get(int(d), 0), otypes=[np.int64])(dpus)
+        return np.asarray(mono_ns, dtype=np.int64) + offsets
+
+    def process_names(self) -> dict[int, str]:
+        return {p.id: p.name for p in self.config.processes}
+
+    # The tables of the public API (skeleton/__init__.py) and of `skel export --parquet`.
+    @property
+    def dpus(self) -> Table:
+        return report_tables(self)["dpus"]
+
+    @property
+    def processes(self) -> Table:
+        return report_tables(self)["processes"]
+
+    @cached_property
+    def timing(self) -> Table:
+        return timing_table(self)
+
+    @cached_property
+    def receptions(self) -> Table:
+        return receptions_table(self)
+
+    @property
+    def faults(self) -> Table:
+        return faults_table(self)
+
+    def tables(self) -> dict[str, Table]:
+        return tables(self)
+
+
+def load_run(path: str | os.PathLike[str], run_id: int | None = None) -> RunAnalysis:
+    """A run (default: the last with timing records) of an .lcm log, a run directory (its
+    run.lcm) or an MCAP from `skel export`. Raises LogError (one line for the user) when
+    the file cannot be analysed."""
+    return analyze_log(open_run_log(path), run_id)
+
+
+def analyze_log(log: Log, run_id: int | None = None) -> RunAnalysis:
+    if log.size == 0:
+        raise LogError("empty file")
+    if len(log) == 0:
+        raise LogError("not an LCM log (no event found)")
+    heads = timing_heads(log)
+    runs = run_ids(log, heads)
+    if not runs:
+        raise LogError("no timing records (channel SKEL_TIMING) in this log")
+    if run_id is None:
+        run_id = runs[-1]
+    elif run_id not in runs:
+        raise LogError(f"no timing records for run {run_id} (runs in this log: {', '.join(map(str, runs))})")
+    # The generations are known from the batches' headers, before any record is decoded.
+    ok, head = heads
+    messages = read_messages(log, set(head["generation"][ok & (head["run_id"] == run_id)].tolist()))
+    expected = {r.dpu: r.timing_batches for r in messages.reports if r.run_id == run_id}
+    recorded = load_records(log, run_id, expected_batches=expected, heads=heads)
+    malformed = {"SKEL_TIMING": recorded.malformed, **messages.malformed}
+    configs = {g: c for g, c in messages.configs.items() if g in recorded.generations}
+    for g in recorded.generations:
+        if g not in configs:
+            # A window without its config cannot be named (a stray batch, or the config was
+            # never logged): only the others are reported, and the stray ones are counted.
+            unnamed = int((recorded.records["generation"] == g).sum())
+            malformed[NO_CONFIG] = malformed.get(NO_CONFIG, 0) + unnamed
+    if not configs:
+        raise LogError(f"no config_t (channel SKEL_CONFIG) for generation {max(recorded.generations)}: "
+                       "cannot name anything")
+    last = max(configs)
+    clock = ClockOffsets.from_messages(messages.clock_offsets)
+    statuses = [s for _, s in messages.statuses]
+    report = build_report(configs[last], recorded, statuses, messages.reports, log.integrity, malformed,
+                          {g: c for g, c in configs.items() if g != last}, clock,
+                          heartbeats_from_status(messages.statuses))
+    return RunAnalysis(log=log, recorded=recorded, heads=heads, messages=messages, report=report, clock=clock,
+                       utc_offset_ns=utc_offsets(log, recorded, statuses, heads))
+
+
+def utc_offsets(log: Log, run: RunRecords, statuses: list[Any], heads: Heads) -> dict[int, int]:
+    """dpu -> utc_ns - mono_ns, for every DPU with records (see the module comment)."""
+    offsets: dict[int, int] = {}
+    for dpu in sorted({s.dpu for s in statuses}):
+        mine = [s for s in statuses if s.dpu == dpu and s.mono_ns > 0 and s.utc_ns > 0]
+        if mine:
+            offsets[dpu] = int(np.median([s.utc_ns - s.mono_ns for s in mine]))
+    missing = set(np.unique(run.records["dpu"]).tolist()) - set(offsets)
+    if missing:
+        offsets.update(_offsets_from_batches(log, run, missing, heads))
+    return offsets
+
+
+def _offsets_from_batches(log: Log, run: RunRecords, dpus: set[int], heads: Heads) -> dict[int, int]:
+    ok, head = heads
+    logged_ns = log.utime_us[log.indices(TIMING_CHANNEL)] * 1000
+    out: dict[int, int] = {}
+    recs = run.records
+    for dpu in sorted(dpus):
+        mine = recs[recs["dpu"] == dpu]
+        latest = {}
+        for seq, start in zip(mine["batch_seq"].tolist(), mine["start_ns"].tolist(), strict=True):
+            latest[seq] = max(latest.get(seq, start), start)
+        sel = ok & (head["dpu"] == dpu) & (head["run_id"] == run.run_id)
+        bounds = [
+            int(t) - latest[s]
+            for s, t in zip(head["batch_seq"][sel].tolist(), logged_ns[sel].tolist(), strict=True)
+            if s in latest
+        ]
+        if bounds:
+            out[dpu] = min(bounds)
+    return out

@@ -1,0 +1,109 @@
+"""A run's file opened and its control-plane messages decoded, once.
+
+`open_run_log(path)` reads an LCM log, or an MCAP written by `skel export` served as
+one (mcapsource.py). `read_messages(log, generations)` decodes, in one pass per
+channel, what the analysis needs besides the timing records: the config_t of each
+generation, every status_t with when it was heard, the DPUs' report_t and the clock
+offset estimates. A message that does not decode is counted by channel, never fatal.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+import skelmsg
+
+from .logreader import Log, read_log
+from .mcapsource import read_as_log
+
+CONFIG_CHANNEL = "SKEL_CONFIG"
+STATUS_CHANNEL = "SKEL_STATUS"
+REPORT_CHANNEL = "SKEL_REPORT"
+CLOCK_CHANNEL = "SKEL_CLOCK"
+
+T = TypeVar("T")
+
+
+class LogError(Exception):
+    """The file cannot be analysed (unreadable, not an LCM log, no run in it)."""
+
+
+def run_log_path(path: str | os.PathLike[str]) -> Path:
+    """A run directory (`skel run --out DIR`) stands for its run.lcm."""
+    path = Path(path)
+    return path / "run.lcm" if path.is_dir() else path
+
+
+def open_run_log(path: str | os.PathLike[str]) -> Log:
+    """The log (or exported MCAP, or run directory) of a run; LogError, one line for the
+    user, when unreadable."""
+    path = run_log_path(path)
+    try:
+        if path.suffix == ".mcap":
+            return read_as_log(path)
+        return read_log(path)
+    except OSError as e:
+        raise LogError(e.strerror or str(e)) from e
+
+
+@dataclass
+class Messages:
+    """The decoded control-plane messages of a log."""
+
+    configs: dict[int, Any]  # generation -> its last config_t (only the generations asked for)
+    statuses: list[tuple[int, Any]]  # (utime_us heard, status_t), in log order
+    reports: list[Any]  # report_t, in log order
+    clock_offsets: list[Any]  # clock_offset_t, in log order
+    malformed: dict[str, int] = field(default_factory=dict)  # channel -> undecodable messages
+
+
+def read_messages(log: Log, generations: Iterable[int]) -> Messages:
+    malformed: dict[str, int] = {}
+    return Messages(
+        configs=configs_of(log, generations, malformed),
+        statuses=decode_timed(log, STATUS_CHANNEL, skelmsg.status_t.decode, malformed),
+        reports=[m for _, m in decode_timed(log, REPORT_CHANNEL, skelmsg.report_t.decode, malformed)],
+        clock_offsets=[m for _, m in decode_timed(log, CLOCK_CHANNEL, skelmsg.clock_offset_t.decode,
+                                                  malformed)],
+        malformed=malformed,
+    )
+
+
+def decode_timed(log: Log, channel: str, decode: Callable[[bytes], T],
+                 malformed: dict[str, int]) -> list[tuple[int, T]]:
+    """(utime_us, message) of every message on a channel; malformed ones are counted and skipped."""
+    out = []
+    for utime, data in log.messages(channel):
+        try:
+            out.append((utime, decode(bytes(data))))
+        except Exception:  # any decoder failure means "malformed", never a crash
+            malformed[channel] = malformed.get(channel, 0) + 1
+    return out
+
+
+_CONFIG_HEAD = struct.Struct(">q")  # config_t starts with its generation
+
+
+def configs_of(log: Log, generations: Iterable[int], malformed: dict[str, int]) -> dict[int, Any]:
+    """The last config_t of each generation asked for. Only the header of the others is read:
+    a config (with the system file text) is re-sent periodically and is slow to decode."""
+    wanted = set(generations)
+    found: dict[int, Any] = {}
+    fingerprint = skelmsg.config_t._get_packed_fingerprint()
+    for _, data in reversed(log.messages(CONFIG_CHANNEL)):
+        if len(data) < 16 or data[:8] != fingerprint:
+            malformed[CONFIG_CHANNEL] = malformed.get(CONFIG_CHANNEL, 0) + 1
+            continue
+        generation = _CONFIG_HEAD.unpack_from(data, 8)[0]
+        if generation not in wanted or generation in found:
+            continue
+        try:
+            found[generation] = skelmsg.config_t.decode(bytes(data))
+        except Exception:
+            malformed[CONFIG_CHANNEL] = malformed.get(CONFIG_CHANNEL, 0) + 1
+    return found

@@ -1,0 +1,46 @@
+"""`skel report RUN [--json] [--run N] [--plots DIR]`: the run read once, then its tables
+(or report.json on stdout) and, when asked, its plots and report.html."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+
+from ..exitcodes import EXIT_BAD_INPUT, EXIT_FATAL_FLAW, EXIT_OK
+from ..measure.run import RunAnalysis, load_run
+from ..read.messages import LogError
+from .html import write_html
+from .plots import write_plots
+from .tables import print_report
+
+
+def report_command(path: str | os.PathLike[str], as_json: bool, run_id: int | None,
+                   plots: Path | None = None) -> int:
+    """0, 3 on a fatal flaw, 2 with one line when the log cannot be read or a plot written."""
+    try:
+        run = load_run(path, run_id)
+    except LogError as e:
+        print(f"{path}: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if as_json:
+        json.dump(run.report.to_json(), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        print_report(run.report)
+    if plots is not None:
+        try:
+            write_plot_dir(run, plots, source=os.fspath(path))
+        except OSError as e:
+            print(f"{plots}: {e.strerror or e}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+    return EXIT_FATAL_FLAW if run.report.fatal else EXIT_OK
+
+
+def write_plot_dir(run: RunAnalysis, out_dir: Path, source: str) -> None:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    made = write_plots(run, out_dir)
+    page = write_html(run, made, out_dir, source=source)
+    # stderr: `skel report --json --plots DIR` keeps stdout pure JSON
+    print(f"plots: {len(made.plots)} PNG and {page.name} written to {out_dir}/", file=sys.stderr)

@@ -1,0 +1,99 @@
+"""`skel export RUN --trace FILE.json`: the run's timeline as a Chrome / Perfetto trace.
+
+Trace Event Format (JSON), which ui.perfetto.dev and chrome://tracing open: one track
+group per DPU ("pid") and one track per process on it ("tid"). Every cycle that ran is
+four complete events ("ph": "X"), one per phase: comm in, blocked, compute, comm out.
+An overrun is an instant event at its cycle's end; every fault of the report is an
+instant event at when it happened, on its DPU's track group (or the whole trace's when
+it has no DPU). Times are microseconds on the host's clock: each DPU's monotonic clock
+mapped through the clock-offset estimates the report uses (identity on one machine).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterator
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..measure.faults import first_release_ns
+from ..measure.run import RunAnalysis
+from ..read.records import FLAG_OVERRUN, FLAG_RELEASE_SKIPPED, FLAG_SKIPPED
+
+# (event name, the record's duration field), in the order a cycle runs them.
+PHASES = (("comm in", "comm_in_ns"), ("blocked", "blocked_ns"), ("compute", "compute_ns"),
+          ("comm out", "comm_out_ns"))  # fmt: skip
+CATEGORY = "cycle"
+
+
+def write_trace(run: RunAnalysis, path: str | os.PathLike[str]) -> int:
+    """Write the trace; returns how many events it holds."""
+    events = list(_metadata(run)) + list(_phases(run)) + list(_faults(run))
+    trace = {"traceEvents": events, "displayTimeUnit": "ms",
+             "otherData": {"system": run.report.system, "run_id": run.report.run_id,
+                           "generation": run.report.generation}}  # fmt: skip
+    tmp = Path(f"{os.fspath(path)}.part")
+    tmp.write_text(json.dumps(trace, separators=(",", ":")), encoding="utf-8")
+    tmp.replace(path)
+    return len(events)
+
+
+def _host_us(run: RunAnalysis, dpus: np.ndarray, t_ns: np.ndarray) -> np.ndarray:
+    return run.clock.to_host_many(dpus, t_ns) / 1e3
+
+
+def _metadata(run: RunAnalysis) -> Iterator[dict[str, Any]]:
+    hosts = {d.id: d.host for d in run.config.dpus}
+    for dpu in sorted(hosts):
+        yield {"ph": "M", "name": "process_name", "pid": dpu, "args": {"name": f"DPU {dpu} ({hosts[dpu]})"}}
+        yield {"ph": "M", "name": "process_sort_index", "pid": dpu, "args": {"sort_index": dpu}}
+    for p in run.config.processes:
+        yield {"ph": "M", "name": "thread_name", "pid": p.dpu, "tid": p.id, "args": {"name": p.name}}
+
+
+def _phases(run: RunAnalysis) -> Iterator[dict[str, Any]]:
+    recs = run.records
+    ran = (np.asarray(recs["flags"]).astype(np.int64) & (FLAG_SKIPPED | FLAG_RELEASE_SKIPPED)) == 0
+    recs = recs[ran]
+    dpus = np.asarray(recs["dpu"])
+    at = np.asarray(recs["start_ns"]).copy()
+    cols = {k: recs[k].tolist() for k in ("dpu", "process", "cycle", "flags")}
+    for name, field in PHASES:
+        length = np.asarray(recs[field])
+        start_us = _host_us(run, dpus, at).tolist()
+        for i, dur in enumerate((length / 1e3).tolist()):
+            yield {"ph": "X", "cat": CATEGORY, "name": name, "pid": cols["dpu"][i], "tid": cols["process"][i],
+                   "ts": start_us[i], "dur": dur, "args": {"cycle": cols["cycle"][i]}}  # fmt: skip
+        at = at + length
+    end_us = _host_us(run, dpus, at).tolist()
+    for i in np.flatnonzero(np.asarray(recs["flags"]).astype(np.int64) & FLAG_OVERRUN).tolist():
+        yield {"ph": "i", "s": "t", "cat": "fault", "name": "overrun", "pid": cols["dpu"][i],
+               "tid": cols["process"][i], "ts": end_us[i], "args": {"cycle": cols["cycle"][i]}}  # fmt: skip
+
+
+def _faults(run: RunAnalysis) -> Iterator[dict[str, Any]]:
+    recs = run.records
+    origin = first_release_ns(recs) if len(recs) else {}
+    period_ns = {p.name: p.period_us * 1000 for p in run.config.processes}
+    dpu_of = {p.name: p.dpu for p in run.config.processes}
+    start = min(origin.values(), default=0)
+    for fault in run.report.faults:
+        dpu = fault.dpu if fault.dpu is not None else dpu_of.get(fault.process or "")
+        t0 = origin.get(dpu, start) if dpu is not None else start
+        if fault.at_s is not None:
+            t_ns = t0 + int(fault.at_s * 1e9)
+        elif fault.process in period_ns and fault.cycle is not None:
+            t_ns = t0 + fault.cycle * period_ns[fault.process]
+        else:
+            t_ns = t0
+        event = {"ph": "i", "cat": "fault", "name": fault.kind, "args": asdict(fault),
+                 "ts": float(_host_us(run, np.array([dpu or 0]), np.array([t_ns]))[0])}  # fmt: skip
+        if dpu is None:
+            event.update(s="g", pid=0)
+        else:
+            event.update(s="p", pid=dpu)
+        yield event
