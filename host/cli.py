@@ -21,7 +21,8 @@ from skeleton.analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERR
 from skeleton.analysis.read.messages import run_log_path
 from skeleton.host import spawn
 from skeleton.host.control import QUIET_S, Control, is_run_id
-from skeleton.host.system import DEFAULT_URL, SystemFileError, load
+from skeleton.host.system import SystemFileError, load
+from skelmsg.contract import DEFAULT_URL
 
 LISTEN_LIMIT_S = 5.0  # `skel status`/`skel clock` listen at most this long by default
 

@@ -23,10 +23,8 @@ from dataclasses import dataclass, field
 import lcm
 
 import skelmsg
+from skelmsg import contract
 
-CONFIG, COMMAND, STATUS, REPORT, CLOCK = (
-    "SKEL_CONFIG", "SKEL_COMMAND", "SKEL_STATUS", "SKEL_REPORT", "SKEL_CLOCK",
-)
 STATE_NAMES = {
     skelmsg.status_t.STATE_UNCONFIGURED: "unconfigured",
     skelmsg.status_t.STATE_READY: "ready",
@@ -34,7 +32,7 @@ STATE_NAMES = {
     skelmsg.status_t.STATE_RUNNING: "running",
 }
 COMMAND_REPEATS = 3
-HEARTBEAT_S = 0.2           # a DPU heartbeats at 5 Hz ...
+HEARTBEAT_S = contract.STATUS_PERIOD_MS / 1000  # a DPU heartbeats at 5 Hz ...
 LOST_AFTER_S = 0.6          # ... three missed beats and it is reported lost
 # `skel status`/`skel clock` listen until no DPU not heard before has been heard for this
 # long (five heartbeats: a DPU that is up is heard even when a beat or two are lost).
@@ -184,8 +182,9 @@ class Control:
         # and -> its t1, which an answer must echo.
         self._pings: dict[int, dict[int, PingSample]] = {}
         self._ping_t1: dict[int, int] = {}
-        for channel, handler in ((STATUS, self._handle_status), (REPORT, self._handle_report),
-                                 (CONFIG, self._handle_config)):
+        for channel, handler in ((contract.STATUS_CHANNEL, self._handle_status),
+                                 (contract.REPORT_CHANNEL, self._handle_report),
+                                 (contract.CONFIG_CHANNEL, self._handle_config)):
             self._lcm.subscribe(channel, handler).set_queue_capacity(0)
         self._running = True
         self._thread = threading.Thread(target=self._drain, name="lcm-control", daemon=True)
@@ -352,7 +351,7 @@ class Control:
     def publish_config(self, config: skelmsg.config_t) -> None:
         config.sent_utc_ns = time.time_ns()
         self._sign(config)
-        self._lcm.publish(CONFIG, config.encode())
+        self._lcm.publish(contract.CONFIG_CHANNEL, config.encode())
 
     def command(self, kind: int, dpu: int = -1, repeats: int = COMMAND_REPEATS, **fields: int) -> int:
         """Send one command (`repeats` times, same seq); return its seq."""
@@ -368,7 +367,7 @@ class Control:
         for i in range(repeats):
             if i:
                 time.sleep(0.01)
-            self._lcm.publish(COMMAND, data)
+            self._lcm.publish(contract.COMMAND_CHANNEL, data)
         return cmd.seq
 
     def publish(self, channel: str, message: object) -> None:
@@ -386,7 +385,7 @@ class Control:
             self._pings[cmd.seq] = {}
         cmd.ping_t1_ns = time.monotonic_ns()
         self._ping_t1[cmd.seq] = cmd.ping_t1_ns  # before the publish, so before any answer
-        self._lcm.publish(COMMAND, cmd.encode())
+        self._lcm.publish(contract.COMMAND_CHANNEL, cmd.encode())
         return cmd.seq
 
     def wait_pongs(self, seqs: Iterable[int], dpus: Iterable[int], timeout_s: float) -> bool:
@@ -436,9 +435,10 @@ class Control:
             result.at_utc_ns = time.time_ns() + int(at_ms * 1e6)
         self.command(skelmsg.command_t.COMMIT, generation=generation, at_utc_ns=result.at_utc_ns)
         result.committed = True
-        # The switch waits for the DPUs' common grid (their minor cycles' lcm, unused past 10 s).
-        grid_s = math.lcm(*(d.minor_cycle_us for d in config.dpus if d.minor_cycle_us > 0)) / 1e6
-        until_switch_s = max(0.0, (result.at_utc_ns - time.time_ns()) / 1e9) + min(grid_s, 10.0)
+        # The switch waits for the DPUs' common grid (their minor cycles' lcm, unused past MAX_COMMON_US).
+        grid_us = math.lcm(*(d.minor_cycle_us for d in config.dpus if d.minor_cycle_us > 0))
+        until_switch_s = (max(0.0, (result.at_utc_ns - time.time_ns()) / 1e9)
+                          + min(grid_us, contract.MAX_COMMON_US) / 1e6)
         self.wait_for(lambda: all(_reached(self.dpus[i].status.generation, generation) for i in wanted),
                       until_switch_s + timeout_s)
         self._settle(result, wanted)

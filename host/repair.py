@@ -28,10 +28,10 @@ from pathlib import Path
 
 import skelmsg
 from skeleton.analysis.read.logreader import read_bytes
-from skeleton.analysis.read.messages import REPORT_CHANNEL
 from skeleton.analysis.read.records import timing_heads
 from skeleton.host import spawn
 from skeleton.host.control import Control
+from skelmsg.contract import REPORT_CHANNEL
 
 # Batches asked for per round, over all DPUs. Like TCP's window: it starts well under the
 # logger's queue of 30, doubles while every ask arrives and halves when one is lost again.

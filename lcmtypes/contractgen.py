@@ -20,7 +20,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-LINE = re.compile(r'(?P<name>[A-Z][A-Z0-9_]*)\s*=\s*(?P<value>"[^"\\]*"|[0-9][0-9_]*(?:\s*\*\s*[0-9][0-9_]*)*)'
+INTEGER = r"[0-9][0-9_]*"
+LINE = re.compile(rf'(?P<name>[A-Z][A-Z0-9_]*)\s*=\s*(?P<value>"[^"\\]*"|{INTEGER}(?:\s*\*\s*{INTEGER})*)'
                   r"\s*(?:#\s*(?P<doc>.*))?")
 C_PREFIX = "SKEL_"
 INT32_MAX = 2**31 - 1

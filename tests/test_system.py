@@ -11,7 +11,8 @@ import pytest
 import yaml
 
 import skelmsg
-from skeleton.host.system import DEFAULT_URL, System, SystemFileError, dump_yaml, load
+from skeleton.host.system import System, SystemFileError, dump_yaml, load
+from skelmsg.contract import DEFAULT_URL
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 SERVO = EXAMPLES / "servo.yaml"

@@ -23,13 +23,14 @@ from rich.console import Console
 from rich.live import Live
 
 import skelmsg
+from skelmsg.contract import CLOCK_CHANNEL, CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 from ..exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
 from ..measure.report import RunReport, build_report
 from ..measure.run import analyze_log
 from ..read.coltable import ColumnTable
-from ..read.messages import CLOCK_CHANNEL, CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, LogError
-from ..read.records import INPUT_DTYPE, RECORD_DTYPE, TIMING_CHANNEL, RunRecords, decode_run, lost_batches
+from ..read.messages import LogError
+from ..read.records import INPUT_DTYPE, RECORD_DTYPE, RunRecords, decode_run, lost_batches
 from .watch_view import render
 
 # Clock-offset estimates too: the report corrects cross-host latencies with them.
