@@ -16,7 +16,9 @@ LCMGEN     = $(LCM_PREFIX)/bin/lcm-gen
 LCMTYPES := $(wildcard lcmtypes/*.lcm)
 DPU_SRC  := $(wildcard dpu/*.c)
 DPU_HDR  := $(wildcard dpu/*.h)
+CONTRACT := lcmtypes/contract.txt
 GEN_C    := $(patsubst lcmtypes/%.lcm,$(GEN)/c/skelmsg_%.c,$(LCMTYPES)) $(GEN)/c/skelmsg_check.c
+GEN_H    := $(GEN)/c/skelmsg_contract.h
 
 CC      ?= gcc
 CFLAGS  ?= -O2 -g
@@ -65,8 +67,10 @@ $(VENV)/.lcm:
 	@touch $@
 
 # --- generated types (never committed, never edited) -----------------------------
-$(GEN)/python/skelmsg/__init__.py: $(LCMTYPES) | $(VENV)/.lcm
+# skelmsg.contract first: __init__.py, the target, is written last, so a failure leaves no target.
+$(GEN)/python/skelmsg/__init__.py: $(LCMTYPES) $(CONTRACT) lcmtypes/contractgen.py | $(VENV)/.lcm
 	@rm -rf $(GEN)/python $(GEN)/java && mkdir -p $(GEN)/python $(GEN)/java
+	$(PY) lcmtypes/contractgen.py --python $(GEN)/python/skelmsg $(CONTRACT)
 	$(LCMGEN) -p --ppath $(GEN)/python -j --jpath $(GEN)/java $(LCMTYPES)
 
 $(GEN)/c/skelmsg_%.c: lcmtypes/%.lcm | $(VENV)/.lcm
@@ -78,17 +82,22 @@ $(GEN)/c/skelmsg_check.c: lcmtypes/checkgen.py $(LCMTYPES) | $(VENV)/.lcm
 	@mkdir -p $(GEN)/c
 	$(PY) lcmtypes/checkgen.py --out $(GEN)/c $(LCMTYPES)
 
+# Channel names, the default URL and the limits (lcmtypes/contract.txt), for C.
+$(GEN_H): lcmtypes/contractgen.py $(CONTRACT) | $(VENV)/.lcm
+	@mkdir -p $(GEN)/c
+	$(PY) lcmtypes/contractgen.py --c $(GEN)/c $(CONTRACT)
+
 # --- the DPU daemon ------------------------------------------------------------------
-$(BUILD)/skel-dpu: $(DPU_SRC) $(DPU_HDR) $(GEN_C) | $(STAMP)
+$(BUILD)/skel-dpu: $(DPU_SRC) $(DPU_HDR) $(GEN_C) $(GEN_H) | $(STAMP)
 	$(CC) $(WARN) $(CFLAGS) $(INC) -o $@ $(DPU_SRC) $(GEN_C) $(LIBS)
 
 # The same daemon under AddressSanitizer and UBSan, for the tests.
-$(BUILD)/asan/skel-dpu: $(DPU_SRC) $(DPU_HDR) $(GEN_C) | $(STAMP)
+$(BUILD)/asan/skel-dpu: $(DPU_SRC) $(DPU_HDR) $(GEN_C) $(GEN_H) | $(STAMP)
 	@mkdir -p $(BUILD)/asan
 	$(CC) $(WARN) -O1 -g $(SAN) $(INC) -o $@ $(DPU_SRC) $(GEN_C) $(LIBS)
 
 # C unit tests link every dpu/ file but main.c.
-$(BUILD)/asan/test_%: tests/c/test_%.c tests/c/check.h $(DPU_SRC) $(DPU_HDR) $(GEN_C) | $(STAMP)
+$(BUILD)/asan/test_%: tests/c/test_%.c tests/c/check.h $(DPU_SRC) $(DPU_HDR) $(GEN_C) $(GEN_H) | $(STAMP)
 	@mkdir -p $(BUILD)/asan
 	$(CC) $(WARN) -O1 -g $(SAN) $(INC) -Itests/c -o $@ $< $(filter-out dpu/main.c,$(DPU_SRC)) $(GEN_C) $(LIBS)
 

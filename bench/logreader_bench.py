@@ -22,7 +22,8 @@ import numpy as np
 import skelmsg
 from skeleton.analysis.read.flatdecode import decode_heads, decode_many
 from skeleton.analysis.read.logreader import read_log
-from skeleton.analysis.read.records import TIMING, TIMING_CHANNEL, load_records
+from skeleton.analysis.read.records import TIMING, load_records
+from skelmsg.contract import STATUS_CHANNEL, TIMING_CHANNEL
 
 RESULTS = Path(__file__).resolve().parent / "results" / "logreader.txt"
 BATCH = 64  # records per timing_t batch
@@ -58,9 +59,9 @@ def write_log(path: Path, records: int, with_buffers: bool) -> None:
             for i in range(BATCH):
                 log.write_event(utime, f"SKEL_BUF_{i % 9}", buf_data)
                 utime += 555
-        log.write_event(utime, "SKEL_TIMING", t.encode())
+        log.write_event(utime, TIMING_CHANNEL, t.encode())
         if first % (BATCH * 16) == 0:
-            log.write_event(utime, "SKEL_STATUS", status_data)
+            log.write_event(utime, STATUS_CHANNEL, status_data)
     log.close()
 
 
@@ -90,12 +91,12 @@ COLUMNS = ARRAYS + INPUTS
 def baseline(decode_all: bool) -> Callable[[Path], dict[str, np.ndarray]]:
     """lcm.EventLog + the generated decoder per event, then every timing column as
     numpy (what the analysis needs; ours also builds the structured arrays)."""
-    types = {"SKEL_STATUS": skelmsg.status_t, "SKEL_TIMING": skelmsg.timing_t}
+    types = {STATUS_CHANNEL: skelmsg.status_t, TIMING_CHANNEL: skelmsg.timing_t}
 
     def run(path: Path) -> dict[str, np.ndarray]:
         cols: dict[str, list[np.ndarray]] = {name: [] for name in COLUMNS}
         for event in lcm.EventLog(str(path)):
-            if event.channel == "SKEL_TIMING":
+            if event.channel == TIMING_CHANNEL:
                 t = skelmsg.timing_t.decode(event.data)
                 for name in COLUMNS:
                     cols[name].append(np.asarray(getattr(t, name), dtype=np.int64))

@@ -30,12 +30,15 @@ import tempfile
 import time
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 import yaml
 
+from skelmsg.contract import DEFAULT_URL
+
 REPO = Path(__file__).resolve().parent.parent
-GROUP = "239.255.76.67"
-CONTROL_PORT = 7667
+# LCM's own group and port (the default URL's), inside the test hosts.
+GROUP, CONTROL_PORT = urlsplit(DEFAULT_URL).hostname, urlsplit(DEFAULT_URL).port
 FIRST_DATA_PORT = 7670
 
 

@@ -7,29 +7,8 @@
  * s->next_plan, and the executive switches at one cycle boundary (swap.c,
  * executive.c); a committed re-send during our own run waits for its end,
  * because only a COMMIT names the instant at which every DPU switches. */
-#include <stdio.h>
-#include <stdlib.h>
 
 #include "dpu.h"
-
-void control_free_config(skelmsg_config_t *cfg)
-{
-    if (cfg == NULL) return;
-    skelmsg_config_t_decode_cleanup(cfg);
-    free(cfg);
-}
-
-void control_reject(skel_control_t *c, int64_t generation, const char *reason, int fault)
-{
-    skel_server_t *s = c->s;
-    if (pthread_mutex_lock(&s->lock) != 0) return;
-    if (generation >= 0) s->rejected_generation = generation;
-    snprintf(s->reject_reason, sizeof s->reject_reason, "%s", reason);
-    pthread_mutex_unlock(&s->lock);
-    if (fault) server_fault(s, SKELMSG_STATUS_T_FAULT_CONFIG_REJECTED);
-    skel_log("DPU %d: %s", s->dpu_id, reason);
-    c->status_due = 1;
-}
 
 /* Takes the staged config and builds its plan with its links open; NULL (the
  * config refused, the current plan untouched) when that fails. */
@@ -50,8 +29,8 @@ static skel_plan_t *apply_build(skel_control_t *c)
         plan = NULL;
     }
     (void)pthread_setname_np(pthread_self(), "skel-ctl");
-    if (plan == NULL) control_reject(c, cfg->generation, reason, 1);
-    control_free_config(cfg);
+    if (plan == NULL) report_reject(c, cfg->generation, reason, 1);
+    wire_free_config(cfg);
     return plan;
 }
 
@@ -67,15 +46,15 @@ static void apply_install(skel_control_t *c, skel_plan_t *plan)
     s->state = SKELMSG_STATUS_T_STATE_READY;
     pthread_mutex_unlock(&s->lock);
     plan_free(old); /* the executive drains links only under the lock: old is unused */
-    skel_log("DPU %d: applied generation %lld: %d processes, %d links, minor cycle %lld us",
+    log_line("DPU %d: applied generation %lld: %d processes, %d links, minor cycle %lld us",
              plan->dpu, (long long)plan->generation, plan->nprocesses, plan->nlinks,
              (long long)(plan->minor_ns / SKEL_NS_PER_US));
     c->status_due = 1;
 }
 
 /* Applies the staged config if no run holds the plan; otherwise it waits for
- * the end of the run (control_finish_run calls again). */
-void control_apply(skel_control_t *c)
+ * the end of the run (the control thread, control.c, calls again then). */
+void apply_staged(skel_control_t *c)
 {
     skel_server_t *s = c->s;
     if (pthread_mutex_lock(&s->lock) != 0) return;
@@ -103,7 +82,7 @@ static int64_t apply_at_mono(int64_t at_utc_ns)
 
 /* COMMIT during a run: build now, switch at the first release at or after
  * AT_UTC_NS. A plan offered earlier and not taken yet is replaced. */
-void control_commit_live(skel_control_t *c, int64_t at_utc_ns)
+void apply_commit_live(skel_control_t *c, int64_t at_utc_ns)
 {
     skel_server_t *s = c->s;
     int64_t at = apply_at_mono(at_utc_ns);
@@ -125,7 +104,7 @@ void control_commit_live(skel_control_t *c, int64_t at_utc_ns)
     pthread_mutex_unlock(&s->lock);
     plan_free(retired);
     plan_free(replaced);
-    skel_log("DPU %d: generation %lld ready: switch in %.3f ms (run %lld)", plan->dpu,
+    log_line("DPU %d: generation %lld ready: switch in %.3f ms (run %lld)", plan->dpu,
              (long long)plan->generation, at > 0 ? (double)(at - clock_mono_ns()) / 1e6 : 0.0,
              (long long)s->run_id);
     c->status_due = 1;
@@ -133,7 +112,7 @@ void control_commit_live(skel_control_t *c, int64_t at_utc_ns)
 
 /* At the end of a run: a plan offered but not reached becomes the plan, and a
  * plan a switch replaced is freed. */
-void control_install_next(skel_control_t *c)
+void apply_install_next(skel_control_t *c)
 {
     skel_server_t *s = c->s;
     if (pthread_mutex_lock(&s->lock) != 0) return;
@@ -150,14 +129,14 @@ void control_install_next(skel_control_t *c)
     plan_free(retired);
     plan_free(old);
     if (next != NULL)
-        skel_log("DPU %d: applied generation %lld at the end of run %lld", next->dpu,
+        log_line("DPU %d: applied generation %lld at the end of run %lld", next->dpu,
                  (long long)next->generation, (long long)s->run_id);
 }
 
 /* Every control loop: free what a switch handed back, and keep the offered
  * plan's link queues short (its handler ignores messages until it runs; the
  * executive takes the plan under the same lock, so never while we drain). */
-void control_drain_next(skel_control_t *c)
+void apply_drain_next(skel_control_t *c)
 {
     skel_server_t *s = c->s;
     if (pthread_mutex_lock(&s->lock) != 0) return;

@@ -25,7 +25,7 @@ static void command_absent(skel_control_t *c, const skelmsg_config_t *cfg, const
     }
     pthread_mutex_unlock(&s->lock);
     plan_free(old);
-    control_reject(c, cfg->generation, reason, 0);
+    report_reject(c, cfg->generation, reason, 0);
 }
 
 /* Re-sends of a generation we already applied, offered for a switch, staged or
@@ -49,14 +49,14 @@ static int command_config_known(skel_control_t *c, const skelmsg_config_t *cfg)
     }
     pthread_mutex_unlock(&s->lock);
     if (discard != NULL)
-        skel_log("DPU %d: generation %lld discarded (never committed): %lld arrived", s->dpu_id,
+        log_line("DPU %d: generation %lld discarded (never committed): %lld arrived", s->dpu_id,
                  (long long)discard->generation, (long long)cfg->generation);
-    control_free_config(discard);
-    if (apply) control_apply(c);
+    wire_free_config(discard);
+    if (apply) apply_staged(c);
     return known;
 }
 
-void control_handle_config(skel_control_t *c, const void *data, int len)
+void command_handle_config(skel_control_t *c, const void *data, int len)
 {
     skel_server_t *s = c->s;
     skelmsg_config_t *cfg = malloc(sizeof *cfg);
@@ -68,32 +68,32 @@ void control_handle_config(skel_control_t *c, const void *data, int len)
         return;
     }
     if (command_config_known(c, cfg)) {
-        control_free_config(cfg);
+        wire_free_config(cfg);
         return;
     }
     char what[64];
     snprintf(what, sizeof what, "generation %lld", (long long)cfg->generation);
     if (owner_refuses(c, cfg->session, cfg->force, cfg->sender, what, cfg->generation)) {
-        control_free_config(cfg);
+        wire_free_config(cfg);
         return;
     }
     skel_self_t self;
     char reason[SKEL_REASON_LEN];
     if (config_find_self(cfg, s->id_arg, s->hostname, &self) != 0) {
         command_absent(c, cfg, self.reason);
-        control_free_config(cfg);
+        wire_free_config(cfg);
         return;
     }
     if (config_validate(cfg, self.dpu_index, reason, sizeof reason) != 0) {
         char line[SKEL_REASON_LEN];
         snprintf(line, sizeof line, "generation %lld rejected: %.200s", (long long)cfg->generation,
                  reason);
-        control_reject(c, cfg->generation, line, 1);
-        control_free_config(cfg);
+        report_reject(c, cfg->generation, line, 1);
+        wire_free_config(cfg);
         return;
     }
     if (pthread_mutex_lock(&s->lock) != 0) return;
-    control_free_config(s->staged);
+    wire_free_config(s->staged);
     s->staged = cfg;
     s->staged_generation = cfg->generation;
     s->staged_dpu_index = self.dpu_index;
@@ -102,15 +102,15 @@ void control_handle_config(skel_control_t *c, const void *data, int len)
     int committed = cfg->committed;
     pthread_mutex_unlock(&s->lock);
     atomic_fetch_and(&s->faults, ~SKELMSG_STATUS_T_FAULT_CONFIG_REJECTED);
-    skel_log("DPU %d: staged generation %lld%s", self.dpu_id, (long long)cfg->generation,
+    log_line("DPU %d: staged generation %lld%s", self.dpu_id, (long long)cfg->generation,
              committed ? " (committed)" : "");
     c->status_due = 1;
-    if (committed) control_apply(c);
+    if (committed) apply_staged(c);
 }
 
 /* 1 when this exact command was acted on already. The whole command is
  * compared, not just seq, so a restarted host reusing small seqs still works. */
-int control_seen(skel_control_t *c, const skelmsg_command_t *cmd)
+static int command_seen(skel_control_t *c, const skelmsg_command_t *cmd)
 {
     skel_seen_t now = { cmd->seq, cmd->generation, cmd->run_id, cmd->at_utc_ns, cmd->ping_t1_ns,
                         cmd->kind };
@@ -146,7 +146,7 @@ static void command_start(skel_control_t *c, const skelmsg_command_t *cmd)
                  (long long)cmd->run_id, command_state_name(s->state), (long long)s->run_id);
     if (reason[0] != '\0') {
         pthread_mutex_unlock(&s->lock);
-        control_reject(c, -1, reason, 0);
+        report_reject(c, -1, reason, 0);
         return;
     }
     int64_t now_mono = clock_mono_ns(), now_utc = clock_utc_ns();
@@ -176,7 +176,7 @@ static void command_start(skel_control_t *c, const skelmsg_command_t *cmd)
     c->batch_seq = 0;
     timing_batch_clear(&c->batch);
     history_reset(&c->history, cmd->run_id);
-    skel_log("DPU %d: run %lld armed: start in %.3f ms, duration %.3f s", s->dpu_id,
+    log_line("DPU %d: run %lld armed: start in %.3f ms, duration %.3f s", s->dpu_id,
              (long long)cmd->run_id, (double)(start - now_mono) / 1e6,
              (double)cmd->duration_ns / 1e9);
     c->status_due = 1;
@@ -187,7 +187,7 @@ static void command_stop(skel_control_t *c)
     skel_server_t *s = c->s;
     atomic_store(&s->stop, 1);
     server_wake(s->wake_fd); /* interrupts a data-synchronised wait */
-    skel_log("DPU %d: STOP", s->dpu_id);
+    log_line("DPU %d: STOP", s->dpu_id);
 }
 
 static void command_commit(skel_control_t *c, const skelmsg_command_t *cmd)
@@ -205,9 +205,9 @@ static void command_commit(skel_control_t *c, const skelmsg_command_t *cmd)
                  s->staged == NULL ? " (none waiting)" : "");
     pthread_mutex_unlock(&s->lock);
     /* Ignored, not a fault: nothing changes, and the status says why. */
-    if (reason[0] != '\0') control_reject(c, -1, reason, 0);
-    else if (staged && live) control_commit_live(c, cmd->at_utc_ns);
-    else if (staged) control_apply(c);
+    if (reason[0] != '\0') report_reject(c, -1, reason, 0);
+    else if (staged && live) apply_commit_live(c, cmd->at_utc_ns);
+    else if (staged) apply_staged(c);
 }
 
 /* The logger missed some of what we published: publish it again, as it was. */
@@ -216,7 +216,7 @@ static void command_resend(skel_control_t *c, const skelmsg_command_t *cmd)
     skel_resend_t ask = { cmd->run_id, cmd->batch_from, cmd->batch_to, cmd->with_report };
     int gone = 0;
     int sent = history_resend(&c->history, c->s->ctl, &ask, &gone);
-    skel_log("DPU %d: re-sent %d of run %lld (batches %lld..%lld%s)%s", c->s->dpu_id, sent,
+    log_line("DPU %d: re-sent %d of run %lld (batches %lld..%lld%s)%s", c->s->dpu_id, sent,
              (long long)cmd->run_id, (long long)cmd->batch_from, (long long)cmd->batch_to,
              cmd->with_report ? " and the report" : "",
              gone > 0 ? ": some no longer held" : "");
@@ -238,7 +238,7 @@ static void command_dispatch(skel_control_t *c, const skelmsg_command_t *cmd, in
 {
     skel_server_t *s = c->s;
     if (cmd->dpu != -1 && cmd->dpu != s->dpu_id) return;
-    if (control_seen(c, cmd)) return;
+    if (command_seen(c, cmd)) return;
     const char *steers = command_steers(cmd->kind);
     if (steers != NULL && owner_refuses(c, cmd->session, cmd->force, cmd->sender, steers, -1)) return;
     switch (cmd->kind) {
@@ -250,13 +250,13 @@ static void command_dispatch(skel_control_t *c, const skelmsg_command_t *cmd, in
         c->ping_t1_ns = cmd->ping_t1_ns;
         c->ping_t2_ns = received;
         c->ping_t3_ns = server_now(s); /* as late as possible: just before the publish */
-        if (control_publish_status(c) != 0) skel_log("cannot answer ping %lld", (long long)cmd->seq);
+        if (report_status_publish(c) != 0) log_line("cannot answer ping %lld", (long long)cmd->seq);
         break;
     case SKELMSG_COMMAND_T_RESEND: command_resend(c, cmd); break;
     case SKELMSG_COMMAND_T_SHUTDOWN:
-        skel_log("DPU %d: SHUTDOWN", s->dpu_id);
+        log_line("DPU %d: SHUTDOWN", s->dpu_id);
         /* main() waits for SIGTERM in sigwait: the same clean path as a signal. */
-        if (kill(getpid(), SIGTERM) != 0) skel_log("cannot signal shutdown");
+        if (kill(getpid(), SIGTERM) != 0) log_line("cannot signal shutdown");
         break;
     default:
         atomic_fetch_add(&s->rejected, 1);
@@ -265,7 +265,7 @@ static void command_dispatch(skel_control_t *c, const skelmsg_command_t *cmd, in
     }
 }
 
-void control_handle_command(skel_control_t *c, const void *data, int len)
+void command_handle_command(skel_control_t *c, const void *data, int len)
 {
     skel_server_t *s = c->s;
     int64_t received = server_now(s);

@@ -86,9 +86,9 @@ static int config_dpu_reaches(const skelmsg_dpu_t *d, int16_t link)
 
 static int config_is_control_channel(const char *ch)
 {
-    return strcmp(ch, SKEL_CH_CONFIG) == 0 || strcmp(ch, SKEL_CH_COMMAND) == 0 ||
-           strcmp(ch, SKEL_CH_STATUS) == 0 || strcmp(ch, SKEL_CH_TIMING) == 0 ||
-           strcmp(ch, SKEL_CH_REPORT) == 0;
+    return strcmp(ch, SKEL_CONFIG_CHANNEL) == 0 || strcmp(ch, SKEL_COMMAND_CHANNEL) == 0 ||
+           strcmp(ch, SKEL_STATUS_CHANNEL) == 0 || strcmp(ch, SKEL_TIMING_CHANNEL) == 0 ||
+           strcmp(ch, SKEL_REPORT_CHANNEL) == 0;
 }
 
 /* A local buffer lives in one DPU's memory: its writer and every reader must be there. */

@@ -1,7 +1,9 @@
 /* control.c: the control thread. It owns the lcm_t on the control URL: it
- * receives configs and commands (command.c), publishes status at >= 5 Hz and
- * at once on every event, turns the executive's timing records into timing_t
- * batches, and closes each run (flush the records, publish the report, READY). */
+ * receives configs and commands (handled by command.c, which has apply.c build
+ * plans), publishes status (report.c) every SKEL_STATUS_NS and at once on every
+ * event, turns the executive's timing records into timing_t batches, and closes
+ * each run (flush the records, publish the report, READY). Calls run one way:
+ * from here to those files, never back. */
 #include <errno.h>
 #include <poll.h>
 #include <stdlib.h>
@@ -9,7 +11,6 @@
 #include <unistd.h>
 
 #include "dpu.h"
-#include "skelmsg_check.h"
 
 int control_init(skel_control_t *c, skel_server_t *s)
 {
@@ -35,22 +36,6 @@ void control_free(skel_control_t *c)
     timing_batch_free(&c->batch);
 }
 
-int control_publish_status(skel_control_t *c)
-{
-    skelmsg_status_t st;
-    skelmsg_lockout_t lockouts[SKEL_MAX_LOCKOUTS];
-    char reason[SKEL_REASON_LEN], owner[SKEL_OWNER_LEN];
-    report_status_fill(c->s, &st, lockouts, reason);
-    owner_status_fill(c->s, &st, owner);
-    st.ping_seq = c->ping_seq;
-    st.ping_t1_ns = c->ping_t1_ns;
-    st.ping_t2_ns = c->ping_t2_ns;
-    st.ping_t3_ns = c->ping_t3_ns;
-    c->last_status_ns = clock_mono_ns();
-    c->status_due = 0;
-    return skelmsg_status_t_publish(c->s->ctl, SKEL_CH_STATUS, &st);
-}
-
 static void control_publish_batch(skel_control_t *c)
 {
     skel_server_t *s = c->s;
@@ -60,7 +45,7 @@ static void control_publish_batch(skel_control_t *c)
     c->batch.msg.generation = c->batch_generation;
     c->batch.msg.batch_seq = c->batch_seq++;
     if (history_publish_batch(&c->history, s->ctl, &c->batch.msg) != 0)
-        skel_log("cannot publish timing batch %lld", (long long)c->batch.msg.batch_seq);
+        log_line("cannot publish timing batch %lld", (long long)c->batch.msg.batch_seq);
     atomic_fetch_add(&s->timing_batches, 1);
     timing_batch_clear(&c->batch);
 }
@@ -89,9 +74,9 @@ static void control_finish_run(skel_control_t *c)
 {
     skel_server_t *s = c->s;
     control_drain_timing(c, 1);
-    if (report_publish(s, s->plan, &c->history) != 0) skel_log("cannot publish the report of run %lld",
+    if (report_publish(s, s->plan, &c->history) != 0) log_line("cannot publish the report of run %lld",
                                                   (long long)s->run_id);
-    control_install_next(c); /* a switch the run did not reach takes effect now */
+    apply_install_next(c); /* a switch the run did not reach takes effect now */
     if (pthread_mutex_lock(&s->lock) != 0) return;
     s->run_ended = 0;
     s->run_active = 0;
@@ -99,36 +84,36 @@ static void control_finish_run(skel_control_t *c)
     int apply = s->apply_pending;
     s->apply_pending = 0;
     pthread_mutex_unlock(&s->lock);
-    skel_log("DPU %d: run %lld ended: %lld minor cycles, %lld overruns, %d lockouts, %lld timing lost",
+    log_line("DPU %d: run %lld ended: %lld minor cycles, %lld overruns, %d lockouts, %lld timing lost",
              s->dpu_id, (long long)s->run_id, (long long)atomic_load(&s->minor_cycles),
              (long long)atomic_load(&s->overruns), s->nlockouts,
              (long long)atomic_load(&s->ring.lost));
     for (int i = 0; s->verbose && s->plan != NULL && i < s->plan->nprocesses; i++) {
         const skel_process_t *p = &s->plan->processes[i];
-        skel_log("DPU %d:   process %d: %lld measured cycles, %lld overruns, max latency %lld us%s",
+        log_line("DPU %d:   process %d: %lld measured cycles, %lld overruns, max latency %lld us%s",
                  s->dpu_id, p->id, (long long)p->sums.cycles, (long long)p->sums.overruns,
                  (long long)(p->sums.max_latency_ns / 1000), p->locked_out ? ", LOCKED OUT" : "");
     }
     c->status_due = 1;
-    if (apply) control_apply(c);
+    if (apply) apply_staged(c);
 }
 
 static void control_on_config(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
 {
     (void)channel;
-    control_handle_config(user, rbuf->data, (int)rbuf->data_size);
+    command_handle_config(user, rbuf->data, (int)rbuf->data_size);
 }
 
 static void control_on_command(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
 {
     (void)channel;
-    control_handle_command(user, rbuf->data, (int)rbuf->data_size);
+    command_handle_command(user, rbuf->data, (int)rbuf->data_size);
 }
 
 static int control_subscribe(skel_control_t *c)
 {
-    lcm_subscription_t *cfg = lcm_subscribe(c->s->ctl, SKEL_CH_CONFIG, control_on_config, c);
-    lcm_subscription_t *cmd = lcm_subscribe(c->s->ctl, SKEL_CH_COMMAND, control_on_command, c);
+    lcm_subscription_t *cfg = lcm_subscribe(c->s->ctl, SKEL_CONFIG_CHANNEL, control_on_config, c);
+    lcm_subscription_t *cmd = lcm_subscribe(c->s->ctl, SKEL_COMMAND_CHANNEL, control_on_command, c);
     if (cfg == NULL || cmd == NULL) return -1;
     /* Unlimited queues: a burst of commands must not silently lose the newest. */
     if (lcm_subscription_set_queue_capacity(cfg, 0) != 0) return -1;
@@ -163,20 +148,20 @@ void *control_main(void *arg)
     int subscribed = control_subscribe(c);
     (void)pthread_setname_np(pthread_self(), "skel-ctl");
     if (subscribed != 0) {
-        skel_log("cannot subscribe to %s/%s on %s", SKEL_CH_CONFIG, SKEL_CH_COMMAND, s->url);
+        log_line("cannot subscribe to %s/%s on %s", SKEL_CONFIG_CHANNEL, SKEL_COMMAND_CHANNEL, s->url);
         return NULL;
     }
     c->status_due = 1;
     for (;;) {
-        if (control_poll(c) != 0) skel_log("control poll failed: %s", strerror(errno));
+        if (control_poll(c) != 0) log_line("control poll failed: %s", strerror(errno));
         control_drain_timing(c, 0);
-        control_drain_next(c);
+        apply_drain_next(c);
         if (pthread_mutex_lock(&s->lock) != 0) break;
         int ended = s->run_ended, done = s->exec_done;
         pthread_mutex_unlock(&s->lock);
         if (ended) control_finish_run(c);
         if (c->status_due || clock_mono_ns() - c->last_status_ns >= SKEL_STATUS_NS)
-            if (control_publish_status(c) != 0) skel_log("cannot publish status");
+            if (report_status_publish(c) != 0) log_line("cannot publish status");
         if (done) break;
     }
     return NULL;

@@ -20,27 +20,15 @@
 #include "skelmsg_buffer_t.h"
 #include "skelmsg_command_t.h"
 #include "skelmsg_config_t.h"
+#include "skelmsg_contract.h"
 #include "skelmsg_report_t.h"
 #include "skelmsg_status_t.h"
 #include "skelmsg_timing_t.h"
 
-/* ---- channels of the control URL (the wire contract's names) ---------------- */
-#define SKEL_CH_CONFIG  "SKEL_CONFIG"
-#define SKEL_CH_COMMAND "SKEL_COMMAND"
-#define SKEL_CH_STATUS  "SKEL_STATUS"
-#define SKEL_CH_TIMING  "SKEL_TIMING"
-#define SKEL_CH_REPORT  "SKEL_REPORT"
-#define SKEL_DEFAULT_URL "udpm://239.255.76.67:7667?ttl=0"
-
-/* ---- limits: a config beyond them is rejected with a reason, never truncated */
-#define SKEL_MAX_PROCESSES   64                 /* per DPU */
-#define SKEL_MAX_IO          16                 /* inputs or outputs per process */
-#define SKEL_MAX_BUFFER_BYTES (4 * 1024 * 1024) /* one buffer's payload */
-#define SKEL_MAX_DPU_BYTES   (64 * 1024 * 1024) /* all output payloads of one DPU */
-#define SKEL_MIN_PERIOD_US   100
-#define SKEL_MAX_COMMON_US   (10 * 1000 * 1000) /* a common switch grid longer than this is not used */
-#define SKEL_MAX_PERIOD_US   (60 * 1000 * 1000)
-#define SKEL_MAX_LINKS       16                 /* distinct link URLs per DPU */
+/* ---- the wire contract's channels, default URL and limits (SKEL_CONFIG_CHANNEL,
+ * SKEL_MAX_IO, ...) come from lcmtypes/contract.txt, shared with the host and the
+ * analysis; a config beyond a limit is rejected with a reason, never truncated.
+ * Below: what only this daemon decides. -------------------------------------------- */
 #define SKEL_MAX_SLOTS       (SKEL_MAX_PROCESSES * SKEL_MAX_IO)
 #define SKEL_MAX_LOCKOUTS    SKEL_MAX_PROCESSES /* once per process per run */
 #define SKEL_RING_RECORDS    8192               /* timing records in flight */
@@ -48,7 +36,7 @@
 #define SKEL_BATCH_NS        (50 * 1000 * 1000LL)
 #define SKEL_HISTORY_BYTES   (4 * 1024 * 1024)  /* published batches kept for RESEND */
 #define SKEL_HISTORY_BATCHES 4096               /* ... at most this many */
-#define SKEL_STATUS_NS       (200 * 1000 * 1000LL)
+#define SKEL_STATUS_NS       (SKEL_STATUS_PERIOD_MS * 1000 * 1000LL)
 #define SKEL_REASON_LEN      256
 #define SKEL_RT_PRIORITY     10                 /* SCHED_FIFO of SLEEP-mode cycles, by default */
 #define SKEL_STALL_NS        (50 * 1000LL)      /* a wake-up this late, a gap this long: not running */
@@ -56,11 +44,16 @@
 #define SKEL_SEEN_COMMANDS   64
 #define SKEL_OWNER_LEN       128                /* "HOST pid N" of a run's host tool */
 
+/* skel-dpu's exit codes (main.c) */
+#define SKEL_EXIT_OK         0                  /* a clean shutdown (SIGTERM, SIGINT, SHUTDOWN) */
+#define SKEL_EXIT_FAILED     1                  /* could not start, or could not run its threads */
+#define SKEL_EXIT_USAGE      2                  /* a bad command line */
+
 #define SKEL_NS_PER_US 1000LL
 #define SKEL_NS_PER_S  1000000000LL
 
 /* ---- logging (log.c) --------------------------------------------------------- */
-void skel_log(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+void log_line(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 
 /* ---- clock (clock.c): CLOCK_MONOTONIC ns inside the DPU ------------------------ */
 int64_t clock_mono_ns(void);
@@ -85,6 +78,7 @@ typedef struct {
 int wire_buffer_header(const void *buf, int len, wire_buffer_hdr_t *hdr);
 int wire_decode_config(const void *buf, int len, skelmsg_config_t *cfg);
 int wire_decode_command(const void *buf, int len, skelmsg_command_t *cmd);
+void wire_free_config(skelmsg_config_t *cfg); /* one wire_decode_config filled in malloc'd storage */
 int wire_buffer_encoded_size(int32_t nbytes);
 
 /* ---- buffers (buffers.c): what a DPU holds of each buffer it reads ------------- */
@@ -240,12 +234,10 @@ typedef struct {
     int32_t largest;           /* the largest message (encoded bytes) its socket receives */
 } skel_link_t;
 
-/* What a socket's receive buffer must be asked for, to hold a message of
- * ENCODED bytes whole: the message and one more LCM fragment of slack (its
- * headers, the next message). The kernel grants twice what is asked, for its
- * bookkeeping, up to net.core.rmem_max. analysis/faults.py names the same. */
-#define SKEL_RECV_SLACK_BYTES 65536
-
+/* A socket's receive buffer is asked for a message of ENCODED bytes whole plus
+ * SKEL_RECV_SLACK_BYTES (the contract's: the analysis judges delivery by it), one
+ * more LCM fragment of slack (its headers, the next message). The kernel grants
+ * twice what is asked, for its bookkeeping, up to net.core.rmem_max. */
 int link_url(const skel_link_t *link, char *out, size_t len, int32_t *asked);
 int link_open(skel_link_t *link);
 void link_close(skel_link_t *link);
@@ -438,11 +430,6 @@ void *executive_main(void *arg);
 int64_t executive_next_release(const skel_plan_t *plan, int64_t j);
 void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run);
 
-/* ---- report (report.c): status_t and report_t --------------------------------- */
-void report_status_fill(skel_server_t *s, skelmsg_status_t *st, skelmsg_lockout_t *lockouts,
-                        char *reason);
-int report_publish(skel_server_t *s, const skel_plan_t *plan, skel_history_t *history);
-
 /* ---- control (control.c): the control thread ------------------------------------ */
 typedef struct {
     int64_t seq, generation, run_id, at_utc_ns, ping_t1_ns;
@@ -465,23 +452,25 @@ typedef struct {
 int control_init(skel_control_t *c, skel_server_t *s);
 void control_free(skel_control_t *c);
 void *control_main(void *arg);
-void control_handle_config(skel_control_t *c, const void *data, int len);
-void control_handle_command(skel_control_t *c, const void *data, int len);
-int control_seen(skel_control_t *c, const skelmsg_command_t *cmd);
-int control_publish_status(skel_control_t *c);
+
+/* ---- command (command.c): a config or a command the control thread received ---- */
+void command_handle_config(skel_control_t *c, const void *data, int len);
+void command_handle_command(skel_control_t *c, const void *data, int len);
+
+/* ---- apply (apply.c): a staged config becomes the plan ---------------------------- */
+void apply_staged(skel_control_t *c);
+void apply_commit_live(skel_control_t *c, int64_t at_utc_ns);
+void apply_install_next(skel_control_t *c);
+void apply_drain_next(skel_control_t *c);
 
 /* ---- owner (owner.c): a run belongs to the host tool that started it ------------- */
 void owner_take(skel_server_t *s, const skelmsg_command_t *start, int64_t start_utc_ns);
 int owner_refuses(skel_control_t *c, int64_t session, int8_t force, const char *sender,
                   const char *what, int64_t generation);
-void owner_status_fill(skel_server_t *s, skelmsg_status_t *st, char *owner);
 
-/* ---- apply (apply.c): a staged config becomes the plan ---------------------------- */
-void control_apply(skel_control_t *c);
-void control_commit_live(skel_control_t *c, int64_t at_utc_ns);
-void control_install_next(skel_control_t *c);
-void control_drain_next(skel_control_t *c);
-void control_reject(skel_control_t *c, int64_t generation, const char *reason, int fault);
-void control_free_config(skelmsg_config_t *cfg);
+/* ---- report (report.c): status_t and report_t, what the host hears ---------------- */
+int report_status_publish(skel_control_t *c);
+void report_reject(skel_control_t *c, int64_t generation, const char *reason, int fault);
+int report_publish(skel_server_t *s, const skel_plan_t *plan, skel_history_t *history);
 
 #endif

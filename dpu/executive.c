@@ -35,7 +35,7 @@ static void executive_pin(const skel_plan_t *plan)
     if (plan->cpu < CPU_SETSIZE) CPU_SET(plan->cpu, &set);
     int rc = plan->cpu < CPU_SETSIZE ? pthread_setaffinity_np(pthread_self(), sizeof set, &set) : -1;
     if (rc != 0)
-        skel_log("DPU %d: warning: cannot pin to CPU %d (%s); running unpinned", plan->dpu,
+        log_line("DPU %d: warning: cannot pin to CPU %d (%s); running unpinned", plan->dpu,
                  plan->cpu, rc > 0 ? strerror(rc) : "out of range");
 }
 
@@ -53,7 +53,7 @@ static int executive_schedule(skel_server_t *s, const skel_plan_t *plan, int run
     int rc = pthread_setschedparam(pthread_self(), prio > 0 ? SCHED_FIFO : SCHED_OTHER, &sp);
     if (rc != 0 && !s->rt_warned) {
         s->rt_warned = 1;
-        skel_log("DPU %d: warning: cannot run cycles under %s (%s): a busy machine will stretch "
+        log_line("DPU %d: warning: cannot run cycles under %s (%s): a busy machine will stretch "
                  "them (needs root or CAP_SYS_NICE; --rt-priority 0 silences this)",
                  plan->dpu, prio > 0 ? "SCHED_FIFO" : "SCHED_OTHER", strerror(rc));
     }
@@ -258,7 +258,7 @@ static void executive_announce(skel_exec_t *x)
     s->next_generation = -1;
     pthread_mutex_unlock(&s->lock);
     server_wake(s->notify_fd); /* a status at once, with the new generation */
-    skel_log("DPU %d: switched to generation %lld at minor %lld of run %lld (%d processes)",
+    log_line("DPU %d: switched to generation %lld at minor %lld of run %lld (%d processes)",
              x->plan->dpu, (long long)x->plan->generation, (long long)x->plan->minor_base,
              (long long)x->plan->run_id, x->plan->nprocesses);
 }
@@ -290,7 +290,7 @@ static void executive_check_work(skel_server_t *s, skel_plan_t *plan)
     if (plan->compute != SKELMSG_DPU_T_COMPUTE_WORK) return;
     plan->work_drift_pct = compute_check_calibration(&s->compute);
     if (plan->work_drift_pct > SKEL_DRIFT_PCT || plan->work_drift_pct < -SKEL_DRIFT_PCT)
-        skel_log("DPU %d: warning: the WORK kernel runs %.1f %% %s than at start-up (CPU frequency, "
+        log_line("DPU %d: warning: the WORK kernel runs %.1f %% %s than at start-up (CPU frequency, "
                  "throttling or a busy neighbour): computations take that much %s",
                  plan->dpu, plan->work_drift_pct > 0 ? plan->work_drift_pct : -plan->work_drift_pct,
                  plan->work_drift_pct > 0 ? "slower" : "faster",
@@ -323,7 +323,7 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
     executive_set_state(s, SKELMSG_STATUS_T_STATE_RUNNING);
     char klass[32] = "SCHED_OTHER";
     if (fifo > 0) snprintf(klass, sizeof klass, "SCHED_FIFO %d", fifo);
-    skel_log("DPU %d: run %lld started (%d processes, %s)", plan->dpu, (long long)run->run_id,
+    log_line("DPU %d: run %lld started (%d processes, %s)", plan->dpu, (long long)run->run_id,
              plan->nprocesses, klass);
     int ran = 0;
     int64_t j_prev = -1, j = executive_next_release(plan, 0), j_sw = 0;
@@ -369,7 +369,7 @@ void *executive_main(void *arg)
     /* A normal thread's sleeps end up to 50 us late (the default timer slack):
      * that would show as release latency and lengthen every SLEEP compute. */
     if (prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL) != 0)
-        skel_log("warning: cannot set timer slack: wake-ups may be up to 50 us late");
+        log_line("warning: cannot set timer slack: wake-ups may be up to 50 us late");
     if (pthread_mutex_lock(&s->lock) != 0) return NULL;
     while (!atomic_load(&s->quit)) {
         if (s->run.requested && s->plan != NULL) {

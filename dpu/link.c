@@ -55,11 +55,11 @@ int link_open(skel_link_t *link)
     if (link_url(link, url, sizeof url, &asked) != 0) return -1;
     int64_t max = link_sysctl("/proc/sys/net/core/rmem_max", -1);
     if (asked > 0 && max >= 0 && max < asked)
-        skel_log("link %s: messages of up to %d bytes need a %d-byte socket receive buffer but "
+        log_line("link %s: messages of up to %d bytes need a %d-byte socket receive buffer but "
                  "net.core.rmem_max is %lld: they may never arrive; on this host: "
                  "sysctl -w net.core.rmem_max=%d", link->url, link->largest, asked, (long long)max, asked);
     else if (asked > 0)
-        skel_log("link %s: socket receive buffer of %d bytes asked (recv_buf_size) for messages of up "
+        log_line("link %s: socket receive buffer of %d bytes asked (recv_buf_size) for messages of up "
                  "to %d bytes", link->url, asked, link->largest);
     link->lcm = lcm_create(url);
     if (link->lcm == NULL) return -1;

@@ -6,7 +6,7 @@
 
 #include "dpu.h"
 
-void skel_log(const char *fmt, ...)
+void log_line(const char *fmt, ...)
 {
     char line[512];
     va_list ap;

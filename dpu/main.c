@@ -98,7 +98,7 @@ static int run_threads(skel_server_t *s, skel_control_t *c)
         return -1;
     }
     int sig = wait_for_signal();
-    skel_log("DPU %d: %s: stopping", s->dpu_id, sig == SIGINT ? "SIGINT" : "SIGTERM");
+    log_line("DPU %d: %s: stopping", s->dpu_id, sig == SIGINT ? "SIGINT" : "SIGTERM");
     atomic_store(&s->stop, 1);
     atomic_store(&s->quit, 1);
     server_wake(s->wake_fd);
@@ -116,24 +116,27 @@ int main(int argc, char **argv)
     static skel_server_t server; /* large (ring, lockouts): static, not on the stack */
     static skel_control_t control;
     skel_server_t *s = &server;
-    if (server_init(s) != 0) { fprintf(stderr, "skel-dpu: cannot initialise\n"); return 1; }
-    if (parse_args(s, argc, argv) != 0) { usage(); return 2; }
+    if (server_init(s) != 0) { fprintf(stderr, "skel-dpu: cannot initialise\n"); return SKEL_EXIT_FAILED; }
+    if (parse_args(s, argc, argv) != 0) { usage(); return SKEL_EXIT_USAGE; }
     if (gethostname(s->hostname, sizeof s->hostname - 1) != 0) strcpy(s->hostname, "?");
     s->pid = (int32_t)getpid();
-    if (compute_calibrate(&s->compute) != 0) { skel_log("WORK calibration failed"); return 1; }
-    if (block_signals() != 0) return 1;
+    if (compute_calibrate(&s->compute) != 0) {
+        log_line("WORK calibration failed");
+        return SKEL_EXIT_FAILED;
+    }
+    if (block_signals() != 0) return SKEL_EXIT_FAILED;
     s->ctl = lcm_create(s->url);
     if (s->ctl == NULL) {
-        skel_log("cannot open control URL %s (is there a multicast route?)", s->url);
-        return 1;
+        log_line("cannot open control URL %s (is there a multicast route?)", s->url);
+        return SKEL_EXIT_FAILED;
     }
-    if (control_init(&control, s) != 0) { skel_log("out of memory"); return 1; }
-    skel_log("DPU %s on %s: control %s, WORK %.1f iterations/us, clock offset %lld ns",
+    if (control_init(&control, s) != 0) { log_line("out of memory"); return SKEL_EXIT_FAILED; }
+    log_line("DPU %s on %s: control %s, WORK %.1f iterations/us, clock offset %lld ns",
              s->id_arg >= 0 ? argv[2] : "auto", s->hostname, s->url, s->compute.work_iters_per_us,
              (long long)s->clock_offset_ns);
     int rc = run_threads(s, &control);
     control_free(&control);
     lcm_destroy(s->ctl);
     server_free(s);
-    return rc == 0 ? 0 : 1;
+    return rc == 0 ? SKEL_EXIT_OK : SKEL_EXIT_FAILED;
 }

@@ -56,27 +56,11 @@ int owner_refuses(skel_control_t *c, int64_t session, int8_t force, const char *
         /* Said in the status too: the run's owner learns who stepped in. */
         snprintf(reason, sizeof reason, "%s from %.60s forced into run %lld of %.60s (--force)", what,
                  who, (long long)run_id, owner);
-        control_reject(c, -1, reason, 0);
+        report_reject(c, -1, reason, 0);
         return 0;
     }
     snprintf(reason, sizeof reason, "%s from %.60s refused: run %lld of %.60s is in progress %s "
              "(--force takes over)", what, who, (long long)run_id, owner, until);
-    control_reject(c, generation, reason, 0);
+    report_reject(c, generation, reason, 0);
     return 1;
-}
-
-/* The status's run-owner fields; OWNER (SKEL_OWNER_LEN) is the caller's storage. */
-void owner_status_fill(skel_server_t *s, skelmsg_status_t *st, char *owner)
-{
-    if (pthread_mutex_lock(&s->lock) != 0) {
-        owner[0] = '\0';
-        st->run_owner = owner;
-        return;
-    }
-    st->run_session = s->run_session;
-    st->run_end_utc_ns = s->run_end_utc_ns;
-    memcpy(owner, s->run_owner, SKEL_OWNER_LEN);
-    pthread_mutex_unlock(&s->lock);
-    owner[SKEL_OWNER_LEN - 1] = '\0';
-    st->run_owner = owner;
 }

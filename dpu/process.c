@@ -56,10 +56,10 @@ void process_lockout(skel_exec_t *x, skel_process_t *p, int16_t buffer, int64_t 
 {
     if (!process_lockout_record(x, p, buffer, -1, k, release_ns)) return;
     if (buffer >= 0)
-        skel_log("DPU %d: LOCKOUT process %d cycle %lld (waiting on buffer %d)", x->plan->dpu, p->id,
+        log_line("DPU %d: LOCKOUT process %d cycle %lld (waiting on buffer %d)", x->plan->dpu, p->id,
                  (long long)k, buffer);
     else
-        skel_log("DPU %d: LOCKOUT process %d cycle %lld (not run: its DPU is behind)", x->plan->dpu,
+        log_line("DPU %d: LOCKOUT process %d cycle %lld (not run: its DPU is behind)", x->plan->dpu,
                  p->id, (long long)k);
 }
 
@@ -87,7 +87,7 @@ static int64_t process_held_up(skel_exec_t *x, const skel_process_t *p, int64_t 
             continue;
         }
         if (process_lockout_record(x, q, -1, p->id, q->k_base + k, release))
-            skel_log("DPU %d: LOCKOUT process %d cycle %lld (held up behind process %d, which "
+            log_line("DPU %d: LOCKOUT process %d cycle %lld (held up behind process %d, which "
                      "waits for data)", plan->dpu, q->id, (long long)(q->k_base + k), p->id);
     }
     return next;
@@ -170,7 +170,7 @@ static void process_write_outputs(skel_exec_t *x, skel_process_t *p, int64_t k)
                                       server_now(x->s));
         }
         if (rc != 0 && plan->publish_errors++ == 0)
-            skel_log("DPU %d: process %d cannot publish buffer %d on %s", plan->dpu, p->id,
+            log_line("DPU %d: process %d cannot publish buffer %d on %s", plan->dpu, p->id,
                      out->buffer, out->channel);
     }
 }

@@ -1,19 +1,27 @@
 /* report.c: what the DPU tells the host. status_t is the heartbeat (state,
- * generations, counters, faults, lockouts); report_t is the end-of-run sums
+ * generations, counters, faults, lockouts, whose run it is, the last ping, and
+ * why the last config or command was refused); report_t is the end-of-run sums
  * over the measured window, a cross-check of the analysis of timing records.
  * Both are built by the control thread; a run's plan is read only after the
  * executive has finished with it. */
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "dpu.h"
 
-/* LOCKOUTS (SKEL_MAX_LOCKOUTS) and REASON (SKEL_REASON_LEN) are the caller's
- * storage, so the message stays valid after the lock is released. */
-void report_status_fill(skel_server_t *s, skelmsg_status_t *st, skelmsg_lockout_t *lockouts,
-                        char *reason)
+/* LOCKOUTS (SKEL_MAX_LOCKOUTS), REASON (SKEL_REASON_LEN) and OWNER (SKEL_OWNER_LEN)
+ * are the caller's storage, so the message stays valid after the lock is released. */
+static void report_status_fill(skel_server_t *s, skelmsg_status_t *st, skelmsg_lockout_t *lockouts,
+                               char *reason, char *owner)
 {
     memset(st, 0, sizeof *st);
+    reason[0] = owner[0] = '\0';
+    st->reject_reason = reason;
+    st->run_owner = owner;
+    st->lockouts = lockouts;
+    st->host = s->hostname;
+    st->pid = s->pid;
     if (pthread_mutex_lock(&s->lock) != 0) return;
     st->dpu = s->dpu_id;
     st->state = s->state;
@@ -24,12 +32,12 @@ void report_status_fill(skel_server_t *s, skelmsg_status_t *st, skelmsg_lockout_
     st->run_id = s->run_id;
     st->nlockouts = (int16_t)s->nlockouts;
     memcpy(lockouts, s->lockouts, sizeof(skelmsg_lockout_t) * (size_t)s->nlockouts);
+    st->run_session = s->run_session;
+    st->run_end_utc_ns = s->run_end_utc_ns;
+    memcpy(owner, s->run_owner, SKEL_OWNER_LEN);
     pthread_mutex_unlock(&s->lock);
     reason[SKEL_REASON_LEN - 1] = '\0';
-    st->reject_reason = reason;
-    st->lockouts = lockouts;
-    st->host = s->hostname;
-    st->pid = s->pid;
+    owner[SKEL_OWNER_LEN - 1] = '\0';
     st->minor_cycles = atomic_load(&s->minor_cycles);
     st->faults = atomic_load(&s->faults);
     st->overruns = atomic_load(&s->overruns);
@@ -42,6 +50,36 @@ void report_status_fill(skel_server_t *s, skelmsg_status_t *st, skelmsg_lockout_
     st->longest_stall_mono_ns = atomic_load(&s->longest_stall_mono_ns);
     st->utc_ns = clock_utc_ns();
     st->mono_ns = server_now(s);
+}
+
+int report_status_publish(skel_control_t *c)
+{
+    skelmsg_status_t st;
+    skelmsg_lockout_t lockouts[SKEL_MAX_LOCKOUTS];
+    char reason[SKEL_REASON_LEN], owner[SKEL_OWNER_LEN];
+    report_status_fill(c->s, &st, lockouts, reason, owner);
+    st.ping_seq = c->ping_seq;
+    st.ping_t1_ns = c->ping_t1_ns;
+    st.ping_t2_ns = c->ping_t2_ns;
+    st.ping_t3_ns = c->ping_t3_ns;
+    c->last_status_ns = clock_mono_ns();
+    c->status_due = 0;
+    return skelmsg_status_t_publish(c->s->ctl, SKEL_STATUS_CHANNEL, &st);
+}
+
+/* A config or command refused (or, forced, let through): REASON goes in the
+ * status at once, with GENERATION as rejected_generation when >= 0; FAULT marks
+ * a config this DPU cannot run. */
+void report_reject(skel_control_t *c, int64_t generation, const char *reason, int fault)
+{
+    skel_server_t *s = c->s;
+    if (pthread_mutex_lock(&s->lock) != 0) return;
+    if (generation >= 0) s->rejected_generation = generation;
+    snprintf(s->reject_reason, sizeof s->reject_reason, "%s", reason);
+    pthread_mutex_unlock(&s->lock);
+    if (fault) server_fault(s, SKELMSG_STATUS_T_FAULT_CONFIG_REJECTED);
+    log_line("DPU %d: %s", s->dpu_id, reason);
+    c->status_due = 1;
 }
 
 static void report_fill_process(skelmsg_process_report_t *r, const skel_process_t *p)

@@ -4,6 +4,7 @@
  * on the hot path, is not decoded at all (the decoder mallocs the payload): its
  * fixed header is read in place with lcm_coretypes primitives. A unit test
  * compares this reader with the generated decoder, so drift fails a test. */
+#include <stdlib.h>
 #include <string.h>
 
 #include <lcm/lcm_coretypes.h>
@@ -55,4 +56,13 @@ int wire_decode_command(const void *buf, int len, skelmsg_command_t *cmd)
     memset(cmd, 0, sizeof *cmd);
     if (skelmsg_command_t_check(buf, len) != 0) return -1;
     return skelmsg_command_t_decode(buf, 0, len, cmd) < 0 ? -1 : 0;
+}
+
+/* A config wire_decode_config decoded into malloc'd storage (command.c): its
+ * arrays and strings, then itself. NULL is nothing. */
+void wire_free_config(skelmsg_config_t *cfg)
+{
+    if (cfg == NULL) return;
+    skelmsg_config_t_decode_cleanup(cfg);
+    free(cfg);
 }

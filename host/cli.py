@@ -17,12 +17,13 @@ from pathlib import Path
 
 from rich.table import Table
 
+from skelmsg.contract import DEFAULT_URL
+
 from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED
 from ..analysis.read.messages import run_log_path
 from . import spawn
 from .control import Control
 from .listener import QUIET_S, is_run_id
-from .schema import DEFAULT_URL
 from .system import SystemFileError, load
 from .wire import config_message
 

@@ -16,8 +16,9 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 import skelmsg
+from skelmsg.contract import CLOCK_CHANNEL
 
-from .control import CLOCK, Control, PingSample
+from .control import Control, PingSample
 
 SAMPLES = 8
 SPACING_S = 0.004          # between pings: a burst would queue behind itself
@@ -80,7 +81,7 @@ def estimate(control: Control, dpu_ids: Iterable[int], samples: int = SAMPLES, s
 
 def publish(control: Control, estimates: dict[int, ClockEstimate]) -> None:
     for found in estimates.values():
-        control.publish(CLOCK, found.to_message())
+        control.publish(CLOCK_CHANNEL, found.to_message())
 
 
 class ClockKeeper:

@@ -22,12 +22,10 @@ from dataclasses import dataclass, field
 import lcm
 
 import skelmsg
+from skelmsg import contract
 
 from .listener import CHANNELS, Listener, is_generation
 
-CONFIG, COMMAND, STATUS, REPORT, CLOCK = (
-    "SKEL_CONFIG", "SKEL_COMMAND", "SKEL_STATUS", "SKEL_REPORT", "SKEL_CLOCK",
-)
 COMMAND_REPEATS = 3
 CLOCK_OFFSET_MAX_NS = 2**62  # |DPU clock - host clock|; a clock_offset_t holds it with room to spare
 
@@ -198,7 +196,7 @@ class Control(Listener):
     def publish_config(self, config: skelmsg.config_t) -> None:
         config.sent_utc_ns = time.time_ns()
         self._sign(config)
-        self._lcm.publish(CONFIG, config.encode())
+        self._lcm.publish(contract.CONFIG_CHANNEL, config.encode())
 
     def command(self, kind: int, dpu: int = -1, repeats: int = COMMAND_REPEATS, **fields: int) -> int:
         """Send one command (`repeats` times, same seq); return its seq."""
@@ -214,7 +212,7 @@ class Control(Listener):
         for i in range(repeats):
             if i:
                 time.sleep(0.01)
-            self._lcm.publish(COMMAND, data)
+            self._lcm.publish(contract.COMMAND_CHANNEL, data)
         return cmd.seq
 
     def publish(self, channel: str, message: object) -> None:
@@ -232,7 +230,7 @@ class Control(Listener):
             self._pings[cmd.seq] = {}
         cmd.ping_t1_ns = time.monotonic_ns()
         self._ping_t1[cmd.seq] = cmd.ping_t1_ns  # before the publish, so before any answer
-        self._lcm.publish(COMMAND, cmd.encode())
+        self._lcm.publish(contract.COMMAND_CHANNEL, cmd.encode())
         return cmd.seq
 
     def wait_pongs(self, seqs: Iterable[int], dpus: Iterable[int], timeout_s: float) -> bool:
@@ -282,9 +280,10 @@ class Control(Listener):
             result.at_utc_ns = time.time_ns() + int(at_ms * 1e6)
         self.command(skelmsg.command_t.COMMIT, generation=generation, at_utc_ns=result.at_utc_ns)
         result.committed = True
-        # The switch waits for the DPUs' common grid (their minor cycles' lcm, unused past 10 s).
-        grid_s = math.lcm(*(d.minor_cycle_us for d in config.dpus if d.minor_cycle_us > 0)) / 1e6
-        until_switch_s = max(0.0, (result.at_utc_ns - time.time_ns()) / 1e9) + min(grid_s, 10.0)
+        # The switch waits for the DPUs' common grid (their minor cycles' lcm, unused past MAX_COMMON_US).
+        grid_us = math.lcm(*(d.minor_cycle_us for d in config.dpus if d.minor_cycle_us > 0))
+        until_switch_s = (max(0.0, (result.at_utc_ns - time.time_ns()) / 1e9)
+                          + min(grid_us, contract.MAX_COMMON_US) / 1e6)
         self.wait_for(lambda: all(_reached(self.dpus[i].status.generation, generation) for i in wanted),
                       until_switch_s + timeout_s)
         self._settle(result, wanted)

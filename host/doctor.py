@@ -28,10 +28,12 @@ from urllib.parse import parse_qs, urlsplit
 from rich.console import Console
 from rich.text import Text
 
+from skelmsg.contract import DEFAULT_URL
+
 from ..analysis.exitcodes import EXIT_FAILED, EXIT_OK
 from ..analysis.measure.faults import recv_buf_needed
 
-LCM_DEFAULT_URL = "udpm://239.255.76.67:7667?ttl=0"  # what liblcm uses for an empty URL
+LCM_GROUP, LCM_PORT = urlsplit(DEFAULT_URL).hostname, urlsplit(DEFAULT_URL).port
 MIN_RMEM_BYTES = 2 * 1024 * 1024
 GOOD_RMEM_BYTES = 8 * 1024 * 1024
 SELF_TEST_S = 1.0
@@ -63,20 +65,21 @@ class LcmUrl:
 
 def parse_url(url: str) -> LcmUrl:
     """udpm://GROUP:PORT?ttl=N (LCM's defaults fill what is left out); ValueError says what is wrong."""
-    parts = urlsplit(url or os.environ.get("LCM_DEFAULT_URL") or LCM_DEFAULT_URL)
+    # The contract's DEFAULT_URL is liblcm's own default: an empty URL, or a missing part, means it.
+    parts = urlsplit(url or os.environ.get("LCM_DEFAULT_URL") or DEFAULT_URL)
     if parts.scheme != "udpm":
         return LcmUrl(parts.scheme, "", 0, 0)
     query = {key: values[-1] for key, values in parse_qs(parts.query).items()}
     try:
-        group = parts.hostname or "239.255.76.67"
-        port = parts.port or 7667
+        group = parts.hostname or LCM_GROUP
+        port = parts.port or LCM_PORT
         ttl = int(query.get("ttl", "0"))
         recv = int(query["recv_buf_size"]) if "recv_buf_size" in query else None
         address = ipaddress.IPv4Address(group)
     except ValueError as exc:
         raise ValueError(f"{url!r} is not udpm://GROUP:PORT?ttl=N ({exc})") from None
     if not address.is_multicast:
-        raise ValueError(f"{group} in {url!r} is not a multicast group (224.0.0.0/4); LCM uses 239.255.76.67")
+        raise ValueError(f"{group} in {url!r} is not a multicast group (224.0.0.0/4); LCM uses {LCM_GROUP}")
     if not 0 <= ttl <= 255:
         raise ValueError(f"ttl={ttl} in {url!r}: expected 0 (this host) or 1 (the local network)")
     return LcmUrl("udpm", group, port, ttl, recv)
@@ -341,7 +344,7 @@ def run_checks(url: str) -> list[Check]:
     try:
         parsed = parse_url(url)
     except ValueError as exc:
-        return [Check("url", False, str(exc), f"--url '{LCM_DEFAULT_URL}'")]
+        return [Check("url", False, str(exc), f"--url '{DEFAULT_URL}'")]
     if parsed.provider != "udpm":
         checks = [Check("url", True, f"{parsed.provider}:// does not use the network")]
         return [*checks, check_self_test(url, False)]
@@ -377,8 +380,6 @@ def doctor(url: str, out: TextIO = sys.stdout, as_json: bool = False) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """`python -m skeleton.host.doctor [--url URL] [--json]` (the same as `skel doctor`)."""
-    from .schema import DEFAULT_URL  # late: the schema is not needed to diagnose a network
-
     parser = argparse.ArgumentParser(prog="skel doctor", description="Check what stops LCM multicast here.")
     parser.add_argument("--url", default=DEFAULT_URL, help=f"LCM URL to check (default {DEFAULT_URL})")
     parser.add_argument("--json", action="store_true")

@@ -27,9 +27,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import skelmsg
+from skelmsg.contract import REPORT_CHANNEL
 
 from ..analysis.read.logreader import read_bytes
-from ..analysis.read.messages import REPORT_CHANNEL
 from ..analysis.read.records import timing_heads
 from . import spawn
 from .control import Control

@@ -14,13 +14,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from skelmsg import contract
+
 from .schema import (
     ABSURD_COMPUTE_PERIODS,
     DEFAULT_LINK,
-    DEFAULT_URL,
-    MAX_PORTS,
-    MAX_PROCESSES_PER_DPU,
-    MIN_MINOR_CYCLE_US,
     Buffer,
     BufferSpec,
     Chain,
@@ -92,7 +90,7 @@ def _unique(items: Sequence[Any], section: str, attr: str) -> None:
 
 def _links(specs: list[LinkSpec] | None) -> tuple[Link, ...]:
     if specs is None:
-        specs = [LinkSpec(name=DEFAULT_LINK, url=DEFAULT_URL)]
+        specs = [LinkSpec(name=DEFAULT_LINK, url=contract.DEFAULT_URL)]
     _unique(specs, "links", "name")
     if all(s.url == "local" for s in specs):
         raise Invalid("links", "needs at least one udpm:// link: the host reaches the DPUs over it")
@@ -160,8 +158,8 @@ def _bname(spec: SystemSpec, buffer_id: int) -> str:
 
 def _buffer_refs(spec: SystemSpec, p: ProcessSpec, key: str, refs: Sequence[int | str]) -> tuple[int, ...]:
     path = f"processes.{p.name}.{key}"
-    if len(refs) > MAX_PORTS:
-        raise Invalid(path, f"{len(refs)} {key}; at most {MAX_PORTS} per process")
+    if len(refs) > contract.MAX_IO:
+        raise Invalid(path, f"{len(refs)} {key}; at most {contract.MAX_IO} per process")
     out: list[int] = []
     for j, ref in enumerate(refs):
         found = _find_buffer(spec.buffers, ref)
@@ -234,21 +232,21 @@ def _minor_cycles(spec: SystemSpec) -> dict[int, int]:
     out: dict[int, int] = {}
     for d in spec.dpus:
         mine = [p for p in spec.processes if p.dpu == d.id]
-        if len(mine) > MAX_PROCESSES_PER_DPU:
-            raise Invalid(f"dpus.{d.id}", f"{len(mine)} processes; at most {MAX_PROCESSES_PER_DPU} per DPU")
+        if len(mine) > contract.MAX_PROCESSES:
+            raise Invalid(f"dpus.{d.id}", f"{len(mine)} processes; at most {contract.MAX_PROCESSES} per DPU")
         periods = sorted({p.period_us for p in mine}) or [critical]
         if d.minor_cycle_us is None:
             minor = math.gcd(*periods)
-            if minor < MIN_MINOR_CYCLE_US and d.executive == "cyclic":
+            if minor < contract.MIN_PERIOD_US and d.executive == "cyclic":
                 listed = ", ".join(map(str, periods))
                 raise Invalid(f"dpus.{d.id}", f"minor cycle {minor} us (the gcd of its periods {listed} us) "
-                              f"is below {MIN_MINOR_CYCLE_US} us; give the periods a larger common divisor "
-                              "or set minor_cycle_us")
+                              f"is below {contract.MIN_PERIOD_US} us; give the periods a larger common "
+                              "divisor or set minor_cycle_us")
         else:
             minor = d.minor_cycle_us
-            if minor < MIN_MINOR_CYCLE_US:
+            if minor < contract.MIN_PERIOD_US:
                 raise Invalid(f"dpus.{d.id}.minor_cycle_us",
-                              f"must be at least {MIN_MINOR_CYCLE_US} us, got {minor}")
+                              f"must be at least {contract.MIN_PERIOD_US} us, got {minor}")
             for p in mine if d.executive == "cyclic" else []:
                 if p.period_us % minor:
                     raise Invalid(f"processes.{p.name}.period_us", f"{p.period_us} us is not a multiple of "

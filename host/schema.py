@@ -24,16 +24,13 @@ from pydantic import (
     model_validator,
 )
 
+from skelmsg import contract
+
 from .yamlfile import show
 
 DEFAULT_LINK = "bus"
-DEFAULT_URL = "udpm://239.255.76.67:7667?ttl=0"
 MAX_ID = 32767                      # ids travel as int16
 MAX_INT32 = 2**31 - 1               # periods, compute times and run counts travel as int32
-MAX_BYTES = 4 * 1024 * 1024         # beyond this a "buffer" is a file transfer
-MIN_MINOR_CYCLE_US = 100            # below this the OS timer, not the design, is measured
-MAX_PROCESSES_PER_DPU = 64
-MAX_PORTS = 16                      # inputs or outputs per process
 ABSURD_COMPUTE_PERIODS = 100        # compute_us beyond this many periods is a units mistake
 DEFAULT_RUN_CYCLES = 2000               # when the file gives neither cycles nor duration_s
 
@@ -57,8 +54,9 @@ def _micros(v: int) -> int:
 def _bytes(v: int) -> int:
     if v <= 0:
         raise ValueError(f"must be a positive number of bytes, got {v}")
-    if v > MAX_BYTES:
-        raise ValueError(f"{v} bytes is absurd for one buffer (limit 4 MiB = {MAX_BYTES})")
+    if v > contract.MAX_BUFFER_BYTES:  # beyond this a "buffer" is a file transfer
+        raise ValueError(f"{v} bytes is absurd for one buffer "
+                         f"(limit {contract.MAX_BUFFER_BYTES >> 20} MiB = {contract.MAX_BUFFER_BYTES})")
     return v
 
 

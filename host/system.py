@@ -15,12 +15,13 @@ from typing import Any
 import yaml
 from pydantic import ValidationError
 
+from skelmsg import contract
+
 from .overrides import OverrideError, apply_overrides
 from .rules import Invalid, resolve
 from .schema import (
     DEFAULT_LINK,
     DEFAULT_RUN_CYCLES,
-    DEFAULT_URL,
     Buffer,
     BufferSpec,
     Chain,
@@ -140,7 +141,7 @@ def _build(path: str | Path, doc: Any, overrides: tuple[str, ...], text: str | N
                   "buffers": BufferSpec.model_fields.keys(), "links": LinkSpec.model_fields.keys(),
                   "run": Run.model_fields.keys()}
         try:
-            default_links = [{"name": DEFAULT_LINK, "url": DEFAULT_URL}]
+            default_links = [{"name": DEFAULT_LINK, "url": contract.DEFAULT_URL}]
             doc, origin = apply_overrides(doc, overrides, fields, default_links)
         except OverrideError as e:
             raise SystemFileError(path, f"-s {e.override}", str(e)) from None

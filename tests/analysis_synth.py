@@ -14,6 +14,7 @@ from typing import Any
 import lcm
 
 import skelmsg
+from skelmsg.contract import DEFAULT_URL
 
 RUN_ID = 42
 GENERATION = 3
@@ -37,7 +38,7 @@ def small_config(warmup_cycles: int = 2, generation: int = GENERATION) -> skelms
     c.generation, c.run_id, c.committed, c.system = generation, RUN_ID, 1, "small"
     c.warmup_cycles, c.lockout_cycles, c.late_pct, c.too_late_pct = warmup_cycles, 5, 40, 80
     link = skelmsg.link_t()
-    link.id, link.name, link.url = 0, "bus", "udpm://239.255.76.67:7667?ttl=0"
+    link.id, link.name, link.url = 0, "bus", DEFAULT_URL
     c.nlinks, c.links = 1, [link]
     dpus = []
     for did, minor in ((1, 10_000), (2, 20_000)):

@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 
 from skeleton.host import spawn
+from skelmsg.contract import DEFAULT_URL
 
 REPO = Path(__file__).resolve().parent.parent
 ASAN_DPU = REPO / "build" / "asan" / "skel-dpu"
@@ -151,15 +152,15 @@ def skel_background(*args: str, new_session: bool = False) -> Background:
 
 
 # A data-synchronised reader of a writer twenty times slower: it locks out.
-LOCKOUT_SYSTEM = """\
+LOCKOUT_SYSTEM = f"""\
 system: lockout
-links: [{name: bus, url: "udpm://239.255.76.67:7667?ttl=0"}]
-dpus: [{id: 1}, {id: 2}]
-buffers: [{id: 1, name: slow_data, bytes: 64}]
+links: [{{name: bus, url: "{DEFAULT_URL}"}}]
+dpus: [{{id: 1}}, {{id: 2}}]
+buffers: [{{id: 1, name: slow_data, bytes: 64}}]
 processes:
-  - {id: 1, name: slow_writer, dpu: 1, period_us: 100000, compute_us: 1000, outputs: [1]}
-  - {id: 2, name: hungry_reader, dpu: 2, period_us: 5000, compute_us: 500, sync: data, inputs: [1]}
-run: {duration_s: 3, warmup_cycles: 0, lockout_cycles: 5, stop_on: [lockout]}
+  - {{id: 1, name: slow_writer, dpu: 1, period_us: 100000, compute_us: 1000, outputs: [1]}}
+  - {{id: 2, name: hungry_reader, dpu: 2, period_us: 5000, compute_us: 500, sync: data, inputs: [1]}}
+run: {{duration_s: 3, warmup_cycles: 0, lockout_cycles: 5, stop_on: [lockout]}}
 """
 
 

@@ -23,6 +23,7 @@ from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.views.tables import UNLIMITED_WIDTH, print_report, process_table
 from skeleton.host import spawn
 from skeleton.host.control import Control
+from skelmsg.contract import CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 PAIR = EXAMPLES / "pair-10ms-5ms.yaml"
 # What an interpreter prints when an exception escapes at the wrong moment.
@@ -128,10 +129,10 @@ def _wide_log(path: Path) -> Path:
     for process in config.processes:
         process.name = f"{process.name}_a_process_name_of_thirty_chars"
     t1, t2 = batches(1, dpu1, 4), batches(2, dpu2, 2)
-    events: list[tuple[str, object]] = [("SKEL_CONFIG", config)]
-    events += [("SKEL_TIMING", t) for t in t1 + t2]
-    events += [("SKEL_STATUS", status(1, [])), ("SKEL_STATUS", status(2, []))]
-    events += [("SKEL_REPORT", report(1, len(t1))), ("SKEL_REPORT", report(2, len(t2)))]
+    events: list[tuple[str, object]] = [(CONFIG_CHANNEL, config)]
+    events += [(TIMING_CHANNEL, t) for t in t1 + t2]
+    events += [(STATUS_CHANNEL, status(1, [])), (STATUS_CHANNEL, status(2, []))]
+    events += [(REPORT_CHANNEL, report(1, len(t1))), (REPORT_CHANNEL, report(2, len(t2)))]
     return write_log(path, events)
 
 

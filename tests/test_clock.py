@@ -10,7 +10,8 @@ from conftest import DpuFarm, _ports, skel
 
 import skelmsg
 from skeleton.host import clock
-from skeleton.host.control import CLOCK, Control, PingSample
+from skeleton.host.control import Control, PingSample
+from skelmsg.contract import CLOCK_CHANNEL
 
 TOLERANCE_NS = 200_000
 
@@ -43,7 +44,7 @@ def test_estimate_recovers_injected_offsets_and_publishes_them(dpus: DpuFarm, ur
     dpus.start(3)
     heard: list[skelmsg.clock_offset_t] = []
     listener = lcm.LCM(url)
-    listener.subscribe(CLOCK, lambda _c, data: heard.append(skelmsg.clock_offset_t.decode(data)))
+    listener.subscribe(CLOCK_CHANNEL, lambda _c, data: heard.append(skelmsg.clock_offset_t.decode(data)))
     control = Control(url)
     try:
         assert control.wait_heard([1, 2, 3], 5.0) == []

@@ -11,16 +11,12 @@ import lcm
 from conftest import EXAMPLES, DpuFarm, skel
 
 import skelmsg
-from skeleton.host.control import (
-    CONFIG,
-    REPORT,
-    STATUS,
-    Control,
-)
+from skeleton.host.control import Control
 from skeleton.host.listener import REPORTS_KEPT
 from skeleton.host.repair import SeenBatches
 from skeleton.host.system import load
 from skeleton.host.wire import config_message
+from skelmsg.contract import CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL
 
 INT64_MAX = 2**63 - 1
 PAIR = EXAMPLES / "pair-10ms-5ms.yaml"
@@ -59,7 +55,7 @@ def test_a_stray_config_of_generation_int64_max_stops_neither_push_nor_run(dpus:
     control = Control(url)
     try:
         assert not control.wait_heard([1, 2], 10.0)
-        _publish(url, CONFIG, _stray_config(url, INT64_MAX, committed=False, valid=False))
+        _publish(url, CONFIG_CHANNEL, _stray_config(url, INT64_MAX, committed=False, valid=False))
         assert control.wait_for(lambda: all(control.dpus[i].status.rejected_generation == INT64_MAX
                                             for i in (1, 2)), 5.0), "the DPUs did not refuse the stray config"
         assert control.next_generation() == 1
@@ -80,7 +76,7 @@ def test_a_dpu_that_applied_a_stray_generation_is_named_not_a_crash(dpus: DpuFar
     control = Control(url)
     try:
         assert not control.wait_heard([1, 2], 10.0)
-        _publish(url, CONFIG, _stray_config(url, INT64_MAX, committed=True, valid=True))
+        _publish(url, CONFIG_CHANNEL, _stray_config(url, INT64_MAX, committed=True, valid=True))
         assert control.wait_for(lambda: all(control.dpus[i].status.generation == INT64_MAX for i in (1, 2)),
                                 5.0), "the DPUs did not apply the stray config"
     finally:
@@ -96,7 +92,8 @@ def test_stray_heartbeats_reports_and_configs_are_bounded(url: str) -> None:
     try:
         huge = {"generation": INT64_MAX, "staged_generation": INT64_MAX, "rejected_generation": INT64_MAX,
                 "run_id": INT64_MAX}
-        _publish(url, STATUS, _heartbeat(7, **huge), _heartbeat(0), _heartbeat(-9), _heartbeat(-1, pid=1))
+        _publish(url, STATUS_CHANNEL, _heartbeat(7, **huge), _heartbeat(0), _heartbeat(-9),
+                 _heartbeat(-1, pid=1))
         assert control.wait_for(lambda: 7 in control.dpus and -1 in control.dpus, 3.0)
         # Neither a stray DPU's generations nor its run choose our numbers.
         assert control.next_generation() == 1
@@ -111,13 +108,14 @@ def test_stray_heartbeats_reports_and_configs_are_bounded(url: str) -> None:
         bad = skelmsg.report_t()
         bad.dpu, bad.run_id, bad.nprocesses, bad.processes = 3, -1, 0, []
         for i in range(0, len(flood), 50):  # in slices the socket buffer holds
-            _publish(url, REPORT, *flood[i:i + 50], repeats=1)
-        _publish(url, REPORT, flood[-1], bad)
+            _publish(url, REPORT_CHANNEL, *flood[i:i + 50], repeats=1)
+        _publish(url, REPORT_CHANNEL, flood[-1], bad)
         assert control.wait_for(lambda: (3, REPORTS_KEPT + 49) in control.reports, 5.0)
         assert len(control.reports) <= REPORTS_KEPT
         # Generations no host tool makes are not kept as configs to re-send.
         for generation in (-5, INT64_MAX):
-            _publish(url, CONFIG, _stray_config(url, generation, committed=True, valid=True), repeats=1)
+            _publish(url, CONFIG_CHANNEL, _stray_config(url, generation, committed=True, valid=True),
+                     repeats=1)
         time.sleep(0.3)
         assert not control.configs
         assert control.rejected_messages >= 4  # DPU ids 0 and -9, the bad report, the configs
@@ -136,7 +134,7 @@ def test_ping_answers_must_echo_our_ping_and_fit_a_clock_offset(url: str) -> Non
             _heartbeat(8, ping_seq=seq, ping_t1_ns=t1, ping_t2_ns=t1 + 9, ping_t3_ns=t1 + 1),  # t3 < t2
             _heartbeat(9, ping_seq=seq, ping_t1_ns=t1, ping_t2_ns=t1 + 1, ping_t3_ns=t1 + 2),  # plausible
         ]
-        _publish(url, STATUS, *fakes, repeats=1)
+        _publish(url, STATUS_CHANNEL, *fakes, repeats=1)
         assert control.wait_pongs([seq], [9], 3.0)
         assert set(control.pongs([seq])) == {9}
     finally:

@@ -16,6 +16,7 @@ from conftest import _ports, faults_but_stalls, skel
 
 from skeleton.analysis.measure.faults import recv_buf_needed
 from skeleton.host.doctor import rmem_max
+from skelmsg.contract import DEFAULT_URL
 
 BIG = 1_000_000
 
@@ -25,7 +26,7 @@ def _system(tmp_path: Path, big_url: str, bytes_: int = BIG) -> Path:
     path.write_text(f"""\
 system: big
 links:
-  - {{name: bus, url: "udpm://239.255.76.67:7667?ttl=0"}}
+  - {{name: bus, url: "{DEFAULT_URL}"}}
   - {{name: wide, url: "{big_url}"}}
 dpus: [{{id: 1}}, {{id: 2}}]
 buffers:

@@ -14,6 +14,7 @@ from rich.console import Console
 
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.views.diff import diff_command, diff_reports, print_diff
+from skelmsg.contract import CONFIG_CHANNEL, REPORT_CHANNEL, TIMING_CHANNEL
 
 
 def _run(path: Path, changed: bool) -> Path:
@@ -27,9 +28,9 @@ def _run(path: Path, changed: bool) -> Path:
                 rec.compute_ns = 5 * MS
         config.processes[2].name = "C2"
         config.nchains, config.chains = 1, [chain("A-B", [0, 1])]
-    events: list[tuple[str, object]] = [("SKEL_CONFIG", config)]
-    events += [("SKEL_TIMING", t) for t in batches(1, dpu1, 4) + batches(2, dpu2, 2)]
-    events += [("SKEL_REPORT", report(1, 5)), ("SKEL_REPORT", report(2, 3))]
+    events: list[tuple[str, object]] = [(CONFIG_CHANNEL, config)]
+    events += [(TIMING_CHANNEL, t) for t in batches(1, dpu1, 4) + batches(2, dpu2, 2)]
+    events += [(REPORT_CHANNEL, report(1, 5)), (REPORT_CHANNEL, report(2, 3))]
     return write_log(path, events)
 
 

@@ -22,6 +22,7 @@ from skeleton.host.doctor import (
     firewall_findings_nft,
     parse_url,
 )
+from skelmsg.contract import DEFAULT_URL
 
 URL1 = "udpm://239.255.76.67:7667?ttl=1"
 LAB = parse_url(URL1)
@@ -32,7 +33,7 @@ netns_host = hosts_fixture(1)
 # --- the checks on their own (no root needed) ------------------------------------------------
 def test_parse_url_fills_lcm_defaults() -> None:
     assert parse_url("udpm://239.255.76.67:7700?ttl=1").port == 7700
-    assert parse_url("udpm://") == parse_url("udpm://239.255.76.67:7667?ttl=0")
+    assert parse_url("udpm://") == parse_url(DEFAULT_URL)
     assert parse_url("udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304").recv_buf_size == 4194304
     assert parse_url("memq://").provider == "memq"
 
@@ -52,13 +53,13 @@ def test_bad_url_is_one_fail_line_and_exit_1() -> None:
 
 
 def test_ttl0_warns_that_it_never_leaves_the_host() -> None:
-    check = check_ttl(parse_url("udpm://239.255.76.67:7667?ttl=0"))
+    check = check_ttl(parse_url(DEFAULT_URL))
     assert (check.level, check.fix) == ("WARN", "--url 'udpm://239.255.76.67:7667?ttl=1'")
     assert check_ttl(LAB).ok
 
 
 def test_missing_route_suggests_lo_for_ttl0_and_the_interface_for_a_lab() -> None:
-    local = check_route(parse_url("udpm://239.255.76.67:7667?ttl=0"), None, "lo")
+    local = check_route(parse_url(DEFAULT_URL), None, "lo")
     assert local.fix == "ip route add 224.0.0.0/4 dev lo"
     assert check_route(LAB, None, "eth1").fix == "ip route add 224.0.0.0/4 dev eth1"
     assert check_route(LAB, "lo", "eth1").level == "WARN"  # ttl=1 out of lo reaches nobody

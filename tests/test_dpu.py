@@ -11,9 +11,10 @@ import lcm
 from conftest import EXAMPLES, DpuFarm
 
 import skelmsg
-from skeleton.host.control import CONFIG, Control
+from skeleton.host.control import Control
 from skeleton.host.system import load
 from skeleton.host.wire import config_message
+from skelmsg.contract import COMMAND_CHANNEL, CONFIG_CHANNEL
 
 
 def _servo(url: str):  # type: ignore[no-untyped-def]
@@ -71,8 +72,9 @@ def test_dpu_ignores_undecodable_messages(dpus: DpuFarm, url: str) -> None:
         assert control.wait_heard([2], 5.0) == []
         negative_config, huge_config = _huge_length_config(system).split(b"|", 1)
         hostile = [
-            (CONFIG, b""), (CONFIG, b"\x01\x02\x03"), (CONFIG, negative_config), (CONFIG, huge_config),
-            ("SKEL_COMMAND", b"\xff" * 40), ("SKEL_COMMAND", skelmsg.status_t().encode()),
+            (CONFIG_CHANNEL, b""), (CONFIG_CHANNEL, b"\x01\x02\x03"), (CONFIG_CHANNEL, negative_config),
+            (CONFIG_CHANNEL, huge_config),
+            (COMMAND_CHANNEL, b"\xff" * 40), (COMMAND_CHANNEL, skelmsg.status_t().encode()),
         ]
         buffer_channels = [b.channel for b in system.buffers if b.id in (3, 5, 6, 7, 8)]
         hostile += [(ch, _negative_length_buffer()) for ch in buffer_channels]

@@ -20,6 +20,7 @@ import skelmsg
 from skeleton.host.control import Control
 from skeleton.host.system import System, load
 from skeleton.host.wire import config_message
+from skelmsg.contract import TIMING_CHANNEL
 
 PAIR = EXAMPLES / "pair-10ms-5ms.yaml"
 MS = 1_000_000
@@ -61,7 +62,7 @@ class TimingTap:
         self.batch_generations: dict[int, set[int]] = defaultdict(set)
         self._lock = threading.Lock()
         self._lcm = lcm.LCM(url)
-        self._lcm.subscribe("SKEL_TIMING", self._handle).set_queue_capacity(0)
+        self._lcm.subscribe(TIMING_CHANNEL, self._handle).set_queue_capacity(0)
         self._running = True
         self._thread = threading.Thread(target=self._drain, daemon=True)
         self._thread.start()

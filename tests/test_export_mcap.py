@@ -23,6 +23,7 @@ from skeleton.analysis.read.logreader import encode_events, read_bytes, read_log
 from skeleton.analysis.read.mcapsource import read_as_log
 from skeleton.analysis.read.records import load_records
 from skeleton.analysis.views.export_mcap import export
+from skelmsg.contract import COMMAND_CHANNEL, CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 RECORD_FIELDS = ["dpu", "process", "generation", "batch_seq", "cycle", "minor", "release_ns",
                  "start_ns", "comm_in_ns", "blocked_ns", "compute_ns", "comm_out_ns", "idle_ns",
@@ -53,7 +54,7 @@ def _messages(path: Path) -> dict[str, list[tuple[Any, Any]]]:
 def test_every_timing_record_and_input_matches_the_log(servo_run: Path) -> None:
     log = read_log(servo_run / "run.lcm")
     run = load_records(log)
-    config = skelmsg.config_t.decode(bytes(log.messages("SKEL_CONFIG")[-1][1]))
+    config = skelmsg.config_t.decode(bytes(log.messages(CONFIG_CHANNEL)[-1][1]))
     names = {p.id: p.name for p in config.processes}
     topics = _messages(servo_run / "run.mcap")
     by_key = {}
@@ -65,7 +66,7 @@ def test_every_timing_record_and_input_matches_the_log(servo_run: Path) -> None:
                 by_key[(body["dpu"], body["batch_seq"], body["index"])] = (message, body)
     recs, ins = run.records, run.inputs
     assert len(recs) > 500 and len(by_key) == len(recs)
-    statuses = [skelmsg.status_t.decode(bytes(d)) for _, d in log.messages("SKEL_STATUS")]
+    statuses = [skelmsg.status_t.decode(bytes(d)) for _, d in log.messages(STATUS_CHANNEL)]
     offsets = {s.dpu: s.utc_ns - s.mono_ns for s in statuses}
     position = 0
     for r, rec in enumerate(recs):
@@ -115,14 +116,14 @@ def test_schemas_are_json_schema_and_every_message_validates(servo_run: Path) ->
 def test_status_config_faults_attachment_and_metadata(servo_run: Path) -> None:
     log = read_log(servo_run / "run.lcm")
     topics = _messages(servo_run / "run.mcap")
-    statuses = [skelmsg.status_t.decode(bytes(d)) for _, d in log.messages("SKEL_STATUS")]
+    statuses = [skelmsg.status_t.decode(bytes(d)) for _, d in log.messages(STATUS_CHANNEL)]
     exported = [json.loads(m.data) for t, items in topics.items() if t.endswith("/status") for _, m in items]
     assert len(exported) == len(statuses) > 0
     assert sorted(map(json.dumps, exported)) == sorted(json.dumps(to_json(s)) for s in statuses)
     for topic in (t for t in topics if t.endswith("/status")):
         assert all(json.loads(m.data)["dpu"] == int(topic.split("/")[2]) for _, m in topics[topic])
     configs = [json.loads(m.data) for _, m in topics["/config"]]
-    assert len(configs) == len(log.messages("SKEL_CONFIG"))
+    assert len(configs) == len(log.messages(CONFIG_CHANNEL))
     reports = [t for t in topics if t.endswith("/report")]
     assert sorted(reports) == ["/dpu/1/report", "/dpu/2/report", "/dpu/3/report", "/dpu/4/report"]
     rep = load_run(servo_run / "run.lcm").report
@@ -162,26 +163,26 @@ def test_damaged_events_survive_the_round_trip(servo_run: Path, tmp_path: Path) 
     """Malformed messages and a repeated timing batch are kept as bytes (/lcm/raw):
     the report of the MCAP counts them as the report of the log does."""
     events = [(e.utime_us, e.channel, e.data) for e in read_log(servo_run / "run.lcm").events]
-    timing = next(i for i, e in enumerate(events) if e[1] == "SKEL_TIMING")
+    timing = next(i for i, e in enumerate(events) if e[1] == TIMING_CHANNEL)
     events.insert(len(events) // 2, events[timing])  # the same batch logged twice
-    events.insert(3, (events[3][0], "SKEL_STATUS", b"not a status"))
-    events.insert(5, (events[5][0], "SKEL_TIMING", b"\x00" * 40))
+    events.insert(3, (events[3][0], STATUS_CHANNEL, b"not a status"))
+    events.insert(5, (events[5][0], TIMING_CHANNEL, b"\x00" * 40))
     damaged = read_bytes(encode_events(events), "damaged.lcm")
     want = analyze_log(damaged).report.to_json()
     assert want["integrity"]["duplicate_batches"] == 1
-    assert want["integrity"]["malformed"] == {"SKEL_STATUS": 1, "SKEL_TIMING": 1}
+    assert want["integrity"]["malformed"] == {STATUS_CHANNEL: 1, TIMING_CHANNEL: 1}
     export(analyze_log(damaged), tmp_path / "damaged.mcap")
     assert analyze_log(read_as_log(tmp_path / "damaged.mcap")).report.to_json() == want
     raw = [json.loads(m.data)["channel"] for _, m in _messages(tmp_path / "damaged.mcap")["/lcm/raw"]]
-    assert sorted(raw) == ["SKEL_STATUS", "SKEL_TIMING", "SKEL_TIMING"]
+    assert sorted(raw) == [STATUS_CHANNEL, TIMING_CHANNEL, TIMING_CHANNEL]
 
 
 def test_lcm_json_round_trip_of_every_message_type(servo_run: Path) -> None:
     log = read_log(servo_run / "run.lcm")
     seen = set()
-    for channel, cls in [("SKEL_CONFIG", skelmsg.config_t), ("SKEL_STATUS", skelmsg.status_t),
-                         ("SKEL_REPORT", skelmsg.report_t), ("SKEL_COMMAND", skelmsg.command_t),
-                         ("SKEL_TIMING", skelmsg.timing_t)]:  # fmt: skip
+    for channel, cls in [(CONFIG_CHANNEL, skelmsg.config_t), (STATUS_CHANNEL, skelmsg.status_t),
+                         (REPORT_CHANNEL, skelmsg.report_t), (COMMAND_CHANNEL, skelmsg.command_t),
+                         (TIMING_CHANNEL, skelmsg.timing_t)]:  # fmt: skip
         for _, data in log.messages(channel):
             msg = cls.decode(bytes(data))
             assert from_json(cls, json.loads(json.dumps(to_json(msg)))).encode() == bytes(data)

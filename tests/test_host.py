@@ -21,6 +21,7 @@ from skeleton.analysis.read.messages import open_run_log
 from skeleton.analysis.read.records import FLAG_SKIPPED, load_records
 from skeleton.host import spawn
 from skeleton.host.control import Control
+from skelmsg.contract import DEFAULT_URL
 
 PAIR = str(EXAMPLES / "pair-10ms-5ms.yaml")
 # Light and patient (lockout after 1 s without a cycle), so a loaded test machine cannot fail it.
@@ -190,7 +191,7 @@ def test_a_daemon_stuck_on_its_way_out_is_killed_not_orphaned(tmp_path: Path,
     stuck.write_text(f"#!/bin/sh\ntrap '' INT TERM\necho $$ > {pid_file}\nwhile :; do sleep 0.1; done\n")
     stuck.chmod(0o755)
     monkeypatch.setenv("SKEL_DPU", str(stuck))
-    daemon = spawn.start_dpu(1, "udpm://239.255.76.67:7667?ttl=0", tmp_path, deadline_s=60)
+    daemon = spawn.start_dpu(1, DEFAULT_URL, tmp_path, deadline_s=60)
     deadline = time.monotonic() + 5
     while not pid_file.exists() or not pid_file.read_text().strip():
         assert time.monotonic() < deadline, "the stand-in DPU did not start"

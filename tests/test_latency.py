@@ -29,6 +29,7 @@ from skeleton.analysis.measure.latency import ClockOffsets, buffer_metrics
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.read.records import decode_run
 from skeleton.analysis.views.tables import print_report
+from skelmsg.contract import CLOCK_CHANNEL, CONFIG_CHANNEL, TIMING_CHANNEL
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 T0 = 1_000 * MS  # host clock
@@ -49,11 +50,11 @@ def _cross_dpu_log(path: Path, dpu1_offsets: list[tuple[int, int]] | None) -> Pa
         send = r + 1 * MS
         seen = (1, k, 1, 0, 1, send + ahead, send + true_us * US)
         dpu2.append(Rec(2, k, k, r, r + 2 * MS, compute_ns=1 * MS, inputs=[seen]))
-    events: list[tuple[str, object]] = [("SKEL_CONFIG", small_config(warmup_cycles=0))]
+    events: list[tuple[str, object]] = [(CONFIG_CHANNEL, small_config(warmup_cycles=0))]
     if dpu1_offsets is not None:
-        events += [("SKEL_CLOCK", clock_offset(2, T0 - 1000 * MS, 0))]
-        events += [("SKEL_CLOCK", clock_offset(1, at, off)) for at, off in dpu1_offsets]
-    events += [("SKEL_TIMING", t) for t in batches(1, dpu1, 2) + batches(2, dpu2, 2)]
+        events += [(CLOCK_CHANNEL, clock_offset(2, T0 - 1000 * MS, 0))]
+        events += [(CLOCK_CHANNEL, clock_offset(1, at, off)) for at, off in dpu1_offsets]
+    events += [(TIMING_CHANNEL, t) for t in batches(1, dpu1, 2) + batches(2, dpu2, 2)]
     return write_log(path, events)
 
 
@@ -158,8 +159,8 @@ def test_chain_in_report_json_has_summary_not_series(tmp_path: Path) -> None:
     config = small_config(warmup_cycles=0)
     config.nchains, config.chains = 1, [chain("A-B-C", [0, 1, 2])]
     dpu1, dpu2 = _lineage_run(c_ahead_ns=0)
-    events: list[tuple[str, object]] = [("SKEL_CONFIG", config)]
-    events += [("SKEL_TIMING", t) for t in batches(1, dpu1, 5) + batches(2, dpu2, 5)]
+    events: list[tuple[str, object]] = [(CONFIG_CHANNEL, config)]
+    events += [(TIMING_CHANNEL, t) for t in batches(1, dpu1, 5) + batches(2, dpu2, 5)]
     rep = load_run(write_log(tmp_path / "run.lcm", events)).report
     (c,) = rep.to_json()["chains"]
     assert (c["name"], c["processes"], c["samples"]) == ("A-B-C", ["A", "B", "C"], 3)

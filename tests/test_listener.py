@@ -18,6 +18,7 @@ from test_run import DEADLOCK_SYSTEM
 from skeleton.analysis.measure.report import build_report
 from skeleton.analysis.read.records import decode_run
 from skeleton.host.listener import LOST_AFTER_S, Listener, fault_line
+from skelmsg.contract import CONFIG_CHANNEL, STATUS_CHANNEL
 
 FaultKey = tuple[str, ...]
 
@@ -71,8 +72,8 @@ def test_watch_run_and_report_agree_on_a_jam(tmp_path: Path, url: str) -> None:
 
 
 def _heard(listener: Listener) -> None:
-    listener.handle("SKEL_CONFIG", small_config().encode())
-    listener.handle("SKEL_STATUS", status(2, [(2, 1, 7)]).encode())
+    listener.handle(CONFIG_CHANNEL, small_config().encode())
+    listener.handle(STATUS_CHANNEL, status(2, [(2, 1, 7)]).encode())
     dpu1, dpu2 = small_run()
     for t in batches(1, dpu1, 3) + batches(2, dpu2, 2):
         listener.handle("SKEL_TIMING", t.encode())
@@ -98,15 +99,15 @@ def test_a_dpu_is_lost_after_lost_after_s_without_a_heartbeat() -> None:
     listener = Listener()
     listener.follow(RUN_ID)
     _heard(listener)
-    listener.handle("SKEL_STATUS", status(1, []).encode())
+    listener.handle(STATUS_CHANNEL, status(1, []).encode())
     deadline = time.monotonic() + LOST_AFTER_S + 0.2
     while time.monotonic() < deadline:  # DPU 2 heartbeats, DPU 1 is silent
-        listener.handle("SKEL_STATUS", status(2, []).encode())
+        listener.handle(STATUS_CHANNEL, status(2, []).encode())
         time.sleep(0.05)
     assert listener.lost([1, 2]) == [1]
     lost = [f for f in listener.new_faults(running=True) if f.kind == "dpu_lost"]
     assert [f.dpu for f in lost] == [1]
     line = fault_line(lost[0])
     assert re.fullmatch(r"dpu_lost: DPU 1 not heard for 0\.[6-9]\d s", line), line
-    listener.handle("SKEL_STATUS", b"junk")   # a malformed message is counted, not a crash
-    assert listener.malformed == {"SKEL_STATUS": 1}
+    listener.handle(STATUS_CHANNEL, b"junk")   # a malformed message is counted, not a crash
+    assert listener.malformed == {STATUS_CHANNEL: 1}

@@ -21,6 +21,7 @@ from skeleton.analysis.read.records import (
     load_records,
     run_ids,
 )
+from skelmsg.contract import CONFIG_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 
 @pytest.fixture(params=["walk", "scan"], autouse=True)
@@ -43,11 +44,11 @@ def _reference(path: Path) -> list[tuple[int, int, str, bytes]]:
 
 def _sample_log(path: Path) -> Path:
     dpu1, dpu2 = small_run()
-    events: list[tuple[str, object]] = [("SKEL_CONFIG", small_config())]
+    events: list[tuple[str, object]] = [(CONFIG_CHANNEL, small_config())]
     for t in batches(1, dpu1, 3) + batches(2, dpu2, 2):
-        events.append(("SKEL_TIMING", t))
+        events.append((TIMING_CHANNEL, t))
         events.append(("SKEL_BUF_a_out", bytes(range(7))))
-        events.append(("SKEL_STATUS", status(t.dpu, [])))
+        events.append((STATUS_CHANNEL, status(t.dpu, [])))
     events.append(("X", b""))  # an empty message is a valid event
     return write_log(path, events)
 
@@ -64,9 +65,9 @@ def test_events_equal_lcm_eventlog(tmp_path: Path) -> None:
     assert [tuple(e) for e in log.events] == _reference(path)
     assert log.integrity.events == len(_reference(path))
     assert log.integrity.corrupt_ranges == [] and not log.integrity.truncated_tail
-    assert log.channel_names("SKEL_") == ["SKEL_BUF_a_out", "SKEL_CONFIG", "SKEL_STATUS", "SKEL_TIMING"]
-    timing = log.messages("SKEL_TIMING")
-    assert [bytes(d) for _, d in timing] == [e[3] for e in _reference(path) if e[2] == "SKEL_TIMING"]
+    assert log.channel_names("SKEL_") == ["SKEL_BUF_a_out", CONFIG_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL]
+    timing = log.messages(TIMING_CHANNEL)
+    assert [bytes(d) for _, d in timing] == [e[3] for e in _reference(path) if e[2] == TIMING_CHANNEL]
     assert log.messages("nope") == []
 
 
@@ -178,9 +179,9 @@ def test_malformed_timing_messages_are_counted_not_fatal() -> None:
 
 def test_run_selection_default_is_last_run(tmp_path: Path) -> None:
     dpu1, _ = small_run()
-    events = [("SKEL_TIMING", t) for t in batches(1, dpu1, 5, run_id=9)]
-    events += [("SKEL_TIMING", t) for t in batches(1, dpu1, 5, run_id=RUN_ID)]
-    events += [("SKEL_TIMING", b"garbage")]
+    events = [(TIMING_CHANNEL, t) for t in batches(1, dpu1, 5, run_id=9)]
+    events += [(TIMING_CHANNEL, t) for t in batches(1, dpu1, 5, run_id=RUN_ID)]
+    events += [(TIMING_CHANNEL, b"garbage")]
     log = read_log(write_log(tmp_path / "runs.lcm", events))
     assert run_ids(log) == [9, RUN_ID]
     assert load_records(log).run_id == RUN_ID
@@ -234,10 +235,10 @@ def test_bulk_decode_of_every_length_pattern(shapes: list[tuple[int, int]]) -> N
 
 def test_sync_words_inside_data_are_not_events(tmp_path: Path, walk_mode: str) -> None:
     fake = SYNC_BYTES + (7).to_bytes(8, "big") * 2 + (3).to_bytes(4, "big") + (0).to_bytes(4, "big") + b"ABC"
-    events: list[tuple[str, object]] = [("SKEL_CONFIG", small_config())]
+    events: list[tuple[str, object]] = [(CONFIG_CHANNEL, small_config())]
     for i in range(30):
         events.append(("SKEL_BUF_a_out", fake * (i % 3) + bytes(i)))  # whole fake events in the data
-        events.append(("SKEL_STATUS", status(1, [])))
+        events.append((STATUS_CHANNEL, status(1, [])))
     path = write_log(tmp_path / "fake.lcm", events)
     log = read_log(path)
     assert [tuple(e) for e in log.events] == _reference(path)
@@ -280,7 +281,7 @@ def test_run_records_equal_the_structured_arrays_field_by_field(tmp_path: Path) 
     bad.in_record = [7] * bad.ninputs  # outside its batch: malformed, dropped
     msgs[2] = bad.encode()
     msgs += [msgs[1], msgs[4][:-3], b"junk"]  # a duplicate, a cut one, garbage
-    log = read_log(write_log(tmp_path / "t.lcm", [("SKEL_TIMING", m) for m in msgs]))
+    log = read_log(write_log(tmp_path / "t.lcm", [(TIMING_CHANNEL, m) for m in msgs]))
     for run in (load_records(log), decode_run(msgs, RUN_ID)):
         want_recs, want_ins = _structured(msgs, RUN_ID)
         assert run.malformed == 3 and run.duplicates == 1 and len(run.records) == len(want_recs) > 100

@@ -20,13 +20,14 @@ import lcm
 from conftest import ASAN_DPU, EXAMPLES, REPO, SANITIZER_ERROR
 from netns import Hosts, hosts_fixture
 
+from skeleton.host.spawn import LOGGED_CHANNELS
+
 GROUP = "239.255.76.67"
 PORT = 7667  # inside the namespaces no other test shares it
 URL = f"udpm://{GROUP}:{PORT}?ttl=1"
 RELEASE_DPU = REPO / "build" / "skel-dpu"
 # The wheel's real logger, not the venv's Python wrapper (a signal to the wrapper leaves it running).
 LOGGER = Path(lcm.__file__).resolve().parent.parent / "bin" / "lcm-logger"
-LOGGED_CHANNELS = "SKEL_(CONFIG|COMMAND|STATUS|TIMING|REPORT|CLOCK)"
 
 netns_six_hosts = hosts_fixture(6)
 

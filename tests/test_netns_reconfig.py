@@ -21,6 +21,7 @@ from netns import Hosts, hosts_fixture
 import skelmsg
 from skeleton.analysis.read.logreader import read_log
 from skeleton.analysis.read.records import load_records
+from skelmsg.contract import CLOCK_CHANNEL, COMMAND_CHANNEL, STATUS_CHANNEL
 
 netns_hosts = hosts_fixture(3)
 
@@ -58,9 +59,9 @@ def _wait_running(hosts: Hosts, timeout_s: float = 20) -> None:
 def _switch_facts(log_path: Path, run_id: int, old: int, new: int) -> dict[int, dict[str, int]]:
     """Per DPU: last release of `old`, first of `new`, and the COMMIT instant on its clock."""
     log = read_log(log_path)
-    commits = [skelmsg.command_t.decode(bytes(d)) for _, d in log.messages("SKEL_COMMAND")]
+    commits = [skelmsg.command_t.decode(bytes(d)) for _, d in log.messages(COMMAND_CHANNEL)]
     at_utc = next(c.at_utc_ns for c in commits if c.kind == c.COMMIT and c.generation == new)
-    statuses = [skelmsg.status_t.decode(bytes(d)) for _, d in log.messages("SKEL_STATUS")]
+    statuses = [skelmsg.status_t.decode(bytes(d)) for _, d in log.messages(STATUS_CHANNEL)]
     records = load_records(log, run_id).records
     facts = {}
     for dpu in (1, 2):
@@ -152,5 +153,5 @@ def test_netns_push_mid_run_switches_every_dpu_at_one_boundary(netns_hosts: Host
         mean = controller["compute_ns"][controller["generation"] == generation].mean()
         assert low <= mean <= high, (generation, mean)
     # Estimated before START and again every few seconds of the run.
-    clocks = [skelmsg.clock_offset_t.decode(bytes(d)).dpu for _, d in log.messages("SKEL_CLOCK")]
+    clocks = [skelmsg.clock_offset_t.decode(bytes(d)).dpu for _, d in log.messages(CLOCK_CHANNEL)]
     assert sorted(set(clocks)) == [1, 2] and min(clocks.count(1), clocks.count(2)) >= 2, clocks

@@ -14,20 +14,21 @@ from rich.console import Console
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.views.report import report_command
 from skeleton.analysis.views.tables import print_report
+from skelmsg.contract import CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 
 def _log(path: Path, lockouts: bool = False, drop_batch: int | None = None) -> Path:
     dpu1, dpu2 = small_run()
     old = small_config(generation=GENERATION - 1)
     old.system = "stale"
-    events: list[tuple[str, object]] = [("SKEL_CONFIG", old), ("SKEL_CONFIG", small_config())]
+    events: list[tuple[str, object]] = [(CONFIG_CHANNEL, old), (CONFIG_CHANNEL, small_config())]
     t1, t2 = batches(1, dpu1, 4), batches(2, dpu2, 2)
-    events += [("SKEL_TIMING", t) for t in batches(1, dpu1, 4, run_id=7)]  # an earlier run
-    events += [("SKEL_TIMING", t) for t in t1 + t2 if not (t.dpu == 1 and t.batch_seq == drop_batch)]
-    events += [("SKEL_STATUS", status(1, [(0, -1, 8), (1, 0, 8)] if lockouts else []))]
-    events += [("SKEL_STATUS", status(2, [(2, 1, 4)] if lockouts else []))]
-    events += [("SKEL_STATUS", b"not a status"), ("SKEL_CONFIG", small_config())]
-    events += [("SKEL_REPORT", report(1, len(t1))), ("SKEL_REPORT", report(2, len(t2)))]
+    events += [(TIMING_CHANNEL, t) for t in batches(1, dpu1, 4, run_id=7)]  # an earlier run
+    events += [(TIMING_CHANNEL, t) for t in t1 + t2 if not (t.dpu == 1 and t.batch_seq == drop_batch)]
+    events += [(STATUS_CHANNEL, status(1, [(0, -1, 8), (1, 0, 8)] if lockouts else []))]
+    events += [(STATUS_CHANNEL, status(2, [(2, 1, 4)] if lockouts else []))]
+    events += [(STATUS_CHANNEL, b"not a status"), (CONFIG_CHANNEL, small_config())]
+    events += [(REPORT_CHANNEL, report(1, len(t1))), (REPORT_CHANNEL, report(2, len(t2)))]
     return write_log(path, events)
 
 
@@ -43,7 +44,7 @@ def test_analyze_json_fields(tmp_path: Path) -> None:
     json.dumps(out)  # serialisable as is
     assert (out["run_id"], out["system"], out["generation"]) == (RUN_ID, "small", GENERATION)
     assert out["integrity"]["events"] > 0 and out["integrity"]["corrupt_ranges"] == []
-    assert out["integrity"]["lost_batches"] == [] and out["integrity"]["malformed"] == {"SKEL_STATUS": 1}
+    assert out["integrity"]["lost_batches"] == [] and out["integrity"]["malformed"] == {STATUS_CHANNEL: 1}
     d1 = out["dpus"][0]
     for key in ("id", "processes", "configured_cycle_ms", "measured_cycle_ms", "compute_pct",
                 "communicate_pct", "wait_pct", "overhead_pct", "static_load_pct", "overruns"):  # fmt: skip
@@ -91,7 +92,7 @@ def test_unreadable_files_give_one_line_and_exit_2(
 def test_damaged_log_still_reports_and_says_so(tmp_path: Path) -> None:
     path = _log(tmp_path / "run.lcm", drop_batch=1)
     raw = path.read_bytes()
-    mid = raw.index(b"SKEL_STATUS") - 28  # a header: garbage goes right before it
+    mid = raw.index(STATUS_CHANNEL.encode()) - 28  # a header: garbage goes right before it
     path.write_bytes(raw[:mid] + b"\x00" * 100 + raw[mid:])
     rep = load_run(str(path)).report
     assert rep.integrity.corrupt_ranges == [(mid, mid + 100)]
@@ -122,10 +123,10 @@ def _two_generation_log(path: Path) -> Path:
     new.processes[0].compute_us = 5_000
     old_1, new_1 = batches(1, dpu1[:12], 4), batches(1, dpu1[12:], 4, generation=GENERATION + 1, first_seq=3)
     old_2, new_2 = batches(2, dpu2[:3], 2), batches(2, dpu2[3:], 2, generation=GENERATION + 1, first_seq=2)
-    events: list[tuple[str, object]] = [("SKEL_CONFIG", small_config())]
-    events += [("SKEL_TIMING", t) for t in old_1 + old_2]
-    events += [("SKEL_CONFIG", new)] + [("SKEL_TIMING", t) for t in new_1 + new_2]
-    events += [("SKEL_REPORT", report(1, 5)), ("SKEL_REPORT", report(2, 3))]
+    events: list[tuple[str, object]] = [(CONFIG_CHANNEL, small_config())]
+    events += [(TIMING_CHANNEL, t) for t in old_1 + old_2]
+    events += [(CONFIG_CHANNEL, new)] + [(TIMING_CHANNEL, t) for t in new_1 + new_2]
+    events += [(REPORT_CHANNEL, report(1, 5)), (REPORT_CHANNEL, report(2, 3))]
     return write_log(path, events)
 
 
@@ -189,7 +190,7 @@ def test_a_stray_timing_batch_of_an_unknown_generation_is_counted_not_fatal(tmp_
     stray = batches(1, dpu1[:2], 2, generation=2**63 - 1, first_seq=900)
     path = _log(tmp_path / "run.lcm")
     events_log = path.read_bytes()
-    write_log(tmp_path / "stray.lcm", [("SKEL_TIMING", t) for t in stray])
+    write_log(tmp_path / "stray.lcm", [(TIMING_CHANNEL, t) for t in stray])
     (tmp_path / "both.lcm").write_bytes(events_log + (tmp_path / "stray.lcm").read_bytes())
     rep = load_run(str(tmp_path / "both.lcm")).report.to_json()
     assert rep["generation"] == GENERATION

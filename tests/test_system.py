@@ -11,9 +11,9 @@ import pytest
 import yaml
 
 import skelmsg
-from skeleton.host.schema import DEFAULT_URL
 from skeleton.host.system import System, SystemFileError, load
 from skeleton.host.wire import config_message, dump_yaml
+from skelmsg.contract import DEFAULT_URL
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 SERVO = EXAMPLES / "servo.yaml"

@@ -23,6 +23,7 @@ from skeleton.analysis.read.records import decode_run
 from skeleton.host.recordstore import RecordStore
 from skeleton.host.watch import Heard
 from skeleton.host.watch_view import render
+from skelmsg.contract import CONFIG_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 LOGPLAYER = Path(lcm.__file__).parent.parent / "bin" / "lcm-logplayer"
 ENV = {**os.environ, "COLUMNS": "160"}
@@ -137,16 +138,16 @@ def test_record_store_in_chunks_equals_one_decode() -> None:
 def test_heard_messages_give_the_report_and_a_view() -> None:
     heard = Heard(keep_events=False)
     config = small_config()
-    heard.handle("SKEL_CONFIG", config.encode())
-    heard.handle("SKEL_STATUS", status(2, [(2, 1, 7)]).encode())
+    heard.handle(CONFIG_CHANNEL, config.encode())
+    heard.handle(STATUS_CHANNEL, status(2, [(2, 1, 7)]).encode())
     for data in _synthetic_messages():
-        heard.handle("SKEL_TIMING", data)
-    heard.handle("SKEL_TIMING", b"junk")
+        heard.handle(TIMING_CHANNEL, data)
+    heard.handle(TIMING_CHANNEL, b"junk")
     report = heard.snapshot()
     assert report is not None and heard.run_id == RUN_ID
     expected = build_report(config, decode_run(_synthetic_messages(), RUN_ID), [status(2, [(2, 1, 7)])])
     assert [d.compute_pct for d in report.dpus] == [d.compute_pct for d in expected.dpus]
-    assert report.integrity.malformed == {"SKEL_TIMING": 1}
+    assert report.integrity.malformed == {TIMING_CHANNEL: 1}
     assert any("lockout: C (DPU 2) at cycle 7, waiting on b_out" in text for _, text in heard.faults)
     console = Console(width=160, record=True, file=io.StringIO())
     console.print(render(heard, report, "udpm://x"))

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 import skelmsg
+from skelmsg.contract import RECV_SLACK_BYTES
 
 from ..read.records import FLAG_LOCKOUT
 from .metrics import ProcessMetrics, completed, frame_release_latency_ns, measured, per_id, static_load_pct
@@ -475,9 +476,9 @@ def _why_behind(mine: np.ndarray, config: Any, dpu: int, start: int, t_worst: in
 # --- delivery: a buffer that never reached a reader -----------------------------------------
 # What a reader's socket receive buffer must be asked for to hold one message of a buffer whole
 # (LCM's recv_buf_size; the kernel grants twice that, up to net.core.rmem_max). The DPU asks for
-# it (dpu/link.c, SKEL_RECV_SLACK_BYTES); `skel check` and `skel doctor` compare it with this host.
+# it (dpu/link.c, with the contract's RECV_SLACK_BYTES); `skel check` and `skel doctor` compare it
+# with this host.
 BUFFER_HEADER_BYTES = len(skelmsg.buffer_t().encode())
-RECV_SLACK_BYTES = 65536
 FRAGMENT_BYTES = 65000        # larger messages go out as several UDP datagrams (LCM fragments)
 DELIVERY_MIN_SENT = 3         # a writer that published fewer gives a reader no fair chance
 

@@ -22,15 +22,17 @@ from typing import Any
 
 import numpy as np
 
+from skelmsg.contract import CONFIG_CHANNEL, TIMING_CHANNEL
+
 from ..read.logreader import Log
 from ..read.messages import LogError, Messages, open_run_log, read_messages
-from ..read.records import TIMING_CHANNEL, Heads, RunRecords, load_records, run_ids, timing_heads
+from ..read.records import Heads, RunRecords, load_records, run_ids, timing_heads
 from .columns import Table, faults_table, receptions_table, report_tables, tables, timing_table
 from .faults import heartbeats_from_status
 from .latency import ClockOffsets
 from .report import RunReport, build_report
 
-NO_CONFIG = "SKEL_TIMING (no config for its generation)"
+NO_CONFIG = f"{TIMING_CHANNEL} (no config for its generation)"
 
 
 @dataclass
@@ -124,7 +126,7 @@ def analyze_log(log: Log, run_id: int | None = None) -> RunAnalysis:
     heads = timing_heads(log)
     runs = run_ids(log, heads)
     if not runs:
-        raise LogError("no timing records (channel SKEL_TIMING) in this log")
+        raise LogError(f"no timing records (channel {TIMING_CHANNEL}) in this log")
     if run_id is None:
         run_id = runs[-1]
     elif run_id not in runs:
@@ -134,7 +136,7 @@ def analyze_log(log: Log, run_id: int | None = None) -> RunAnalysis:
     messages = read_messages(log, set(head["generation"][ok & (head["run_id"] == run_id)].tolist()))
     expected = {r.dpu: r.timing_batches for r in messages.reports if r.run_id == run_id}
     recorded = load_records(log, run_id, expected_batches=expected, heads=heads)
-    malformed = {"SKEL_TIMING": recorded.malformed, **messages.malformed}
+    malformed = {TIMING_CHANNEL: recorded.malformed, **messages.malformed}
     configs = {g: c for g, c in messages.configs.items() if g in recorded.generations}
     for g in recorded.generations:
         if g not in configs:
@@ -143,7 +145,7 @@ def analyze_log(log: Log, run_id: int | None = None) -> RunAnalysis:
             unnamed = int((recorded.records["generation"] == g).sum())
             malformed[NO_CONFIG] = malformed.get(NO_CONFIG, 0) + unnamed
     if not configs:
-        raise LogError(f"no config_t (channel SKEL_CONFIG) for generation {max(recorded.generations)}: "
+        raise LogError(f"no config_t (channel {CONFIG_CHANNEL}) for generation {max(recorded.generations)}: "
                        "cannot name anything")
     last = max(configs)
     clock = ClockOffsets.from_messages(messages.clock_offsets)

@@ -23,6 +23,7 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
 import skelmsg
+from skelmsg.contract import TIMING_CHANNEL
 
 from .lcmjson import from_json, lcm_class
 from .logreader import Integrity, Log, encode_events, read_bytes
@@ -52,7 +53,7 @@ def read_as_log(path: str | os.PathLike[str]) -> Log:
         raise McapSourceError(f"{os.fspath(path)}: unexpected content ({e})") from e
     for seq, records in batches.items():
         utime, data = _timing_batch(records)
-        events.append((seq, utime, "SKEL_TIMING", data))
+        events.append((seq, utime, TIMING_CHANNEL, data))
     events.sort(key=lambda e: e[0])
     info = meta[METADATA]
     integrity = Integrity(

@@ -17,14 +17,10 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import skelmsg
+from skelmsg.contract import CLOCK_CHANNEL, CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL
 
 from .logreader import Log, read_log
 from .mcapsource import read_as_log
-
-CONFIG_CHANNEL = "SKEL_CONFIG"
-STATUS_CHANNEL = "SKEL_STATUS"
-REPORT_CHANNEL = "SKEL_REPORT"
-CLOCK_CHANNEL = "SKEL_CLOCK"
 
 T = TypeVar("T")
 

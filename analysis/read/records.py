@@ -13,12 +13,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 import skelmsg
+from skelmsg.contract import TIMING_CHANNEL
 
 from .coltable import ColumnTable
 from .flatdecode import FlatLayout, decode_heads, decode_many
 from .logreader import Log
 
-TIMING_CHANNEL = "SKEL_TIMING"
 TIMING = FlatLayout.of(skelmsg.timing_t)
 FLAG_OVERRUN = skelmsg.timing_t.FLAG_OVERRUN
 FLAG_SKIPPED = skelmsg.timing_t.FLAG_SKIPPED

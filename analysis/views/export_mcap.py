@@ -32,6 +32,8 @@ import numpy as np
 from mcap.writer import Writer
 
 import skelmsg
+from skelmsg import contract
+from skelmsg.contract import TIMING_CHANNEL
 
 from ..measure.faults import KINDS
 from ..measure.metrics import cycle_end_ns
@@ -43,17 +45,16 @@ from ..read.records import (
     FLAG_LOCKOUT,
     FLAG_OVERRUN,
     FLAG_SKIPPED,
-    TIMING_CHANNEL,
     decode_timing,
 )
 
 # LCM channel -> (type, topic prefix); the DPU id completes per-DPU topics.
 MESSAGE_CHANNELS: dict[str, tuple[type, str]] = {
-    "SKEL_CONFIG": (skelmsg.config_t, "/config"),
-    "SKEL_COMMAND": (skelmsg.command_t, "/command"),
-    "SKEL_STATUS": (skelmsg.status_t, "/dpu/{dpu}/status"),
-    "SKEL_REPORT": (skelmsg.report_t, "/dpu/{dpu}/report"),
-    "SKEL_CLOCK": (skelmsg.clock_offset_t, "/dpu/{dpu}/clock_offset"),
+    contract.CONFIG_CHANNEL: (skelmsg.config_t, "/config"),
+    contract.COMMAND_CHANNEL: (skelmsg.command_t, "/command"),
+    contract.STATUS_CHANNEL: (skelmsg.status_t, "/dpu/{dpu}/status"),
+    contract.REPORT_CHANNEL: (skelmsg.report_t, "/dpu/{dpu}/report"),
+    contract.CLOCK_CHANNEL: (skelmsg.clock_offset_t, "/dpu/{dpu}/clock_offset"),
 }
 _INT = {"type": "integer"}
 _NS = {"type": "integer", "description": "DPU CLOCK_MONOTONIC, ns"}

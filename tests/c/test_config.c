@@ -80,7 +80,7 @@ static void test_rejections(void)
     REJECTS(f.procs[4].id = 1, 0, "process id 1 appears twice");
     REJECTS(f.buffers[1].id = 1, 0, "buffer id 1 appears twice");
     REJECTS(f.buffers[1].channel = (char *)"SKEL_BUF_b1", 0, "share channel 'SKEL_BUF_b1'");
-    REJECTS(f.buffers[0].channel = (char *)"SKEL_STATUS", 0, "SKEL_ control channel");
+    REJECTS(f.buffers[0].channel = (char *)SKEL_STATUS_CHANNEL, 0, "SKEL_ control channel");
     REJECTS(f.in[3][1] = 2, 0, "process 4 reads buffer 2 twice");
     REJECTS(f.procs[1].sync = 3, 1, "process 2: unknown sync 3");
     REJECTS(f.procs[1].compute_us = -1, 1, "compute_us -1 < 0");

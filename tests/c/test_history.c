@@ -114,7 +114,7 @@ static void test_resend_is_what_was_published(lcm_t *lcm, heard_t *h, skel_batch
     CHECK_EQ(history_resend(&hist, lcm, &ask, &gone), 1);
     pump(lcm);
     CHECK_EQ(h->n, 2);
-    CHECK(strcmp(h->channel[1], SKEL_CH_REPORT) == 0);
+    CHECK(strcmp(h->channel[1], SKEL_REPORT_CHANNEL) == 0);
     CHECK(h->len[0] == h->len[1] && memcmp(h->data[0], h->data[1], (size_t)h->len[0]) == 0);
     heard_clear(h);
 
@@ -182,8 +182,8 @@ int main(void)
     CHECK(lcm != NULL);
     if (lcm == NULL) return CHECK_DONE();
     static heard_t heard;
-    lcm_subscription_t *t = lcm_subscribe(lcm, SKEL_CH_TIMING, on_message, &heard);
-    lcm_subscription_t *r = lcm_subscribe(lcm, SKEL_CH_REPORT, on_message, &heard);
+    lcm_subscription_t *t = lcm_subscribe(lcm, SKEL_TIMING_CHANNEL, on_message, &heard);
+    lcm_subscription_t *r = lcm_subscribe(lcm, SKEL_REPORT_CHANNEL, on_message, &heard);
     CHECK(t != NULL && r != NULL);
     CHECK_EQ(lcm_subscription_set_queue_capacity(t, 0), 0);
     CHECK_EQ(lcm_subscription_set_queue_capacity(r, 0), 0);
