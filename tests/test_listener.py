@@ -18,7 +18,7 @@ from test_run import DEADLOCK_SYSTEM
 from skeleton.analysis.measure.report import build_report
 from skeleton.analysis.read.records import decode_run
 from skeleton.host.listener import LOST_AFTER_S, Listener, fault_line
-from skelmsg.contract import CONFIG_CHANNEL, STATUS_CHANNEL
+from skelmsg.contract import CONFIG_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 FaultKey = tuple[str, ...]
 
@@ -76,7 +76,7 @@ def _heard(listener: Listener) -> None:
     listener.handle(STATUS_CHANNEL, status(2, [(2, 1, 7)]).encode())
     dpu1, dpu2 = small_run()
     for t in batches(1, dpu1, 3) + batches(2, dpu2, 2):
-        listener.handle("SKEL_TIMING", t.encode())
+        listener.handle(TIMING_CHANNEL, t.encode())
 
 
 def test_the_listeners_faults_are_the_reports_and_said_once() -> None:
