@@ -29,7 +29,7 @@ import skelmsg
 from skelmsg import contract
 from skelmsg.contract import CLOCK_CHANNEL, CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
-from ..analysis.measure.faults import Fault
+from ..analysis.measure.faults import LOST_AFTER_S, Fault
 from ..analysis.measure.report import RunReport, build_report
 from .recordstore import RecordStore
 
@@ -41,8 +41,7 @@ STATE_NAMES = {
     skelmsg.status_t.STATE_ARMED: "armed",
     skelmsg.status_t.STATE_RUNNING: "running",
 }
-HEARTBEAT_S = contract.STATUS_PERIOD_MS / 1000  # a DPU heartbeats at 5 Hz ...
-LOST_AFTER_S = 0.6          # ... three missed beats and it is lost: the one live lost-DPU timeout
+HEARTBEAT_S = contract.STATUS_PERIOD_MS / 1000  # a DPU heartbeats at 5 Hz (lost: faults.LOST_AFTER_S)
 # `skel status`/`skel clock` listen until no DPU not heard before has been heard for this
 # long (five heartbeats: a DPU that is up is heard even when a beat or two are lost).
 QUIET_S = 5 * HEARTBEAT_S
