@@ -217,8 +217,9 @@ class RunFollower:
                 continue
             style = "bold red" if fault.fatal or fault.kind in FAILED_KINDS else "yellow"
             tail = "; the run goes on without it" if fault.kind == "dpu_lost" and running else ""
-            self.console.print(f"[{style}]FAULT[/] {fault_line(fault)}{tail}", highlight=False,
-                               soft_wrap=True)
+            # A stall is the platform's, not the design's: said as such (its detail names the host).
+            label, text = ("STALL", fault.detail) if fault.kind == "stall" else ("FAULT", fault_line(fault))
+            self.console.print(f"[{style}]{label}[/] {text}{tail}", highlight=False, soft_wrap=True)
             if fault.kind == "dpu_lost" and fault.dpu is not None:
                 self.lost.add(fault.dpu)
             if fault.kind in self.system.run.stop_on:
