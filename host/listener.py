@@ -33,7 +33,7 @@ from ..analysis.measure.faults import LOST_AFTER_S, Fault
 from ..analysis.measure.report import RunReport, build_report
 from .recordstore import RecordStore
 
-# Every channel a listener takes (clock estimates: a live report corrects latencies with them).
+# Every channel a live view subscribes to (clock estimates: kept for `skel watch --once`'s final analysis).
 CHANNELS = (CONFIG_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL, REPORT_CHANNEL, CLOCK_CHANNEL)
 STATE_NAMES = {
     skelmsg.status_t.STATE_UNCONFIGURED: "unconfigured",

@@ -163,7 +163,8 @@ def receptions_table(run: RunAnalysis) -> Table:
     ins = run.inputs
     names = run.process_names()
     buffers = {b.id: b.name for b in run.config.buffers}
-    writer_dpu = {b.id: _writer_dpu(run.config, b) for b in run.config.buffers}
+    dpu_of = {p.id: p.dpu for p in run.config.processes}
+    writer_dpu = {b.id: dpu_of.get(b.writer) for b in run.config.buffers}
     sent = np.asarray(ins["sent_ns"])
     recv = np.asarray(ins["recv_ns"])
     transport = recv - sent
@@ -189,11 +190,6 @@ def receptions_table(run: RunAnalysis) -> Table:
         "sent_ns": sent, "recv_ns": recv, "transport_us": transport / 1e3,
     }  # fmt: skip
     return _documented("receptions", columns)
-
-
-def _writer_dpu(config: Any, buffer: Any) -> int | None:
-    dpu_of = {p.id: p.dpu for p in config.processes}
-    return dpu_of.get(buffer.writer)
 
 
 def faults_table(run: RunAnalysis) -> Table:
@@ -241,11 +237,4 @@ def _flat(row: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
             out.update(_flat(value, f"{prefix}{key}_"))
         else:
             out[f"{prefix}{key}"] = value
-    return out
-
-
-def tables(run: RunAnalysis) -> dict[str, Table]:
-    """Every table of a run, by name (the Parquet files' names)."""
-    out = report_tables(run)
-    out.update(timing=timing_table(run), receptions=receptions_table(run), faults=faults_table(run))
     return out

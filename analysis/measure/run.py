@@ -27,7 +27,7 @@ from skelmsg.contract import CONFIG_CHANNEL, TIMING_CHANNEL
 from ..read.logreader import Log
 from ..read.messages import LogError, Messages, open_run_log, read_messages
 from ..read.records import Heads, RunRecords, load_records, run_ids, timing_heads
-from .columns import Table, faults_table, receptions_table, report_tables, tables, timing_table
+from .columns import Table, faults_table, receptions_table, report_tables, timing_table
 from .faults import heartbeats_from_status
 from .latency import ClockOffsets
 from .report import RunReport, build_report
@@ -87,13 +87,17 @@ class RunAnalysis:
         return {p.id: p.name for p in self.config.processes}
 
     # The tables of the public API (skeleton/__init__.py) and of `skel export --parquet`.
+    @cached_property
+    def _report_tables(self) -> dict[str, Table]:
+        return report_tables(self)
+
     @property
     def dpus(self) -> Table:
-        return report_tables(self)["dpus"]
+        return self._report_tables["dpus"]
 
     @property
     def processes(self) -> Table:
-        return report_tables(self)["processes"]
+        return self._report_tables["processes"]
 
     @cached_property
     def timing(self) -> Table:
@@ -108,7 +112,9 @@ class RunAnalysis:
         return faults_table(self)
 
     def tables(self) -> dict[str, Table]:
-        return tables(self)
+        """Every table of the run, by name (the Parquet files' names)."""
+        return {**self._report_tables, "timing": self.timing, "receptions": self.receptions,
+                "faults": self.faults}
 
 
 def load_run(path: str | os.PathLike[str], run_id: int | None = None) -> RunAnalysis:
