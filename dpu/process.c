@@ -116,11 +116,35 @@ static int process_should_stop(const skel_exec_t *x, int64_t now)
     return now >= x->end_mono_ns;
 }
 
+/* The last look at the clocks of a data wait: wall and thread CPU time. */
+typedef struct {
+    int64_t mono_ns, cpu_ns;
+} skel_look_t;
+
+/* A stall between two looks of a data wait: the wall time between them that the
+ * thread neither ran (reading its links) nor chose to wait. Checked against the
+ * thread's CPU time only when the gap is long, so a large buffer read is work,
+ * not a stall; a stopped or descheduled thread is. The lockouts a wait decides
+ * rest on this: a machine that stopped while the DPU read its inputs must not
+ * lock out the process that was reading. */
+static void process_look(skel_exec_t *x, skel_rec_t *rec, skel_look_t *prev, int64_t now)
+{
+    int64_t gap = now - prev->mono_ns;
+    if (gap <= x->s->compute.stall_ns) return;
+    int64_t cpu = clock_thread_cpu_ns();
+    int64_t off = gap - (cpu - prev->cpu_ns);
+    if (off > x->s->compute.stall_ns) {
+        rec->stall_ns += off;
+        x->stall_debt_ns += off;
+    }
+}
+
 /* Waits for new data on every required input: 1 when the run ended or stopped
- * first. Cycle K (minor J of the plan) was released at RELEASE. Meanwhile the
- * processes it holds up are watched for lockout (process_held_up). */
+ * first. Cycle K (minor J of the plan) was released at RELEASE; the cycle's
+ * inputs were first read from LOOK on. Meanwhile the processes it holds up are
+ * watched for lockout (process_held_up). */
 static int process_wait_data(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t release,
-                             skel_rec_t *rec)
+                             skel_look_t look, skel_rec_t *rec)
 {
     skel_plan_t *plan = x->plan;
     const int64_t j = (k - p->k_base) * p->ratio;
@@ -129,6 +153,7 @@ static int process_wait_data(skel_exec_t *x, skel_process_t *p, int64_t k, int64
         int missing = process_missing(p, rec);
         if (missing < 0) return 0;
         int64_t now = clock_mono_ns();
+        process_look(x, rec, &look, now);
         if (process_should_stop(x, now)) return 1;
         if (process_locked_out(x, p, release, now)) {
             process_lockout(x, p, p->inputs[missing].buffer, k, release);
@@ -142,9 +167,12 @@ static int process_wait_data(skel_exec_t *x, skel_process_t *p, int64_t k, int64
         if (wake - now < 10 * 1000000LL) timeout_ms = (int)((wake - now) / 1000000) + 1;
         int ready = link_wait(plan->links, plan->nlinks, x->s->wake_fd, timeout_ms);
         if (ready < 0) return 1;
-        /* A poll that timed out far later than asked: the thread was kept from running. */
-        int64_t late = clock_mono_ns() - now - timeout_ms * 1000000LL;
-        if (ready == 0 && late > x->s->compute.stall_ns) {
+        /* A poll that returned far later than its timeout, with data or without: the
+         * thread was kept from running at least that long (data that came meanwhile is
+         * no excuse: a stopped machine delivers it all at once when it resumes). */
+        look = (skel_look_t){ clock_mono_ns(), clock_thread_cpu_ns() };
+        int64_t late = look.mono_ns - now - timeout_ms * 1000000LL;
+        if (late > x->s->compute.stall_ns) {
             rec->stall_ns += late;
             x->stall_debt_ns += late;
         }
@@ -210,6 +238,9 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
     skel_plan_t *plan = x->plan;
     const int measured = k >= p->measure_from_k;
     int64_t start = clock_mono_ns();
+    /* A data wait may decide lockouts: it needs to know how long the thread ran from here. */
+    const int waits = p->sync == SKELMSG_PROCESS_T_SYNC_DATA;
+    const skel_look_t look = { start, waits ? clock_thread_cpu_ns() : 0 };
     process_record_begin(x, p, k, minor, release, sched, start, rec);
     if (process_locked_out(x, p, release, start)) {
         process_lockout(x, p, -1, k, release);
@@ -219,7 +250,7 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
     process_peek_inputs(plan, p, rec);
     int64_t t_in = clock_mono_ns();
     rec->comm_in_ns = t_in - start;
-    int stopped = p->sync == SKELMSG_PROCESS_T_SYNC_DATA && process_wait_data(x, p, k, release, rec);
+    int stopped = waits && process_wait_data(x, p, k, release, look, rec);
     int64_t t_blocked = clock_mono_ns();
     rec->blocked_ns = t_blocked - t_in;
     if (stopped) {

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import time
 from pathlib import Path
@@ -133,7 +134,12 @@ def test_a_stall_of_the_machine_is_not_a_lockout(tmp_path: Path, url: str, dpus:
     out = tmp_path / "run"
     run = skel_background("run", str(EXAMPLES / "servo.yaml"), "--url", url, "--duration", "4",
                           "-s", "run.warmup_cycles=20", "--out", str(out))
-    time.sleep(3.0)
+    # In the run, past the warm-up: a loaded machine may take seconds to start it.
+    deadline = time.monotonic() + 30
+    while not all(re.search(r"run \d+ started", dpus.log(d)) for d in (1, 2, 3, 4)):
+        assert time.monotonic() < deadline and run.proc.poll() is None, run.output
+        time.sleep(0.05)
+    time.sleep(1.5)
     pids = [d.process.pid for d in dpus.daemons.values()]
     for pid in pids:
         os.kill(pid, signal.SIGSTOP)

@@ -11,10 +11,12 @@ from analysis_synth import MS, RUN_ID, US, Rec, batches, small_config, small_run
 import skelmsg
 from skeleton.analysis.measure.faults import (
     Heartbeat,
+    behind_faults,
     dpu_lost_faults,
     jam_faults,
     lockout_faults,
     lockouts_from_status,
+    stall_faults,
 )
 from skeleton.analysis.measure.metrics import dpu_metrics, process_metrics, static_load_pct
 from skeleton.analysis.read.records import RECORD_DTYPE, RunRecords, decode_run, lost_batches
@@ -241,3 +243,57 @@ def test_dpu_lost_when_its_heartbeats_stop_not_when_its_timing_does() -> None:
     # Heartbeats of another run, or none at all: only a DPU with no timing record is lost.
     no_times = [Heartbeat(1, None, 100, RUN_ID, 3), Heartbeat(3, None, 100, RUN_ID, 3)]
     assert [f.dpu for f in dpu_lost_faults(config, _spans({1: [0, 9]}), no_times, RUN_ID)] == [2, 4]
+
+
+def _cycles(dpu: int, process: int, period_ms: int, late_ms: list[float], stall_ms: dict[int, float],
+            blocked_ms: dict[int, float] | None = None) -> np.ndarray:
+    """One process's cycles 0.. on one DPU, one per minor cycle, started `late_ms[k]` after
+    release, with the stalls (and data waits) their records carry."""
+    records = np.zeros(len(late_ms), dtype=RECORD_DTYPE)
+    k = np.arange(len(late_ms))
+    records["dpu"], records["process"], records["cycle"], records["minor"] = dpu, process, k, k
+    records["release_ns"] = k * period_ms * MS
+    records["sched_ns"] = records["release_ns"]
+    records["start_ns"] = records["release_ns"] + (np.array(late_ms) * MS).astype(np.int64)
+    records["compute_ns"] = MS
+    for cycle, ms in stall_ms.items():
+        records["stall_ns"][cycle] = int(ms * MS)
+    for cycle, ms in (blocked_ms or {}).items():
+        records["blocked_ns"][cycle] = int(ms * MS)
+    return records
+
+
+def test_one_stall_of_a_host_is_one_fault_wherever_in_their_cycles_its_dpus_saw_it() -> None:
+    """A record says how long its thread could not run, not where in the cycle: DPU 2 saw the
+    80 ms stall on waking, then waited 90 ms for data from DPU 1, itself just resuming. It
+    is still the stall DPU 1 saw (the report had split it in two: DPU 1 at 0.02 s, DPU 2 at
+    0.11 s, each with fewer DPUs than stalled)."""
+    late = [0.0] * 20
+    late[2] = 80.0
+    dpu1 = _cycles(1, 0, 10, late, {2: 80.0})
+    dpu2 = _cycles(2, 2, 20, [0.0] * 10, {1: 80.0}, blocked_ms={1: 90.0})
+    dpu2["start_ns"][1] = dpu1["start_ns"][2]
+    stalls = stall_faults(np.concatenate([dpu1, dpu2]), small_config())
+    assert [(f.dpus, round(f.duration_ms)) for f in stalls] == [([1, 2], 80)]
+    assert stalls[0].at_s == pytest.approx(0.020)
+
+
+def test_a_dpu_behind_from_a_stall_in_its_warm_up_is_the_platform_not_the_design() -> None:
+    """A stall of 80 ms at 10 ms, in the warm-up (20 cycles); the DPU catches up 0.5 ms per
+    minor cycle, so it is still 70 ms behind when the window opens at 200 ms. The stall is
+    its cause: the report had looked for it only just before the window and blamed the design."""
+    late = [0.0, *(max(0.0, 80.0 - 0.5 * k) for k in range(199))]
+    config = small_config(warmup_cycles=20)
+    config.processes = [p for p in config.processes if p.dpu == 1][:1]
+    config.nprocesses = 1
+    faults = behind_faults(_cycles(1, 0, 10, late, {1: 80.0}), config)
+    assert len(faults) == 1 and not faults[0].fatal, faults
+    assert faults[0].at_s == pytest.approx(0.010) and "kept from running for 80.0 ms" in faults[0].detail
+
+
+def test_a_dpu_behind_only_in_its_warm_up_is_no_fault() -> None:
+    late = [0.0, *(max(0.0, 80.0 - 8.0 * k) for k in range(49))]
+    config = small_config(warmup_cycles=20)
+    config.processes = [p for p in config.processes if p.dpu == 1][:1]
+    config.nprocesses = 1
+    assert behind_faults(_cycles(1, 0, 10, late, {1: 80.0}), config) == []

@@ -364,32 +364,39 @@ def stall_faults(records: np.ndarray, config: Any) -> list[Fault]:
     timing_t.stall_ns) beyond stall_threshold_ns. The stalls of one host's DPUs that overlap
     in time are one fault naming the host, when and how long: the platform, not the design."""
     hosts = {d.id: d.host for d in config.dpus}
-    t0 = first_release_ns(records)
-    events: dict[str, list[tuple[int, int, int]]] = {}  # host -> (end, start, dpu), run-relative
+    t0 = min(first_release_ns(records).values(), default=0)
+    # A record says how long its thread could not run, not where in the cycle: the stall
+    # ended between the cycle's start and its end. Host -> (earliest start, latest end,
+    # duration, DPU), on the run's clock.
+    events: dict[str, list[tuple[int, int, int, int]]] = {}
     limit = per_id(records["dpu"], {d.id: stall_threshold_ns(config, d.id) for d in config.dpus})
     hit = records[(records["stall_ns"] > 0) & (records["stall_ns"] >= limit)] if len(records) else records
     for rec in hit:
-        dpu = int(rec["dpu"])
-        end = int(rec["start_ns"] - t0[dpu] + rec["comm_in_ns"] + rec["blocked_ns"] + rec["compute_ns"])
-        events.setdefault(hosts.get(dpu, "?"), []).append((end, end - int(rec["stall_ns"]), dpu))
+        dpu, stall = int(rec["dpu"]), int(rec["stall_ns"])
+        start = int(rec["start_ns"]) - t0
+        end = start + int(rec["comm_in_ns"] + rec["blocked_ns"] + rec["compute_ns"])
+        events.setdefault(hosts.get(dpu, "?"), []).append((start - stall, end, stall, dpu))
     faults = []
     for host, evs in sorted(events.items()):
-        evs.sort(key=lambda e: e[1])
-        groups: list[list[tuple[int, int, int]]] = []
+        evs.sort()
+        groups: list[list[tuple[int, int, int, int]]] = []
+        group_end = 0
         for ev in evs:
-            # Stalls of one instant overlap; the measure of each is up to a cycle's work apart.
-            if groups and ev[1] <= max(g[0] for g in groups[-1]):
+            # The stalls of one instant: the spans where each may have been overlap.
+            if groups and ev[0] <= group_end:
                 groups[-1].append(ev)
+                group_end = max(group_end, ev[1])
             else:
                 groups.append([ev])
+                group_end = ev[1]
         # A stall as long as a minor cycle of its DPUs is a fault of its own; shorter ones
         # (a busy VM has many) are one fault per host that counts them.
         minor_ns = min((d.minor_cycle_us * 1000 for d in config.dpus if d.host == host), default=0)
         short: list[int] = []
         for group in groups:
-            start = min(g[1] for g in group)
-            longest = max(g[0] - g[1] for g in group)
-            dpus = sorted({g[2] for g in group})
+            start = min(g[0] for g in group)
+            longest = max(g[2] for g in group)
+            dpus = sorted({g[3] for g in group})
             if longest < minor_ns:
                 short.append(longest)
                 continue
@@ -399,7 +406,7 @@ def stall_faults(records: np.ndarray, config: Any) -> list[Fault]:
                 detail=f"host {host}: DPU {who} could not run for {longest / 1e6:.1f} ms at "
                        f"{start / 1e9:.2f} s (the platform, not the design)"))
         if short:
-            dpus = sorted({g[2] for group in groups for g in group})
+            dpus = sorted({g[3] for group in groups for g in group})
             span = (f"{min(short) / 1e6:.1f} to {max(short) / 1e6:.1f} ms" if len(short) > 1
                     else f"{short[0] / 1e6:.1f} ms")
             faults.append(Fault(
@@ -416,24 +423,29 @@ def behind_faults(records: np.ndarray, config: Any) -> list[Fault]:
     platform, an overload, a data wait or an overrun)."""
     faults = []
     t0 = first_release_ns(records)
-    window = records[measured(records, config)]
+    in_window = measured(records, config)
     for dpu in sorted(config.dpus, key=lambda d: d.id):
-        mine = window[window["dpu"] == dpu.id]
+        # A DPU that fell behind in its warm-up and is still behind in the window is found
+        # from where it fell behind, so that its cause (a stall, say) is not cut off.
+        is_mine = records["dpu"] == dpu.id
+        mine, mine_measured = records[is_mine], in_window[is_mine]
         minor_ns = dpu.minor_cycle_us * 1000
-        if len(mine) == 0 or minor_ns <= 0:
+        if not mine_measured.any() or minor_ns <= 0:
             continue
         late = frame_release_latency_ns(mine)  # per minor, in minor order
         minors = np.unique(mine["minor"])
+        window_minor = mine["minor"][mine_measured].min()
         for first, last in _runs(late > minor_ns, BEHIND_MIN_FRAMES):
             lo, hi = minors[first], minors[last]
+            if hi < window_minor:
+                continue  # behind in the warm-up only: what the warm-up is there to leave out
             span = mine[(mine["minor"] >= lo) & (mine["minor"] <= hi)]
             start = int(span["release_ns"].min())
             worst = int(late[first : last + 1].max())
             end = int(span["release_ns"].max()) + minor_ns
             worst_minor = minors[first + int(np.argmax(late[first : last + 1]))]
             t_worst = int(span["release_ns"][span["minor"] == worst_minor].min())
-            cause, fatal = _why_behind(records[records["dpu"] == dpu.id], config, dpu.id, start, t_worst,
-                                       worst)
+            cause, fatal = _why_behind(mine, config, dpu.id, start, t_worst, worst)
             at_s, duration_s = (start - t0[dpu.id]) / 1e9, (end - start) / 1e9
             faults.append(Fault(
                 kind="behind", dpu=dpu.id, at_s=at_s, duration_ms=duration_s * 1e3, behind_ms=worst / 1e6,
