@@ -4,6 +4,7 @@
  * A config that fails gets one clear line saying what, where and why, and the
  * old config stays in force. Nothing here allocates or touches the network. */
 #include <math.h>
+#include <sched.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <string.h>
@@ -247,6 +248,20 @@ static int config_check_links(const skelmsg_config_t *cfg, const skelmsg_dpu_t *
     return 0;
 }
 
+/* A DPU pinned to a CPU its host lacks (or that its cgroup keeps it off) would run
+ * unpinned and measure another machine than the one described: only this DPU can
+ * tell, so it refuses the configuration at push time. */
+static int config_check_cpu(const skelmsg_dpu_t *d, char *reason, size_t len)
+{
+    if (d->cpu < 0) return 0;
+    cpu_set_t allowed;
+    CPU_ZERO(&allowed);
+    if (sched_getaffinity(0, sizeof allowed, &allowed) != 0) return 0; /* cannot tell: the run warns */
+    if (d->cpu < CPU_SETSIZE && CPU_ISSET(d->cpu, &allowed)) return 0;
+    return config_fail(reason, len, "DPU %d: cpu %d is not one this host lets it run on (%d CPUs allowed)",
+                       d->id, d->cpu, CPU_COUNT(&allowed));
+}
+
 int config_validate(const skelmsg_config_t *cfg, int dpu_index, char *reason, size_t len)
 {
     const skelmsg_dpu_t *d = &cfg->dpus[dpu_index];
@@ -258,6 +273,7 @@ int config_validate(const skelmsg_config_t *cfg, int dpu_index, char *reason, si
         return config_fail(reason, len, "DPU %d: unknown compute mode %d", d->id, d->compute);
     if (!isfinite(d->speed) || d->speed <= 0.0)
         return config_fail(reason, len, "DPU %d: speed %g must be > 0", d->id, d->speed);
+    if (config_check_cpu(d, reason, len) != 0) return -1;
     if (cfg->warmup_cycles < 0)
         return config_fail(reason, len, "warmup_cycles %d < 0", cfg->warmup_cycles);
     if (config_check_ids(cfg, reason, len) != 0) return -1;

@@ -48,6 +48,7 @@ class Resolved:
 
 
 def resolve(spec: SystemSpec) -> Resolved:
+    _built(spec)
     links = _links(spec.links)
     dpu_links = _dpu_links(spec, links)
     buffer_links = _buffer_links(spec, links)
@@ -225,6 +226,14 @@ def _reach(spec: SystemSpec, dpu_links: dict[int, tuple[int, ...]],
                     raise Invalid(path, f"buffer {show(name)} is on local link {show(link.name)} inside "
                                   f"DPU {writer_dpu} (its writer {show(writers[b])}) but {show(p.name)} runs "
                                   f"on DPU {p.dpu}; a local link reaches only inside one DPU")
+
+
+def _built(spec: SystemSpec) -> None:
+    """What the schema names but the DPU cannot run yet is refused here, before any run."""
+    for d in spec.dpus:
+        if d.executive == "threads":
+            raise Invalid(f"dpus.{d.id}.executive", "'threads' (the tasking executive) is not built yet; "
+                          "use 'cyclic'")
 
 
 def _minor_cycles(spec: SystemSpec) -> dict[int, int]:

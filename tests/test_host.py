@@ -286,11 +286,12 @@ def test_a_push_says_what_each_dpu_did_with_it(dpus: DpuFarm, url: str, tmp_path
     generation = int(re.search(r"DPU 1: applied generation (\d+)", ok.stdout).group(1))
 
     # Not committed: DPU 1 staged it, DPU 2 refused it, DPU 3 never answered; each is named.
-    bad = skel("push", str(three), "--url", url, "-s", "dpu.2.executive=threads")
+    bad = skel("push", str(three), "--url", url, "-s", "dpu.2.cpu=1000")
     assert bad.returncode == 1, bad.stdout + bad.stderr
     g = generation + 1
     assert f"DPU 1: staged generation {g}, not applied: it keeps generation {generation}" in bad.stderr
     assert f"DPU 2: rejected generation {g}: " in bad.stderr
+    assert "DPU 2: cpu 1000 is not one this host lets it run on" in bad.stderr, bad.stderr
     assert f"DPU 3: did not answer generation {g}" in bad.stderr
     assert "nothing was committed" in bad.stderr
 

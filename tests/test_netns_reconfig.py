@@ -95,11 +95,11 @@ def test_netns_push_mid_run_switches_every_dpu_at_one_boundary(netns_hosts: Host
         run.kill()
         raise AssertionError(run.communicate()[0]) from None
 
-    # DPU 2 refuses the threads executive (the schema allows it): nothing is committed anywhere.
+    # DPU 2 refuses a CPU its host lacks (only it can tell): nothing is committed anywhere.
     # The run is skelh3's: a push from another host tool goes in only with --force (host/owner.py).
     refused = _skel(netns_hosts, "skelh1", "push", str(system), "-s", "process.sensor.compute_us=500")
     assert refused.returncode == 1 and "--force" in refused.stderr, refused.stdout + refused.stderr
-    bad = _skel(netns_hosts, "skelh1", "push", str(system), "-s", "dpu.2.executive=threads", "--force")
+    bad = _skel(netns_hosts, "skelh1", "push", str(system), "-s", "dpu.2.cpu=1000", "--force")
     assert bad.returncode == 1, bad.stdout + bad.stderr
     assert "DPU 2: rejected generation" in bad.stderr and "nothing was committed" in bad.stderr
     # DPU 2 cannot hear anything (all inbound multicast dropped on its host): nothing is committed,

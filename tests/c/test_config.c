@@ -65,6 +65,7 @@ static void test_rejections(void)
     REJECTS(f.dpus[0].executive = SKELMSG_DPU_T_EXECUTIVE_THREADS, 0,
             "executive 'threads' is not implemented yet");
     REJECTS(f.dpus[0].compute = 9, 0, "unknown compute mode 9");
+    REJECTS(f.dpus[0].cpu = 1000, 0, "cpu 1000 is not one this host lets it run on");
     REJECTS(f.dpus[0].speed = 0.0, 0, "speed 0 must be > 0");
     REJECTS(f.procs[0].period_us = 50, 0, "process 1: period_us 50 outside");
     REJECTS(f.procs[0].period_us = 12000, 0, "not a multiple of DPU 1's minor cycle 5000 us");
