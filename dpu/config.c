@@ -130,6 +130,24 @@ static int config_check_buffer(const skelmsg_config_t *cfg, const skelmsg_dpu_t 
     return 0;
 }
 
+/* A varying compute time's table: 0 points (constant) or 2..SKEL_QUANTILES, each a
+ * finite non-negative time no longer than the longest constant one, non-decreasing. */
+static int config_check_quantiles(const skelmsg_process_t *p, char *reason, size_t len)
+{
+    if (p->nquantiles == 0) return 0;
+    if (p->nquantiles < 2 || p->nquantiles > SKEL_QUANTILES)
+        return config_fail(reason, len, "process %d: %d compute quantiles; 0 or 2..%d", p->id,
+                           p->nquantiles, SKEL_QUANTILES);
+    for (int q = 0; q < p->nquantiles; q++) {
+        double v = p->quantiles_us[q];
+        if (!isfinite(v) || v < 0.0 || v > (double)INT32_MAX ||
+            (q > 0 && v < p->quantiles_us[q - 1]))
+            return config_fail(reason, len, "process %d: compute quantile %d (%g us) is not a "
+                               "non-decreasing time", p->id, q, v);
+    }
+    return 0;
+}
+
 static int config_check_process(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d,
                                 int64_t minor_us, const skelmsg_process_t *p, char *reason,
                                 size_t len)
@@ -142,6 +160,7 @@ static int config_check_process(const skelmsg_config_t *cfg, const skelmsg_dpu_t
                            p->id, p->period_us, d->id, (long long)minor_us);
     if (p->compute_us < 0)
         return config_fail(reason, len, "process %d: compute_us %d < 0", p->id, p->compute_us);
+    if (config_check_quantiles(p, reason, len) != 0) return -1;
     if (p->sync != SKELMSG_PROCESS_T_SYNC_PERIODIC && p->sync != SKELMSG_PROCESS_T_SYNC_DATA)
         return config_fail(reason, len, "process %d: unknown sync %d", p->id, p->sync);
     if (p->ninputs > SKEL_MAX_IO || p->noutputs > SKEL_MAX_IO)

@@ -166,7 +166,7 @@ typedef struct {
     int8_t flags;
     int8_t ninputs;
     int64_t generation;        /* of the plan that ran the cycle: batches never mix two */
-    int64_t cycle, minor, release_ns, sched_ns, start_ns, comm_in_ns, blocked_ns, compute_ns,
+    int64_t cycle, minor, release_ns, sched_ns, start_ns, comm_in_ns, blocked_ns, asked_ns, compute_ns,
         comm_out_ns, idle_ns, slack_ns, stall_ns;
     skel_in_rec_t in[SKEL_MAX_IO];
 } skel_rec_t;
@@ -252,12 +252,23 @@ typedef struct {
     int64_t cycles, overruns, compute_ns, communicate_ns, wait_ns, max_latency_ns, releases_skipped;
 } skel_process_sums_t;
 
+/* ---- draw (draw.c): a compute time that varies ---------------------------------- */
+typedef struct {
+    int n;                                /* points of the table; < 2: constant */
+    double table_ns[SKEL_QUANTILES];      /* quantile function, over the DPU's speed */
+    uint64_t state[4];                    /* the process's generator */
+} skel_draw_t;
+
+void draw_seed(skel_draw_t *d, int64_t seed, int16_t process);
+int64_t draw_ns(skel_draw_t *d, int64_t constant_ns);
+
 typedef struct {
     int16_t id;
     int16_t order;
     int8_t sync;
     int64_t period_ns;
-    int64_t compute_ns;
+    int64_t compute_ns;        /* the constant, or the mean of the draws */
+    skel_draw_t draw;
     int64_t ratio;             /* period / minor cycle */
     int ninputs, noutputs;
     skel_input_t inputs[SKEL_MAX_IO];
@@ -287,6 +298,7 @@ typedef struct skel_plan {
     int fits;                   /* the configured load fits (<= 100 %): cycle skipping applies */
     int32_t warmup_cycles;
     int32_t lockout_cycles;
+    int64_t seed;               /* every process's draws start from it at each run */
     int nprocesses;
     skel_process_t *processes;  /* sorted by (order, id) */
     int nslots;

@@ -92,6 +92,9 @@ static int plan_add_processes(skel_plan_t *plan, const skelmsg_config_t *cfg, in
         p->sync = src->sync;
         p->period_ns = (int64_t)src->period_us * SKEL_NS_PER_US;
         p->compute_ns = (int64_t)((double)src->compute_us * SKEL_NS_PER_US / plan->speed);
+        p->draw.n = src->nquantiles;
+        for (int q = 0; q < src->nquantiles; q++)
+            p->draw.table_ns[q] = src->quantiles_us[q] * SKEL_NS_PER_US / plan->speed;
         p->ratio = p->period_ns / plan->minor_ns;
         p->ninputs = src->ninputs;
         for (int q = 0; q < src->ninputs; q++) {
@@ -142,6 +145,7 @@ skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason
     if (plan->minor_ns <= 0 || plan->common_ns % plan->minor_ns != 0) plan->common_ns = plan->minor_ns;
     plan->warmup_cycles = cfg->warmup_cycles;
     plan->lockout_cycles = cfg->lockout_cycles;
+    plan->seed = cfg->seed;
     plan->processes = calloc(SKEL_MAX_PROCESSES, sizeof *plan->processes);
     plan->slots = calloc(SKEL_MAX_SLOTS, sizeof *plan->slots);
     if (plan->processes == NULL || plan->slots == NULL) goto oom;
@@ -214,6 +218,7 @@ void plan_reset_run(skel_plan_t *plan, int64_t run_id)
         p->measure_from_k = plan->warmup_cycles;
         p->locked_out = 0;
         p->sums = (skel_process_sums_t){ 0 };
+        draw_seed(&p->draw, plan->seed, p->id);
     }
     plan->publish_errors = 0;
     plan->run_t0_ns = plan->epoch_t0_ns = 0;

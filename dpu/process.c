@@ -261,7 +261,8 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
     }
     process_commit(plan, p, rec, measured);
     int64_t stall = 0;
-    rec->compute_ns = compute_run(&x->s->compute, plan->compute, p->compute_ns, &stall);
+    rec->asked_ns = draw_ns(&p->draw, p->compute_ns);
+    rec->compute_ns = compute_run(&x->s->compute, plan->compute, rec->asked_ns, &stall);
     rec->stall_ns += stall;
     x->stall_debt_ns += stall;
     int64_t t_out = clock_mono_ns();

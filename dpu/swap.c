@@ -115,7 +115,9 @@ static void swap_carry_process(skel_plan_t *next, skel_process_t *p, const skel_
         p->measure_from_k = o->measure_from_k;
         p->locked_out = o->locked_out;
         p->sums = o->sums;
+        memcpy(p->draw.state, o->draw.state, sizeof p->draw.state); /* its draws go on */
     } else {
+        draw_seed(&p->draw, next->seed, p->id);
         p->k_base = swap_ceil_div(t_sw - next->run_t0_ns, p->period_ns);
         int64_t warm = next->measure_from_ns - t_sw;
         p->measure_from_k = p->k_base + (warm > 0 ? swap_ceil_div(warm, p->period_ns) : 0);

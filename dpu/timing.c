@@ -65,6 +65,7 @@ int timing_batch_init(skel_batch_t *b)
     m->start_ns = calloc(n, sizeof *m->start_ns);
     m->comm_in_ns = calloc(n, sizeof *m->comm_in_ns);
     m->blocked_ns = calloc(n, sizeof *m->blocked_ns);
+    m->asked_ns = calloc(n, sizeof *m->asked_ns);
     m->compute_ns = calloc(n, sizeof *m->compute_ns);
     m->comm_out_ns = calloc(n, sizeof *m->comm_out_ns);
     m->idle_ns = calloc(n, sizeof *m->idle_ns);
@@ -80,7 +81,7 @@ int timing_batch_init(skel_batch_t *b)
     m->in_sent_ns = calloc(ni, sizeof *m->in_sent_ns);
     m->in_recv_ns = calloc(ni, sizeof *m->in_recv_ns);
     if (!m->process || !m->cycle || !m->minor || !m->release_ns || !m->sched_ns || !m->start_ns ||
-        !m->comm_in_ns || !m->blocked_ns || !m->compute_ns || !m->comm_out_ns || !m->idle_ns ||
+        !m->comm_in_ns || !m->blocked_ns || !m->asked_ns || !m->compute_ns || !m->comm_out_ns || !m->idle_ns ||
         !m->slack_ns || !m->stall_ns || !m->flags || !m->in_record || !m->in_buffer || !m->in_seq ||
         !m->in_new || !m->in_dropped || !m->in_received || !m->in_sent_ns || !m->in_recv_ns) {
         timing_batch_free(b);
@@ -93,7 +94,7 @@ void timing_batch_free(skel_batch_t *b)
 {
     skelmsg_timing_t *m = &b->msg;
     free(m->process); free(m->cycle); free(m->minor); free(m->release_ns);
-    free(m->sched_ns); free(m->start_ns); free(m->comm_in_ns); free(m->blocked_ns);
+    free(m->sched_ns); free(m->start_ns); free(m->comm_in_ns); free(m->blocked_ns); free(m->asked_ns);
     free(m->compute_ns); free(m->comm_out_ns); free(m->idle_ns); free(m->slack_ns);
     free(m->stall_ns); free(m->flags);
     free(m->in_record); free(m->in_buffer); free(m->in_seq); free(m->in_new);
@@ -128,6 +129,7 @@ void timing_batch_add(skel_batch_t *b, const skel_rec_t *rec)
     m->start_ns[i] = rec->start_ns;
     m->comm_in_ns[i] = rec->comm_in_ns;
     m->blocked_ns[i] = rec->blocked_ns;
+    m->asked_ns[i] = rec->asked_ns;
     m->compute_ns[i] = rec->compute_ns;
     m->comm_out_ns[i] = rec->comm_out_ns;
     m->idle_ns[i] = rec->idle_ns;

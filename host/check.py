@@ -46,7 +46,7 @@ def check(path: str | Path, overrides: Sequence[str] = (), as_json: bool = False
 
 
 def summarize(system: System) -> dict[str, Any]:
-    load_by_dpu = system.static_load()
+    load_by_dpu, worst_by_dpu = system.static_load(), system.static_load(worst=True)
     dpus = [
         {
             "id": d.id,
@@ -55,19 +55,30 @@ def summarize(system: System) -> dict[str, Any]:
             "minor_cycle_ms": d.minor_cycle_us / 1000,
             "processes": [p.name for p in system.processes_on(d.id)],
             "static_load_pct": round(100 * load_by_dpu[d.id], 1),
+            "worst_load_pct": round(100 * worst_by_dpu[d.id], 1),
         }
         for d in system.dpus
     ]
-    return {"system": system.name, "dpus": dpus, "warnings": warnings(system)}
+    varying = [
+        {"process": p.name, "kind": p.varying.kind, "min_us": round(p.varying.min_us, 1),
+         "mean_us": round(p.varying.mean_us, 1), "max_us": round(p.varying.max_us, 1)}
+        for p in system.processes if p.varying
+    ]
+    return {"system": system.name, "dpus": dpus, "varying_compute": varying, "warnings": warnings(system)}
 
 
 def warnings(system: System) -> list[str]:
     out: list[str] = []
     load_by_dpu = system.static_load()
+    worst_by_dpu = system.static_load(worst=True)
     for d in system.dpus:
         if load_by_dpu[d.id] > 1.0:
             out.append(f"DPU {d.id}: static load {100 * load_by_dpu[d.id]:.1f} % exceeds 100 %: "
                        "it will overrun every cycle; a lockout is likely")
+        elif worst_by_dpu[d.id] > 1.0:
+            out.append(f"DPU {d.id}: static load {100 * load_by_dpu[d.id]:.1f} % on average but "
+                       f"{100 * worst_by_dpu[d.id]:.1f} % when its varying computations draw their maximum: "
+                       "cycles with long draws will overrun")
     out += _core_warnings(system, load_by_dpu)
     out += warmup_warnings(system)
     out += delivery_warnings(system)
@@ -149,6 +160,10 @@ def _print(system: System, summary: dict[str, Any], out: TextIO) -> None:
         table.add_row(str(d["id"]), d["host"], d["compute"], f"{d['minor_cycle_ms']:g}",
                       ", ".join(d["processes"]), f"[red]{pct:.1f}[/]" if pct > 100 else f"{pct:.1f}")
     console.print(table)
+    for v in summary["varying_compute"]:
+        console.print(f"compute of {v['process']} varies: {v['kind']}, {v['min_us']:g} to "
+                      f"{v['max_us']:g} us, mean {v['mean_us']:g} us (the static load counts the mean)",
+                      soft_wrap=True)
     for w in summary["warnings"]:
         console.print(f"[yellow]WARN[/] {w}", soft_wrap=True)
     if not summary["warnings"]:

@@ -12,22 +12,26 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from skelmsg import contract
 
+from .compute import ComputeError, varying
 from .schema import (
     ABSURD_COMPUTE_PERIODS,
     DEFAULT_LINK,
     Buffer,
     BufferSpec,
     Chain,
+    ComputeSpec,
     Dpu,
     Link,
     LinkSpec,
     Process,
     ProcessSpec,
     SystemSpec,
+    Varying,
 )
 from .yamlfile import show
 
@@ -47,12 +51,14 @@ class Resolved:
     chains: tuple[Chain, ...]
 
 
-def resolve(spec: SystemSpec) -> Resolved:
+def resolve(spec: SystemSpec, base: Path) -> Resolved:
+    """`base`: the system file's folder, where a `samples:` file is looked for."""
     _built(spec)
     links = _links(spec.links)
     dpu_links = _dpu_links(spec, links)
     buffer_links = _buffer_links(spec, links)
     ports = _processes(spec, buffer_links)
+    varying = _varying(spec, base)
     writers = _writers(spec, ports)
     _reach(spec, dpu_links, buffer_links, writers, ports)
     minor = _minor_cycles(spec)
@@ -71,8 +77,8 @@ def resolve(spec: SystemSpec) -> Resolved:
             for b in spec.buffers
         ),
         processes=tuple(
-            Process(p.id, p.name, p.dpu, order[p.id], p.period_us, p.compute_us, p.sync,
-                    ports[p.id][0], ports[p.id][2], ports[p.id][1])
+            Process(p.id, p.name, p.dpu, order[p.id], p.period_us, _compute_us(p, varying), p.sync,
+                    ports[p.id][0], ports[p.id][2], ports[p.id][1], varying.get(p.id))
             for p in spec.processes
         ),
         chains=chains,
@@ -147,10 +153,33 @@ def _processes(spec: SystemSpec, buffer_links: dict[int, Link]) -> Ports:
             if b in outputs:
                 raise Invalid(f"{path}.inputs[{j}]", f"reads its own output buffer {show(_bname(spec, b))}")
         ports[p.id] = (inputs, outputs, _required(spec, p, inputs))
-        if p.compute_us > ABSURD_COMPUTE_PERIODS * p.period_us:
-            raise Invalid(f"{path}.compute_us", f"{p.compute_us} us is more than {ABSURD_COMPUTE_PERIODS} "
-                          f"periods ({p.period_us} us): absurd; both are in microseconds")
     return ports
+
+
+def _compute_us(p: ProcessSpec, varying: dict[int, Varying]) -> int:
+    """What the schedule counts on: the constant, or the mean of what will be drawn."""
+    return p.compute_us if isinstance(p.compute_us, int) else round(varying[p.id].mean_us)
+
+
+def _varying(spec: SystemSpec, base: Path) -> dict[int, Varying]:
+    """The compute times that vary, by process id; every compute time's worst case is checked
+    against its period (a worst case of 100 periods is a units mistake)."""
+    out: dict[int, Varying] = {}
+    for p in spec.processes:
+        path = f"processes.{p.name}.compute_us"
+        worst: float
+        if isinstance(p.compute_us, ComputeSpec):
+            try:
+                out[p.id] = varying(p.compute_us, base)
+            except ComputeError as e:
+                raise Invalid(f"{path}.{e.key}", e.problem) from None
+            worst, where = out[p.id].max_us, f"{path}.{'samples' if p.compute_us.samples else 'max'}"
+        else:
+            worst, where = p.compute_us, path
+        if worst > ABSURD_COMPUTE_PERIODS * p.period_us:
+            raise Invalid(where, f"{worst:g} us is more than {ABSURD_COMPUTE_PERIODS} "
+                          f"periods ({p.period_us} us): absurd; both are in microseconds")
+    return out
 
 
 def _bname(spec: SystemSpec, buffer_id: int) -> str:

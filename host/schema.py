@@ -8,6 +8,7 @@ Per-field checks (types, ranges, names, URLs) are here; checks across sections
 from __future__ import annotations
 
 import ipaddress
+import itertools
 import math
 import re
 import urllib.parse
@@ -18,7 +19,9 @@ from pydantic import (
     AfterValidator,
     BaseModel,
     ConfigDict,
+    Discriminator,
     PlainValidator,
+    Tag,
     ValidationInfo,
     field_validator,
     model_validator,
@@ -161,12 +164,65 @@ class BufferSpec(_Spec):
     link: Name | None = None
 
 
+def _not_negative(v: float) -> float:
+    if not (math.isfinite(v) and v >= 0):
+        raise ValueError(f"must be a number of microseconds, at least 0, got {show(v)}")
+    return v
+
+
+class ComputeSpec(_Spec):
+    """A compute time that varies, in us: a distribution within [min, max], or measured samples."""
+    dist: Literal["uniform", "normal", "lognormal", "exponential"] | None = None
+    samples: NonEmpty | None = None          # a CSV of compute times in us, beside the system file
+    mean: Positive | None = None
+    sd: Positive | None = None
+    min: Annotated[float, AfterValidator(_not_negative)] | None = None
+    max: Positive | None = None
+
+    @model_validator(mode="after")
+    def _parameters(self) -> ComputeSpec:
+        if (self.dist is None) == (self.samples is None):
+            raise ValueError("give `dist` (uniform, normal, lognormal, exponential) or `samples: FILE`")
+        given = {k for k in ("mean", "sd", "min", "max") if getattr(self, k) is not None}
+        kind = self.dist or "samples"
+        needs, allowed = {
+            "uniform": ({"min", "max"}, {"min", "max"}),
+            "normal": ({"mean", "sd", "max"}, {"mean", "sd", "min", "max"}),
+            "lognormal": ({"mean", "sd", "max"}, {"mean", "sd", "min", "max"}),
+            "exponential": ({"mean", "max"}, {"mean", "min", "max"}),
+            "samples": (set(), set()),
+        }[kind]
+        if needs - given:
+            missing = ", ".join(sorted(needs - given))
+            raise ValueError(f"{kind} needs {missing} (max bounds the worst case)")
+        if given - allowed:
+            extra = ", ".join(sorted(given - allowed))
+            raise ValueError(f"{kind} takes no {extra}" + ("; the samples are used as measured"
+                                                           if kind == "samples" else ""))
+        low = self.min or 0.0
+        if self.max is not None and low > self.max:
+            raise ValueError(f"the bounds are empty: min {low:g} us > max {self.max:g} us")
+        return self
+
+
+def _compute_kind(v: Any) -> str:
+    return "<distribution>" if isinstance(v, dict) else "<number>"
+
+
+# compute_us: a number, or a mapping describing how it varies. The tags route a value to
+# one branch, so an error names that branch's problem only (yamlfile.field_path skips them).
+Compute = Annotated[
+    Annotated[int, AfterValidator(_micros), Tag("<number>")] | Annotated[ComputeSpec, Tag("<distribution>")],
+    Discriminator(_compute_kind),
+]
+
+
 class ProcessSpec(_Spec):
     id: Id
     name: Name
     dpu: Id
     period_us: Micros
-    compute_us: Micros
+    compute_us: Compute
     sync: Literal["periodic", "data"] = "periodic"
     inputs: list[Ref] = []
     required: list[Ref] | None = None
@@ -183,6 +239,7 @@ class Run(_Spec):
     stop_on: list[Literal["lockout", "jam", "behind", "stall", "dpu_lost"]] = ["lockout"]
     late_pct: Annotated[int, _between(1, MAX_INT32, " %")] = 20
     too_late_pct: Annotated[int, _between(1, MAX_INT32, " %")] = 100
+    seed: Annotated[int, _between(0, 2**63 - 1)] = 1   # every random draw of a run (varying compute)
 
     @model_validator(mode="after")
     def _consistent(self) -> Run:
@@ -277,17 +334,48 @@ class Buffer:
 
 
 @dataclass(frozen=True)
+class Varying:
+    """A compute time drawn each cycle from `quantiles_us`: its quantile function at evenly
+    spaced probabilities from 0 to 1, linear between points (host/compute.py makes it)."""
+
+    kind: str                         # uniform | normal | lognormal | exponential | samples
+    quantiles_us: tuple[float, ...]
+    given: dict[str, Any]             # as the system file wrote it
+
+    @property
+    def mean_us(self) -> float:
+        q = self.quantiles_us
+        return sum(a + b for a, b in itertools.pairwise(q)) / (2 * (len(q) - 1))
+
+    @property
+    def min_us(self) -> float:
+        return self.quantiles_us[0]
+
+    @property
+    def max_us(self) -> float:
+        return self.quantiles_us[-1]
+
+    def describe(self) -> str:
+        return f"{self.kind} {self.min_us:.0f}..{self.max_us:.0f} us, mean {self.mean_us:.0f}"
+
+
+@dataclass(frozen=True)
 class Process:
     id: int
     name: str
     dpu: int
     order: int              # 1.. within its DPU's minor cycle
     period_us: int
-    compute_us: int
+    compute_us: int         # the constant, or the mean of `varying` (rounded): the schedule's figure
     sync: str               # periodic | data
     inputs: tuple[int, ...]     # buffer ids
     required: tuple[int, ...]   # buffer ids a data-synchronised cycle waits for
     outputs: tuple[int, ...]
+    varying: Varying | None = None  # how compute varies (None: compute_us every cycle)
+
+    @property
+    def worst_compute_us(self) -> float:
+        return self.varying.max_us if self.varying else self.compute_us
 
 
 @dataclass(frozen=True)

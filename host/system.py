@@ -85,10 +85,13 @@ class System:
     def critical_period_us(self) -> int:
         return min(p.period_us for p in self.processes)
 
-    def static_load(self) -> dict[int, float]:
-        """Per DPU, the fraction of its time its processes compute: Σ compute/period / speed."""
+    def static_load(self, worst: bool = False) -> dict[int, float]:
+        """Per DPU, the fraction of its time its processes compute: Σ compute/period / speed,
+        with each varying compute at its mean, or at its maximum when `worst`."""
+        def compute(p: Process) -> float:
+            return p.worst_compute_us if worst else p.compute_us
         return {
-            d.id: sum(p.compute_us / p.period_us for p in self.processes if p.dpu == d.id) / d.speed
+            d.id: sum(compute(p) / p.period_us for p in self.processes if p.dpu == d.id) / d.speed
             for d in self.dpus
         }
 
@@ -149,7 +152,7 @@ def _build(path: str | Path, doc: Any, overrides: tuple[str, ...], text: str | N
         text = f"# {path} with overrides:\n{header}" + yaml.safe_dump(doc, sort_keys=False)
     try:
         spec = SystemSpec.model_validate(doc)
-        parts = resolve(spec)
+        parts = resolve(spec, Path(path).parent)
     except ValidationError as e:
         error = _first(e.errors())
         where = field_path(tuple(error["loc"]), doc)

@@ -37,6 +37,7 @@ def config_message(system: System, generation: int, run_id: int, committed: bool
     msg.lockout_cycles = system.run.lockout_cycles
     msg.late_pct = system.run.late_pct
     msg.too_late_pct = system.run.too_late_pct
+    msg.seed = system.run.seed
     msg.links = [_link(link.id, link.name, "" if link.local else link.url) for link in system.links]
     msg.nlinks = len(msg.links)
     msg.dpus = []
@@ -66,6 +67,8 @@ def config_message(system: System, generation: int, run_id: int, committed: bool
         proc.ninputs = len(proc.inputs)
         proc.outputs = list(p.outputs)
         proc.noutputs = len(proc.outputs)
+        proc.quantiles_us = list(p.varying.quantiles_us) if p.varying else []
+        proc.nquantiles = len(proc.quantiles_us)
         msg.processes.append(proc)
     msg.nprocesses = len(msg.processes)
     msg.chains = []
@@ -97,7 +100,8 @@ def dump_yaml(system: System) -> str:
         "buffers": [{"id": b.id, "name": b.name, "bytes": b.bytes, "link": links[b.link]}
                     for b in system.buffers],
         "processes": [{"id": p.id, "name": p.name, "dpu": p.dpu, "order": p.order, "period_us": p.period_us,
-                       "compute_us": p.compute_us, "sync": p.sync, "inputs": [names[b] for b in p.inputs],
+                       "compute_us": p.varying.given if p.varying else p.compute_us,
+                       "sync": p.sync, "inputs": [names[b] for b in p.inputs],
                        **({"required": [names[b] for b in p.required]} if p.sync == "data" else {}),
                        "outputs": [names[b] for b in p.outputs]} for p in system.processes],
         "run": system.run.model_dump(exclude_none=True),

@@ -200,6 +200,8 @@ def field_path(loc: tuple[Any, ...], doc: Any) -> str:
     out = ""
     node = doc
     for depth, part in enumerate(loc):
+        if isinstance(part, str) and part.startswith("<"):
+            continue  # a union's tag (schema.Compute), not a key of the file
         if isinstance(node, list) and isinstance(part, int):
             item = node[part] if 0 <= part < len(node) else None
             label = _label(loc[depth - 1] if depth == 1 else None, item)

@@ -54,9 +54,9 @@ def _negative_length_buffer() -> bytes:
 
 def _huge_length_config(system) -> bytes:  # type: ignore[no-untyped-def]
     data = bytearray(config_message(system, 99, 0, committed=False).encode())
-    # fingerprint, generation, run_id, sent_utc_ns, committed, system string, four int32 -> nlinks
+    # fingerprint, generation, run_id, sent_utc_ns, committed, system string, four int32, seed -> nlinks
     name_len = struct.unpack_from(">i", data, 33)[0]
-    offset = 33 + 4 + name_len + 16
+    offset = 33 + 4 + name_len + 16 + 8
     struct.pack_into(">h", data, offset, -1)
     negative = bytes(data)
     struct.pack_into(">h", data, offset, 32767)

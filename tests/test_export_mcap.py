@@ -26,7 +26,7 @@ from skeleton.analysis.views.export_mcap import export
 from skelmsg.contract import COMMAND_CHANNEL, CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 RECORD_FIELDS = ["dpu", "process", "generation", "batch_seq", "cycle", "minor", "release_ns",
-                 "start_ns", "comm_in_ns", "blocked_ns", "compute_ns", "comm_out_ns", "idle_ns",
+                 "start_ns", "comm_in_ns", "blocked_ns", "asked_ns", "compute_ns", "comm_out_ns", "idle_ns",
                  "slack_ns", "flags"]  # fmt: skip
 INPUT_FIELDS = ["buffer", "seq", "new", "dropped", "received", "sent_ns", "recv_ns"]
 

@@ -188,6 +188,25 @@ ERRORS: list[tuple[str, Callable[[Doc], None], str]] = [
     ("absurd compute", _set("processes.a.compute_us", 600_000),
      "processes.a.compute_us: 600000 us is more than 100 periods (5000 us): absurd; "
      "both are in microseconds"),
+    # compute times that vary
+    ("empty bounds", _set("processes.a.compute_us", {"dist": "uniform", "min": 300, "max": 100}),
+     "processes.a.compute_us: the bounds are empty: min 300 us > max 100 us"),
+    ("distribution without a max", _set("processes.a.compute_us", {"dist": "normal", "mean": 900, "sd": 50}),
+     "processes.a.compute_us: normal needs max (max bounds the worst case)"),
+    ("unknown distribution", _set("processes.a.compute_us", {"dist": "gamma", "mean": 900, "max": 2000}),
+     "processes.a.compute_us.dist: must be one of 'uniform', 'normal', 'lognormal' or 'exponential', "
+     "got 'gamma'"),
+    ("bounds holding nothing",
+     _set("processes.a.compute_us", {"dist": "normal", "mean": 1000, "sd": 10, "min": 3000, "max": 4000}),
+     "processes.a.compute_us.max: the bounds 3000..4000 us hold 0.0e+00 of this normal distribution: "
+     "nothing to draw from; widen them or fix mean/sd"),
+    ("missing samples file", _set("processes.a.compute_us", {"samples": "measured.csv"}),
+     "processes.a.compute_us.samples: cannot read measured.csv: No such file or directory"),
+    ("samples with bounds", _set("processes.a.compute_us", {"samples": "measured.csv", "max": 9}),
+     "processes.a.compute_us: samples takes no max; the samples are used as measured"),
+    ("absurd worst case", _set("processes.a.compute_us", {"dist": "uniform", "min": 100, "max": 600_000}),
+     "processes.a.compute_us.max: 600000 us is more than 100 periods (5000 us): absurd; "
+     "both are in microseconds"),
     ("not a multiple of the minor cycle", _set("dpus.2.minor_cycle_us", 3000),
      "processes.b.period_us: 5000 us is not a multiple of DPU 2's minor cycle (3000 us)"),
     ("minor cycle too short", _set("dpus.2.minor_cycle_us", 50),

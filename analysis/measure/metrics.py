@@ -72,6 +72,12 @@ class ProcessMetrics:
     inputs: list[InputMetrics] = field(default_factory=list)
     response_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))  # end - release
     slack_us: SlackUs = field(default_factory=lambda: SlackUs(None, None))
+    # A compute time that varies (process_t.nquantiles > 0): what the cycles were asked to
+    # emulate (the draws) beside what they took, p50/p99/max and mean.
+    varying: bool = False
+    asked_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))
+    asked_mean_us: float | None = None
+    compute_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))
     # "release_latency_us" and "response_us": HISTOGRAM_BINS equal bins each
     histograms: dict[str, Histogram] = field(default_factory=dict)
 
@@ -300,6 +306,10 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
                 releases_skipped=int(np.count_nonzero((mine["flags"] & FLAG_RELEASE_SKIPPED) != 0)),
                 overruns_stalled=int(np.count_nonzero(overran & (done["stall_ns"] >= -done["slack_ns"]))),
                 stall_ms=float(mine["stall_ns"].sum()) / 1e6,
+                varying=proc.nquantiles > 0,
+                asked_us=_latency(done["asked_ns"].astype(np.float64) / 1000.0),
+                asked_mean_us=float(done["asked_ns"].mean()) / 1000.0 if len(done) else None,
+                compute_us=_latency(done["compute_ns"].astype(np.float64) / 1000.0),
             )
         )
     return out

@@ -142,6 +142,19 @@ def process_table(report: RunReport, window: WindowReport | None = None) -> Tabl
     return _table(title, columns, rows)
 
 
+def compute_table(report: RunReport, window: WindowReport | None = None) -> Table:
+    """Per process whose compute varies: the draws it was asked to emulate beside what it took."""
+    rows = [
+        [p.name, _num(p.asked_mean_us), _num(p.compute_mean_us), _num(p.asked_us.p99), _num(p.compute_us.p99),
+         _num(p.asked_us.max), _num(p.compute_us.max)]
+        for p in (window or report).processes if p.varying
+    ]  # fmt: skip
+    columns = [("process", False), ("mean\nasked", True), ("mean\ntook", True), ("p99\nasked", True),
+               ("p99\ntook", True), ("max\nasked", True), ("max\ntook", True)]  # fmt: skip
+    title = "per process whose compute varies: compute asked (the draws) and taken, in µs"
+    return _table(title, columns, rows)
+
+
 def input_table(report: RunReport, window: WindowReport | None = None) -> Table:
     rows = [
         [p.name, i.buffer, str(i.new), str(i.stale), str(i.dropped), str(i.received)]
@@ -252,6 +265,8 @@ def print_report(
             console.print(paper_table(report, paper, window))
         console.print(process_table(report, window))
         console.print(response_table(report, window))
+        if any(p.varying for p in part.processes):
+            console.print(compute_table(report, window))
         if any(p.inputs for p in part.processes):
             console.print(input_table(report, window))
         if any(b.readers for b in part.buffers):

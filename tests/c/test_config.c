@@ -85,6 +85,11 @@ static void test_rejections(void)
     REJECTS(f.in[3][1] = 2, 0, "process 4 reads buffer 2 twice");
     REJECTS(f.procs[1].sync = 3, 1, "process 2: unknown sync 3");
     REJECTS(f.procs[1].compute_us = -1, 1, "compute_us -1 < 0");
+    double one[1] = { 5.0 }, falling[3] = { 1.0, 3.0, 2.0 }, nan_at[2] = { 1.0, 0.0 / 0.0 };
+    REJECTS(f.procs[1].nquantiles = 1; f.procs[1].quantiles_us = one, 1, "1 compute quantiles; 0 or 2..512");
+    REJECTS(f.procs[1].nquantiles = 3; f.procs[1].quantiles_us = falling, 1,
+            "compute quantile 2 (2 us) is not a non-decreasing time");
+    REJECTS(f.procs[1].nquantiles = 2; f.procs[1].quantiles_us = nan_at, 1, "compute quantile 1");
     REJECTS(f.cfg.warmup_cycles = -1, 1, "warmup_cycles -1 < 0");
     REJECTS(f.dpus[1].minor_cycle_us = 50; f.procs[1].period_us = 100; f.procs[2].period_us = 100,
             1, "minor_cycle_us 50 < 100");

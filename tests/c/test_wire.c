@@ -41,7 +41,7 @@ static void test_config_mutations(void)
     /* `system` is right after generation, run_id, sent_utc_ns, committed. */
     const int sys_len_at = 8 + 8 + 8 + 8 + 1;
     const int sys_len = (int)strlen(f.cfg.system) + 1;
-    const int nlinks_at = sys_len_at + 4 + sys_len + 4 * 4;
+    const int nlinks_at = sys_len_at + 4 + sys_len + 4 * 4 + 8; /* the four pcts and cycles, seed */
     uint8_t *m = malloc((size_t)len);
     memcpy(m, buf, (size_t)len);
     m[sys_len_at + 4 + sys_len - 1] = 'x'; /* string without its NUL */
