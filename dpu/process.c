@@ -116,6 +116,14 @@ static int process_should_stop(const skel_exec_t *x, int64_t now)
     return now >= x->end_mono_ns;
 }
 
+/* The thread was kept from running for NS in this cycle: the record says so, and the
+ * lockout rule does not count it (process_locked_out). */
+static void process_stalled(skel_exec_t *x, skel_rec_t *rec, int64_t ns)
+{
+    rec->stall_ns += ns;
+    x->stall_debt_ns += ns;
+}
+
 /* The last look at the clocks of a data wait: wall and thread CPU time. */
 typedef struct {
     int64_t mono_ns, cpu_ns;
@@ -133,10 +141,7 @@ static void process_look(skel_exec_t *x, skel_rec_t *rec, skel_look_t *prev, int
     if (gap <= x->s->compute.stall_ns) return;
     int64_t cpu = clock_thread_cpu_ns();
     int64_t off = gap - (cpu - prev->cpu_ns);
-    if (off > x->s->compute.stall_ns) {
-        rec->stall_ns += off;
-        x->stall_debt_ns += off;
-    }
+    if (off > x->s->compute.stall_ns) process_stalled(x, rec, off);
 }
 
 /* Waits for new data on every required input: 1 when the run ended or stopped
@@ -172,10 +177,7 @@ static int process_wait_data(skel_exec_t *x, skel_process_t *p, int64_t k, int64
          * no excuse: a stopped machine delivers it all at once when it resumes). */
         look = (skel_look_t){ clock_mono_ns(), clock_thread_cpu_ns() };
         int64_t late = look.mono_ns - now - timeout_ms * 1000000LL;
-        if (late > x->s->compute.stall_ns) {
-            rec->stall_ns += late;
-            x->stall_debt_ns += late;
-        }
+        if (late > x->s->compute.stall_ns) process_stalled(x, rec, late);
         if (link_drain(plan->links, plan->nlinks) < 0) return 1;
         process_peek_inputs(plan, p, rec);
     }
@@ -263,8 +265,7 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
     int64_t stall = 0;
     rec->asked_ns = draw_ns(&p->draw, p->compute_ns);
     rec->compute_ns = compute_run(&x->s->compute, plan->compute, rec->asked_ns, &stall);
-    rec->stall_ns += stall;
-    x->stall_debt_ns += stall;
+    process_stalled(x, rec, stall);
     int64_t t_out = clock_mono_ns();
     process_write_outputs(x, p, k);
     int64_t end = clock_mono_ns();

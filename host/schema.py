@@ -12,7 +12,7 @@ import itertools
 import math
 import re
 import urllib.parse
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Annotated, Any, Literal
 
 from pydantic import (
@@ -340,7 +340,9 @@ class Varying:
 
     kind: str                         # uniform | normal | lognormal | exponential | samples
     quantiles_us: tuple[float, ...]
-    given: dict[str, Any]             # as the system file wrote it
+    # As the system file wrote it (for dump_yaml); the table alone says what is drawn, and a
+    # dict would make the frozen records unhashable.
+    given: dict[str, Any] = field(compare=False)
 
     @property
     def mean_us(self) -> float:
@@ -354,9 +356,6 @@ class Varying:
     @property
     def max_us(self) -> float:
         return self.quantiles_us[-1]
-
-    def describe(self) -> str:
-        return f"{self.kind} {self.min_us:.0f}..{self.max_us:.0f} us, mean {self.mean_us:.0f}"
 
 
 @dataclass(frozen=True)
