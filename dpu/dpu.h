@@ -316,7 +316,7 @@ typedef struct skel_plan {
     atomic_int_fast64_t *rejected;
     int64_t publish_errors;
     int64_t measure_from_ns;    /* DPU window: every process past its warm-up */
-    double work_drift_pct;      /* WORK: the calibration check at this run's start */
+    double work_drift_pct;      /* WORK: the larger calibration drift of the run's start and end */
     skel_dpu_sums_t sums;
 } skel_plan_t;
 

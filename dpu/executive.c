@@ -7,6 +7,7 @@
  * during a run switches to the next plan at one boundary (swap.c). Between
  * runs the thread waits for a START and keeps the link queues drained. */
 #include <errno.h>
+#include <math.h>
 #include <sched.h>
 #include <stdio.h>
 #include <string.h>
@@ -283,18 +284,20 @@ static int64_t executive_next_r(const skel_exec_t *x, int64_t j, int64_t next_j)
 
 /* WORK is calibrated once, at start-up: the reference a slower CPU is measured
  * against. Each run checks, in the run's own thread, class and CPU, how far the
- * kernel's speed is from it, and says so when it drifted. */
-static void executive_check_work(skel_server_t *s, skel_plan_t *plan)
+ * kernel's speed is from it at the run's start and again at its end (a neighbour
+ * that got busy meanwhile), and says so when it drifted. The report keeps the
+ * larger drift of the two. */
+static void executive_check_work(skel_server_t *s, skel_plan_t *plan, int at_start)
 {
-    plan->work_drift_pct = 0.0;
+    if (at_start) plan->work_drift_pct = 0.0;
     if (plan->compute != SKELMSG_DPU_T_COMPUTE_WORK) return;
-    plan->work_drift_pct = compute_check_calibration(&s->compute);
-    if (plan->work_drift_pct > SKEL_DRIFT_PCT || plan->work_drift_pct < -SKEL_DRIFT_PCT)
-        log_line("DPU %d: warning: the WORK kernel runs %.1f %% %s than at start-up (CPU frequency, "
-                 "throttling or a busy neighbour): computations take that much %s",
-                 plan->dpu, plan->work_drift_pct > 0 ? plan->work_drift_pct : -plan->work_drift_pct,
-                 plan->work_drift_pct > 0 ? "slower" : "faster",
-                 plan->work_drift_pct > 0 ? "longer" : "less");
+    double drift = compute_check_calibration(&s->compute);
+    if (fabs(drift) > fabs(plan->work_drift_pct)) plan->work_drift_pct = drift;
+    if (fabs(drift) > SKEL_DRIFT_PCT)
+        log_line("DPU %d: warning: at the run's %s the WORK kernel runs %.1f %% %s than at start-up "
+                 "(CPU frequency, throttling or a busy neighbour): computations take that much %s",
+                 plan->dpu, at_start ? "start" : "end", fabs(drift), drift > 0 ? "slower" : "faster",
+                 drift > 0 ? "longer" : "less");
 }
 
 void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
@@ -304,7 +307,7 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
     plan->clock_offset_ns = s->clock_offset_ns;
     executive_pin(plan);
     int fifo = executive_schedule(s, plan, 1);
-    executive_check_work(s, plan);
+    executive_check_work(s, plan, 1);
     atomic_store(&s->behind_ns, 0);
     atomic_store(&s->stall_ns, 0);
     atomic_store(&s->longest_stall_ns, 0);
@@ -356,6 +359,7 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
     }
     if (x.announce) executive_announce(&x);
     atomic_store(&s->behind_ns, 0);
+    executive_check_work(s, x.plan, 0);
     x.plan->running = 0;
     (void)executive_schedule(s, x.plan, 0);
 }

@@ -29,6 +29,14 @@ static int process_locked_out(const skel_exec_t *x, const skel_process_t *p, int
     return now - x->stall_debt_ns >= process_lockout_at(x->plan, p, release);
 }
 
+/* When a lockout due AT by the schedule is due on the clock: the stalls so far put
+ * it that much later (a wait that woke at AT itself would find the process not yet
+ * locked out, and wait with a timeout in the past, i.e. forever). */
+static int64_t process_lockout_due(const skel_exec_t *x, int64_t at)
+{
+    return at > INT64_MAX - x->stall_debt_ns ? INT64_MAX : at + x->stall_debt_ns;
+}
+
 /* Recorded once per process per run (1 when new); the process keeps trying and may recover. */
 static int process_lockout_record(skel_exec_t *x, skel_process_t *p, int16_t buffer,
                                   int16_t behind, int64_t k, int64_t release_ns)
@@ -83,7 +91,8 @@ static int64_t process_held_up(skel_exec_t *x, const skel_process_t *p, int64_t 
         if (release >= x->end_mono_ns) continue; /* not due in this run */
         int64_t at = process_lockout_at(plan, q, release);
         if (now - x->stall_debt_ns < at) {
-            if (at < next) next = at;
+            int64_t due = process_lockout_due(x, at);
+            if (due < next) next = due;
             continue;
         }
         if (process_lockout_record(x, q, -1, p->id, q->k_base + k, release))
@@ -166,10 +175,12 @@ static int process_wait_data(skel_exec_t *x, skel_process_t *p, int64_t k, int64
         }
         /* Wake for the next lockout to detect and for the run's end, polling at least every 10 ms. */
         int64_t wake = process_held_up(x, p, j, now);
-        if (!p->locked_out && lockout_at < wake) wake = lockout_at;
+        int64_t due = process_lockout_due(x, lockout_at);
+        if (!p->locked_out && due < wake) wake = due;
         if (x->end_mono_ns < wake) wake = x->end_mono_ns;
         int timeout_ms = 10;
-        if (wake - now < 10 * 1000000LL) timeout_ms = (int)((wake - now) / 1000000) + 1;
+        if (wake <= now) timeout_ms = 0;
+        else if (wake - now < 10 * 1000000LL) timeout_ms = (int)((wake - now) / 1000000) + 1;
         int ready = link_wait(plan->links, plan->nlinks, x->s->wake_fd, timeout_ms);
         if (ready < 0) return 1;
         /* A poll that returned far later than its timeout, with data or without: the

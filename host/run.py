@@ -33,7 +33,7 @@ from rich.table import Table
 import skelmsg
 
 from ..analysis.exitcodes import EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
-from ..analysis.measure.faults import Fault
+from ..analysis.measure.faults import LOST_AFTER_S, Fault
 from ..analysis.measure.metrics import utilization_pct
 from ..analysis.measure.run import load_run
 from ..analysis.read.messages import LogError
@@ -322,8 +322,10 @@ def _finish(control: Control, run_id: int, dpu_ids: list[int], console: Console)
     in_run = (skelmsg.status_t.STATE_ARMED, skelmsg.status_t.STATE_RUNNING)
 
     def running(views: dict[int, DpuView]) -> list[int]:
+        # A DPU whose heartbeats stopped is lost (reported as such), not running.
+        now = time.monotonic()
         return [d for d in dpu_ids if d in views and views[d].status.run_id == run_id
-                and views[d].status.state in in_run]
+                and views[d].status.state in in_run and now - views[d].heard_mono <= LOST_AFTER_S]
 
     def done() -> bool:  # evaluated under the Control's lock: its own dicts, no snapshot
         return all((d, run_id) in control.reports for d in dpu_ids) and not running(control.dpus)
