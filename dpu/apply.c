@@ -94,6 +94,13 @@ void apply_commit_live(skel_control_t *c, int64_t at_utc_ns)
         apply_install(c, plan);
         return;
     }
+    if (plan->tasking || (s->plan != NULL && s->plan->tasking)) {
+        pthread_mutex_unlock(&s->lock);
+        report_reject(c, plan->generation, "a live switch of the tasking executive is not built yet: "
+                      "push between runs", 1);
+        plan_free(plan);
+        return;
+    }
     /* The executive hands back at most one plan per switch: emptied before each offer. */
     skel_plan_t *retired = s->retired, *replaced = s->next_plan;
     s->retired = NULL;

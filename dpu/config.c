@@ -155,12 +155,16 @@ static int config_check_process(const skelmsg_config_t *cfg, const skelmsg_dpu_t
     if (p->period_us < SKEL_MIN_PERIOD_US || p->period_us > SKEL_MAX_PERIOD_US)
         return config_fail(reason, len, "process %d: period_us %d outside %d..%d", p->id,
                            p->period_us, SKEL_MIN_PERIOD_US, SKEL_MAX_PERIOD_US);
-    if (p->period_us % minor_us != 0)
+    const int tasking = d->executive == SKELMSG_DPU_T_EXECUTIVE_THREADS;
+    if (!tasking && p->period_us % minor_us != 0)
         return config_fail(reason, len, "process %d: period_us %d is not a multiple of DPU %d's minor cycle %lld us",
                            p->id, p->period_us, d->id, (long long)minor_us);
     if (p->compute_us < 0)
         return config_fail(reason, len, "process %d: compute_us %d < 0", p->id, p->compute_us);
     if (config_check_quantiles(p, reason, len) != 0) return -1;
+    if (tasking ? p->priority < 1 || p->priority > SKEL_MAX_PRIORITY : p->priority != 0)
+        return config_fail(reason, len, "process %d: priority %d (the tasking executive's: 1..%d; "
+                           "the cyclic one's: 0)", p->id, p->priority, SKEL_MAX_PRIORITY);
     if (p->sync != SKELMSG_PROCESS_T_SYNC_PERIODIC && p->sync != SKELMSG_PROCESS_T_SYNC_DATA)
         return config_fail(reason, len, "process %d: unknown sync %d", p->id, p->sync);
     if (p->ninputs > SKEL_MAX_IO || p->noutputs > SKEL_MAX_IO)
@@ -284,10 +288,12 @@ static int config_check_cpu(const skelmsg_dpu_t *d, char *reason, size_t len)
 int config_validate(const skelmsg_config_t *cfg, int dpu_index, char *reason, size_t len)
 {
     const skelmsg_dpu_t *d = &cfg->dpus[dpu_index];
-    if (d->executive == SKELMSG_DPU_T_EXECUTIVE_THREADS)
-        return config_fail(reason, len, "executive 'threads' is not implemented yet");
-    if (d->executive != SKELMSG_DPU_T_EXECUTIVE_CYCLIC)
+    const int tasking = d->executive == SKELMSG_DPU_T_EXECUTIVE_THREADS;
+    if (!tasking && d->executive != SKELMSG_DPU_T_EXECUTIVE_CYCLIC)
         return config_fail(reason, len, "DPU %d: unknown executive %d", d->id, d->executive);
+    if (tasking && d->compute != SKELMSG_DPU_T_COMPUTE_SLEEP)
+        return config_fail(reason, len, "DPU %d: the tasking executive runs in compute mode sleep only "
+                           "(its kernel-scheduled threads are not built yet)", d->id);
     if (d->compute < SKELMSG_DPU_T_COMPUTE_SLEEP || d->compute > SKELMSG_DPU_T_COMPUTE_WORK)
         return config_fail(reason, len, "DPU %d: unknown compute mode %d", d->id, d->compute);
     if (!isfinite(d->speed) || d->speed <= 0.0)
@@ -305,10 +311,14 @@ int config_validate(const skelmsg_config_t *cfg, int dpu_index, char *reason, si
         if (++nown > SKEL_MAX_PROCESSES)
             return config_fail(reason, len, "DPU %d: more than %d processes", d->id,
                                SKEL_MAX_PROCESSES);
-        if (minor_us < SKEL_MIN_PERIOD_US)
+        if (!tasking && minor_us < SKEL_MIN_PERIOD_US)
             return config_fail(reason, len, "DPU %d: minor_cycle_us %lld < %d", d->id,
                                (long long)minor_us, SKEL_MIN_PERIOD_US);
         if (config_check_process(cfg, d, minor_us, p, reason, len) != 0) return -1;
+        for (int o = 0; tasking && o < i; o++)
+            if (cfg->processes[o].dpu == d->id && cfg->processes[o].priority == p->priority)
+                return config_fail(reason, len, "processes %d and %d of DPU %d have one priority %d",
+                                   cfg->processes[o].id, p->id, d->id, p->priority);
         for (int q = 0; q < p->noutputs; q++) out_bytes += config_buffer(cfg, p->outputs[q])->bytes;
     }
     if (out_bytes > SKEL_MAX_DPU_BYTES)

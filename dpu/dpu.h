@@ -166,8 +166,9 @@ typedef struct {
     int8_t flags;
     int8_t ninputs;
     int64_t generation;        /* of the plan that ran the cycle: batches never mix two */
+    int32_t preemptions;
     int64_t cycle, minor, release_ns, sched_ns, start_ns, comm_in_ns, blocked_ns, asked_ns, compute_ns,
-        comm_out_ns, idle_ns, slack_ns, stall_ns;
+        comm_out_ns, idle_ns, slack_ns, stall_ns, preempted_ns;
     skel_in_rec_t in[SKEL_MAX_IO];
 } skel_rec_t;
 
@@ -243,7 +244,7 @@ int link_open(skel_link_t *link);
 void link_close(skel_link_t *link);
 int link_subscribe(skel_link_t *link, skel_slot_t *slot);
 int link_drain(skel_link_t *links, int nlinks);
-int link_wait(skel_link_t *links, int nlinks, int wake_fd, int timeout_ms);
+int link_wait(skel_link_t *links, int nlinks, int wake_fd, int64_t timeout_ns);
 
 /* ---- plan (plan.c, config.c): one DPU's part of a config, ready to run ---------- */
 /* One process's totals over the measured window (report_t's process_report_t);
@@ -278,6 +279,16 @@ typedef struct {
     int64_t measure_from_k;    /* cycles >= this count in the sums (warm-up applied once) */
     int8_t locked_out;
     skel_process_sums_t sums;
+    /* the tasking executive (tasking.c): priority and the process's one job */
+    int16_t priority;          /* higher first; plan->processes are sorted by it there */
+    int8_t job;                /* TASK_* */
+    int8_t job_flags;          /* for its record: locked out before it started */
+    int8_t job_missing;        /* a waiting data job: its first required input without new data */
+    int64_t next_k;            /* the next release that is not a job yet */
+    int64_t job_release;
+    int64_t remaining_ns;      /* of the job's computation, on the ideal schedule */
+    int64_t slice_mono_ns;     /* when the job last got the processor (or lost it) */
+    skel_rec_t rec;            /* the job's record, sent at its completion */
 } skel_process_t;
 
 typedef struct {
@@ -292,6 +303,7 @@ typedef struct skel_plan {
     int16_t dpu;
     int16_t cpu;
     int8_t compute;
+    int8_t tasking;             /* executive: threads (tasking.c) rather than cyclic */
     double speed;
     int64_t minor_ns;
     int64_t common_ns;          /* the grid all DPUs share (a multiple of minor_ns): live switches */
@@ -431,13 +443,29 @@ void process_record_begin(skel_exec_t *x, const skel_process_t *p, int64_t k, in
                           int64_t release_ns, int64_t sched_ns, int64_t start_ns, skel_rec_t *rec);
 void process_lockout(skel_exec_t *x, skel_process_t *p, int16_t buffer, int64_t k,
                      int64_t release_ns);
+int64_t process_lockout_at(const skel_plan_t *plan, const skel_process_t *p, int64_t release);
+void process_peek_inputs(const skel_plan_t *plan, const skel_process_t *p, skel_rec_t *rec);
+int process_missing(const skel_process_t *p, const skel_rec_t *rec);
+void process_commit(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec, int measured);
+void process_write_outputs(skel_exec_t *x, skel_process_t *p, int64_t k);
+void process_finish(skel_exec_t *x, skel_process_t *p, skel_rec_t *rec, int64_t release,
+                    int64_t t_out, int measured);
 
 /* ---- swap (swap.c): a live switch of plans at one cycle boundary ---------------- */
 int64_t swap_index(const skel_plan_t *plan, int64_t j_prev, int64_t at_mono_ns);
 int64_t swap_instant(const skel_plan_t *plan, int64_t j_sw);
 void swap_carry(skel_plan_t *next, const skel_plan_t *old, int64_t j_sw);
 
+/* ---- tasking (tasking.c): the tasking executive's one-processor schedule -------- */
+enum { TASK_NONE = 0, TASK_WAITING, TASK_READY, TASK_STARTED };
+int tasking_run(skel_exec_t *x);
+
 /* ---- executive (executive.c): the cyclic loop and its thread -------------------- */
+void executive_record(skel_server_t *s, const skel_rec_t *rec);
+int executive_skips(const skel_plan_t *plan, const skel_process_t *p, int64_t release, int64_t now);
+void executive_skip_record(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, int64_t release,
+                           int64_t sched, int64_t now, skel_rec_t *rec);
+int executive_wait(skel_exec_t *x, int64_t until);
 void *executive_main(void *arg);
 int64_t executive_next_release(const skel_plan_t *plan, int64_t j);
 void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run);

@@ -98,7 +98,7 @@ static void executive_account(skel_plan_t *plan, skel_process_t *p, const skel_r
     d->stall_ns += rec->stall_ns;
 }
 
-static void executive_record(skel_server_t *s, const skel_rec_t *rec)
+void executive_record(skel_server_t *s, const skel_rec_t *rec)
 {
     if (timing_ring_push(&s->ring, rec) != 0) server_fault(s, SKELMSG_STATUS_T_FAULT_TIMING_LOST);
     if (rec->stall_ns <= 0) return;
@@ -118,14 +118,13 @@ static void executive_record(skel_server_t *s, const skel_rec_t *rec)
  * runs every release and falls ever further behind, so its overload shows as the
  * paper's lockout and pipeline jam instead of being shed. Periodic processes run
  * every release. */
-static int executive_skips(const skel_plan_t *plan, const skel_process_t *p, int64_t release,
-                           int64_t now)
+int executive_skips(const skel_plan_t *plan, const skel_process_t *p, int64_t release, int64_t now)
 {
     return plan->fits && p->sync == SKELMSG_PROCESS_T_SYNC_DATA && now >= release + p->period_ns;
 }
 
-static void executive_skip_record(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor,
-                                  int64_t release, int64_t sched, int64_t now, skel_rec_t *rec)
+void executive_skip_record(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, int64_t release,
+                           int64_t sched, int64_t now, skel_rec_t *rec)
 {
     process_record_begin(x, p, k, minor, release, sched, now, rec);
     rec->slack_ns = release + p->period_ns - now;
@@ -194,7 +193,7 @@ static void executive_poll_switch(skel_exec_t *x)
 
 /* Sleeps until UNTIL (INT64_MAX: until told): 0 reached, 1 stop, 2 the pending
  * switch changed. 50 ms pieces, so a COMMIT is seen within one piece. */
-static int executive_wait(skel_exec_t *x, int64_t until)
+int executive_wait(skel_exec_t *x, int64_t until)
 {
     const int64_t piece = 50 * 1000 * 1000LL;
     for (;;) {
@@ -300,6 +299,41 @@ static void executive_check_work(skel_server_t *s, skel_plan_t *plan, int at_sta
                  drift > 0 ? "longer" : "less");
 }
 
+/* The cyclic executive's loop: minor cycle after minor cycle until the run's end. */
+static void executive_cyclic(skel_exec_t *x, const skel_run_t *run)
+{
+    skel_server_t *s = x->s;
+    int ran = 0;
+    int64_t j_prev = -1, j = executive_next_release(x->plan, 0), j_sw = 0;
+    for (;;) {
+        executive_poll_switch(x);
+        int64_t r = j == INT64_MAX ? INT64_MAX : swap_instant(x->plan, j);
+        int64_t t_sw = executive_switch_at(x, j_prev, &j_sw);
+        if (t_sw <= r && t_sw < run->end_mono_ns) {
+            executive_switch(x, j_sw, ran);
+            j_prev = -1;
+            j = executive_next_release(x->plan, 0);
+            continue;
+        }
+        if (x->announce && r == INT64_MAX) executive_announce(x); /* a plan without processes */
+        int64_t until = r < run->end_mono_ns ? r : run->end_mono_ns;
+        int on_time = clock_mono_ns() < until;
+        int rc = executive_wait(x, until);
+        if (rc == 2) continue;
+        if (rc != 0 || r >= run->end_mono_ns) break;
+        if (on_time) executive_woke(x, until);
+        atomic_store(&s->behind_ns, on_time ? 0 : clock_mono_ns() - r);
+        if (x->announce) executive_announce(x);
+        int64_t next_j = executive_next_release(x->plan, j + 1);
+        if (executive_minor(x, j, executive_next_r(x, j, next_j)) != 0) break;
+        ran = 1;
+        atomic_fetch_add(&s->minor_cycles, 1);
+        if (r >= x->plan->measure_from_ns) x->plan->sums.minor_cycles++;
+        j_prev = j;
+        j = next_j;
+    }
+}
+
 void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
 {
     skel_exec_t x = { .s = s, .plan = plan, .end_mono_ns = run->end_mono_ns, .switch_seq = -1 };
@@ -328,35 +362,8 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
     if (fifo > 0) snprintf(klass, sizeof klass, "SCHED_FIFO %d", fifo);
     log_line("DPU %d: run %lld started (%d processes, %s)", plan->dpu, (long long)run->run_id,
              plan->nprocesses, klass);
-    int ran = 0;
-    int64_t j_prev = -1, j = executive_next_release(plan, 0), j_sw = 0;
-    for (;;) {
-        executive_poll_switch(&x);
-        int64_t r = j == INT64_MAX ? INT64_MAX : swap_instant(x.plan, j);
-        int64_t t_sw = executive_switch_at(&x, j_prev, &j_sw);
-        if (t_sw <= r && t_sw < run->end_mono_ns) {
-            executive_switch(&x, j_sw, ran);
-            j_prev = -1;
-            j = executive_next_release(x.plan, 0);
-            continue;
-        }
-        if (x.announce && r == INT64_MAX) executive_announce(&x); /* a plan without processes */
-        int64_t until = r < run->end_mono_ns ? r : run->end_mono_ns;
-        int on_time = clock_mono_ns() < until;
-        rc = executive_wait(&x, until);
-        if (rc == 2) continue;
-        if (rc != 0 || r >= run->end_mono_ns) break;
-        if (on_time) executive_woke(&x, until);
-        atomic_store(&s->behind_ns, on_time ? 0 : clock_mono_ns() - r);
-        if (x.announce) executive_announce(&x);
-        int64_t next_j = executive_next_release(x.plan, j + 1);
-        if (executive_minor(&x, j, executive_next_r(&x, j, next_j)) != 0) break;
-        ran = 1;
-        atomic_fetch_add(&s->minor_cycles, 1);
-        if (r >= x.plan->measure_from_ns) x.plan->sums.minor_cycles++;
-        j_prev = j;
-        j = next_j;
-    }
+    if (plan->tasking) (void)tasking_run(&x);
+    else executive_cyclic(&x, run);
     if (x.announce) executive_announce(&x);
     atomic_store(&s->behind_ns, 0);
     executive_check_work(s, x.plan, 0);

@@ -135,14 +135,17 @@ int link_drain(skel_link_t *links, int nlinks)
     return handled;
 }
 
-/* Waits until a link has a message or WAKE_FD is signalled: >0 ready, 0 timeout. */
-int link_wait(skel_link_t *links, int nlinks, int wake_fd, int timeout_ms)
+/* Waits up to TIMEOUT_NS (>= 0) until a link has a message or WAKE_FD is
+ * signalled: >0 ready, 0 timeout. */
+int link_wait(skel_link_t *links, int nlinks, int wake_fd, int64_t timeout_ns)
 {
     struct pollfd fds[SKEL_MAX_LINKS + 1];
     int n = 0;
     for (int i = 0; i < nlinks; i++) fds[n++] = (struct pollfd){ .fd = links[i].fd, .events = POLLIN };
     if (wake_fd >= 0) fds[n++] = (struct pollfd){ .fd = wake_fd, .events = POLLIN };
-    int rc = poll(fds, (nfds_t)n, timeout_ms);
+    if (timeout_ns < 0) timeout_ns = 0;
+    struct timespec ts = { .tv_sec = timeout_ns / SKEL_NS_PER_S, .tv_nsec = timeout_ns % SKEL_NS_PER_S };
+    int rc = ppoll(fds, (nfds_t)n, &ts, NULL);
     if (rc < 0) return errno == EINTR ? 0 : -1;
     if (wake_fd >= 0 && (fds[n - 1].revents & POLLIN)) {
         uint64_t v;

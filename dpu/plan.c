@@ -51,6 +51,12 @@ static int plan_cmp_order(const void *a, const void *b)
     return (p->id > q->id) - (p->id < q->id);
 }
 
+static int plan_cmp_priority(const void *a, const void *b)
+{
+    const skel_process_t *p = a, *q = b;
+    return (q->priority > p->priority) - (q->priority < p->priority);
+}
+
 static int plan_add_output(skel_plan_t *plan, const skelmsg_config_t *cfg, skel_output_t *out,
                            int16_t id)
 {
@@ -89,6 +95,7 @@ static int plan_add_processes(skel_plan_t *plan, const skelmsg_config_t *cfg, in
         skel_process_t *p = &plan->processes[plan->nprocesses++];
         p->id = src->id;
         p->order = src->order;
+        p->priority = src->priority;
         p->sync = src->sync;
         p->period_ns = (int64_t)src->period_us * SKEL_NS_PER_US;
         p->compute_ns = (int64_t)((double)src->compute_us * SKEL_NS_PER_US / plan->speed);
@@ -115,7 +122,8 @@ static int plan_add_processes(skel_plan_t *plan, const skelmsg_config_t *cfg, in
             for (int s = 0; out->link == -1 && s < plan->nslots; s++)
                 if (plan->slots[s].buffer == out->buffer) out->local_slot = s;
         }
-    qsort(plan->processes, (size_t)plan->nprocesses, sizeof *plan->processes, plan_cmp_order);
+    qsort(plan->processes, (size_t)plan->nprocesses, sizeof *plan->processes,
+          plan->tasking ? plan_cmp_priority : plan_cmp_order);
     return 0;
 }
 
@@ -139,6 +147,7 @@ skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason
     plan->dpu = d->id;
     plan->cpu = d->cpu;
     plan->compute = d->compute;
+    plan->tasking = d->executive == SKELMSG_DPU_T_EXECUTIVE_THREADS;
     plan->speed = d->speed;
     plan->minor_ns = config_minor_us(cfg, d) * SKEL_NS_PER_US;
     plan->common_ns = config_common_us(cfg) * SKEL_NS_PER_US;
@@ -217,6 +226,8 @@ void plan_reset_run(skel_plan_t *plan, int64_t run_id)
         p->k_base = 0;
         p->measure_from_k = plan->warmup_cycles;
         p->locked_out = 0;
+        p->job = TASK_NONE;
+        p->next_k = 0;
         p->sums = (skel_process_sums_t){ 0 };
         draw_seed(&p->draw, plan->seed, p->id);
     }

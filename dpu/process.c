@@ -15,7 +15,7 @@ static int64_t process_lockout_ns(const skel_plan_t *plan, const skel_process_t 
 }
 
 /* The instant a cycle released at RELEASE is locked out (saturated, never wraps). */
-static int64_t process_lockout_at(const skel_plan_t *plan, const skel_process_t *p, int64_t release)
+int64_t process_lockout_at(const skel_plan_t *plan, const skel_process_t *p, int64_t release)
 {
     int64_t ns = process_lockout_ns(plan, p);
     return release > INT64_MAX - ns ? INT64_MAX : release + ns;
@@ -102,7 +102,7 @@ static int64_t process_held_up(skel_exec_t *x, const skel_process_t *p, int64_t 
     return next;
 }
 
-static void process_peek_inputs(const skel_plan_t *plan, const skel_process_t *p, skel_rec_t *rec)
+void process_peek_inputs(const skel_plan_t *plan, const skel_process_t *p, skel_rec_t *rec)
 {
     rec->ninputs = (int8_t)p->ninputs;
     for (int q = 0; q < p->ninputs; q++)
@@ -110,7 +110,7 @@ static void process_peek_inputs(const skel_plan_t *plan, const skel_process_t *p
 }
 
 /* The first required input without new data, or -1 when all have it. */
-static int process_missing(const skel_process_t *p, const skel_rec_t *rec)
+int process_missing(const skel_process_t *p, const skel_rec_t *rec)
 {
     for (int q = 0; q < p->ninputs; q++)
         if (p->inputs[q].required && !rec->in[q].new_data) return q;
@@ -181,7 +181,7 @@ static int process_wait_data(skel_exec_t *x, skel_process_t *p, int64_t k, int64
         int timeout_ms = 10;
         if (wake <= now) timeout_ms = 0;
         else if (wake - now < 10 * 1000000LL) timeout_ms = (int)((wake - now) / 1000000) + 1;
-        int ready = link_wait(plan->links, plan->nlinks, x->s->wake_fd, timeout_ms);
+        int ready = link_wait(plan->links, plan->nlinks, x->s->wake_fd, timeout_ms * 1000000LL);
         if (ready < 0) return 1;
         /* A poll that returned far later than its timeout, with data or without: the
          * thread was kept from running at least that long (data that came meanwhile is
@@ -194,7 +194,7 @@ static int process_wait_data(skel_exec_t *x, skel_process_t *p, int64_t k, int64
     }
 }
 
-static void process_write_outputs(skel_exec_t *x, skel_process_t *p, int64_t k)
+void process_write_outputs(skel_exec_t *x, skel_process_t *p, int64_t k)
 {
     skel_plan_t *plan = x->plan;
     for (int q = 0; q < p->noutputs; q++) {
@@ -216,8 +216,7 @@ static void process_write_outputs(skel_exec_t *x, skel_process_t *p, int64_t k)
     }
 }
 
-static void process_commit(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec,
-                           int measured)
+void process_commit(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec, int measured)
 {
     for (int q = 0; q < p->ninputs; q++)
         buffers_input_commit(&p->inputs[q], &plan->slots[p->inputs[q].slot], &rec->in[q],
@@ -243,6 +242,32 @@ void process_record_begin(skel_exec_t *x, const skel_process_t *p, int64_t k, in
     rec->start_ns = start + off;
     rec->stall_ns = x->wake_stall_ns;
     x->wake_stall_ns = 0;
+}
+
+/* The end of cycle K's work: outputs written since T_OUT. Slack, overrun and the
+ * measured sums (the release latency counts the cycle's start). */
+void process_finish(skel_exec_t *x, skel_process_t *p, skel_rec_t *rec, int64_t release,
+                    int64_t t_out, int measured)
+{
+    const int64_t off = x->s->clock_offset_ns;
+    int64_t end = clock_mono_ns();
+    int64_t start = rec->start_ns - off;
+    rec->comm_out_ns = end - t_out;
+    rec->slack_ns = release + p->period_ns - end;
+    if (rec->slack_ns < 0) {
+        rec->flags |= SKELMSG_TIMING_T_FLAG_OVERRUN;
+        atomic_fetch_add(&x->s->overruns, 1);
+        server_fault(x->s, SKELMSG_STATUS_T_FAULT_OVERRUN);
+    }
+    if (measured) {
+        skel_process_sums_t *sum = &p->sums;
+        sum->cycles++;
+        sum->overruns += rec->slack_ns < 0;
+        sum->compute_ns += rec->compute_ns;
+        sum->communicate_ns += rec->comm_in_ns + rec->comm_out_ns;
+        sum->wait_ns += rec->blocked_ns;
+        if (start - release > sum->max_latency_ns) sum->max_latency_ns = start - release;
+    }
 }
 
 int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, int64_t release,
@@ -279,22 +304,6 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
     process_stalled(x, rec, stall);
     int64_t t_out = clock_mono_ns();
     process_write_outputs(x, p, k);
-    int64_t end = clock_mono_ns();
-    rec->comm_out_ns = end - t_out;
-    rec->slack_ns = release + p->period_ns - end;
-    if (rec->slack_ns < 0) {
-        rec->flags |= SKELMSG_TIMING_T_FLAG_OVERRUN;
-        atomic_fetch_add(&x->s->overruns, 1);
-        server_fault(x->s, SKELMSG_STATUS_T_FAULT_OVERRUN);
-    }
-    if (measured) {
-        skel_process_sums_t *sum = &p->sums;
-        sum->cycles++;
-        sum->overruns += rec->slack_ns < 0;
-        sum->compute_ns += rec->compute_ns;
-        sum->communicate_ns += rec->comm_in_ns + rec->comm_out_ns;
-        sum->wait_ns += rec->blocked_ns;
-        if (start - release > sum->max_latency_ns) sum->max_latency_ns = start - release;
-    }
+    process_finish(x, p, rec, release, t_out, measured);
     return PROCESS_DONE;
 }

@@ -52,8 +52,11 @@ def summarize(system: System) -> dict[str, Any]:
             "id": d.id,
             "host": d.host,
             "compute": d.compute,
+            "executive": d.executive,
             "minor_cycle_ms": d.minor_cycle_us / 1000,
             "processes": [p.name for p in system.processes_on(d.id)],
+            **({"priorities": {p.name: p.priority for p in system.processes_on(d.id)}}
+               if d.executive == "threads" else {}),
             "static_load_pct": round(100 * load_by_dpu[d.id], 1),
             "worst_load_pct": round(100 * worst_by_dpu[d.id], 1),
         }
@@ -157,8 +160,11 @@ def _print(system: System, summary: dict[str, Any], out: TextIO) -> None:
         table.add_column(title, justify=justify)
     for d in summary["dpus"]:
         pct = d["static_load_pct"]
-        table.add_row(str(d["id"]), d["host"], d["compute"], f"{d['minor_cycle_ms']:g}",
-                      ", ".join(d["processes"]), f"[red]{pct:.1f}[/]" if pct > 100 else f"{pct:.1f}")
+        prio = d.get("priorities", {})
+        names = [f"{n} (priority {prio[n]})" if n in prio else n for n in d["processes"]]
+        load = f"[red]{pct:.1f}[/]" if pct > 100 else f"{pct:.1f}"
+        table.add_row(str(d["id"]), d["host"], d["compute"] + (" tasking" if prio else ""),
+                      f"{d['minor_cycle_ms']:g}", ", ".join(names), load)
     console.print(table)
     for v in summary["varying_compute"]:
         console.print(f"compute of {v['process']} varies: {v['kind']}, {v['min_us']:g} to "

@@ -63,6 +63,7 @@ def resolve(spec: SystemSpec, base: Path) -> Resolved:
     _reach(spec, dpu_links, buffer_links, writers, ports)
     minor = _minor_cycles(spec)
     order = _orders(spec)
+    priority = _priorities(spec, order)
     by_name = {p.name: p for p in spec.processes}
     chains = _chains(spec, by_name)
     _reference(spec)
@@ -78,7 +79,7 @@ def resolve(spec: SystemSpec, base: Path) -> Resolved:
         ),
         processes=tuple(
             Process(p.id, p.name, p.dpu, order[p.id], p.period_us, _compute_us(p, varying), p.sync,
-                    ports[p.id][0], ports[p.id][2], ports[p.id][1], varying.get(p.id))
+                    ports[p.id][0], ports[p.id][2], ports[p.id][1], varying.get(p.id), priority[p.id])
             for p in spec.processes
         ),
         chains=chains,
@@ -260,9 +261,9 @@ def _reach(spec: SystemSpec, dpu_links: dict[int, tuple[int, ...]],
 def _built(spec: SystemSpec) -> None:
     """What the schema names but the DPU cannot run yet is refused here, before any run."""
     for d in spec.dpus:
-        if d.executive == "threads":
-            raise Invalid(f"dpus.{d.id}.executive", "'threads' (the tasking executive) is not built yet; "
-                          "use 'cyclic'")
+        if d.executive == "threads" and d.compute != "sleep":
+            raise Invalid(f"dpus.{d.id}.executive", f"'threads' with compute {show(d.compute)} (kernel-"
+                          "scheduled SCHED_FIFO threads) is not built yet; use compute: sleep")
 
 
 def _minor_cycles(spec: SystemSpec) -> dict[int, int]:
@@ -308,6 +309,37 @@ def _orders(spec: SystemSpec) -> dict[int, int]:
         ranked = sorted(enumerate(mine),
                         key=lambda ip: (ip[1].order or ip[0] + 1, ip[1].order is None, ip[0]))
         out.update({p.id: rank + 1 for rank, (_, p) in enumerate(ranked)})
+    return out
+
+
+def _priorities(spec: SystemSpec, order: dict[int, int]) -> dict[int, int]:
+    """The tasking executive's priorities: given for every process of a DPU or for none,
+    then rate-monotonic (the shorter period first; equal periods by order)."""
+    out: dict[int, int] = {}
+    kind = {d.id: d.executive for d in spec.dpus}
+    for d in spec.dpus:
+        mine = [p for p in spec.processes if p.dpu == d.id]
+        given = [p for p in mine if p.priority is not None]
+        if kind[d.id] == "cyclic":
+            if given:
+                raise Invalid(f"processes.{given[0].name}.priority", f"DPU {d.id} runs the cyclic executive, "
+                              "which runs processes by order; priority needs executive: threads")
+            out.update({p.id: 0 for p in mine})
+            continue
+        if given and len(given) < len(mine):
+            bare = next(p for p in mine if p.priority is None)
+            raise Invalid(f"processes.{bare.name}.priority", f"give every process of DPU {d.id} a priority, "
+                          "or none (rate-monotonic)")
+        taken: dict[int, str] = {}
+        for p in given:
+            if p.priority in taken:
+                raise Invalid(f"processes.{p.name}.priority", f"priority {p.priority} is already taken "
+                              f"on DPU {d.id} by {show(taken[p.priority])}")
+            taken[p.priority] = p.name
+            out[p.id] = p.priority
+        if not given:
+            ranked = sorted(mine, key=lambda p: (p.period_us, order[p.id]))
+            out.update({p.id: contract.MAX_PRIORITY - rank for rank, p in enumerate(ranked)})
     return out
 
 

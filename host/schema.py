@@ -228,6 +228,7 @@ class ProcessSpec(_Spec):
     required: list[Ref] | None = None
     outputs: list[Ref] = []
     order: Annotated[int, _between(1, MAX_ID)] | None = None
+    priority: Annotated[int, _between(1, contract.MAX_PRIORITY)] | None = None  # tasking executive
 
 
 class Run(_Spec):
@@ -371,6 +372,7 @@ class Process:
     required: tuple[int, ...]   # buffer ids a data-synchronised cycle waits for
     outputs: tuple[int, ...]
     varying: Varying | None = None  # how compute varies (None: compute_us every cycle)
+    priority: int = 0       # on the tasking executive: 1..MAX_PRIORITY, higher first; 0 on cyclic
 
     @property
     def worst_compute_us(self) -> float:

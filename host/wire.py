@@ -62,6 +62,7 @@ def config_message(system: System, generation: int, run_id: int, committed: bool
         proc = skelmsg.process_t()
         proc.id, proc.name, proc.dpu, proc.order = p.id, p.name, p.dpu, p.order
         proc.period_us, proc.compute_us, proc.sync = p.period_us, p.compute_us, SYNC[p.sync]
+        proc.priority = p.priority
         proc.inputs = list(p.inputs)
         proc.required = [1 if b in p.required else 0 for b in p.inputs]
         proc.ninputs = len(proc.inputs)
@@ -101,7 +102,8 @@ def dump_yaml(system: System) -> str:
                     for b in system.buffers],
         "processes": [{"id": p.id, "name": p.name, "dpu": p.dpu, "order": p.order, "period_us": p.period_us,
                        "compute_us": p.varying.given if p.varying else p.compute_us,
-                       "sync": p.sync, "inputs": [names[b] for b in p.inputs],
+                       "sync": p.sync, **({"priority": p.priority} if p.priority else {}),
+                       "inputs": [names[b] for b in p.inputs],
                        **({"required": [names[b] for b in p.required]} if p.sync == "data" else {}),
                        "outputs": [names[b] for b in p.outputs]} for p in system.processes],
         "run": system.run.model_dump(exclude_none=True),

@@ -107,6 +107,7 @@ def batches(dpu: int, recs: list[Rec], size: int, run_id: int = RUN_ID,
             setattr(t, name, [getattr(r, name) for r in chunk])
         t.sched_ns = [r.release_ns if r.sched_ns is None else r.sched_ns for r in chunk]
         t.asked_ns = [r.compute_ns for r in chunk]  # a constant compute, emulated exactly
+        t.preemptions, t.preempted_ns = [0] * len(chunk), [0] * len(chunk)  # the cyclic executive
         rows = [(i, *inp) for i, r in enumerate(chunk) for inp in r.inputs]
         t.ninputs = len(rows)
         t.in_record = [r[0] for r in rows]

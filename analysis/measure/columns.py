@@ -55,6 +55,8 @@ _CYCLE = {
     "comm_out_ns": "time publishing its outputs", "idle_ns": "time waiting for its next release",
     "slack_ns": "time left before its deadline (negative: overrun)",
     "stall_ns": "time the DPU's thread was kept from running (machine stalls)",
+    "preemptions": "times higher-priority work took the processor from it (tasking executive)",
+    "preempted_ns": "time it was kept off the processor so, between its start and its end",
     "flags": "timing_t flag bits (the booleans below)",
 }  # fmt: skip
 COLUMNS: dict[str, dict[str, str]] = {

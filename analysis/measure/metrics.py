@@ -140,11 +140,12 @@ def completed(records: np.ndarray) -> np.ndarray:
 
 
 def cycle_end_ns(records: np.ndarray) -> np.ndarray:
-    """When a cycle's work ended: start + comm_in + blocked + compute + comm_out."""
+    """When a cycle's work ended: start + comm_in + blocked + preempted + compute + comm_out."""
     return (
         records["start_ns"]
         + records["comm_in_ns"]
         + records["blocked_ns"]
+        + records["preempted_ns"]
         + records["compute_ns"]
         + records["comm_out_ns"]
     )

@@ -62,8 +62,25 @@ static void test_valid(void)
 
 static void test_rejections(void)
 {
+    /* The tasking executive: sleep mode only, priorities 1..99, one per process of a DPU. */
+    REJECTS(f.dpus[0].executive = SKELMSG_DPU_T_EXECUTIVE_THREADS; f.dpus[0].compute = SKELMSG_DPU_T_COMPUTE_CPU,
+            0, "the tasking executive runs in compute mode sleep only");
     REJECTS(f.dpus[0].executive = SKELMSG_DPU_T_EXECUTIVE_THREADS, 0,
-            "executive 'threads' is not implemented yet");
+            "process 1: priority 0 (the tasking executive's: 1..99");
+    REJECTS(f.dpus[0].executive = SKELMSG_DPU_T_EXECUTIVE_THREADS; f.procs[0].priority = 7;
+            f.procs[3].priority = 8; f.procs[4].priority = 100, 0, "process 5: priority 100");
+    REJECTS(f.dpus[0].executive = SKELMSG_DPU_T_EXECUTIVE_THREADS; f.procs[0].priority = 7;
+            f.procs[3].priority = 7; f.procs[4].priority = 6, 0, "processes 1 and 4 of DPU 1 have one priority 7");
+    REJECTS(f.procs[0].priority = 5, 0, "process 1: priority 5 (the tasking executive's: 1..99; the cyclic one's: 0)");
+    {
+        fixture_t f;
+        fixture_init(&f);
+        f.dpus[0].executive = SKELMSG_DPU_T_EXECUTIVE_THREADS;
+        f.procs[0].priority = 9;
+        f.procs[3].priority = 8;
+        f.procs[4].priority = 7;
+        CHECK_EQ(validate(&f, 0), 0);
+    }
     REJECTS(f.dpus[0].compute = 9, 0, "unknown compute mode 9");
     REJECTS(f.dpus[0].cpu = 1000, 0, "cpu 1000 is not one this host lets it run on");
     REJECTS(f.dpus[0].speed = 0.0, 0, "speed 0 must be > 0");

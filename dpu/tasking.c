@@ -1,0 +1,257 @@
+/* tasking.c: the tasking executive (executive: threads), the paper's "tasking
+ * model to allow single-processor concurrent modeling". The DPU is one
+ * processor under fixed-priority preemptive scheduling: each process releases
+ * a job every period (a `sync: data` job is ready only once its required inputs
+ * hold new data), and the highest-priority ready job holds the processor until
+ * it completes or a higher-priority job becomes ready and preempts it.
+ *
+ * In compute mode SLEEP the DPU runs that one-processor schedule itself: it
+ * knows each job's remaining computation and sleeps until the next completion,
+ * release or data arrival, so preemption is exact however many DPUs share the
+ * machine. A job computes exactly what it asks, counted from when it got the
+ * processor; reading inputs and writing outputs take the processor too, as on
+ * the cyclic executive. Each cycle's record keeps when the schedule handed it
+ * the processor (sched_ns: the release or completion that let it run), its
+ * start, and how often and how long it was preempted. A job waiting for data
+ * does not hold the processor: its data wait is part of its release latency.
+ *
+ * A live switch of plans is refused on this executive (apply.c). */
+#include <stdatomic.h>
+#include <string.h>
+
+#include "dpu.h"
+
+/* Waits until UNTIL (monotonic), watching the links when a job waits for data:
+ * 0 at UNTIL, 1 when data came first, 2 stopped. A wake-up later than the stall
+ * threshold adds to *STALL (one already past UNTIL on entry is the DPU's own
+ * overhead, not a stall). The last stretch is spun, as compute mode SLEEP does. */
+static int tasking_wait(skel_exec_t *x, int64_t until, int watch, int64_t *stall)
+{
+    skel_plan_t *plan = x->plan;
+    const int64_t spin = x->s->compute.spin_ns, piece = 50 * 1000 * 1000LL;
+    const int64_t entered = clock_mono_ns();
+    for (;;) {
+        if (atomic_load(&x->s->stop)) return 2;
+        int64_t now = clock_mono_ns();
+        if (now >= until - spin) break;
+        int64_t t = until - spin - now;
+        int rc = link_wait(plan->links, watch ? plan->nlinks : 0, x->s->wake_fd, t > piece ? piece : t);
+        if (rc < 0) return 2;
+        if (rc > 0 && watch && !atomic_load(&x->s->stop)) return 1;
+    }
+    int64_t now = clock_mono_ns();
+    while (now < until) now = clock_mono_ns();
+    int64_t late = now - (entered > until ? entered : until);
+    if (late > x->s->compute.stall_ns) *stall += late;
+    return 0;
+}
+
+static int64_t tasking_release(const skel_plan_t *plan, const skel_process_t *p, int64_t k)
+{
+    return plan->epoch_t0_ns + k * p->period_ns;
+}
+
+/* A data job becomes ready once its required inputs are new. Looked at in a
+ * scratch record: P's own may still hold its last cycle, waiting for its idle.
+ * A job whose data comes a whole period after its release skips that release
+ * (cycle skipping, as on the cyclic executive: executive_skips), so that the
+ * next job runs on this data rather than the process staying a period behind. */
+static void tasking_check_data(skel_exec_t *x, skel_process_t *p, int64_t vt)
+{
+    skel_plan_t *plan = x->plan;
+    skel_rec_t look;
+    process_peek_inputs(plan, p, &look);
+    p->job_missing = (int8_t)process_missing(p, &look);
+    if (p->job_missing >= 0) return;
+    p->job = TASK_READY;
+    if (!executive_skips(plan, p, p->job_release, vt)) return;
+    int64_t minor = (p->job_release - plan->epoch_t0_ns) / plan->minor_ns;
+    executive_skip_record(x, p, p->k_base + p->next_k, plan->minor_base + minor, p->job_release,
+                          p->job_release, vt, &look);
+    executive_record(x->s, &look);
+    p->job = TASK_NONE;
+    p->next_k++;
+}
+
+/* Releases due at VT become jobs: at most one per process, the next one only
+ * when the last completed (a late process runs its releases back to back). */
+static void tasking_release_due(skel_exec_t *x, int64_t vt)
+{
+    skel_plan_t *plan = x->plan;
+    for (int i = 0; i < plan->nprocesses; i++) {
+        skel_process_t *p = &plan->processes[i];
+        while (p->job == TASK_NONE) { /* again after a skipped release */
+            int64_t release = tasking_release(plan, p, p->next_k);
+            if (release > vt || release >= x->end_mono_ns) break;
+            p->job_release = release;
+            p->job_flags = 0;
+            p->job = p->sync == SKELMSG_PROCESS_T_SYNC_DATA ? TASK_WAITING : TASK_READY;
+            if (p->job == TASK_WAITING) tasking_check_data(x, p, vt);
+        }
+    }
+}
+
+/* A job that has not started by its lockout instant is locked out, as on the
+ * cyclic executive: waiting for data (naming the buffer) or kept from the
+ * processor by higher-priority work. Returns the next lockout instant. */
+static int64_t tasking_lockouts(skel_exec_t *x, int64_t vt)
+{
+    skel_plan_t *plan = x->plan;
+    int64_t next = INT64_MAX;
+    for (int i = 0; i < plan->nprocesses; i++) {
+        skel_process_t *p = &plan->processes[i];
+        if (p->locked_out || (p->job != TASK_WAITING && p->job != TASK_READY)) continue;
+        int64_t at = process_lockout_at(plan, p, p->job_release);
+        if (vt < at) {
+            if (at < next) next = at;
+            continue;
+        }
+        int missing = p->job == TASK_WAITING ? p->job_missing : -1;
+        process_lockout(x, p, missing >= 0 ? p->inputs[missing].buffer : -1,
+                        p->k_base + p->next_k, p->job_release);
+        p->job_flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
+    }
+    return next;
+}
+
+/* P gets the processor for the first time at VT: its record opens, its inputs are read. */
+static void tasking_start(skel_exec_t *x, skel_process_t *p, int64_t vt, int64_t now)
+{
+    skel_plan_t *plan = x->plan;
+    int64_t minor = (p->job_release - plan->epoch_t0_ns) / plan->minor_ns;
+    process_record_begin(x, p, p->k_base + p->next_k, plan->minor_base + minor, p->job_release, vt, now,
+                         &p->rec);
+    p->rec.flags = p->job_flags;
+    (void)link_drain(plan->links, plan->nlinks); /* an lcm error shows as stale inputs */
+    process_peek_inputs(plan, p, &p->rec);
+    process_commit(plan, p, &p->rec, p->next_k >= p->measure_from_k);
+    p->rec.asked_ns = draw_ns(&p->draw, p->compute_ns);
+    p->remaining_ns = p->rec.asked_ns;
+    p->slice_mono_ns = clock_mono_ns();
+    p->rec.comm_in_ns = p->slice_mono_ns - now;
+    p->job = TASK_STARTED;
+}
+
+/* P held the processor from its slice's start until T. */
+static void tasking_ran(skel_process_t *p, int64_t t)
+{
+    int64_t d = t - p->slice_mono_ns;
+    if (d <= 0) return;
+    p->remaining_ns -= d;
+    p->rec.compute_ns += d;
+    p->slice_mono_ns = t;
+}
+
+/* P's computation is done: outputs, the record, the sums. */
+static void tasking_complete(skel_exec_t *x, skel_process_t *p)
+{
+    skel_plan_t *plan = x->plan;
+    int64_t t_out = clock_mono_ns();
+    const int measured = p->next_k >= p->measure_from_k;
+    process_write_outputs(x, p, p->k_base + p->next_k);
+    process_finish(x, p, &p->rec, p->job_release, t_out, measured);
+    if (p->job_release >= plan->measure_from_ns) {
+        skel_dpu_sums_t *d = &plan->sums;
+        if (d->first_release_ns < 0) d->first_release_ns = p->job_release;
+        d->compute_ns += p->rec.compute_ns;
+        d->communicate_ns += p->rec.comm_in_ns + p->rec.comm_out_ns;
+        d->stall_ns += p->rec.stall_ns;
+    }
+    p->job = TASK_NONE;
+    p->next_k++;
+    atomic_fetch_add(&x->s->minor_cycles, 1);
+    if (measured) plan->sums.minor_cycles++;
+}
+
+/* The idle that followed a completed job ends at NOW: its record is complete. (P
+ * may have a new job by now: the completed one is known by its record only.) */
+static void tasking_flush(skel_exec_t *x, skel_process_t **idle, int64_t now)
+{
+    skel_process_t *p = *idle;
+    if (p == NULL) return;
+    skel_plan_t *plan = x->plan;
+    int64_t release = p->rec.release_ns - x->s->clock_offset_ns;
+    int64_t end = release + p->period_ns - p->rec.slack_ns;
+    p->rec.idle_ns = now > end ? now - end : 0;
+    if (release >= plan->measure_from_ns) {
+        plan->sums.wait_ns += p->rec.idle_ns;
+        plan->sums.end_ns = end + p->rec.idle_ns;
+    }
+    if (p->next_k - 1 >= p->measure_from_k) p->sums.wait_ns += p->rec.idle_ns;
+    executive_record(x->s, &p->rec);
+    *idle = NULL;
+}
+
+static skel_process_t *tasking_highest(skel_plan_t *plan)
+{
+    for (int i = 0; i < plan->nprocesses; i++) /* sorted by priority, highest first */
+        if (plan->processes[i].job >= TASK_READY) return &plan->processes[i];
+    return NULL;
+}
+
+int tasking_run(skel_exec_t *x)
+{
+    skel_plan_t *plan = x->plan;
+    int64_t vt = plan->epoch_t0_ns;
+    skel_process_t *cur = NULL, *idle = NULL;
+    int64_t woke_mono = clock_mono_ns(), woke_cpu = clock_thread_cpu_ns();
+    for (;;) {
+        tasking_release_due(x, vt);
+        int64_t next = tasking_lockouts(x, vt);
+        skel_process_t *h = tasking_highest(plan);
+        int64_t now = clock_mono_ns();
+        if (h != cur && cur != NULL && cur->job == TASK_STARTED) /* preempted at the last event */
+            cur->rec.preemptions++;
+        if (h != NULL) tasking_flush(x, &idle, now);
+        if (h != cur && h != NULL) {
+            if (h->job == TASK_READY) tasking_start(x, h, vt, now); /* takes x->wake_stall_ns */
+            else h->rec.preempted_ns += now - h->slice_mono_ns;
+            h->slice_mono_ns = clock_mono_ns();
+        }
+        if (h != NULL) { /* a late wake-up delayed the job that runs after it */
+            h->rec.stall_ns += x->wake_stall_ns;
+            x->wake_stall_ns = 0;
+        }
+        cur = h;
+        /* The next event on the ideal timeline. */
+        int watch = 0;
+        for (int i = 0; i < plan->nprocesses; i++) {
+            skel_process_t *p = &plan->processes[i];
+            watch |= p->job == TASK_WAITING;
+            int64_t r = tasking_release(plan, p, p->next_k);
+            if (p->job == TASK_NONE && r < next) next = r;
+        }
+        if (h != NULL && h->slice_mono_ns + h->remaining_ns < next) next = h->slice_mono_ns + h->remaining_ns;
+        if (x->end_mono_ns < next) next = x->end_mono_ns;
+        /* Between two waits the thread works (inputs, outputs): time it did not run
+         * there is a stall too, and it delays the job that runs next. */
+        int64_t off = clock_mono_ns() - woke_mono - (clock_thread_cpu_ns() - woke_cpu);
+        if (off > x->s->compute.stall_ns) x->wake_stall_ns += off;
+        int64_t stall = 0;
+        int rc = tasking_wait(x, next, watch, &stall);
+        if (h != NULL) h->rec.stall_ns += stall; /* the running job's end came that late */
+        else x->wake_stall_ns += stall;           /* it delays the job that runs next */
+        woke_mono = clock_mono_ns();
+        woke_cpu = clock_thread_cpu_ns();
+        if (rc == 2) break;
+        /* The event's instant: a computation ends, a release comes, on time; data when seen. */
+        int64_t t = rc == 0 ? next : woke_mono;
+        if (t > next) t = next;
+        if (h != NULL) tasking_ran(h, t);
+        if (t > vt) vt = t;
+        if (vt >= x->end_mono_ns) break;
+        if (h != NULL && h->remaining_ns <= 0) {
+            tasking_complete(x, h);
+            tasking_flush(x, &idle, clock_mono_ns());
+            idle = h;
+            cur = NULL;
+        }
+        if (watch) {
+            (void)link_drain(plan->links, plan->nlinks);
+            for (int i = 0; i < plan->nprocesses; i++)
+                if (plan->processes[i].job == TASK_WAITING) tasking_check_data(x, &plan->processes[i], vt);
+        }
+    }
+    tasking_flush(x, &idle, clock_mono_ns());
+    return atomic_load(&x->s->stop) ? 1 : 0;
+}
