@@ -286,8 +286,8 @@ typedef struct {
     int8_t job_missing;        /* a waiting data job: its first required input without new data */
     int64_t next_k;            /* the next release that is not a job yet */
     int64_t job_release;
-    int64_t remaining_ns;      /* of the job's computation, on the ideal schedule */
-    int64_t slice_mono_ns;     /* when the job last got the processor (or lost it) */
+    int64_t remaining_ns;      /* of the job's computation */
+    int64_t slice_mono_ns;     /* where its computation was last counted up to (tasking_ran) */
     skel_rec_t rec;            /* the job's record, sent at its completion */
 } skel_process_t;
 
@@ -458,14 +458,15 @@ void swap_carry(skel_plan_t *next, const skel_plan_t *old, int64_t j_sw);
 
 /* ---- tasking (tasking.c): the tasking executive's one-processor schedule -------- */
 enum { TASK_NONE = 0, TASK_WAITING, TASK_READY, TASK_STARTED };
-int tasking_run(skel_exec_t *x);
+void tasking_run(skel_exec_t *x);
 
 /* ---- executive (executive.c): the cyclic loop and its thread -------------------- */
+void executive_account(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec, int64_t release,
+                       int64_t end);
 void executive_record(skel_server_t *s, const skel_rec_t *rec);
 int executive_skips(const skel_plan_t *plan, const skel_process_t *p, int64_t release, int64_t now);
 void executive_skip_record(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, int64_t release,
                            int64_t sched, int64_t now, skel_rec_t *rec);
-int executive_wait(skel_exec_t *x, int64_t until);
 void *executive_main(void *arg);
 int64_t executive_next_release(const skel_plan_t *plan, int64_t j);
 void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run);

@@ -84,8 +84,8 @@ static void executive_open_window(skel_plan_t *plan, int64_t t0)
 }
 
 /* The DPU's sums cover its window only; so do the process sums (process.c). */
-static void executive_account(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec,
-                              int64_t release, int64_t end)
+void executive_account(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec, int64_t release,
+                       int64_t end)
 {
     skel_dpu_sums_t *d = &plan->sums;
     if (rec->cycle >= p->measure_from_k) p->sums.wait_ns += rec->idle_ns;
@@ -193,7 +193,7 @@ static void executive_poll_switch(skel_exec_t *x)
 
 /* Sleeps until UNTIL (INT64_MAX: until told): 0 reached, 1 stop, 2 the pending
  * switch changed. 50 ms pieces, so a COMMIT is seen within one piece. */
-int executive_wait(skel_exec_t *x, int64_t until)
+static int executive_wait(skel_exec_t *x, int64_t until)
 {
     const int64_t piece = 50 * 1000 * 1000LL;
     for (;;) {
@@ -362,7 +362,7 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
     if (fifo > 0) snprintf(klass, sizeof klass, "SCHED_FIFO %d", fifo);
     log_line("DPU %d: run %lld started (%d processes, %s)", plan->dpu, (long long)run->run_id,
              plan->nprocesses, klass);
-    if (plan->tasking) (void)tasking_run(&x);
+    if (plan->tasking) tasking_run(&x);
     else executive_cyclic(&x, run);
     if (x.announce) executive_announce(&x);
     atomic_store(&s->behind_ns, 0);

@@ -178,16 +178,15 @@ static int process_wait_data(skel_exec_t *x, skel_process_t *p, int64_t k, int64
         int64_t due = process_lockout_due(x, lockout_at);
         if (!p->locked_out && due < wake) wake = due;
         if (x->end_mono_ns < wake) wake = x->end_mono_ns;
-        int timeout_ms = 10;
-        if (wake <= now) timeout_ms = 0;
-        else if (wake - now < 10 * 1000000LL) timeout_ms = (int)((wake - now) / 1000000) + 1;
-        int ready = link_wait(plan->links, plan->nlinks, x->s->wake_fd, timeout_ms * 1000000LL);
+        int64_t timeout_ns = wake - now < 10 * 1000000LL ? wake - now : 10 * 1000000LL;
+        if (timeout_ns < 0) timeout_ns = 0;
+        int ready = link_wait(plan->links, plan->nlinks, x->s->wake_fd, timeout_ns);
         if (ready < 0) return 1;
         /* A poll that returned far later than its timeout, with data or without: the
          * thread was kept from running at least that long (data that came meanwhile is
          * no excuse: a stopped machine delivers it all at once when it resumes). */
         look = (skel_look_t){ clock_mono_ns(), clock_thread_cpu_ns() };
-        int64_t late = look.mono_ns - now - timeout_ms * 1000000LL;
+        int64_t late = look.mono_ns - now - timeout_ns;
         if (late > x->s->compute.stall_ns) process_stalled(x, rec, late);
         if (link_drain(plan->links, plan->nlinks) < 0) return 1;
         process_peek_inputs(plan, p, rec);

@@ -51,6 +51,12 @@ static int64_t tasking_release(const skel_plan_t *plan, const skel_process_t *p,
     return plan->epoch_t0_ns + k * p->period_ns;
 }
 
+/* The run's minor cycle P's job was released in (the records' frame). */
+static int64_t tasking_minor(const skel_plan_t *plan, const skel_process_t *p)
+{
+    return plan->minor_base + (p->job_release - plan->epoch_t0_ns) / plan->minor_ns;
+}
+
 /* A data job becomes ready once its required inputs are new. Looked at in a
  * scratch record: P's own may still hold its last cycle, waiting for its idle.
  * A job whose data comes a whole period after its release skips that release
@@ -65,8 +71,7 @@ static void tasking_check_data(skel_exec_t *x, skel_process_t *p, int64_t vt)
     if (p->job_missing >= 0) return;
     p->job = TASK_READY;
     if (!executive_skips(plan, p, p->job_release, vt)) return;
-    int64_t minor = (p->job_release - plan->epoch_t0_ns) / plan->minor_ns;
-    executive_skip_record(x, p, p->k_base + p->next_k, plan->minor_base + minor, p->job_release,
+    executive_skip_record(x, p, p->k_base + p->next_k, tasking_minor(plan, p), p->job_release,
                           p->job_release, vt, &look);
     executive_record(x->s, &look);
     p->job = TASK_NONE;
@@ -118,8 +123,7 @@ static int64_t tasking_lockouts(skel_exec_t *x, int64_t vt)
 static void tasking_start(skel_exec_t *x, skel_process_t *p, int64_t vt, int64_t now)
 {
     skel_plan_t *plan = x->plan;
-    int64_t minor = (p->job_release - plan->epoch_t0_ns) / plan->minor_ns;
-    process_record_begin(x, p, p->k_base + p->next_k, plan->minor_base + minor, p->job_release, vt, now,
+    process_record_begin(x, p, p->k_base + p->next_k, tasking_minor(plan, p), p->job_release, vt, now,
                          &p->rec);
     p->rec.flags = p->job_flags;
     (void)link_drain(plan->links, plan->nlinks); /* an lcm error shows as stale inputs */
@@ -150,34 +154,23 @@ static void tasking_complete(skel_exec_t *x, skel_process_t *p)
     const int measured = p->next_k >= p->measure_from_k;
     process_write_outputs(x, p, p->k_base + p->next_k);
     process_finish(x, p, &p->rec, p->job_release, t_out, measured);
-    if (p->job_release >= plan->measure_from_ns) {
-        skel_dpu_sums_t *d = &plan->sums;
-        if (d->first_release_ns < 0) d->first_release_ns = p->job_release;
-        d->compute_ns += p->rec.compute_ns;
-        d->communicate_ns += p->rec.comm_in_ns + p->rec.comm_out_ns;
-        d->stall_ns += p->rec.stall_ns;
-    }
     p->job = TASK_NONE;
     p->next_k++;
     atomic_fetch_add(&x->s->minor_cycles, 1);
     if (measured) plan->sums.minor_cycles++;
 }
 
-/* The idle that followed a completed job ends at NOW: its record is complete. (P
- * may have a new job by now: the completed one is known by its record only.) */
+/* The idle that followed a completed job ends at NOW: its record is complete and
+ * counts in the sums, as on the cyclic executive. (P may have a new job by now:
+ * the completed one is known by its record only.) */
 static void tasking_flush(skel_exec_t *x, skel_process_t **idle, int64_t now)
 {
     skel_process_t *p = *idle;
     if (p == NULL) return;
-    skel_plan_t *plan = x->plan;
     int64_t release = p->rec.release_ns - x->s->clock_offset_ns;
     int64_t end = release + p->period_ns - p->rec.slack_ns;
     p->rec.idle_ns = now > end ? now - end : 0;
-    if (release >= plan->measure_from_ns) {
-        plan->sums.wait_ns += p->rec.idle_ns;
-        plan->sums.end_ns = end + p->rec.idle_ns;
-    }
-    if (p->next_k - 1 >= p->measure_from_k) p->sums.wait_ns += p->rec.idle_ns;
+    executive_account(x->plan, p, &p->rec, release, end);
     executive_record(x->s, &p->rec);
     *idle = NULL;
 }
@@ -189,7 +182,7 @@ static skel_process_t *tasking_highest(skel_plan_t *plan)
     return NULL;
 }
 
-int tasking_run(skel_exec_t *x)
+void tasking_run(skel_exec_t *x)
 {
     skel_plan_t *plan = x->plan;
     int64_t vt = plan->epoch_t0_ns;
@@ -213,7 +206,7 @@ int tasking_run(skel_exec_t *x)
             x->wake_stall_ns = 0;
         }
         cur = h;
-        /* The next event on the ideal timeline. */
+        /* The next event: a release, the running job's completion, a lockout, the end. */
         int watch = 0;
         for (int i = 0; i < plan->nprocesses; i++) {
             skel_process_t *p = &plan->processes[i];
@@ -253,5 +246,4 @@ int tasking_run(skel_exec_t *x)
         }
     }
     tasking_flush(x, &idle, clock_mono_ns());
-    return atomic_load(&x->s->stop) ? 1 : 0;
 }

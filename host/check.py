@@ -163,7 +163,8 @@ def _print(system: System, summary: dict[str, Any], out: TextIO) -> None:
         prio = d.get("priorities", {})
         names = [f"{n} (priority {prio[n]})" if n in prio else n for n in d["processes"]]
         load = f"[red]{pct:.1f}[/]" if pct > 100 else f"{pct:.1f}"
-        table.add_row(str(d["id"]), d["host"], d["compute"] + (" tasking" if prio else ""),
+        tasking = " tasking" if d["executive"] == "threads" else ""
+        table.add_row(str(d["id"]), d["host"], d["compute"] + tasking,
                       f"{d['minor_cycle_ms']:g}", ", ".join(names), load)
     console.print(table)
     for v in summary["varying_compute"]:

@@ -316,11 +316,10 @@ def _priorities(spec: SystemSpec, order: dict[int, int]) -> dict[int, int]:
     """The tasking executive's priorities: given for every process of a DPU or for none,
     then rate-monotonic (the shorter period first; equal periods by order)."""
     out: dict[int, int] = {}
-    kind = {d.id: d.executive for d in spec.dpus}
     for d in spec.dpus:
         mine = [p for p in spec.processes if p.dpu == d.id]
         given = [p for p in mine if p.priority is not None]
-        if kind[d.id] == "cyclic":
+        if d.executive == "cyclic":
             if given:
                 raise Invalid(f"processes.{given[0].name}.priority", f"DPU {d.id} runs the cyclic executive, "
                               "which runs processes by order; priority needs executive: threads")
