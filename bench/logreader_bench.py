@@ -27,8 +27,9 @@ from skelmsg.contract import STATUS_CHANNEL, TIMING_CHANNEL
 
 RESULTS = Path(__file__).resolve().parent / "results" / "logreader.txt"
 BATCH = 64  # records per timing_t batch
-ARRAYS = ("process", "cycle", "minor", "release_ns", "start_ns", "comm_in_ns", "blocked_ns",
-          "asked_ns", "compute_ns", "comm_out_ns", "idle_ns", "slack_ns", "flags")  # fmt: skip
+# Every per-record array of timing_t (whatever fields it gains).
+_T = skelmsg.timing_t
+ARRAYS = tuple(name for name, dims in zip(_T.__slots__, _T.__dimensions__, strict=True) if dims == ["n"])
 INPUTS = ("in_record", "in_buffer", "in_seq", "in_new", "in_dropped", "in_received",
           "in_sent_ns", "in_recv_ns")  # fmt: skip
 
@@ -49,7 +50,8 @@ def write_log(path: Path, records: int, with_buffers: bool) -> None:
         t.dpu, t.run_id, t.generation, t.batch_seq, t.n = dpu, 1, 1, seq[dpu], BATCH
         seq[dpu] += 1
         for name in ARRAYS:
-            setattr(t, name, rng.integers(0, 10**9, BATCH).tolist() if name != "flags" else [0] * BATCH)
+            small = name in ("flags", "event_queued")  # int8 / int16 fields
+            setattr(t, name, rng.integers(0, 10**9, BATCH).tolist() if not small else [0] * BATCH)
         t.process = rng.integers(0, 9, BATCH).tolist()
         # inputs per batch vary with the mix of processes in it (0..5 inputs each)
         t.ninputs = int(rng.integers(BATCH, 3 * BATCH))

@@ -148,6 +148,95 @@ static int config_check_quantiles(const skelmsg_process_t *p, char *reason, size
     return 0;
 }
 
+/* An event's name becomes a channel's suffix: letters, digits and _, 1..64 of them. */
+static int config_event_name(const char *name)
+{
+    size_t n = strlen(name);
+    if (n == 0 || n > 64) return -1;
+    for (size_t i = 0; i < n; i++)
+        if (!((name[i] >= 'a' && name[i] <= 'z') || (name[i] >= 'A' && name[i] <= 'Z') ||
+              (name[i] >= '0' && name[i] <= '9') || name[i] == '_'))
+            return -1;
+    return 0;
+}
+
+static int config_check_events_of(const skelmsg_process_t *p, char *reason, size_t len)
+{
+    if (p->sync == SKELMSG_PROCESS_T_SYNC_EVENT) {
+        if (config_event_name(p->event) != 0)
+            return config_fail(reason, len, "process %d: event name '%.64s' is not a name", p->id, p->event);
+        if (p->queue < 1 || p->queue > SKEL_MAX_QUEUE)
+            return config_fail(reason, len, "process %d: queue %d outside 1..%d", p->id, p->queue,
+                               SKEL_MAX_QUEUE);
+    }
+    if (p->nemits > SKEL_MAX_EMITS)
+        return config_fail(reason, len, "process %d: emits %d events, limit %d", p->id, p->nemits,
+                           SKEL_MAX_EMITS);
+    for (int e = 0; e < p->nemits; e++)
+        if (config_event_name(p->emits[e]) != 0)
+            return config_fail(reason, len, "process %d: emitted event name '%.64s' is not a name", p->id,
+                               p->emits[e]);
+    return 0;
+}
+
+/* A generator this DPU runs: parameters that give a finite, ordered stream of instants. */
+static int config_check_source(const skelmsg_event_source_t *g, char *reason, size_t len)
+{
+    if (config_event_name(g->name) != 0)
+        return config_fail(reason, len, "event '%.64s': not a name", g->name);
+    switch (g->kind) {
+    case SKELMSG_EVENT_SOURCE_T_KIND_PERIODIC:
+        if (g->period_us <= 0 || g->jitter_us < 0 || 2LL * g->jitter_us >= g->period_us)
+            return config_fail(reason, len, "event %s: period_us %d, jitter_us %d (0 <= 2 jitter < period)",
+                               g->name, g->period_us, g->jitter_us);
+        return 0;
+    case SKELMSG_EVENT_SOURCE_T_KIND_POISSON:
+        if (!isfinite(g->rate_hz) || g->rate_hz <= 0.0 || g->rate_hz > 1e6)
+            return config_fail(reason, len, "event %s: rate_hz %g outside (0, 1e6]", g->name, g->rate_hz);
+        return 0;
+    case SKELMSG_EVENT_SOURCE_T_KIND_BURSTS:
+        if (g->period_us <= 0 || g->count < 1 || g->spacing_us <= 0 ||
+            (int64_t)(g->count - 1) * g->spacing_us >= g->period_us)
+            return config_fail(reason, len, "event %s: a burst of %d events %d us apart does not fit in "
+                               "period_us %d", g->name, g->count, g->spacing_us, g->period_us);
+        return 0;
+    default:
+        return config_fail(reason, len, "event %s: unknown kind %d", g->name, g->kind);
+    }
+}
+
+/* The events DPU D awaits, emits or generates: each valid, at most SKEL_MAX_EVENTS names. */
+static int config_check_events(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d, char *reason,
+                               size_t len)
+{
+    const char *names[SKEL_MAX_EVENTS];
+    int n = 0;
+    for (int i = 0; i < cfg->nprocesses + cfg->nevents; i++) {
+        const char *mine[SKEL_MAX_EMITS + 1];
+        int m = 0;
+        if (i < cfg->nprocesses) {
+            const skelmsg_process_t *p = &cfg->processes[i];
+            if (p->dpu != d->id) continue;
+            if (p->sync == SKELMSG_PROCESS_T_SYNC_EVENT) mine[m++] = p->event;
+            for (int e = 0; e < p->nemits && e < SKEL_MAX_EMITS; e++) mine[m++] = p->emits[e];
+        } else {
+            const skelmsg_event_source_t *g = &cfg->events[i - cfg->nprocesses];
+            if (g->kind == SKELMSG_EVENT_SOURCE_T_KIND_HOST || g->dpu != d->id) continue;
+            if (config_check_source(g, reason, len) != 0) return -1;
+            mine[m++] = g->name;
+        }
+        for (int k = 0; k < m; k++) {
+            int seen = 0;
+            for (int j = 0; j < n && !seen; j++) seen = strcmp(names[j], mine[k]) == 0;
+            if (seen) continue;
+            if (n == SKEL_MAX_EVENTS)
+                return config_fail(reason, len, "DPU %d: more than %d distinct events", d->id, SKEL_MAX_EVENTS);
+            names[n++] = mine[k];
+        }
+    }
+    return 0;
+}
+
 static int config_check_process(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d,
                                 int64_t minor_us, const skelmsg_process_t *p, char *reason,
                                 size_t len)
@@ -165,8 +254,9 @@ static int config_check_process(const skelmsg_config_t *cfg, const skelmsg_dpu_t
     if (tasking ? p->priority < 1 || p->priority > SKEL_MAX_PRIORITY : p->priority != 0)
         return config_fail(reason, len, "process %d: priority %d (the tasking executive's: 1..%d; "
                            "the cyclic one's: 0)", p->id, p->priority, SKEL_MAX_PRIORITY);
-    if (p->sync != SKELMSG_PROCESS_T_SYNC_PERIODIC && p->sync != SKELMSG_PROCESS_T_SYNC_DATA)
+    if (p->sync < SKELMSG_PROCESS_T_SYNC_PERIODIC || p->sync > SKELMSG_PROCESS_T_SYNC_EVENT)
         return config_fail(reason, len, "process %d: unknown sync %d", p->id, p->sync);
+    if (config_check_events_of(p, reason, len) != 0) return -1;
     if (p->ninputs > SKEL_MAX_IO || p->noutputs > SKEL_MAX_IO)
         return config_fail(reason, len, "process %d: %d inputs / %d outputs, limit %d each",
                            p->id, p->ninputs, p->noutputs, SKEL_MAX_IO);
@@ -324,5 +414,6 @@ int config_validate(const skelmsg_config_t *cfg, int dpu_index, char *reason, si
     if (out_bytes > SKEL_MAX_DPU_BYTES)
         return config_fail(reason, len, "DPU %d: outputs total %lld bytes, limit %d", d->id,
                            (long long)out_bytes, SKEL_MAX_DPU_BYTES);
+    if (config_check_events(cfg, d, reason, len) != 0) return -1;
     return config_check_links(cfg, d, reason, len);
 }

@@ -21,6 +21,7 @@
 #include "skelmsg_command_t.h"
 #include "skelmsg_config_t.h"
 #include "skelmsg_contract.h"
+#include "skelmsg_event_t.h"
 #include "skelmsg_report_t.h"
 #include "skelmsg_status_t.h"
 #include "skelmsg_timing_t.h"
@@ -76,6 +77,17 @@ typedef struct {
 } wire_buffer_hdr_t;
 
 int wire_buffer_header(const void *buf, int len, wire_buffer_hdr_t *hdr);
+
+/* An event_t's fixed fields, read in place (its name is the channel's). */
+typedef struct {
+    int64_t run_id;
+    int16_t dpu;
+    int16_t process;
+    int64_t seq;
+    int64_t sent_ns;
+} wire_event_hdr_t;
+
+int wire_event_header(const void *buf, int len, wire_event_hdr_t *hdr);
 int wire_decode_config(const void *buf, int len, skelmsg_config_t *cfg);
 int wire_decode_command(const void *buf, int len, skelmsg_command_t *cmd);
 void wire_free_config(skelmsg_config_t *cfg); /* one wire_decode_config filled in malloc'd storage */
@@ -167,8 +179,10 @@ typedef struct {
     int8_t ninputs;
     int64_t generation;        /* of the plan that ran the cycle: batches never mix two */
     int32_t preemptions;
+    int16_t event_queued;
+    int32_t event_dropped;
     int64_t cycle, minor, release_ns, sched_ns, start_ns, comm_in_ns, blocked_ns, asked_ns, compute_ns,
-        comm_out_ns, idle_ns, slack_ns, stall_ns, preempted_ns;
+        comm_out_ns, idle_ns, slack_ns, stall_ns, preempted_ns, event_ns;
     skel_in_rec_t in[SKEL_MAX_IO];
 } skel_rec_t;
 
@@ -243,6 +257,8 @@ int link_url(const skel_link_t *link, char *out, size_t len, int32_t *asked);
 int link_open(skel_link_t *link);
 void link_close(skel_link_t *link);
 int link_subscribe(skel_link_t *link, skel_slot_t *slot);
+int link_subscribe_channel(skel_link_t *link, const char *channel, lcm_msg_handler_t handler, void *user);
+int64_t link_arrival_ns(const lcm_recv_buf_t *rbuf);
 int link_drain(skel_link_t *links, int nlinks);
 int link_wait(skel_link_t *links, int nlinks, int wake_fd, int64_t timeout_ns);
 
@@ -250,7 +266,8 @@ int link_wait(skel_link_t *links, int nlinks, int wake_fd, int64_t timeout_ns);
 /* One process's totals over the measured window (report_t's process_report_t);
  * a live switch carries them over whole. */
 typedef struct {
-    int64_t cycles, overruns, compute_ns, communicate_ns, wait_ns, max_latency_ns, releases_skipped;
+    int64_t cycles, overruns, compute_ns, communicate_ns, wait_ns, max_latency_ns, releases_skipped,
+        events_dropped;
 } skel_process_sums_t;
 
 /* ---- draw (draw.c): a compute time that varies ---------------------------------- */
@@ -262,6 +279,37 @@ typedef struct {
 
 void draw_seed(skel_draw_t *d, int64_t seed, int16_t process);
 int64_t draw_ns(skel_draw_t *d, int64_t constant_ns);
+/* A generator of its own for anything else a run draws (event generators): STREAM
+ * keeps it apart from every process's. */
+void draw_seed_state(uint64_t state[4], int64_t seed, uint64_t stream);
+double draw_unit(uint64_t state[4]); /* [0, 1) */
+
+/* ---- event (event.c): sync: event processes, emitted and generated events ------- */
+struct skel_plan;
+
+/* One event this DPU awaits, emits or generates; its name is its channel's suffix. */
+typedef struct {
+    char *name;
+    char *channel;             /* SKEL_EVENT_PREFIX + name */
+    int awaited;               /* a process here awaits it: subscribed */
+    uint8_t *enc;              /* an encoded event_t, the executive thread's (emits) */
+    int enc_cap;
+    int64_t seq;
+    struct skel_plan *plan;
+} skel_event_t;
+
+/* A generator of one event during a run (events: with dpu: this one); its own thread. */
+typedef struct {
+    int8_t kind;               /* event_source_t KIND_* */
+    int event;                 /* index into plan->events */
+    int64_t period_ns, jitter_ns, spacing_ns;
+    double rate_hz;
+    int32_t count;
+    uint64_t state[4];
+    int64_t next_ns, k;        /* the next instant, and the events so far */
+    uint8_t *enc;              /* the generator thread's encoded event_t */
+    int enc_cap;
+} skel_source_t;
 
 typedef struct {
     int16_t id;
@@ -289,6 +337,17 @@ typedef struct {
     int64_t remaining_ns;      /* of the job's computation */
     int64_t slice_mono_ns;     /* where its computation was last counted up to (tasking_ran) */
     skel_rec_t rec;            /* the job's record, sent at its completion */
+    /* sync: event (event.c): the events waiting, oldest first, as arrival instants */
+    int16_t event;             /* index into plan->events, -1: not an event process */
+    int16_t queue_cap;
+    int nemits;
+    int16_t emits[SKEL_MAX_EMITS];   /* indexes into plan->events */
+    int64_t queue_ns[SKEL_MAX_QUEUE];
+    int q_head, q_count;
+    int32_t q_dropped;         /* since its last cycle */
+    int64_t taken_ns;          /* arrival of the event the coming cycle handles, -1: none */
+    int16_t taken_left;
+    int32_t taken_dropped;
 } skel_process_t;
 
 typedef struct {
@@ -330,6 +389,17 @@ typedef struct skel_plan {
     int64_t measure_from_ns;    /* DPU window: every process past its warm-up */
     double work_drift_pct;      /* WORK: the larger calibration drift of the run's start and end */
     skel_dpu_sums_t sums;
+    /* events (event.c): received, emitted and generated on the control URL */
+    int nevents;
+    skel_event_t events[SKEL_MAX_EVENTS];
+    int event_link;             /* index into links of the control URL, -1: no events here */
+    int nsources;
+    skel_source_t sources[SKEL_MAX_EVENTS];
+    lcm_t *gen_lcm;             /* the generator thread's own lcm_t */
+    pthread_t gen_thread;
+    int gen_started;
+    atomic_int gen_stop;
+    int64_t gen_end_ns;
 } skel_plan_t;
 
 typedef struct {
@@ -347,7 +417,8 @@ const skelmsg_buffer_desc_t *config_buffer(const skelmsg_config_t *cfg, int16_t 
 const skelmsg_link_t *config_link(const skelmsg_config_t *cfg, int16_t id);
 const char *config_link_url(const skelmsg_config_t *cfg, int16_t id); /* NULL: no such link */
 skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason, size_t len);
-int plan_open_links(skel_plan_t *plan, atomic_int_fast64_t *rejected, char *reason, size_t len);
+int plan_open_links(skel_plan_t *plan, const char *control_url, atomic_int_fast64_t *rejected,
+                    char *reason, size_t len);
 void plan_free(skel_plan_t *plan);
 void plan_reset_run(skel_plan_t *plan, int64_t run_id);
 int plan_process_index(const skel_plan_t *plan, int16_t id);
@@ -434,6 +505,11 @@ typedef struct {
     int announce;              /* a switch happened: publish the generation at its release */
     int64_t wake_stall_ns;     /* the stall of this minor's wake-up, for its first record */
     int64_t stall_debt_ns;     /* stalls since the executive was last on time: lateness they explain */
+    /* The cyclic executive's last record of the last minor that ran anything: its idle
+     * ends where the next one runs (a sync: event process may leave minors empty). */
+    skel_rec_t held;
+    skel_process_t *held_p;    /* NULL: none held */
+    int64_t held_release, held_end;
 } skel_exec_t;
 
 enum { PROCESS_DONE = 0, PROCESS_STOPPED = 1 };
@@ -450,6 +526,19 @@ void process_commit(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec,
 void process_write_outputs(skel_exec_t *x, skel_process_t *p, int64_t k);
 void process_finish(skel_exec_t *x, skel_process_t *p, skel_rec_t *rec, int64_t release,
                     int64_t t_out, int measured);
+
+/* ---- event (event.c) ------------------------------------------------------------ */
+int event_plan(skel_plan_t *plan, const skelmsg_config_t *cfg, int16_t dpu);
+int event_open(skel_plan_t *plan, const char *control_url);
+void event_free(skel_plan_t *plan);
+void event_reset_run(skel_plan_t *plan);
+int event_pending(const skel_process_t *p);
+void event_release(skel_plan_t *plan, skel_process_t *p, int64_t release);
+void event_emit(skel_plan_t *plan, const skel_process_t *p, int64_t now_ns);
+void event_carry(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw);
+void event_generators_begin(skel_plan_t *plan, int64_t t0);
+int event_generators_start(skel_plan_t *plan, int64_t end);
+void event_generators_stop(skel_plan_t *plan);
 
 /* ---- swap (swap.c): a live switch of plans at one cycle boundary ---------------- */
 int64_t swap_index(const skel_plan_t *plan, int64_t j_prev, int64_t at_mono_ns);

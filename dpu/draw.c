@@ -20,9 +20,8 @@ static uint64_t draw_splitmix(uint64_t *x)
 
 static uint64_t draw_rotl(uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
 
-static uint64_t draw_next(skel_draw_t *d)
+static uint64_t draw_next(uint64_t s[4])
 {
-    uint64_t *s = d->state;
     const uint64_t out = draw_rotl(s[1] * 5, 7) * 9;
     const uint64_t t = s[1] << 17;
     s[2] ^= s[0];
@@ -34,16 +33,26 @@ static uint64_t draw_next(skel_draw_t *d)
     return out;
 }
 
+void draw_seed_state(uint64_t state[4], int64_t seed, uint64_t stream)
+{
+    uint64_t x = (uint64_t)seed ^ (stream << 48);
+    for (int i = 0; i < 4; i++) state[i] = draw_splitmix(&x);
+}
+
 void draw_seed(skel_draw_t *d, int64_t seed, int16_t process)
 {
-    uint64_t x = (uint64_t)seed ^ ((uint64_t)(uint16_t)process << 48);
-    for (int i = 0; i < 4; i++) d->state[i] = draw_splitmix(&x);
+    draw_seed_state(d->state, seed, (uint16_t)process);
+}
+
+double draw_unit(uint64_t state[4])
+{
+    return (double)(draw_next(state) >> 11) * 0x1.0p-53; /* 53 bits */
 }
 
 int64_t draw_ns(skel_draw_t *d, int64_t constant_ns)
 {
     if (d->n < 2) return constant_ns;
-    const double u = (double)(draw_next(d) >> 11) * 0x1.0p-53; /* [0, 1), 53 bits */
+    const double u = draw_unit(d->state);
     const double at = u * (double)(d->n - 1);
     const int i = (int)at; /* < n - 1 */
     const double v = d->table_ns[i] + (at - (double)i) * (d->table_ns[i + 1] - d->table_ns[i]);

@@ -79,7 +79,9 @@ static void executive_open_window(skel_plan_t *plan, int64_t t0)
     plan->measure_from_ns = t0 + plan->warmup_cycles * executive_max_period(plan);
     for (int i = 0; i < plan->nprocesses; i++) {
         skel_process_t *p = &plan->processes[i];
-        p->measure_from_k = (plan->measure_from_ns - t0 + p->period_ns - 1) / p->period_ns;
+        /* an event process's cycles come with its events: its first in the window (event.c) */
+        p->measure_from_k = p->event >= 0 ? INT64_MAX
+                                          : (plan->measure_from_ns - t0 + p->period_ns - 1) / p->period_ns;
     }
 }
 
@@ -132,6 +134,40 @@ void executive_skip_record(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t
     if (k >= p->measure_from_k) p->sums.releases_skipped++;
 }
 
+/* Whether P runs in minor J: due there, and for an event process, holding an
+ * event (executive_take_events). */
+static int executive_runs(const skel_process_t *p, int64_t j)
+{
+    return j % p->ratio == 0 && (p->event < 0 || p->taken_ns >= 0);
+}
+
+/* A sync: event process due in minor J takes the oldest event waiting when the
+ * frame starts; without one it does not run in this frame (no record). */
+static void executive_take_events(skel_plan_t *plan, int64_t j)
+{
+    int any = 0;
+    for (int i = 0; i < plan->nprocesses; i++) any |= plan->processes[i].event >= 0;
+    if (!any) return;
+    (void)link_drain(plan->links, plan->nlinks);
+    for (int i = 0; i < plan->nprocesses; i++) {
+        skel_process_t *p = &plan->processes[i];
+        if (p->event >= 0 && j % p->ratio == 0 && event_pending(p))
+            event_release(plan, p, plan->epoch_t0_ns + j / p->ratio * p->period_ns);
+    }
+}
+
+/* The held record (the last one of the last minor that ran) counts and goes out, its
+ * idle ending at UNTIL: the release of the next minor that runs something (INT64_MAX:
+ * as it was when held, up to the next release then). */
+static void executive_release_held(skel_exec_t *x, int64_t until)
+{
+    if (x->held_p == NULL) return;
+    if (until != INT64_MAX) x->held.idle_ns = until > x->held_end ? until - x->held_end : 0;
+    executive_account(x->plan, x->held_p, &x->held, x->held_release, x->held_end);
+    executive_record(x->s, &x->held);
+    x->held_p = NULL;
+}
+
 /* Runs the due processes of minor cycle J in their order; NEXT_R is the next
  * release (INT64_MAX: none), where the idle of the minor's last record ends. The
  * schedule's start of each is the minor's release plus the configured compute of
@@ -139,15 +175,18 @@ void executive_skip_record(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t
 static int executive_minor(skel_exec_t *x, int64_t j, int64_t next_r)
 {
     skel_plan_t *plan = x->plan;
+    executive_take_events(plan, j);
     int last = -1;
     for (int i = 0; i < plan->nprocesses; i++)
-        if (j % plan->processes[i].ratio == 0) last = i;
+        if (executive_runs(&plan->processes[i], j)) last = i;
+    if (last >= 0) executive_release_held(x, swap_instant(plan, j));
     int64_t sched = -1;
     for (int i = 0; i <= last; i++) {
         skel_process_t *p = &plan->processes[i];
-        if (j % p->ratio != 0) continue;
-        int64_t k = j / p->ratio;
-        int64_t release = plan->epoch_t0_ns + k * p->period_ns;
+        if (!executive_runs(p, j)) continue;
+        /* an event process's cycles count its events, not its frames */
+        int64_t k = p->event >= 0 ? p->next_k++ : j / p->ratio;
+        int64_t release = plan->epoch_t0_ns + j / p->ratio * p->period_ns;
         if (sched < 0) sched = release;
         skel_rec_t rec;
         int64_t now = clock_mono_ns(), end;
@@ -160,9 +199,16 @@ static int executive_minor(skel_exec_t *x, int64_t j, int64_t next_r)
             end = release + p->period_ns - rec.slack_ns;
         }
         sched += p->compute_ns;
-        /* Idle belongs to the last record of the release: gaps between processes are overhead. */
-        if (i == last && rc == PROCESS_DONE && next_r != INT64_MAX)
-            rec.idle_ns = next_r > end ? next_r - end : 0;
+        /* Idle belongs to the last record of the release: gaps between processes are overhead.
+         * That record waits for the next minor that runs anything, where its idle ends. */
+        if (i == last && rc == PROCESS_DONE) {
+            if (next_r != INT64_MAX) rec.idle_ns = next_r > end ? next_r - end : 0;
+            x->held = rec;
+            x->held_p = p;
+            x->held_release = release;
+            x->held_end = end;
+            continue;
+        }
         if (rc == PROCESS_DONE) executive_account(plan, p, &rec, release, end);
         executive_record(x->s, &rec);
         if (rc == PROCESS_STOPPED) return 1;
@@ -232,11 +278,14 @@ static void executive_switch(skel_exec_t *x, int64_t j_sw, int ran)
     x->switch_pending = 0;
     pthread_mutex_unlock(&s->lock);
     if (next == NULL) return;
+    executive_release_held(x, INT64_MAX); /* its process is the old plan's */
+    event_generators_stop(old);
     (void)link_drain(old->links, old->nlinks); /* the old slots are complete ... */
     swap_carry(next, old, j_sw);
     if (!ran) executive_open_window(next, next->run_t0_ns);
     next->running = 1;
     old->running = 0;
+    (void)event_generators_start(next, x->end_mono_ns);
     (void)link_drain(next->links, next->nlinks); /* ... so the copies here are dropped */
     if (next->cpu != old->cpu) executive_pin(next);
     if (next->compute != old->compute) (void)executive_schedule(s, next, 1);
@@ -332,6 +381,7 @@ static void executive_cyclic(skel_exec_t *x, const skel_run_t *run)
         j_prev = j;
         j = next_j;
     }
+    executive_release_held(x, INT64_MAX);
 }
 
 void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
@@ -362,8 +412,11 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
     if (fifo > 0) snprintf(klass, sizeof klass, "SCHED_FIFO %d", fifo);
     log_line("DPU %d: run %lld started (%d processes, %s)", plan->dpu, (long long)run->run_id,
              plan->nprocesses, klass);
+    event_generators_begin(plan, t0);
+    (void)event_generators_start(plan, run->end_mono_ns);
     if (plan->tasking) tasking_run(&x);
     else executive_cyclic(&x, run);
+    event_generators_stop(x.plan); /* the plan of the run's end: a live switch hands over */
     if (x.announce) executive_announce(&x);
     atomic_store(&s->behind_ns, 0);
     executive_check_work(s, x.plan, 0);

@@ -74,6 +74,15 @@ void link_close(skel_link_t *link)
     memset(link, 0, sizeof *link);
 }
 
+/* When RBUF reached the host: the kernel's receive stamp (UTC, us) tells when it
+ * arrived, not when we drained it (monotonic ns, no later than now). */
+int64_t link_arrival_ns(const lcm_recv_buf_t *rbuf)
+{
+    int64_t now_mono = clock_mono_ns();
+    int64_t recv = clock_utc_to_mono(rbuf->recv_utime * 1000, now_mono, clock_utc_ns());
+    return rbuf->recv_utime <= 0 || recv > now_mono ? now_mono : recv;
+}
+
 static void link_on_buffer(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
 {
     skel_slot_t *slot = user;
@@ -87,11 +96,7 @@ static void link_on_buffer(const lcm_recv_buf_t *rbuf, const char *channel, void
         return;
     }
     if (!plan->running) return; /* between runs: drained only to keep queues short */
-    /* The kernel's receive stamp (UTC, us) tells when it arrived, not when we drained it. */
-    int64_t now_mono = clock_mono_ns();
-    int64_t recv = clock_utc_to_mono(rbuf->recv_utime * 1000, now_mono, clock_utc_ns());
-    if (rbuf->recv_utime <= 0 || recv > now_mono) recv = now_mono;
-    if (buffers_slot_receive(slot, plan->run_id, &hdr, recv + plan->clock_offset_ns) ==
+    if (buffers_slot_receive(slot, plan->run_id, &hdr, link_arrival_ns(rbuf) + plan->clock_offset_ns) ==
         BUFFERS_MISMATCH)
         atomic_fetch_add(plan->rejected, 1);
 }
@@ -113,9 +118,14 @@ static int link_channel_regex(const char *channel, char *out, size_t len)
 
 int link_subscribe(skel_link_t *link, skel_slot_t *slot)
 {
+    return link_subscribe_channel(link, slot->channel, link_on_buffer, slot);
+}
+
+int link_subscribe_channel(skel_link_t *link, const char *channel, lcm_msg_handler_t handler, void *user)
+{
     char regex[512];
-    if (link_channel_regex(slot->channel, regex, sizeof regex) != 0) return -1;
-    lcm_subscription_t *sub = lcm_subscribe(link->lcm, regex, link_on_buffer, slot);
+    if (link_channel_regex(channel, regex, sizeof regex) != 0) return -1;
+    lcm_subscription_t *sub = lcm_subscribe(link->lcm, regex, handler, user);
     if (sub == NULL) return -1;
     /* LCM's default queue drops the newest past 30 messages: nothing may be lost here. */
     return lcm_subscription_set_queue_capacity(sub, 0) == 0 ? 0 : -1;

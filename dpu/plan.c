@@ -159,6 +159,7 @@ skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason
     plan->slots = calloc(SKEL_MAX_SLOTS, sizeof *plan->slots);
     if (plan->processes == NULL || plan->slots == NULL) goto oom;
     if (plan_add_processes(plan, cfg, d->id) != 0) goto oom;
+    if (event_plan(plan, cfg, d->id) != 0) goto oom;
     plan->fits = plan_fits(plan);
     plan_size_links(plan, cfg);
     int32_t max_bytes = 1;
@@ -179,7 +180,8 @@ oom:
 
 /* The network side of applying: lcm_t per URL, a subscription per slot read
  * over a link. Made by the control thread, used afterwards by the executive. */
-int plan_open_links(skel_plan_t *plan, atomic_int_fast64_t *rejected, char *reason, size_t len)
+int plan_open_links(skel_plan_t *plan, const char *control_url, atomic_int_fast64_t *rejected,
+                    char *reason, size_t len)
 {
     plan->rejected = rejected;
     for (int i = 0; i < plan->nlinks; i++)
@@ -196,12 +198,17 @@ int plan_open_links(skel_plan_t *plan, atomic_int_fast64_t *rejected, char *reas
             return -1;
         }
     }
+    if (event_open(plan, control_url) != 0) {
+        snprintf(reason, len, "DPU %d: cannot open or subscribe to its events on %s", plan->dpu, control_url);
+        return -1;
+    }
     return 0;
 }
 
 void plan_free(skel_plan_t *plan)
 {
     if (plan == NULL) return;
+    event_free(plan);
     for (int i = 0; i < plan->nlinks; i++) link_close(&plan->links[i]);
     for (int s = 0; plan->slots != NULL && s < plan->nslots; s++) free(plan->slots[s].channel);
     for (int i = 0; plan->processes != NULL && i < SKEL_MAX_PROCESSES; i++)
@@ -231,6 +238,7 @@ void plan_reset_run(skel_plan_t *plan, int64_t run_id)
         p->sums = (skel_process_sums_t){ 0 };
         draw_seed(&p->draw, plan->seed, p->id);
     }
+    event_reset_run(plan);
     plan->publish_errors = 0;
     plan->run_t0_ns = plan->epoch_t0_ns = 0;
     plan->minor_base = 0;

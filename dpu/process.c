@@ -85,7 +85,8 @@ static int64_t process_held_up(skel_exec_t *x, const skel_process_t *p, int64_t 
     int64_t next = INT64_MAX;
     for (int i = 0; i < plan->nprocesses; i++) {
         skel_process_t *q = &plan->processes[i];
-        if (i == me || q->locked_out) continue;
+        /* an event process without an event has nothing to be held up from */
+        if (i == me || q->locked_out || q->event >= 0) continue;
         int64_t k = i > me ? (j + q->ratio - 1) / q->ratio : j / q->ratio + 1;
         int64_t release = plan->epoch_t0_ns + k * q->period_ns;
         if (release >= x->end_mono_ns) continue; /* not due in this run */
@@ -213,6 +214,7 @@ void process_write_outputs(skel_exec_t *x, skel_process_t *p, int64_t k)
             log_line("DPU %d: process %d cannot publish buffer %d on %s", plan->dpu, p->id,
                      out->buffer, out->channel);
     }
+    if (p->nemits > 0) event_emit(plan, p, server_now(x->s));
 }
 
 void process_commit(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec, int measured)
@@ -241,6 +243,9 @@ void process_record_begin(skel_exec_t *x, const skel_process_t *p, int64_t k, in
     rec->start_ns = start + off;
     rec->stall_ns = x->wake_stall_ns;
     x->wake_stall_ns = 0;
+    rec->event_ns = p->taken_ns >= 0 ? p->taken_ns + off : -1;
+    rec->event_queued = p->taken_left;
+    rec->event_dropped = p->taken_dropped;
 }
 
 /* The end of cycle K's work: outputs written since T_OUT. Slack, overrun and the
@@ -251,6 +256,7 @@ void process_finish(skel_exec_t *x, skel_process_t *p, skel_rec_t *rec, int64_t 
     const int64_t off = x->s->clock_offset_ns;
     int64_t end = clock_mono_ns();
     int64_t start = rec->start_ns - off;
+    p->taken_ns = -1; /* its event is handled */
     rec->comm_out_ns = end - t_out;
     rec->slack_ns = release + p->period_ns - end;
     if (rec->slack_ns < 0) {

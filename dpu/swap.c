@@ -142,4 +142,5 @@ void swap_carry(skel_plan_t *next, const skel_plan_t *old, int64_t j_sw)
     swap_carry_slots(next, old);
     for (int i = 0; i < next->nprocesses; i++)
         swap_carry_process(next, &next->processes[i], old, j_sw, t_sw);
+    event_carry(next, old, t_sw);
 }

@@ -51,6 +51,15 @@ static int64_t tasking_release(const skel_plan_t *plan, const skel_process_t *p,
     return plan->epoch_t0_ns + k * p->period_ns;
 }
 
+/* An event process's next release: its oldest waiting event, or a period after its
+ * last release when events come faster (INT64_MAX: none waits). */
+static int64_t tasking_event_release(const skel_process_t *p)
+{
+    if (!event_pending(p)) return INT64_MAX;
+    int64_t at = p->queue_ns[p->q_head], earliest = p->job_release + p->period_ns;
+    return at > earliest ? at : earliest;
+}
+
 /* The run's minor cycle P's job was released in (the records' frame). */
 static int64_t tasking_minor(const skel_plan_t *plan, const skel_process_t *p)
 {
@@ -85,6 +94,16 @@ static void tasking_release_due(skel_exec_t *x, int64_t vt)
     skel_plan_t *plan = x->plan;
     for (int i = 0; i < plan->nprocesses; i++) {
         skel_process_t *p = &plan->processes[i];
+        if (p->event >= 0) {
+            int64_t release = tasking_event_release(p);
+            if (p->job == TASK_NONE && release <= vt && release < x->end_mono_ns) {
+                p->job_release = release;
+                p->job_flags = 0;
+                p->job = TASK_READY;
+                event_release(plan, p, release);
+            }
+            continue;
+        }
         while (p->job == TASK_NONE) { /* again after a skipped release */
             int64_t release = tasking_release(plan, p, p->next_k);
             if (release > vt || release >= x->end_mono_ns) break;
@@ -210,8 +229,9 @@ void tasking_run(skel_exec_t *x)
         int watch = 0;
         for (int i = 0; i < plan->nprocesses; i++) {
             skel_process_t *p = &plan->processes[i];
-            watch |= p->job == TASK_WAITING;
-            int64_t r = tasking_release(plan, p, p->next_k);
+            /* an idle event process waits for its event: an arrival wakes the schedule */
+            watch |= p->job == TASK_WAITING || (p->event >= 0 && p->job == TASK_NONE);
+            int64_t r = p->event >= 0 ? tasking_event_release(p) : tasking_release(plan, p, p->next_k);
             if (p->job == TASK_NONE && r < next) next = r;
         }
         if (h != NULL && h->slice_mono_ns + h->remaining_ns < next) next = h->slice_mono_ns + h->remaining_ns;
@@ -239,7 +259,7 @@ void tasking_run(skel_exec_t *x)
             idle = h;
             cur = NULL;
         }
-        if (watch) {
+        if (watch) { /* data for a waiting job, or an event */
             (void)link_drain(plan->links, plan->nlinks);
             for (int i = 0; i < plan->nprocesses; i++)
                 if (plan->processes[i].job == TASK_WAITING) tasking_check_data(x, &plan->processes[i], vt);

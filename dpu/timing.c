@@ -73,6 +73,9 @@ int timing_batch_init(skel_batch_t *b)
     m->stall_ns = calloc(n, sizeof *m->stall_ns);
     m->preemptions = calloc(n, sizeof *m->preemptions);
     m->preempted_ns = calloc(n, sizeof *m->preempted_ns);
+    m->event_ns = calloc(n, sizeof *m->event_ns);
+    m->event_queued = calloc(n, sizeof *m->event_queued);
+    m->event_dropped = calloc(n, sizeof *m->event_dropped);
     m->flags = calloc(n, sizeof *m->flags);
     m->in_record = calloc(ni, sizeof *m->in_record);
     m->in_buffer = calloc(ni, sizeof *m->in_buffer);
@@ -84,7 +87,8 @@ int timing_batch_init(skel_batch_t *b)
     m->in_recv_ns = calloc(ni, sizeof *m->in_recv_ns);
     if (!m->process || !m->cycle || !m->minor || !m->release_ns || !m->sched_ns || !m->start_ns ||
         !m->comm_in_ns || !m->blocked_ns || !m->asked_ns || !m->compute_ns || !m->comm_out_ns || !m->idle_ns ||
-        !m->slack_ns || !m->stall_ns || !m->preemptions || !m->preempted_ns || !m->flags || !m->in_record || !m->in_buffer || !m->in_seq ||
+        !m->slack_ns || !m->stall_ns || !m->preemptions || !m->preempted_ns || !m->event_ns ||
+        !m->event_queued || !m->event_dropped || !m->flags || !m->in_record || !m->in_buffer || !m->in_seq ||
         !m->in_new || !m->in_dropped || !m->in_received || !m->in_sent_ns || !m->in_recv_ns) {
         timing_batch_free(b);
         return -1;
@@ -98,7 +102,8 @@ void timing_batch_free(skel_batch_t *b)
     free(m->process); free(m->cycle); free(m->minor); free(m->release_ns);
     free(m->sched_ns); free(m->start_ns); free(m->comm_in_ns); free(m->blocked_ns); free(m->asked_ns);
     free(m->compute_ns); free(m->comm_out_ns); free(m->idle_ns); free(m->slack_ns);
-    free(m->stall_ns); free(m->preemptions); free(m->preempted_ns); free(m->flags);
+    free(m->stall_ns); free(m->preemptions); free(m->preempted_ns);
+    free(m->event_ns); free(m->event_queued); free(m->event_dropped); free(m->flags);
     free(m->in_record); free(m->in_buffer); free(m->in_seq); free(m->in_new);
     free(m->in_dropped); free(m->in_received); free(m->in_sent_ns); free(m->in_recv_ns);
     memset(b, 0, sizeof *b);
@@ -139,6 +144,9 @@ void timing_batch_add(skel_batch_t *b, const skel_rec_t *rec)
     m->stall_ns[i] = rec->stall_ns;
     m->preemptions[i] = rec->preemptions;
     m->preempted_ns[i] = rec->preempted_ns;
+    m->event_ns[i] = rec->event_ns;
+    m->event_queued[i] = rec->event_queued;
+    m->event_dropped[i] = rec->event_dropped;
     m->flags[i] = rec->flags;
     for (int q = 0; q < rec->ninputs && q < SKEL_MAX_IO; q++) {
         int w = m->ninputs++;

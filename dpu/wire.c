@@ -1,7 +1,7 @@
 /* wire.c: safe decoding of received messages. lcm-gen's C decoders trust every
  * length they read (a negative one makes them malloc SIZE_MAX), so each message
- * is first walked by the generated skelmsg_<type>_check(). buffer_t, received
- * on the hot path, is not decoded at all (the decoder mallocs the payload): its
+ * is first walked by the generated skelmsg_<type>_check(). buffer_t and event_t,
+ * received on the hot path, are not decoded at all (the decoder mallocs): their
  * fixed header is read in place with lcm_coretypes primitives. A unit test
  * compares this reader with the generated decoder, so drift fails a test. */
 #include <stdlib.h>
@@ -32,6 +32,24 @@ int wire_buffer_header(const void *buf, int len, wire_buffer_hdr_t *hdr)
     if ((n = __int64_t_decode_array(buf, pos, len - pos, &hdr->send_ns, 1)) < 0) return -1;
     pos += n;
     if ((n = __int32_t_decode_array(buf, pos, len - pos, &hdr->nbytes, 1)) < 0) return -1;
+    return 0;
+}
+
+int wire_event_header(const void *buf, int len, wire_event_hdr_t *hdr)
+{
+    if (skelmsg_event_t_check(buf, len) != 0) return -1;
+    int pos = 8;
+    int n;
+    memset(hdr, 0, sizeof *hdr);
+    if ((n = __int64_t_decode_array(buf, pos, len - pos, &hdr->run_id, 1)) < 0) return -1;
+    pos += n;
+    if ((n = __int16_t_decode_array(buf, pos, len - pos, &hdr->dpu, 1)) < 0) return -1;
+    pos += n;
+    if ((n = __int16_t_decode_array(buf, pos, len - pos, &hdr->process, 1)) < 0) return -1;
+    pos += n;
+    if ((n = __int64_t_decode_array(buf, pos, len - pos, &hdr->seq, 1)) < 0) return -1;
+    pos += n;
+    if ((n = __int64_t_decode_array(buf, pos, len - pos, &hdr->sent_ns, 1)) < 0) return -1;
     return 0;
 }
 

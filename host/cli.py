@@ -123,6 +123,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, metavar="S", help="stop watching after S seconds")
     p.add_argument("--json", action="store_true", help="with --once: the final report as JSON (report.json)")
 
+    p = sub.add_parser("event", help="send a named event to the processes awaiting it (sync: event)")
+    p.add_argument("name", help="the event, as the system file names it (an `events:` entry of kind host)")
+    p.add_argument("--count", type=int, default=1, help="how many (default 1)")
+    p.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="events per second (default 10)")
+    p.add_argument("--url", default=DEFAULT_URL)
+
     p = sub.add_parser("doctor", help="check what would break LCM multicast here, with the fix for each")
     p.add_argument("--url", default=DEFAULT_URL)
     p.add_argument("--json", action="store_true")
@@ -375,9 +381,24 @@ def cmd_doctor(args: argparse.Namespace) -> int:
     return doctor(args.url, as_json=args.json)
 
 
+def cmd_event(args: argparse.Namespace) -> int:
+    from . import event
+
+    named = event.NAME.fullmatch(args.name)
+    problem = ("a name of letters, digits and _ not starting with a digit" if not named
+               else "--count must be >= 1" if args.count < 1
+               else "--rate must be a positive number" if not 0 < args.rate < float("inf") else "")
+    if problem:
+        print(f"skel event {args.name}: {problem}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    sent = event.send(args.url, args.name, args.count, args.rate)
+    print(f"sent {sent} event{'s' if sent != 1 else ''} {args.name} on {args.url}")
+    return 0
+
+
 COMMANDS = {"check": cmd_check, "up": cmd_up, "down": cmd_down, "push": cmd_push, "run": cmd_run,
             "status": cmd_status, "clock": cmd_clock, "report": cmd_report, "diff": cmd_diff,
-            "export": cmd_export, "watch": cmd_watch, "doctor": cmd_doctor}
+            "export": cmd_export, "watch": cmd_watch, "doctor": cmd_doctor, "event": cmd_event}
 
 
 if __name__ == "__main__":

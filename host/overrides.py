@@ -4,7 +4,7 @@ Overrides edit the raw YAML document before validation, so an overridden value
 passes exactly the checks a written one does. Targets:
 
     process.NAME.FIELD   dpu.ID.FIELD   buffer.NAME.FIELD   link.NAME.FIELD
-    run.FIELD            system
+    event.NAME.FIELD     run.FIELD      system
 (plural section names work too; a process or buffer may be named by its id).
 VALUE is a YAML value (`3000`, `wall`, `[3, 5]`); an empty value or `null`
 removes the key, so its default applies.
@@ -26,9 +26,11 @@ SECTIONS = {
     "dpu": "dpus", "dpus": "dpus",
     "buffer": "buffers", "buffers": "buffers",
     "link": "links", "links": "links",
+    "event": "events", "events": "events",
 }
-_NOUN = {"processes": "process", "dpus": "DPU", "buffers": "buffer", "links": "link"}
-_USAGE = "use process.NAME.FIELD, dpu.ID.FIELD, buffer.NAME.FIELD, link.NAME.FIELD, run.FIELD or system"
+_NOUN = {"processes": "process", "dpus": "DPU", "buffers": "buffer", "links": "link", "events": "event"}
+_USAGE = ("use process.NAME.FIELD, dpu.ID.FIELD, buffer.NAME.FIELD, link.NAME.FIELD, event.NAME.FIELD, "
+          "run.FIELD or system")
 # Setting one of these drops the other, so `-s run.duration_s=5` works on a file with `cycles:`.
 _EXCLUSIVE = {"cycles": "duration_s", "duration_s": "cycles"}
 
@@ -50,7 +52,7 @@ def apply_overrides(
     """A copy of `doc` with the overrides applied, and {field path: override} for
     pointing a later validation error back at the override that caused it.
 
-    `fields` maps "processes", "dpus", "buffers", "links", "run" to the keys each
+    `fields` maps "processes", "dpus", "buffers", "links", "events", "run" to the keys each
     accepts; `default_links` is what an absent `links:` section means."""
     if not isinstance(doc, dict):
         raise OverrideError(overrides[0], "the system file is not a mapping")

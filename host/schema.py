@@ -95,6 +95,14 @@ def _at_least_items(n: int) -> Any:
     return AfterValidator(check)
 
 
+def _at_most_items(n: int) -> Any:
+    def check(v: list[Any]) -> list[Any]:
+        if len(v) > n:
+            raise ValueError(f"takes at most {n} item(s), got {len(v)}")
+        return v
+    return AfterValidator(check)
+
+
 def _nonempty(v: str) -> str:
     if not v.strip():
         raise ValueError("must not be empty")
@@ -221,14 +229,53 @@ class ProcessSpec(_Spec):
     id: Id
     name: Name
     dpu: Id
-    period_us: Micros
+    period_us: Micros       # sync: event: the least time between two of its cycles
     compute_us: Compute
-    sync: Literal["periodic", "data"] = "periodic"
+    sync: Literal["periodic", "data", "event"] = "periodic"
     inputs: list[Ref] = []
     required: list[Ref] | None = None
     outputs: list[Ref] = []
     order: Annotated[int, _between(1, MAX_ID)] | None = None
     priority: Annotated[int, _between(1, contract.MAX_PRIORITY)] | None = None  # tasking executive
+    event: Name | None = None                                                 # sync: event
+    queue: Annotated[int, _between(1, contract.MAX_QUEUE)] | None = None      # sync: event
+    emits: Annotated[list[Name], _at_most_items(contract.MAX_EMITS)] = []
+
+
+class EventSpec(_Spec):
+    """A named event's source: the host (`skel event NAME`) or a generator a DPU runs."""
+    name: Name
+    kind: Literal["host", "periodic", "poisson", "bursts"]
+    dpu: Id | None = None                       # the generating DPU
+    period_us: Micros | None = None             # periodic; bursts: between burst starts
+    jitter_us: Annotated[int, _between(0, MAX_INT32, " us")] | None = None   # periodic
+    rate_hz: Positive | None = None             # poisson
+    count: Annotated[int, _between(1, MAX_INT32)] | None = None              # bursts
+    spacing_us: Micros | None = None            # bursts
+
+    @model_validator(mode="after")
+    def _parameters(self) -> EventSpec:
+        needs, allowed = {
+            "host": (set(), set()),
+            "periodic": ({"dpu", "period_us"}, {"dpu", "period_us", "jitter_us"}),
+            "poisson": ({"dpu", "rate_hz"}, {"dpu", "rate_hz"}),
+            "bursts": ({"dpu", "period_us", "count", "spacing_us"},) * 2,
+        }[self.kind]
+        given = {k for k in ("dpu", "period_us", "jitter_us", "rate_hz", "count", "spacing_us")
+                 if getattr(self, k) is not None}
+        if needs - given:
+            raise ValueError(f"{self.kind} needs {', '.join(sorted(needs - given))}")
+        if given - allowed:
+            raise ValueError(f"{self.kind} takes no {', '.join(sorted(given - allowed))}"
+                             + ("; the host sends it with `skel event`" if self.kind == "host" else ""))
+        if self.jitter_us is not None and self.period_us is not None and 2 * self.jitter_us >= self.period_us:
+            raise ValueError(f"jitter_us {self.jitter_us} must be below half the period "
+                             f"({self.period_us} us): events would change order")
+        if self.count is not None and self.spacing_us is not None and self.period_us is not None \
+                and (self.count - 1) * self.spacing_us >= self.period_us:
+            raise ValueError(f"a burst of {self.count} events {self.spacing_us} us apart does not "
+                             f"fit in its period of {self.period_us} us")
+        return self
 
 
 class Run(_Spec):
@@ -285,9 +332,10 @@ class SystemSpec(_Spec):
     processes: Annotated[list[ProcessSpec], _at_least_items(1)]
     run: Run = Run()
     chains: list[ChainSpec] = []
+    events: list[EventSpec] = []
     reference: Reference | None = None
 
-    @field_validator("buffers", "chains", "run", mode="before")
+    @field_validator("buffers", "chains", "events", "run", mode="before")
     @classmethod
     def _empty_section(cls, v: Any, info: ValidationInfo) -> Any:
         # `run:` with every line commented out is an empty section, not an error.
@@ -367,16 +415,40 @@ class Process:
     order: int              # 1.. within its DPU's minor cycle
     period_us: int
     compute_us: int         # the constant, or the mean of `varying` (rounded): the schedule's figure
-    sync: str               # periodic | data
+    sync: str               # periodic | data | event
     inputs: tuple[int, ...]     # buffer ids
     required: tuple[int, ...]   # buffer ids a data-synchronised cycle waits for
     outputs: tuple[int, ...]
     varying: Varying | None = None  # how compute varies (None: compute_us every cycle)
     priority: int = 0       # on the tasking executive: 1..MAX_PRIORITY, higher first; 0 on cyclic
+    event: str = ""         # sync: event: the event it awaits ...
+    queue: int = 0          # ... and how many may wait for it (1..MAX_QUEUE)
+    emits: tuple[str, ...] = ()  # events it fires at the end of each cycle
 
     @property
     def worst_compute_us(self) -> float:
         return self.varying.max_us if self.varying else self.compute_us
+
+
+@dataclass(frozen=True)
+class Event:
+    """A source of a named event: the host, or a generator on DPU `dpu`."""
+    name: str
+    kind: str               # host | periodic | poisson | bursts
+    dpu: int = 0            # the generating DPU; 0: the host
+    period_us: int = 0
+    jitter_us: int = 0
+    rate_hz: float = 0.0
+    count: int = 0
+    spacing_us: int = 0
+
+    @property
+    def rate(self) -> float:
+        """Mean events per second (0: the host's, unknown)."""
+        if self.kind == "poisson":
+            return self.rate_hz
+        per_period = self.count if self.kind == "bursts" else 1
+        return per_period * 1e6 / self.period_us if self.period_us else 0.0
 
 
 @dataclass(frozen=True)

@@ -29,10 +29,11 @@ from skelmsg import contract
 
 REPO = Path(__file__).resolve().parent.parent
 LOCAL_HOSTS = {"", "localhost", "127.0.0.1", "::1"}
-# What the logger records by default: everything but the dummy buffers themselves (a regular
-# expression; LCM anchors it at both ends, so the alternatives are grouped).
+# What the logger records by default: everything but the dummy buffers themselves, events
+# included (a regular expression; LCM anchors it at both ends, so the alternatives are grouped).
 _CONTROL_CHANNELS = (contract.CONFIG_CHANNEL, contract.COMMAND_CHANNEL, contract.STATUS_CHANNEL,
-                     contract.TIMING_CHANNEL, contract.REPORT_CHANNEL, contract.CLOCK_CHANNEL)
+                     contract.TIMING_CHANNEL, contract.REPORT_CHANNEL, contract.CLOCK_CHANNEL,
+                     contract.EVENT_CHANNEL_PREFIX + ".*")
 LOGGED_CHANNELS = f"({'|'.join(_CONTROL_CHANNELS)})"
 
 

@@ -27,6 +27,8 @@ from .schema import (
     Chain,
     Dpu,
     DpuSpec,
+    Event,
+    EventSpec,
     Link,
     LinkSpec,
     Process,
@@ -53,6 +55,7 @@ class System:
     run: Run
     chains: tuple[Chain, ...]
     reference: Reference | None
+    events: tuple[Event, ...] = ()
     overrides: tuple[str, ...] = ()
     document: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
@@ -83,7 +86,10 @@ class System:
 
     @property
     def critical_period_us(self) -> int:
-        return min(p.period_us for p in self.processes)
+        """The shortest period of the clock-driven processes (`run.cycles` counts these): an
+        event process's period only bounds how often it may run."""
+        clocked = [p.period_us for p in self.processes if p.sync != "event"]
+        return min(clocked or [p.period_us for p in self.processes])
 
     def static_load(self, worst: bool = False) -> dict[int, float]:
         """Per DPU, the fraction of its time its processes compute: Σ compute/period / speed,
@@ -142,6 +148,7 @@ def _build(path: str | Path, doc: Any, overrides: tuple[str, ...], text: str | N
     if overrides:
         fields = {"processes": ProcessSpec.model_fields.keys(), "dpus": DpuSpec.model_fields.keys(),
                   "buffers": BufferSpec.model_fields.keys(), "links": LinkSpec.model_fields.keys(),
+                  "events": EventSpec.model_fields.keys(),
                   "run": Run.model_fields.keys()}
         try:
             default_links = [{"name": DEFAULT_LINK, "url": contract.DEFAULT_URL}]
@@ -165,7 +172,7 @@ def _build(path: str | Path, doc: Any, overrides: tuple[str, ...], text: str | N
     return System(
         name=spec.system, path=Path(path), source_text=text or "", links=parts.links, dpus=parts.dpus,
         buffers=parts.buffers, processes=parts.processes, run=run, chains=parts.chains,
-        reference=spec.reference, overrides=overrides, document=doc,
+        reference=spec.reference, events=parts.events, overrides=overrides, document=doc,
     )
 
 

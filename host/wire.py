@@ -2,11 +2,13 @@
 itself from, and a YAML file with every default made explicit.
 
 The only place that knows how the system file maps onto lcmtypes/config_t.lcm;
-DPUs see ids and enums only, never names they would have to resolve.
+DPUs see ids and enums only, never names they would have to resolve, except an
+event's: its name is its channel (EVENT_CHANNEL_PREFIX + name), whoever sends it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Any
 
@@ -14,6 +16,7 @@ import yaml
 
 import skelmsg
 
+from .schema import Event
 from .system import System
 
 COMPUTE = {
@@ -23,7 +26,14 @@ COMPUTE = {
     "work": skelmsg.dpu_t.COMPUTE_WORK,
 }
 EXECUTIVE = {"cyclic": skelmsg.dpu_t.EXECUTIVE_CYCLIC, "threads": skelmsg.dpu_t.EXECUTIVE_THREADS}
-SYNC = {"periodic": skelmsg.process_t.SYNC_PERIODIC, "data": skelmsg.process_t.SYNC_DATA}
+SYNC = {"periodic": skelmsg.process_t.SYNC_PERIODIC, "data": skelmsg.process_t.SYNC_DATA,
+        "event": skelmsg.process_t.SYNC_EVENT}
+EVENT_KIND = {
+    "host": skelmsg.event_source_t.KIND_HOST,
+    "periodic": skelmsg.event_source_t.KIND_PERIODIC,
+    "poisson": skelmsg.event_source_t.KIND_POISSON,
+    "bursts": skelmsg.event_source_t.KIND_BURSTS,
+}
 
 
 def config_message(system: System, generation: int, run_id: int, committed: bool) -> skelmsg.config_t:
@@ -70,6 +80,8 @@ def config_message(system: System, generation: int, run_id: int, committed: bool
         proc.noutputs = len(proc.outputs)
         proc.quantiles_us = list(p.varying.quantiles_us) if p.varying else []
         proc.nquantiles = len(proc.quantiles_us)
+        proc.event, proc.queue = p.event, p.queue
+        proc.emits, proc.nemits = list(p.emits), len(p.emits)
         msg.processes.append(proc)
     msg.nprocesses = len(msg.processes)
     msg.chains = []
@@ -78,8 +90,18 @@ def config_message(system: System, generation: int, run_id: int, committed: bool
         chain.name, chain.processes, chain.nprocesses = c.name, list(c.processes), len(c.processes)
         msg.chains.append(chain)
     msg.nchains = len(msg.chains)
+    msg.events = [_event_source(e) for e in system.events]
+    msg.nevents = len(msg.events)
     msg.source = system.source_text
     return msg
+
+
+def _event_source(e: Event) -> skelmsg.event_source_t:
+    src = skelmsg.event_source_t()
+    src.name, src.kind, src.dpu = e.name, EVENT_KIND[e.kind], e.dpu
+    src.period_us, src.jitter_us, src.rate_hz = e.period_us, e.jitter_us, e.rate_hz
+    src.count, src.spacing_us = e.count, e.spacing_us
+    return src
 
 
 def _link(link_id: int, name: str, url: str) -> skelmsg.link_t:
@@ -105,11 +127,16 @@ def dump_yaml(system: System) -> str:
                        "sync": p.sync, **({"priority": p.priority} if p.priority else {}),
                        "inputs": [names[b] for b in p.inputs],
                        **({"required": [names[b] for b in p.required]} if p.sync == "data" else {}),
+                       **({"event": p.event, "queue": p.queue} if p.sync == "event" else {}),
+                       **({"emits": list(p.emits)} if p.emits else {}),
                        "outputs": [names[b] for b in p.outputs]} for p in system.processes],
         "run": system.run.model_dump(exclude_none=True),
         "chains": [{"name": c.name, "processes": [system.process(i).name for i in c.processes]}
                    for c in system.chains],
     }
+    if system.events:
+        doc["events"] = [{k: v for k, v in dataclasses.asdict(e).items() if v or k in ("name", "kind")}
+                         for e in system.events]
     if system.reference is not None:
         doc["reference"] = system.reference.model_dump(exclude_none=True)
     return yaml.safe_dump(doc, sort_keys=False)

@@ -24,7 +24,8 @@ import yaml
 from pydantic import BaseModel
 
 # Lists whose items are named by a key instead of an index in error paths.
-NAMED_BY = {"dpus": "id", "processes": "name", "buffers": "name", "links": "name", "chains": "name"}
+NAMED_BY = {"dpus": "id", "processes": "name", "buffers": "name", "links": "name", "chains": "name",
+            "events": "name"}
 
 # The whole system goes to every DPU in one config_t of about 1.5 times the file's size;
 # above 128 KiB it would outgrow a socket's default receive buffer (212 KB) before it

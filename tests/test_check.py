@@ -118,4 +118,5 @@ def test_error_is_one_line_without_a_traceback(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=60)
     assert done.returncode == 2
     assert done.stdout == ""
-    assert done.stderr == f"{path}: processes.p.sync: must be one of 'periodic' or 'data', got 'dat'\n"
+    assert done.stderr == (f"{path}: processes.p.sync: must be one of 'periodic', 'data' or 'event', "
+                           "got 'dat'\n")

@@ -154,7 +154,8 @@ def test_fast_timing_decode_equals_generated_decoder() -> None:
     run = decode_run(msgs, RUN_ID)
     ref = [skelmsg.timing_t.decode(d) for d in msgs]
     for name in ("process", "cycle", "minor", "release_ns", "start_ns", "comm_in_ns", "blocked_ns",
-                 "asked_ns", "compute_ns", "comm_out_ns", "idle_ns", "slack_ns", "flags"):  # fmt: skip
+                 "asked_ns", "compute_ns", "comm_out_ns", "idle_ns", "slack_ns", "event_ns", "event_queued",
+                 "event_dropped", "flags"):  # fmt: skip
         assert run.records[name].tolist() == [v for r in ref for v in getattr(r, name)], name
     pairs = {"buffer": "in_buffer", "seq": "in_seq", "new": "in_new", "dropped": "in_dropped",
              "received": "in_received", "sent_ns": "in_sent_ns", "recv_ns": "in_recv_ns"}  # fmt: skip
@@ -267,7 +268,8 @@ def _structured(msgs: list[bytes], run_id: int) -> tuple[np.ndarray, np.ndarray]
                          t.release_ns[i], t.sched_ns[i], t.start_ns[i], t.comm_in_ns[i], t.blocked_ns[i],
                          t.asked_ns[i],
                          t.compute_ns[i], t.comm_out_ns[i], t.idle_ns[i], t.slack_ns[i], t.stall_ns[i],
-                         t.preemptions[i], t.preempted_ns[i], t.flags[i]))  # fmt: skip
+                         t.preemptions[i], t.preempted_ns[i], t.event_ns[i], t.event_queued[i],
+                         t.event_dropped[i], t.flags[i]))  # fmt: skip
         for j, r in enumerate(t.in_record):
             ins.append((base + r, t.dpu, t.process[r], t.cycle[r], t.in_buffer[j], t.in_seq[j], t.in_new[j],
                         t.in_dropped[j], t.in_received[j], t.in_sent_ns[j], t.in_recv_ns[j]))  # fmt: skip

@@ -57,6 +57,9 @@ _CYCLE = {
     "stall_ns": "time the DPU's thread was kept from running (machine stalls)",
     "preemptions": "times higher-priority work took the processor from it (tasking executive)",
     "preempted_ns": "time it was kept off the processor so, between its start and its end",
+    "event_ns": "sync: event: when the event the cycle handled reached its DPU (-1: not an event cycle)",
+    "event_queued": "sync: event: events still waiting behind it when it started",
+    "event_dropped": "sync: event: events its full queue dropped since its previous cycle",
     "flags": "timing_t flag bits (the booleans below)",
 }  # fmt: skip
 COLUMNS: dict[str, dict[str, str]] = {
@@ -69,6 +72,8 @@ COLUMNS: dict[str, dict[str, str]] = {
         "completed": "ran to its end (not skipped, not a skipped release): with `measured`, the "
                      "cycles the report's latencies count",
         "release_latency_us": "start - release", "response_us": "end of the cycle's work - release",
+        "event_latency_us": "sync: event: start - event (empty for other cycles)",
+        "event_response_us": "sync: event: end of the cycle's work - event (empty for other cycles)",
         "start_utc_ns": "start, on the wall clock",
     },
     "receptions": {
@@ -158,9 +163,22 @@ def timing_table(run: RunAnalysis) -> Table:
         "completed": completed(recs) if n else np.zeros(0, dtype=bool),
         "release_latency_us": (start - release) / 1e3,
         "response_us": (cycle_end_ns(recs) - release) / 1e3 if n else np.zeros(0),
+        **_event_columns(recs, start),
         "start_utc_ns": run.to_utc_ns(np.asarray(recs["dpu"]), start) if n else np.zeros(0, np.int64),
     }  # fmt: skip
     return _documented("timing", columns)
+
+
+def _event_columns(recs: Any, start: np.ndarray) -> dict[str, np.ndarray]:
+    """event -> start and -> end, NaN for the cycles that handled no event."""
+    if not len(recs):
+        return {"event_latency_us": np.zeros(0), "event_response_us": np.zeros(0)}
+    event = np.asarray(recs["event_ns"])
+    got = event >= 0
+    return {
+        "event_latency_us": np.where(got, (start - event) / 1e3, np.nan),
+        "event_response_us": np.where(got, (cycle_end_ns(recs) - event) / 1e3, np.nan),
+    }
 
 
 def receptions_table(run: RunAnalysis) -> Table:

@@ -29,9 +29,13 @@ from typing import Any
 
 import numpy as np
 
+import skelmsg
+
 from ..read.records import FLAG_OVERRUN, FLAG_RELEASE_SKIPPED, FLAG_SKIPPED
 from .stats import Histogram, LatencyUs, group_slices, histogram
 from .stats import latency_us as _latency
+
+SYNC_EVENT = skelmsg.process_t.SYNC_EVENT
 
 
 @dataclass
@@ -42,6 +46,17 @@ class InputMetrics:
     stale: int  # completed cycles that found nothing new (in_new == 0)
     dropped: int  # sequences skipped (writer faster than reader, or loss)
     received: int  # messages received
+
+
+@dataclass
+class EventMetrics:
+    """A `sync: event` process's events over the measured window."""
+    event: str
+    handled: int  # completed cycles, one per event
+    dropped: int  # events its full queue dropped (timing_t.event_dropped)
+    queued_max: int  # the most events waiting behind one that started
+    latency_us: LatencyUs  # event -> start
+    response_us: LatencyUs  # event -> end of the cycle's work
 
 
 @dataclass
@@ -78,7 +93,9 @@ class ProcessMetrics:
     asked_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))
     asked_mean_us: float | None = None
     compute_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))
-    # "release_latency_us" and "response_us": HISTOGRAM_BINS equal bins each
+    events: EventMetrics | None = None  # sync: event processes only
+    # "release_latency_us" and "response_us" (and an event process's "event_latency_us"):
+    # HISTOGRAM_BINS equal bins each
     histograms: dict[str, Histogram] = field(default_factory=dict)
 
 
@@ -311,9 +328,32 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
                 asked_us=_latency(done["asked_ns"].astype(np.float64) / 1000.0),
                 asked_mean_us=float(done["asked_ns"].mean()) / 1000.0 if len(done) else None,
                 compute_us=_latency(done["compute_ns"].astype(np.float64) / 1000.0),
+                events=_events(proc, mine, done),
             )
         )
+        if out[-1].events is not None:
+            out[-1].histograms["event_latency_us"] = histogram(event_latency_us(done))
     return out
+
+
+def event_latency_us(records: np.ndarray) -> np.ndarray:
+    """event -> start of each event cycle among RECORDS (the others are left out)."""
+    got = records[records["event_ns"] >= 0]
+    return (got["start_ns"] - got["event_ns"]).astype(np.float64) / 1000.0
+
+
+def _events(proc: Any, mine: np.ndarray, done: np.ndarray) -> EventMetrics | None:
+    if proc.sync != SYNC_EVENT:
+        return None
+    got = done[done["event_ns"] >= 0]
+    return EventMetrics(
+        event=proc.event,
+        handled=len(got),
+        dropped=int(mine["event_dropped"].sum()),
+        queued_max=int(got["event_queued"].max()) if len(got) else 0,
+        latency_us=_latency(event_latency_us(got)),
+        response_us=_latency((cycle_end_ns(got) - got["event_ns"]).astype(np.float64) / 1000.0),
+    )
 
 
 def _input(my_inputs: np.ndarray, buffer_id: int, buffers: dict[int, Any]) -> InputMetrics:

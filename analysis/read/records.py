@@ -34,7 +34,7 @@ if TIMING.head[0][:4] != ("dpu", "run_id", "generation", "batch_seq"):
 CYCLE_FIELDS = (
     "cycle", "minor", "release_ns", "sched_ns", "start_ns", "comm_in_ns", "blocked_ns",
     "asked_ns", "compute_ns", "comm_out_ns", "idle_ns", "slack_ns", "stall_ns", "preemptions",
-    "preempted_ns",
+    "preempted_ns", "event_ns", "event_queued", "event_dropped",
 )  # fmt: skip
 RECORD_DTYPE = np.dtype(
     [("dpu", "i2"), ("process", "i2"), ("generation", "i8"), ("batch_seq", "i8")]

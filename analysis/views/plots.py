@@ -20,7 +20,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
-from ..measure.metrics import cycle_end_ns, frames, measured
+from ..measure.metrics import LatencyUs, ProcessMetrics, cycle_end_ns, frames, measured
 from ..measure.run import RunAnalysis
 from ..read.records import FLAG_OVERRUN, FLAG_SKIPPED
 
@@ -41,6 +41,9 @@ TEXT = {
                  "`behind` are shaded (red: the design's, orange: the platform's), stalls are grey bars."),
     "release_latency": ("Release latency per process",
                         "Start minus release of every measured cycle (log-scale counts), with p50 and p99."),
+    "event_latency": ("Event latency per process", "For each process awaiting an event: its start minus "
+                      "the event's arrival at its DPU, every measured cycle (log-scale counts), with p50 "
+                      "and p99."),
     "buffer_latency": ("Buffer transport latency", "Receive minus send time of every new message, "
                        "per buffer and reader (log-scale counts)."),
     "chain_latency": ("Chain latency over time", "Per value reaching the chain's tail: its first use "
@@ -76,6 +79,9 @@ def write_plots(data: RunAnalysis, out_dir: Path, window_ms: tuple[float, float]
     save(fig, Plot("timeline.png", TEXT["timeline"][0], caption))
     save(schedule(data), Plot("schedule.png", *TEXT["schedule"]))
     save(release_latency(data), Plot("release_latency.png", *TEXT["release_latency"]))
+    fig = event_latency(data)
+    if fig is not None:
+        save(fig, Plot("event_latency.png", *TEXT["event_latency"]))
     fig = buffer_latency(data)
     if fig is None:
         made.notes.append("Buffer latency: no buffer has a reader with a measured sample.")
@@ -273,9 +279,24 @@ def schedule(data: RunAnalysis) -> Figure:
 
 def release_latency(data: RunAnalysis) -> Figure:
     procs = [p for p in data.report.processes if p.histograms.get("release_latency_us", None)]
+    return _latency_grid(data, [(p, p.latency_us) for p in procs], "release_latency_us", "release latency",
+                         "release latency (start - release) per process")
+
+
+def event_latency(data: RunAnalysis) -> Figure | None:
+    procs = [p for p in data.report.processes if p.events is not None and p.events.handled]
+    if not procs:
+        return None
+    return _latency_grid(data, [(p, p.events.latency_us) for p in procs if p.events is not None],
+                         "event_latency_us", "event latency", "event latency (start - event) per process")
+
+
+def _latency_grid(data: RunAnalysis, procs: list[tuple[ProcessMetrics, LatencyUs]], key: str, what: str,
+                  title: str) -> Figure:
+    """One histogram per process of its measured cycles' `key`, with p50 and p99."""
     fig, axes = _grid(max(1, len(procs)))
-    for ax, p in zip(axes, procs, strict=False):
-        hist = p.histograms["release_latency_us"]
+    for ax, (p, stats) in zip(axes, procs, strict=False):
+        hist = p.histograms[key]
         ax.set_title(f"{p.name} (DPU {p.dpu}, {p.period_us / 1000:g} ms)", fontsize=9)
         if not hist.counts:
             ax.text(0.5, 0.5, "no measured cycle", ha="center", va="center", transform=ax.transAxes)
@@ -284,17 +305,17 @@ def release_latency(data: RunAnalysis) -> Figure:
             continue
         ax.stairs(hist.counts, hist.bins, fill=True, color=COMPUTE)
         _log_counts(ax, max(hist.counts))
-        for value, style, label in ((p.latency_us.p50, "--", "p50"), (p.latency_us.p99, ":", "p99")):
+        for value, style, label in ((stats.p50, "--", "p50"), (stats.p99, ":", "p99")):
             if value is not None:
                 ax.axvline(value, color="black", linestyle=style, linewidth=1,
                            label=f"{label} {value:.0f} µs")  # fmt: skip
         ax.legend(fontsize=7, frameon=False)
         ax.tick_params(labelsize=8)
     for ax in axes:
-        ax.set_xlabel("release latency (µs)", fontsize=8)
+        ax.set_xlabel(f"{what} (µs)", fontsize=8)
     for ax in axes[:: min(3, len(axes))]:
         ax.set_ylabel("cycles", fontsize=8)
-    fig.suptitle(_title(data, "release latency (start - release) per process"))
+    fig.suptitle(_title(data, title))
     return fig
 
 

@@ -155,6 +155,22 @@ def compute_table(report: RunReport, window: WindowReport | None = None) -> Tabl
     return _table(title, columns, rows)
 
 
+def event_table(report: RunReport, window: WindowReport | None = None) -> Table:
+    """Per `sync: event` process: its events handled, dropped and queued, and how long they waited."""
+    rows = [
+        [p.name, e.event, str(e.handled), str(e.dropped), str(e.queued_max), _num(e.latency_us.p50),
+         _num(e.latency_us.p99), _num(e.latency_us.max), _num(e.response_us.p50), _num(e.response_us.p99),
+         _num(e.response_us.max)]
+        for p in (window or report).processes if (e := p.events) is not None
+    ]  # fmt: skip
+    columns = [("process", False), ("event", False), ("handled", True), ("dropped", True),
+               ("queued\nmax", True), ("latency\np50", True), ("latency\np99", True), ("latency\nmax", True),
+               ("resp.\np50", True), ("resp.\np99", True), ("resp.\nmax", True)]  # fmt: skip
+    title = ("per process awaiting an event: events handled, dropped (queue full) and the most waiting; "
+             "latency (event -> start) and response (event -> end) in µs")
+    return _table(title, columns, rows)
+
+
 def input_table(report: RunReport, window: WindowReport | None = None) -> Table:
     rows = [
         [p.name, i.buffer, str(i.new), str(i.stale), str(i.dropped), str(i.received)]
@@ -267,6 +283,8 @@ def print_report(
         console.print(response_table(report, window))
         if any(p.varying for p in part.processes):
             console.print(compute_table(report, window))
+        if any(p.events for p in part.processes):
+            console.print(event_table(report, window))
         if any(p.inputs for p in part.processes):
             console.print(input_table(report, window))
         if any(b.readers for b in part.buffers):

@@ -30,6 +30,7 @@ static void fixture_process(fixture_t *f, int i, int16_t id, int16_t dpu, int16_
     skelmsg_process_t *p = &f->procs[i];
     p->id = id;
     p->name = (char *)"p";
+    p->event = (char *)"";
     p->dpu = dpu;
     p->order = order;
     p->period_us = period_us;

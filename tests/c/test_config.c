@@ -101,6 +101,20 @@ static void test_rejections(void)
     REJECTS(f.buffers[0].channel = (char *)SKEL_STATUS_CHANNEL, 0, "SKEL_ control channel");
     REJECTS(f.in[3][1] = 2, 0, "process 4 reads buffer 2 twice");
     REJECTS(f.procs[1].sync = 3, 1, "process 2: unknown sync 3");
+    /* sync: event: a name for a channel, a queue of 1..MAX_QUEUE, generators that make sense */
+    REJECTS(f.procs[1].sync = SKELMSG_PROCESS_T_SYNC_EVENT; f.procs[1].event = (char *)"a.b";
+            f.procs[1].queue = 1, 1, "process 2: event name 'a.b' is not a name");
+    REJECTS(f.procs[1].sync = SKELMSG_PROCESS_T_SYNC_EVENT; f.procs[1].event = (char *)"go";
+            f.procs[1].queue = 65, 1, "process 2: queue 65 outside 1..64");
+    char *emits[9] = { (char *)"a", (char *)"b", (char *)"c", (char *)"d", (char *)"e", (char *)"f",
+                       (char *)"g", (char *)"h", (char *)"i" };
+    REJECTS(f.procs[1].nemits = 9; f.procs[1].emits = emits, 1, "process 2: emits 9 events, limit 8");
+    skelmsg_event_source_t src = { (char *)"tick", SKELMSG_EVENT_SOURCE_T_KIND_PERIODIC, 2, 1000, 500, 0.0, 0, 0 };
+    REJECTS(f.cfg.nevents = 1; f.cfg.events = &src, 1, "event tick: period_us 1000, jitter_us 500");
+    skelmsg_event_source_t poisson = { (char *)"tick", SKELMSG_EVENT_SOURCE_T_KIND_POISSON, 2, 0, 0, -1.0, 0, 0 };
+    REJECTS(f.cfg.nevents = 1; f.cfg.events = &poisson, 1, "event tick: rate_hz -1 outside");
+    skelmsg_event_source_t bursts = { (char *)"tick", SKELMSG_EVENT_SOURCE_T_KIND_BURSTS, 2, 1000, 0, 0.0, 5, 300 };
+    REJECTS(f.cfg.nevents = 1; f.cfg.events = &bursts, 1, "a burst of 5 events 300 us apart does not fit");
     REJECTS(f.procs[1].compute_us = -1, 1, "compute_us -1 < 0");
     double one[1] = { 5.0 }, falling[3] = { 1.0, 3.0, 2.0 }, nan_at[2] = { 1.0, 0.0 / 0.0 };
     REJECTS(f.procs[1].nquantiles = 1; f.procs[1].quantiles_us = one, 1, "1 compute quantiles; 0 or 2..512");

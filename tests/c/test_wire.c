@@ -126,6 +126,36 @@ static void test_buffer_mutations(void)
     CHECK_EQ(wire_buffer_header(enc, len, &h), 0);
 }
 
+/* The in-place event reader against the decoder, and its refusals. */
+static void test_event_header(void)
+{
+    skelmsg_event_t msg = { 42, 3, 7, 1000, -5, (char *)"shutter" };
+    uint8_t enc[256], m[256];
+    int len = skelmsg_event_t_encode(enc, 0, sizeof enc, &msg);
+    CHECK(len > 0);
+    wire_event_hdr_t h;
+    skelmsg_event_t dec;
+    CHECK_EQ(wire_event_header(enc, len, &h), 0);
+    CHECK(skelmsg_event_t_decode(enc, 0, len, &dec) >= 0);
+    CHECK_EQ(h.run_id, dec.run_id);
+    CHECK_EQ(h.dpu, dec.dpu);
+    CHECK_EQ(h.process, dec.process);
+    CHECK_EQ(h.seq, dec.seq);
+    CHECK_EQ(h.sent_ns, dec.sent_ns);
+    skelmsg_event_t_decode_cleanup(&dec);
+    const int name_len_at = 8 + 8 + 2 + 2 + 8 + 8;
+    memcpy(m, enc, (size_t)len);
+    put_be(m + name_len_at, 4, -1);
+    CHECK(wire_event_header(m, len, &h) != 0);
+    put_be(m + name_len_at, 4, 0x7fffffff);
+    CHECK(wire_event_header(m, len, &h) != 0);
+    CHECK(wire_event_header(enc, len - 1, &h) != 0);
+    CHECK(wire_event_header(enc, 10, &h) != 0);
+    memcpy(m, enc, (size_t)len);
+    m[0] ^= 1; /* another type's fingerprint */
+    CHECK(wire_event_header(m, len, &h) != 0);
+}
+
 /* Random byte flips: whatever the check lets through must decode cleanly. */
 static void test_fuzz(void)
 {
@@ -149,6 +179,8 @@ static void test_fuzz(void)
         }
         wire_buffer_hdr_t h;
         (void)wire_buffer_header(m, n, &h);
+        wire_event_hdr_t e;
+        (void)wire_event_header(m, n, &e);
         skelmsg_command_t cmd;
         if (wire_decode_command(m, n, &cmd) == 0) skelmsg_command_t_decode_cleanup(&cmd);
     }
@@ -163,6 +195,7 @@ int main(void)
     test_config_mutations();
     test_buffer_header_matches_decoder();
     test_buffer_mutations();
+    test_event_header();
     test_fuzz();
     return CHECK_DONE();
 }

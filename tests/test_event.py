@@ -1,0 +1,198 @@
+"""Processes that await an external event (`sync: event`): real DPUs, real generators, the
+host's `skel event`, and processes that emit events, held to what the process model says:
+one cycle per event, queues that keep the newest or the oldest and count what they drop,
+every generated instant repeated exactly by the same seed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import lcm
+import numpy as np
+import pandas as pd
+from conftest import EXAMPLES, skel, skel_background
+
+import skeleton
+import skelmsg
+from skeleton.host.control import Control
+from skelmsg import contract
+
+MS = 1_000_000  # ns
+
+
+def _write(tmp_path: Path, name: str, text: str) -> Path:
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(text)
+    return path
+
+
+def _events(out: Path, name: str) -> list[skelmsg.event_t]:
+    """The events NAME of the run in OUT's log, as the logger recorded them."""
+    log = lcm.EventLog(str(out / "run.lcm"), "r")
+    channel = contract.EVENT_CHANNEL_PREFIX + name
+    return [skelmsg.event_t.decode(e.data) for e in log if e.channel == channel]
+
+
+def _cycles(out: Path) -> pd.DataFrame:
+    return skeleton.load_run(out).timing.to_pandas()
+
+
+# One tasking DPU, two processes awaiting the same bursts of 5 events 0.5 ms apart. Each may
+# run once per 50 ms, so a burst leaves 4 events waiting: `queue: 1` keeps only the newest
+# (3 dropped, and its second cycle handles the burst's last event), `queue: 2` keeps the two
+# oldest (2 dropped, events handled in order).
+BURSTS = """\
+system: bursts
+dpus: [{id: 1, executive: threads}]
+processes:
+  - {id: 1, name: newest, dpu: 1, period_us: 50000, compute_us: 200, sync: event, event: burst, queue: 1}
+  - {id: 2, name: oldest, dpu: 1, period_us: 50000, compute_us: 200, sync: event, event: burst, queue: 2}
+events:
+  - {name: burst, kind: bursts, dpu: 1, period_us: 200000, count: 5, spacing_us: 500}
+run: {duration_s: 2.1, warmup_cycles: 0, lockout_cycles: 1000, stop_on: []}
+"""
+
+
+def test_a_queue_keeps_the_newest_or_the_oldest_and_counts_what_it_drops(tmp_path: Path, url: str) -> None:
+    out = tmp_path / "run"
+    run = skel("run", str(_write(tmp_path, "bursts", BURSTS)), "--spawn", "--url", url, "--out", str(out))
+    assert run.returncode in (0, 1), run.stdout + run.stderr
+    cycles = _cycles(out)
+    sent = _events(out, "burst")
+    assert len(sent) == 5 * 10, len(sent)  # bursts at 0.2 s .. 2.0 s, generated on time
+    # Which event of its burst each cycle handled: the generator's instants are in the log
+    # (same clock: one DPU), and each arrival comes well within 0.5 ms of its instant.
+    instants = np.sort([e.sent_ns for e in sent])
+    starts = instants[::5]
+    got = cycles[cycles.event_ns >= 0].copy()
+    got["burst"] = np.searchsorted(starts, got.event_ns, side="right") - 1
+    got["index"] = (got.event_ns - starts[got.burst]) // (MS // 2)
+    for name, handled, dropped in (("newest", 2, 3), ("oldest", 3, 2)):
+        mine = got[(got.process_name == name) & (got.burst < 9)]  # the last burst may be cut off
+        assert mine.burst.nunique() == 9, mine
+        for b, burst in mine.groupby("burst"):
+            assert len(burst) == handled, (name, b, burst)
+            assert burst.event_dropped.sum() == dropped, (name, b, burst)
+            index = burst["index"].tolist()
+            if name == "newest":  # the newest replaced the others: the burst's last
+                assert index[1] == 4, (name, b, index)
+            else:  # the oldest kept, in order (the first is the burst's first unless the DPU
+                # drained two arrivals at once, the second replacing nothing: queue 2 keeps both)
+                assert index == list(range(index[0], index[0] + 3)) and index[0] <= 1, (name, b, index)
+            # The first runs at once; the next waits for its period, 50 ms after the first.
+            latency = (burst.start_ns - burst.event_ns).to_numpy() / MS
+            assert latency[0] < 5, (name, b, latency)
+            assert 45 < latency[1] < 55, (name, b, latency)
+    report = skel("report", str(out), "--json")
+    assert report.returncode == 0, report.stderr
+    assert "per process awaiting an event" in skel("report", str(out)).stdout
+
+
+# A Poisson sensor on a cyclic DPU fires `fresh` at each cycle's end; a reaction on a tasking
+# DPU awaits it with the highest priority, preempting the servo loop there.
+CHAIN = """\
+system: chain
+dpus: [{id: 1}, {id: 2, executive: threads}]
+buffers: [{id: 1, name: frame, bytes: 64}]
+processes:
+  - {id: 1, name: sensor, dpu: 1, period_us: 2000, compute_us: 300, sync: event, event: pulse, queue: 8,
+     outputs: [frame], emits: [fresh]}
+  - {id: 2, name: servo, dpu: 2, period_us: 5000, compute_us: 1000, inputs: [frame]}
+  - {id: 3, name: react, dpu: 2, period_us: 1000, compute_us: 100, sync: event, event: fresh, queue: 64}
+events:
+  - {name: pulse, kind: poisson, dpu: 1, rate_hz: 200}
+run: {duration_s: 2, warmup_cycles: 10, seed: SEED}
+"""
+
+
+def _chain_run(tmp_path: Path, url: str, seed: int, tag: str) -> Path:
+    out = tmp_path / tag
+    path = _write(tmp_path, tag, CHAIN.replace("SEED", str(seed)))
+    run = skel("run", str(path), "--spawn", "--url", url, "--out", str(out))
+    assert run.returncode in (0, 1), run.stdout + run.stderr
+    return out
+
+
+def test_generated_and_emitted_events_each_run_one_cycle_and_a_seed_repeats_them(tmp_path: Path,
+                                                                                url: str) -> None:
+    out = _chain_run(tmp_path, url, 7, "a")
+    cycles = _cycles(out)
+    pulses = _events(out, "pulse")
+    sensor = cycles[cycles.process_name == "sensor"]
+    # One cycle per pulse: each handled or dropped, at most a queue's worth left at the end.
+    accounted = int((sensor.event_ns >= 0).sum() + sensor.event_dropped.sum())
+    assert 0 <= len(pulses) - accounted <= 8, (len(pulses), accounted)
+    assert len(pulses) > 200  # 200 Hz for 2 s
+    # The cyclic executive looks at the queue once per period: an event waits up to one.
+    assert (sensor.start_ns >= sensor.event_ns).all()
+    assert np.median(sensor.start_ns - sensor.event_ns) < 3 * MS
+    # Each sensor cycle's end fired `fresh`, and the reaction ran once for each.
+    fresh = _events(out, "fresh")
+    completed = sensor[sensor.completed]
+    assert abs(len(fresh) - len(completed)) <= 1, (len(fresh), len(completed))
+    assert sorted(e.seq for e in fresh) == list(range(len(fresh)))
+    react = cycles[(cycles.process_name == "react") & cycles.completed]
+    assert len(fresh) - 2 <= len(react) <= len(fresh), (len(react), len(fresh))
+    assert react.event_dropped.sum() == 0
+    # The tasking executive releases it at the event, above the servo loop: it waits for no frame.
+    assert np.median(react.start_ns - react.event_ns) < 1 * MS
+    report = skeleton.load_run(out).report
+    events = next(p.events for p in report.processes if p.name == "react")
+    assert events is not None and events.event == "fresh" and events.handled > 0
+
+    # The same seed draws the same instants; another seed, others.
+    gaps = np.diff([e.sent_ns for e in pulses])
+    again = np.diff([e.sent_ns for e in _events(_chain_run(tmp_path, url, 7, "b"), "pulse")])
+    other = np.diff([e.sent_ns for e in _events(_chain_run(tmp_path, url, 8, "c"), "pulse")])
+    n = min(len(gaps), len(again), len(other))
+    assert n > 100
+    assert (gaps[:n] == again[:n]).all()
+    assert (gaps[:n] != other[:n]).mean() > 0.9
+
+
+HOST = """\
+system: host_events
+dpus: [{id: 1}]
+processes:
+  - {id: 1, name: on_demand, dpu: 1, period_us: 1000, compute_us: 100, sync: event, event: go, queue: 64}
+  - {id: 2, name: ticker, dpu: 1, period_us: 1000, compute_us: 100}
+events:
+  - {name: go, kind: host}
+run: {duration_s: 6, warmup_cycles: 0, stop_on: []}
+"""
+
+
+def test_the_host_sends_events_with_skel_event(tmp_path: Path, url: str) -> None:
+    out = tmp_path / "run"
+    run = skel_background("run", str(_write(tmp_path, "host", HOST)), "--spawn", "--url", url,
+                          "--out", str(out))
+    control = Control(url)
+    try:
+        running = control.wait_for(lambda: 1 in control.dpus and control.dpus[1].state == "running", 30)
+        assert running, run.output
+    finally:
+        control.close()
+    sent = skel("event", "go", "--count", "20", "--rate", "100", "--url", url)
+    assert sent.returncode == 0 and "sent 20 events go" in sent.stdout, sent.stdout + sent.stderr
+    assert run.wait(60) in (0, 1), run.output
+    cycles = _cycles(out)
+    mine = cycles[cycles.process_name == "on_demand"]
+    assert len(mine) == 20, mine
+    assert (mine.event_ns >= 0).all() and mine.event_dropped.sum() == 0
+    assert sorted(mine.cycle) == list(range(20))  # its cycles count its events
+    assert skel("event", "9x", "--url", url).returncode == 2
+
+
+def test_the_event_driven_servo_example_runs(tmp_path: Path, url: str) -> None:
+    """examples/servo-events.yaml: a Poisson contact sensor feeding SERVO's force control."""
+    out = tmp_path / "run"
+    run = skel("run", str(EXAMPLES / "servo-events.yaml"), "--spawn", "--url", url, "--cycles", "300",
+               "-s", "run.warmup_cycles=10", "--out", str(out))
+    assert run.returncode in (0, 3), run.stdout + run.stderr  # 3: a busy machine's lockout
+    assert "per process awaiting an event" in run.stdout
+    report = skeleton.load_run(out).report
+    sensor = next(p for p in report.processes if p.name == "contact_sensor")
+    assert sensor.events is not None and sensor.events.handled > 50, sensor.events
+    force = next(p for p in report.processes if p.name == "force_control")
+    contact = next(i for i in force.inputs if i.buffer == "contact")
+    assert contact.new > 0 and contact.stale > 0, contact  # events come at 200 Hz, it reads at 200 Hz
