@@ -291,9 +291,6 @@ int config_validate(const skelmsg_config_t *cfg, int dpu_index, char *reason, si
     const int tasking = d->executive == SKELMSG_DPU_T_EXECUTIVE_THREADS;
     if (!tasking && d->executive != SKELMSG_DPU_T_EXECUTIVE_CYCLIC)
         return config_fail(reason, len, "DPU %d: unknown executive %d", d->id, d->executive);
-    if (tasking && d->compute != SKELMSG_DPU_T_COMPUTE_SLEEP)
-        return config_fail(reason, len, "DPU %d: the tasking executive runs in compute mode sleep only "
-                           "(its kernel-scheduled threads are not built yet)", d->id);
     if (d->compute < SKELMSG_DPU_T_COMPUTE_SLEEP || d->compute > SKELMSG_DPU_T_COMPUTE_WORK)
         return config_fail(reason, len, "DPU %d: unknown compute mode %d", d->id, d->compute);
     if (!isfinite(d->speed) || d->speed <= 0.0)

@@ -53,7 +53,6 @@ class Resolved:
 
 def resolve(spec: SystemSpec, base: Path) -> Resolved:
     """`base`: the system file's folder, where a `samples:` file is looked for."""
-    _built(spec)
     links = _links(spec.links)
     dpu_links = _dpu_links(spec, links)
     buffer_links = _buffer_links(spec, links)
@@ -256,14 +255,6 @@ def _reach(spec: SystemSpec, dpu_links: dict[int, tuple[int, ...]],
                     raise Invalid(path, f"buffer {show(name)} is on local link {show(link.name)} inside "
                                   f"DPU {writer_dpu} (its writer {show(writers[b])}) but {show(p.name)} runs "
                                   f"on DPU {p.dpu}; a local link reaches only inside one DPU")
-
-
-def _built(spec: SystemSpec) -> None:
-    """What the schema names but the DPU cannot run yet is refused here, before any run."""
-    for d in spec.dpus:
-        if d.executive == "threads" and d.compute != "sleep":
-            raise Invalid(f"dpus.{d.id}.executive", f"'threads' with compute {show(d.compute)} (kernel-"
-                          "scheduled SCHED_FIFO threads) is not built yet; use compute: sleep")
 
 
 def _minor_cycles(spec: SystemSpec) -> dict[int, int]:

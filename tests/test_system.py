@@ -214,9 +214,6 @@ ERRORS: list[tuple[str, Callable[[Doc], None], str]] = [
     ("gcd too short", _set("processes.c.period_us", 5050),
      "dpus.2: minor cycle 50 us (the gcd of its periods 5000, 5050 us) is below 100 us; "
      "give the periods a larger common divisor or set minor_cycle_us"),
-    ("tasking executive off sleep", _both(_set("dpus.2.executive", "threads"), _set("dpus.2.compute", "cpu")),
-     "dpus.2.executive: 'threads' with compute 'cpu' (kernel-scheduled SCHED_FIFO threads) is not built yet; "
-     "use compute: sleep"),
     ("too many processes", _many(65), "dpus.1: 65 processes; at most 64 per DPU"),
     ("duplicate order", _both(_set("processes.b.order", 1), _set("processes.c.order", 1)),
      "processes.c.order: order 1 is already taken on DPU 2 by 'b'"),
