@@ -257,6 +257,9 @@ static int config_check_process(const skelmsg_config_t *cfg, const skelmsg_dpu_t
     if (p->sync < SKELMSG_PROCESS_T_SYNC_PERIODIC || p->sync > SKELMSG_PROCESS_T_SYNC_EVENT)
         return config_fail(reason, len, "process %d: unknown sync %d", p->id, p->sync);
     if (config_check_events_of(p, reason, len) != 0) return -1;
+    if (p->sync == SKELMSG_PROCESS_T_SYNC_EVENT && tasking && d->compute != SKELMSG_DPU_T_COMPUTE_SLEEP)
+        return config_fail(reason, len, "process %d: sync: event on the tasking executive's kernel threads "
+                           "(compute cpu, wall, work) is not built yet; use compute: sleep", p->id);
     if (p->ninputs > SKEL_MAX_IO || p->noutputs > SKEL_MAX_IO)
         return config_fail(reason, len, "process %d: %d inputs / %d outputs, limit %d each",
                            p->id, p->ninputs, p->noutputs, SKEL_MAX_IO);
@@ -381,9 +384,6 @@ int config_validate(const skelmsg_config_t *cfg, int dpu_index, char *reason, si
     const int tasking = d->executive == SKELMSG_DPU_T_EXECUTIVE_THREADS;
     if (!tasking && d->executive != SKELMSG_DPU_T_EXECUTIVE_CYCLIC)
         return config_fail(reason, len, "DPU %d: unknown executive %d", d->id, d->executive);
-    if (tasking && d->compute != SKELMSG_DPU_T_COMPUTE_SLEEP)
-        return config_fail(reason, len, "DPU %d: the tasking executive runs in compute mode sleep only "
-                           "(its kernel-scheduled threads are not built yet)", d->id);
     if (d->compute < SKELMSG_DPU_T_COMPUTE_SLEEP || d->compute > SKELMSG_DPU_T_COMPUTE_WORK)
         return config_fail(reason, len, "DPU %d: unknown compute mode %d", d->id, d->compute);
     if (!isfinite(d->speed) || d->speed <= 0.0)

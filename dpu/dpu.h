@@ -549,6 +549,13 @@ void swap_carry(skel_plan_t *next, const skel_plan_t *old, int64_t j_sw);
 enum { TASK_NONE = 0, TASK_WAITING, TASK_READY, TASK_STARTED };
 void tasking_run(skel_exec_t *x);
 
+/* ---- threads (threads.c): the tasking executive in CPU, WALL and WORK: a SCHED_FIFO
+ * thread per process, all pinned to one CPU, the kernel preempting ------------------ */
+typedef struct threads threads_t;
+threads_t *threads_start(skel_exec_t *x, char *klass, size_t len); /* before t0; NULL: failed, said */
+void threads_run(threads_t *t, skel_exec_t *x); /* watches lockouts until the end or STOP, ends T */
+void threads_end(threads_t *t);                 /* stops and joins every thread, frees T */
+
 /* ---- executive (executive.c): the cyclic loop and its thread -------------------- */
 void executive_account(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec, int64_t release,
                        int64_t end);

@@ -399,22 +399,33 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
     int64_t t0 = run->start_mono_ns;
     plan->run_t0_ns = plan->epoch_t0_ns = t0;
     executive_open_window(plan, t0);
+    char klass[96] = "SCHED_OTHER";
+    if (fifo > 0) snprintf(klass, sizeof klass, "SCHED_FIFO %d", fifo);
+    /* The tasking executive outside SLEEP: a thread per process, made before t0
+     * (they wait for their first release themselves). */
+    threads_t *th = NULL;
+    if (plan->tasking && plan->compute != SKELMSG_DPU_T_COMPUTE_SLEEP &&
+        (th = threads_start(&x, klass, sizeof klass)) == NULL) {
+        (void)executive_schedule(s, plan, 0);
+        return;
+    }
     executive_poll_switch(&x);
     int rc;
     while ((rc = executive_wait(&x, t0)) == 2) executive_poll_switch(&x);
     if (rc != 0) { /* stopped before its first release */
+        if (th != NULL) threads_end(th);
+        plan->running = 0;
         (void)executive_schedule(s, plan, 0);
         return;
     }
-    plan->running = 1;
+    if (th == NULL) plan->running = 1; /* threads_start set it before its threads drain */
     executive_set_state(s, SKELMSG_STATUS_T_STATE_RUNNING);
-    char klass[32] = "SCHED_OTHER";
-    if (fifo > 0) snprintf(klass, sizeof klass, "SCHED_FIFO %d", fifo);
     log_line("DPU %d: run %lld started (%d processes, %s)", plan->dpu, (long long)run->run_id,
              plan->nprocesses, klass);
     event_generators_begin(plan, t0);
     (void)event_generators_start(plan, run->end_mono_ns);
-    if (plan->tasking) tasking_run(&x);
+    if (th != NULL) threads_run(th, &x);
+    else if (plan->tasking) tasking_run(&x);
     else executive_cyclic(&x, run);
     event_generators_stop(x.plan); /* the plan of the run's end: a live switch hands over */
     if (x.announce) executive_announce(&x);

@@ -55,7 +55,6 @@ class Resolved:
 
 def resolve(spec: SystemSpec, base: Path) -> Resolved:
     """`base`: the system file's folder, where a `samples:` file is looked for."""
-    _built(spec)
     links = _links(spec.links)
     dpu_links = _dpu_links(spec, links)
     buffer_links = _buffer_links(spec, links)
@@ -263,14 +262,6 @@ def _reach(spec: SystemSpec, dpu_links: dict[int, tuple[int, ...]],
                                   f"on DPU {p.dpu}; a local link reaches only inside one DPU")
 
 
-def _built(spec: SystemSpec) -> None:
-    """What the schema names but the DPU cannot run yet is refused here, before any run."""
-    for d in spec.dpus:
-        if d.executive == "threads" and d.compute != "sleep":
-            raise Invalid(f"dpus.{d.id}.executive", f"'threads' with compute {show(d.compute)} (kernel-"
-                          "scheduled SCHED_FIFO threads) is not built yet; use compute: sleep")
-
-
 def _minor_cycles(spec: SystemSpec) -> dict[int, int]:
     critical = min(p.period_us for p in spec.processes)
     out: dict[int, int] = {}
@@ -384,6 +375,10 @@ def _events(spec: SystemSpec) -> tuple[Event, ...]:
         path = f"processes.{p.name}"
         if p.sync == "event" and p.event is None:
             raise Invalid(f"{path}.event", "a `sync: event` process names the event it awaits")
+        dpu = next(d for d in spec.dpus if d.id == p.dpu)
+        if p.sync == "event" and dpu.executive == "threads" and dpu.compute != "sleep":
+            raise Invalid(f"{path}.sync", f"`sync: event` on the tasking executive's kernel threads "
+                          f"(compute {dpu.compute}) is not built yet; use compute: sleep on DPU {dpu.id}")
         if p.sync != "event":
             for key in ("event", "queue"):
                 if getattr(p, key) is not None:

@@ -214,9 +214,6 @@ ERRORS: list[tuple[str, Callable[[Doc], None], str]] = [
     ("gcd too short", _set("processes.c.period_us", 5050),
      "dpus.2: minor cycle 50 us (the gcd of its periods 5000, 5050 us) is below 100 us; "
      "give the periods a larger common divisor or set minor_cycle_us"),
-    ("tasking executive off sleep", _both(_set("dpus.2.executive", "threads"), _set("dpus.2.compute", "cpu")),
-     "dpus.2.executive: 'threads' with compute 'cpu' (kernel-scheduled SCHED_FIFO threads) is not built yet; "
-     "use compute: sleep"),
     ("too many processes", _many(65), "dpus.1: 65 processes; at most 64 per DPU"),
     ("duplicate order", _both(_set("processes.b.order", 1), _set("processes.c.order", 1)),
      "processes.c.order: order 1 is already taken on DPU 2 by 'b'"),
@@ -257,6 +254,11 @@ ERRORS: list[tuple[str, Callable[[Doc], None], str]] = [
      "events.t: host takes no dpu; the host sends it with `skel event`"),
     ("event generator DPU", _set("events", [{"name": "t", "kind": "poisson", "dpu": 9, "rate_hz": 5.0}]),
      "events.t.dpu: no DPU with id 9; DPUs: 1, 2"),
+    ("event on kernel threads", _both(_set("dpus.1.executive", "threads"), _set("dpus.1.compute", "cpu"),
+                                      _set("processes.a.sync", "event"), _set("processes.a.event", "t"),
+                                      _set("events", [{"name": "t", "kind": "host"}])),
+     "processes.a.sync: `sync: event` on the tasking executive's kernel threads (compute cpu) is not built "
+     "yet; use compute: sleep on DPU 1"),
     ("event kind", _set("events", [{"name": "t", "kind": "often"}]),
      "events.t.kind: must be one of 'host', 'periodic', 'poisson' or 'bursts', got 'often'"),
     ("duplicate event", _set("events", [{"name": "t", "kind": "host"}, {"name": "t", "kind": "host"}]),

@@ -58,6 +58,9 @@ class RunReport:
     # WORK: how much slower (%) the kernel ran at the run's start than at the DPU's start-up
     work_drift_pct: dict[int, float] = field(default_factory=dict)
     cross_check: list[dict[str, Any]] = field(default_factory=list)  # report_t vs records, per DPU
+    # DPUs whose tasking threads got no SCHED_FIFO or pinning (report_t FAULT_NOT_FAITHFUL):
+    # the kernel's time sharing stood in for fixed-priority preemptive scheduling
+    not_faithful: list[int] = field(default_factory=list)
     buffers: list[BufferMetrics] = field(default_factory=list)
     chains: list[ChainMetrics] = field(default_factory=list)
     windows: list[WindowReport] = field(default_factory=list)
@@ -162,6 +165,7 @@ def build_report(
         compute_modes=modes,
         work_drift_pct={r.dpu: r.work_drift_pct for r in mine if r.compute == skelmsg.dpu_t.COMPUTE_WORK},
         cross_check=_cross_check(parts[-1][0], config, mine),
+        not_faithful=sorted(r.dpu for r in mine if r.faults & skelmsg.status_t.FAULT_NOT_FAITHFUL),
         buffers=last.buffers,
         chains=last.chains,
         windows=windows,

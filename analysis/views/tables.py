@@ -267,6 +267,13 @@ def damage_lines(report: RunReport) -> list[str]:
     return lines
 
 
+def faithful_lines(report: RunReport) -> list[str]:
+    """A DPU that could not model what was asked, in one line each (none for a faithful run)."""
+    return [f"DPU {dpu} is not faithful: its tasking threads got no SCHED_FIFO priority or no pinning "
+            "to one CPU (its log says which), so the kernel's time sharing stood in for fixed-priority "
+            "preemptive scheduling" for dpu in report.not_faithful]
+
+
 def print_report(
     report: RunReport, console: Console | None = None, paper: dict[Any, Any] | None = None
 ) -> None:
@@ -293,5 +300,5 @@ def print_report(
             console.print(chain_table(report, window))
         if part.faults:
             console.print(fault_table(report, window))
-    for line in damage_lines(report):
+    for line in faithful_lines(report) + damage_lines(report):
         console.print(line, style="yellow", markup=False, highlight=False)

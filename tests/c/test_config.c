@@ -62,9 +62,7 @@ static void test_valid(void)
 
 static void test_rejections(void)
 {
-    /* The tasking executive: sleep mode only, priorities 1..99, one per process of a DPU. */
-    REJECTS(f.dpus[0].executive = SKELMSG_DPU_T_EXECUTIVE_THREADS; f.dpus[0].compute = SKELMSG_DPU_T_COMPUTE_CPU,
-            0, "the tasking executive runs in compute mode sleep only");
+    /* The tasking executive: priorities 1..99, one per process of a DPU, in every compute mode. */
     REJECTS(f.dpus[0].executive = SKELMSG_DPU_T_EXECUTIVE_THREADS, 0,
             "process 1: priority 0 (the tasking executive's: 1..99");
     REJECTS(f.dpus[0].executive = SKELMSG_DPU_T_EXECUTIVE_THREADS; f.procs[0].priority = 7;
@@ -80,6 +78,10 @@ static void test_rejections(void)
         f.procs[3].priority = 8;
         f.procs[4].priority = 7;
         CHECK_EQ(validate(&f, 0), 0);
+        for (int8_t mode = SKELMSG_DPU_T_COMPUTE_WALL; mode <= SKELMSG_DPU_T_COMPUTE_WORK; mode++) {
+            f.dpus[0].compute = mode; /* kernel-scheduled threads (threads.c) */
+            CHECK_EQ(validate(&f, 0), 0);
+        }
     }
     REJECTS(f.dpus[0].compute = 9, 0, "unknown compute mode 9");
     REJECTS(f.dpus[0].cpu = 1000, 0, "cpu 1000 is not one this host lets it run on");
