@@ -297,6 +297,10 @@ void event_carry(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
         p->k_base = o->k_base + o->next_k;
         p->measure_from_k = o->measure_from_k;
         p->job_release = o->job_release;
+        /* a tasking job released for an event and carried over keeps it */
+        p->taken_ns = o->taken_ns;
+        p->taken_left = o->taken_left;
+        p->taken_dropped = o->taken_dropped;
         for (int n = 0; n < o->q_count && p->q_count < p->queue_cap; n++)
             p->queue_ns[p->q_count++] = o->queue_ns[(o->q_head + n) % SKEL_MAX_QUEUE];
         p->q_dropped = o->q_dropped;
