@@ -27,8 +27,9 @@ from skelmsg.contract import STATUS_CHANNEL, TIMING_CHANNEL
 
 RESULTS = Path(__file__).resolve().parent / "results" / "logreader.txt"
 BATCH = 64  # records per timing_t batch
-ARRAYS = ("process", "cycle", "minor", "release_ns", "start_ns", "comm_in_ns", "blocked_ns",
-          "asked_ns", "compute_ns", "comm_out_ns", "idle_ns", "slack_ns", "flags")  # fmt: skip
+ARRAYS = ("process", "cycle", "minor", "release_ns", "sched_ns", "start_ns", "comm_in_ns", "blocked_ns",
+          "asked_ns", "compute_ns", "comm_out_ns", "idle_ns", "slack_ns", "stall_ns", "preemptions",
+          "preempted_ns", "flags")  # fmt: skip
 INPUTS = ("in_record", "in_buffer", "in_seq", "in_new", "in_dropped", "in_received",
           "in_sent_ns", "in_recv_ns")  # fmt: skip
 
