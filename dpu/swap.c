@@ -29,9 +29,10 @@
  * - Its job released before the boundary and not completed yet (waiting for
  *   data, ready, or started and maybe preempted) is carried whole: its release,
  *   what it has left to compute, its record so far (generation: the plan that
- *   released it). It completes under the next plan's priorities, is judged
- *   (slack, overrun, lockout) on its new period, and the next release waits for
- *   it, as any late job does. Releases of the old plan it is behind by stay
+ *   released it; one not started yet draws the new compute when it starts).
+ *   It completes under the next plan's priorities, is judged (slack, overrun,
+ *   lockout) on its new period, and the next release waits for it, as any late
+ *   job does. Releases of the old plan it is behind by stay
  *   owed at their old instants.
  * - A process new to this DPU releases on its period's grid since the run's
  *   start; a process removed loses its unfinished job, as at a run's end.
