@@ -286,7 +286,8 @@ typedef struct {
     int8_t job_missing;        /* a waiting data job: its first required input without new data */
     int64_t next_k;            /* the next release that is not a job yet (< 0: one of the plan before) */
     int64_t anchor_ns;         /* release next_k = 0: the run's start, or the first at or after a switch */
-    int64_t back_period_ns;    /* the period of releases next_k < 0 (the plan before a switch) */
+    int64_t back_period_ns;    /* the period of releases next_k < 0 (the plan before a switch) ... */
+    int64_t back_generation;   /* ... and that plan's generation */
     int64_t job_generation;    /* of the plan that released the job: its record's */
     int64_t job_release;
     int64_t remaining_ns;      /* of the job's computation */

@@ -190,6 +190,7 @@ void swap_carry_tasking(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
         int j = plan_process_index(old, p->id);
         p->job = TASK_NONE;
         p->back_period_ns = p->period_ns;
+        p->back_generation = next->generation;
         if (j < 0) { /* swap_carry put k_base on its period's grid since the run's start */
             p->next_k = 0;
             p->anchor_ns = next->run_t0_ns + p->k_base * p->period_ns;
@@ -199,8 +200,8 @@ void swap_carry_tasking(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
         int64_t n = swap_first_release(o, t_sw);
         p->k_base = o->k_base + n;
         p->anchor_ns = tasking_release(o, n);
-        if (n <= 0) p->back_period_ns = o->back_period_ns;
-        else p->back_period_ns = o->period_ns;
+        p->back_period_ns = n > 0 ? o->period_ns : o->back_period_ns;
+        p->back_generation = n > 0 ? old->generation : o->back_generation;
         p->next_k = o->next_k - n;
         p->job = o->job;
         p->job_flags = o->job_flags;

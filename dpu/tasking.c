@@ -99,7 +99,7 @@ static void tasking_release_due(skel_exec_t *x, int64_t vt)
             int64_t release = tasking_release(p, p->next_k);
             if (release > vt || release >= x->end_mono_ns) break;
             p->job_release = release;
-            p->job_generation = plan->generation;
+            p->job_generation = p->next_k < 0 ? p->back_generation : plan->generation;
             p->job_flags = 0;
             p->job = p->sync == SKELMSG_PROCESS_T_SYNC_DATA ? TASK_WAITING : TASK_READY;
             if (p->job == TASK_WAITING) tasking_check_data(x, p, vt);
@@ -231,6 +231,7 @@ void tasking_run(skel_exec_t *x)
     for (int i = 0; i < plan->nprocesses; i++) {
         plan->processes[i].anchor_ns = plan->epoch_t0_ns;
         plan->processes[i].back_period_ns = plan->processes[i].period_ns;
+        plan->processes[i].back_generation = plan->generation;
     }
     int64_t woke_mono = clock_mono_ns(), woke_cpu = clock_thread_cpu_ns();
     for (;;) {

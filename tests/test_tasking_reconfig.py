@@ -371,3 +371,27 @@ def test_skel_push_changes_a_running_tasking_system(url: str, tmp_path: Path, st
     flags = int(FLAGS.FLAG_LOCKOUT | FLAGS.FLAG_SKIPPED)
     assert not (timing["flags"] & flags).any(), timing[(timing["flags"] & flags) != 0]
     assert ((timing["flags"] & int(FLAGS.FLAG_RELEASE_SKIPPED)) != 0).sum() <= 2  # as without a switch
+
+
+def test_live_switch_lets_an_overloaded_tasking_dpu_catch_up(dpus: DpuFarm, url: str, tmp_path: Path) -> None:
+    # 120 % load: p2 falls ever further behind (a release owed every 60 ms). Its compute is cut
+    # live to 80 % load: its owed releases run back to back, none lost, and it catches up.
+    over = ("process.p1.compute_us=6000", "process.p2.period_us=20000")
+    before = _system(tmp_path, url, *over, "process.p2.compute_us=12000")
+    after = _system(tmp_path, url, *over, "process.p2.compute_us=4000")
+    done = _switch(dpus, url, 6666, before, after, periods={1: 10 * MS, 2: 20 * MS}, hyper_ns=20 * MS,
+                   at_ns=10 * MS)
+    _clean(done)
+    p2 = _contiguous(done.records, 2)
+    assert all(r.release_ns == done.t0 + r.cycle * 20 * MS for r in p2)  # its phase is kept
+    # Every job released before the switch is the old generation's, though the owed ones
+    # start after it (and compute what the new plan asks).
+    owed = [r for r in p2 if r.release_ns < done.at <= r.start_ns]
+    assert len(owed) >= 5, len(owed)
+    assert all(r.generation == done.g for r in p2 if r.release_ns < done.at)
+    assert all(r.generation == done.g + 1 for r in p2 if r.release_ns >= done.at)
+    assert all(r.asked_ns == 4 * MS for r in owed[1:])
+    # Caught up: the last half second's jobs end within their period.
+    end = max(r.release_ns for r in p2)
+    late = [r for r in p2 if r.release_ns > end - 500 * MS and r.end_ns - r.release_ns > 20 * MS]
+    assert not late, late

@@ -262,6 +262,7 @@ static void test_carry_tasking(void)
     CHECK_EQ(p1->rec.compute_ns, MS);
     CHECK_EQ(p4->k_base + p4->next_k, 19);   /* its waiting job, then k 20 owed at T0 + 200 ms */
     CHECK_EQ(p4->job, TASK_READY);
+    CHECK_EQ(p4->back_generation, 7);        /* k 20 is generation 7's release */
     CHECK_EQ(tasking_release(p4, p4->next_k + 1), T0 + 200 * MS);
     CHECK_EQ(tasking_release(p4, 0), T0 + 210 * MS);
     CHECK_EQ(p6->k_base, 11);                /* on its 20 ms grid since the run's start */
