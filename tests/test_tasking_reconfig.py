@@ -395,3 +395,20 @@ def test_live_switch_lets_an_overloaded_tasking_dpu_catch_up(dpus: DpuFarm, url:
     end = max(r.release_ns for r in p2)
     late = [r for r in p2 if r.release_ns > end - 500 * MS and r.end_ns - r.release_ns > 20 * MS]
     assert not late, late
+
+
+def test_live_period_change_keeps_the_phase_of_a_tasking_process(dpus: DpuFarm, url: str,
+                                                                 tmp_path: Path) -> None:
+    before = _system(tmp_path, url)
+    after = _system(tmp_path, url, "process.p2.period_us=6000")
+    done = _switch(dpus, url, 6767, before, after, periods={1: 10 * MS, 2: 12 * MS})
+    _clean(done)
+    p2 = _contiguous(done.records, 2)
+    # Its old grid up to the switch, then from the old grid's next point on (t0 + 852 ms: the
+    # switch is at 842 ms) one release per new period.
+    first_new = done.at + 10 * MS
+    assert all(r.release_ns == done.t0 + r.cycle * 12 * MS for r in p2 if r.release_ns < done.at)
+    new = [r for r in p2 if r.release_ns >= done.at]
+    assert new[0].release_ns == first_new and new[0].generation == done.g + 1, new[0]
+    assert all(r.release_ns == first_new + i * 6 * MS for i, r in enumerate(new))
+    assert len(new) > 200
