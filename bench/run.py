@@ -7,12 +7,17 @@
     loop in C (bench/lcm_publish.c) of the same message size at the same period;
 (c) the log reader against lcm.EventLog + the generated decoders (bench/logreader_bench.py);
 (d) compute emulation: per compute mode, one DPU alone computing 1200 and 3315 us per
-    cycle: what each cycle reports against what was asked (goal: within 0.5 %).
+    cycle: what each cycle reports against what was asked (goal: within 0.5 %);
+(e) the tasking executive: one DPU in sleep mode runs a rate-monotonic set; each job's
+    start and completion against the ideal schedule's (host/schedule.py), aligned by
+    release (goal: start p99 within 50 us).
 
 Each part writes bench/results/<name>.txt, the headlines go to bench/results/summary.txt.
-Runs use a private multicast port with ttl=0 (nothing leaves the host). About 1-2 minutes.
+Runs use a private multicast port with ttl=0 (nothing leaves the host). About 2 minutes.
 
-Usage: .venv/bin/python bench/run.py [--seconds S] [--records N]
+Usage: .venv/bin/python bench/run.py [--seconds S] [--records N] [--tasking-seconds S] [--parts P,...]
+(--parts: only those of wakeup, publish, logreader, compute, tasking; summary.txt is then
+left alone and the headlines are printed only.)
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ import skelmsg
 from skeleton.analysis.read.logreader import read_log
 from skeleton.analysis.read.records import load_records
 from skeleton.host import spawn
+from skeleton.host.schedule import ideal_schedule, response_times, utilization
 
 BENCH = Path(__file__).resolve().parent
 REPO = BENCH.parent
@@ -83,9 +89,10 @@ run: {{warmup_cycles: 20, lockout_cycles: 1000, stop_on: []}}
 """
 
 
-def skel_run(tmp: Path, mode: str, seconds: float, text: str = SYSTEM, name: str = "") -> np.ndarray:
-    """Measured records of one real run of `text` with the DPU in compute mode `mode`,
-    in tmp/NAME+MODE."""
+def skel_run(tmp: Path, mode: str, seconds: float, text: str = SYSTEM, name: str = "",
+             warmup: int = WARMUP_CYCLES) -> np.ndarray:
+    """Records of one real run of `text` with the DPU in compute mode `mode`, in
+    tmp/NAME+MODE, from cycle `warmup` on."""
     system = tmp / "bench.yaml"
     system.write_text(text)
     out = tmp / f"{name}{mode}"
@@ -96,7 +103,7 @@ def skel_run(tmp: Path, mode: str, seconds: float, text: str = SYSTEM, name: str
     if done.returncode not in (0, 3):
         raise SystemExit(f"bench: skel run ({mode}) failed:\n{done.stdout}{done.stderr}")
     records = load_records(read_log(out / "run.lcm")).records
-    return records[records["cycle"] >= WARMUP_CYCLES]
+    return records[records["cycle"] >= warmup]
 
 
 def first_of_minor(records: np.ndarray) -> np.ndarray:
@@ -267,6 +274,75 @@ def part_compute(tmp: Path, seconds: float) -> list[str]:
     return [f"compute emulation: worst error {worst:.2f} % of what was asked (goal 0.5 %): {verdict}", *rows]
 
 
+# (compute, period) in µs, rate-monotonic: U = 0.695, a 50 ms hyperperiod, 4 preemptions in each,
+# and on the ideal schedule no job ends within 1.75 ms of a release, so a few µs of the DPU's own
+# work never decide a preemption the ideal schedule places elsewhere.
+TASKING_SET = [(1750, 5000), (1250, 10000), (5500, 25000)]
+TASKING_GOAL_US = 50.0
+TASKING_SKIP_S = 0.5  # the start of the run: the first cycles of a fresh process
+
+
+def tasking_system(tasks: list[tuple[int, int]]) -> str:
+    lines = ["system: tasking-bench", f'links: [{{name: bus, url: "{URL}"}}]',
+             "dpus: [{id: 1, compute: sleep, executive: threads}]", "processes:"]
+    lines += [f"  - {{id: {i + 1}, name: p{i + 1}, dpu: 1, period_us: {t}, compute_us: {c}}}"
+              for i, (c, t) in enumerate(tasks)]
+    lines.append("run: {warmup_cycles: 0, lockout_cycles: 1000, stop_on: []}")
+    return "\n".join(lines) + "\n"
+
+
+def tasking_deviations(records: np.ndarray, tasks: list[tuple[int, int]]) -> dict[str, np.ndarray]:
+    """Per job, measured - ideal (ns) of its start and completion, aligned by release: the
+    run's t0 is where every process's cycle 0 was released, and each record's release is
+    checked against the ideal's."""
+    done = records[(records["flags"] & 0b1110) == 0]  # completed: not cut short, skipped, locked out
+    period = np.array([t for _, t in tasks], dtype=np.int64)[done["process"] - 1] * 1000
+    t0 = int(np.min(done["release_ns"] - done["cycle"] * period))
+    horizon_us = int((done["release_ns"].max() - t0) // 1000) + 1
+    ideal = ideal_schedule(tasks, horizon_us)
+    keep = done["release_ns"] >= t0 + int(TASKING_SKIP_S * 1e9)
+    start, end, dropped = [], [], 0
+    for rec in done[keep]:
+        job = ideal.get((int(rec["process"]) - 1, int(rec["cycle"])))
+        if job is None or t0 + job.release * 1000 != rec["release_ns"]:
+            dropped += 1
+            continue
+        start.append(int(rec["start_ns"]) - (t0 + job.start * 1000))
+        t_end = int(rec["release_ns"]) + tasks[job.task][1] * 1000 - int(rec["slack_ns"])
+        end.append(t_end - (t0 + job.completion * 1000))
+    if dropped:
+        raise SystemExit(f"bench: {dropped} tasking records match no ideal job by release")
+    stalled = done[keep]["stall_ns"] > 0
+    return {"start": np.array(start), "end": np.array(end), "stalled": stalled}
+
+
+def part_tasking(tmp: Path, seconds: float) -> list[str]:
+    """One tasking DPU in sleep mode against the ideal fixed-priority preemptive schedule."""
+    tasks = TASKING_SET
+    records = skel_run(tmp, "sleep", seconds, tasking_system(tasks), "tasking-", warmup=0)
+    dev = tasking_deviations(records, tasks)
+    start, end = np.abs(dev["start"]), np.abs(dev["end"])
+    p99 = _us(start, 99)
+    verdict = "PASS" if p99 <= TASKING_GOAL_US else "FAIL"
+    rta = [r / 1000 if r is not None else None for r in response_times(tasks)]
+    spec = ", ".join(f"{c / 1000:g}/{t / 1000:g}" for c, t in tasks)
+    late = dev["start"]
+    return [
+        f"tasking schedule (sleep, one DPU): job start vs the ideal schedule's p99 {p99:.1f} us "
+        f"(goal {TASKING_GOAL_US:.0f} us): {verdict}",
+        f"# rate-monotonic C/T = {spec} ms (U = {float(utilization(tasks)):.3f}, exact RTA R = {rta} ms), "
+        f"{seconds:.0f} s, jobs released in the first {TASKING_SKIP_S} s excluded; each job aligned with the "
+        "ideal schedule's by its release (the run's t0 + k x T)",
+        f"|start - ideal start|: p50 {_us(start, 50):.1f} us, p99 {p99:.1f} us, "
+        f"max {start.max() / 1000:.1f} us ({len(start)} jobs; signed: min {late.min() / 1000:+.1f} us, "
+        f"mean {late.mean() / 1000:+.1f} us)",
+        f"|completion - ideal completion|: p50 {_us(end, 50):.1f} us, p99 {_us(end, 99):.1f} us, "
+        f"max {end.max() / 1000:.1f} us (the DPU's reading and writing of a job take the processor too)",
+        f"jobs with a stall of the machine (a wake-up or gap over the stall threshold): "
+        f"{int(dev['stalled'].sum())} of {len(start)}",
+    ]
+
+
 def part_logreader(records: int) -> list[str]:
     sys.path.insert(0, str(BENCH))
     from logreader_bench import measure
@@ -274,29 +350,44 @@ def part_logreader(records: int) -> list[str]:
     return measure(records)
 
 
+PARTS = ("wakeup", "publish", "logreader", "compute", "tasking")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=5.0, help="length of each timed run (default 5)")
     parser.add_argument("--records", type=int, default=500_000, help="records in the reader's log")
+    parser.add_argument("--tasking-seconds", type=float, default=15.0, help="length of the tasking run")
+    parser.add_argument("--parts", default=",".join(PARTS), help=f"comma-separated, of {', '.join(PARTS)}")
     args = parser.parse_args()
+    wanted = args.parts.split(",")
+    if unknown := [p for p in wanted if p not in PARTS]:
+        parser.error(f"unknown part(s) {', '.join(unknown)}: choose from {', '.join(PARTS)}")
     RESULTS.mkdir(parents=True, exist_ok=True)
     summary = [f"# make bench, {time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} CPUs, "
                f"load average {os.getloadavg()[0]:.1f} at start (the machine may be shared)"]
+    parts: dict[str, list[str]] = {}
     with tempfile.TemporaryDirectory(prefix="skel-bench-") as name:
         tmp = Path(name)
-        wake = part_wakeup(tmp, args.seconds)
-        records = load_records(read_log(tmp / "sleep" / "run.lcm")).records
-        parts = {
-            "wakeup": wake,
-            "publish": part_publish(tmp, args.seconds, records[records["cycle"] >= WARMUP_CYCLES]),
-            "logreader": part_logreader(args.records),
-            "compute": part_compute(tmp, args.seconds),
-        }
+        if "wakeup" in wanted or "publish" in wanted:
+            wake = part_wakeup(tmp, args.seconds)
+            if "wakeup" in wanted:
+                parts["wakeup"] = wake
+        if "publish" in wanted:
+            records = load_records(read_log(tmp / "sleep" / "run.lcm")).records
+            parts["publish"] = part_publish(tmp, args.seconds, records[records["cycle"] >= WARMUP_CYCLES])
+        if "logreader" in wanted:
+            parts["logreader"] = part_logreader(args.records)
+        if "compute" in wanted:
+            parts["compute"] = part_compute(tmp, args.seconds)
+        if "tasking" in wanted:
+            parts["tasking"] = part_tasking(tmp, args.tasking_seconds)
     for name, lines in parts.items():
         (RESULTS / f"{name}.txt").write_text("\n".join(lines) + "\n")
         print("\n".join(lines) + "\n")
         summary.append(lines[0])
-    (RESULTS / "summary.txt").write_text("\n".join(summary) + "\n")
+    if len(parts) == len(PARTS):
+        (RESULTS / "summary.txt").write_text("\n".join(summary) + "\n")
     print("\n".join(summary))
     return 0
 

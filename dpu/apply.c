@@ -80,6 +80,20 @@ static int64_t apply_at_mono(int64_t at_utc_ns)
     return at > now_mono ? at : 0;
 }
 
+/* What a live switch from OLD to NEXT cannot do yet (NULL: it can). The tasking
+ * executive switches at a boundary as the cyclic one does (swap.c), in compute
+ * mode sleep, where it runs the schedule itself; not from one executive to the other. */
+static const char *apply_live_refused(const skel_plan_t *old, const skel_plan_t *next)
+{
+    if (old == NULL) return NULL;
+    if (old->tasking != next->tasking)
+        return "a live switch between the cyclic and the tasking executive is not built: push between runs";
+    if (next->tasking && (old->compute != SKELMSG_DPU_T_COMPUTE_SLEEP
+                          || next->compute != SKELMSG_DPU_T_COMPUTE_SLEEP))
+        return "a live switch of the tasking executive is built in compute mode sleep only: push between runs";
+    return NULL;
+}
+
 /* COMMIT during a run: build now, switch at the first release at or after
  * AT_UTC_NS. A plan offered earlier and not taken yet is replaced. */
 void apply_commit_live(skel_control_t *c, int64_t at_utc_ns)
@@ -94,10 +108,10 @@ void apply_commit_live(skel_control_t *c, int64_t at_utc_ns)
         apply_install(c, plan);
         return;
     }
-    if (plan->tasking || (s->plan != NULL && s->plan->tasking)) {
+    const char *refused = apply_live_refused(s->plan, plan);
+    if (refused != NULL) {
         pthread_mutex_unlock(&s->lock);
-        report_reject(c, plan->generation, "a live switch of the tasking executive is not built yet: "
-                      "push between runs", 1);
+        report_reject(c, plan->generation, refused, 1);
         plan_free(plan);
         return;
     }

@@ -332,7 +332,11 @@ typedef struct {
     int8_t job;                /* TASK_* */
     int8_t job_flags;          /* for its record: locked out before it started */
     int8_t job_missing;        /* a waiting data job: its first required input without new data */
-    int64_t next_k;            /* the next release that is not a job yet */
+    int64_t next_k;            /* the next release that is not a job yet (< 0: one of the plan before) */
+    int64_t anchor_ns;         /* release next_k = 0: the run's start, or the first at or after a switch */
+    int64_t back_period_ns;    /* the period of releases next_k < 0 (the plan before a switch) ... */
+    int64_t back_generation;   /* ... and that plan's generation */
+    int64_t job_generation;    /* of the plan that released the job: its record's */
     int64_t job_release;
     int64_t remaining_ns;      /* of the job's computation */
     int64_t slice_mono_ns;     /* where its computation was last counted up to (tasking_ran) */
@@ -544,9 +548,12 @@ void event_generators_stop(skel_plan_t *plan);
 int64_t swap_index(const skel_plan_t *plan, int64_t j_prev, int64_t at_mono_ns);
 int64_t swap_instant(const skel_plan_t *plan, int64_t j_sw);
 void swap_carry(skel_plan_t *next, const skel_plan_t *old, int64_t j_sw);
+int swap_tasking_ready(const skel_plan_t *old, int64_t t_sw);
+void swap_carry_tasking(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw);
 
 /* ---- tasking (tasking.c): the tasking executive's one-processor schedule -------- */
 enum { TASK_NONE = 0, TASK_WAITING, TASK_READY, TASK_STARTED };
+int64_t tasking_release(const skel_process_t *p, int64_t k);
 void tasking_run(skel_exec_t *x);
 
 /* ---- threads (threads.c): the tasking executive in CPU, WALL and WORK: a SCHED_FIFO
@@ -563,6 +570,9 @@ void executive_record(skel_server_t *s, const skel_rec_t *rec);
 int executive_skips(const skel_plan_t *plan, const skel_process_t *p, int64_t release, int64_t now);
 void executive_skip_record(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, int64_t release,
                            int64_t sched, int64_t now, skel_rec_t *rec);
+void executive_poll_switch(skel_exec_t *x);
+int executive_switch(skel_exec_t *x, int64_t j_sw, int ran);
+void executive_announce(skel_exec_t *x);
 void *executive_main(void *arg);
 int64_t executive_next_release(const skel_plan_t *plan, int64_t j);
 void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run);

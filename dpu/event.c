@@ -274,9 +274,10 @@ static void event_source_begin(skel_source_t *g, int64_t t0, int64_t from)
     g->next_ns = event_source_next(g, t0, from);
 }
 
-/* A live switch at T_SW: NEXT's event processes keep the events waiting for the same
- * process in OLD and count on from its cycles; a generator of the same event, kind and
- * parameters goes on with its draws, another starts at T_SW. Only read from OLD. */
+/* A live switch at T_SW, after the executive's carry (swap.c): NEXT's event processes
+ * keep the events waiting for the same process in OLD (and a tasking job it released for
+ * one) and count on from its cycles; a generator of the same event, kind and parameters
+ * goes on with its draws, another starts at T_SW. Only read from OLD. */
 void event_carry(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
 {
     for (int i = 0; i < next->nprocesses; i++) {
@@ -284,10 +285,10 @@ void event_carry(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
         p->taken_ns = -1;
         p->q_head = p->q_count = 0;
         p->q_dropped = 0;
+        if (p->event < 0) continue; /* the executive's own carry counts its releases */
         p->next_k = 0;
         p->job_release = INT64_MIN / 4;
         int at = plan_process_index(old, p->id);
-        if (p->event < 0) continue;
         if (at < 0 || old->processes[at].event < 0) { /* a new event process: counts from here */
             p->k_base = 0;
             p->measure_from_k = INT64_MAX;

@@ -226,7 +226,7 @@ static void executive_set_state(skel_server_t *s, int8_t state)
 
 /* Re-reads the pending switch only when the control thread changed it: one
  * atomic load per minor cycle, the lock only on a change. */
-static void executive_poll_switch(skel_exec_t *x)
+void executive_poll_switch(skel_exec_t *x)
 {
     skel_server_t *s = x->s;
     if (atomic_load(&s->switch_seq) == x->switch_seq) return;
@@ -266,22 +266,24 @@ static int64_t executive_switch_at(const skel_exec_t *x, int64_t j_prev, int64_t
 /* Between two releases: take the next plan, carry the run into it at minor
  * J_SW of the current one. Nothing is allocated or freed here: the old plan
  * (and its lcm_t) goes back to the control thread. The status changes at the
- * first release of the new plan (executive_announce). */
-static void executive_switch(skel_exec_t *x, int64_t j_sw, int ran)
+ * first release of the new plan (executive_announce). 1 when it switched. */
+int executive_switch(skel_exec_t *x, int64_t j_sw, int ran)
 {
     skel_server_t *s = x->s;
     skel_plan_t *old = x->plan;
-    if (pthread_mutex_lock(&s->lock) != 0) return;
+    if (pthread_mutex_lock(&s->lock) != 0) return 0;
     skel_plan_t *next = s->next_plan;
     s->next_plan = NULL;
     x->switch_seq = atomic_load(&s->switch_seq);
     x->switch_pending = 0;
     pthread_mutex_unlock(&s->lock);
-    if (next == NULL) return;
+    if (next == NULL) return 0;
     executive_release_held(x, INT64_MAX); /* its process is the old plan's */
     event_generators_stop(old);
     (void)link_drain(old->links, old->nlinks); /* the old slots are complete ... */
     swap_carry(next, old, j_sw);
+    if (next->tasking) swap_carry_tasking(next, old, swap_instant(old, j_sw)); /* its jobs */
+    event_carry(next, old, swap_instant(old, j_sw)); /* event processes count their events */
     if (!ran) executive_open_window(next, next->run_t0_ns);
     next->running = 1;
     old->running = 0;
@@ -289,15 +291,16 @@ static void executive_switch(skel_exec_t *x, int64_t j_sw, int ran)
     (void)link_drain(next->links, next->nlinks); /* ... so the copies here are dropped */
     if (next->cpu != old->cpu) executive_pin(next);
     if (next->compute != old->compute) (void)executive_schedule(s, next, 1);
-    if (pthread_mutex_lock(&s->lock) != 0) return;
+    if (pthread_mutex_lock(&s->lock) != 0) return 0;
     s->plan = next;
     s->retired = old; /* the control thread emptied it before it offered NEXT */
     pthread_mutex_unlock(&s->lock);
     x->plan = next;
     x->announce = 1;
+    return 1;
 }
 
-static void executive_announce(skel_exec_t *x)
+void executive_announce(skel_exec_t *x)
 {
     skel_server_t *s = x->s;
     x->announce = 0;
@@ -359,7 +362,7 @@ static void executive_cyclic(skel_exec_t *x, const skel_run_t *run)
         int64_t r = j == INT64_MAX ? INT64_MAX : swap_instant(x->plan, j);
         int64_t t_sw = executive_switch_at(x, j_prev, &j_sw);
         if (t_sw <= r && t_sw < run->end_mono_ns) {
-            executive_switch(x, j_sw, ran);
+            (void)executive_switch(x, j_sw, ran);
             j_prev = -1;
             j = executive_next_release(x->plan, 0);
             continue;

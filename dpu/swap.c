@@ -20,7 +20,25 @@
  *   new input counts no drops for its first data. Slots keep their newest data.
  * - Sums, lockouts and the measured window carry over: warm-up is applied once
  *   per run (a process new at the boundary is measured at once when the
- *   window has started, else when it starts). */
+ *   window has started, else when it starts).
+ * On the tasking executive (tasking.c) the boundary is the same grid point, and
+ * jobs carry over too (swap_carry_tasking):
+ * - A process that continues keeps its phase: its first release of the next
+ *   plan is the first of its old grid at or after the boundary, then one per
+ *   new period; its cycle index k goes on by one.
+ * - Its job released before the boundary and not completed yet (waiting for
+ *   data, ready, or started and maybe preempted) is carried whole: its release,
+ *   what it has left to compute, its record so far (generation: the plan that
+ *   released it; one not started yet draws the new compute when it starts).
+ *   It completes under the next plan's priorities, is judged (slack, overrun,
+ *   lockout) on its new period, and the next release waits for it, as any late
+ *   job does. Releases of the old plan it is behind by stay
+ *   owed at their old instants.
+ * - A process new to this DPU releases on its period's grid since the run's
+ *   start; a process removed loses its unfinished job, as at a run's end.
+ * - A process still owed a release of the plan before the last one (a period
+ *   behind across two switches) postpones the switch to the next grid point
+ *   (swap_tasking_ready). */
 #include <string.h>
 
 #include "dpu.h"
@@ -142,5 +160,57 @@ void swap_carry(skel_plan_t *next, const skel_plan_t *old, int64_t j_sw)
     swap_carry_slots(next, old);
     for (int i = 0; i < next->nprocesses; i++)
         swap_carry_process(next, &next->processes[i], old, j_sw, t_sw);
-    event_carry(next, old, t_sw);
+}
+
+/* The tasking executive's (tasking.c): the local index of P's first release at or
+ * after T (negative: on the grid of the plan before P's last switch). */
+static int64_t swap_first_release(const skel_process_t *p, int64_t t)
+{
+    if (t <= p->anchor_ns) return -((p->anchor_ns - t) / p->back_period_ns);
+    return swap_ceil_div(t - p->anchor_ns, p->period_ns);
+}
+
+/* 0 when some process of OLD still owes, before T_SW, a release of the plan
+ * before OLD as well as some of OLD's own: one grid cannot hold both. */
+int swap_tasking_ready(const skel_plan_t *old, int64_t t_sw)
+{
+    for (int i = 0; i < old->nprocesses; i++) {
+        const skel_process_t *o = &old->processes[i];
+        int64_t owed = o->next_k + (o->job != TASK_NONE); /* the first release not yet a job */
+        if (owed < 0 && swap_first_release(o, t_sw) > 0) return 0;
+    }
+    return 1;
+}
+
+/* After swap_carry at the boundary T_SW of OLD: each process's jobs and grid. */
+void swap_carry_tasking(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
+{
+    for (int i = 0; i < next->nprocesses; i++) {
+        skel_process_t *p = &next->processes[i];
+        int j = plan_process_index(old, p->id);
+        p->job = TASK_NONE;
+        p->back_period_ns = p->period_ns;
+        p->back_generation = next->generation;
+        if (j < 0) { /* swap_carry put k_base on its period's grid since the run's start */
+            p->next_k = 0;
+            p->anchor_ns = next->run_t0_ns + p->k_base * p->period_ns;
+            continue;
+        }
+        const skel_process_t *o = &old->processes[j];
+        int64_t n = swap_first_release(o, t_sw);
+        p->k_base = o->k_base + n;
+        p->anchor_ns = tasking_release(o, n);
+        p->back_period_ns = n > 0 ? o->period_ns : o->back_period_ns;
+        p->back_generation = n > 0 ? old->generation : o->back_generation;
+        p->next_k = o->next_k - n;
+        p->job = o->job;
+        p->job_flags = o->job_flags;
+        p->job_missing = -1;
+        p->job_generation = o->job_generation;
+        p->job_release = o->job_release;
+        p->remaining_ns = o->remaining_ns;
+        p->slice_mono_ns = o->slice_mono_ns;
+        p->rec = o->rec;
+        if (p->job == TASK_WAITING && p->sync != SKELMSG_PROCESS_T_SYNC_DATA) p->job = TASK_READY;
+    }
 }

@@ -15,7 +15,9 @@
  * start, and how often and how long it was preempted. A job waiting for data
  * does not hold the processor: its data wait is part of its release latency.
  *
- * A live switch of plans is refused on this executive (apply.c). */
+ * A COMMIT during a run switches plans at the first point of the grid all DPUs
+ * share at or after its instant, as on the cyclic executive, before that
+ * point's releases; the jobs not completed yet carry over (swap.c). */
 #include <stdatomic.h>
 #include <string.h>
 
@@ -38,6 +40,7 @@ static int tasking_wait(skel_exec_t *x, int64_t until, int watch, int64_t *stall
         int rc = link_wait(plan->links, watch ? plan->nlinks : 0, x->s->wake_fd, t > piece ? piece : t);
         if (rc < 0) return 2;
         if (rc > 0 && watch && !atomic_load(&x->s->stop)) return 1;
+        if (atomic_load(&x->s->switch_seq) != x->switch_seq) return 1; /* a COMMIT: a new event */
     }
     int64_t now = clock_mono_ns();
     while (now < until) now = clock_mono_ns();
@@ -46,9 +49,15 @@ static int tasking_wait(skel_exec_t *x, int64_t until, int watch, int64_t *stall
     return 0;
 }
 
-static int64_t tasking_release(const skel_plan_t *plan, const skel_process_t *p, int64_t k)
+/* P's release K of this plan (K < 0: of the plan before a switch, swap.c). */
+int64_t tasking_release(const skel_process_t *p, int64_t k)
 {
-    return plan->epoch_t0_ns + k * p->period_ns;
+    return p->anchor_ns + k * (k >= 0 ? p->period_ns : p->back_period_ns);
+}
+
+static int64_t tasking_floor_div(int64_t a, int64_t b)
+{
+    return a >= 0 ? a / b : -((-a + b - 1) / b);
 }
 
 /* An event process's next release: its oldest waiting event, or a period after its
@@ -63,7 +72,7 @@ static int64_t tasking_event_release(const skel_process_t *p)
 /* The run's minor cycle P's job was released in (the records' frame). */
 static int64_t tasking_minor(const skel_plan_t *plan, const skel_process_t *p)
 {
-    return plan->minor_base + (p->job_release - plan->epoch_t0_ns) / plan->minor_ns;
+    return plan->minor_base + tasking_floor_div(p->job_release - plan->epoch_t0_ns, plan->minor_ns);
 }
 
 /* A data job becomes ready once its required inputs are new. Looked at in a
@@ -82,6 +91,7 @@ static void tasking_check_data(skel_exec_t *x, skel_process_t *p, int64_t vt)
     if (!executive_skips(plan, p, p->job_release, vt)) return;
     executive_skip_record(x, p, p->k_base + p->next_k, tasking_minor(plan, p), p->job_release,
                           p->job_release, vt, &look);
+    look.generation = p->job_generation;
     executive_record(x->s, &look);
     p->job = TASK_NONE;
     p->next_k++;
@@ -98,6 +108,7 @@ static void tasking_release_due(skel_exec_t *x, int64_t vt)
             int64_t release = tasking_event_release(p);
             if (p->job == TASK_NONE && release <= vt && release < x->end_mono_ns) {
                 p->job_release = release;
+                p->job_generation = plan->generation;
                 p->job_flags = 0;
                 p->job = TASK_READY;
                 event_release(plan, p, release);
@@ -105,9 +116,10 @@ static void tasking_release_due(skel_exec_t *x, int64_t vt)
             continue;
         }
         while (p->job == TASK_NONE) { /* again after a skipped release */
-            int64_t release = tasking_release(plan, p, p->next_k);
+            int64_t release = tasking_release(p, p->next_k);
             if (release > vt || release >= x->end_mono_ns) break;
             p->job_release = release;
+            p->job_generation = p->next_k < 0 ? p->back_generation : plan->generation;
             p->job_flags = 0;
             p->job = p->sync == SKELMSG_PROCESS_T_SYNC_DATA ? TASK_WAITING : TASK_READY;
             if (p->job == TASK_WAITING) tasking_check_data(x, p, vt);
@@ -145,9 +157,10 @@ static void tasking_start(skel_exec_t *x, skel_process_t *p, int64_t vt, int64_t
     process_record_begin(x, p, p->k_base + p->next_k, tasking_minor(plan, p), p->job_release, vt, now,
                          &p->rec);
     p->rec.flags = p->job_flags;
+    p->rec.generation = p->job_generation;
     (void)link_drain(plan->links, plan->nlinks); /* an lcm error shows as stale inputs */
     process_peek_inputs(plan, p, &p->rec);
-    process_commit(plan, p, &p->rec, p->next_k >= p->measure_from_k);
+    process_commit(plan, p, &p->rec, p->k_base + p->next_k >= p->measure_from_k);
     p->rec.asked_ns = draw_ns(&p->draw, p->compute_ns);
     p->remaining_ns = p->rec.asked_ns;
     p->slice_mono_ns = clock_mono_ns();
@@ -170,7 +183,7 @@ static void tasking_complete(skel_exec_t *x, skel_process_t *p)
 {
     skel_plan_t *plan = x->plan;
     int64_t t_out = clock_mono_ns();
-    const int measured = p->next_k >= p->measure_from_k;
+    const int measured = p->k_base + p->next_k >= p->measure_from_k;
     process_write_outputs(x, p, p->k_base + p->next_k);
     process_finish(x, p, &p->rec, p->job_release, t_out, measured);
     p->job = TASK_NONE;
@@ -201,14 +214,59 @@ static skel_process_t *tasking_highest(skel_plan_t *plan)
     return NULL;
 }
 
+/* A pending live switch: the first point of the shared grid at or after the
+ * COMMIT's instant whose releases are not jobs yet (those at VT are when DONE),
+ * and its minor index J_SW; INT64_MAX when none is pending. */
+static int64_t tasking_switch_at(skel_exec_t *x, int64_t vt, int done, int64_t *j_sw)
+{
+    executive_poll_switch(x);
+    if (!x->switch_pending) return INT64_MAX;
+    const skel_plan_t *plan = x->plan;
+    int64_t j_prev = tasking_floor_div(vt - plan->epoch_t0_ns - !done, plan->minor_ns);
+    *j_sw = swap_index(plan, j_prev, x->switch_at_mono_ns);
+    return swap_instant(plan, *j_sw);
+}
+
+/* The switch at VT, minor J_SW, before VT's releases: the old plan's idle record
+ * ends here; the job that held the processor holds it on if it still may. */
+static void tasking_switch(skel_exec_t *x, skel_process_t **cur, skel_process_t **idle, int64_t vt,
+                           int64_t j_sw)
+{
+    tasking_flush(x, idle, clock_mono_ns());
+    int16_t running = *cur != NULL ? (*cur)->id : -1;
+    if (!executive_switch(x, j_sw, vt > x->plan->run_t0_ns)) return;
+    skel_plan_t *plan = x->plan;
+    int i = running >= 0 ? plan_process_index(plan, running) : -1;
+    *cur = i >= 0 && plan->processes[i].job == TASK_STARTED ? &plan->processes[i] : NULL;
+    executive_announce(x);
+    for (i = 0; i < plan->nprocesses; i++) /* its inputs may have changed */
+        if (plan->processes[i].job == TASK_WAITING) tasking_check_data(x, &plan->processes[i], vt);
+}
+
 void tasking_run(skel_exec_t *x)
 {
     skel_plan_t *plan = x->plan;
-    int64_t vt = plan->epoch_t0_ns;
+    int64_t vt = plan->epoch_t0_ns, released = -1;
     skel_process_t *cur = NULL, *idle = NULL;
+    for (int i = 0; i < plan->nprocesses; i++) {
+        plan->processes[i].anchor_ns = plan->epoch_t0_ns;
+        plan->processes[i].back_period_ns = plan->processes[i].period_ns;
+        plan->processes[i].back_generation = plan->generation;
+    }
     int64_t woke_mono = clock_mono_ns(), woke_cpu = clock_thread_cpu_ns();
     for (;;) {
+        int64_t j_sw = 0, t_sw = tasking_switch_at(x, vt, released == vt, &j_sw);
+        if (t_sw <= vt && !swap_tasking_ready(plan, t_sw)) {
+            x->switch_at_mono_ns = t_sw + 1; /* the next point of the grid */
+            continue;
+        }
+        if (t_sw <= vt) {
+            tasking_switch(x, &cur, &idle, vt, j_sw);
+            plan = x->plan;
+            continue;
+        }
         tasking_release_due(x, vt);
+        released = vt;
         int64_t next = tasking_lockouts(x, vt);
         skel_process_t *h = tasking_highest(plan);
         int64_t now = clock_mono_ns();
@@ -231,10 +289,11 @@ void tasking_run(skel_exec_t *x)
             skel_process_t *p = &plan->processes[i];
             /* an idle event process waits for its event: an arrival wakes the schedule */
             watch |= p->job == TASK_WAITING || (p->event >= 0 && p->job == TASK_NONE);
-            int64_t r = p->event >= 0 ? tasking_event_release(p) : tasking_release(plan, p, p->next_k);
+            int64_t r = p->event >= 0 ? tasking_event_release(p) : tasking_release(p, p->next_k);
             if (p->job == TASK_NONE && r < next) next = r;
         }
         if (h != NULL && h->slice_mono_ns + h->remaining_ns < next) next = h->slice_mono_ns + h->remaining_ns;
+        if (t_sw < next) next = t_sw;
         if (x->end_mono_ns < next) next = x->end_mono_ns;
         /* Between two waits the thread works (inputs, outputs): time it did not run
          * there is a stall too, and it delays the job that runs next. */

@@ -17,10 +17,12 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import lcm
 import pytest
 
+import skelmsg
 from skeleton.host import spawn
-from skelmsg.contract import DEFAULT_URL
+from skelmsg.contract import DEFAULT_URL, TIMING_CHANNEL
 
 REPO = Path(__file__).resolve().parent.parent
 ASAN_DPU = REPO / "build" / "asan" / "skel-dpu"
@@ -141,6 +143,42 @@ class Background:
             if match:
                 return when, match
         return None
+
+
+class TimingTap:
+    """Every timing record of one run, decoded from SKEL_TIMING as the logger would see it:
+    a subclass's `_add(msg)` turns each timing_t of the run into its `records` (under the
+    lock); `close()` returns them by release."""
+
+    def __init__(self, url: str, run_id: int) -> None:
+        self.run_id = run_id
+        self.records: list = []  # of the subclass's record type
+        self._lock = threading.Lock()
+        self._lcm = lcm.LCM(url)
+        self._lcm.subscribe(TIMING_CHANNEL, self._handle).set_queue_capacity(0)
+        self._running = True
+        self._thread = threading.Thread(target=self._drain, daemon=True)
+        self._thread.start()
+
+    def _drain(self) -> None:
+        while self._running:
+            self._lcm.handle_timeout(50)
+
+    def _handle(self, _channel: str, data: bytes) -> None:
+        msg = skelmsg.timing_t.decode(data)
+        if msg.run_id != self.run_id:
+            return
+        with self._lock:
+            self._add(msg)
+
+    def _add(self, msg: skelmsg.timing_t) -> None:
+        raise NotImplementedError
+
+    def close(self) -> list:
+        self._running = False
+        self._thread.join(timeout=1.0)
+        with self._lock:
+            return sorted(self.records, key=lambda r: (r.release_ns, r.process))
 
 
 def skel_background(*args: str, new_session: bool = False) -> Background:

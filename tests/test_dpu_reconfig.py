@@ -8,19 +8,16 @@ release, cycle, compute, input seqs), their status and their reports.
 from __future__ import annotations
 
 import itertools
-import threading
 import time
 from collections import defaultdict
 from dataclasses import dataclass
 
-import lcm
-from conftest import EXAMPLES, DpuFarm
+from conftest import EXAMPLES, DpuFarm, TimingTap
 
 import skelmsg
 from skeleton.host.control import Control
 from skeleton.host.system import System, load
 from skeleton.host.wire import config_message
-from skelmsg.contract import TIMING_CHANNEL
 
 PAIR = EXAMPLES / "pair-10ms-5ms.yaml"
 MS = 1_000_000
@@ -53,42 +50,21 @@ class Rec:
     inputs: tuple[tuple[int, int], ...]  # (buffer, seq)
 
 
-class TimingTap:
-    """Every timing record of one run, decoded from SKEL_TIMING as the logger would see it."""
+class Tap(TimingTap):
+    """The run's records with the generation of their batch and the seqs their inputs read."""
 
     def __init__(self, url: str, run_id: int) -> None:
-        self.run_id = run_id
-        self.records: list[Rec] = []
         self.batch_generations: dict[int, set[int]] = defaultdict(set)
-        self._lock = threading.Lock()
-        self._lcm = lcm.LCM(url)
-        self._lcm.subscribe(TIMING_CHANNEL, self._handle).set_queue_capacity(0)
-        self._running = True
-        self._thread = threading.Thread(target=self._drain, daemon=True)
-        self._thread.start()
+        super().__init__(url, run_id)
 
-    def _drain(self) -> None:
-        while self._running:
-            self._lcm.handle_timeout(50)
-
-    def _handle(self, _channel: str, data: bytes) -> None:
-        msg = skelmsg.timing_t.decode(data)
-        if msg.run_id != self.run_id:
-            return
+    def _add(self, msg: skelmsg.timing_t) -> None:
         ins: dict[int, list[tuple[int, int]]] = defaultdict(list)
         for w in range(msg.ninputs):
             ins[msg.in_record[w]].append((msg.in_buffer[w], msg.in_seq[w]))
-        with self._lock:
-            self.batch_generations[msg.dpu].add(msg.generation)
-            for i in range(msg.n):
-                self.records.append(Rec(msg.dpu, msg.generation, msg.process[i], msg.cycle[i], msg.minor[i],
-                                        msg.release_ns[i], msg.compute_ns[i], msg.flags[i], tuple(ins[i])))
-
-    def close(self) -> list[Rec]:
-        self._running = False
-        self._thread.join(timeout=1.0)
-        with self._lock:
-            return sorted(self.records, key=lambda r: (r.release_ns, r.process))
+        self.batch_generations[msg.dpu].add(msg.generation)
+        for i in range(msg.n):
+            self.records.append(Rec(msg.dpu, msg.generation, msg.process[i], msg.cycle[i], msg.minor[i],
+                                    msg.release_ns[i], msg.compute_ns[i], msg.flags[i], tuple(ins[i])))
 
 
 def _stage(control: Control, config: skelmsg.config_t, ids: list[int]) -> None:
@@ -140,7 +116,7 @@ def _switch_mid_run(dpus: DpuFarm, url: str, run_id: int, before: System, after:
     ids = [1, 2]
     dpus.start(*ids)
     control = Control(url)
-    tap = TimingTap(url, run_id)
+    tap = Tap(url, run_id)
     try:
         assert control.wait_heard(ids, 5.0) == []
         g = _begin_run(control, before, ids, run_id, duration_s)
@@ -227,7 +203,7 @@ def test_commit_for_a_generation_not_staged_changes_nothing(dpus: DpuFarm, url: 
     ids, run_id = [1, 2], 5252
     dpus.start(*ids)
     control = Control(url)
-    tap = TimingTap(url, run_id)
+    tap = Tap(url, run_id)
     try:
         assert control.wait_heard(ids, 5.0) == []
         g = _begin_run(control, _pair(url), ids, run_id, 1.5)

@@ -1,9 +1,9 @@
 """The tasking executive (`executive: threads`) against scheduling theory: a DPU is one
 processor under fixed-priority preemptive scheduling. Real DPUs run textbook rate-monotonic
-task sets; exact response-time analysis and a simulation of the ideal schedule say what each
-job must do, and the timing records are held to it. In compute mode sleep the DPU runs the
-schedule itself (exact); in cpu and wall the kernel does, on SCHED_FIFO threads pinned to one
-CPU (within margins: the machine is shared)."""
+task sets; exact response-time analysis and a simulation of the ideal schedule
+(host/schedule.py) say what each job must do, and the timing records are held to it. In
+compute mode sleep the DPU runs the schedule itself (exact); in cpu and wall the kernel does,
+on SCHED_FIFO threads pinned to one CPU (within margins: the machine is shared)."""
 
 from __future__ import annotations
 
@@ -20,6 +20,7 @@ import pytest
 from conftest import ASAN_DPU, SANITIZER_ERROR, skel
 
 import skeleton
+from skeleton.host.schedule import ideal_schedule, response_times
 
 MS = 1000  # us
 
@@ -29,52 +30,6 @@ MS = 1000  # us
 # preemption or a deadline the theory places elsewhere.
 SCHEDULABLE = [(3, 8), (3, 12), (7, 24)]    # U = 0.92; R = 3, 6, 22 ms
 UNSCHEDULABLE = [(3, 8), (6, 20), (6, 24)]  # U = 0.93; R3 = 30 ms > T3 = 24 ms
-
-
-def response_time_analysis(tasks: list[tuple[int, int]]) -> list[float]:
-    """Exact worst-case response times (Joseph & Pandya; Audsley et al.): R = C + sum over
-    higher priorities of ceil(R / Tj) * Cj, iterated to its fixed point (inf past the period)."""
-    out: list[float] = []
-    for i, (c, t) in enumerate(tasks):
-        r = float(c)
-        while True:
-            nxt = c + sum(math.ceil(r / tj) * cj for cj, tj in tasks[:i])
-            if nxt == r or nxt > 10 * t:
-                break
-            r = nxt
-        out.append(r)
-    return out
-
-
-def ideal_schedule(tasks: list[tuple[int, int]], horizon: int) -> dict[tuple[int, int], tuple[int, int]]:
-    """(response time, preemptions) of every job (task, k) released before HORIZON on the ideal
-    one-processor fixed-priority preemptive schedule, all tasks released together at 0."""
-    nextk = [0] * len(tasks)
-    active: dict[int, list[int]] = {}  # task -> [k, release, remaining, preemptions]
-    out: dict[tuple[int, int], tuple[int, int]] = {}
-    t, running = 0, None
-    while True:
-        for i, (c, period) in enumerate(tasks):
-            if i not in active and nextk[i] * period <= t and nextk[i] * period < horizon:
-                active[i] = [nextk[i], nextk[i] * period, c, 0]
-        releases = [nextk[i] * p for i, (_, p) in enumerate(tasks)
-                    if i not in active and nextk[i] * p < horizon]
-        if not active and not releases:
-            return out
-        h = min(active) if active else None
-        if running is not None and running != h and running in active:
-            active[running][3] += 1
-        running = h
-        nxt = min(releases, default=math.inf)
-        if h is not None:
-            nxt = min(nxt, t + active[h][2])
-            active[h][2] -= int(nxt) - t
-        t = int(nxt)
-        if h is not None and active[h][2] <= 0:
-            k, release, _, preemptions = active.pop(h)
-            out[(h, k)] = (t - release, preemptions)
-            nextk[h] += 1
-            running = None
 
 
 def _system(tmp_path: Path, tasks: list[tuple[int, int]], duration_s: float, compute: str = "sleep") -> Path:
@@ -115,12 +70,13 @@ def _run(tmp_path: Path, url: str, tasks: list[tuple[int, int]]) -> pd.DataFrame
 
 
 def test_rate_monotonic_responses_match_exact_response_time_analysis(tmp_path: Path, url: str) -> None:
-    rta = response_time_analysis(SCHEDULABLE)
+    rta = response_times(SCHEDULABLE)
     assert rta == [3, 6, 22]
     cycles = _run(tmp_path, url, SCHEDULABLE)
     for i, r in enumerate(rta):
         mine = cycles[cycles.task == i]
         assert len(mine) >= 100, mine
+        assert r is not None
         worst = mine.response_us.max()
         assert abs(worst - r * MS) <= 0.05 * r * MS + 200, (f"p{i + 1}", worst, r * MS)
         assert not mine.overrun.any(), mine[mine.overrun]
@@ -128,23 +84,24 @@ def test_rate_monotonic_responses_match_exact_response_time_analysis(tmp_path: P
     # one, by the others' releases; the others never).
     ideal = ideal_schedule(SCHEDULABLE, 4000)
     measured = {(i, k): n for i, k, n in zip(cycles.task, cycles.cycle, cycles.preemptions, strict=True)}
-    assert measured == {key: ideal[key][1] for key in measured}, measured
+    assert measured == {key: ideal[key].preemptions for key in measured}, measured
     assert max(measured.values()) >= 2 and cycles.preempted_ns[cycles.task == 2].min() > 0
 
 
 def test_an_unschedulable_set_misses_exactly_the_deadlines_analysis_predicts(tmp_path: Path,
                                                                             url: str) -> None:
-    rta = response_time_analysis(UNSCHEDULABLE)
-    assert rta[:2] == [3, 12] and rta[2] > UNSCHEDULABLE[2][1]  # p3 cannot meet its deadline
+    rta = response_times(UNSCHEDULABLE)
+    r3 = rta[2]
+    assert rta[:2] == [3, 12] and r3 is not None and r3 > UNSCHEDULABLE[2][1]  # p3 misses its deadline
     cycles = _run(tmp_path, url, UNSCHEDULABLE)
     ideal = ideal_schedule(UNSCHEDULABLE, 4000)
-    predicted = {(i, k) for (i, k), (r, _) in ideal.items() if r > UNSCHEDULABLE[i][1]}
+    predicted = {(i, k) for (i, k), job in ideal.items() if job.response > UNSCHEDULABLE[i][1]}
     measured = set(zip(cycles.task[cycles.overrun], cycles.cycle[cycles.overrun], strict=True))
     ran = set(zip(cycles.task, cycles.cycle, strict=True))
     assert measured == predicted & ran, (sorted(measured), sorted(predicted & ran))
     assert any(i == 2 for i, _ in measured)  # it did miss
     for (i, k), row in cycles.set_index(["task", "cycle"]).iterrows():
-        r = ideal[(i, k)][0] * MS
+        r = ideal[(i, k)].response * MS
         assert abs(row.response_us - r) <= 0.05 * r + 200, (i, k, row)
 
 
@@ -214,8 +171,9 @@ def _threaded_run(tmp_path: Path, url: str, compute: str) -> tuple[pd.DataFrame,
 @pytest.mark.parametrize("compute", ["cpu", "wall"])
 def test_fifo_threads_preempt_as_response_time_analysis_bounds(tmp_path: Path, url: str, compute: str,
                                                               busy_neighbours: None) -> None:
-    rta = response_time_analysis(THREADED)
+    rta = response_times(THREADED)
     assert rta == [2, 4, 15]
+    r3 = 15
     cycles, out = _threaded_run(tmp_path, url, compute)
     log = (out / "logs" / "dpu1.log").read_text(errors="replace")
     if "not faithful" in log:
@@ -246,13 +204,13 @@ def test_fifo_threads_preempt_as_response_time_analysis_bounds(tmp_path: Path, u
         before = ((hp_release >= row.release_ns) & (hp_release < end))
         floor_ns = row.compute_ns + hp_compute[before].sum()
         assert row.response_us * 1000 >= floor_ns - 100_000, (row, floor_ns)
-        assert row.response_us <= 1.3 * rta[2] * MS + 2 * MS, (row.cycle, row.response_us, rta[2])
+        assert row.response_us <= 1.3 * r3 * MS + 2 * MS, (row.cycle, row.response_us, r3)
         assert row.preemptions > 0 and row.preempted_ns > 0, row
-    assert low.response_us.min() >= rta[2] * MS - 200, low.response_us.min()
+    assert low.response_us.min() >= r3 * MS - 200, low.response_us.min()
     # The highest priority is never preempted (a rare switch of the machine's own is let pass).
     assert (high.preemptions > 0).mean() <= 0.01, high.preemptions.value_counts()
     assert low.preemptions.median() == 2, low.preemptions.value_counts()  # as on the ideal schedule
-    assert high.response_us.max() <= 1.3 * rta[0] * MS + 2 * MS, high.response_us.max()
+    assert high.response_us.max() <= 1.3 * 2 * MS + 2 * MS, high.response_us.max()  # R1 = 2 ms
     report = json.loads((out / "report.json").read_text())
     assert report["not_faithful"] == [], report["not_faithful"]
 
