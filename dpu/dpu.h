@@ -247,6 +247,7 @@ typedef struct {
     lcm_t *lcm;
     int fd;
     int32_t largest;           /* the largest message (encoded bytes) its socket receives */
+    int64_t last_arrival_ns;   /* the latest receive stamp given out (link_arrival_ns) */
 } skel_link_t;
 
 /* A socket's receive buffer is asked for a message of ENCODED bytes whole plus
@@ -258,7 +259,7 @@ int link_open(skel_link_t *link);
 void link_close(skel_link_t *link);
 int link_subscribe(skel_link_t *link, skel_slot_t *slot);
 int link_subscribe_channel(skel_link_t *link, const char *channel, lcm_msg_handler_t handler, void *user);
-int64_t link_arrival_ns(const lcm_recv_buf_t *rbuf);
+int64_t link_arrival_ns(skel_link_t *link, const lcm_recv_buf_t *rbuf);
 int link_drain(skel_link_t *links, int nlinks);
 int link_wait(skel_link_t *links, int nlinks, int wake_fd, int64_t timeout_ns);
 
@@ -397,6 +398,7 @@ typedef struct skel_plan {
     int nevents;
     skel_event_t events[SKEL_MAX_EVENTS];
     int event_link;             /* index into links of the control URL, -1: no events here */
+    int awaits_events;          /* some process here is sync: event */
     int nsources;
     skel_source_t sources[SKEL_MAX_EVENTS];
     lcm_t *gen_lcm;             /* the generator thread's own lcm_t */
@@ -532,7 +534,8 @@ void process_finish(skel_exec_t *x, skel_process_t *p, skel_rec_t *rec, int64_t 
                     int64_t t_out, int measured);
 
 /* ---- event (event.c) ------------------------------------------------------------ */
-int event_plan(skel_plan_t *plan, const skelmsg_config_t *cfg, int16_t dpu);
+int event_add_process(skel_plan_t *plan, skel_process_t *p, const skelmsg_process_t *src);
+int event_add_sources(skel_plan_t *plan, const skelmsg_config_t *cfg, int16_t dpu);
 int event_open(skel_plan_t *plan, const char *control_url);
 void event_free(skel_plan_t *plan);
 void event_reset_run(skel_plan_t *plan);

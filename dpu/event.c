@@ -48,27 +48,26 @@ static int event_index(skel_plan_t *plan, const char *name)
     return plan->nevents++;
 }
 
-/* This DPU's part of the events: what its processes await and emit, what it generates. */
-int event_plan(skel_plan_t *plan, const skelmsg_config_t *cfg, int16_t dpu)
+/* What process P (configured as SRC) awaits and emits. */
+int event_add_process(skel_plan_t *plan, skel_process_t *p, const skelmsg_process_t *src)
 {
-    plan->event_link = -1;
-    for (int i = 0; i < plan->nprocesses; i++) {
-        skel_process_t *p = &plan->processes[i];
-        const skelmsg_process_t *src = NULL;
-        for (int c = 0; c < cfg->nprocesses && src == NULL; c++)
-            if (cfg->processes[c].id == p->id) src = &cfg->processes[c];
-        p->event = -1;
-        if (src == NULL) return -1;
-        if (src->sync == SKELMSG_PROCESS_T_SYNC_EVENT) {
-            p->event = (int16_t)event_index(plan, src->event);
-            if (p->event < 0) return -1;
-            plan->events[p->event].awaited = 1;
-            p->queue_cap = src->queue;
-        }
-        p->nemits = src->nemits;
-        for (int e = 0; e < src->nemits; e++)
-            if ((p->emits[e] = (int16_t)event_index(plan, src->emits[e])) < 0) return -1;
+    p->event = -1;
+    if (src->sync == SKELMSG_PROCESS_T_SYNC_EVENT) {
+        p->event = (int16_t)event_index(plan, src->event);
+        if (p->event < 0) return -1;
+        plan->events[p->event].awaited = 1;
+        plan->awaits_events = 1;
+        p->queue_cap = src->queue;
     }
+    p->nemits = src->nemits;
+    for (int e = 0; e < src->nemits; e++)
+        if ((p->emits[e] = (int16_t)event_index(plan, src->emits[e])) < 0) return -1;
+    return 0;
+}
+
+/* The generators DPU runs (the config's events: with dpu: it). */
+int event_add_sources(skel_plan_t *plan, const skelmsg_config_t *cfg, int16_t dpu)
+{
     for (int i = 0; i < cfg->nevents; i++) {
         const skelmsg_event_source_t *src = &cfg->events[i];
         if (src->kind == SKELMSG_EVENT_SOURCE_T_KIND_HOST || src->dpu != dpu) continue;
@@ -100,7 +99,7 @@ static void event_on_message(const lcm_recv_buf_t *rbuf, const char *channel, vo
         return;
     }
     if (!plan->running || (hdr.run_id != 0 && hdr.run_id != plan->run_id)) return;
-    const int64_t at = link_arrival_ns(rbuf);
+    const int64_t at = link_arrival_ns(&plan->links[plan->event_link], rbuf);
     const int index = (int)(e - plan->events);
     for (int i = 0; i < plan->nprocesses; i++) {
         skel_process_t *p = &plan->processes[i];
@@ -126,9 +125,8 @@ static void event_on_message(const lcm_recv_buf_t *rbuf, const char *channel, vo
  * or emitted here, and the generators get an lcm_t of their own (another thread). */
 int event_open(skel_plan_t *plan, const char *control_url)
 {
-    int used = 0;
-    for (int i = 0; i < plan->nprocesses; i++)
-        used |= plan->processes[i].event >= 0 || plan->processes[i].nemits > 0;
+    int used = plan->awaits_events;
+    for (int i = 0; i < plan->nprocesses; i++) used |= plan->processes[i].nemits > 0;
     if (used) {
         for (int i = 0; i < plan->nlinks && plan->event_link < 0; i++)
             if (strcmp(plan->links[i].url, control_url) == 0) plan->event_link = i;
@@ -162,14 +160,19 @@ void event_free(skel_plan_t *plan)
     for (int i = 0; i < plan->nsources; i++) free(plan->sources[i].enc);
 }
 
+/* P holds no event, none waits. */
+static void event_clear(skel_process_t *p)
+{
+    p->q_head = p->q_count = 0;
+    p->q_dropped = 0;
+    p->taken_ns = -1;
+}
+
 void event_reset_run(skel_plan_t *plan)
 {
     for (int i = 0; i < plan->nprocesses; i++) {
-        skel_process_t *p = &plan->processes[i];
-        p->q_head = p->q_count = 0;
-        p->q_dropped = 0;
-        p->taken_ns = -1;
-        p->job_release = INT64_MIN / 4; /* the first event is released when it comes */
+        event_clear(&plan->processes[i]);
+        plan->processes[i].job_release = INT64_MIN / 4; /* the first event is released when it comes */
     }
     for (int i = 0; i < plan->nevents; i++) plan->events[i].seq = 0;
     for (int i = 0; i < plan->nsources; i++)
@@ -282,9 +285,7 @@ void event_carry(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
 {
     for (int i = 0; i < next->nprocesses; i++) {
         skel_process_t *p = &next->processes[i];
-        p->taken_ns = -1;
-        p->q_head = p->q_count = 0;
-        p->q_dropped = 0;
+        event_clear(p);
         if (p->event < 0) continue; /* the executive's own carry counts its releases */
         p->next_k = 0;
         p->job_release = INT64_MIN / 4;

@@ -145,9 +145,7 @@ static int executive_runs(const skel_process_t *p, int64_t j)
  * frame starts; without one it does not run in this frame (no record). */
 static void executive_take_events(skel_plan_t *plan, int64_t j)
 {
-    int any = 0;
-    for (int i = 0; i < plan->nprocesses; i++) any |= plan->processes[i].event >= 0;
-    if (!any) return;
+    if (!plan->awaits_events) return;
     (void)link_drain(plan->links, plan->nlinks);
     for (int i = 0; i < plan->nprocesses; i++) {
         skel_process_t *p = &plan->processes[i];

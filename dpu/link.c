@@ -74,13 +74,19 @@ void link_close(skel_link_t *link)
     memset(link, 0, sizeof *link);
 }
 
-/* When RBUF reached the host: the kernel's receive stamp (UTC, us) tells when it
- * arrived, not when we drained it (monotonic ns, no later than now). */
-int64_t link_arrival_ns(const lcm_recv_buf_t *rbuf)
+/* When RBUF reached the host on LINK: the receive stamp (UTC, us) tells when it
+ * arrived, not when we drained it (monotonic ns, no later than now). Mapping UTC to
+ * the monotonic clock jitters by microseconds from one reading to the next, so a
+ * message received just after another could seem to come first: on one socket,
+ * receipt order is arrival order, and no stamp goes before the previous one. */
+int64_t link_arrival_ns(skel_link_t *link, const lcm_recv_buf_t *rbuf)
 {
     int64_t now_mono = clock_mono_ns();
     int64_t recv = clock_utc_to_mono(rbuf->recv_utime * 1000, now_mono, clock_utc_ns());
-    return rbuf->recv_utime <= 0 || recv > now_mono ? now_mono : recv;
+    if (rbuf->recv_utime <= 0 || recv > now_mono) recv = now_mono;
+    if (recv < link->last_arrival_ns) recv = link->last_arrival_ns;
+    link->last_arrival_ns = recv;
+    return recv;
 }
 
 static void link_on_buffer(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
@@ -96,7 +102,8 @@ static void link_on_buffer(const lcm_recv_buf_t *rbuf, const char *channel, void
         return;
     }
     if (!plan->running) return; /* between runs: drained only to keep queues short */
-    if (buffers_slot_receive(slot, plan->run_id, &hdr, link_arrival_ns(rbuf) + plan->clock_offset_ns) ==
+    if (buffers_slot_receive(slot, plan->run_id, &hdr, link_arrival_ns(&plan->links[slot->link], rbuf) +
+                                                     plan->clock_offset_ns) ==
         BUFFERS_MISMATCH)
         atomic_fetch_add(plan->rejected, 1);
 }

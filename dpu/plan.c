@@ -115,6 +115,7 @@ static int plan_add_processes(skel_plan_t *plan, const skelmsg_config_t *cfg, in
         p->noutputs = src->noutputs;
         for (int q = 0; q < src->noutputs; q++)
             if (plan_add_output(plan, cfg, &p->outputs[q], src->outputs[q]) != 0) return -1;
+        if (event_add_process(plan, p, src) != 0) return -1;
     }
     for (int i = 0; i < plan->nprocesses; i++)
         for (int q = 0; q < plan->processes[i].noutputs; q++) {
@@ -158,8 +159,9 @@ skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason
     plan->processes = calloc(SKEL_MAX_PROCESSES, sizeof *plan->processes);
     plan->slots = calloc(SKEL_MAX_SLOTS, sizeof *plan->slots);
     if (plan->processes == NULL || plan->slots == NULL) goto oom;
+    plan->event_link = -1;
     if (plan_add_processes(plan, cfg, d->id) != 0) goto oom;
-    if (event_plan(plan, cfg, d->id) != 0) goto oom;
+    if (event_add_sources(plan, cfg, d->id) != 0) goto oom;
     plan->fits = plan_fits(plan);
     plan_size_links(plan, cfg);
     int32_t max_bytes = 1;

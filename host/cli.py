@@ -383,8 +383,9 @@ def cmd_doctor(args: argparse.Namespace) -> int:
 
 def cmd_event(args: argparse.Namespace) -> int:
     from . import event
+    from .schema import NAME  # an event's name is the system file's: its channel's suffix
 
-    named = event.NAME.fullmatch(args.name)
+    named = NAME.fullmatch(args.name)
     problem = ("a name of letters, digits and _ not starting with a digit" if not named
                else "--count must be >= 1" if args.count < 1
                else "--rate must be a positive number" if not 0 < args.rate < float("inf") else "")

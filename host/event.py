@@ -7,15 +7,12 @@ with run_id 0: whichever run is going takes it; between runs the DPUs ignore it.
 
 from __future__ import annotations
 
-import re
 import time
 
 import lcm
 
 import skelmsg
 from skelmsg import contract
-
-NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,63}")  # as the system file's names (schema.py)
 
 
 def send(url: str, name: str, count: int = 1, rate_hz: float = 10.0) -> int:

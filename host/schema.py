@@ -63,9 +63,12 @@ def _bytes(v: int) -> int:
     return v
 
 
+# Names become LCM channels (SKEL_BUF_<name>, SKEL_EVENT_<name>) and -s targets (dots, '=').
+NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,63}")
+
+
 def _name(v: str) -> str:
-    # Names become LCM channels (SKEL_BUF_<name>) and -s targets (dots, '=').
-    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,63}", v):
+    if not NAME.fullmatch(v):
         raise ValueError(f"must be a name of letters, digits and _ not starting with a digit, got {show(v)}")
     return v
 

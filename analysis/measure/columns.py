@@ -18,7 +18,7 @@ import pyarrow as pa
 
 from ..read.records import CYCLE_FIELDS, FLAG_LOCKOUT, FLAG_OVERRUN, FLAG_RELEASE_SKIPPED, FLAG_SKIPPED
 from .latency import ClockOffsets
-from .metrics import completed, cycle_end_ns, measured
+from .metrics import completed, cycle_end_ns, event_latency_us, event_response_us, measured
 from .report import RunReport
 
 if TYPE_CHECKING:
@@ -163,22 +163,11 @@ def timing_table(run: RunAnalysis) -> Table:
         "completed": completed(recs) if n else np.zeros(0, dtype=bool),
         "release_latency_us": (start - release) / 1e3,
         "response_us": (cycle_end_ns(recs) - release) / 1e3 if n else np.zeros(0),
-        **_event_columns(recs, start),
+        "event_latency_us": event_latency_us(recs) if n else np.zeros(0),
+        "event_response_us": event_response_us(recs) if n else np.zeros(0),
         "start_utc_ns": run.to_utc_ns(np.asarray(recs["dpu"]), start) if n else np.zeros(0, np.int64),
     }  # fmt: skip
     return _documented("timing", columns)
-
-
-def _event_columns(recs: Any, start: np.ndarray) -> dict[str, np.ndarray]:
-    """event -> start and -> end, NaN for the cycles that handled no event."""
-    if not len(recs):
-        return {"event_latency_us": np.zeros(0), "event_response_us": np.zeros(0)}
-    event = np.asarray(recs["event_ns"])
-    got = event >= 0
-    return {
-        "event_latency_us": np.where(got, (start - event) / 1e3, np.nan),
-        "event_response_us": np.where(got, (cycle_end_ns(recs) - event) / 1e3, np.nan),
-    }
 
 
 def receptions_table(run: RunAnalysis) -> Table:

@@ -332,14 +332,21 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
             )
         )
         if out[-1].events is not None:
-            out[-1].histograms["event_latency_us"] = histogram(event_latency_us(done))
+            got = done[done["event_ns"] >= 0]
+            out[-1].histograms["event_latency_us"] = histogram(event_latency_us(got))
     return out
 
 
 def event_latency_us(records: np.ndarray) -> np.ndarray:
-    """event -> start of each event cycle among RECORDS (the others are left out)."""
-    got = records[records["event_ns"] >= 0]
-    return (got["start_ns"] - got["event_ns"]).astype(np.float64) / 1000.0
+    """event -> start of each record; NaN for a cycle that handled no event."""
+    event = records["event_ns"]
+    return np.where(event >= 0, (records["start_ns"] - event) / 1000.0, np.nan)
+
+
+def event_response_us(records: np.ndarray) -> np.ndarray:
+    """event -> end of the cycle's work of each record; NaN for a cycle that handled no event."""
+    event = records["event_ns"]
+    return np.where(event >= 0, (cycle_end_ns(records) - event) / 1000.0, np.nan)
 
 
 def _events(proc: Any, mine: np.ndarray, done: np.ndarray) -> EventMetrics | None:
@@ -352,7 +359,7 @@ def _events(proc: Any, mine: np.ndarray, done: np.ndarray) -> EventMetrics | Non
         dropped=int(mine["event_dropped"].sum()),
         queued_max=int(got["event_queued"].max()) if len(got) else 0,
         latency_us=_latency(event_latency_us(got)),
-        response_us=_latency((cycle_end_ns(got) - got["event_ns"]).astype(np.float64) / 1000.0),
+        response_us=_latency(event_response_us(got)),
     )
 
 
