@@ -24,7 +24,7 @@ CC      ?= gcc
 CFLAGS  ?= -O2 -g
 WARN    := -std=c11 -D_GNU_SOURCE -Wall -Wextra -Werror
 INC      = -I$(GEN)/c -Idpu -I$(LCM_PREFIX)/include
-LIBS     = -L$(LCM_PREFIX)/lib -Wl,-rpath,$(LCM_PREFIX)/lib -llcm -lpthread -lm
+LIBS     = -L$(LCM_PREFIX)/lib -Wl,-rpath,$(LCM_PREFIX)/lib -llcm -lsodium -lpthread -lm
 # lcm_coretypes.h's __int8_t_decode_array does memcpy(NULL, src, 0) for every empty int8_t
 # array (lcm_malloc(0) is NULL), e.g. process_t.required of a process without inputs:
 # harmless, but UBSan's nonnull-attribute check would abort every config decode.
@@ -32,7 +32,7 @@ SAN     := -fsanitize=address,undefined -fno-sanitize=nonnull-attribute -fno-omi
 
 C_TESTS := $(patsubst tests/c/%.c,$(BUILD)/asan/%,$(wildcard tests/c/test_*.c))
 
-.PHONY: all demo test test-c test-py test-tools lint bench soak spy clean distclean
+.PHONY: all demo test test-c test-py test-tools test-fuzz fuzz fuzz-tools lint bench soak spy clean distclean
 
 all: $(BUILD)/skel-dpu
 
@@ -88,40 +88,113 @@ $(GEN_H): lcmtypes/contractgen.py $(CONTRACT) | $(VENV)/.lcm
 	$(PY) lcmtypes/contractgen.py --c $(GEN)/c $(CONTRACT)
 
 # --- the DPU daemon ------------------------------------------------------------------
-$(BUILD)/skel-dpu: $(DPU_SRC) $(DPU_HDR) $(GEN_C) $(GEN_H) | $(STAMP)
+# libsodium computes the HMACs of signed control (dpu/seal.c).
+SODIUM := $(BUILD)/.sodium
+$(SODIUM):
+	@[ -f /usr/include/sodium.h ] || { $(call need_deb,libsodium-dev); }
+	@mkdir -p $(BUILD) && touch $@
+
+$(BUILD)/skel-dpu: $(DPU_SRC) $(DPU_HDR) $(GEN_C) $(GEN_H) | $(STAMP) $(SODIUM)
 	$(CC) $(WARN) $(CFLAGS) $(INC) -o $@ $(DPU_SRC) $(GEN_C) $(LIBS)
 
 # The same daemon under AddressSanitizer and UBSan, for the tests.
-$(BUILD)/asan/skel-dpu: $(DPU_SRC) $(DPU_HDR) $(GEN_C) $(GEN_H) | $(STAMP)
+$(BUILD)/asan/skel-dpu: $(DPU_SRC) $(DPU_HDR) $(GEN_C) $(GEN_H) | $(STAMP) $(SODIUM)
 	@mkdir -p $(BUILD)/asan
 	$(CC) $(WARN) -O1 -g $(SAN) $(INC) -o $@ $(DPU_SRC) $(GEN_C) $(LIBS)
 
 # C unit tests link every dpu/ file but main.c.
-$(BUILD)/asan/test_%: tests/c/test_%.c tests/c/check.h $(DPU_SRC) $(DPU_HDR) $(GEN_C) $(GEN_H) | $(STAMP)
+$(BUILD)/asan/test_%: tests/c/test_%.c tests/c/check.h $(DPU_SRC) $(DPU_HDR) $(GEN_C) $(GEN_H) | $(STAMP) $(SODIUM)
 	@mkdir -p $(BUILD)/asan
 	$(CC) $(WARN) -O1 -g $(SAN) $(INC) -Itests/c -o $@ $< $(filter-out dpu/main.c,$(DPU_SRC)) $(GEN_C) $(LIBS)
+
+# Hostile traffic for the flood test and `make bench` (tests/flood/flood.c).
+$(BUILD)/flood: tests/flood/flood.c $(GEN_C) | $(STAMP)
+	$(CC) $(WARN) -O2 $(INC) -o $@ $< $(filter-out $(GEN)/c/skelmsg_check.c,$(GEN_C)) $(LIBS)
 
 # --- what users run ----------------------------------------------------------------
 demo: $(BUILD)/skel-dpu $(STAMP)
 	$(VENV)/bin/skel run examples/servo.yaml --spawn --compare-paper
 
-test: test-c test-py
+test: test-c test-fuzz test-py
 
 test-c: $(C_TESTS)
 	@set -e; for t in $(C_TESTS); do echo "== $$t"; $$t; done
 
-test-py: $(BUILD)/skel-dpu $(BUILD)/asan/skel-dpu $(STAMP) test-tools
+test-py: $(BUILD)/skel-dpu $(BUILD)/asan/skel-dpu $(BUILD)/flood $(STAMP) test-tools
 	$(VENV)/bin/pytest -q $(PYTEST_ARGS)
 
 # The multi-host tests (network namespaces, root only) run ip, and nft to lose packets.
 test-tools:
 	@$(call want_commands,ip:iproute2 nft:nftables)
 
+# --- fuzzing: libFuzzer harnesses, one per path from received bytes to DPU state ----------
+# clang and its runtimes (Debian: clang, libclang-rt-14-dev) build them; installed as root,
+# otherwise the one apt-get line is printed. dpu/ and the generated code are compiled once
+# with coverage (fuzzer-no-link) and linked into each harness (tests/fuzz/fuzz_<name>.c).
+FUZZ_CC            ?= clang
+FUZZ_SECONDS       ?= 600
+FUZZ_SMOKE_SECONDS ?= 30
+FUZZ_HARNESSES     := buffer event config command seal
+FUZZ_DIR           := $(BUILD)/fuzz
+FUZZ_BINS          := $(patsubst %,$(FUZZ_DIR)/fuzz_%,$(FUZZ_HARNESSES))
+# nonnull-attribute: lcm_coretypes.h's memcpy(NULL, src, 0), as for SAN above.
+FUZZ_SAN    := -fsanitize=address,undefined -fno-sanitize=nonnull-attribute -fno-sanitize-recover=all \
+               -fno-omit-frame-pointer
+FUZZ_OBJS    = $(patsubst %.c,$(FUZZ_DIR)/obj/%.o,$(notdir $(filter-out dpu/main.c,$(DPU_SRC)) $(GEN_C)))
+# -close_fd_mask=2: the DPU's log lines (one per command) would drown libFuzzer's; sanitizer
+# reports still reach the terminal. -timeout: an input that takes 5 s is a hang, reported.
+FUZZ_RUN    := -close_fd_mask=2 -timeout=5 -print_final_stats=1
+
+fuzz-tools:
+	@command -v $(FUZZ_CC) >/dev/null && \
+	  [ -f "$$($(FUZZ_CC) -print-runtime-dir)/libclang_rt.fuzzer-$$(uname -m).a" ] || \
+	  { $(call need_deb,clang libclang-rt-14-dev); }
+
+$(FUZZ_DIR)/obj/%.o: dpu/%.c $(DPU_HDR) $(GEN_H) $(GEN_C) | fuzz-tools $(STAMP)
+	@mkdir -p $(@D)
+	$(FUZZ_CC) $(WARN) -O1 -g -fsanitize=fuzzer-no-link $(FUZZ_SAN) $(INC) -c -o $@ $<
+
+$(FUZZ_DIR)/obj/%.o: $(GEN)/c/%.c $(GEN_C) | fuzz-tools $(STAMP)
+	@mkdir -p $(@D)
+	$(FUZZ_CC) $(WARN) -O1 -g -fsanitize=fuzzer-no-link $(FUZZ_SAN) $(INC) -c -o $@ $<
+
+$(FUZZ_DIR)/fuzz_%: tests/fuzz/fuzz_%.c tests/fuzz/fuzz.c tests/fuzz/fuzz.h tests/c/fixture.h $(FUZZ_OBJS) | fuzz-tools
+	$(FUZZ_CC) $(WARN) -O1 -g -fsanitize=fuzzer $(FUZZ_SAN) $(INC) -Itests/fuzz -Itests/c -o $@ \
+	  $< tests/fuzz/fuzz.c $(FUZZ_OBJS) $(LIBS)
+
+# Each harness: the regressions replayed once (a file that crashes fails at once), then
+# fuzzing from the seed corpus and the regressions for SECONDS. New inputs go to
+# build/fuzz/corpus/<name> (read back next time), crashes to build/fuzz/artifacts/<name>/:
+# never into the repository's tree.
+define fuzz_run
+	@set -e; for h in $(FUZZ_HARNESSES); do \
+	  mkdir -p $(FUZZ_DIR)/corpus/$$h $(FUZZ_DIR)/artifacts/$$h; \
+	  reg=$$(find tests/fuzz/regressions/$$h -type f 2>/dev/null | sort); \
+	  if [ -n "$$reg" ]; then echo "== fuzz_$$h: $$(echo "$$reg" | wc -l) regression(s)"; \
+	    $(FUZZ_DIR)/fuzz_$$h $(FUZZ_RUN) -artifact_prefix=$(FUZZ_DIR)/artifacts/$$h/ $$reg; fi; \
+	  echo "== fuzz_$$h: $(1) s"; \
+	  $(2) $(FUZZ_DIR)/fuzz_$$h $(FUZZ_RUN) -max_total_time=$(1) \
+	    -artifact_prefix=$(FUZZ_DIR)/artifacts/$$h/ $(FUZZ_DIR)/corpus/$$h tests/fuzz/corpus/$$h \
+	    $$( [ -d tests/fuzz/regressions/$$h ] && echo tests/fuzz/regressions/$$h ); \
+	done
+endef
+
+# The smoke, part of `make test`: every harness for FUZZ_SMOKE_SECONDS (default 30).
+test-fuzz: $(FUZZ_BINS)
+	$(call fuzz_run,$(FUZZ_SMOKE_SECONDS),)
+
+# Long fuzzing, niced for a shared machine: each harness for FUZZ_SECONDS (default 600), one
+# at a time, then the Hypothesis properties with their long profile (tests/conftest.py).
+fuzz: $(FUZZ_BINS) $(STAMP)
+	$(call fuzz_run,$(FUZZ_SECONDS),nice -n 19)
+	SKEL_HYPOTHESIS_PROFILE=fuzz nice -n 19 $(VENV)/bin/pytest -q -p no:cacheprovider \
+	  tests/test_system_properties.py tests/test_logreader_properties.py
+
 lint: $(STAMP)
 	$(VENV)/bin/ruff check skeleton host analysis tests lcmtypes bench examples
 
 # cyclictest is the wake-up baseline (Debian rt-tests).
-bench: $(BUILD)/skel-dpu $(STAMP)
+bench: $(BUILD)/skel-dpu $(BUILD)/flood $(STAMP)
 	@$(call want_commands,cyclictest:rt-tests)
 	$(PY) bench/run.py
 

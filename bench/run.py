@@ -10,13 +10,19 @@
     cycle: what each cycle reports against what was asked (goal: within 0.5 %);
 (e) the tasking executive: one DPU in sleep mode runs a rate-monotonic set; each job's
     start and completion against the ideal schedule's (host/schedule.py), aligned by
-    release (goal: start p99 within 50 us).
+    release (goal: start p99 within 50 us);
+(f) skel allocate: seeded systems of 40 processes on 8 DPUs, per objective (goal: an
+    answer within 30 s);
+(g) floods (bench/flood.py): SERVO signed, while 100 000 hostile messages a second for 10 s
+    go to its control and buffer channels, against the same run clean (goals: every message
+    counted as refused, % compute per DPU within 2 points).
 
 Each part writes bench/results/<name>.txt, the headlines go to bench/results/summary.txt.
-Runs use a private multicast port with ttl=0 (nothing leaves the host). About 2 minutes.
+Runs use a private multicast port with ttl=0 (nothing leaves the host). About 5 minutes.
 
-Usage: .venv/bin/python bench/run.py [--seconds S] [--records N] [--tasking-seconds S] [--parts P,...]
-(--parts: only those of wakeup, publish, logreader, compute, tasking; summary.txt is then
+Usage: .venv/bin/python bench/run.py [--seconds S] [--records N] [--tasking-seconds S]
+       [--allocate-seconds S] [--flood-rate N] [--parts P,...]
+(--parts: only those of wakeup, publish, logreader, compute, tasking, allocate, flood; summary.txt is then
 left alone and the headlines are printed only.)
 """
 
@@ -350,7 +356,43 @@ def part_logreader(records: int) -> list[str]:
     return measure(records)
 
 
-PARTS = ("wakeup", "publish", "logreader", "compute", "tasking")
+def part_allocate(seconds: float) -> list[str]:
+    """skel allocate on seeded pipelines of 40 processes and 8 DPUs, per objective (goal: an
+    answer within 30 s, the solver's time limit being SECONDS)."""
+    sys.path.insert(0, str(REPO / "tests"))
+    from randsys import random_pipeline
+
+    from skeleton.host.allocate import allocate
+    from skeleton.host.predict import predict
+    from skeleton.host.system import loads
+
+    rows, took = [], []
+    for seed in (1, 2, 3):
+        system = loads(random_pipeline(seed), REPO / f"pipeline-{seed}.yaml")
+        for objective in ("load", "latency", "traffic"):
+            start = time.monotonic()
+            found = allocate(system, 8, objective, time_limit_s=seconds)
+            took.append(time.monotonic() - start)
+            rows.append(f"  seed {seed} {objective:8s} {took[-1]:6.2f} s  worst load "
+                        f"{predict(system).worst_load_pct:.1f} -> {found.prediction.worst_load_pct:.1f} %  "
+                        f"{'proven optimal' if found.optimal else 'best found'}, "
+                        f"{found.candidates} candidate(s)")
+    verdict = "PASS" if max(took) < 30 else "FAIL"
+    return [f"allocate: 40 processes on 8 DPUs, slowest answer {max(took):.1f} s (goal 30 s, solver limit "
+            f"{seconds:g} s): {verdict}", *rows]
+
+
+def part_flood(tmp: Path, rate: int) -> list[str]:
+    from flood import flood_servo, lines  # bench/flood.py, beside this file
+
+    where = tmp / "flood"
+    where.mkdir()
+    return lines(flood_servo(where, URL, rate, FLOOD_SECONDS), rate, FLOOD_POINTS)
+
+
+FLOOD_SECONDS = 10
+FLOOD_POINTS = 2.0
+PARTS = ("wakeup", "publish", "logreader", "compute", "tasking", "allocate", "flood")
 
 
 def main() -> int:
@@ -358,6 +400,8 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=5.0, help="length of each timed run (default 5)")
     parser.add_argument("--records", type=int, default=500_000, help="records in the reader's log")
     parser.add_argument("--tasking-seconds", type=float, default=15.0, help="length of the tasking run")
+    parser.add_argument("--allocate-seconds", type=float, default=10.0, help="solver limit per allocation")
+    parser.add_argument("--flood-rate", type=int, default=100_000, help="hostile messages a second")
     parser.add_argument("--parts", default=",".join(PARTS), help=f"comma-separated, of {', '.join(PARTS)}")
     args = parser.parse_args()
     wanted = args.parts.split(",")
@@ -382,6 +426,10 @@ def main() -> int:
             parts["compute"] = part_compute(tmp, args.seconds)
         if "tasking" in wanted:
             parts["tasking"] = part_tasking(tmp, args.tasking_seconds)
+        if "allocate" in wanted:
+            parts["allocate"] = part_allocate(args.allocate_seconds)
+        if "flood" in wanted:
+            parts["flood"] = part_flood(tmp, args.flood_rate)
     for name, lines in parts.items():
         (RESULTS / f"{name}.txt").write_text("\n".join(lines) + "\n")
         print("\n".join(lines) + "\n")

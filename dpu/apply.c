@@ -72,25 +72,25 @@ void apply_staged(skel_control_t *c)
  * any instant in the past, and far instants clamped so nothing overflows. */
 static int64_t apply_at_mono(int64_t at_utc_ns)
 {
-    const int64_t far = 10LL * 365 * 24 * 3600 * SKEL_NS_PER_S;
     if (at_utc_ns <= 0) return 0;
     int64_t now_mono = clock_mono_ns(), now_utc = clock_utc_ns();
-    if (at_utc_ns - now_utc > far) at_utc_ns = now_utc + far;
+    if (at_utc_ns - now_utc > SKEL_FAR_NS) at_utc_ns = now_utc + SKEL_FAR_NS;
     int64_t at = clock_utc_to_mono(at_utc_ns, now_mono, now_utc);
     return at > now_mono ? at : 0;
 }
 
 /* What a live switch from OLD to NEXT cannot do yet (NULL: it can). The tasking
- * executive switches at a boundary as the cyclic one does (swap.c), in compute
- * mode sleep, where it runs the schedule itself; not from one executive to the other. */
+ * executive switches at a boundary as the cyclic one does (swap.c), both where it
+ * runs the schedule itself (SLEEP) and on kernel threads; not from one executive,
+ * or one of those two ways, to the other. */
 static const char *apply_live_refused(const skel_plan_t *old, const skel_plan_t *next)
 {
     if (old == NULL) return NULL;
     if (old->tasking != next->tasking)
         return "a live switch between the cyclic and the tasking executive is not built: push between runs";
-    if (next->tasking && (old->compute != SKELMSG_DPU_T_COMPUTE_SLEEP
-                          || next->compute != SKELMSG_DPU_T_COMPUTE_SLEEP))
-        return "a live switch of the tasking executive is built in compute mode sleep only: push between runs";
+    if (next->tasking && (old->compute == SKELMSG_DPU_T_COMPUTE_SLEEP) != (next->compute == SKELMSG_DPU_T_COMPUTE_SLEEP))
+        return "a live switch of the tasking executive between compute mode sleep (its own schedule) and "
+               "cpu, wall or work (kernel threads) is not built: push between runs";
     return NULL;
 }
 

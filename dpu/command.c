@@ -137,6 +137,7 @@ static void command_start(skel_control_t *c, const skelmsg_command_t *cmd)
 {
     skel_server_t *s = c->s;
     char reason[SKEL_REASON_LEN] = "";
+    int64_t now_mono = clock_mono_ns(), now_utc = clock_utc_ns();
     if (pthread_mutex_lock(&s->lock) != 0) return;
     if (!s->applied_any || s->generation != cmd->generation)
         snprintf(reason, sizeof reason, "START for generation %lld but applied %lld",
@@ -144,14 +145,21 @@ static void command_start(skel_control_t *c, const skelmsg_command_t *cmd)
     else if (s->state != SKELMSG_STATUS_T_STATE_READY)
         snprintf(reason, sizeof reason, "START of run %lld while %s (run %lld)",
                  (long long)cmd->run_id, command_state_name(s->state), (long long)s->run_id);
+    /* Anyone's int64s: a start or an end beyond SKEL_FAR_NS is no run, and refusing it
+     * keeps start + duration (here and in owner_take) from overflowing. */
+    else if (cmd->at_utc_ns > now_utc && cmd->at_utc_ns - now_utc > SKEL_FAR_NS)
+        snprintf(reason, sizeof reason, "START of run %lld at %lld ns UTC: more than ten years ahead",
+                 (long long)cmd->run_id, (long long)cmd->at_utc_ns);
+    else if (cmd->duration_ns > SKEL_FAR_NS)
+        snprintf(reason, sizeof reason, "START of run %lld for %lld ns: more than ten years",
+                 (long long)cmd->run_id, (long long)cmd->duration_ns);
     if (reason[0] != '\0') {
         pthread_mutex_unlock(&s->lock);
         report_reject(c, -1, reason, 0);
         return;
     }
-    int64_t now_mono = clock_mono_ns(), now_utc = clock_utc_ns();
-    int64_t start = clock_utc_to_mono(cmd->at_utc_ns, now_mono, now_utc);
-    if (cmd->at_utc_ns <= 0 || start < now_mono) start = now_mono; /* in the past: start now */
+    /* In the past (or 0): start now. Converted only when ahead, so no difference overflows. */
+    int64_t start = cmd->at_utc_ns > now_utc ? clock_utc_to_mono(cmd->at_utc_ns, now_mono, now_utc) : now_mono;
     owner_take(s, cmd, clock_mono_to_utc(start, now_mono, now_utc));
     s->run = (skel_run_t){ 1, cmd->run_id, cmd->generation, start,
                            cmd->duration_ns > 0 ? start + cmd->duration_ns : INT64_MAX };

@@ -121,12 +121,21 @@ static int config_check_buffer(const skelmsg_config_t *cfg, const skelmsg_dpu_t 
     const skelmsg_link_t *l = config_link(cfg, b->link);
     if (l == NULL) return config_fail(reason, len, "buffer %d: unknown link %d", b->id, b->link);
     if (l->url[0] == '\0') return config_check_local(cfg, b, d->id, reason, len);
+    /* liblcm opens whatever provider a URL names (file:// writes a log file wherever it
+     * says, tcpq:// connects out): a link is multicast, as the host's schema allows. */
+    if (strncmp(l->url, "udpm://", 7) != 0)
+        return config_fail(reason, len, "buffer %d: link %d (%.64s) URL '%.64s' is not udpm://", b->id,
+                           b->link, l->name, l->url);
     if (!config_dpu_reaches(d, b->link))
         return config_fail(reason, len, "buffer %d: link %d (%s) is not in DPU %d's links",
                            b->id, b->link, l->name, d->id);
     if (b->channel[0] == '\0' || config_is_control_channel(b->channel))
-        return config_fail(reason, len, "buffer %d: channel '%s' is empty or a SKEL_ control channel",
+        return config_fail(reason, len, "buffer %d: channel '%.64s' is empty or a SKEL_ control channel",
                            b->id, b->channel);
+    /* LCM publishes no longer channel: every cycle's publish would fail. */
+    if (strlen(b->channel) > LCM_MAX_CHANNEL_NAME_LENGTH)
+        return config_fail(reason, len, "buffer %d: channel '%.64s...' is longer than %d characters", b->id,
+                           b->channel, LCM_MAX_CHANNEL_NAME_LENGTH);
     return 0;
 }
 
@@ -148,11 +157,15 @@ static int config_check_quantiles(const skelmsg_process_t *p, char *reason, size
     return 0;
 }
 
-/* An event's name becomes a channel's suffix: letters, digits and _, 1..64 of them. */
+/* An event's name becomes a channel's suffix: letters, digits and _, 1..SKEL_MAX_NAME
+ * of them, so that SKEL_EVENT_<name> is a channel LCM publishes. */
+_Static_assert(sizeof SKEL_EVENT_CHANNEL_PREFIX - 1 + SKEL_MAX_NAME <= LCM_MAX_CHANNEL_NAME_LENGTH,
+               "an event channel must fit LCM's channel names");
+
 static int config_event_name(const char *name)
 {
     size_t n = strlen(name);
-    if (n == 0 || n > 64) return -1;
+    if (n == 0 || n > SKEL_MAX_NAME) return -1;
     for (size_t i = 0; i < n; i++)
         if (!((name[i] >= 'a' && name[i] <= 'z') || (name[i] >= 'A' && name[i] <= 'Z') ||
               (name[i] >= '0' && name[i] <= '9') || name[i] == '_'))
@@ -191,8 +204,10 @@ static int config_check_source(const skelmsg_event_source_t *g, char *reason, si
                                g->name, g->period_us, g->jitter_us);
         return 0;
     case SKELMSG_EVENT_SOURCE_T_KIND_POISSON:
-        if (!isfinite(g->rate_hz) || g->rate_hz <= 0.0 || g->rate_hz > 1e6)
-            return config_fail(reason, len, "event %s: rate_hz %g outside (0, 1e6]", g->name, g->rate_hz);
+        /* A slower rate's exponential gaps outgrow an int64 of ns (event.c's generator). */
+        if (!isfinite(g->rate_hz) || g->rate_hz < SKEL_MIN_RATE_HZ || g->rate_hz > SKEL_MAX_RATE_HZ)
+            return config_fail(reason, len, "event %s: rate_hz %g outside %g..%g", g->name, g->rate_hz,
+                               SKEL_MIN_RATE_HZ, (double)SKEL_MAX_RATE_HZ);
         return 0;
     case SKELMSG_EVENT_SOURCE_T_KIND_BURSTS:
         if (g->period_us <= 0 || g->count < 1 || g->spacing_us <= 0 ||
@@ -257,9 +272,6 @@ static int config_check_process(const skelmsg_config_t *cfg, const skelmsg_dpu_t
     if (p->sync < SKELMSG_PROCESS_T_SYNC_PERIODIC || p->sync > SKELMSG_PROCESS_T_SYNC_EVENT)
         return config_fail(reason, len, "process %d: unknown sync %d", p->id, p->sync);
     if (config_check_events_of(p, reason, len) != 0) return -1;
-    if (p->sync == SKELMSG_PROCESS_T_SYNC_EVENT && tasking && d->compute != SKELMSG_DPU_T_COMPUTE_SLEEP)
-        return config_fail(reason, len, "process %d: sync: event on the tasking executive's kernel threads "
-                           "(compute cpu, wall, work) is not built yet; use compute: sleep", p->id);
     if (p->ninputs > SKEL_MAX_IO || p->noutputs > SKEL_MAX_IO)
         return config_fail(reason, len, "process %d: %d inputs / %d outputs, limit %d each",
                            p->id, p->ninputs, p->noutputs, SKEL_MAX_IO);
@@ -386,8 +398,11 @@ int config_validate(const skelmsg_config_t *cfg, int dpu_index, char *reason, si
         return config_fail(reason, len, "DPU %d: unknown executive %d", d->id, d->executive);
     if (d->compute < SKELMSG_DPU_T_COMPUTE_SLEEP || d->compute > SKELMSG_DPU_T_COMPUTE_WORK)
         return config_fail(reason, len, "DPU %d: unknown compute mode %d", d->id, d->compute);
-    if (!isfinite(d->speed) || d->speed <= 0.0)
-        return config_fail(reason, len, "DPU %d: speed %g must be > 0", d->id, d->speed);
+    /* Compute times are divided by the speed into int64 ns (plan.c): a tiny speed made them
+     * infinite, and the conversion undefined. */
+    if (!isfinite(d->speed) || d->speed < SKEL_MIN_SPEED || d->speed > SKEL_MAX_SPEED)
+        return config_fail(reason, len, "DPU %d: speed %g outside %g..%g", d->id, d->speed, SKEL_MIN_SPEED,
+                           (double)SKEL_MAX_SPEED);
     if (config_check_cpu(d, reason, len) != 0) return -1;
     if (cfg->warmup_cycles < 0)
         return config_fail(reason, len, "warmup_cycles %d < 0", cfg->warmup_cycles);

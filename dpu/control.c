@@ -27,6 +27,7 @@ int control_init(skel_control_t *c, skel_server_t *s)
         timing_batch_free(&c->batch);
         return -1;
     }
+    c->history.seal = &s->seal;
     return 0;
 }
 
@@ -98,16 +99,23 @@ static void control_finish_run(skel_control_t *c)
     if (apply) apply_staged(c);
 }
 
+/* Only what passes the seal check reaches command.c, without its seal. */
+static int control_accept(skel_control_t *c, const lcm_recv_buf_t *rbuf, const char *channel, int *len)
+{
+    if (rbuf->data_size > INT32_MAX) return 0;
+    return seal_check(&c->s->seal, c->s->dpu_id, channel, rbuf->data, (int)rbuf->data_size, len) == SEAL_GENUINE;
+}
+
 static void control_on_config(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
 {
-    (void)channel;
-    command_handle_config(user, rbuf->data, (int)rbuf->data_size);
+    int len;
+    if (control_accept(user, rbuf, channel, &len)) command_handle_config(user, rbuf->data, len);
 }
 
 static void control_on_command(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
 {
-    (void)channel;
-    command_handle_command(user, rbuf->data, (int)rbuf->data_size);
+    int len;
+    if (control_accept(user, rbuf, channel, &len)) command_handle_command(user, rbuf->data, len);
 }
 
 static int control_subscribe(skel_control_t *c)
@@ -162,6 +170,7 @@ void *control_main(void *arg)
         if (ended) control_finish_run(c);
         if (c->status_due || clock_mono_ns() - c->last_status_ns >= SKEL_STATUS_NS)
             if (report_status_publish(c) != 0) log_line("cannot publish status");
+        seal_note(&s->seal, s->dpu_id);
         if (done) break;
     }
     return NULL;

@@ -23,6 +23,7 @@
 #include "skelmsg_contract.h"
 #include "skelmsg_event_t.h"
 #include "skelmsg_report_t.h"
+#include "skelmsg_seal_t.h"
 #include "skelmsg_status_t.h"
 #include "skelmsg_timing_t.h"
 
@@ -44,6 +45,10 @@
 #define SKEL_DRIFT_PCT       2.0                /* WORK calibration further off than this: said */
 #define SKEL_SEEN_COMMANDS   64
 #define SKEL_OWNER_LEN       128                /* "HOST pid N" of a run's host tool */
+#define SKEL_STATUS_BYTES    4096               /* an encoded status_t: its strings and lockouts are bounded */
+/* A received instant or duration further ahead than this is refused (START) or clamped
+ * (COMMIT): any sum of instants and durations then stays far within an int64. */
+#define SKEL_FAR_NS          (10LL * 365 * 24 * 3600 * 1000000000LL)
 
 /* skel-dpu's exit codes (main.c) */
 #define SKEL_EXIT_OK         0                  /* a clean shutdown (SIGTERM, SIGINT, SHUTDOWN) */
@@ -55,6 +60,7 @@
 
 /* ---- logging (log.c) --------------------------------------------------------- */
 void log_line(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+void log_sanitize(char *line); /* control characters -> '?', in place */
 
 /* ---- clock (clock.c): CLOCK_MONOTONIC ns inside the DPU ------------------------ */
 int64_t clock_mono_ns(void);
@@ -227,6 +233,7 @@ typedef struct {
     int enc_cap;
     uint8_t *report;           /* the run's report_t as published */
     int report_len, report_cap;
+    struct skel_seal *seal;    /* signs what is published; NULL: nothing */
 } skel_history_t;
 
 typedef struct {
@@ -257,6 +264,7 @@ typedef struct {
 int link_url(const skel_link_t *link, char *out, size_t len, int32_t *asked);
 int link_open(skel_link_t *link);
 void link_close(skel_link_t *link);
+void link_receive(skel_slot_t *slot, const lcm_recv_buf_t *rbuf); /* a buffer_t on SLOT's channel */
 int link_subscribe(skel_link_t *link, skel_slot_t *slot);
 int link_subscribe_channel(skel_link_t *link, const char *channel, lcm_msg_handler_t handler, void *user);
 int64_t link_arrival_ns(skel_link_t *link, const lcm_recv_buf_t *rbuf);
@@ -331,7 +339,7 @@ typedef struct {
     /* the tasking executive (tasking.c): priority and the process's one job */
     int16_t priority;          /* higher first; plan->processes are sorted by it there */
     int8_t job;                /* TASK_* */
-    int8_t job_flags;          /* for its record: locked out before it started */
+    int64_t lockout_k;         /* the cycle its lockout was recorded for (its record's flag), -1 */
     int8_t job_missing;        /* a waiting data job: its first required input without new data */
     int64_t next_k;            /* the next release that is not a job yet (< 0: one of the plan before) */
     int64_t anchor_ns;         /* release next_k = 0: the run's start, or the first at or after a switch */
@@ -349,6 +357,8 @@ typedef struct {
     int16_t emits[SKEL_MAX_EMITS];   /* indexes into plan->events */
     int64_t queue_ns[SKEL_MAX_QUEUE];
     int q_head, q_count;
+    int64_t arrived_ns[SKEL_MAX_QUEUE]; /* drained, not yet in the queue (event_settle) */
+    int a_head, a_count;
     int32_t q_dropped;         /* since its last cycle */
     int64_t taken_ns;          /* arrival of the event the coming cycle handles, -1: none */
     int16_t taken_left;
@@ -438,10 +448,50 @@ typedef struct {
     int64_t end_mono_ns;       /* INT64_MAX: until STOP */
 } skel_run_t;
 
+/* ---- seal (seal.c): signed control, HMAC-SHA256 with a shared key; control thread only */
+enum { SEAL_GENUINE = 0, SEAL_UNSIGNED, SEAL_SIGNED, SEAL_FORGED, SEAL_REPLAYED, SEAL_KINDS };
+#define SKEL_SEAL_SENDERS 64                      /* senders whose last counter is kept */
+#define SKEL_SEAL_NOTED   16                      /* first rejections logged by sender and kind */
+#define SKEL_SEAL_NOTE_NS (10 * SKEL_NS_PER_S)    /* then a count at most this often */
+
+typedef struct {
+    int64_t sender, counter, heard_ns;
+} skel_sender_t;
+
+typedef struct {
+    int64_t sender;
+    int kind;
+} skel_noted_t;
+
+typedef struct skel_seal {
+    int keyed;
+    uint8_t key[SKEL_KEY_BYTES];
+    int64_t self, counter;                        /* our sender id and last counter */
+    skel_sender_t senders[SKEL_SEAL_SENDERS];
+    int nsenders;
+    skel_noted_t noted[SKEL_SEAL_NOTED];
+    int nnoted;
+    int64_t rejected[SEAL_KINDS], logged[SEAL_KINDS], noted_ns;
+    uint8_t *out;                                 /* a message and its seal, being published */
+    size_t out_cap;
+} skel_seal_t;
+
+int seal_init(skel_seal_t *k);
+void seal_free(skel_seal_t *k);
+int seal_load_key(skel_seal_t *k, const char *path, char *why, size_t len);
+/* SEAL_GENUINE, or why DATA is refused (counted, the first of a kind logged); *MSG_LEN:
+ * the message's own bytes, without its seal. */
+int seal_check(skel_seal_t *k, int dpu, const char *channel, const void *data, int len, int *msg_len);
+void seal_note(skel_seal_t *k, int dpu);           /* the counts since the last note, now and then */
+int seal_publish(skel_seal_t *k, lcm_t *lcm, const char *channel, const void *data, int len);
+/* Writes the SEAL_BYTES seal of MSG (LEN bytes) on CHANNEL at TAIL, with our next counter. */
+int seal_sign(skel_seal_t *k, const char *channel, const uint8_t *msg, int len, uint8_t *tail);
+
 typedef struct skel_server {
     /* arguments */
     int id_arg;                /* -1: --id auto */
     const char *url;
+    const char *key_path;      /* NULL: no key, control unauthenticated */
     int64_t clock_offset_ns;
     int verbose;
     char hostname[256];
@@ -451,6 +501,7 @@ typedef struct skel_server {
     int rt_warned;             /* executive thread only: SCHED_FIFO refused, said once */
 
     lcm_t *ctl;                /* control thread's lcm_t on the control URL */
+    skel_seal_t seal;          /* control thread's: the key, and what it refused */
     int wake_fd;               /* eventfd: anything -> executive (stop, quit) */
     int notify_fd;             /* eventfd: executive -> control (events) */
 
@@ -537,9 +588,12 @@ void process_finish(skel_exec_t *x, skel_process_t *p, skel_rec_t *rec, int64_t 
 int event_add_process(skel_plan_t *plan, skel_process_t *p, const skelmsg_process_t *src);
 int event_add_sources(skel_plan_t *plan, const skelmsg_config_t *cfg, int16_t dpu);
 int event_open(skel_plan_t *plan, const char *control_url);
+void event_receive(skel_event_t *e, const lcm_recv_buf_t *rbuf); /* an event_t on E's channel */
 void event_free(skel_plan_t *plan);
 void event_reset_run(skel_plan_t *plan);
 int event_pending(const skel_process_t *p);
+int64_t event_oldest_ns(const skel_process_t *p); /* of the events waiting, INT64_MAX: none */
+void event_settle(skel_plan_t *plan, skel_process_t *p, int64_t upto);
 void event_release(skel_plan_t *plan, skel_process_t *p, int64_t release);
 void event_emit(skel_plan_t *plan, const skel_process_t *p, int64_t now_ns);
 void event_carry(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw);
@@ -557,6 +611,9 @@ void swap_carry_tasking(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
 /* ---- tasking (tasking.c): the tasking executive's one-processor schedule -------- */
 enum { TASK_NONE = 0, TASK_WAITING, TASK_READY, TASK_STARTED };
 int64_t tasking_release(const skel_process_t *p, int64_t k);
+int64_t tasking_event_release(const skel_process_t *p);
+int64_t tasking_minor(const skel_plan_t *plan, const skel_process_t *p);
+int64_t tasking_lockout(skel_exec_t *x, skel_process_t *p, int64_t now, int64_t next);
 void tasking_run(skel_exec_t *x);
 
 /* ---- threads (threads.c): the tasking executive in CPU, WALL and WORK: a SCHED_FIFO

@@ -6,10 +6,14 @@
  * run.seed, so a run repeats exactly).
  *
  * A DPU subscribes to the events its processes await on one more link (the
- * control URL), drained by the executive thread like any buffer: an arrival
- * goes into each awaiting process's queue, stamped with the kernel's receive
- * time. `queue: 1` keeps only the newest (the one it replaces is dropped);
- * `queue: N` keeps up to N, and drops the ones that find it full. The process's
+ * control URL), drained by the executive thread like any buffer: an arrival,
+ * stamped with the kernel's receive time, goes into each awaiting process's
+ * queue. `queue: 1` keeps only the newest (the one it replaces is dropped);
+ * `queue: N` keeps up to N, and drops the ones that find it full. The rule is
+ * applied by the stamps, not by when the executive drained them: arrivals
+ * wait in their order until a release looks at the queue, and join it then
+ * up to the release's instant (event_settle), so a burst drained late in one
+ * go keeps the events it would have kept had each been seen when it came. The process's
  * period is the least time between two of its cycles: the cyclic executive
  * looks at the queue at its place in the frame, the tasking one releases a job
  * at the event (or a period after the last one, when events come faster).
@@ -87,12 +91,41 @@ int event_add_sources(skel_plan_t *plan, const skelmsg_config_t *cfg, int16_t dp
     return 0;
 }
 
-static void event_on_message(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+/* The event that arrived AT joins P's queue by its rule. */
+static void event_queue(skel_plan_t *plan, skel_process_t *p, int64_t at)
 {
-    skel_event_t *e = user;
+    int full = p->q_count >= p->queue_cap;
+    if (full && p->queue_cap > 1) { /* N pending: the newcomer is dropped */
+        p->q_dropped++;
+        if (at >= plan->measure_from_ns) p->sums.events_dropped++;
+        return;
+    }
+    if (full) { /* only the newest counts: it replaces the one waiting */
+        p->q_dropped++;
+        if (p->queue_ns[p->q_head] >= plan->measure_from_ns) p->sums.events_dropped++;
+        p->queue_ns[p->q_head] = at;
+        return;
+    }
+    p->queue_ns[(p->q_head + p->q_count) % SKEL_MAX_QUEUE] = at;
+    p->q_count++;
+}
+
+void event_settle(skel_plan_t *plan, skel_process_t *p, int64_t upto)
+{
+    while (p->a_count > 0 && p->arrived_ns[p->a_head] <= upto) {
+        event_queue(plan, p, p->arrived_ns[p->a_head]);
+        p->a_head = (p->a_head + 1) % SKEL_MAX_QUEUE;
+        p->a_count--;
+    }
+}
+
+/* An event_t received on E's channel: checked, its header read in place, and during
+ * its run queued for every process awaiting it. Apart from the subscription, so the
+ * fuzzer (tests/fuzz/fuzz_event.c) drives exactly this with the bytes it makes. */
+void event_receive(skel_event_t *e, const lcm_recv_buf_t *rbuf)
+{
     skel_plan_t *plan = e->plan;
     wire_event_hdr_t hdr;
-    if (strcmp(channel, e->channel) != 0) return;
     if (rbuf->data_size > (uint32_t)SKEL_MAX_BUFFER_BYTES ||
         wire_event_header(rbuf->data, (int)rbuf->data_size, &hdr) != 0) {
         atomic_fetch_add(plan->rejected, 1);
@@ -104,21 +137,17 @@ static void event_on_message(const lcm_recv_buf_t *rbuf, const char *channel, vo
     for (int i = 0; i < plan->nprocesses; i++) {
         skel_process_t *p = &plan->processes[i];
         if (p->event != index) continue;
-        int full = p->q_count >= p->queue_cap;
-        if (full && p->queue_cap > 1) { /* N pending: the newcomer is dropped */
-            p->q_dropped++;
-            if (at >= plan->measure_from_ns) p->sums.events_dropped++;
-            continue;
-        }
-        if (full) { /* only the newest counts: it replaces the one waiting */
-            p->q_dropped++;
-            if (p->queue_ns[p->q_head] >= plan->measure_from_ns) p->sums.events_dropped++;
-            p->queue_ns[p->q_head] = at;
-            continue;
-        }
-        p->queue_ns[(p->q_head + p->q_count) % SKEL_MAX_QUEUE] = at;
-        p->q_count++;
+        if (p->a_count == SKEL_MAX_QUEUE) event_settle(plan, p, p->arrived_ns[p->a_head]); /* bounded */
+        p->arrived_ns[(p->a_head + p->a_count) % SKEL_MAX_QUEUE] = at;
+        p->a_count++;
     }
+}
+
+static void event_on_message(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+{
+    skel_event_t *e = user;
+    if (strcmp(channel, e->channel) != 0) return;
+    event_receive(e, rbuf);
 }
 
 /* The network side: the control URL joins the plan's links when an event is awaited
@@ -164,6 +193,7 @@ void event_free(skel_plan_t *plan)
 static void event_clear(skel_process_t *p)
 {
     p->q_head = p->q_count = 0;
+    p->a_head = p->a_count = 0;
     p->q_dropped = 0;
     p->taken_ns = -1;
 }
@@ -181,7 +211,12 @@ void event_reset_run(skel_plan_t *plan)
 
 int event_pending(const skel_process_t *p)
 {
-    return p->q_count > 0;
+    return p->q_count + p->a_count > 0;
+}
+
+int64_t event_oldest_ns(const skel_process_t *p)
+{
+    return p->q_count > 0 ? p->queue_ns[p->q_head] : p->a_count > 0 ? p->arrived_ns[p->a_head] : INT64_MAX;
 }
 
 /* The oldest waiting event becomes the next cycle's (P's next_k-th): its record
@@ -306,6 +341,8 @@ void event_carry(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
         for (int n = 0; n < o->q_count && p->q_count < p->queue_cap; n++)
             p->queue_ns[p->q_count++] = o->queue_ns[(o->q_head + n) % SKEL_MAX_QUEUE];
         p->q_dropped = o->q_dropped;
+        for (int n = 0; n < o->a_count; n++)
+            p->arrived_ns[p->a_count++] = o->arrived_ns[(o->a_head + n) % SKEL_MAX_QUEUE];
     }
     for (int i = 0; i < next->nevents; i++) next->events[i].seq = 0;
     for (int i = 0; i < next->nsources; i++) {
@@ -357,9 +394,11 @@ void event_generators_stop(skel_plan_t *plan)
     plan->gen_started = 0;
 }
 
-/* Used by both executives when an event process's cycle is released at RELEASE. */
+/* Used by both executives when an event process's cycle is released at RELEASE
+ * (not before its oldest event): what arrived by then joins its queue, it takes one. */
 void event_release(skel_plan_t *plan, skel_process_t *p, int64_t release)
 {
+    event_settle(plan, p, release);
     event_take(p);
     event_window(plan, p, release);
 }

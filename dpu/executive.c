@@ -142,15 +142,16 @@ static int executive_runs(const skel_process_t *p, int64_t j)
 }
 
 /* A sync: event process due in minor J takes the oldest event waiting when the
- * frame starts; without one it does not run in this frame (no record). */
+ * frame starts (drained then); without one it does not run in this frame (no record). */
 static void executive_take_events(skel_plan_t *plan, int64_t j)
 {
     if (!plan->awaits_events) return;
     (void)link_drain(plan->links, plan->nlinks);
     for (int i = 0; i < plan->nprocesses; i++) {
         skel_process_t *p = &plan->processes[i];
-        if (p->event >= 0 && j % p->ratio == 0 && event_pending(p))
-            event_release(plan, p, plan->epoch_t0_ns + j / p->ratio * p->period_ns);
+        if (p->event < 0 || j % p->ratio != 0) continue;
+        event_settle(plan, p, INT64_MAX); /* it looks now: whatever came by now */
+        if (event_pending(p)) event_release(plan, p, plan->epoch_t0_ns + j / p->ratio * p->period_ns);
     }
 }
 

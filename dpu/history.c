@@ -60,7 +60,7 @@ int history_publish_batch(skel_history_t *h, lcm_t *lcm, const skelmsg_timing_t 
 {
     int len = skelmsg_timing_t_encode(h->enc, 0, h->enc_cap, msg);
     if (len < 0) return -1;
-    int rc = lcm_publish(lcm, SKEL_TIMING_CHANNEL, h->enc, (unsigned)len);
+    int rc = seal_publish(h->seal, lcm, SKEL_TIMING_CHANNEL, h->enc, len);
     if (msg->run_id == h->run_id && msg->batch_seq >= 0) {
         skel_held_t *slot = &h->held[msg->batch_seq % SKEL_HISTORY_BATCHES];
         history_copy(h, h->head, h->enc, (uint32_t)len, 1);
@@ -81,7 +81,7 @@ int history_publish_report(skel_history_t *h, lcm_t *lcm, const skelmsg_report_t
     }
     if (skelmsg_report_t_encode(h->report, 0, h->report_cap, r) != len) return -1;
     h->report_len = r->run_id == h->run_id ? len : 0;
-    return lcm_publish(lcm, SKEL_REPORT_CHANNEL, h->report, (unsigned)len);
+    return seal_publish(h->seal, lcm, SKEL_REPORT_CHANNEL, h->report, len);
 }
 
 /* A batch is still held when its slot names it and the ring has not wrapped over it. */
@@ -101,17 +101,18 @@ int history_resend(skel_history_t *h, lcm_t *lcm, const skel_resend_t *ask, int 
                  : ask->to - ask->from >= SKEL_HISTORY_BATCHES ? ask->from + SKEL_HISTORY_BATCHES - 1
                  : ask->to;
     int sent = 0;
-    for (int64_t seq = ask->from; seq >= 0 && seq <= to; seq++) {
+    /* Up to TO inclusive, and never past it: TO may be INT64_MAX, where seq++ would overflow. */
+    for (int64_t seq = ask->from; seq >= 0 && seq <= to; seq = seq < to ? seq + 1 : -1) {
         const skel_held_t *held = history_find(h, seq);
         if (held == NULL || held->len > (uint32_t)h->enc_cap) {
             ++*gone;
             continue;
         }
         history_copy(h, held->at, h->enc, held->len, 0);
-        if (lcm_publish(lcm, SKEL_TIMING_CHANNEL, h->enc, held->len) == 0) sent++;
+        if (seal_publish(h->seal, lcm, SKEL_TIMING_CHANNEL, h->enc, (int)held->len) == 0) sent++;
     }
     if (ask->with_report && h->report_len > 0 &&
-        lcm_publish(lcm, SKEL_REPORT_CHANNEL, h->report, (unsigned)h->report_len) == 0)
+        seal_publish(h->seal, lcm, SKEL_REPORT_CHANNEL, h->report, h->report_len) == 0)
         sent++;
     return sent;
 }

@@ -89,13 +89,13 @@ int64_t link_arrival_ns(skel_link_t *link, const lcm_recv_buf_t *rbuf)
     return recv;
 }
 
-static void link_on_buffer(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+/* A message received on SLOT's channel: checked, its header read in place, and
+ * during a run taken into the slot. Apart from the subscription, so the fuzzer
+ * (tests/fuzz/fuzz_buffer.c) drives exactly this with the bytes it makes. */
+void link_receive(skel_slot_t *slot, const lcm_recv_buf_t *rbuf)
 {
-    skel_slot_t *slot = user;
     skel_plan_t *plan = slot->plan;
     wire_buffer_hdr_t hdr;
-    /* The subscription regex is anchored and escaped; this is belt and braces. */
-    if (strcmp(channel, slot->channel) != 0) return;
     if (rbuf->data_size > INT_MAX ||
         wire_buffer_header(rbuf->data, (int)rbuf->data_size, &hdr) != 0) {
         atomic_fetch_add(plan->rejected, 1);
@@ -106,6 +106,14 @@ static void link_on_buffer(const lcm_recv_buf_t *rbuf, const char *channel, void
                                                      plan->clock_offset_ns) ==
         BUFFERS_MISMATCH)
         atomic_fetch_add(plan->rejected, 1);
+}
+
+static void link_on_buffer(const lcm_recv_buf_t *rbuf, const char *channel, void *user)
+{
+    skel_slot_t *slot = user;
+    /* The subscription regex is anchored and escaped; this is belt and braces. */
+    if (strcmp(channel, slot->channel) != 0) return;
+    link_receive(slot, rbuf);
 }
 
 /* lcm_subscribe takes a regular expression: escape everything but [A-Za-z0-9_]. */

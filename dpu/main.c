@@ -15,15 +15,17 @@ static void usage(void)
 {
     fprintf(stderr,
             "usage: skel-dpu --id N|auto [--url URL] [--clock-offset-ns N] [--spin-us N]\n"
-            "                [--rt-priority N] [--verbose]\n"
+            "                [--rt-priority N] [--key FILE] [--verbose]\n"
             "  --id N|auto          this DPU's id in the config; auto: the DPU whose host is this\n"
             "                       machine's host name\n"
             "  --url URL            control URL (default %s)\n"
             "  --clock-offset-ns N  test option: add N to every reported timestamp\n"
             "  --spin-us N          compute mode SLEEP spins the last N us (default 150)\n"
             "  --rt-priority N      run cycles under SCHED_FIFO priority N (1-99; 0: never);\n"
-            "                       default: 10 in compute mode SLEEP where permitted\n",
-            SKEL_DEFAULT_URL);
+            "                       default: 10 in compute mode SLEEP where permitted\n"
+            "  --key FILE           sign and check control with this key (`skel keygen`);\n"
+            "                       default: $%s when set, else none (unauthenticated)\n",
+            SKEL_DEFAULT_URL, SKEL_KEY_ENV);
 }
 
 static int parse_i64(const char *text, int64_t *out)
@@ -56,6 +58,7 @@ static int parse_args(skel_server_t *s, int argc, char **argv)
             s->dpu_id = (int16_t)v;
             have_id = 1;
         } else if (strcmp(a, "--url") == 0) s->url = next;
+        else if (strcmp(a, "--key") == 0) s->key_path = next;
         else if (strcmp(a, "--clock-offset-ns") == 0 && parse_i64(next, &v) == 0) s->clock_offset_ns = v;
         else if (strcmp(a, "--spin-us") == 0 && parse_i64(next, &v) == 0 && v >= 0 && v < 1000000)
             s->compute.spin_ns = v * SKEL_NS_PER_US;
@@ -63,6 +66,8 @@ static int parse_args(skel_server_t *s, int argc, char **argv)
             s->rt_priority = (int)v;
         else { fprintf(stderr, "skel-dpu: bad option or value: %s %s\n", a, next); return -1; }
     }
+    if (s->key_path == NULL && getenv(SKEL_KEY_ENV) != NULL && getenv(SKEL_KEY_ENV)[0] != '\0')
+        s->key_path = getenv(SKEL_KEY_ENV);
     if (!have_id) fprintf(stderr, "skel-dpu: --id N|auto is required\n");
     return have_id ? 0 : -1;
 }
@@ -118,6 +123,12 @@ int main(int argc, char **argv)
     skel_server_t *s = &server;
     if (server_init(s) != 0) { fprintf(stderr, "skel-dpu: cannot initialise\n"); return SKEL_EXIT_FAILED; }
     if (parse_args(s, argc, argv) != 0) { usage(); return SKEL_EXIT_USAGE; }
+    if (seal_init(&s->seal) != 0) { fprintf(stderr, "skel-dpu: cannot initialise libsodium\n"); return SKEL_EXIT_FAILED; }
+    char why[512];
+    if (s->key_path != NULL && seal_load_key(&s->seal, s->key_path, why, sizeof why) != 0) {
+        fprintf(stderr, "skel-dpu: %s\n", why);
+        return SKEL_EXIT_USAGE;
+    }
     if (gethostname(s->hostname, sizeof s->hostname - 1) != 0) strcpy(s->hostname, "?");
     s->pid = (int32_t)getpid();
     if (compute_calibrate(&s->compute) != 0) {
@@ -131,11 +142,13 @@ int main(int argc, char **argv)
         return SKEL_EXIT_FAILED;
     }
     if (control_init(&control, s) != 0) { log_line("out of memory"); return SKEL_EXIT_FAILED; }
-    log_line("DPU %s on %s: control %s, WORK %.1f iterations/us, clock offset %lld ns",
-             s->id_arg >= 0 ? argv[2] : "auto", s->hostname, s->url, s->compute.work_iters_per_us,
+    log_line("DPU %s on %s: control %s (%s), WORK %.1f iterations/us, clock offset %lld ns",
+             s->id_arg >= 0 ? argv[2] : "auto", s->hostname, s->url,
+             s->seal.keyed ? "signed" : "unauthenticated: no key", s->compute.work_iters_per_us,
              (long long)s->clock_offset_ns);
     int rc = run_threads(s, &control);
     control_free(&control);
+    seal_free(&s->seal);
     lcm_destroy(s->ctl);
     server_free(s);
     return rc == 0 ? SKEL_EXIT_OK : SKEL_EXIT_FAILED;

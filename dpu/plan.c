@@ -213,7 +213,9 @@ void plan_free(skel_plan_t *plan)
     event_free(plan);
     for (int i = 0; i < plan->nlinks; i++) link_close(&plan->links[i]);
     for (int s = 0; plan->slots != NULL && s < plan->nslots; s++) free(plan->slots[s].channel);
-    for (int i = 0; plan->processes != NULL && i < SKEL_MAX_PROCESSES; i++)
+    /* nprocesses counts a process before its outputs are allocated (plan_add_processes),
+     * so a plan that failed half-way is freed whole; the rest of the table is zeros. */
+    for (int i = 0; plan->processes != NULL && i < plan->nprocesses; i++)
         for (int q = 0; q < SKEL_MAX_IO; q++) {
             free(plan->processes[i].outputs[q].channel);
             free(plan->processes[i].outputs[q].enc);
@@ -235,6 +237,7 @@ void plan_reset_run(skel_plan_t *plan, int64_t run_id)
         p->k_base = 0;
         p->measure_from_k = plan->warmup_cycles;
         p->locked_out = 0;
+        p->lockout_k = -1;
         p->job = TASK_NONE;
         p->next_k = 0;
         p->sums = (skel_process_sums_t){ 0 };

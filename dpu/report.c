@@ -42,6 +42,12 @@ static void report_status_fill(skel_server_t *s, skelmsg_status_t *st, skelmsg_l
     st->faults = atomic_load(&s->faults);
     st->overruns = atomic_load(&s->overruns);
     st->rejected_messages = atomic_load(&s->rejected);
+    const skel_seal_t *k = &s->seal; /* the control thread's, as this function is */
+    st->keyed = (int8_t)k->keyed;
+    st->rejected_unsigned = k->rejected[SEAL_UNSIGNED];
+    st->rejected_signed = k->rejected[SEAL_SIGNED];
+    st->rejected_forged = k->rejected[SEAL_FORGED];
+    st->rejected_replayed = k->rejected[SEAL_REPLAYED];
     st->timing_batches = atomic_load(&s->timing_batches);
     st->timing_lost = atomic_load(&s->ring.lost);
     st->behind_ns = atomic_load(&s->behind_ns);
@@ -64,7 +70,9 @@ int report_status_publish(skel_control_t *c)
     st.ping_t3_ns = c->ping_t3_ns;
     c->last_status_ns = clock_mono_ns();
     c->status_due = 0;
-    return skelmsg_status_t_publish(c->s->ctl, SKEL_STATUS_CHANNEL, &st);
+    uint8_t enc[SKEL_STATUS_BYTES];
+    int len = skelmsg_status_t_encode(enc, 0, sizeof enc, &st);
+    return len < 0 ? -1 : seal_publish(&c->s->seal, c->s->ctl, SKEL_STATUS_CHANNEL, enc, len);
 }
 
 /* A config or command refused (or, forced, let through): REASON goes in the

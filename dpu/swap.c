@@ -189,6 +189,7 @@ void swap_carry_tasking(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
         skel_process_t *p = &next->processes[i];
         int j = plan_process_index(old, p->id);
         p->job = TASK_NONE;
+        p->lockout_k = -1;
         p->back_period_ns = p->period_ns;
         p->back_generation = next->generation;
         if (j < 0) { /* swap_carry put k_base on its period's grid since the run's start */
@@ -204,7 +205,7 @@ void swap_carry_tasking(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
         p->back_generation = n > 0 ? old->generation : o->back_generation;
         p->next_k = o->next_k - n;
         p->job = o->job;
-        p->job_flags = o->job_flags;
+        p->lockout_k = o->lockout_k;
         p->job_missing = -1;
         p->job_generation = o->job_generation;
         p->job_release = o->job_release;

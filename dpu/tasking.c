@@ -62,15 +62,15 @@ static int64_t tasking_floor_div(int64_t a, int64_t b)
 
 /* An event process's next release: its oldest waiting event, or a period after its
  * last release when events come faster (INT64_MAX: none waits). */
-static int64_t tasking_event_release(const skel_process_t *p)
+int64_t tasking_event_release(const skel_process_t *p)
 {
-    if (!event_pending(p)) return INT64_MAX;
-    int64_t at = p->queue_ns[p->q_head], earliest = p->job_release + p->period_ns;
+    int64_t at = event_oldest_ns(p), earliest = p->job_release + p->period_ns;
+    if (at == INT64_MAX) return INT64_MAX;
     return at > earliest ? at : earliest;
 }
 
 /* The run's minor cycle P's job was released in (the records' frame). */
-static int64_t tasking_minor(const skel_plan_t *plan, const skel_process_t *p)
+int64_t tasking_minor(const skel_plan_t *plan, const skel_process_t *p)
 {
     return plan->minor_base + tasking_floor_div(p->job_release - plan->epoch_t0_ns, plan->minor_ns);
 }
@@ -109,7 +109,6 @@ static void tasking_release_due(skel_exec_t *x, int64_t vt)
             if (p->job == TASK_NONE && release <= vt && release < x->end_mono_ns) {
                 p->job_release = release;
                 p->job_generation = plan->generation;
-                p->job_flags = 0;
                 p->job = TASK_READY;
                 event_release(plan, p, release);
             }
@@ -120,33 +119,48 @@ static void tasking_release_due(skel_exec_t *x, int64_t vt)
             if (release > vt || release >= x->end_mono_ns) break;
             p->job_release = release;
             p->job_generation = p->next_k < 0 ? p->back_generation : plan->generation;
-            p->job_flags = 0;
             p->job = p->sync == SKELMSG_PROCESS_T_SYNC_DATA ? TASK_WAITING : TASK_READY;
             if (p->job == TASK_WAITING) tasking_check_data(x, p, vt);
         }
     }
 }
 
-/* A job that has not started by its lockout instant is locked out, as on the
- * cyclic executive: waiting for data (naming the buffer) or kept from the
- * processor by higher-priority work. Returns the next lockout instant. */
+/* P's oldest release not started yet, and its cycle *K: its job's while that waits
+ * (for data or the processor); the one after its job while that runs (a process
+ * behind its releases ages there); else its next. INT64_MAX: none (an event
+ * process no event waits for). Both tasking executives lock out by it. */
+static int64_t tasking_pending(const skel_process_t *p, int64_t *k)
+{
+    if (p->job == TASK_WAITING || p->job == TASK_READY) {
+        *k = p->k_base + p->next_k;
+        return p->job_release;
+    }
+    const int started = p->job == TASK_STARTED;
+    *k = p->k_base + p->next_k + started;
+    return p->event >= 0 ? tasking_event_release(p) : tasking_release(p, p->next_k + started);
+}
+
+/* P's release not started by its lockout instant, by NOW, is locked out, as on the
+ * cyclic executive: waiting for data (naming the buffer) or kept from the processor
+ * by higher-priority work, or by its own late jobs. Returns NEXT, or the instant
+ * P's lockout would be when sooner. */
+int64_t tasking_lockout(skel_exec_t *x, skel_process_t *p, int64_t now, int64_t next)
+{
+    int64_t k, release = tasking_pending(p, &k);
+    if (p->locked_out || release >= x->end_mono_ns) return next;
+    int64_t at = process_lockout_at(x->plan, p, release);
+    if (now < at) return at < next ? at : next;
+    int missing = p->job == TASK_WAITING ? p->job_missing : -1;
+    process_lockout(x, p, missing >= 0 ? p->inputs[missing].buffer : -1, k, release);
+    p->lockout_k = k;
+    return next;
+}
+
+/* Lockouts due by VT; returns the next instant one would be. */
 static int64_t tasking_lockouts(skel_exec_t *x, int64_t vt)
 {
-    skel_plan_t *plan = x->plan;
     int64_t next = INT64_MAX;
-    for (int i = 0; i < plan->nprocesses; i++) {
-        skel_process_t *p = &plan->processes[i];
-        if (p->locked_out || (p->job != TASK_WAITING && p->job != TASK_READY)) continue;
-        int64_t at = process_lockout_at(plan, p, p->job_release);
-        if (vt < at) {
-            if (at < next) next = at;
-            continue;
-        }
-        int missing = p->job == TASK_WAITING ? p->job_missing : -1;
-        process_lockout(x, p, missing >= 0 ? p->inputs[missing].buffer : -1,
-                        p->k_base + p->next_k, p->job_release);
-        p->job_flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
-    }
+    for (int i = 0; i < x->plan->nprocesses; i++) next = tasking_lockout(x, &x->plan->processes[i], vt, next);
     return next;
 }
 
@@ -156,7 +170,7 @@ static void tasking_start(skel_exec_t *x, skel_process_t *p, int64_t vt, int64_t
     skel_plan_t *plan = x->plan;
     process_record_begin(x, p, p->k_base + p->next_k, tasking_minor(plan, p), p->job_release, vt, now,
                          &p->rec);
-    p->rec.flags = p->job_flags;
+    if (p->k_base + p->next_k == p->lockout_k) p->rec.flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
     p->rec.generation = p->job_generation;
     (void)link_drain(plan->links, plan->nlinks); /* an lcm error shows as stale inputs */
     process_peek_inputs(plan, p, &p->rec);

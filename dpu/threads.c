@@ -4,9 +4,13 @@
  * process is a thread of its own, SCHED_FIFO at the process's priority, and all
  * of them are pinned to one CPU (the DPU's `cpu`, or the one its executive
  * thread was on), so a release of a higher-priority process preempts a lower
- * one in the kernel. Each thread loops: an absolute wait for its release, a
+ * one in the kernel. Each thread loops: an absolute wait for its release (a
+ * `sync: event` process: for its oldest event, at most one per period), a
  * `sync: data` wait for new data on its required inputs, inputs, the
- * computation in the DPU's mode (compute.c), outputs, its record.
+ * computation in the DPU's mode (compute.c), outputs, its record. The state of
+ * a process's one job lives in its skel_process_t as on the schedule tasking.c
+ * runs in SLEEP (job, next_k, anchor_ns, job_release): so a live switch
+ * carries it over by the same rules (swap.c).
  *
  * The executive thread becomes the watcher: moved off that CPU, it wakes at
  * the lockout instants (a job not started lockout_cycles periods after its
@@ -34,8 +38,17 @@
  * higher-priority processes can (and interrupts, which are not switches).
  * Where SCHED_FIFO or the pinning is refused, the DPU says so once in its log
  * and the run's status and report carry FAULT_NOT_FAITHFUL: the kernel's
- * ordinary time sharing then stands in for the model. A live switch of plans
- * is refused on this executive, as on the other tasking one (apply.c). */
+ * ordinary time sharing then stands in for the model.
+ *
+ * A live switch (COMMIT during a run) falls on the same grid point as on the
+ * other executives. The watcher learns of it, publishes its instant, and from
+ * then on a thread whose next release is at or after it waits for it; at the
+ * instant the watcher takes the lock, carries the run into the next plan
+ * (executive_switch) and hands each thread its process there by id: a job in
+ * progress completes under its new priority and writes to the next plan's
+ * buffers; a removed process's thread drops its job and ends (demoted to
+ * SCHED_IDLE meanwhile, so its computation takes the processor from nobody);
+ * a new process gets a thread then, the one allocation of a run after t0. */
 #include <errno.h>
 #include <poll.h>
 #include <sched.h>
@@ -55,24 +68,27 @@ struct threads;
 
 typedef struct {
     struct threads *t;
-    skel_process_t *p;
+    skel_process_t *p;             /* its process in the current plan (lock); NULL: removed */
+    int16_t id;                    /* the process's id: a live switch finds it in the next plan by it */
     skel_exec_t x;                 /* this thread's own: record_begin and finish read it */
     pthread_t tid;
-    int kick_fd;                   /* eventfd: new data for a data wait */
-    int waiting;                   /* in a data wait (lock) */
-    atomic_int_fast64_t pending_k; /* its oldest release not started yet */
-    atomic_int missing;            /* the buffer its data wait lacks, -1 when not waiting */
-    atomic_int_fast64_t locked_k;  /* the cycle the watcher locked out, -1 none */
+    int live;                      /* its thread runs or is to be joined */
+    int kick_fd;                   /* eventfd: new data or an event, a switch, the run's end */
+    int waiting;                   /* in a wait on the links (lock): what another drains wakes it */
+    int64_t ready_ns;              /* its data job's data came (lock) */
     skel_rec_t rec;                /* the job's record */
 } threads_worker_t;
 
 struct threads {
     skel_server_t *s;
-    skel_plan_t *plan;
-    pthread_mutex_t lock;          /* priority inheritance: slots, links, ring, DPU sums, below */
+    skel_plan_t *plan;             /* the current plan (lock): a live switch replaces it */
+    pthread_mutex_t lock;          /* priority inheritance: the plan, its slots and links, the ring, below */
     int lock_ok;
     int done_fd;                   /* eventfd, written once at the end and never read */
     atomic_int done;
+    int64_t switch_at;             /* a pending live switch's instant, INT64_MAX none (lock) */
+    int64_t switch_j;              /* ... its minor on the current plan's grid */
+    int64_t switch_seq;            /* the COMMIT it is for */
     int cpu;                       /* the processor: every thread is pinned to it */
     int faithful;
     cpu_set_t watcher_was;         /* the executive thread's affinity before the run */
@@ -83,15 +99,27 @@ struct threads {
     int idle_pending;              /* the last job to complete left the processor idle ... */
     skel_process_t *idle_p;        /* ... its record waits for the idle's end */
     skel_rec_t idle_rec;
-    int nworkers;                  /* created */
-    threads_worker_t w[];
+    int nworkers;                  /* slots used: a removed process's, once its thread ended, is reused */
+    threads_worker_t w[SKEL_MAX_PROCESSES * 2]; /* a switch's new threads start while removed ones end */
 };
 
 static int threads_eventfd(void) { return eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC); }
 
+/* The lock cannot fail short of a bug (it is never taken twice by one thread):
+ * the DPU stops loudly rather than run on with its state unguarded. */
+static void threads_lock(threads_t *t)
+{
+    int rc = pthread_mutex_lock(&t->lock);
+    if (rc == 0) return;
+    log_line("DPU %d: the tasking executive's lock failed (%s)", t->plan->dpu, strerror(rc));
+    abort();
+}
+
+static void threads_unlock(threads_t *t) { (void)pthread_mutex_unlock(&t->lock); }
+
 static void threads_free(threads_t *t)
 {
-    for (int i = 0; i < t->plan->nprocesses; i++)
+    for (int i = 0; i < (int)(sizeof t->w / sizeof t->w[0]); i++)
         if (t->w[i].kick_fd >= 0) close(t->w[i].kick_fd);
     if (t->done_fd >= 0) close(t->done_fd);
     if (t->lock_ok) pthread_mutex_destroy(&t->lock);
@@ -113,68 +141,68 @@ static void threads_flush_idle(threads_t *t, int64_t now)
     t->idle_pending = 0;
 }
 
-/* Sleeps until UNTIL, in pieces, unless the run is done: 0 reached, 1 done. */
-static int threads_sleep(threads_t *t, int64_t until)
-{
-    return clock_sleep_until(until, &t->done) != 0;
-}
-
 static void threads_kick(threads_t *t, const threads_worker_t *self)
 {
-    for (int i = 0; i < t->plan->nprocesses; i++)
+    for (int i = 0; i < t->nworkers; i++)
         if (&t->w[i] != self && t->w[i].waiting) server_wake(t->w[i].kick_fd);
 }
 
-/* Drains the links and looks at P's inputs, under lock: the first required input
- * without new data (-1: none). Data drained for another thread's wait wakes it. */
+static void threads_kick_all(threads_t *t)
+{
+    for (int i = 0; i < t->nworkers; i++) server_wake(t->w[i].kick_fd);
+}
+
+/* Drains the links, under lock: what came for another thread's wait wakes it. */
+static void threads_drain(threads_worker_t *w)
+{
+    skel_plan_t *plan = w->t->plan;
+    if (link_drain(plan->links, plan->nlinks) > 0) threads_kick(w->t, w);
+}
+
+/* Drains and looks at P's inputs, under lock: the first required input without
+ * new data (-1: none). */
 static int threads_look(threads_worker_t *w, skel_rec_t *look)
 {
-    threads_t *t = w->t;
-    skel_plan_t *plan = t->plan;
-    if (link_drain(plan->links, plan->nlinks) > 0) threads_kick(t, w);
-    process_peek_inputs(plan, w->p, look);
+    threads_drain(w);
+    process_peek_inputs(w->t->plan, w->p, look);
     return process_missing(w->p, look);
 }
 
-/* A data job waits for new data on every required input: 0 ready (at *READY),
- * 1 the run is done. The thread does not hold the processor meanwhile. */
-static int threads_wait_data(threads_worker_t *w, int64_t *ready)
+/* Waits, the lock let go meanwhile, for a kick, the run's end, UNTIL (at most a
+ * piece), and with WATCH for anything on the links: 1 when the run is done. Never
+ * called with UNTIL past: a SCHED_FIFO thread must not spin (the kernel's real-time
+ * throttling would then take the watcher's CPU time too). */
+static int threads_wait(threads_worker_t *w, int64_t until, int watch)
 {
     threads_t *t = w->t;
-    skel_plan_t *plan = t->plan;
+    const skel_plan_t *plan = t->plan;
     struct pollfd fds[SKEL_MAX_LINKS + 2];
-    skel_rec_t look;
-    for (;;) {
-        if (pthread_mutex_lock(&t->lock) != 0) return 1;
-        int missing = threads_look(w, &look);
-        w->waiting = missing >= 0;
-        pthread_mutex_unlock(&t->lock);
-        if (missing < 0) {
-            atomic_store(&w->missing, -1);
-            *ready = clock_mono_ns();
-            return 0;
-        }
-        atomic_store(&w->missing, w->p->inputs[missing].buffer);
-        int n = 0;
-        for (int i = 0; i < plan->nlinks; i++) fds[n++] = (struct pollfd){ .fd = plan->links[i].fd, .events = POLLIN };
-        fds[n++] = (struct pollfd){ .fd = w->kick_fd, .events = POLLIN };
-        fds[n++] = (struct pollfd){ .fd = t->done_fd, .events = POLLIN };
-        struct timespec ts = { .tv_sec = 0, .tv_nsec = THREADS_PIECE_NS };
-        int rc = ppoll(fds, (nfds_t)n, &ts, NULL);
-        if (atomic_load(&t->done) || (rc < 0 && errno != EINTR)) return 1;
-        uint64_t v;
-        if (rc > 0 && (fds[n - 2].revents & POLLIN) && read(w->kick_fd, &v, sizeof v) < 0 && errno != EAGAIN)
-            return 1;
-    }
+    int n = 0;
+    for (int i = 0; watch && i < plan->nlinks; i++)
+        fds[n++] = (struct pollfd){ .fd = plan->links[i].fd, .events = POLLIN };
+    fds[n++] = (struct pollfd){ .fd = w->kick_fd, .events = POLLIN };
+    fds[n++] = (struct pollfd){ .fd = t->done_fd, .events = POLLIN };
+    int64_t left = until - clock_mono_ns();
+    left = left < 0 ? 0 : left > THREADS_PIECE_NS ? THREADS_PIECE_NS : left;
+    struct timespec ts = { .tv_sec = left / SKEL_NS_PER_S, .tv_nsec = left % SKEL_NS_PER_S };
+    w->waiting = watch;
+    threads_unlock(t);
+    int rc = ppoll(fds, (nfds_t)n, &ts, NULL);
+    int failed = rc < 0 && errno != EINTR;
+    uint64_t v;
+    if (rc > 0 && (fds[n - 2].revents & POLLIN) && read(w->kick_fd, &v, sizeof v) < 0 && errno != EAGAIN)
+        failed = 1;
+    threads_lock(t);
+    w->waiting = 0;
+    return failed || atomic_load(&t->done);
 }
 
-/* The computation, in the DPU's mode: what it ran (the record's compute). */
-static int64_t threads_compute(threads_t *t, int64_t ns)
+/* The computation, in mode MODE: what it ran (the record's compute). */
+static int64_t threads_compute(const skel_compute_t *c, int mode, int64_t ns)
 {
-    const skel_compute_t *c = &t->s->compute;
-    if (t->plan->compute != SKELMSG_DPU_T_COMPUTE_WALL) {
+    if (mode != SKELMSG_DPU_T_COMPUTE_WALL) {
         int64_t stall = 0; /* CPU, WORK: wall less CPU time, which is preempted_ns here */
-        return compute_run(c, t->plan->compute, ns, &stall);
+        return compute_run(c, mode, ns, &stall);
     }
     /* WALL: the wall time it held the processor; a gap between two looks longer
      * than the stall threshold is time it was preempted. */
@@ -193,85 +221,141 @@ static int64_t threads_nivcsw(void)
     return getrusage(RUSAGE_THREAD, &ru) == 0 ? ru.ru_nivcsw : 0;
 }
 
-/* Job K of W's process, released at RELEASE, ready (its data there) at READY. */
-static void threads_job(threads_worker_t *w, int64_t k, int64_t release, int64_t ready)
+/* P's next release (INT64_MAX: an event process none of whose events waits). */
+static int64_t threads_next_release(const skel_process_t *p)
+{
+    return p->event >= 0 ? tasking_event_release(p) : tasking_release(p, p->next_k);
+}
+
+/* Its release RELEASE is due: P has a job (under lock). */
+static void threads_release(threads_t *t, skel_process_t *p, int64_t release)
+{
+    p->job_release = release;
+    p->job_generation = p->event < 0 && p->next_k < 0 ? p->back_generation : t->plan->generation;
+    p->job_missing = -1;
+    p->job = p->sync == SKELMSG_PROCESS_T_SYNC_DATA ? TASK_WAITING : TASK_READY;
+    if (p->event >= 0) event_release(t->plan, p, release);
+}
+
+/* A data job whose data is all new is ready; one whose data came a whole period
+ * late skips its release (executive_skips). 1 when it still waits (under lock). */
+static int threads_check_data(threads_worker_t *w)
+{
+    threads_t *t = w->t;
+    skel_process_t *p = w->p;
+    skel_rec_t look;
+    p->job_missing = (int8_t)threads_look(w, &look);
+    if (p->job_missing >= 0) return 1;
+    w->ready_ns = clock_mono_ns();
+    p->job = TASK_READY;
+    if (!executive_skips(t->plan, p, p->job_release, w->ready_ns)) return 0;
+    executive_skip_record(&w->x, p, p->k_base + p->next_k, tasking_minor(t->plan, p), p->job_release,
+                          p->job_release, w->ready_ns, &look);
+    look.generation = p->job_generation;
+    executive_record(t->s, &look);
+    p->job = TASK_NONE;
+    p->next_k++;
+    return 0;
+}
+
+/* W's ready job: it takes the processor, computes with the lock let go, and
+ * completes under whatever plan is current by then (under lock). */
+static void threads_job(threads_worker_t *w)
 {
     threads_t *t = w->t;
     skel_plan_t *plan = t->plan;
     skel_process_t *p = w->p;
     skel_rec_t *rec = &w->rec;
-    const int measured = k >= p->measure_from_k;
-    const int64_t minor = plan->minor_base + (release - plan->epoch_t0_ns) / plan->minor_ns;
+    int64_t k = p->k_base + p->next_k;
     int64_t csw0 = threads_nivcsw();
-    if (pthread_mutex_lock(&t->lock) != 0) return;
     int64_t start = clock_mono_ns();
     /* The processor was this job's at its release (or data), or at the completion
      * that freed it: what is left to the start is the kernel's latency. */
+    int64_t ready = p->sync == SKELMSG_PROCESS_T_SYNC_DATA ? w->ready_ns : p->job_release;
     int64_t sched = t->active > 0 || t->last_end_ns < ready ? ready : t->last_end_ns;
     threads_flush_idle(t, start);
     t->active++;
-    atomic_store(&w->pending_k, k + 1);
-    process_record_begin(&w->x, p, p->k_base + k, minor, release, sched, start, rec);
+    process_record_begin(&w->x, p, k, tasking_minor(plan, p), p->job_release, sched, start, rec);
+    if (k == p->lockout_k) rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
+    rec->generation = p->job_generation;
     (void)threads_look(w, rec); /* a data job's data is still new: only its own commit uses it */
-    process_commit(plan, p, rec, measured);
-    pthread_mutex_unlock(&t->lock);
+    process_commit(plan, p, rec, k >= p->measure_from_k);
+    p->job = TASK_STARTED;
     rec->asked_ns = draw_ns(&p->draw, p->compute_ns);
+    const int mode = plan->compute;
+    threads_unlock(t);
     int64_t t_in = clock_mono_ns();
     rec->comm_in_ns = t_in - start;
-    rec->compute_ns = threads_compute(t, rec->asked_ns);
+    rec->compute_ns = threads_compute(&t->s->compute, mode, rec->asked_ns);
     int64_t t_out = clock_mono_ns();
     rec->preempted_ns = t_out - t_in - rec->compute_ns;
     if (rec->preempted_ns < 0) rec->preempted_ns = 0;
-    if (pthread_mutex_lock(&t->lock) != 0) return;
-    process_write_outputs(&w->x, p, p->k_base + k);
+    threads_lock(t);
+    t->active--;
+    p = w->p; /* a live switch may have handed it another plan's process, or none */
+    plan = t->plan;
+    if (p == NULL) return; /* removed: its job is lost, as at a run's end */
+    const int measured = k >= p->measure_from_k;
+    process_write_outputs(&w->x, p, k);
     threads_kick(t, w); /* a local output may be what a data wait waits for */
-    process_finish(&w->x, p, rec, release, t_out, measured);
-    if (atomic_load(&w->locked_k) == k) rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
+    process_finish(&w->x, p, rec, p->job_release, t_out, measured);
     int64_t csw = threads_nivcsw() - csw0;
     rec->preemptions = csw > INT32_MAX ? INT32_MAX : (int32_t)csw;
+    p->job = TASK_NONE;
+    p->next_k++;
     int64_t end = clock_mono_ns();
     t->last_end_ns = end;
     atomic_fetch_add(&t->s->minor_cycles, 1);
     if (measured) plan->sums.minor_cycles++;
-    if (--t->active == 0) { /* the processor goes idle: the record waits for the idle's end */
+    if (t->active == 0) { /* the processor goes idle: the record waits for the idle's end */
         t->idle_rec = *rec;
         t->idle_p = p;
         t->idle_pending = 1;
     } else { /* preempted work goes on at once: no idle follows this job */
-        executive_account(plan, p, rec, release, release + p->period_ns - rec->slack_ns);
+        executive_account(plan, p, rec, p->job_release, p->job_release + p->period_ns - rec->slack_ns);
         executive_record(t->s, rec);
     }
-    pthread_mutex_unlock(&t->lock);
+}
+
+/* One step of W's loop, under lock: 1 when the thread is done. */
+static int threads_step(threads_worker_t *w)
+{
+    threads_t *t = w->t;
+    skel_process_t *p = w->p;
+    if (p == NULL || atomic_load(&t->done)) return 1;
+    if (clock_mono_ns() >= t->switch_at) /* past the switch's instant nothing starts before it */
+        return threads_wait(w, INT64_MAX, 0);
+    if (p->job == TASK_NONE) {
+        if (p->event >= 0) threads_drain(w); /* its events come on the links */
+        int64_t release = threads_next_release(p), now = clock_mono_ns();
+        if (release >= w->x.end_mono_ns) /* none in this run: the run's end, an event, a switch */
+            return threads_wait(w, INT64_MAX, p->event >= 0);
+        if (release >= t->switch_at) /* the switch first: the watcher kicks after it */
+            return threads_wait(w, INT64_MAX, 0);
+        if (release > now) {
+            if (p->event >= 0) return threads_wait(w, release, 1);
+            threads_unlock(t);
+            int rc = clock_sleep_until(release, &t->done);
+            threads_lock(t);
+            return rc != 0;
+        }
+        threads_release(t, p, release);
+    }
+    if (p->job == TASK_WAITING && threads_check_data(w)) return threads_wait(w, INT64_MAX, 1);
+    if (p->job == TASK_READY) threads_job(w);
+    return 0;
 }
 
 static void *threads_worker(void *arg)
 {
     threads_worker_t *w = arg;
     threads_t *t = w->t;
-    skel_plan_t *plan = t->plan;
-    skel_process_t *p = w->p;
     char name[16];
-    snprintf(name, sizeof name, "skel-p%d", p->id);
+    snprintf(name, sizeof name, "skel-p%d", w->id);
     (void)pthread_setname_np(pthread_self(), name);
-    for (int64_t k = 0;; k++) {
-        const int64_t release = plan->epoch_t0_ns + k * p->period_ns;
-        if (release >= w->x.end_mono_ns) break;
-        if (threads_sleep(t, release) != 0 || atomic_load(&t->done)) break;
-        int64_t ready = release;
-        if (p->sync == SKELMSG_PROCESS_T_SYNC_DATA) {
-            if (threads_wait_data(w, &ready) != 0) break;
-            if (executive_skips(plan, p, release, ready)) { /* a period late: the next job takes it */
-                const int64_t minor = plan->minor_base + (release - plan->epoch_t0_ns) / plan->minor_ns;
-                if (pthread_mutex_lock(&t->lock) != 0) break;
-                executive_skip_record(&w->x, p, p->k_base + k, minor, release, release, ready, &w->rec);
-                executive_record(t->s, &w->rec);
-                atomic_store(&w->pending_k, k + 1);
-                pthread_mutex_unlock(&t->lock);
-                continue;
-            }
-        }
-        threads_job(w, k, release, ready);
-    }
+    threads_lock(t);
+    while (!threads_step(w)) {}
+    threads_unlock(t);
     return NULL;
 }
 
@@ -298,17 +382,58 @@ static int threads_place(threads_t *t, threads_worker_t *w)
     return -1;
 }
 
-/* The watcher (the executive thread) runs off the processor when it can. */
+/* The watcher (the executive thread) runs off the processor when it can, and
+ * under SCHED_FIFO where it may: the threads wait for it at a live switch. */
 static void threads_move_watcher(threads_t *t)
 {
+    struct sched_param sp = { .sched_priority = SKEL_RT_PRIORITY };
+    if (t->faithful) (void)pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp); /* refused: as the threads */
     cpu_set_t others;
     CPU_ZERO(&others);
     int n = get_nprocs();
     for (int c = 0; c < n && c < CPU_SETSIZE; c++)
         if (c != t->cpu) CPU_SET(c, &others);
     if (CPU_COUNT(&others) == 0) return;
-    if (pthread_getaffinity_np(pthread_self(), sizeof t->watcher_was, &t->watcher_was) != 0) return;
-    t->watcher_moved = pthread_setaffinity_np(pthread_self(), sizeof others, &others) == 0;
+    if (!t->watcher_moved && pthread_getaffinity_np(pthread_self(), sizeof t->watcher_was, &t->watcher_was) != 0)
+        return;
+    if (pthread_setaffinity_np(pthread_self(), sizeof others, &others) == 0) t->watcher_moved = 1;
+}
+
+/* A free slot: a removed process's whose thread has ended, or a new one (NULL: none). */
+static threads_worker_t *threads_slot(threads_t *t)
+{
+    for (int i = 0; i < t->nworkers; i++) {
+        threads_worker_t *w = &t->w[i];
+        if (w->live && w->p == NULL && pthread_tryjoin_np(w->tid, NULL) == 0) w->live = 0;
+        if (!w->live) return w;
+    }
+    if (t->nworkers == (int)(sizeof t->w / sizeof t->w[0])) return NULL;
+    return &t->w[t->nworkers++];
+}
+
+/* A thread for process P (in X's plan): 0, or -1 said. */
+static int threads_add(threads_t *t, const skel_exec_t *x, skel_process_t *p)
+{
+    threads_worker_t *w = threads_slot(t);
+    if (w == NULL) {
+        log_line("DPU %d: no room for a thread for process %d: it does not run", t->plan->dpu, p->id);
+        return -1;
+    }
+    w->t = t;
+    w->p = p;
+    w->id = p->id;
+    w->x = *x;
+    w->x.wake_stall_ns = w->x.stall_debt_ns = 0;
+    if (w->kick_fd < 0) w->kick_fd = threads_eventfd();
+    int rc = w->kick_fd >= 0 ? pthread_create(&w->tid, NULL, threads_worker, w) : errno;
+    if (rc != 0) {
+        w->p = NULL;
+        log_line("DPU %d: cannot start the thread of process %d (%s)", t->plan->dpu, p->id, strerror(rc));
+        return -1;
+    }
+    w->live = 1;
+    (void)threads_place(t, w); /* refused: said once, the run is not faithful */
+    return 0;
 }
 
 void threads_end(threads_t *t)
@@ -316,12 +441,11 @@ void threads_end(threads_t *t)
     atomic_store(&t->done, 1);
     server_wake(t->done_fd);
     for (int i = 0; i < t->nworkers; i++)
-        if (pthread_join(t->w[i].tid, NULL) != 0)
-            log_line("DPU %d: cannot join the thread of process %d", t->plan->dpu, t->w[i].p->id);
-    if (pthread_mutex_lock(&t->lock) == 0) {
-        threads_flush_idle(t, clock_mono_ns());
-        pthread_mutex_unlock(&t->lock);
-    }
+        if (t->w[i].live && pthread_join(t->w[i].tid, NULL) != 0)
+            log_line("DPU %d: cannot join the thread of process %d", t->plan->dpu, t->w[i].id);
+    threads_lock(t);
+    threads_flush_idle(t, clock_mono_ns());
+    threads_unlock(t);
     if (t->watcher_moved &&
         pthread_setaffinity_np(pthread_self(), sizeof t->watcher_was, &t->watcher_was) != 0)
         log_line("DPU %d: warning: cannot restore the executive thread's CPUs", t->plan->dpu);
@@ -331,15 +455,17 @@ void threads_end(threads_t *t)
 threads_t *threads_start(skel_exec_t *x, char *klass, size_t len)
 {
     skel_plan_t *plan = x->plan;
-    threads_t *t = calloc(1, sizeof *t + (size_t)plan->nprocesses * sizeof(threads_worker_t));
+    threads_t *t = calloc(1, sizeof *t);
     if (t == NULL) return NULL;
     t->s = x->s;
     t->plan = plan;
     t->faithful = 1;
     t->done_fd = -1;
+    t->switch_at = INT64_MAX;
+    t->switch_seq = -1;
     plan->running = 1; /* before the threads that drain the links exist */
     atomic_init(&t->done, 0);
-    for (int i = 0; i < plan->nprocesses; i++) t->w[i].kick_fd = -1;
+    for (int i = 0; i < (int)(sizeof t->w / sizeof t->w[0]); i++) t->w[i].kick_fd = -1;
     pthread_mutexattr_t ma;
     int ok = pthread_mutexattr_init(&ma) == 0;
     if (ok) {
@@ -349,36 +475,29 @@ threads_t *threads_start(skel_exec_t *x, char *klass, size_t len)
     t->lock_ok = ok;
     t->done_fd = threads_eventfd();
     ok = ok && t->done_fd >= 0;
-    for (int i = 0; ok && i < plan->nprocesses; i++) {
-        threads_worker_t *w = &t->w[i];
-        w->t = t;
-        w->p = &plan->processes[i];
-        w->x = *x;
-        w->x.wake_stall_ns = w->x.stall_debt_ns = 0;
-        atomic_init(&w->pending_k, 0);
-        atomic_init(&w->missing, -1);
-        atomic_init(&w->locked_k, -1);
-        w->kick_fd = threads_eventfd();
-        ok = w->kick_fd >= 0;
-    }
+    for (int i = 0; ok && i < plan->nprocesses; i++) ok = (t->w[i].kick_fd = threads_eventfd()) >= 0;
     if (!ok) {
         log_line("DPU %d: cannot prepare the tasking executive's threads (%s)", plan->dpu, strerror(errno));
         threads_free(t);
         return NULL;
     }
+    for (int i = 0; i < plan->nprocesses; i++) { /* every release from the run's start (tasking_release) */
+        skel_process_t *p = &plan->processes[i];
+        p->anchor_ns = plan->epoch_t0_ns;
+        p->back_period_ns = p->period_ns;
+        p->back_generation = plan->generation;
+    }
     int here = sched_getcpu();
     t->cpu = plan->cpu >= 0 ? plan->cpu : here >= 0 ? here : 0;
+    threads_lock(t); /* the threads start once all are placed */
     for (int i = 0; i < plan->nprocesses; i++) {
-        int rc = pthread_create(&t->w[i].tid, NULL, threads_worker, &t->w[i]);
-        if (rc != 0) {
-            log_line("DPU %d: cannot start the thread of process %d (%s)", plan->dpu, plan->processes[i].id,
-                     strerror(rc));
+        if (threads_add(t, x, &plan->processes[i]) != 0) {
+            threads_unlock(t);
             threads_end(t);
             return NULL;
         }
-        t->nworkers++;
-        (void)threads_place(t, &t->w[i]); /* refused: said once, the run is not faithful */
     }
+    threads_unlock(t);
     threads_move_watcher(t);
     if (!t->faithful) server_fault(t->s, SKELMSG_STATUS_T_FAULT_NOT_FAITHFUL);
     int lo = 0, hi = 0;
@@ -394,31 +513,109 @@ threads_t *threads_start(skel_exec_t *x, char *klass, size_t len)
     return t;
 }
 
-/* Watches for lockouts until the run's end or a STOP, then ends every thread. */
+/* Each thread gets its process of X's new plan, a removed one's thread is
+ * demoted and ends, a new process gets a thread (under lock). */
+static void threads_hand_over(threads_t *t, skel_exec_t *x, int cpu_moved)
+{
+    skel_plan_t *next = x->plan;
+    const int nworkers = t->nworkers;
+    for (int i = 0; i < nworkers; i++) {
+        threads_worker_t *w = &t->w[i];
+        if (!w->live || w->p == NULL) continue;
+        int j = plan_process_index(next, w->id);
+        w->x.plan = next;
+        w->p = j >= 0 ? &next->processes[j] : NULL;
+        int rc;
+        if (w->p == NULL) {
+            struct sched_param idle = { .sched_priority = 0 };
+            rc = pthread_setschedparam(w->tid, SCHED_IDLE, &idle);
+        } else if (cpu_moved) {
+            rc = threads_place(t, w) == 0 ? 0 : -1;
+        } else {
+            struct sched_param sp = { .sched_priority = w->p->priority };
+            rc = t->faithful ? pthread_setschedparam(w->tid, SCHED_FIFO, &sp) : 0;
+        }
+        if (rc > 0) log_line("DPU %d: cannot change the scheduling of process %d's thread (%s)", next->dpu,
+                             w->id, strerror(rc));
+    }
+    for (int j = 0; j < next->nprocesses; j++) {
+        int has = 0;
+        for (int i = 0; i < nworkers && !has; i++) has = t->w[i].live && t->w[i].p == &next->processes[j];
+        if (!has) (void)threads_add(t, x, &next->processes[j]);
+    }
+}
+
+/* The pending switch's instant, once per COMMIT, on the grid of the minors not
+ * begun by NOW (under lock); kicks the threads waiting for an earlier one. */
+static void threads_plan_switch(threads_t *t, skel_exec_t *x, int64_t now)
+{
+    executive_poll_switch(x);
+    if (!x->switch_pending) {
+        t->switch_at = INT64_MAX;
+        return;
+    }
+    if (t->switch_seq == x->switch_seq) return;
+    const skel_plan_t *plan = t->plan;
+    int64_t j_prev = (now - plan->epoch_t0_ns) / plan->minor_ns;
+    t->switch_seq = x->switch_seq;
+    t->switch_j = swap_index(plan, j_prev, x->switch_at_mono_ns);
+    t->switch_at = swap_instant(plan, t->switch_j);
+    threads_kick_all(t);
+}
+
+/* At the switch's instant: the next plan takes over, unless a process still owes
+ * a release of the plan before the current one (swap_tasking_ready): then at the
+ * next point of the grid (under lock). */
+static void threads_switch(threads_t *t, skel_exec_t *x)
+{
+    skel_plan_t *old = t->plan;
+    if (!swap_tasking_ready(old, t->switch_at)) {
+        t->switch_j = swap_index(old, t->switch_j, t->switch_at + 1);
+        t->switch_at = swap_instant(old, t->switch_j);
+        return;
+    }
+    threads_flush_idle(t, clock_mono_ns()); /* its process is the old plan's */
+    int switched = executive_switch(x, t->switch_j, 1);
+    t->switch_at = INT64_MAX;
+    t->switch_seq = x->switch_seq;
+    if (switched) {
+        skel_plan_t *next = x->plan;
+        int cpu = next->cpu >= 0 ? next->cpu : t->cpu, moved = cpu != t->cpu;
+        t->plan = next;
+        t->cpu = cpu;
+        threads_hand_over(t, x, moved);
+        if (next->cpu != old->cpu) threads_move_watcher(t); /* executive_switch pinned it there */
+        executive_announce(x);
+    }
+    threads_kick_all(t);
+}
+
+/* Lockouts due by NOW (under lock, tasking_lockout); the next instant one would be. */
+static int64_t threads_lockouts(threads_t *t, skel_exec_t *x, int64_t now)
+{
+    int64_t next = INT64_MAX;
+    for (int i = 0; i < t->nworkers; i++)
+        if (t->w[i].live && t->w[i].p != NULL) next = tasking_lockout(x, t->w[i].p, now, next);
+    return next;
+}
+
+/* Watches for live switches and lockouts until the run's end or a STOP, then ends every thread. */
 void threads_run(threads_t *t, skel_exec_t *x)
 {
     skel_server_t *s = t->s;
-    skel_plan_t *plan = t->plan;
     for (;;) {
         int64_t now = clock_mono_ns();
         if (atomic_load(&s->stop) || atomic_load(&s->quit) || now >= x->end_mono_ns) break;
         int64_t next = x->end_mono_ns - now > THREADS_PIECE_NS ? now + THREADS_PIECE_NS : x->end_mono_ns;
-        for (int i = 0; i < plan->nprocesses; i++) {
-            threads_worker_t *w = &t->w[i];
-            skel_process_t *p = w->p;
-            if (p->locked_out) continue;
-            int64_t k = atomic_load(&w->pending_k);
-            int64_t release = plan->epoch_t0_ns + k * p->period_ns;
-            if (release >= x->end_mono_ns) continue;
-            int64_t at = process_lockout_at(plan, p, release);
-            if (now < at) {
-                if (at < next) next = at;
-                continue;
-            }
-            atomic_store(&w->locked_k, k);
-            process_lockout(x, p, (int16_t)atomic_load(&w->missing), p->k_base + k, release);
-        }
-        if (link_wait(plan->links, 0, s->wake_fd, next - now) < 0) break;
+        threads_lock(t);
+        threads_plan_switch(t, x, now);
+        if (t->switch_at <= now) threads_switch(t, x);
+        int64_t lockout = threads_lockouts(t, x, now);
+        if (lockout < next) next = lockout;
+        if (t->switch_at < next) next = t->switch_at;
+        threads_unlock(t);
+        now = clock_mono_ns();
+        if (next > now && link_wait(x->plan->links, 0, s->wake_fd, next - now) < 0) break;
     }
     threads_end(t);
 }

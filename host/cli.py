@@ -17,16 +17,19 @@ from pathlib import Path
 
 from rich.table import Table
 
-from skelmsg.contract import DEFAULT_URL
+from skelmsg.contract import DEFAULT_URL, KEY_ENV
 
 from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED
 from ..analysis.read.messages import run_log_path
+from ..analysis.read.seal import KeyFileError, key_path, load_key, write_key
 from . import spawn
 from .control import Control
 from .listener import QUIET_S, is_run_id
+from .predict import deadlocks
 from .system import SystemFileError, load
 from .wire import config_message
 
+UNKEYED = ("check", "keygen")  # commands that neither talk to DPUs nor read a run
 LISTEN_LIMIT_S = 5.0  # `skel status`/`skel clock` listen at most this long by default
 
 # Set once the command has returned: a signal that arrives while the interpreter shuts
@@ -85,6 +88,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "runs elsewhere, print the DPUs' own totals and analyse that log with `skel report`")
     p.add_argument("--force", action="store_true",
                    help="take over the DPUs when another host tool's run holds them: stop it, then run")
+    p.add_argument("--no-check", action="store_true",
+                   help="run even a system `skel check` refuses (a data-wait deadlock: it locks out)")
 
     listen = (f"listen until no new DPU was heard for {QUIET_S:g} s, at most S seconds "
               f"(default {LISTEN_LIMIT_S:g})")
@@ -129,9 +134,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="events per second (default 10)")
     p.add_argument("--url", default=DEFAULT_URL)
 
+    from .allocate_cmd import add_parser  # ortools loads only for `skel allocate`
+    _system_args(add_parser(sub))
+
     p = sub.add_parser("doctor", help="check what would break LCM multicast here, with the fix for each")
     p.add_argument("--url", default=DEFAULT_URL)
     p.add_argument("--json", action="store_true")
+
+    p = sub.add_parser("keygen", help="write a new random key for signed control (mode 0600)")
+    p.add_argument("file", type=Path, help="the key file to create (never overwritten)")
+
+    for name, p in sub.choices.items():
+        if name not in UNKEYED:
+            p.add_argument("--key", type=Path, metavar="FILE",
+                           help=f"sign and check control with this key (default ${KEY_ENV} when set; "
+                                "none: unauthenticated)")
     return parser
 
 
@@ -149,7 +166,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not when started ignoring it
         signal.signal(signal.SIGINT, _interrupted)
     try:
+        if args.command not in UNKEYED:
+            args.key_file = key_path(args.key)
+            args.key = load_key(args.key_file) if args.key_file is not None else None
         return COMMANDS[args.command](args)
+    except KeyFileError as error:
+        print(f"skel: {error}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except SystemFileError as error:
         print(error, file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -179,7 +202,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     system = _load(args)
     url = control_url(system)
     local = [d.id for d in system.dpus if spawn.is_local(d.host)]
-    started = spawn.up(local, url)
+    started = spawn.up(local, url, args.key_file)
     print(f"DPUs up on {url}: started {started or 'none'}, already running "
           f"{sorted(set(local) - set(started)) or 'none'}")
     return 0
@@ -199,7 +222,7 @@ def cmd_push(args: argparse.Namespace) -> int:
         print(f"skel push: --at-ms {args.at_ms:g}: must be >= 0", file=sys.stderr)
         return EXIT_BAD_INPUT
     system = _load(args)
-    control = Control(control_url(system))
+    control = Control(control_url(system), args.key)
     try:
         ids = sorted(d.id for d in system.dpus)
         control.wait_heard(ids, HEAR_TIMEOUT_S,
@@ -248,13 +271,18 @@ def cmd_run(args: argparse.Namespace) -> int:
             return EXIT_BAD_INPUT
         args.file, pushed_generation = remembered
     system = _load(args)
+    if not args.no_check and (refused := deadlocks(system)[0]):
+        for problem in refused:
+            print(SystemFileError(system.path, problem.path, problem.problem), file=sys.stderr)
+        print("skel run: refused (--no-check runs it anyway, and it locks out)", file=sys.stderr)
+        return EXIT_BAD_INPUT
     if args.wait_dpus < 0:
         print(f"skel run: --wait-dpus {args.wait_dpus:g}: must be >= 0", file=sys.stderr)
         return EXIT_BAD_INPUT
     options = RunOptions(spawn=args.spawn, cycles=args.cycles, duration_s=args.duration, out=args.out,
                          as_json=args.json, compare_paper=args.compare_paper,
                          pushed_generation=pushed_generation, wait_dpus_s=args.wait_dpus,
-                         logger=args.logger, force=args.force)
+                         logger=args.logger, force=args.force, key=args.key, key_file=args.key_file)
     return run(system, options, console=output_console())
 
 
@@ -272,18 +300,22 @@ def cmd_status(args: argparse.Namespace) -> int:
     if args.wait < 0:
         print(f"skel status: --wait {args.wait:g}: must be >= 0", file=sys.stderr)
         return EXIT_BAD_INPUT
-    control = Control(args.url)
+    control = Control(args.url, args.key)
     try:
         listened = _listen(control, args)
         views = control.daemons()
     finally:
         control.close()
+    _say_key(control, args)
     now = time.monotonic()
     # Every daemon heard: DPUs started with --id auto are DPU -1 until a config names them.
     rows = [{"dpu": v.status.dpu, "host": v.status.host, "pid": v.status.pid, "state": v.state,
              "generation": v.status.generation, "staged": v.status.staged_generation,
              "run_id": v.status.run_id, "minor_cycles": v.status.minor_cycles,
              "faults": v.status.faults, "rejected_messages": v.status.rejected_messages,
+             "keyed": bool(v.status.keyed),
+             "refused": {k: getattr(v.status, f"rejected_{k}")
+                         for k in ("unsigned", "signed", "forged", "replayed")},
              "reject_reason": v.status.reject_reason, "run_owner": v.status.run_owner,
              "run_end_utc_ns": v.status.run_end_utc_ns,
              "heard_s_ago": round(now - v.heard_mono, 2)}
@@ -300,6 +332,15 @@ def cmd_status(args: argparse.Namespace) -> int:
         table.add_row(*("auto" if c == "dpu" and row[c] == -1 else str(row[c]) for c in columns))
     output_console().print(table)
     return 0
+
+
+def _say_key(control: Control, args: argparse.Namespace) -> None:
+    """On stderr: that control is unauthenticated (no key), and every DPU whose key disagrees."""
+    if args.key is None:
+        print(f"control on {args.url} is unauthenticated (no key): anyone on the group can command the "
+              f"DPUs; see `skel keygen` and --key / ${KEY_ENV}", file=sys.stderr)
+    for line in control.key_lines():
+        print(line, file=sys.stderr)
 
 
 def _json_or_nothing(rows: list[dict], as_json: bool, nothing: str) -> int | None:
@@ -322,7 +363,7 @@ def cmd_clock(args: argparse.Namespace) -> int:
                 else f"--wait {args.wait:g}: must be >= 0")
         print(f"skel clock: {what}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    control = Control(args.url)
+    control = Control(args.url, args.key)
     try:
         listened = _listen(control, args)
         ids = sorted(i for i in control.snapshot() if i >= 0)
@@ -330,6 +371,8 @@ def cmd_clock(args: argparse.Namespace) -> int:
         clock.publish(control, found)  # a logger on the URL records them too
     finally:
         control.close()
+    for line in control.key_lines():
+        print(line, file=sys.stderr)
     rows = [e.to_json() for _, e in sorted(found.items())]
     done = _json_or_nothing(rows, args.json,
                             f"no DPU heard on {args.url} in {listened:.1f} s (or none answered the pings)")
@@ -349,21 +392,25 @@ def cmd_clock(args: argparse.Namespace) -> int:
 
 def cmd_report(args: argparse.Namespace) -> int:
     from ..analysis.views.report import report_command
+    from .predict_view import predictor
 
-    return report_command(run_log_path(args.log), as_json=args.json, run_id=args.run_id, plots=args.plots)
+    log = run_log_path(args.log)
+    # a run directory's system.yaml is the file its configuration came from
+    return report_command(log, as_json=args.json, run_id=args.run_id, plots=args.plots,
+                          predictor=predictor(log.parent / "system.yaml"), key=args.key)
 
 
 def cmd_diff(args: argparse.Namespace) -> int:
     from ..analysis.views.diff import diff_command
 
-    return diff_command(run_log_path(args.run_a), run_log_path(args.run_b), as_json=args.json)
+    return diff_command(run_log_path(args.run_a), run_log_path(args.run_b), as_json=args.json, key=args.key)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
     from ..analysis.views.export import export_command
 
     return export_command(run_log_path(args.log), args.mcap, run_id=args.run_id, parquet=args.parquet,
-                          trace=args.trace)
+                          trace=args.trace, key=args.key)
 
 
 def cmd_watch(args: argparse.Namespace) -> int:
@@ -372,34 +419,55 @@ def cmd_watch(args: argparse.Namespace) -> int:
     if args.json and not args.once:
         print("skel watch: --json needs --once (a live view has no final report)", file=sys.stderr)
         return EXIT_BAD_INPUT
-    return watch_command(args.url, once=args.once, duration_s=args.duration, as_json=args.json)
+    return watch_command(args.url, once=args.once, duration_s=args.duration, as_json=args.json, key=args.key)
+
+
+def cmd_allocate(args: argparse.Namespace) -> int:
+    from .allocate_cmd import allocate_command
+
+    return allocate_command(args)
 
 
 def cmd_doctor(args: argparse.Namespace) -> int:
     from .doctor import doctor
 
-    return doctor(args.url, as_json=args.json)
+    return doctor(args.url, as_json=args.json, keyed=args.key is not None)
 
 
 def cmd_event(args: argparse.Namespace) -> int:
     from . import event
-    from .schema import NAME  # an event's name is the system file's: its channel's suffix
+    from .schema import name_problem  # an event's name is the system file's: its channel's suffix
 
-    named = NAME.fullmatch(args.name)
-    problem = ("a name of letters, digits and _ not starting with a digit" if not named
+    problem = (name_problem(args.name) if name_problem(args.name)
                else "--count must be >= 1" if args.count < 1
                else "--rate must be a positive number" if not 0 < args.rate < float("inf") else "")
     if problem:
         print(f"skel event {args.name}: {problem}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    sent = event.send(args.url, args.name, args.count, args.rate)
+    sent = event.send(args.url, args.name, args.count, args.rate)  # events are not signed (README: Security)
     print(f"sent {sent} event{'s' if sent != 1 else ''} {args.name} on {args.url}")
+    return 0
+
+
+def cmd_keygen(args: argparse.Namespace) -> int:
+    try:
+        write_key(args.file)
+    except FileExistsError:
+        print(f"skel keygen: {args.file} exists: a key is never overwritten (remove it first)",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as e:
+        print(f"skel keygen: {args.file}: {e.strerror}", file=sys.stderr)
+        return EXIT_FAILED
+    print(f"wrote a new key to {args.file} (mode 0600): copy it to every DPU host "
+          f"(/etc/skel/key for the systemd unit) and give it to skel with --key or ${KEY_ENV}")
     return 0
 
 
 COMMANDS = {"check": cmd_check, "up": cmd_up, "down": cmd_down, "push": cmd_push, "run": cmd_run,
             "status": cmd_status, "clock": cmd_clock, "report": cmd_report, "diff": cmd_diff,
-            "export": cmd_export, "watch": cmd_watch, "doctor": cmd_doctor, "event": cmd_event}
+            "export": cmd_export, "watch": cmd_watch, "doctor": cmd_doctor, "event": cmd_event,
+            "allocate": cmd_allocate, "keygen": cmd_keygen}
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ import lcm
 import skelmsg
 from skelmsg import contract
 
+from ..analysis.read.seal import Signer
 from .listener import CHANNELS, Listener, is_generation
 
 COMMAND_REPEATS = 3
@@ -63,6 +64,7 @@ class PushResult:
     staged: list[int] = field(default_factory=list)
     kept: dict[int, int] = field(default_factory=dict)  # DPU -> the generation it applies at the end
     states: dict[int, str] = field(default_factory=dict)  # DPU -> its state at the end
+    key_problems: dict[int, str] = field(default_factory=dict)  # DPU -> why its key and ours disagree
     at_utc_ns: int = 0          # when the commit takes effect (0: at once)
     committed: bool = False     # the COMMIT was sent (every DPU had staged the generation)
 
@@ -85,7 +87,8 @@ class PushResult:
         for d, reason in sorted(self.rejected.items()):
             lines.append((False, f"DPU {d}: rejected generation {g}: {reason}"))
         for d in self.silent:
-            after = f": it keeps {self._kept(d)}" if d in self.kept else " (is it up? `skel status`)"
+            after = (f": {self.key_problems[d]}" if d in self.key_problems
+                     else f": it keeps {self._kept(d)}" if d in self.kept else " (is it up? `skel status`)")
             lines.append((False, f"DPU {d}: did not answer generation {g}{after}"))
         if not self.committed:
             lines.append((False, "nothing was committed: every DPU keeps its previous configuration"))
@@ -118,11 +121,13 @@ def _plausible(sample: PingSample, t1_sent: int | None) -> bool:
 class Control(Listener):
     """The host's side of the control channels: it hears as a Listener and sends."""
 
-    def __init__(self, url: str) -> None:
-        super().__init__()
+    def __init__(self, url: str, key: bytes | None = None) -> None:
+        super().__init__(key=key)
         self.url = url
         # Who we are on the wire: a run belongs to the session that started it (dpu/owner.c).
+        # With a key it is also the sender id of our seals.
         self.session = secrets.randbits(62) + 1
+        self._signer = Signer(key, self.session) if key is not None else None
         self.sender = f"{socket.gethostname()} pid {os.getpid()}"
         self.force = False  # `--force`: act during another session's run
         self._lcm = lcm.LCM(url)
@@ -196,7 +201,7 @@ class Control(Listener):
     def publish_config(self, config: skelmsg.config_t) -> None:
         config.sent_utc_ns = time.time_ns()
         self._sign(config)
-        self._lcm.publish(contract.CONFIG_CHANNEL, config.encode())
+        self._send(contract.CONFIG_CHANNEL, config.encode())
 
     def command(self, kind: int, dpu: int = -1, repeats: int = COMMAND_REPEATS, **fields: int) -> int:
         """Send one command (`repeats` times, same seq); return its seq."""
@@ -212,11 +217,14 @@ class Control(Listener):
         for i in range(repeats):
             if i:
                 time.sleep(0.01)
-            self._lcm.publish(contract.COMMAND_CHANNEL, data)
+            self._send(contract.COMMAND_CHANNEL, data)  # each repeat sealed anew: a newer counter
         return cmd.seq
 
     def publish(self, channel: str, message: object) -> None:
-        self._lcm.publish(channel, message.encode())  # type: ignore[attr-defined]
+        self._send(channel, message.encode())  # type: ignore[attr-defined]
+
+    def _send(self, channel: str, data: bytes) -> None:
+        self._lcm.publish(channel, data if self._signer is None else self._signer.seal(channel, data))
 
     def ping(self, dpu: int = -1) -> int:
         """Send one PING (not repeated: a lost one is just a lost sample); return its seq.
@@ -230,7 +238,7 @@ class Control(Listener):
             self._pings[cmd.seq] = {}
         cmd.ping_t1_ns = time.monotonic_ns()
         self._ping_t1[cmd.seq] = cmd.ping_t1_ns  # before the publish, so before any answer
-        self._lcm.publish(contract.COMMAND_CHANNEL, cmd.encode())
+        self._send(contract.COMMAND_CHANNEL, cmd.encode())
         return cmd.seq
 
     def wait_pongs(self, seqs: Iterable[int], dpus: Iterable[int], timeout_s: float) -> bool:
@@ -294,6 +302,8 @@ class Control(Listener):
         generation = result.generation
         result.applied, result.staged, result.silent, result.rejected = [], [], [], {}
         snapshot = self.snapshot()
+        with self.lock:
+            result.key_problems = dict(self.key_problems)
         for i in wanted:
             view = snapshot.get(i)
             if view is None:

@@ -28,7 +28,7 @@ from urllib.parse import parse_qs, urlsplit
 from rich.console import Console
 from rich.text import Text
 
-from skelmsg.contract import DEFAULT_URL
+from skelmsg.contract import DEFAULT_URL, KEY_ENV
 
 from ..analysis.exitcodes import EXIT_FAILED, EXIT_OK
 from ..analysis.measure.faults import recv_buf_needed
@@ -360,9 +360,18 @@ def run_checks(url: str) -> list[Check]:
 STYLE = {"OK": "green", "WARN": "yellow", "FAIL": "bold red"}
 
 
-def doctor(url: str, out: TextIO = sys.stdout, as_json: bool = False) -> int:
+def check_key(keyed: bool) -> Check:
+    """Signed control: a warning (it works) when anyone on the group may command the DPUs."""
+    if keyed:
+        return Check("control", True, "signed: this host checks and signs control with its key")
+    return Check("control", False, "unauthenticated (no key): anyone on this group can reconfigure, start, "
+                 "stop or shut down the DPUs", f"skel keygen FILE, then --key FILE (or ${KEY_ENV}) for skel "
+                 "and every skel-dpu", severity="warn")
+
+
+def doctor(url: str, out: TextIO = sys.stdout, as_json: bool = False, keyed: bool = False) -> int:
     """Print one line per check (with the fix command for each problem); 0 when LCM works, 1 when not."""
-    checks = run_checks(url)
+    checks = [*run_checks(url), check_key(keyed)]
     healthy = not any(not c.ok and c.severity == "fail" for c in checks)
     if as_json:
         doc = {"url": url, "ok": healthy, "checks": [{**asdict(c), "level": c.level} for c in checks]}

@@ -27,12 +27,27 @@ from typing import Any
 
 import skelmsg
 from skelmsg import contract
-from skelmsg.contract import CLOCK_CHANNEL, CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
+from skelmsg.contract import (
+    CLOCK_CHANNEL,
+    CONFIG_CHANNEL,
+    KEY_ENV,
+    REPORT_CHANNEL,
+    SEAL_FRESH_S,
+    STATUS_CHANNEL,
+    TIMING_CHANNEL,
+)
 
 from ..analysis.measure.faults import LOST_AFTER_S, Fault
 from ..analysis.measure.report import RunReport, build_report
+from ..analysis.read.seal import Verdict, Verifier
 from .recordstore import RecordStore
 
+KEY_PROBLEMS = {  # what a refused status says about its DPU's key
+    Verdict.SIGNED: "it signs its messages: it has a key and this host none (--key FILE or $" + KEY_ENV + ")",
+    Verdict.UNSIGNED: "its messages are unsigned: it has no key and this host has one (give both the "
+                      "same key, or neither)",
+    Verdict.FORGED: "its messages fail the MAC: it has another key than this host's",
+}
 # Every channel a live view subscribes to (clock estimates: kept for `skel watch --once`'s final analysis).
 CHANNELS = (CONFIG_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL, REPORT_CHANNEL, CLOCK_CHANNEL)
 STATE_NAMES = {
@@ -115,9 +130,17 @@ class Listener:
     with `auto_follow` the first run whose timing is heard is followed, and a newer one
     replaces it unless `stay` (a live view that follows one run)."""
 
-    def __init__(self, auto_follow: bool = False, stay: bool = False) -> None:
+    def __init__(self, auto_follow: bool = False, stay: bool = False, key: bytes | None = None,
+                 fresh_s: float | None = SEAL_FRESH_S) -> None:
         self.auto_follow = auto_follow
         self.stay = stay
+        # Signed control (analysis/read/seal.py): with a key only genuine messages are heard;
+        # without one, a sealed message is heard but says the sender has a key. A passive view
+        # of a replayed log (`skel watch`) passes fresh_s=None: old seals are not replays there.
+        self.key = key
+        self._verifier = Verifier(key, fresh_s)
+        self.refused: dict[str, int] = {}    # verdict -> messages the key check refused
+        self.key_problems: dict[int, str] = {}  # DPU -> why it and this host disagree on the key
         self.lock = threading.Lock()
         self.changed = threading.Condition(self.lock)
         self.dpus: dict[int, DpuView] = {}
@@ -165,8 +188,41 @@ class Listener:
         # t4 of a ping: first thing, before decoding, so only the wire and LCM are in the round trip.
         heard_ns = time.monotonic_ns()
         handler = self._handlers.get(channel)
-        if handler is not None:
-            handler(data, heard_ns)
+        if handler is None:
+            return
+        verdict, message, _ = self._verifier.check(channel, data)
+        if verdict is not Verdict.GENUINE:
+            self._key_check_failed(channel, verdict, bytes(message))
+            if verdict is not Verdict.SIGNED:
+                return
+        handler(bytes(message), heard_ns)
+
+    def _key_check_failed(self, channel: str, verdict: Verdict, message: bytes) -> None:
+        """Count it, and when a DPU's status says who sent it, say why that DPU and this host
+        disagree (once per DPU: the first reason stands)."""
+        with self.lock:
+            self.refused[verdict.value] = self.refused.get(verdict.value, 0) + 1
+        if channel != STATUS_CHANNEL:
+            return
+        try:
+            dpu = skelmsg.status_t.decode(message).dpu
+        except Exception:  # a foreign message: counted above, nothing to name
+            return
+        why = KEY_PROBLEMS.get(verdict)
+        if why is not None:
+            with self.lock:
+                self.key_problems.setdefault(dpu, why)
+
+    def key_lines(self) -> list[str]:
+        """One line per DPU whose key disagrees with this host's, and one for anything else refused."""
+        with self.lock:
+            lines = [f"DPU {d if d >= 0 else '(auto)'}: {why}"
+                     for d, why in sorted(self.key_problems.items())]
+            others = {v: n for v, n in self.refused.items() if v != Verdict.SIGNED.value}
+        if others and not lines:
+            lines.append("messages refused by the key check: "
+                         + ", ".join(f"{n} {v}" for v, n in sorted(others.items())))
+        return lines
 
     def _refuse(self, channel: str) -> None:
         with self.lock:

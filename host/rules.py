@@ -106,7 +106,7 @@ def _links(specs: list[LinkSpec] | None) -> tuple[Link, ...]:
     _unique(specs, "links", "name")
     if all(s.url == "local" for s in specs):
         raise Invalid("links", "needs at least one udpm:// link: the host reaches the DPUs over it")
-    return tuple(Link(i + 1, s.name, s.url) for i, s in enumerate(specs))
+    return tuple(Link(i + 1, s.name, s.url, s.bandwidth_mbps) for i, s in enumerate(specs))
 
 
 def _dpu_links(spec: SystemSpec, links: tuple[Link, ...]) -> dict[int, tuple[int, ...]]:
@@ -375,10 +375,6 @@ def _events(spec: SystemSpec) -> tuple[Event, ...]:
         path = f"processes.{p.name}"
         if p.sync == "event" and p.event is None:
             raise Invalid(f"{path}.event", "a `sync: event` process names the event it awaits")
-        dpu = next(d for d in spec.dpus if d.id == p.dpu)
-        if p.sync == "event" and dpu.executive == "threads" and dpu.compute != "sleep":
-            raise Invalid(f"{path}.sync", f"`sync: event` on the tasking executive's kernel threads "
-                          f"(compute {dpu.compute}) is not built yet; use compute: sleep on DPU {dpu.id}")
         if p.sync != "event":
             for key in ("event", "queue"):
                 if getattr(p, key) is not None:

@@ -21,6 +21,7 @@ file is shared, so the push may come from another machine than the run.
 from __future__ import annotations
 
 import json
+import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -43,6 +44,7 @@ from .check import delivery_warnings, warmup_warnings
 from .clock import ClockKeeper
 from .control import Control, PushResult
 from .listener import DpuView, fault_line
+from .predict_view import predictor
 from .repair import LoggerKeeper, LogRepair, RepairResult
 from .system import System
 from .wire import config_message
@@ -78,6 +80,8 @@ class RunOptions:
     wait_dpus_s: float = HEAR_TIMEOUT_S
     logger: str = "local"   # local: lcm-logger here; external: someone else records the run
     force: bool = False     # take over another host tool's run on our DPUs (host/owner.py)
+    key: bytes | None = None        # signed control (analysis/read/seal.py): the key ...
+    key_file: Path | None = None    # ... and its file, which spawned DPUs are given
 
 
 def control_url(system: System) -> str:
@@ -102,7 +106,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
     logger_deadline_s = (LOGGER_READY_S + 1.0 + START_LEAD_S + duration_ns / 1e9 + SETTLE_S + REPORT_GRACE_S
                          + REPAIR_LIMIT_S + LOGGER_MARGIN_S)
     interrupted = False
-    control = Control(url)
+    control = Control(url, options.key)
     daemons: list[spawn.Daemon] = []
     keeper = None
     repair = None
@@ -114,7 +118,8 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
             if not _claim(control, dpu_ids, options.force, console):
                 return EXIT_FAILED
             dpu_deadline_s = options.wait_dpus_s + 2 * PUSH_TIMEOUT_S + logger_deadline_s
-            daemons = [spawn.start_dpu(d.id, url, out / "logs", options.dpu_args, deadline_s=dpu_deadline_s)
+            daemons = [spawn.start_dpu(d.id, url, out / "logs", options.dpu_args, deadline_s=dpu_deadline_s,
+                                       key_file=options.key_file)
                        for d in system.dpus if spawn.is_local(d.host)]
         silent = control.wait_heard(dpu_ids, options.wait_dpus_s,
                                     introduce=lambda g: config_message(system, g, 0, committed=False))
@@ -122,6 +127,8 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
             console.print(f"[red]no heartbeat from DPU {', '.join(map(str, silent))} on {url} in "
                           f"{options.wait_dpus_s:g} s[/]: start them (`skel up FILE` or skel-dpu --id N "
                           "on their hosts), use --spawn, or wait longer (--wait-dpus S)")
+            for line in control.key_lines():
+                console.print(f"[red]{line}[/]", soft_wrap=True)
             return EXIT_FAILED
         if not _claim(control, dpu_ids, options.force, console):
             return EXIT_FAILED
@@ -164,6 +171,8 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
             keeper.stop()
         for daemon in daemons:
             spawn.stop(daemon)
+            if (bad := spawn.bad_exit(daemon)) is not None:  # its data so far is kept; it is said
+                print(f"warning: {daemon.name} {bad}: see {daemon.log_path}", file=sys.stderr)
     if keeper is None:
         code = _external_summary(console, out, run_id, dpu_ids, reports, follower.lost, options.as_json)
         return EXIT_INTERRUPTED if interrupted else code
@@ -354,18 +363,24 @@ def _report(console: Console, system: System, options: RunOptions, out: Path, ru
     for problem in problems:
         console.print(f"[bold red]INCOMPLETE[/] {problem}", soft_wrap=True)
     try:
-        report = load_run(out / "run.lcm", run_id=run_id).report
+        run = load_run(out / "run.lcm", run_id=run_id, key=options.key)
     except LogError as error:
         console.print(f"[red]{out / 'run.lcm'}: {error}[/]")
         return EXIT_FAILED
+    missing = run.add_prediction(predictor(system.path))
+    report = run.report
     (out / "report.json").write_text(json.dumps(report.to_json(), indent=2) + "\n")
     if options.as_json:
         print(json.dumps(report.to_json(), indent=2))
+        if missing:
+            print(missing, file=sys.stderr)  # stdout stays pure JSON
     else:
         paper = None
         if options.compare_paper and system.reference is not None:
             paper = {i: row.model_dump() for i, row in system.reference.dpus.items()}
         print_report(report, console=console, paper=paper)
+        if missing:
+            console.print(missing, style="yellow", markup=False, highlight=False)
         if restarts:
             console.print(f"the logger died and was restarted {restarts} time{'s' if restarts > 1 else ''}")
         if repaired.asked:

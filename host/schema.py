@@ -54,6 +54,15 @@ def _micros(v: int) -> int:
     return v
 
 
+def _period(v: int) -> int:
+    # The DPU refuses a longer period (config.c): said here, before anything runs.
+    v = _micros(v)
+    if v > contract.MAX_PERIOD_US:
+        limit = contract.MAX_PERIOD_US
+        raise ValueError(f"must be at most {limit} microseconds ({limit // 10**6} s), got {v}")
+    return v
+
+
 def _bytes(v: int) -> int:
     if v <= 0:
         raise ValueError(f"must be a positive number of bytes, got {v}")
@@ -64,12 +73,23 @@ def _bytes(v: int) -> int:
 
 
 # Names become LCM channels (SKEL_BUF_<name>, SKEL_EVENT_<name>) and -s targets (dots, '=').
-NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,63}")
+NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def name_problem(v: str) -> str:
+    """What is wrong with `v` as a name ('' when nothing): the system file's and `skel event`'s."""
+    if not NAME.fullmatch(v):
+        return f"must be a name of letters, digits and _ not starting with a digit, got {show(v)}"
+    if len(v) > contract.MAX_NAME:  # the DPUs refuse longer: SKEL_EVENT_<name> would outgrow LCM's channels
+        return (f"must be at most {contract.MAX_NAME} characters (it names an LCM channel), "
+                f"got {len(v)}: {show(v)}")
+    return ""
 
 
 def _name(v: str) -> str:
-    if not NAME.fullmatch(v):
-        raise ValueError(f"must be a name of letters, digits and _ not starting with a digit, got {show(v)}")
+    problem = name_problem(v)
+    if problem:
+        raise ValueError(problem)
     return v
 
 
@@ -118,9 +138,19 @@ def _positive(v: float) -> float:
     return v
 
 
+def _within(low: float, high: float) -> Any:
+    """A number in [low, high]: the wire contract's limits, which the DPUs check too."""
+    def check(v: float) -> float:
+        if not low <= v <= high:
+            raise ValueError(f"must be from {low:g} to {high:g}, got {show(v)}")
+        return v
+    return AfterValidator(check)
+
+
 Id = Annotated[int, AfterValidator(_id)]
 Name = Annotated[str, AfterValidator(_name)]
 Micros = Annotated[int, AfterValidator(_micros)]
+Period = Annotated[int, AfterValidator(_period)]
 Bytes = Annotated[int, AfterValidator(_bytes)]
 Ref = Annotated[int | str, PlainValidator(_ref)]
 Positive = Annotated[float, AfterValidator(_positive)]
@@ -137,6 +167,7 @@ class _Spec(BaseModel):
 class LinkSpec(_Spec):
     name: Name
     url: str
+    bandwidth_mbps: Positive | None = None   # what the link carries, for `skel check`'s traffic warning
 
     @field_validator("url")
     @classmethod
@@ -163,7 +194,7 @@ class DpuSpec(_Spec):
     cpu: Annotated[int, _between(0, MAX_ID)] | None = None
     compute: Literal["sleep", "wall", "cpu", "work"] = "sleep"
     executive: Literal["cyclic", "threads"] = "cyclic"
-    speed: Positive = 1.0
+    speed: Annotated[Positive, _within(contract.MIN_SPEED, contract.MAX_SPEED)] = 1.0
     minor_cycle_us: Micros | None = None
     links: list[Name] | None = None
 
@@ -232,7 +263,7 @@ class ProcessSpec(_Spec):
     id: Id
     name: Name
     dpu: Id
-    period_us: Micros       # sync: event: the least time between two of its cycles
+    period_us: Period       # sync: event: the least time between two of its cycles
     compute_us: Compute
     sync: Literal["periodic", "data", "event"] = "periodic"
     inputs: list[Ref] = []
@@ -252,7 +283,7 @@ class EventSpec(_Spec):
     dpu: Id | None = None                       # the generating DPU
     period_us: Micros | None = None             # periodic; bursts: between burst starts
     jitter_us: Annotated[int, _between(0, MAX_INT32, " us")] | None = None   # periodic
-    rate_hz: Positive | None = None             # poisson
+    rate_hz: Annotated[Positive, _within(contract.MIN_RATE_HZ, contract.MAX_RATE_HZ)] | None = None  # poisson
     count: Annotated[int, _between(1, MAX_INT32)] | None = None              # bursts
     spacing_us: Micros | None = None            # bursts
 
@@ -354,6 +385,7 @@ class Link:
     id: int                 # position in the file, from 1
     name: str
     url: str                # "local" or an udpm:// URL
+    bandwidth_mbps: float | None = None
 
     @property
     def local(self) -> bool:

@@ -74,6 +74,10 @@ def _state_file(url: str) -> Path:
     return state_dir() / f"up-{hashlib.sha1(url.encode()).hexdigest()[:10]}.json"
 
 
+# The line stop() appends to a daemon's log: how it ended.
+ENDED_NOTE = "skel: "
+
+
 @dataclass
 class Daemon:
     name: str
@@ -94,10 +98,13 @@ def _with_deadline(argv: list[str], deadline_s: float | None, signal_name: str) 
 
 
 def start_dpu(dpu_id: int, url: str, log_dir: Path, extra: list[str] | None = None,
-              detach: bool = False, deadline_s: float | None = None) -> Daemon:
+              detach: bool = False, deadline_s: float | None = None, key_file: Path | None = None) -> Daemon:
+    """Start one skel-dpu; with `key_file`, it signs and checks control with that key (the
+    path goes on its command line, never the key)."""
     log_dir.mkdir(parents=True, exist_ok=True)
     log_path = log_dir / f"dpu{dpu_id}.log"
-    argv = [str(dpu_binary()), "--id", str(dpu_id), "--url", url, *(extra or [])]
+    keyed = ["--key", str(key_file.resolve())] if key_file is not None else []
+    argv = [str(dpu_binary()), "--id", str(dpu_id), "--url", url, *keyed, *(extra or [])]
     with open(log_path, "ab") as log:
         process = subprocess.Popen(
             _with_deadline(argv, deadline_s, "TERM"),
@@ -131,12 +138,15 @@ def start_logger(url: str, path: Path, channels: str = LOGGED_CHANNELS,
 def stop(daemon: Daemon, timeout_s: float = 3.0) -> int | None:
     """SIGINT (the logger flushes on it, the DPU exits cleanly), then SIGKILL to its whole
     process group: under `timeout` (which leads a group of its own) killing the wrapper
-    alone would orphan a daemon stuck on its way out, e.g. a sanitizer's exit-time check."""
+    alone would orphan a daemon stuck on its way out, e.g. a sanitizer's exit-time check.
+    How it ended goes at the end of its log (ENDED_NOTE), so a run's logs say it."""
     if daemon.alive():
         daemon.process.send_signal(signal.SIGINT)
+        killed = False
         try:
             daemon.process.wait(timeout_s)
         except subprocess.TimeoutExpired:
+            killed = True
             pid = daemon.process.pid
             try:
                 leads_group = os.getpgid(pid) == pid
@@ -147,11 +157,23 @@ def stop(daemon: Daemon, timeout_s: float = 3.0) -> int | None:
             else:
                 daemon.process.kill()
             daemon.process.wait()
+        how = (f"did not exit within {timeout_s:g} s of SIGINT: killed" if killed
+               else f"exited with status {daemon.process.returncode}")
+        with open(daemon.log_path, "a") as log:
+            log.write(f"{ENDED_NOTE}{daemon.name} {how}\n")
     return daemon.process.returncode
 
 
+def bad_exit(daemon: Daemon) -> str | None:
+    """What was wrong with how a stopped daemon ended (None: it exited cleanly on SIGINT)."""
+    code = daemon.process.returncode
+    if code == 0:
+        return None
+    return "did not exit on SIGINT: killed" if code == -signal.SIGKILL else f"exited with status {code}"
+
+
 # --- skel up / skel down -------------------------------------------------------------
-def up(dpu_ids: list[int], url: str) -> list[int]:
+def up(dpu_ids: list[int], url: str, key_file: Path | None = None) -> list[int]:
     """Start detached DPUs for `dpu_ids` unless already up; return the ids started."""
     state = _read_state(url)
     running = {int(k): v for k, v in state.items() if _is_dpu_pid(v)}
@@ -159,7 +181,7 @@ def up(dpu_ids: list[int], url: str) -> list[int]:
     for dpu_id in dpu_ids:
         if dpu_id in running:
             continue
-        daemon = start_dpu(dpu_id, url, state_dir() / "logs", detach=True)
+        daemon = start_dpu(dpu_id, url, state_dir() / "logs", detach=True, key_file=key_file)
         running[dpu_id] = daemon.process.pid
         started.append(dpu_id)
     _state_file(url).write_text(json.dumps({"url": url, "dpus": running}))
@@ -204,13 +226,27 @@ def _read_state(url: str) -> dict[str, int]:
     return json.loads(path.read_text()).get("dpus", {}) if path.exists() else {}
 
 
+def argv_of(pid: int) -> list[bytes]:
+    """The command line of process `pid` ([] once it is gone)."""
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    except OSError:
+        return []
+
+
+def running(program: str) -> dict[int, list[bytes]]:
+    """Every running process whose executable's name ends with `program`: pid -> argv."""
+    found = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit() and (argv := argv_of(int(entry.name))) and argv[0].endswith(program.encode()):
+            found[int(entry.name)] = argv
+    return found
+
+
 def _is_dpu_pid(pid: int) -> bool:
     """True when pid is still a skel-dpu (pids are reused)."""
-    try:
-        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
-    except OSError:
-        return False
-    return b"skel-dpu" in cmdline.split(b"\0")[0]
+    argv = argv_of(pid)
+    return bool(argv) and b"skel-dpu" in argv[0]
 
 
 def _wait_gone(pid: int, timeout_s: float = 3.0) -> None:

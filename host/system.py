@@ -37,9 +37,9 @@ from .schema import (
     Run,
     SystemSpec,
 )
-from .yamlfile import SystemFileError, describe, field_path, read_yaml
+from .yamlfile import SystemFileError, describe, field_path, parse_yaml, read_yaml
 
-__all__ = ["System", "SystemFileError", "load"]
+__all__ = ["System", "SystemFileError", "load", "loads"]
 
 
 @dataclass(frozen=True)
@@ -138,6 +138,12 @@ def load(path: str | Path, overrides: Sequence[str] = ()) -> System:
     if overrides:
         return _build(path, doc, tuple(overrides))
     return _build(path, doc, (), text)
+
+
+def loads(text: str, path: str | Path) -> System:
+    """A system file's TEXT, validated as if it were the file at PATH (a `samples:` file is
+    looked for beside it): `skel allocate`'s candidates before they are written."""
+    return _build(path, parse_yaml(path, text), (), text)
 
 
 def _build(path: str | Path, doc: Any, overrides: tuple[str, ...], text: str | None = None) -> System:

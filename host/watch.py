@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 from rich.console import Console
@@ -26,6 +27,7 @@ from ..analysis.read.logreader import encode_events, read_bytes
 from ..analysis.read.messages import LogError
 from ..analysis.views.tables import print_report
 from .listener import CHANNELS, LOST_AFTER_S, Listener
+from .predict_view import predictor
 from .recordstore import RecordStore
 from .watch_view import render
 
@@ -38,8 +40,10 @@ class Heard:
     """What `skel watch` heard: a Listener following the newest run (with `keep_events`,
     --once, its first run only, and every message kept for the final analysis)."""
 
-    def __init__(self, keep_events: bool) -> None:
-        self.listener = Listener(auto_follow=True, stay=keep_events)
+    def __init__(self, keep_events: bool, key: bytes | None = None) -> None:
+        # A passive view, also of lcm-logplayer replaying a signed run: no freshness window.
+        self.listener = Listener(auto_follow=True, stay=keep_events, key=key, fresh_s=None)
+        self.key = key
         self.keep_events = keep_events
         self.events: list[tuple[int, str, bytes]] = []
         self.covered = 0  # records the last snapshot's tables cover
@@ -92,9 +96,12 @@ class Heard:
         self.listener.announce(report, running=flowing and not self.ended())
         return report
 
-    def final(self) -> RunReport:
-        """`skel report`'s analysis over an in-memory log of everything heard."""
-        return analyze_log(read_bytes(encode_events(self.events), "<heard>"), self.run_id).report
+    def final(self) -> tuple[RunReport, str | None]:
+        """`skel report`'s analysis over an in-memory log of everything heard, its prediction
+        beside it (a `samples:` file is looked for here), and why there is none."""
+        run = analyze_log(read_bytes(encode_events(self.events), "<heard>"), self.run_id, self.key)
+        missing = run.add_prediction(predictor(Path("system.yaml")))
+        return run.report, missing
 
 
 def _subscribe(url: str, heard: Heard) -> Any:
@@ -123,10 +130,11 @@ def _pump(lc: Any, until: float) -> None:
                 raise
 
 
-def watch_command(url: str, once: bool, duration_s: float | None, as_json: bool = False) -> int:
+def watch_command(url: str, once: bool, duration_s: float | None, as_json: bool = False,
+                  key: bytes | None = None) -> int:
     """`skel watch [--url URL] [--once [--json]] [--duration S]`: 0; 3 (--once) on a lockout or jam;
     1 when --once heard no run; 2 on a bad URL; 130 when ended by Ctrl-C or SIGTERM."""
-    heard = Heard(keep_events=once)
+    heard = Heard(keep_events=once, key=key)
     try:
         lc = _subscribe(url, heard)
     except Exception as e:  # lcm raises IOError/ValueError for a URL it cannot open
@@ -176,10 +184,12 @@ def _once(lc: Any, heard: Heard, url: str, deadline: float | None, as_json: bool
         print(f"skel watch: no run heard on {url}", file=sys.stderr)
         return EXIT_FAILED
     try:
-        report = heard.final()
+        report, missing = heard.final()
     except LogError as e:
         print(f"skel watch: run {heard.run_id}: {e}", file=sys.stderr)
         return EXIT_FAILED
+    if missing:
+        print(f"skel watch: run {heard.run_id}: {missing}", file=sys.stderr)
     if as_json:
         print(json.dumps(report.to_json(), indent=2))
     else:

@@ -8,8 +8,9 @@ This writes them as the C header the DPU includes and as the Python module
     contractgen.py --c DIR      lcmtypes/contract.txt  ->  DIR/skelmsg_contract.h
     contractgen.py --python DIR lcmtypes/contract.txt  ->  DIR/contract.py
 
-A line is `NAME = "text"` or `NAME = integer` (a product of integers allowed), then an
-optional `# comment`; blank lines and lines starting with `#` are skipped.
+A line is `NAME = "text"`, `NAME = integer` (a product of integers allowed) or `NAME = decimal`
+(`0.001`, `1e-6`: a limit on a double), then an optional `# comment`; blank lines and lines
+starting with `#` are skipped.
 """
 
 from __future__ import annotations
@@ -21,7 +22,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 INTEGER = r"[0-9][0-9_]*"
-LINE = re.compile(rf'(?P<name>[A-Z][A-Z0-9_]*)\s*=\s*(?P<value>"[^"\\]*"|{INTEGER}(?:\s*\*\s*{INTEGER})*)'
+DECIMAL = r"[0-9]+(?:\.[0-9]+(?:[eE]-?[0-9]+)?|[eE]-?[0-9]+)"  # a point or an exponent: never an integer
+LINE = re.compile(rf'(?P<name>[A-Z][A-Z0-9_]*)\s*=\s*'
+                  rf'(?P<value>"[^"\\]*"|{DECIMAL}|{INTEGER}(?:\s*\*\s*{INTEGER})*)'
                   r"\s*(?:#\s*(?P<doc>.*))?")
 C_PREFIX = "SKEL_"
 INT32_MAX = 2**31 - 1
@@ -30,7 +33,7 @@ INT32_MAX = 2**31 - 1
 @dataclass(frozen=True)
 class Constant:
     name: str
-    value: str | int
+    value: str | int | float
     written: str  # as in contract.txt: "4 * 1024 * 1024"
     doc: str
 
@@ -44,20 +47,24 @@ def parse(path: Path) -> list[Constant]:
             continue
         match = LINE.fullmatch(line)
         if match is None:
-            raise SystemExit(f"{path}:{number}: expected NAME = \"text\" or NAME = integer, got '{line}'")
+            raise SystemExit(f"{path}:{number}: expected NAME = \"text\", NAME = integer or NAME = decimal, "
+                             f"got '{line}'")
         name, written = match["name"], match["value"]
         if name in seen:
             raise SystemExit(f"{path}:{number}: {name} is defined twice")
         seen.add(name)
-        value: str | int = (written[1:-1] if written.startswith('"')
-                            else math.prod(int(f) for f in written.split("*")))
+        value: str | int | float = (written[1:-1] if written.startswith('"')
+                                    else float(written) if re.fullmatch(DECIMAL, written)
+                                    else math.prod(int(f) for f in written.split("*")))
         constants.append(Constant(name, value, written, (match["doc"] or "").strip()))
     return constants
 
 
-def c_literal(value: str | int) -> str:
+def c_literal(value: str | int | float) -> str:
     if isinstance(value, str):
         return f'"{value}"'
+    if isinstance(value, float):
+        return repr(value)  # a double literal ("0.001", "1e-06"), read back exactly
     return str(value) if value <= INT32_MAX else f"{value}LL"
 
 
@@ -76,7 +83,8 @@ def python_module(constants: list[Constant], source: str) -> str:
              'do not edit)."""', ""]
     for c in constants:
         comment = f"  # {c.doc}" if c.doc else ""
-        lines.append(f"{c.name} = {c_literal(c.value) if isinstance(c.value, str) else c.value}{comment}")
+        value = c_literal(c.value) if isinstance(c.value, str) else repr(c.value)
+        lines.append(f"{c.name} = {value}{comment}")
     return "\n".join([*lines, ""])
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import random
 import re
 import subprocess
 import sys
@@ -19,6 +20,7 @@ from pathlib import Path
 
 import lcm
 import pytest
+from hypothesis import settings
 
 import skelmsg
 from skeleton.host import spawn
@@ -27,7 +29,17 @@ from skelmsg.contract import DEFAULT_URL, TIMING_CHANNEL
 REPO = Path(__file__).resolve().parent.parent
 ASAN_DPU = REPO / "build" / "asan" / "skel-dpu"
 EXAMPLES = REPO / "examples"
-_ports = itertools.count(7700 + (os.getpid() % 400) * 4)
+# Property-based tests (Hypothesis): a hundred examples each in `make test`, thousands in
+# `make fuzz` (SKEL_HYPOTHESIS=fuzz). No deadline: a shared machine's pauses are not failures.
+settings.register_profile("test", max_examples=100, deadline=None)
+settings.register_profile("fuzz", max_examples=5000, deadline=None)
+settings.load_profile(os.environ.get("SKEL_HYPOTHESIS", "test"))
+
+# Each test gets a private port. A session takes a block of PORT_BLOCK ports of its own, drawn at
+# random: two test sessions on one machine (a CI clone and a developer's checkout) whose blocks
+# overlapped heard each other's DPUs and failed at random.
+PORT_BLOCK = 600
+_ports = itertools.count(10000 + random.SystemRandom().randrange((65000 - 10000) // PORT_BLOCK) * PORT_BLOCK)
 SANITIZER_ERROR = re.compile(rb"ERROR: AddressSanitizer|runtime error:|ERROR: LeakSanitizer")
 
 
@@ -49,9 +61,14 @@ def _asan_dpu(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("UBSAN_OPTIONS", "print_stacktrace=1:halt_on_error=1:exitcode=67")
 
 
+def fresh_url() -> str:
+    """A private ttl=0 URL: the next port of this session's block, heard by no other test."""
+    return f"udpm://239.255.76.67:{next(_ports)}?ttl=0"
+
+
 @pytest.fixture
 def url() -> str:
-    return f"udpm://239.255.76.67:{next(_ports)}?ttl=0"
+    return fresh_url()
 
 
 @pytest.fixture
@@ -86,15 +103,35 @@ class DpuFarm:
 
 @pytest.fixture
 def dpus(url: str, tmp_path: Path) -> Iterator[DpuFarm]:
+    """DPUs the test starts; stopped at its end, and judged by _dpus_ended_clean."""
     assert ASAN_DPU.exists(), f"{ASAN_DPU} missing: run `make test` (it builds it)"
     farm = DpuFarm(url, tmp_path / "dpu-logs")
     yield farm
-    codes = farm.stop_all()
-    for dpu_id, daemon in farm.daemons.items():
-        log = daemon.log_path.read_bytes().decode(errors="replace")
-        assert not SANITIZER_ERROR.search(log.encode()), f"DPU {dpu_id} sanitizer report:\n{log}"
-        if codes[dpu_id] is not None and codes[dpu_id] != -9:
-            assert codes[dpu_id] == 0, f"DPU {dpu_id} exited {codes[dpu_id]}:\n{log}"
+    farm.stop_all()
+
+
+def dpu_log_problems(root: Path) -> list[str]:
+    """Every DPU log under ROOT (DpuFarm's dpu-logs/, `skel run --spawn`'s logs/): sanitizer
+    reports, and how each DPU stopped when not cleanly (spawn.stop's note: a DPU stuck on
+    exit and killed, or a status other than 0). A DPU the test killed itself has no note."""
+    problems = []
+    for log in sorted(root.rglob("dpu*.log")):
+        text = log.read_bytes().decode(errors="replace")
+        if SANITIZER_ERROR.search(text.encode()):
+            problems.append(f"{log}: sanitizer report:\n{text[-6000:]}")
+        problems += [f"{log}: {line}\n{text[-3000:]}" for line in text.splitlines()
+                     if line.startswith(spawn.ENDED_NOTE) and not line.endswith("exited with status 0")]
+    return problems
+
+
+@pytest.fixture(autouse=True)
+def _dpus_ended_clean(tmp_path: Path) -> Iterator[None]:
+    """Every test that starts DPUs, itself or through `skel run --spawn`, fails on a
+    sanitizer report or a DPU that did not exit cleanly when stopped."""
+    yield
+    problems = dpu_log_problems(tmp_path)
+    if problems:
+        pytest.fail("\n".join(problems), pytrace=False)
 
 
 def faults_but_stalls(report: dict) -> list[dict]:
@@ -206,7 +243,7 @@ def short_servo_run(out: Path, speed: int = 3) -> subprocess.CompletedProcess[st
     """A real SERVO run of 300 cycles (sanitizer DPUs, a private port) into `out`. Speed 3
     (~30 % load) keeps a busy shared machine from locking it out."""
     assert ASAN_DPU.exists(), f"{ASAN_DPU} missing: run `make test` (it builds it)"
-    url = f"udpm://239.255.76.67:{next(_ports)}?ttl=0"
+    url = fresh_url()
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("SKEL_DPU", str(ASAN_DPU))
         fast = [arg for d in (1, 2, 3, 4) for arg in ("-s", f"dpu.{d}.speed={speed}")]

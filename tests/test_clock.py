@@ -6,7 +6,7 @@ import json
 import threading
 
 import lcm
-from conftest import DpuFarm, _ports, skel
+from conftest import DpuFarm, fresh_url, skel
 
 import skelmsg
 from skeleton.host import clock
@@ -74,6 +74,6 @@ def test_skel_clock_command(dpus: DpuFarm, url: str) -> None:
     assert abs(rows[4]["offset_ns"] - 2_500_000) < TOLERANCE_NS, rows
     table = skel("clock", "--url", url)
     assert table.returncode == 0 and "offset" in table.stdout, table.stdout + table.stderr
-    empty = f"udpm://239.255.76.67:{next(_ports)}?ttl=0"  # a private port no DPU listens on
+    empty = fresh_url()  # a private port no DPU listens on
     nobody = skel("clock", "--url", empty, "--wait", "0.3")
     assert nobody.returncode == 1 and "no DPU" in nobody.stdout + nobody.stderr

@@ -36,11 +36,11 @@ def _contractgen() -> ModuleType:
     return module
 
 
-def _source() -> dict[str, str | int]:
+def _source() -> dict[str, str | int | float]:
     return {c.name: c.value for c in _contractgen().parse(SOURCE)}
 
 
-def _c_values(tmp_path: Path, names: list[str]) -> dict[str, str | int]:
+def _c_values(tmp_path: Path, names: list[str]) -> dict[str, str | int | float]:
     """Each SKEL_<name> as a C file that includes dpu.h sees it."""
     prints = "\n".join(f'    P("{name}", SKEL_{name});' for name in names)
     program = tmp_path / "contract.c"
@@ -50,7 +50,9 @@ def _c_values(tmp_path: Path, names: list[str]) -> dict[str, str | int]:
 
 static void p_text(const char *name, const char *v) {{ printf("%s s %s\\n", name, v); }}
 static void p_int(const char *name, long long v) {{ printf("%s i %lld\\n", name, v); }}
-#define P(name, v) _Generic((v), char *: p_text, const char *: p_text, default: p_int)(name, v)
+static void p_real(const char *name, double v) {{ printf("%s f %.17g\\n", name, v); }}
+#define P(name, v) \\
+    _Generic((v), char *: p_text, const char *: p_text, double: p_real, default: p_int)(name, v)
 
 int main(void)
 {{
@@ -67,10 +69,10 @@ int main(void)
                            capture_output=True, text=True)
     assert built.returncode == 0, built.stderr
     out = subprocess.run([str(binary)], capture_output=True, text=True, check=True).stdout
-    values: dict[str, str | int] = {}
+    values: dict[str, str | int | float] = {}
     for line in out.splitlines():
         name, kind, value = line.split(" ", 2)
-        values[name] = value if kind == "s" else int(value)
+        values[name] = value if kind == "s" else float(value) if kind == "f" else int(value)
     return values
 
 

@@ -12,7 +12,7 @@ import json
 from pathlib import Path
 
 import pytest
-from conftest import _ports, faults_but_stalls, skel
+from conftest import faults_but_stalls, fresh_url, skel
 
 from skeleton.analysis.measure.faults import recv_buf_needed
 from skeleton.host.doctor import rmem_max
@@ -41,7 +41,7 @@ run: {{warmup_cycles: 5, lockout_cycles: 10, stop_on: [lockout]}}
 
 
 def _big_url(extra: str = "") -> str:
-    return f"udpm://239.255.76.67:{next(_ports)}?ttl=0{extra}"
+    return fresh_url() + extra
 
 
 def test_a_dpu_sizes_its_socket_for_a_large_buffer_and_it_arrives(tmp_path: Path, url: str) -> None:

@@ -10,6 +10,7 @@ from pathlib import Path
 import lcm
 import numpy as np
 import pandas as pd
+import pytest
 from conftest import EXAMPLES, skel, skel_background
 
 import skeleton
@@ -37,13 +38,16 @@ def _cycles(out: Path) -> pd.DataFrame:
     return skeleton.load_run(out).timing.to_pandas()
 
 
+# Both ways of the tasking executive: its own schedule (sleep), SCHED_FIFO kernel threads (cpu).
+MODES = pytest.mark.parametrize("compute", ["sleep", "cpu"])
+
 # One tasking DPU, two processes awaiting the same bursts of 5 events 0.5 ms apart. Each may
 # run once per 50 ms, so a burst leaves 4 events waiting: `queue: 1` keeps only the newest
 # (3 dropped, and its second cycle handles the burst's last event), `queue: 2` keeps the two
 # oldest (2 dropped, events handled in order).
 BURSTS = """\
 system: bursts
-dpus: [{id: 1, executive: threads}]
+dpus: [{id: 1, executive: threads, compute: COMPUTE}]
 processes:
   - {id: 1, name: newest, dpu: 1, period_us: 50000, compute_us: 200, sync: event, event: burst, queue: 1}
   - {id: 2, name: oldest, dpu: 1, period_us: 50000, compute_us: 200, sync: event, event: burst, queue: 2}
@@ -53,9 +57,12 @@ run: {duration_s: 2.1, warmup_cycles: 0, lockout_cycles: 1000, stop_on: []}
 """
 
 
-def test_a_queue_keeps_the_newest_or_the_oldest_and_counts_what_it_drops(tmp_path: Path, url: str) -> None:
+@MODES
+def test_a_queue_keeps_the_newest_or_the_oldest_and_counts_what_it_drops(tmp_path: Path, url: str,
+                                                                        compute: str) -> None:
     out = tmp_path / "run"
-    run = skel("run", str(_write(tmp_path, "bursts", BURSTS)), "--spawn", "--url", url, "--out", str(out))
+    path = _write(tmp_path, "bursts", BURSTS.replace("COMPUTE", compute))
+    run = skel("run", str(path), "--spawn", "--url", url, "--out", str(out))
     assert run.returncode in (0, 1), run.stdout + run.stderr
     cycles = _cycles(out)
     sent = _events(out, "burst")
@@ -74,14 +81,17 @@ def test_a_queue_keeps_the_newest_or_the_oldest_and_counts_what_it_drops(tmp_pat
             assert len(burst) == handled, (name, b, burst)
             assert burst.event_dropped.sum() == dropped, (name, b, burst)
             kept[name, b] = burst.event_ns.to_numpy()
-            # The first runs at once; the next waits for its period, 50 ms after the first.
+            # The first runs at once; the next waits for its period, 50 ms after the first (the
+            # burst's events themselves may come late from a loaded generator thread).
             latency = (burst.start_ns - burst.event_ns).to_numpy() / MS
+            starts_ms = burst.start_ns.to_numpy() / MS
             assert latency[0] < 5, (name, b, latency)
-            assert 45 < latency[1] < 55, (name, b, latency)
+            assert 49 < starts_ms[1] - starts_ms[0] < 55, (name, b, starts_ms - starts_ms[0])
     for b in range(9):
         newest, oldest = kept["newest", b], kept["oldest", b]
         assert newest[1] >= starts[b] + 2 * MS, (b, newest - starts[b])  # the newest: the burst's last
-        assert (np.diff(oldest) > 0).all() and oldest[-1] < newest[1], (b, oldest, newest)  # the oldest
+        assert (np.diff(oldest) >= 0).all() and oldest[-1] < newest[1], (b, oldest, newest)  # the oldest, in
+        # order (two a loaded generator sent together may share a microsecond stamp)
         assert oldest[0] <= newest[0], (b, oldest, newest)
     report = skel("report", str(out), "--json")
     assert report.returncode == 0, report.stderr
@@ -92,7 +102,7 @@ def test_a_queue_keeps_the_newest_or_the_oldest_and_counts_what_it_drops(tmp_pat
 # DPU awaits it with the highest priority, preempting the servo loop there.
 CHAIN = """\
 system: chain
-dpus: [{id: 1}, {id: 2, executive: threads}]
+dpus: [{id: 1}, {id: 2, executive: threads, compute: COMPUTE}]
 buffers: [{id: 1, name: frame, bytes: 64}]
 processes:
   - {id: 1, name: sensor, dpu: 1, period_us: 2000, compute_us: 300, sync: event, event: pulse, queue: 8,
@@ -105,17 +115,18 @@ run: {duration_s: 2, warmup_cycles: 10, seed: SEED}
 """
 
 
-def _chain_run(tmp_path: Path, url: str, seed: int, tag: str) -> Path:
+def _chain_run(tmp_path: Path, url: str, seed: int, tag: str, compute: str = "sleep") -> Path:
     out = tmp_path / tag
-    path = _write(tmp_path, tag, CHAIN.replace("SEED", str(seed)))
+    path = _write(tmp_path, tag, CHAIN.replace("SEED", str(seed)).replace("COMPUTE", compute))
     run = skel("run", str(path), "--spawn", "--url", url, "--out", str(out))
     assert run.returncode in (0, 1), run.stdout + run.stderr
     return out
 
 
-def test_generated_and_emitted_events_each_run_one_cycle_and_a_seed_repeats_them(tmp_path: Path,
-                                                                                url: str) -> None:
-    out = _chain_run(tmp_path, url, 7, "a")
+@MODES
+def test_generated_and_emitted_events_each_run_one_cycle_and_a_seed_repeats_them(tmp_path: Path, url: str,
+                                                                                compute: str) -> None:
+    out = _chain_run(tmp_path, url, 7, "a", compute)
     cycles = _cycles(out)
     pulses = _events(out, "pulse")
     sensor = cycles[cycles.process_name == "sensor"]

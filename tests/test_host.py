@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import EXAMPLES, DpuFarm, skel, skel_background
+from conftest import EXAMPLES, DpuFarm, dpu_log_problems, skel, skel_background
 
 from skeleton.analysis.read.messages import open_run_log
 from skeleton.analysis.read.records import FLAG_SKIPPED, load_records
@@ -100,17 +100,7 @@ def test_dpu_killed_mid_run_is_reported_and_the_others_are_analysed(dpus: DpuFar
 
 def _logger_pids(log: Path) -> list[int]:
     """lcm-logger processes writing `log` (found by command line: the host tool that started them is dead)."""
-    pids = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            argv = (entry / "cmdline").read_bytes().split(b"\0")
-        except OSError:
-            continue
-        if argv and argv[0].endswith(b"lcm-logger") and str(log).encode() in argv:
-            pids.append(int(entry.name))
-    return pids
+    return [pid for pid, argv in spawn.running("lcm-logger").items() if str(log).encode() in argv]
 
 
 def test_host_tool_killed_mid_run_dpus_finish_and_the_logger_keeps_recording(dpus: DpuFarm, url: str,
@@ -182,26 +172,35 @@ def test_bad_options_are_one_line_exit_2(tmp_path: Path, url: str) -> None:
         assert len(done.stderr.strip().splitlines()) == 1 and "Traceback" not in done.stderr, done.stderr
 
 
-def test_a_daemon_stuck_on_its_way_out_is_killed_not_orphaned(tmp_path: Path,
+def test_a_daemon_stuck_on_its_way_out_is_killed_not_orphaned(tmp_path_factory: pytest.TempPathFactory,
                                                                monkeypatch: pytest.MonkeyPatch) -> None:
     """`skel run --spawn` stops its DPUs with SIGINT; one that does not exit (here: it
-    ignores the signal) is killed with the `timeout` wrapper around it, not left behind."""
-    stuck = tmp_path / "stuck-dpu"
-    pid_file = tmp_path / "pid"
-    stuck.write_text(f"#!/bin/sh\ntrap '' INT TERM\necho $$ > {pid_file}\nwhile :; do sleep 0.1; done\n")
+    ignores the signal) is killed with the `timeout` wrapper around it, not left behind, and
+    its log says so: what fails every DPU-starting test (conftest's _dpus_ended_clean), as a
+    sanitizer's line does. (In a directory of its own: under tmp_path it would fail this test.)"""
+    root = tmp_path_factory.mktemp("stuck")
+    stuck = root / "stuck-dpu"
+    pid_file = root / "pid"
+    stuck.write_text(f"#!/bin/sh\ntrap '' INT TERM\necho 'dpu.c:1:2: runtime error: shift exponent 64'\n"
+                     f"echo $$ > {pid_file}\nwhile :; do sleep 0.1; done\n")
     stuck.chmod(0o755)
     monkeypatch.setenv("SKEL_DPU", str(stuck))
-    daemon = spawn.start_dpu(1, DEFAULT_URL, tmp_path, deadline_s=60)
+    daemon = spawn.start_dpu(1, DEFAULT_URL, root, deadline_s=60)
     deadline = time.monotonic() + 5
     while not pid_file.exists() or not pid_file.read_text().strip():
         assert time.monotonic() < deadline, "the stand-in DPU did not start"
         time.sleep(0.05)
     pid = int(pid_file.read_text())
-    spawn.stop(daemon, timeout_s=0.5)
+    assert spawn.stop(daemon, timeout_s=0.5) == -signal.SIGKILL
     deadline = time.monotonic() + 5
     while _alive(pid) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not _alive(pid), f"process {pid} outlived skel's stop"
+    assert spawn.bad_exit(daemon) == "did not exit on SIGINT: killed"
+    problems = dpu_log_problems(root)
+    assert len(problems) == 2, problems
+    assert "sanitizer report" in problems[0]
+    assert "dpu 1 did not exit within 0.5 s of SIGINT: killed" in problems[1]
 
 
 def _alive(pid: int) -> bool:
@@ -320,3 +319,4 @@ def test_a_push_says_what_each_dpu_did_with_it(dpus: DpuFarm, url: str, tmp_path
             f"{generation} (running)") in partial.stderr, partial.stderr
     assert f"generation {g} was committed: applied by DPU 1; not by DPU 2" in partial.stderr
     assert "nothing was committed" not in partial.stderr
+

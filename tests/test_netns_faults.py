@@ -18,6 +18,8 @@ from conftest import EXAMPLES, Background
 from netns import Hosts, hosts_fixture
 from test_netns_lab import PORT, URL, Lab, host_overrides, report_json, stop, wait_until
 
+from skeleton.host.spawn import argv_of
+
 netns_three_hosts = hosts_fixture(3)
 netns_four_hosts = hosts_fixture(4)
 
@@ -177,7 +179,7 @@ def test_netns_host_tool_killed_dpus_and_logger_finish_the_run(netns_three_hosts
     for log in lab.dpu_logs:
         wait_until(lambda log=log: _log_has(log, r"run \d+ ended"), 10, f"{log.name}: run did not end")
     time.sleep(0.5)  # the DPUs' last batches and reports, then the logger's 50 ms flush
-    logger = [pid for pid in _pids(netns_three_hosts, tool) if b"lcm-logger" in _cmdline(pid)]
+    logger = [pid for pid in _pids(netns_three_hosts, tool) if b"lcm-logger" in b"\0".join(argv_of(pid))]
     assert logger, "the host tool's logger died with it"
 
     report = report_json(lab, tool, out / "run.lcm")
@@ -195,13 +197,6 @@ def _pids(hosts: Hosts, host: str) -> list[int]:
     done = subprocess.run(["ip", "netns", "pids", hosts.netns(host)], capture_output=True, text=True,
                           check=True)
     return [int(p) for p in done.stdout.split()]
-
-
-def _cmdline(pid: int) -> bytes:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes()
-    except OSError:
-        return b""
 
 
 @pytest.mark.parametrize("order", ["dpus_first", "host_tool_first"])

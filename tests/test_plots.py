@@ -10,7 +10,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import ASAN_DPU, EXAMPLES, _ports, skel
+from conftest import ASAN_DPU, EXAMPLES, fresh_url, skel
 
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.views.export_mcap import export
@@ -23,7 +23,7 @@ ALL_PLOTS = ["utilization.png", "timeline.png", "schedule.png", "release_latency
 
 
 def _run(out: Path, system: Path, *extra: str) -> Path:
-    url = f"udpm://239.255.76.67:{next(_ports)}?ttl=0"
+    url = fresh_url()
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("SKEL_DPU", str(ASAN_DPU))
         run = skel("run", str(system), "--spawn", "--url", url, "--out", str(out), *extra)

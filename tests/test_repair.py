@@ -16,6 +16,7 @@ from pathlib import Path
 from conftest import Background, skel_background
 
 from skeleton.host.repair import RESTARTS_MAX, SeenBatches, seq_ranges
+from skeleton.host.spawn import running
 
 # Two DPUs, 1000 records a second each: ~20 timing batches a second of ~4.5 kB (four
 # datagrams), ~250 kB/s of the logger's socket buffer (net.core.rmem_default, 208 kB
@@ -37,14 +38,9 @@ def _logger_pid(log: Path, timeout_s: float) -> int:
     """The real lcm-logger binary writing `log` (not the `timeout` that wraps it)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        for proc in Path("/proc").iterdir():
-            try:
-                if (proc / "comm").read_text().strip() != "lcm-logger":
-                    continue
-                if str(log) in (proc / "cmdline").read_bytes().decode(errors="replace"):
-                    return int(proc.name)
-            except (OSError, ValueError):
-                continue
+        for pid, argv in running("lcm-logger").items():
+            if str(log).encode() in argv:
+                return pid
         time.sleep(0.05)
     raise AssertionError(f"no lcm-logger writing {log} within {timeout_s} s")
 

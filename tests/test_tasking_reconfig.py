@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pandas as pd
+import pytest
 from conftest import DpuFarm, TimingTap, skel, skel_background
 from test_dpu_reconfig import _stage
 
@@ -152,10 +153,16 @@ def _switch_instant(done: Switched) -> int:
     return first_new
 
 
-def test_live_compute_change_of_a_tasking_dpu_carries_its_jobs_over(dpus: DpuFarm, url: str,
-                                                                    tmp_path: Path) -> None:
-    before = _system(tmp_path, url)
-    after = _system(tmp_path, url, "process.p1.compute_us=4000")
+# Every test runs both ways of the tasking executive: its own schedule (sleep) and SCHED_FIFO
+# kernel threads pinned to one CPU (cpu), where the kernel preempts.
+MODES = pytest.mark.parametrize("compute", ["sleep", "cpu"])
+
+
+@MODES
+def test_live_compute_change_of_a_tasking_dpu_carries_its_jobs_over(dpus: DpuFarm, url: str, tmp_path: Path,
+                                                                    compute: str) -> None:
+    before = _system(tmp_path, url, f"dpu.1.compute={compute}")
+    after = _system(tmp_path, url, f"dpu.1.compute={compute}", "process.p1.compute_us=4000")
     done = _switch(dpus, url, 6161, before, after)
     _clean(done)
     # p2's release at the switch point's hyperperiod start is the last of the old generation;
@@ -181,16 +188,26 @@ def test_live_compute_change_of_a_tasking_dpu_carries_its_jobs_over(dpus: DpuFar
     assert by_id[1].cycles > len(new) and by_id[1].cycles >= len(p1) - 10
 
 
+def _never(preemptions: list[int], compute: str) -> bool:
+    """Not preempted: never in sleep mode (the DPU's own schedule); on kernel threads a rare
+    switch of the machine's own (another real-time thread on that CPU) is let pass."""
+    assert preemptions
+    share = sum(1 for n in preemptions if n) / len(preemptions)
+    return share == 0 if compute == "sleep" else share <= 0.02
+
+
 def _preempted(records: list[Rec], process: int, lo: int, hi: int) -> list[int]:
     """Preemptions of each job of `process` released in [lo, hi), unstalled."""
     return [r.preemptions for r in records
             if r.process == process and lo <= r.release_ns < hi and r.stall_ns <= STALL_NS]
 
 
-def test_live_priority_swap_changes_which_process_is_preempted(dpus: DpuFarm, url: str,
-                                                               tmp_path: Path) -> None:
-    before = _system(tmp_path, url)  # rate-monotonic: p1 first
-    after = _system(tmp_path, url, "process.p1.priority=10", "process.p2.priority=20")
+@MODES
+def test_live_priority_swap_changes_which_process_is_preempted(dpus: DpuFarm, url: str, tmp_path: Path,
+                                                               compute: str) -> None:
+    before = _system(tmp_path, url, f"dpu.1.compute={compute}")  # rate-monotonic: p1 first
+    after = _system(tmp_path, url, f"dpu.1.compute={compute}", "process.p1.priority=10",
+                    "process.p2.priority=20")
     done = _switch(dpus, url, 6262, before, after)
     _clean(done)
     _contiguous(done.records, 1)
@@ -206,21 +223,22 @@ def test_live_priority_swap_changes_which_process_is_preempted(dpus: DpuFarm, ur
         assert {j.task for j in jobs if j.preemptions} == {1}, (first, jobs)
     end = max(r.release_ns for r in done.records)
     early, late = (done.t0 + 2 * HYPER_NS, done.at - 2 * MS), (done.at + HYPER_NS, end - HYPER_NS)
-    assert set(_preempted(done.records, 1, *early)) == {0}
-    assert max(_preempted(done.records, 2, *early)) == 1
-    assert set(_preempted(done.records, 2, *late)) == {0}
-    assert max(_preempted(done.records, 1, *late)) == 1
+    assert _never(_preempted(done.records, 1, *early), compute)
+    assert 1 in _preempted(done.records, 2, *early)
+    assert _never(_preempted(done.records, 2, *late), compute)
+    assert 1 in _preempted(done.records, 1, *late)
 
 
-def test_live_switch_adds_and_removes_processes_of_a_tasking_dpu(dpus: DpuFarm, url: str,
-                                                                 tmp_path: Path) -> None:
-    before = _system(tmp_path, url)
+@MODES
+def test_live_switch_adds_and_removes_processes_of_a_tasking_dpu(dpus: DpuFarm, url: str, tmp_path: Path,
+                                                                 compute: str) -> None:
+    before = _system(tmp_path, url, f"dpu.1.compute={compute}")
     # p2 leaves, p3 (T = 20 ms) comes: it releases on its period's grid since the run's start.
     path = tmp_path / "after.yaml"
     path.write_text(SYSTEM.format(url=url).replace(
         "  - {id: 2, name: p2, dpu: 1, period_us: 12000, compute_us: 3000}",
         "  - {id: 3, name: p3, dpu: 1, period_us: 20000, compute_us: 5000}"))
-    after = load(path, []).with_url(url)
+    after = load(path, [f"dpu.1.compute={compute}"]).with_url(url)
     done = _switch(dpus, url, 6363, before, after)
     _clean(done)
     _contiguous(done.records, 1)
@@ -282,11 +300,17 @@ def _data_system(tmp_path: Path, url: str, reader_us: int, duration_s: float = 2
     return path
 
 
-def test_live_switch_carries_a_job_waiting_for_its_data(dpus: DpuFarm, url: str, tmp_path: Path) -> None:
+@MODES
+def test_live_switch_carries_a_job_waiting_for_its_data(dpus: DpuFarm, url: str, tmp_path: Path,
+                                                        compute: str) -> None:
     # The writer's buffer comes about 3.5 ms after each 10 ms release (DPU 1: fast1 runs first
     # and preempts it once), so at the grid point 2.5 ms into a period the reader's job waits.
-    before = load(_data_system(tmp_path, url, 1000), []).with_url(url)
-    after = load(_data_system(tmp_path, url, 500), []).with_url(url)
+    # On kernel threads each DPU is a CPU of its own.
+    mode = [f"dpu.{d}.compute={compute}" for d in (1, 2)]
+    if compute != "sleep":
+        mode += ["dpu.1.cpu=0", "dpu.2.cpu=1"]
+    before = load(_data_system(tmp_path, url, 1000), mode).with_url(url)
+    after = load(_data_system(tmp_path, url, 500), mode).with_url(url)
     done = _switch(dpus, url, 6565, before, after, ids=(1, 2), periods=DATA_PERIODS, hyper_ns=10 * MS,
                    at_ns=2_500_000)
     _clean(done)

@@ -15,7 +15,7 @@ from pathlib import Path
 import lcm
 import numpy as np
 from analysis_synth import RUN_ID, batches, small_config, small_run, status
-from conftest import EXAMPLES, LOCKOUT_SYSTEM, REPO, skel
+from conftest import EXAMPLES, LOCKOUT_SYSTEM, REPO, fresh_url, skel
 from rich.console import Console
 
 from skeleton.analysis.measure.report import build_report
@@ -30,14 +30,6 @@ ENV = {**os.environ, "COLUMNS": "160"}
 
 
 
-def _other_url(url: str, shift: int = 20000) -> str:
-    """A second private ttl=0 URL: the port moved out of the range the `url` fixture
-    hands out (so no other test's run is heard there)."""
-    match = re.fullmatch(r"udpm://([\d.]+):(\d+)\?ttl=0", url)
-    assert match, url
-    return f"udpm://{match.group(1)}:{int(match.group(2)) + shift}?ttl=0"
-
-
 def _watch(*args: str) -> subprocess.Popen[str]:
     return subprocess.Popen([sys.executable, "-m", "skeleton.host.cli", "watch", *args], cwd=REPO, env=ENV,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -47,9 +39,9 @@ def _replay_and_compare(log: Path, url: str) -> tuple[subprocess.CompletedProces
     """Replay `log` on a private URL while `skel watch --once` listens there. A replay
     is UDP too: when the watch itself reports batches lost on the way (a machine
     flooded by other tests), that replay proves nothing, and it is replayed once more."""
-    report, out, err = _replay_once(log, _other_url(url))
+    report, out, err = _replay_once(log, fresh_url())
     if out != report.stdout and "timing batches lost" in out:
-        report, out, err = _replay_once(log, _other_url(url, 30000))
+        report, out, err = _replay_once(log, fresh_url())
     return report, out, err
 
 

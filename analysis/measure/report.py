@@ -18,6 +18,7 @@ from .chains import ChainMetrics
 from .faults import Fault, Heartbeat, dpu_lost_faults, heartbeats_from_status, lockouts_from_status
 from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets
 from .metrics import DpuMetrics, ProcessMetrics, measured
+from .predicted import Predicted
 from .windows import WindowReport, build_window, split_lockouts, window_records
 
 COMPUTE_MODES = {0: "sleep", 1: "wall", 2: "cpu", 3: "work"}
@@ -33,6 +34,9 @@ class IntegrityReport:
     lost_batches: list[dict[str, int]]
     malformed: dict[str, int]  # channel -> messages that failed to decode (skipped)
     duplicate_batches: int = 0
+    signed: bool = False         # the run's messages carry seals (a key was in use)
+    checked: bool = False        # ... and the analysis had that key: only genuine messages used
+    unauthenticated: int = 0     # messages the key check left out
 
     @property
     def damaged(self) -> bool:
@@ -65,6 +69,9 @@ class RunReport:
     chains: list[ChainMetrics] = field(default_factory=list)
     windows: list[WindowReport] = field(default_factory=list)
     clock_offsets: dict[int, int] = field(default_factory=dict)  # DPU -> last offset estimate (ns)
+    # the prediction of the report generation's system file beside its figures: `skel run` and
+    # `skel report` add it (RunAnalysis.add_prediction), since only the host tool can predict
+    predicted: Predicted | None = None
 
     @property
     def fatal(self) -> bool:
@@ -158,6 +165,9 @@ def build_report(
             lost_batches=run.lost_batches,
             malformed={k: v for k, v in sorted((malformed or {}).items()) if v},
             duplicate_batches=run.duplicates,
+            signed=integ.signed,
+            checked=integ.checked,
+            unauthenticated=integ.unauthenticated,
         ),
         dpus=last.dpus,
         processes=last.processes,

@@ -27,9 +27,11 @@ from skelmsg.contract import CONFIG_CHANNEL, TIMING_CHANNEL
 from ..read.logreader import Log
 from ..read.messages import LogError, Messages, open_run_log, read_messages
 from ..read.records import Heads, RunRecords, load_records, run_ids, timing_heads
+from ..read.seal import KeyFileError, authenticate
 from .columns import Table, faults_table, receptions_table, report_tables, timing_table
 from .faults import heartbeats_from_status
 from .latency import ClockOffsets
+from .predicted import Predictor, beside
 from .report import RunReport, build_report
 
 NO_CONFIG = f"{TIMING_CHANNEL} (no config for its generation)"
@@ -83,6 +85,20 @@ class RunAnalysis:
         offsets = np.vectorize(lambda d: self.utc_offset_ns.get(int(d), 0), otypes=[np.int64])(dpus)
         return np.asarray(mono_ns, dtype=np.int64) + offsets
 
+    def add_prediction(self, predictor: Predictor) -> str | None:
+        """Lays the prediction of the report generation's system file (the one its config_t
+        carries) beside the report's figures, as report.predicted; None, or why there is none."""
+        if not self.config.source:
+            return "no prediction: the run's configuration carries no system file"
+        try:
+            prediction = predictor(self.config.source)
+        except ValueError as e:
+            return f"no prediction: {e}"
+        rep = self.report
+        rep.predicted = beside(prediction, rep.generation, self.config.late_pct, rep.dpus, rep.processes,
+                               rep.chains)
+        return None
+
     def process_names(self) -> dict[int, str]:
         return {p.id: p.name for p in self.config.processes}
 
@@ -117,18 +133,24 @@ class RunAnalysis:
                 "faults": self.faults}
 
 
-def load_run(path: str | os.PathLike[str], run_id: int | None = None) -> RunAnalysis:
+def load_run(path: str | os.PathLike[str], run_id: int | None = None,
+             key: bytes | None = None) -> RunAnalysis:
     """A run (default: the last with timing records) of an .lcm log, a run directory (its
     run.lcm) or an MCAP from `skel export`. Raises LogError (one line for the user) when
-    the file cannot be analysed."""
-    return analyze_log(open_run_log(path), run_id)
+    the file cannot be analysed. With the `key` of a signed run, only its genuine messages
+    are analysed (analysis/read/seal.py)."""
+    return analyze_log(open_run_log(path), run_id, key)
 
 
-def analyze_log(log: Log, run_id: int | None = None) -> RunAnalysis:
+def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None) -> RunAnalysis:
     if log.size == 0:
         raise LogError("empty file")
     if len(log) == 0:
         raise LogError("not an LCM log (no event found)")
+    try:
+        log, _ = authenticate(log, key)
+    except KeyFileError as e:
+        raise LogError(str(e)) from e
     heads = timing_heads(log)
     runs = run_ids(log, heads)
     if not runs:

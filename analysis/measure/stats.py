@@ -37,11 +37,15 @@ def latency_us(samples_us: np.ndarray) -> LatencyUs:
 def histogram(samples: np.ndarray, bins: int = HISTOGRAM_BINS) -> Histogram:
     """An equal-width histogram from the smallest to the largest sample (a 1-wide
     range around the value when they are all equal)."""
+    samples = samples[np.isfinite(samples)]
     if len(samples) == 0:
         return Histogram()
     low, high = float(samples.min()), float(samples.max())
-    if high <= low:
-        low, high = low - 0.5, high + 0.5
+    # Equal values, or values so large that their range holds no `bins` distinct edges (a
+    # damaged record's 1e18 ns: Hypothesis found numpy refusing it): a range wide enough.
+    pad = max(0.5, abs(low) * 1e-12 * bins, abs(high) * 1e-12 * bins)
+    if high - low < pad:
+        low, high = low - pad, high + pad
     counts, edges = np.histogram(samples, bins=bins, range=(low, high))
     return Histogram([round(float(e), 3) for e in edges], [int(c) for c in counts])
 

@@ -126,7 +126,9 @@ def decode_many(layout: FlatLayout, buf: np.ndarray, starts: np.ndarray, lengths
         else:
             n = scalars[step.length]
             ok &= n >= 0
-            n = np.where(ok, n, 0)
+            # int64 before multiplying: an int32 length of 2**30 times 8 bytes wrapped negative,
+            # passed the size check and asked for a 39 GiB column (a flipped bit, Hypothesis)
+            n = np.where(ok, n, 0).astype(np.int64)
             placed.append((step, pos))
             pos = pos + n * step.dtype.itemsize * len(step.names)
             ok &= pos <= end

@@ -49,6 +49,11 @@ class Integrity:
     events: int
     corrupt_ranges: list[tuple[int, int]] = field(default_factory=list)
     truncated_tail: bool = False
+    # Signed control (seal.py's authenticate): the run was signed; a key checked it; the
+    # messages it left out (unsigned, forged or replayed: injected into the log or the group).
+    signed: bool = False
+    checked: bool = False
+    unauthenticated: int = 0
 
     @property
     def corrupt_bytes(self) -> int:
@@ -164,6 +169,14 @@ def _walk(
     while pos < size:
         found, found_head = _follow(mem, buf, pos, size, runs)
         good, head, bad_at = _verify(buf, found, found_head, size)
+        if bad_at is not None and len(good):
+            # The damage may be the last good event's own length (a flipped bit), which then
+            # pointed into the middle of the next event: when a real event starts inside its
+            # span, that length lied, and the event it swallowed is recovered (Hypothesis found
+            # a bit flip that lost an untouched event this way).
+            inside = _resync(raw, mem, int(good[-1]) + 1, size)
+            if inside is not None and inside < bad_at:
+                good, head, bad_at = good[:-1], head[:-1], int(good[-1])
         chunks.append(good)
         heads.append(head)
         if bad_at is None:

@@ -60,6 +60,9 @@ def read_as_log(path: str | os.PathLike[str]) -> Log:
         events=int(info["lcm_events"]),
         corrupt_ranges=[(int(a), int(b)) for a, b in json.loads(info["corrupt_ranges"])],
         truncated_tail=bool(json.loads(info["truncated_tail"])),
+        signed=bool(json.loads(info.get("signed", "false"))),
+        checked=bool(json.loads(info.get("checked", "false"))),
+        unauthenticated=int(info.get("unauthenticated", "0")),
     )
     return _log(os.fspath(path), events, integrity)
 

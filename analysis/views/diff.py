@@ -104,12 +104,13 @@ def diff_reports(
     }
 
 
-def diff_command(a: str | os.PathLike[str], b: str | os.PathLike[str], as_json: bool) -> int:
+def diff_command(a: str | os.PathLike[str], b: str | os.PathLike[str], as_json: bool,
+                 key: bytes | None = None) -> int:
     """`skel diff RUN_A RUN_B`: 0, or 2 (one line) when either log cannot be analysed."""
     runs = []
     for path in (a, b):
         try:
-            runs.append(load_run(path))
+            runs.append(load_run(path, key=key))
         except LogError as e:
             print(f"{path}: {e}", file=sys.stderr)
             return EXIT_BAD_INPUT

@@ -15,7 +15,7 @@ from .trace import write_trace
 
 
 def export_command(log: Path, mcap: Path | None, run_id: int | None, parquet: Path | None = None,
-                   trace: Path | None = None) -> int:
+                   trace: Path | None = None, key: bytes | None = None) -> int:
     """0, or 2 with one line when the log cannot be read or an output written."""
     if mcap is None and parquet is None and trace is None:
         print(f"{log}: nothing to write: name an .mcap file, --parquet DIR or --trace FILE.json",
@@ -25,7 +25,7 @@ def export_command(log: Path, mcap: Path | None, run_id: int | None, parquet: Pa
         print(f"{log}: already an MCAP file; the MCAP export reads an LCM log (run.lcm)", file=sys.stderr)
         return EXIT_BAD_INPUT
     try:
-        run = load_run(log, run_id)
+        run = load_run(log, run_id, key)
     except LogError as e:
         print(f"{log}: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -294,6 +294,10 @@ def _attach(writer: Writer, data: RunAnalysis) -> None:
             "lcm_events": str(integ.events),
             "corrupt_ranges": json.dumps([list(r) for r in integ.corrupt_ranges]),
             "truncated_tail": json.dumps(integ.truncated_tail),
+            # The MCAP holds the messages without their seals: whether a key checked them goes here.
+            "signed": json.dumps(integ.signed),
+            "checked": json.dumps(integ.checked),
+            "unauthenticated": str(integ.unauthenticated),
             "clock": "timing log_time = DPU monotonic + median(status_t utc_ns - mono_ns) of that DPU",
         },
     )

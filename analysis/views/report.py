@@ -1,5 +1,6 @@
-"""`skel report RUN [--json] [--run N] [--plots DIR]`: the run read once, then its tables
-(or report.json on stdout) and, when asked, its plots and report.html."""
+"""`skel report RUN [--json] [--run N] [--plots DIR]`: the run read once, its prediction laid
+beside it when the host tool gives a predictor, then its tables (or report.json on stdout)
+and, when asked, its plots and report.html."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import sys
 from pathlib import Path
 
 from ..exitcodes import EXIT_BAD_INPUT, EXIT_FATAL_FLAW, EXIT_OK
+from ..measure.predicted import Predictor
 from ..measure.run import RunAnalysis, load_run
 from ..read.messages import LogError
 from .html import write_html
@@ -17,13 +19,17 @@ from .tables import print_report
 
 
 def report_command(path: str | os.PathLike[str], as_json: bool, run_id: int | None,
-                   plots: Path | None = None) -> int:
+                   plots: Path | None = None, predictor: Predictor | None = None,
+                   key: bytes | None = None) -> int:
     """0, 3 on a fatal flaw, 2 with one line when the log cannot be read or a plot written."""
     try:
-        run = load_run(path, run_id)
+        run = load_run(path, run_id, key)
     except LogError as e:
         print(f"{path}: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    missing = run.add_prediction(predictor) if predictor is not None else None
+    if missing:
+        print(f"{path}: {missing}", file=sys.stderr)
     if as_json:
         json.dump(run.report.to_json(), sys.stdout, indent=2)
         sys.stdout.write("\n")

@@ -14,6 +14,7 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
+from ..measure.predicted import PLATFORM, Beside, Predicted
 from ..measure.report import RunReport
 from ..measure.windows import WindowReport
 
@@ -245,6 +246,59 @@ def fault_table(report: RunReport, window: WindowReport | None = None) -> Table:
     return _table("faults", columns, rows)
 
 
+def _beside(b: Beside, digits: int = 1) -> list[str]:
+    """predicted, measured, Δ."""
+    return [_num(b.predicted, digits) if b.predicted is not None else "unbounded", _num(b.measured, digits),
+            "-" if b.delta is None else f"{b.delta:+.{digits}f}"]
+
+
+OUTSIDE = ("out-\nside", False)
+
+
+def _flag(b: Beside) -> str:
+    return "!" if b.outside else "-"
+
+
+def predicted_tables(p: Predicted) -> list[Table]:
+    """Each predicted figure beside the measured one, with the delta (measured - predicted)
+    and `!` where the measured value is outside its prediction."""
+    title = (f"predicted (from the system file alone) beside measured, generation {p.generation}: per DPU "
+             f"(! beyond ±{p.compute_points:g} points)")
+    columns = [("DPU", True), ("% comp\npred.", True), ("% comp\nmeas.", True), ("Δ", True), OUTSIDE]
+    tables = [_table(title, columns, [[str(d.id), *_beside(d.compute_pct), _flag(d.compute_pct)]
+                                      for d in p.dpus])]
+    rows = [[r.name, str(r.dpu), *_beside(r.response_us, 0), _num(r.response_max_us, 0),
+             f"paced by {r.paced_by}" if r.paced_by else _flag(r.response_us)] for r in p.processes]
+    tables.append(_table(
+        f"per process: worst response predicted, p99 measured, µs (! more than late_pct, {p.late_pct} % of "
+        "the period, above)",
+        [("process", False), ("DPU", True), ("worst\npred.", True), ("p99\nmeas.", True), ("Δ", True),
+         ("max\nmeas.", True), OUTSIDE], rows))
+    if p.inputs:
+        rows = [[f"{i.reader} <- {i.buffer} ({i.writer})", *_beside(i.new, 2), *_beside(i.dropped, 2),
+                 "!" if i.new.outside or i.stale.outside or i.dropped.outside else "-"] for i in p.inputs]
+        tables.append(_table(
+            f"per input: share of the reader's cycles with new data, sequences dropped per cycle "
+            f"(! beyond ±{p.share:g})",
+            [("reader <- buffer (writer)", False), ("new\npred.", True), ("new\nmeas.", True), ("Δ", True),
+             ("dropped\npred.", True), ("dropped\nmeas.", True), ("Δ", True), OUTSIDE], rows))
+    if p.chains:
+        rows = [[c.name, _num(c.best_us, 0), *_beside(c.latency_us, 0), _num(c.latency_max_us, 0),
+                 _flag(c.latency_us)] for c in p.chains]
+        tables.append(_table(
+            f"per chain: latency predicted best and worst, measured p99, µs (! more than late_pct, "
+            f"{p.late_pct} % of the tail's period, above)",
+            [("chain", False), ("best\npred.", True), ("worst\npred.", True), ("p99\nmeas.", True),
+             ("Δ", True), ("max\nmeas.", True), OUTSIDE], rows))
+    return tables
+
+
+def predicted_lines(p: Predicted) -> list[str]:
+    """What is outside its prediction, one line each, or that nothing is."""
+    return p.outside or [f"every measured figure is within its prediction: {PLATFORM} stayed within the "
+                         "tolerances"]
+
+
 def window_header(window: WindowReport) -> str:
     duration = window.duration_ms
     span = "no measured cycle" if duration is None else f"{duration / 1000:.3f} s"
@@ -264,6 +318,12 @@ def damage_lines(report: RunReport) -> list[str]:
     if integ.malformed:
         per_channel = ", ".join(f"{c}: {n}" for c, n in integ.malformed.items())
         lines.append(f"malformed messages skipped: {per_channel}")
+    if integ.unauthenticated:
+        lines.append(f"{integ.unauthenticated} messages failed the key check (unsigned, forged or replayed): "
+                     "left out, the tables use the genuine ones")
+    if integ.signed and not integ.checked:
+        lines.append("the run was signed, but not checked here: give its key (--key FILE or $SKEL_KEY_FILE) "
+                     "to use only its genuine messages")
     return lines
 
 
@@ -300,5 +360,11 @@ def print_report(
             console.print(chain_table(report, window))
         if part.faults:
             console.print(fault_table(report, window))
+    if report.predicted is not None:
+        for table in predicted_tables(report.predicted):
+            console.print(table)
+        for line in predicted_lines(report.predicted):
+            console.print(line, style="yellow" if report.predicted.outside else None, markup=False,
+                          highlight=False)
     for line in faithful_lines(report) + damage_lines(report):
         console.print(line, style="yellow", markup=False, highlight=False)

@@ -23,7 +23,9 @@ static void test_sleep(void)
     int64_t t0 = clock_mono_ns();
     CHECK_EQ(clock_sleep_until(t0 + 3000000, &stop), 0);
     int64_t late = clock_mono_ns() - (t0 + 3000000);
-    CHECK(late >= 0 && late < 2000000);
+    /* Not a wake-up latency figure (make bench has those; a shared VM woke this
+     * 2 ms late under ASan): past the deadline by less than a 50 ms piece. */
+    CHECK(late >= 0 && late < 10000000);
     /* In the past: returns at once. */
     t0 = clock_mono_ns();
     CHECK_EQ(clock_sleep_until(t0 - 1000, &stop), 0);

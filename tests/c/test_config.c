@@ -85,7 +85,19 @@ static void test_rejections(void)
     }
     REJECTS(f.dpus[0].compute = 9, 0, "unknown compute mode 9");
     REJECTS(f.dpus[0].cpu = 1000, 0, "cpu 1000 is not one this host lets it run on");
-    REJECTS(f.dpus[0].speed = 0.0, 0, "speed 0 must be > 0");
+    REJECTS(f.dpus[0].speed = 0.0, 0, "DPU 1: speed 0 outside 0.001..1000");
+    /* A speed so small that compute times / speed are no int64 of ns (UB in plan.c), or huge */
+    REJECTS(f.dpus[0].speed = 1e-300, 0, "DPU 1: speed 1e-300 outside 0.001..1000");
+    REJECTS(f.dpus[0].speed = 1e300, 0, "DPU 1: speed 1e+300 outside");
+    REJECTS(f.dpus[0].speed = 0.0 / 0.0, 0, "DPU 1: speed");
+    /* liblcm opens any provider a URL names: only multicast links reach a plan. */
+    REJECTS(f.links[0].url = (char *)"file:///tmp/skel-fuzz.log?mode=w", 0,
+            "buffer 1: link 1 (net) URL 'file:///tmp/skel-fuzz.log?mode=w' is not udpm://");
+    REJECTS(f.links[0].url = (char *)"tcpq://localhost:7700", 1, "URL 'tcpq://localhost:7700' is not udpm://");
+    /* A channel LCM would not publish: longer than LCM_MAX_CHANNEL_NAME_LENGTH. */
+    REJECTS(f.buffers[0].channel = (char *)"SKEL_BUF_0123456789012345678901234567890123456789012345678901234", 0,
+            "buffer 1: channel 'SKEL_BUF_0123456789012345678901234567890123456789012345678901234...' is "
+            "longer than 63 characters");
     REJECTS(f.procs[0].period_us = 50, 0, "process 1: period_us 50 outside");
     REJECTS(f.procs[0].period_us = 12000, 0, "not a multiple of DPU 1's minor cycle 5000 us");
     REJECTS(f.out[0][0] = 77, 0, "process 1 uses unknown buffer 77");
@@ -108,6 +120,21 @@ static void test_rejections(void)
             f.procs[1].queue = 1, 1, "process 2: event name 'a.b' is not a name");
     REJECTS(f.procs[1].sync = SKELMSG_PROCESS_T_SYNC_EVENT; f.procs[1].event = (char *)"go";
             f.procs[1].queue = 65, 1, "process 2: queue 65 outside 1..64");
+    /* SKEL_EVENT_ + the name must be a channel LCM publishes: at most SKEL_MAX_NAME (52) characters. */
+    {
+        char name[SKEL_MAX_NAME + 2];
+        memset(name, 'e', sizeof name - 1);
+        name[SKEL_MAX_NAME + 1] = '\0';
+        REJECTS(f.procs[1].sync = SKELMSG_PROCESS_T_SYNC_EVENT; f.procs[1].event = name; f.procs[1].queue = 1,
+                1, "process 2: event name 'eeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeeee' is not a name");
+        name[SKEL_MAX_NAME] = '\0';
+        fixture_t f;
+        fixture_init(&f);
+        f.procs[1].sync = SKELMSG_PROCESS_T_SYNC_EVENT;
+        f.procs[1].event = name;
+        f.procs[1].queue = 1;
+        CHECK_EQ(validate(&f, 1), 0);
+    }
     char *emits[9] = { (char *)"a", (char *)"b", (char *)"c", (char *)"d", (char *)"e", (char *)"f",
                        (char *)"g", (char *)"h", (char *)"i" };
     REJECTS(f.procs[1].nemits = 9; f.procs[1].emits = emits, 1, "process 2: emits 9 events, limit 8");
@@ -115,6 +142,19 @@ static void test_rejections(void)
     REJECTS(f.cfg.nevents = 1; f.cfg.events = &src, 1, "event tick: period_us 1000, jitter_us 500");
     skelmsg_event_source_t poisson = { (char *)"tick", SKELMSG_EVENT_SOURCE_T_KIND_POISSON, 2, 0, 0, -1.0, 0, 0 };
     REJECTS(f.cfg.nevents = 1; f.cfg.events = &poisson, 1, "event tick: rate_hz -1 outside");
+    /* A rate so small its exponential gaps overflow an int64 of ns (event.c), or huge */
+    poisson.rate_hz = 1e-300;
+    REJECTS(f.cfg.nevents = 1; f.cfg.events = &poisson, 1, "event tick: rate_hz 1e-300 outside 1e-06..1e+06");
+    poisson.rate_hz = 2e6;
+    REJECTS(f.cfg.nevents = 1; f.cfg.events = &poisson, 1, "event tick: rate_hz 2e+06 outside");
+    poisson.rate_hz = SKEL_MIN_RATE_HZ;
+    {
+        fixture_t f;
+        fixture_init(&f);
+        f.cfg.nevents = 1;
+        f.cfg.events = &poisson;
+        CHECK_EQ(validate(&f, 1), 0);
+    }
     skelmsg_event_source_t bursts = { (char *)"tick", SKELMSG_EVENT_SOURCE_T_KIND_BURSTS, 2, 1000, 0, 0.0, 5, 300 };
     REJECTS(f.cfg.nevents = 1; f.cfg.events = &bursts, 1, "a burst of 5 events 300 us apart does not fit");
     REJECTS(f.procs[1].compute_us = -1, 1, "compute_us -1 < 0");

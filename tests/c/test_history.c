@@ -123,6 +123,11 @@ static void test_resend_is_what_was_published(lcm_t *lcm, heard_t *h, skel_batch
     ask = (skel_resend_t){ 9, 0, 9, 1 };
     CHECK_EQ(history_resend(&hist, lcm, &ask, &gone), 0);
     CHECK_EQ(gone, 10);
+    /* A range ending at INT64_MAX (anyone's RESEND): every seq up to it, none past it (the
+     * loop's seq++ overflowed there; tests/fuzz/regressions/command/resend-int64-max). */
+    ask = (skel_resend_t){ 9, INT64_MAX - 2, INT64_MAX, 0 };
+    CHECK_EQ(history_resend(&hist, lcm, &ask, &gone), 0);
+    CHECK_EQ(gone, 3);
     history_free(&hist);
 }
 

@@ -1,0 +1,171 @@
+"""The prediction beside the measurement: THE definitions of the delta between what the
+system file predicts (host/predict.py, handed over as its JSON, `skel check --json`'s
+`prediction`) and what a run measured, and of a measured value outside its prediction.
+
+The prediction counts only the file's computations and schedule, so what a run measures
+beyond it is the platform's own cost: communication, wake-up, interference. The
+tolerances say how much of that cost passes unremarked:
+- % compute per DPU: within COMPUTE_POINTS either way (sleep mode measures SERVO to 0.03);
+- new / stale share of a reader's cycles and dropped sequences per cycle: within SHARE
+  either way (they follow from the two rates alone);
+- response (release -> end of work) per process and chain latency: the measured p99 may
+  exceed the predicted worst by late_pct (the system file's own lateness tolerance) of the
+  process's period, of the tail's for a chain; below the worst is what a bound allows. A
+  data reader paced by a slower writer waits for it in every response: not compared.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from .chains import ChainMetrics
+from .metrics import DpuMetrics, InputMetrics, ProcessMetrics
+
+COMPUTE_POINTS = 2.0
+SHARE = 0.05
+PLATFORM = "the platform's own cost (communication, wake-up, interference)"
+WORST = "the predicted worst"
+
+# The system file a config carries -> its prediction's JSON; raises ValueError (one line:
+# why) when that file cannot be predicted here (a samples file left behind, say).
+Predictor = Callable[[str], Mapping[str, Any]]
+
+
+@dataclass
+class Beside:
+    """One figure: predicted, measured, delta = measured - predicted, and whether the
+    measured value is outside its prediction by more than the tolerance."""
+
+    predicted: float | None
+    measured: float | None
+    delta: float | None = None
+    outside: bool = False
+
+
+@dataclass
+class DpuBeside:
+    id: int
+    compute_pct: Beside
+
+
+@dataclass
+class ProcessBeside:
+    name: str
+    dpu: int
+    response_us: Beside  # predicted worst (None: unbounded) beside the measured p99
+    response_max_us: float | None
+    paced_by: str | None  # a paced data reader: its response holds its wait, not compared
+
+
+@dataclass
+class InputBeside:
+    reader: str
+    buffer: str
+    writer: str
+    new: Beside  # share of the reader's cycles
+    stale: Beside
+    dropped: Beside  # sequences per reader cycle
+
+
+@dataclass
+class ChainBeside:
+    name: str
+    best_us: float
+    latency_us: Beside  # predicted worst (None: unbounded) beside the measured p99
+    latency_max_us: float | None
+
+
+@dataclass
+class Predicted:
+    """A run's report generation beside the prediction of its system file."""
+
+    generation: int
+    compute_points: float
+    share: float
+    late_pct: int  # response and chain latency: margin in % of the period
+    dpus: list[DpuBeside] = field(default_factory=list)
+    processes: list[ProcessBeside] = field(default_factory=list)
+    inputs: list[InputBeside] = field(default_factory=list)
+    chains: list[ChainBeside] = field(default_factory=list)
+    outside: list[str] = field(default_factory=list)  # one line per figure outside its prediction
+
+
+def either_way(predicted: float | None, measured: float | None, tolerance: float) -> Beside:
+    if predicted is None or measured is None:
+        return Beside(predicted, measured)
+    delta = measured - predicted
+    return Beside(predicted, measured, delta, abs(delta) > tolerance)
+
+
+def above_worst(worst: float | None, measured: float | None, margin: float) -> Beside:
+    if worst is None or measured is None:
+        return Beside(worst, measured)
+    delta = measured - worst
+    return Beside(worst, measured, delta, delta > margin)
+
+
+def input_shares(metrics: InputMetrics) -> tuple[float, float, float] | None:
+    """(new, stale, dropped) per cycle of the reader: None before its first cycle."""
+    cycles = metrics.new + metrics.stale
+    if cycles == 0:
+        return None
+    return metrics.new / cycles, metrics.stale / cycles, metrics.dropped / cycles
+
+
+def beside(prediction: Mapping[str, Any], generation: int, late_pct: int, dpus: list[DpuMetrics],
+           processes: list[ProcessMetrics], chains: list[ChainMetrics]) -> Predicted:
+    """The measured figures of one generation (the report's) beside `prediction`, matched by
+    DPU id, process name, (reader, buffer) and chain name; what either side lacks is left out."""
+    out = Predicted(generation, COMPUTE_POINTS, SHARE, late_pct)
+    measured_dpus = {d.id: d for d in dpus}
+    for d in prediction["dpus"]:
+        if (m := measured_dpus.get(d["id"])) is not None:
+            out.dpus.append(DpuBeside(d["id"], either_way(d["compute_pct"], m.compute_pct, COMPUTE_POINTS)))
+    by_name = {p.name: p for p in processes}
+    for p in prediction["processes"]:
+        if (mp := by_name.get(p["name"])) is None:
+            continue
+        margin = mp.period_us * late_pct / 100
+        response = above_worst(p["response_us"], mp.response_us.p99, math.inf if p["paced_by"] else margin)
+        out.processes.append(ProcessBeside(p["name"], mp.dpu, response, mp.response_us.max, p["paced_by"]))
+    for i in prediction["inputs"]:
+        reader = by_name.get(i["reader"])
+        found = next((m for m in reader.inputs if m.buffer == i["buffer"]), None) if reader else None
+        shares = input_shares(found) if found else None
+        if shares is None:
+            continue
+        new, stale, dropped = (either_way(i[k], v, SHARE) for k, v in zip(("new", "stale", "dropped"), shares,
+                                                                           strict=True))
+        out.inputs.append(InputBeside(i["reader"], i["buffer"], i["writer"], new, stale, dropped))
+    measured_chains = {c.name: c for c in chains}
+    for c in prediction["chains"]:
+        mc, tail = measured_chains.get(c["name"]), by_name.get(c["processes"][-1])
+        if mc is None or tail is None:
+            continue
+        latency = above_worst(c["worst_us"], mc.latency_us.p99, tail.period_us * late_pct / 100)
+        out.chains.append(ChainBeside(c["name"], c["best_us"], latency, mc.latency_us.max))
+    out.outside = _outside_lines(out)
+    return out
+
+
+def _outside_lines(p: Predicted) -> list[str]:
+    lines = [f"DPU {d.id}: % compute {_said(d.compute_pct, 1, '', f'±{p.compute_points:g} points')}"
+             for d in p.dpus if d.compute_pct.outside]
+    margin = f"late_pct ({p.late_pct} %) of the period"
+    lines += [f"{r.name} (DPU {r.dpu}): response p99 {_said(r.response_us, 0, ' µs', margin, WORST)}"
+              for r in p.processes if r.response_us.outside]
+    for i in p.inputs:  # the stale share is 1 - the new one: outside when that is
+        lines += [f"{i.reader} <- {i.buffer}: {what} {_said(b, 3, '', f'±{p.share:g}')}"
+                  for what, b in (("new share", i.new), ("dropped per cycle", i.dropped)) if b.outside]
+    margin = f"late_pct ({p.late_pct} %) of the tail's period"
+    lines += [f"chain {c.name}: latency p99 {_said(c.latency_us, 0, ' µs', margin, WORST)}"
+              for c in p.chains if c.latency_us.outside]
+    return lines
+
+
+def _said(b: Beside, digits: int, unit: str, tolerance: str, predicted: str = "predicted") -> str:
+    return (f"{b.measured:.{digits}f}{unit} measured against {predicted} {b.predicted:.{digits}f}{unit} "
+            f"({b.delta:+.{digits}f}{unit}, beyond {tolerance}): {PLATFORM}")

@@ -1,0 +1,419 @@
+"""The prediction: what a system will do, from its file alone, before anything runs.
+
+predict(system) -> Prediction. Per DPU its static load and the % compute a run will
+measure; on the cyclic executive every minor cycle's demand against the minor cycle
+(frames.py), on the tasking executive exact response-time analysis (schedule.py); per
+input buffer the new / stale / dropped share of the reader's cycles, as the analysis
+counts them; the data-wait structure (a cycle of `sync: data` processes can never start:
+an error; a data reader of a slower writer is paced by it); per chain the best and worst
+end-to-end latency; per link its traffic. The DPUs' own costs (communication, wake-up,
+interference) are not in it: what a run measures beyond it is the platform's.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from . import frames
+from .frames import Frame, Timing
+from .schedule import response_times
+from .schema import Dpu, Process
+from .system import System
+
+# On the wire per buffer_t: the LCM fingerprint and the fields before the payload, LCM's
+# short-message header (magic, sequence, channel name and its NUL), UDP and IPv4 headers.
+BUFFER_T_FIELDS_BYTES = 8 + 8 + 2 + 2 + 8 + 8 + 4
+LCM_HEADER_BYTES = 8
+UDP_IP_BYTES = 8 + 20
+
+
+@dataclass(frozen=True)
+class Problem:
+    """A flaw that makes the system unable to run: `FILE: path: problem`."""
+
+    path: str
+    problem: str
+
+
+@dataclass(frozen=True)
+class DpuPrediction:
+    id: int
+    executive: str                  # cyclic | threads
+    speed: float
+    minor_cycle_us: int
+    hyperperiod: int                # minor cycles until the frames repeat
+    load_pct: float                 # static load: Σ compute / period / speed
+    compute_pct: float              # what a run's % compute will be: at the rates processes run
+    frames: tuple[Frame, ...]       # cyclic: one hyperperiod's frames, grouped by what is due
+    schedulable: bool               # cyclic: no frame overflows; tasking: every response <= period
+    lockout_ms: float | None        # overloaded: when its first process locks out, from the start
+
+    @property
+    def overflowing(self) -> tuple[Frame, ...]:
+        return tuple(f for f in self.frames if f.overflows)
+
+
+@dataclass(frozen=True)
+class ProcessPrediction:
+    name: str
+    dpu: int
+    period_us: int
+    compute_us: float               # divided by the DPU's speed
+    priority: int                   # tasking; 0 on the cyclic executive
+    rate_hz: float                  # cycles a second it will run (paced, starved or overloaded)
+    paced_by: str | None            # the writer whose data paces it (sync: data)
+    start_min_us: float             # its computation's start after its release, at the earliest
+    start_max_us: float             # ... and at the latest
+    response_us: float | None       # worst release -> end of its work; None: unbounded
+
+    @property
+    def schedulable(self) -> bool:
+        return self.response_us is not None and self.response_us <= self.period_us
+
+
+@dataclass(frozen=True)
+class InputPrediction:
+    """Per reader cycle: the share that finds new data, the share that finds none, and the
+    writer's sequences skipped (dropped) per cycle, as the analysis counts them."""
+
+    reader: str
+    buffer: str
+    writer: str
+    new: float
+    stale: float
+    dropped: float
+
+
+@dataclass(frozen=True)
+class ChainPrediction:
+    """The head's output sent -> the tail's computation started (analysis/measure/chains.py)."""
+
+    name: str
+    processes: tuple[str, ...]
+    best_us: float
+    worst_us: float | None          # None: a step falls ever further behind
+
+
+@dataclass(frozen=True)
+class LinkPrediction:
+    name: str
+    local: bool
+    messages_per_s: float
+    bytes_per_s: float              # on the wire: payload, LCM and UDP/IP headers
+    bandwidth_mbps: float | None
+
+    @property
+    def over(self) -> bool:
+        return self.bandwidth_mbps is not None and 8 * self.bytes_per_s > self.bandwidth_mbps * 1e6
+
+
+@dataclass(frozen=True)
+class Prediction:
+    system: str
+    dpus: tuple[DpuPrediction, ...]
+    processes: tuple[ProcessPrediction, ...]
+    inputs: tuple[InputPrediction, ...]
+    chains: tuple[ChainPrediction, ...]
+    links: tuple[LinkPrediction, ...]
+    errors: tuple[Problem, ...]     # the system can never run as it is (a data-wait deadlock)
+    warnings: tuple[str, ...]
+
+    def dpu(self, dpu_id: int) -> DpuPrediction:
+        return next(d for d in self.dpus if d.id == dpu_id)
+
+    def process(self, name: str) -> ProcessPrediction:
+        return next(p for p in self.processes if p.name == name)
+
+    @property
+    def worst_load_pct(self) -> float:
+        return max(d.load_pct for d in self.dpus)
+
+    @property
+    def schedulable(self) -> bool:
+        return not self.errors and all(d.schedulable for d in self.dpus)
+
+    def to_json(self) -> dict[str, Any]:
+        out = asdict(self)
+        for d, dp in zip(out["dpus"], self.dpus, strict=True):
+            d["frames"] = [f.to_json() for f in dp.frames]
+            d["overflowing_frames"] = [f.first for f in dp.overflowing]
+        for link, lp in zip(out["links"], self.links, strict=True):
+            link["over"] = lp.over
+        return _rounded(out)
+
+
+def _rounded(value: Any) -> Any:
+    if isinstance(value, float):
+        return round(value, 3) if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _rounded(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_rounded(v) for v in value]
+    return value
+
+
+def predict(system: System) -> Prediction:
+    errors, stuck = deadlocks(system)
+    rates, paced = _rates(system, stuck)
+    timing: dict[int, Timing] = {}
+    dpus = []
+    for d in system.dpus:
+        mine = system.processes_on(d.id)
+        if d.executive == "threads":
+            found: tuple[Frame, ...] = ()
+            timing.update(_tasking(d, mine))
+        else:
+            found, cyclic = frames.cyclic(d, mine)
+            timing.update(cyclic)
+        load = sum(frames.compute_us(p, d) / p.period_us for p in mine)
+        busy = sum(frames.compute_us(p, d) * rates[p.id] / 1e6 for p in mine)
+        ok = all(_meets(timing[p.id], p) for p in mine) and not any(f.overflows for f in found)
+        dpus.append(DpuPrediction(d.id, d.executive, d.speed, d.minor_cycle_us,
+                                  frames.hyperperiod(mine, d.minor_cycle_us), 100 * load,
+                                  100 * min(1.0, busy), found, ok, _lockout_ms(system, d, mine, load)))
+    processes = tuple(
+        ProcessPrediction(p.name, p.dpu, p.period_us, frames.compute_us(p, system.dpu(p.dpu)), p.priority,
+                          rates[p.id], paced.get(p.id), timing[p.id].start_min_us, timing[p.id].start_max_us,
+                          timing[p.id].response_us)
+        for p in system.processes)
+    by_name = {p.name: p for p in processes}
+    prediction = Prediction(system.name, tuple(dpus), processes, _inputs(system, rates),
+                            _chains(system, by_name, rates), _links(system, rates), errors, ())
+    return Prediction(**{**prediction.__dict__, "warnings": tuple(_warnings(system, prediction))})
+
+
+# --- rates and the data-wait structure -----------------------------------------------------
+
+def deadlocks(system: System) -> tuple[tuple[Problem, ...], set[int]]:
+    """(one error per cycle of `sync: data` processes waiting for each other, every process
+    that can never start). A data process starts once every required input has a writer
+    that starts; what is left never does, and each of those waits on another of them, so
+    following the waits from one of them comes round to a cycle."""
+    writer = {b.id: b.writer for b in system.buffers}
+    starts = {p.id for p in system.processes if p.sync != "data"}
+    grew = True
+    while grew:
+        more = {p.id for p in system.processes if p.id not in starts
+                and all(writer[b] in starts for b in p.required)}
+        starts |= more
+        grew = bool(more)
+    stuck = {p.id for p in system.processes} - starts
+    errors, named = [], set()
+    for p in system.processes:
+        if p.id not in stuck or p.id in named:
+            continue
+        path, at = [p.id], p.id
+        while True:
+            b = next(b for b in system.process(at).required if writer[b] in stuck)
+            at = writer[b]
+            if at in path:
+                break
+            path.append(at)
+        loop = path[path.index(at):]
+        if named & set(loop):
+            named |= set(path)
+            continue
+        named |= set(path)
+        errors.append(_cycle_problem(system, loop, writer))
+    return tuple(errors), stuck
+
+
+def _cycle_problem(system: System, loop: list[int], writer: dict[int, int]) -> Problem:
+    names = [system.process(i).name for i in loop]
+    waits = []
+    for i in loop:
+        p = system.process(i)
+        b = next(b for b in p.required if writer[b] in loop)
+        waits.append(f"{p.name} waits for {system.buffer(b).name} from {system.process(writer[b]).name}")
+    return Problem(f"processes.{names[0]}.required",
+                   f"data-wait deadlock: {' -> '.join([*names, names[0]])} can never start "
+                   f"({'; '.join(waits)}); make one of them sync: periodic or take the buffer "
+                   "out of its `required`")
+
+
+def nominal_rate_hz(system: System, p: Process) -> float:
+    """Cycles a second P asks for: one a period; an event process at most one a period and
+    one per event (a host-sent event's rate is unknown: one a period)."""
+    rate = 1e6 / p.period_us
+    if p.sync == "event":
+        events = event_rate(system, p.event, set())
+        rate = min(rate, events) if events is not None else rate
+    return rate
+
+
+def event_rate(system: System, name: str, seen: set[str]) -> float | None:
+    """Mean events per second of NAME (None: unknown, the host sends it). A process emits once
+    per cycle: every period, or for an event process once per event it can take."""
+    source = next((e for e in system.events if e.name == name), None)
+    if (source is not None and source.kind == "host") or name in seen:
+        return None
+    rate = source.rate if source is not None else 0.0
+    for p in system.processes:
+        if name not in p.emits:
+            continue
+        cycles = 1e6 / p.period_us
+        if p.sync == "event":
+            trigger = event_rate(system, p.event, seen | {name})
+            if trigger is None:
+                return None
+            cycles = min(cycles, trigger)
+        rate += cycles
+    return rate
+
+
+def _rates(system: System, stuck: set[int]) -> tuple[dict[int, float], dict[int, str]]:
+    """Cycles a second each process will run, and the writer pacing each data reader. A data
+    reader runs once per new sample of its slowest required input; an overloaded cyclic DPU
+    runs every release back to back, so all its processes slow down alike; an overloaded
+    tasking DPU serves its priorities in order and starves the lowest."""
+    writer = {b.id: b.writer for b in system.buffers}
+    asked = {p.id: 0.0 if p.id in stuck else nominal_rate_hz(system, p) for p in system.processes}
+    rates = dict(asked)
+    paced: dict[int, str] = {}
+    for _ in range(2 * len(system.processes) + 2):
+        wanted = dict(asked)
+        for p in system.processes:
+            for b in p.required:
+                if rates[writer[b]] < wanted[p.id] * (1 - 1e-9):
+                    wanted[p.id] = rates[writer[b]]
+                    paced[p.id] = system.process(writer[b]).name
+        for d in system.dpus:
+            _serve(d, system.processes_on(d.id), wanted)
+        if wanted == rates:
+            break
+        rates = wanted
+    return rates, {k: v for k, v in paced.items() if rates[k] < asked[k] * (1 - 1e-9)}
+
+
+def _serve(d: Dpu, mine: list[Process], rates: dict[int, float]) -> None:
+    """Scales the rates the DPU's processes want to what the DPU can give them."""
+    if d.executive == "threads":
+        left = 1.0
+        for p in sorted(mine, key=lambda p: -p.priority):
+            need = frames.compute_us(p, d) * rates[p.id] / 1e6
+            if need > left:
+                rates[p.id] *= left / need
+            left = max(0.0, left - need)
+        return
+    busy = sum(frames.compute_us(p, d) * rates[p.id] / 1e6 for p in mine)
+    if busy > 1:
+        for p in mine:
+            rates[p.id] /= busy
+
+
+def _tasking(d: Dpu, mine: list[Process]) -> dict[int, Timing]:
+    """Exact response-time analysis on ns (the DPU's own unit), highest priority first."""
+    ranked = sorted(mine, key=lambda p: -p.priority)
+    tasks = [(math.ceil(frames.compute_us(p, d) * 1000), p.period_us * 1000) for p in ranked]
+    out = {}
+    for p, (c, _), r in zip(ranked, tasks, response_times(tasks), strict=True):
+        out[p.id] = Timing(0.0, (r - c) / 1000 if r is not None else math.inf,
+                           r / 1000 if r is not None else None)
+    return out
+
+
+def _meets(t: Timing, p: Process) -> bool:
+    return t.response_us is not None and t.response_us <= p.period_us
+
+
+def _lockout_ms(system: System, d: Dpu, mine: list[Process], load: float) -> float | None:
+    """An overloaded DPU falls behind by (1 - 1/load) of the time (it does a second's work in
+    `load` seconds); a process locks out once lockout_cycles of its periods behind."""
+    if load <= 1 or not mine:
+        return None
+    first = min(system.run.lockout_cycles * p.period_us for p in mine)
+    return first / (1 - 1 / load) / 1000
+
+
+# --- buffers, chains, links ----------------------------------------------------------------
+
+def _inputs(system: System, rates: dict[int, float]) -> tuple[InputPrediction, ...]:
+    out = []
+    for p in system.processes:
+        for b in map(system.buffer, p.inputs):
+            ratio = rates[b.writer] / rates[p.id] if rates[p.id] > 0 else 0.0
+            new = min(1.0, ratio)
+            out.append(InputPrediction(p.name, b.name, system.process(b.writer).name, new, 1 - new,
+                                       max(0.0, ratio - 1)))
+    return tuple(out)
+
+
+def _chains(system: System, by_name: dict[str, ProcessPrediction],
+            rates: dict[int, float]) -> tuple[ChainPrediction, ...]:
+    """Per step, the value waits for the reader's next read: at best none; at worst a whole
+    reader period plus the spread of its start, or, for a reader paced by that very buffer
+    (it waits for each value), its latest start. A step in the middle then computes (at
+    best its compute, at worst up to its response)."""
+    out = []
+    for c in system.chains:
+        steps = [system.process(i) for i in c.processes]
+        best, worst = 0.0, 0.0
+        for i, (before, p) in enumerate(itertools.pairwise(steps), start=1):
+            at = by_name[p.name]
+            buffer = next(b for b in p.inputs if b in before.outputs)
+            data_paced = buffer in p.required and rates[before.id] <= 1e6 / p.period_us * (1 + 1e-9)
+            wait = at.start_max_us if data_paced else p.period_us + at.start_max_us - at.start_min_us
+            worst += wait
+            if i < len(steps) - 1:
+                best += at.compute_us
+                worst += (at.response_us or math.inf) - at.start_max_us
+        out.append(ChainPrediction(c.name, tuple(s.name for s in steps), best,
+                                   worst if math.isfinite(worst) else None))
+    return tuple(out)
+
+
+def wire_bytes(system: System, buffer_id: int) -> int:
+    b = system.buffer(buffer_id)
+    return BUFFER_T_FIELDS_BYTES + b.bytes + LCM_HEADER_BYTES + len(b.channel) + 1 + UDP_IP_BYTES
+
+
+def _links(system: System, rates: dict[int, float]) -> tuple[LinkPrediction, ...]:
+    out = []
+    for link in system.links:
+        mine = [b for b in system.buffers if b.link == link.id]
+        messages = sum(rates[b.writer] for b in mine)
+        size = sum(rates[b.writer] * (b.bytes if link.local else wire_bytes(system, b.id)) for b in mine)
+        out.append(LinkPrediction(link.name, link.local, messages, size, link.bandwidth_mbps))
+    return tuple(out)
+
+
+def _warnings(system: System, pred: Prediction) -> list[str]:
+    out: list[str] = []
+    for d in pred.dpus:
+        frames_said = "; ".join(
+            f"minor cycle {f.first} ({f.count} of every {d.hyperperiod}) demands {f.demand_us / 1000:g} "
+            f"ms ({', '.join(f.processes)})" for f in d.overflowing[:3])
+        frames_said += "; ..." if len(d.overflowing) > 3 else ""
+        if d.lockout_ms is not None:
+            out.append(f"DPU {d.id}: static load {d.load_pct:.1f} % exceeds 100 %: it will overrun every "
+                       f"cycle and fall {100 * (1 - 100 / d.load_pct):.0f} % of the time behind; lockout "
+                       f"predicted about {d.lockout_ms:.0f} ms into the run"
+                       + (f"; {frames_said}" if frames_said else ""))
+        elif frames_said:
+            out.append(f"DPU {d.id}: frames overflow the {d.minor_cycle_us / 1000:g} ms minor cycle: "
+                       f"{frames_said}")
+        for p in pred.processes:
+            if p.dpu == d.id and d.executive == "threads" and not p.schedulable:
+                resp = f"{p.response_us / 1000:g} ms" if p.response_us is not None else "unbounded"
+                out.append(f"DPU {d.id}: {p.name} (priority {p.priority}) misses its deadline: worst "
+                           f"response {resp} > period {p.period_us / 1000:g} ms")
+    for p in pred.processes:
+        if p.paced_by is None:
+            continue
+        ask = 1e6 / p.period_us
+        line = (f"{p.name} (sync: data, {ask:g} Hz) is paced by {p.paced_by}: it will run at "
+                f"{p.rate_hz:.3g} Hz")
+        slowest = 1e6 / p.rate_hz if p.rate_hz > 0 else math.inf
+        if slowest >= system.run.lockout_cycles * p.period_us:
+            line += (f", one cycle per {slowest / 1000:g} ms, at least lockout_cycles "
+                     f"({system.run.lockout_cycles}) periods: it will lock out")
+        out.append(line)
+    for link in pred.links:
+        if link.over:
+            out.append(f"link {link.name}: {8 * link.bytes_per_s / 1e6:.3g} Mbit/s of buffers "
+                       f"({link.messages_per_s:.0f} messages/s) exceeds its bandwidth_mbps "
+                       f"{link.bandwidth_mbps:g}")
+    return out

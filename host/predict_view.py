@@ -1,0 +1,102 @@
+"""The prediction as tables (`skel check` prints one, `skel allocate` two side by side) and as
+the JSON `skel run` and `skel report` hand to the analysis, to lay beside a run's measurement."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.table import Table
+
+from .predict import Prediction, predict
+from .system import loads
+from .yamlfile import SystemFileError
+
+
+def _ms(us: float | None) -> str:
+    return "unbounded" if us is None else f"{us / 1000:.3g}"
+
+
+def _table(*columns: str) -> Table:
+    table = Table(box=None, pad_edge=False)
+    for i, c in enumerate(columns):
+        left = i == 0 or c.startswith("processes") or c == "frames that overflow"
+        table.add_column(c, justify="left" if left else "right")
+    return table
+
+
+def print_prediction(console: Console, pred: Prediction) -> None:
+    console.print("[bold]prediction[/] (from the file alone: the platform's own costs come on top)")
+    dpus = _table("DPU", "executive", "load %", "predicted % compute", "frames that overflow",
+                  "lockout at ms")
+    for d in pred.dpus:
+        over = ", ".join(f"{f.first} ({f.demand_us / 1000:.4g} of {f.minor_cycle_us / 1000:g} ms)"
+                         for f in d.overflowing[:3]) + (" ..." if len(d.overflowing) > 3 else "")
+        load = f"[red]{d.load_pct:.1f}[/]" if not d.schedulable else f"{d.load_pct:.1f}"
+        dpus.add_row(str(d.id), "tasking" if d.executive == "threads" else "cyclic", load,
+                     f"{d.compute_pct:.1f}", over or "-", f"{d.lockout_ms:.0f}" if d.lockout_ms else "-")
+    console.print(dpus)
+    procs = _table("process", "DPU", "period ms", "compute ms", "runs Hz", "start ms", "worst response ms")
+    for p in pred.processes:
+        resp = _ms(p.response_us)
+        resp = resp if p.schedulable else f"[red]{resp}[/]"
+        paced = f" (paced by {p.paced_by})" if p.paced_by else ""
+        # a DPU that falls ever further behind starts its processes ever later
+        start = f"{_ms(p.start_min_us)}..{_ms(p.start_max_us)}" if p.response_us is not None else "-"
+        procs.add_row(p.name + paced, str(p.dpu), f"{p.period_us / 1000:g}", f"{p.compute_us / 1000:.4g}",
+                      f"{p.rate_hz:.4g}", start, resp)
+    console.print(procs)
+    mixed = [i for i in pred.inputs if i.stale > 0.005 or i.dropped > 0.005]
+    if mixed:
+        inputs = _table("reader <- buffer (writer)", "new", "stale", "dropped per cycle")
+        for i in mixed:
+            inputs.add_row(f"{i.reader} <- {i.buffer} ({i.writer})", f"{i.new:.2f}", f"{i.stale:.2f}",
+                           f"{i.dropped:.2f}")
+        console.print(inputs)
+    else:
+        console.print("every input: new data each reader cycle, none stale or dropped")
+    if pred.chains:
+        chains = _table("chain", "best ms", "worst ms")
+        for c in pred.chains:
+            chains.add_row(" -> ".join(c.processes), _ms(c.best_us), _ms(c.worst_us))
+        console.print(chains)
+    links = _table("link", "messages/s", "Mbit/s")
+    for link in pred.links:
+        rate = f"{8 * link.bytes_per_s / 1e6:.3g}"
+        rate += f" of {link.bandwidth_mbps:g}" if link.bandwidth_mbps else ""
+        links.add_row(link.name + (" (local)" if link.local else ""), f"{link.messages_per_s:.0f}",
+                      f"[red]{rate}[/]" if link.over else rate)
+    console.print(links)
+
+
+def print_beside(console: Console, old: Prediction, new: Prediction, traffic: tuple[float, float]) -> None:
+    """Two predictions of one system's processes (an allocation): per DPU, per chain, traffic
+    between DPUs (bytes/s, given: it depends on where readers are)."""
+    table = _table("DPU", "load % before", "after", "processes after")
+    for d in new.dpus:
+        before = next((f"{o.load_pct:.1f}" for o in old.dpus if o.id == d.id), "-")
+        names = ", ".join(p.name for p in new.processes if p.dpu == d.id)
+        after = f"{d.load_pct:.1f}" if d.schedulable else f"[red]{d.load_pct:.1f}[/]"
+        table.add_row(str(d.id), before, after, names or "-")
+    console.print(table)
+    worst = _table("", "before", "after")
+    worst.add_row("worst DPU load %", f"{old.worst_load_pct:.1f}", f"{new.worst_load_pct:.1f}")
+    worst.add_row("every DPU schedulable", *("yes" if p.schedulable else "no" for p in (old, new)))
+    for a, b in zip(old.chains, new.chains, strict=True):
+        worst.add_row(f"chain {a.name}: worst ms", _ms(a.worst_us), _ms(b.worst_us))
+    worst.add_row("traffic between DPUs kB/s", f"{traffic[0] / 1000:.3g}", f"{traffic[1] / 1000:.3g}")
+    console.print(worst)
+
+
+def predictor(path: Path) -> Callable[[str], dict[str, Any]]:
+    """What analysis/measure/predicted.py asks for: a run's system file (the text its config
+    carries, overrides applied) -> its prediction's JSON, validated as if it were the file at
+    PATH (a `samples:` file is looked for beside it); ValueError says why it cannot be."""
+    def prediction(text: str) -> dict[str, Any]:
+        try:
+            return predict(loads(text, path)).to_json()
+        except SystemFileError as e:
+            raise ValueError(str(e)) from None
+    return prediction

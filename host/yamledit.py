@@ -1,0 +1,63 @@
+"""Edits to a system file's text that keep everything else as the user wrote it (comments,
+order, flow or block style): set a key of a mapping, add an item to a sequence. PyYAML's
+composer gives each node's place in the text; edits are applied from the end backwards.
+"""
+
+from __future__ import annotations
+
+import yaml
+
+Edit = tuple[int, int, str]  # replace text[start:end] with this
+
+
+def root(text: str) -> yaml.MappingNode:
+    node = yaml.compose(text)
+    assert isinstance(node, yaml.MappingNode)
+    return node
+
+
+def value(mapping: yaml.MappingNode, key: str) -> yaml.Node | None:
+    return next((v for k, v in mapping.value if k.value == key), None)
+
+
+def set_key(text: str, mapping: yaml.MappingNode, key: str, new: str) -> Edit:
+    """Replace KEY's value, or add KEY after the mapping's last entry."""
+    found = value(mapping, key)
+    if found is not None:
+        return found.start_mark.index, found.end_mark.index, new
+    at = _end(text, mapping.value[-1][1])
+    if mapping.flow_style:
+        return at, at, f", {key}: {new}"
+    at = _line_end(text, at)  # after a comment on that line
+    return at, at, f"\n{' ' * mapping.value[0][0].start_mark.column}{key}: {new}"
+
+
+def append_item(text: str, sequence: yaml.SequenceNode, item: str) -> Edit:
+    """Add ITEM (flow YAML, one line) after the sequence's last item."""
+    last = sequence.value[-1]
+    at = _end(text, last)
+    if sequence.flow_style:
+        return at, at, f", {item}"
+    line = text[text.rfind("\n", 0, last.start_mark.index) + 1:last.start_mark.index]
+    dash = line.rfind("-")
+    at = _line_end(text, at)
+    return at, at, f"\n{line[:dash]}- {item}"
+
+
+def _end(text: str, node: yaml.Node) -> int:
+    """Where NODE's text ends: a block node's end mark is past its line's newline."""
+    at = node.end_mark.index
+    while at > node.start_mark.index and text[at - 1] in "\n ":
+        at -= 1
+    return at
+
+
+def _line_end(text: str, at: int) -> int:
+    end = text.find("\n", at)
+    return len(text) if end < 0 else end
+
+
+def apply(text: str, edits: list[Edit]) -> str:
+    for start, end, new in sorted(edits, reverse=True):
+        text = text[:start] + new + text[end:]
+    return text

@@ -1,0 +1,206 @@
+"""host/predict.py: what a system will do, from its file alone, held to theory, to the
+paper's Table 1 and to real runs (sanitizer DPUs, sleep mode, a private port)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from conftest import EXAMPLES, LOCKOUT_SYSTEM, skel
+from randsys import random_system
+
+from skeleton.host.predict import predict
+from skeleton.host.system import load
+from skelmsg import contract
+
+TABLE1 = {1: 90.3, 2: 73.4, 3: 86.0, 4: 96.5}
+
+DEADLOCK = """\
+system: deadlock
+dpus: [{id: 1}, {id: 2}]
+buffers: [{id: 1, name: ping, bytes: 64}, {id: 2, name: pong, bytes: 64},
+          {id: 3, name: tick, bytes: 8}]
+processes:
+  - {id: 1, name: left, dpu: 1, period_us: 10000, compute_us: 300, sync: data, inputs: [pong, tick],
+     required: [pong], outputs: [ping]}
+  - {id: 2, name: right, dpu: 2, period_us: 10000, compute_us: 300, sync: data, inputs: [ping],
+     outputs: [pong]}
+  - {id: 3, name: clock, dpu: 2, period_us: 10000, compute_us: 300, outputs: [tick]}
+run: {duration_s: 2, warmup_cycles: 0, lockout_cycles: 10, stop_on: [lockout]}
+"""
+
+
+def _system(tmp_path: Path, text: str, name: str = "s.yaml"):  # type: ignore[no-untyped-def]
+    path = tmp_path / name
+    path.write_text(text)
+    return load(path)
+
+
+def test_servo_predicts_table1_schedulable_and_clean() -> None:
+    pred = predict(load(EXAMPLES / "servo.yaml"))
+    for d in pred.dpus:
+        assert d.compute_pct == pytest.approx(TABLE1[d.id], abs=0.05), d
+        assert d.schedulable and not d.overflowing and d.lockout_ms is None
+    assert pred.warnings == () and pred.errors == ()
+    # executor starts after joint_sensors in DPU 2's frame and ends 3.67 ms into it
+    assert (pred.process("executor").start_max_us, pred.process("executor").response_us) == (170, 3670)
+    best, worst = pred.chains[0].best_us, pred.chains[0].worst_us
+    # jacobian_transpose waits for joint_state (0 extra), computes 2.8 ms, executor reads within a period
+    assert (best, worst) == (2800, 2800 + 5000)
+    assert json.loads(json.dumps(pred.to_json()))["dpus"][0]["overflowing_frames"] == []
+
+
+def test_servo_at_2_5_ms_predicts_overload_frames_and_lockout() -> None:
+    pred = predict(load(EXAMPLES / "servo-2.5ms.yaml"))
+    assert [d.schedulable for d in pred.dpus] == [False, False, False, True]
+    assert [f.first for f in pred.dpu(1).overflowing] == [0]
+    assert pred.dpu(1).overflowing[0].demand_us == pytest.approx(4515)
+    # 25 ms behind (10 periods) at 180.6 % load: 25 / (1 - 1/1.806) ms
+    assert pred.dpu(1).lockout_ms == pytest.approx(25 / (1 - 1 / 1.806), rel=0.01)
+    said = "\n".join(pred.warnings)
+    assert "DPU 1: static load 180.6 % exceeds 100 %" in said
+    assert "lockout predicted about 56 ms" in said
+    assert "minor cycle 0 (1 of every 1) demands 4.515 ms (trajectory, forward_kinematics)" in said
+    assert pred.chains[0].worst_us is None
+
+
+def test_check_prints_the_prediction_and_json_carries_it() -> None:
+    done = skel("check", str(EXAMPLES / "servo-2.5ms.yaml"))
+    assert done.returncode == 0, done.stderr
+    assert "prediction" in done.stdout and "0 (4.515 of 2.5 ms)" in done.stdout
+    assert "lockout predicted" in done.stdout
+    as_json = json.loads(skel("check", str(EXAMPLES / "servo.yaml"), "--json").stdout)
+    assert [d["compute_pct"] for d in as_json["prediction"]["dpus"]] == [90.3, 73.4, 86.0, 96.5]
+
+
+def test_tasking_responses_are_exact_rta_and_misses_are_named(tmp_path: Path) -> None:
+    text = """\
+system: rm
+dpus: [{id: 1, executive: threads}]
+processes:
+  - {id: 1, name: a, dpu: 1, period_us: 8000, compute_us: 3000}
+  - {id: 2, name: b, dpu: 1, period_us: 12000, compute_us: 3000}
+  - {id: 3, name: c, dpu: 1, period_us: 24000, compute_us: CC}
+"""
+    ok = predict(_system(tmp_path, text.replace("CC", "7000")))
+    assert [ok.process(n).response_us for n in "abc"] == [3000, 6000, 22000]
+    assert ok.dpu(1).schedulable
+    # README's unschedulable set: 3/8, 6/20, 6/24 ms, R = 30 ms
+    late = predict(_system(tmp_path, text.replace("CC", "6000").replace("12000, compute_us: 3000",
+                                                                         "20000, compute_us: 6000")))
+    assert late.process("c").response_us == 30000 and not late.dpu(1).schedulable
+    assert any("DPU 1: c (priority 97) misses its deadline: worst response 30 ms > period 24 ms" in w
+               for w in late.warnings), late.warnings
+
+
+def test_cyclic_frames_of_mixed_periods(tmp_path: Path) -> None:
+    text = """\
+system: mixed
+dpus: [{id: 1}]
+processes:
+  - {id: 1, name: fast, dpu: 1, period_us: 5000, compute_us: 1000}
+  - {id: 2, name: mid, dpu: 1, period_us: 10000, compute_us: 2000}
+  - {id: 3, name: slow, dpu: 1, period_us: 20000, compute_us: 3000}
+"""
+    d = predict(_system(tmp_path, text)).dpu(1)
+    assert [(f.first, f.count, f.processes, f.demand_us) for f in d.frames] == [
+        (0, 1, ("fast", "mid", "slow"), 6000), (1, 2, ("fast",), 1000), (2, 1, ("fast", "mid"), 3000)]
+    assert [f.first for f in d.overflowing] == [0] and not d.schedulable
+    assert d.load_pct == pytest.approx(55)
+
+
+def test_input_shares_from_rates(tmp_path: Path) -> None:
+    text = """\
+system: rates
+dpus: [{id: 1}, {id: 2}]
+buffers: [{id: 1, name: slow, bytes: 8}, {id: 2, name: fast, bytes: 8}]
+processes:
+  - {id: 1, name: w_slow, dpu: 1, period_us: 20000, compute_us: 100, outputs: [slow]}
+  - {id: 2, name: w_fast, dpu: 1, period_us: 2500, compute_us: 100, outputs: [fast]}
+  - {id: 3, name: reader, dpu: 2, period_us: 5000, compute_us: 100, inputs: [slow, fast]}
+"""
+    shares = {i.buffer: (i.new, i.stale, i.dropped) for i in predict(_system(tmp_path, text)).inputs}
+    assert shares == {"slow": (0.25, 0.75, 0.0), "fast": (1.0, 0.0, 1.0)}
+
+
+def test_paced_reader_warns_with_its_rate_and_lockout(tmp_path: Path) -> None:
+    pred = predict(_system(tmp_path, LOCKOUT_SYSTEM))
+    reader = pred.process("hungry_reader")
+    assert reader.paced_by == "slow_writer" and reader.rate_hz == pytest.approx(10)
+    assert pred.warnings == ("hungry_reader (sync: data, 200 Hz) is paced by slow_writer: it will run at "
+                             "10 Hz, one cycle per 100 ms, at least lockout_cycles (5) periods: it will "
+                             "lock out",)
+    shares = {i.buffer: (i.new, i.stale) for i in pred.inputs}
+    assert shares == {"slow_data": (1.0, 0.0)}  # one cycle per sample
+
+
+def test_link_traffic_and_bandwidth_warning(tmp_path: Path) -> None:
+    text = """\
+system: traffic
+links: [{name: bus, url: "DEFAULT_URL", bandwidth_mbps: 1}, {name: mem, url: local}]
+dpus: [{id: 1}]
+buffers: [{id: 1, name: big, bytes: 10000, link: bus}, {id: 2, name: near, bytes: 100, link: mem}]
+processes:
+  - {id: 1, name: w, dpu: 1, period_us: 10000, compute_us: 100, outputs: [big, near]}
+  - {id: 2, name: r, dpu: 1, period_us: 10000, compute_us: 100, inputs: [big, near]}
+"""
+    pred = predict(_system(tmp_path, text.replace("DEFAULT_URL", contract.DEFAULT_URL)))
+    bus, mem = pred.links
+    per_message = 40 + 10000 + 8 + len("SKEL_BUF_big") + 1 + 28
+    assert (bus.messages_per_s, bus.bytes_per_s) == pytest.approx((100, 100 * per_message))
+    assert bus.over and not mem.over and mem.bytes_per_s == pytest.approx(10000)
+    assert any(w.startswith("link bus: 8.07 Mbit/s of buffers (100 messages/s) exceeds its bandwidth_mbps 1")
+               for w in pred.warnings), pred.warnings
+
+
+def test_deadlock_is_refused_with_the_cycle_named(tmp_path: Path) -> None:
+    path = tmp_path / "deadlock.yaml"
+    path.write_text(DEADLOCK)
+    done = skel("check", str(path))
+    assert done.returncode == 2
+    assert done.stderr.splitlines() == [
+        f"{path}: processes.left.required: data-wait deadlock: left -> right -> left can never start "
+        "(left waits for pong from right; right waits for ping from left); make one of them sync: "
+        "periodic or take the buffer out of its `required`"]
+    assert skel("check", str(path), "--json").returncode == 2
+    refused = skel("run", str(path), "--spawn")
+    assert refused.returncode == 2 and "--no-check" in refused.stderr
+
+
+def test_deadlock_run_with_no_check_locks_out_as_predicted(tmp_path: Path, url: str) -> None:
+    path = tmp_path / "deadlock.yaml"
+    path.write_text(DEADLOCK)
+    out = tmp_path / "run"
+    run = skel("run", str(path), "--spawn", "--no-check", "--url", url, "--out", str(out))
+    assert run.returncode == 3, run.stdout + run.stderr
+    report = json.loads((out / "report.json").read_text())
+    locked = {f["process"] for f in report["faults"] if f["kind"] == "lockout"}
+    assert {"left", "right"} <= locked, report["faults"]
+
+
+def _measured_vs_predicted(tmp_path: Path, url: str, path: Path,
+                           *args: str) -> list[tuple[int, float, float]]:
+    out = tmp_path / f"run-{path.stem}"
+    run = skel("run", str(path), "--spawn", "--url", url, "--out", str(out), *args)
+    assert run.returncode == 0, run.stdout + run.stderr
+    pred = predict(load(path))
+    return [(d["id"], d["compute_pct"], pred.dpu(d["id"]).compute_pct)
+            for d in json.loads((out / "report.json").read_text())["dpus"]]
+
+
+def test_servo_measured_compute_is_the_prediction(tmp_path: Path, url: str) -> None:
+    rows = _measured_vs_predicted(tmp_path, url, EXAMPLES / "servo.yaml", "--cycles", "800",
+                                  "-s", "run.warmup_cycles=20", "-s", "run.lockout_cycles=20")
+    for dpu, measured, predicted in rows:
+        assert measured == pytest.approx(predicted, abs=2.0), (dpu, measured, predicted)
+
+
+@pytest.mark.parametrize(("seed", "executive"), [(21, "cyclic"), (22, "threads"), (23, "cyclic")])
+def test_random_systems_measure_what_is_predicted(tmp_path: Path, url: str, seed: int,
+                                                 executive: str) -> None:
+    text, _ = random_system(seed, executive=executive)
+    path = tmp_path / f"random-{seed}.yaml"
+    path.write_text(text)
+    for dpu, measured, predicted in _measured_vs_predicted(tmp_path, url, path):
+        assert measured == pytest.approx(predicted, abs=2.0), (seed, dpu, measured, predicted)
