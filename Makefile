@@ -187,7 +187,7 @@ test-fuzz: $(FUZZ_BINS)
 # at a time, then the Hypothesis properties with their long profile (tests/conftest.py).
 fuzz: $(FUZZ_BINS) $(STAMP)
 	$(call fuzz_run,$(FUZZ_SECONDS),nice -n 19)
-	SKEL_HYPOTHESIS_PROFILE=fuzz nice -n 19 $(VENV)/bin/pytest -q -p no:cacheprovider \
+	SKEL_HYPOTHESIS=fuzz nice -n 19 $(VENV)/bin/pytest -q -p no:cacheprovider \
 	  tests/test_system_properties.py tests/test_logreader_properties.py
 
 lint: $(STAMP)
