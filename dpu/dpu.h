@@ -530,7 +530,8 @@ typedef struct skel_server {
     char run_owner[SKEL_OWNER_LEN];
     int64_t run_end_utc_ns;    /* its planned end, 0: until STOP */
     int64_t rejected_at_start;
-    int applied_any;
+    int applied_any;           /* a generation was applied (the last: generation); its plan is
+                                  dropped between runs when a newer one leaves this DPU out */
     int nlockouts;
     skelmsg_lockout_t lockouts[SKEL_MAX_LOCKOUTS];
     int exec_done;             /* executive thread has exited */
