@@ -97,15 +97,26 @@ $(SODIUM):
 $(BUILD)/skel-dpu: $(DPU_SRC) $(DPU_HDR) $(GEN_C) $(GEN_H) | $(STAMP) $(SODIUM)
 	$(CC) $(WARN) $(CFLAGS) $(INC) -o $@ $(DPU_SRC) $(GEN_C) $(LIBS)
 
-# The same daemon under AddressSanitizer and UBSan, for the tests.
-$(BUILD)/asan/skel-dpu: $(DPU_SRC) $(DPU_HDR) $(GEN_C) $(GEN_H) | $(STAMP) $(SODIUM)
-	@mkdir -p $(BUILD)/asan
-	$(CC) $(WARN) -O1 -g $(SAN) $(INC) -o $@ $(DPU_SRC) $(GEN_C) $(LIBS)
+# The same daemon under AddressSanitizer and UBSan, for the tests. dpu/ and the generated
+# code are compiled once (build/asan/obj) and linked into the daemon and every C unit test,
+# which link every dpu/ file but main.c: compiled per test they took minutes of `make test`.
+ASAN_OBJ  := $(BUILD)/asan/obj
+ASAN_OBJS  = $(patsubst %.c,$(ASAN_OBJ)/%.o,$(notdir $(filter-out dpu/main.c,$(DPU_SRC)) $(GEN_C)))
+.PRECIOUS: $(ASAN_OBJ)/%.o
 
-# C unit tests link every dpu/ file but main.c.
-$(BUILD)/asan/test_%: tests/c/test_%.c tests/c/check.h $(DPU_SRC) $(DPU_HDR) $(GEN_C) $(GEN_H) | $(STAMP) $(SODIUM)
-	@mkdir -p $(BUILD)/asan
-	$(CC) $(WARN) -O1 -g $(SAN) $(INC) -Itests/c -o $@ $< $(filter-out dpu/main.c,$(DPU_SRC)) $(GEN_C) $(LIBS)
+$(ASAN_OBJ)/%.o: dpu/%.c $(DPU_HDR) $(GEN_H) $(GEN_C) | $(STAMP) $(SODIUM)
+	@mkdir -p $(@D)
+	$(CC) $(WARN) -O1 -g $(SAN) $(INC) -c -o $@ $<
+
+$(ASAN_OBJ)/%.o: $(GEN)/c/%.c $(GEN_C) | $(STAMP)
+	@mkdir -p $(@D)
+	$(CC) $(WARN) -O1 -g $(SAN) $(INC) -c -o $@ $<
+
+$(BUILD)/asan/skel-dpu: $(ASAN_OBJ)/main.o $(ASAN_OBJS)
+	$(CC) $(SAN) -o $@ $^ $(LIBS)
+
+$(BUILD)/asan/test_%: tests/c/test_%.c tests/c/check.h $(ASAN_OBJS)
+	$(CC) $(WARN) -O1 -g $(SAN) $(INC) -Itests/c -o $@ $< $(ASAN_OBJS) $(LIBS)
 
 # Hostile traffic for the flood test and `make bench` (tests/flood/flood.c).
 $(BUILD)/flood: tests/flood/flood.c $(GEN_C) | $(STAMP)
@@ -141,6 +152,7 @@ FUZZ_BINS          := $(patsubst %,$(FUZZ_DIR)/fuzz_%,$(FUZZ_HARNESSES))
 FUZZ_SAN    := -fsanitize=address,undefined -fno-sanitize=nonnull-attribute -fno-sanitize-recover=all \
                -fno-omit-frame-pointer
 FUZZ_OBJS    = $(patsubst %.c,$(FUZZ_DIR)/obj/%.o,$(notdir $(filter-out dpu/main.c,$(DPU_SRC)) $(GEN_C)))
+.PRECIOUS: $(FUZZ_DIR)/obj/%.o
 # -close_fd_mask=2: the DPU's log lines (one per command) would drown libFuzzer's; sanitizer
 # reports still reach the terminal. -timeout: an input that takes 5 s is a hang, reported.
 FUZZ_RUN    := -close_fd_mask=2 -timeout=5 -print_final_stats=1
