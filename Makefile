@@ -100,8 +100,10 @@ $(BUILD)/skel-dpu: $(DPU_SRC) $(DPU_HDR) $(GEN_C) $(GEN_H) | $(STAMP) $(SODIUM)
 # The same daemon under AddressSanitizer and UBSan, for the tests. dpu/ and the generated
 # code are compiled once (build/asan/obj) and linked into the daemon and every C unit test,
 # which link every dpu/ file but main.c: compiled per test they took minutes of `make test`.
+# The sources every C unit test and fuzz harness links: dpu/ but main.c, and the generated code.
+DPU_LIB    = $(notdir $(filter-out dpu/main.c,$(DPU_SRC)) $(GEN_C))
 ASAN_OBJ  := $(BUILD)/asan/obj
-ASAN_OBJS  = $(patsubst %.c,$(ASAN_OBJ)/%.o,$(notdir $(filter-out dpu/main.c,$(DPU_SRC)) $(GEN_C)))
+ASAN_OBJS  = $(patsubst %.c,$(ASAN_OBJ)/%.o,$(DPU_LIB))
 .PRECIOUS: $(ASAN_OBJ)/%.o
 
 $(ASAN_OBJ)/%.o: dpu/%.c $(DPU_HDR) $(GEN_H) $(GEN_C) | $(STAMP) $(SODIUM)
@@ -151,7 +153,7 @@ FUZZ_BINS          := $(patsubst %,$(FUZZ_DIR)/fuzz_%,$(FUZZ_HARNESSES))
 # nonnull-attribute: lcm_coretypes.h's memcpy(NULL, src, 0), as for SAN above.
 FUZZ_SAN    := -fsanitize=address,undefined -fno-sanitize=nonnull-attribute -fno-sanitize-recover=all \
                -fno-omit-frame-pointer
-FUZZ_OBJS    = $(patsubst %.c,$(FUZZ_DIR)/obj/%.o,$(notdir $(filter-out dpu/main.c,$(DPU_SRC)) $(GEN_C)))
+FUZZ_OBJS    = $(patsubst %.c,$(FUZZ_DIR)/obj/%.o,$(DPU_LIB))
 .PRECIOUS: $(FUZZ_DIR)/obj/%.o
 # -close_fd_mask=2: the DPU's log lines (one per command) would drown libFuzzer's; sanitizer
 # reports still reach the terminal. -timeout: an input that takes 5 s is a hang, reported.
