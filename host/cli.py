@@ -23,7 +23,7 @@ from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED
 from ..analysis.read.messages import run_log_path
 from ..analysis.read.seal import KeyFileError, key_path, load_key, write_key
 from . import spawn
-from .control import Control
+from .control import Control, ControlError
 from .listener import QUIET_S, is_run_id
 from .predict import deadlocks
 from .system import SystemFileError, load
@@ -176,7 +176,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemFileError as error:
         print(error, file=sys.stderr)
         return EXIT_BAD_INPUT
-    except spawn.SpawnError as error:
+    except (spawn.SpawnError, ControlError) as error:
         print(f"skel: {error}", file=sys.stderr)
         return EXIT_FAILED
     except KeyboardInterrupt:

@@ -118,6 +118,10 @@ def _plausible(sample: PingSample, t1_sent: int | None) -> bool:
             and abs(sample.offset_ns) <= CLOCK_OFFSET_MAX_NS)
 
 
+class ControlError(Exception):
+    """The control URL cannot be used on this host: one line for the user."""
+
+
 class Control(Listener):
     """The host's side of the control channels: it hears as a Listener and sends."""
 
@@ -136,7 +140,10 @@ class Control(Listener):
         self._pings: dict[int, dict[int, PingSample]] = {}
         self._ping_t1: dict[int, int] = {}
         for channel in CHANNELS:
-            self._lcm.subscribe(channel, self.handle).set_queue_capacity(0)
+            subscription = self._lcm.subscribe(channel, self.handle)
+            if subscription is None:  # LCM said why on stderr ("bind: Address already in use")
+                raise ControlError(f"cannot receive on {url}: its port is taken by another program")
+            subscription.set_queue_capacity(0)
         self._running = True
         self._thread = threading.Thread(target=self._drain, name="lcm-control", daemon=True)
         self._thread.start()

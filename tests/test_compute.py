@@ -71,6 +71,7 @@ def _draws(out: Path) -> list[int]:
     return [int(v) for v in mine["asked_ns"] if v > 0]  # the cycles that computed
 
 
+@pytest.mark.timing
 def test_one_seed_gives_the_same_draws_run_after_run(tmp_path: Path, url: str) -> None:
     """Real DPUs: two runs of seed 7 draw the same compute times cycle by cycle, seed 8
     others; what the DPU computed follows the draws, and the report shows both."""
@@ -100,6 +101,7 @@ def test_one_seed_gives_the_same_draws_run_after_run(tmp_path: Path, url: str) -
     assert "per process whose compute varies" in printed.stdout and "jittery" in printed.stdout
 
 
+@pytest.mark.timing
 def test_servo_with_a_varying_compute_locks_out_where_the_constant_one_does_not(
         tmp_path: Path, url: str) -> None:
     """examples/servo-jitter.yaml: DPU 1 at 96 % on average. Constant, it runs clean; with the

@@ -19,6 +19,8 @@ from conftest import REPO
 sys.path.insert(0, str(REPO / "bench"))
 from flood import FLOOD, flood_servo
 
+pytestmark = pytest.mark.timing  # judges the DPUs' timing: tests/steal.py
+
 FLOOD_RATE = int(os.environ.get("SKEL_FLOOD_RATE", "2000"))
 SECONDS = 10
 COMPUTE_POINTS = 2.0  # % compute per DPU within this of the clean run

@@ -193,6 +193,7 @@ chains:
 """
 
 
+@pytest.mark.timing
 def test_real_run_has_small_buffer_latencies_and_chain_samples(tmp_path: Path, url: str) -> None:
     system = tmp_path / "light.yaml"
     system.write_text(LIGHT_SERVO)

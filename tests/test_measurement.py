@@ -15,6 +15,8 @@ import pytest
 from conftest import EXAMPLES, DpuFarm, skel, skel_background
 from randsys import random_system
 
+pytestmark = pytest.mark.timing  # judges the DPUs' timing: tests/steal.py
+
 
 def _report(out: Path) -> dict:
     return json.loads((out / "report.json").read_text())

@@ -140,6 +140,7 @@ def _dropped_pct(inputs: list[dict[str, Any]]) -> float:
     return 100 * dropped / (dropped + sum(i["new"] for i in inputs))
 
 
+@pytest.mark.timing
 def test_netns_five_percent_inbound_loss_shows_as_dropped(netns_three_hosts: Hosts, tmp_path: Path) -> None:
     lab = Lab(netns_three_hosts, tmp_path)
     h1, lossy, tool = netns_three_hosts.names

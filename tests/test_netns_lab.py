@@ -17,10 +17,13 @@ from pathlib import Path
 from typing import Any
 
 import lcm
+import pytest
 from conftest import ASAN_DPU, EXAMPLES, REPO, SANITIZER_ERROR
 from netns import Hosts, hosts_fixture
 
 from skeleton.host.spawn import LOGGED_CHANNELS
+
+pytestmark = pytest.mark.timing  # judges the DPUs' timing: tests/steal.py
 
 GROUP = "239.255.76.67"
 PORT = 7667  # inside the namespaces no other test shares it

@@ -97,6 +97,7 @@ def _run(tmp_path: Path, url: str, path: Path, *args: str) -> tuple[dict, str]:
     return report, run.stdout
 
 
+@pytest.mark.timing
 def test_servo_measures_its_prediction(tmp_path: Path, url: str) -> None:
     report, stdout = _run(tmp_path, url, EXAMPLES / "servo.yaml", "--cycles", "600",
                           "-s", "run.warmup_cycles=20", "-s", "run.lockout_cycles=20")
@@ -130,6 +131,7 @@ run: {duration_s: 3, warmup_cycles: 10, late_pct: 5}
 """
 
 
+@pytest.mark.timing
 def test_interference_is_flagged_as_the_platforms_cost(tmp_path: Path, url: str) -> None:
     """The two computations take turns on CPU 0, so a cycle that meets the other's computation
     ends later than predicted by however much of it the kernel ran first: up to 6 ms when both

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 from conftest import EXAMPLES, LOCKOUT_SYSTEM, skel
 
 PAPER_COMPUTE_PCT = {1: 90.3, 2: 73.4, 3: 86.0, 4: 96.5}
@@ -18,6 +19,7 @@ def _report(out: Path) -> dict:
     return json.loads((out / "report.json").read_text())
 
 
+@pytest.mark.timing
 def test_servo_reproduces_table1_and_report_reproduces_run(tmp_path: Path, url: str) -> None:
     out = tmp_path / "servo"
     run = skel("run", str(EXAMPLES / "servo.yaml"), "--spawn", "--url", url, "--cycles", "800",
@@ -41,6 +43,7 @@ def test_servo_reproduces_table1_and_report_reproduces_run(tmp_path: Path, url: 
     assert json.loads(as_json.stdout) == report
 
 
+@pytest.mark.timing
 def test_servo_at_2_5ms_jams_and_locks_out(tmp_path: Path, url: str) -> None:
     out = tmp_path / "servo25"
     run = skel("run", str(EXAMPLES / "servo-2.5ms.yaml"), "--spawn", "--url", url, "--out", str(out))
@@ -59,6 +62,7 @@ def test_servo_at_2_5ms_jams_and_locks_out(tmp_path: Path, url: str) -> None:
     assert "FAULT jam: jacobian_transpose -> joint_sensors" in run.stdout, run.stdout
 
 
+@pytest.mark.timing
 def test_mismatched_rates_give_stale_and_dropped(tmp_path: Path, url: str) -> None:
     out = tmp_path / "pair"
     run = skel("run", str(EXAMPLES / "pair-10ms-5ms.yaml"), "--spawn", "--url", url, "--duration", "3",
@@ -78,6 +82,7 @@ def test_mismatched_rates_give_stale_and_dropped(tmp_path: Path, url: str) -> No
 
 
 
+@pytest.mark.timing
 def test_lockout_of_a_data_synchronised_reader(tmp_path: Path, url: str) -> None:
     path = tmp_path / "lockout.yaml"
     path.write_text(LOCKOUT_SYSTEM)

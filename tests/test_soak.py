@@ -10,6 +10,8 @@ from pathlib import Path
 import pytest
 from conftest import EXAMPLES, skel
 
+pytestmark = pytest.mark.timing  # judges the DPUs' timing: tests/steal.py
+
 SOAK_S = float(os.environ.get("SKEL_SOAK_S", "20"))
 
 

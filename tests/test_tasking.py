@@ -69,6 +69,7 @@ def _run(tmp_path: Path, url: str, tasks: list[tuple[int, int]]) -> pd.DataFrame
     return kept
 
 
+@pytest.mark.timing
 def test_rate_monotonic_responses_match_exact_response_time_analysis(tmp_path: Path, url: str) -> None:
     rta = response_times(SCHEDULABLE)
     assert rta == [3, 6, 22]
@@ -88,6 +89,7 @@ def test_rate_monotonic_responses_match_exact_response_time_analysis(tmp_path: P
     assert max(measured.values()) >= 2 and cycles.preempted_ns[cycles.task == 2].min() > 0
 
 
+@pytest.mark.timing
 def test_an_unschedulable_set_misses_exactly_the_deadlines_analysis_predicts(tmp_path: Path,
                                                                             url: str) -> None:
     rta = response_times(UNSCHEDULABLE)
@@ -168,6 +170,7 @@ def _threaded_run(tmp_path: Path, url: str, compute: str) -> tuple[pd.DataFrame,
     return timing, out
 
 
+@pytest.mark.timing
 @pytest.mark.parametrize("compute", ["cpu", "wall"])
 def test_fifo_threads_preempt_as_response_time_analysis_bounds(tmp_path: Path, url: str, compute: str,
                                                               busy_neighbours: None) -> None:

@@ -31,6 +31,8 @@ from skeleton.host.schedule import ideal_schedule
 from skeleton.host.system import System, load
 from skeleton.host.wire import config_message
 
+pytestmark = pytest.mark.timing  # judges the DPUs' timing: tests/steal.py
+
 MS = 1_000_000
 HYPER_NS = 60 * MS
 STALL_NS = 100_000

@@ -13,6 +13,8 @@ from conftest import SANITIZER_ERROR, skel
 
 import skeleton
 
+pytestmark = pytest.mark.timing  # judges the DPUs' timing: tests/steal.py
+
 MS = 1_000_000  # ns
 
 # One DPU. `reader` (5 ms) waits for `writer`'s buffer (10 ms) on an in-process link: it runs
