@@ -36,6 +36,7 @@ class Attempt:
     nodeid: str
     started_s: float
     stolen_at_start_ns: int
+    reported: bool = False
 
     def stolen_share(self) -> tuple[float, float]:
         """(ms stolen, its share of the CPUs' time) since the attempt began."""
@@ -55,8 +56,10 @@ def platform_took_the_cpus(error: BaseException | None) -> bool:
     ms, share = _current.stolen_share()
     if share < STEAL_SHARE:
         return False
-    _reattempted.append(f"{_current.nodeid}: {ms:.0f} ms stolen ({100 * share:.1f} % of the CPUs' time); "
-                        f"failed with {type(error).__name__ if error else 'an error'}")
+    if not _current.reported:  # asked once per failed phase
+        _current.reported = True
+        _reattempted.append(f"{_current.nodeid}: {ms:.0f} ms stolen ({100 * share:.1f} % of the CPUs' "
+                            f"time){f', {type(error).__name__}' if error is not None else ''}")
     return True
 
 

@@ -47,13 +47,20 @@ def _system(tmp_path: Path, tasks: list[tuple[int, int]], duration_s: float, com
 STALL_NS = 100_000
 
 
+# A VM here stalls a thread beyond STALL_NS about every 45 ms, and a stall rules out its
+# hyperperiod and the next: a run of 3 s left too few whole hyperperiods to judge. RUN_S
+# leaves at least twice what 3 s gave on a quiet machine.
+RUN_S = 8
+KEPT_SHARE = 0.25
+
+
 def _run(tmp_path: Path, url: str, tasks: list[tuple[int, int]]) -> pd.DataFrame:
-    """The measured, completed cycles of a 3 s run, less those of any hyperperiod in which
+    """The measured, completed cycles of a RUN_S run, less those of any hyperperiod in which
     the machine stalled the DPU longer than STALL_NS, and of the next (a stall delays real
     time, not the schedule: it would add an overrun the design does not have). Columns as
     the timing table's, plus `task`."""
     out = tmp_path / "run"
-    run = skel("run", str(_system(tmp_path, tasks, 3)), "--spawn", "--url", url, "--out", str(out))
+    run = skel("run", str(_system(tmp_path, tasks, RUN_S)), "--spawn", "--url", url, "--out", str(out))
     assert run.returncode in (0, 1), run.stdout + run.stderr
     timing = skeleton.load_run(out).timing.to_pandas()
     timing = timing[timing.measured & timing.completed].copy()
@@ -65,7 +72,7 @@ def _run(tmp_path: Path, url: str, tasks: list[tuple[int, int]]) -> pd.DataFrame
     stalled = set(timing.hyper[timing.stall_ns > STALL_NS])
     # The work a stall delays may spill into the next hyperperiod.
     kept = timing[~timing.hyper.isin(stalled | {h + 1 for h in stalled})]
-    assert len(kept) >= 0.5 * len(timing), f"the machine stalled in {len(stalled)} hyperperiods"
+    assert len(kept) >= KEPT_SHARE * len(timing), f"the machine stalled in {len(stalled)} hyperperiods"
     return kept
 
 
@@ -83,7 +90,7 @@ def test_rate_monotonic_responses_match_exact_response_time_analysis(tmp_path: P
         assert not mine.overrun.any(), mine[mine.overrun]
     # Every job is preempted exactly as often as on the ideal schedule (the lowest-priority
     # one, by the others' releases; the others never).
-    ideal = ideal_schedule(SCHEDULABLE, 4000)
+    ideal = ideal_schedule(SCHEDULABLE, (RUN_S + 1) * 1000)
     measured = {(i, k): n for i, k, n in zip(cycles.task, cycles.cycle, cycles.preemptions, strict=True)}
     assert measured == {key: ideal[key].preemptions for key in measured}, measured
     assert max(measured.values()) >= 2 and cycles.preempted_ns[cycles.task == 2].min() > 0
@@ -96,7 +103,7 @@ def test_an_unschedulable_set_misses_exactly_the_deadlines_analysis_predicts(tmp
     r3 = rta[2]
     assert rta[:2] == [3, 12] and r3 is not None and r3 > UNSCHEDULABLE[2][1]  # p3 misses its deadline
     cycles = _run(tmp_path, url, UNSCHEDULABLE)
-    ideal = ideal_schedule(UNSCHEDULABLE, 4000)
+    ideal = ideal_schedule(UNSCHEDULABLE, (RUN_S + 1) * 1000)
     predicted = {(i, k) for (i, k), job in ideal.items() if job.response > UNSCHEDULABLE[i][1]}
     measured = set(zip(cycles.task[cycles.overrun], cycles.cycle[cycles.overrun], strict=True))
     ran = set(zip(cycles.task, cycles.cycle, strict=True))
