@@ -84,6 +84,7 @@ def test_servo_at_2_5_ms_does_not_fit_and_says_what_would(tmp_path: Path) -> Non
     assert not (tmp_path / "x.yaml").exists()
 
 
+@pytest.mark.timing
 def test_servo_at_2_5_ms_with_what_would_runs_without_lockout(tmp_path: Path, url: str) -> None:
     out = tmp_path / "fixed.yaml"
     done = skel("allocate", str(EXAMPLES / "servo-2.5ms.yaml"), "--dpus", "5", "--speed", "1.56",

@@ -165,6 +165,7 @@ def _executor_compute_us(out: Path) -> float:
     return next(p for p in _report(out)["processes"] if p["name"] == "executor")["compute_mean_us"]
 
 
+@pytest.mark.timing
 def test_push_reconfigures_running_dpus_without_restart(tmp_path: Path, url: str, state_dir: Path) -> None:
     servo = str(EXAMPLES / "servo.yaml")
     assert skel("up", servo, "--url", url).returncode == 0
