@@ -42,8 +42,8 @@ settings.load_profile(os.environ.get("SKEL_HYPOTHESIS", "test"))
 # random: two test sessions on one machine (a CI clone and a developer's checkout) whose blocks
 # overlapped heard each other's DPUs and failed at random.
 # The blocks lie below the kernel's ephemeral ports (ip_local_port_range), where any program's
-# sockets, LCM's own senders among them, may hold a port: a test's host tool could not bind its port
-# (an ephemeral one, taken) failed a test with "bind: Address already in use".
+# sockets, LCM's own senders among them, may hold a port: a test's host tool that could not bind its port
+# (an ephemeral one, taken) failed with "bind: Address already in use".
 PORT_BLOCK = 600
 _EPHEMERAL_LOW = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
 _ports = itertools.count(
