@@ -98,9 +98,9 @@ $(BUILD)/skel-dpu: $(DPU_SRC) $(DPU_HDR) $(GEN_C) $(GEN_H) | $(STAMP) $(SODIUM)
 	$(CC) $(WARN) $(CFLAGS) $(INC) -o $@ $(DPU_SRC) $(GEN_C) $(LIBS)
 
 # The same daemon under AddressSanitizer and UBSan, for the tests. dpu/ and the generated
-# code are compiled once (build/asan/obj) and linked into the daemon and every C unit test,
-# which link every dpu/ file but main.c: compiled per test they took minutes of `make test`.
-# The sources every C unit test and fuzz harness links: dpu/ but main.c, and the generated code.
+# code are compiled once (build/asan/obj) and linked into the daemon and every C unit test:
+# compiled per test they took minutes of `make test`. DPU_LIB: what every C unit test and
+# fuzz harness links, dpu/ but main.c, and the generated code.
 DPU_LIB    = $(notdir $(filter-out dpu/main.c,$(DPU_SRC)) $(GEN_C))
 ASAN_OBJ  := $(BUILD)/asan/obj
 ASAN_OBJS  = $(patsubst %.c,$(ASAN_OBJ)/%.o,$(DPU_LIB))
