@@ -63,9 +63,11 @@ void buffers_input_peek(const skel_input_t *in, const skel_slot_t *slot, skel_in
     rec->buffer = in->buffer;
     rec->seq = slot->newest_seq;
     rec->new_data = slot->newest_seq >= 0 && slot->newest_seq > in->last_used;
-    /* An input added by a live switch never used anything: nothing was dropped for it. */
+    /* An input added by a live switch never used anything: nothing was dropped for it.
+     * newest - 1 - last_used, in that order: with last_used -1 (nothing used yet) and
+     * a sequence of INT64_MAX from the wire, newest - last_used would overflow. */
     int counts = rec->new_data && in->last_used != SKEL_SEQ_JOINED;
-    rec->dropped = counts ? buffers_clamp32(slot->newest_seq - in->last_used - 1) : 0;
+    rec->dropped = counts ? buffers_clamp32((slot->newest_seq - 1) - in->last_used) : 0;
     rec->received = buffers_clamp32(slot->received - in->received_seen);
     rec->sent_ns = slot->newest_send_ns;
     rec->recv_ns = slot->newest_recv_ns;

@@ -93,6 +93,20 @@ static void test_loss_and_order(void)
     CHECK_EQ(r.in.last_used, 4);
 }
 
+/* A sequence of INT64_MAX as the first message (the wire's, not ours): every earlier
+ * one dropped, counted without overflow (a fuzzer found newest - last_used overflow). */
+static void test_sequence_at_int64_max(void)
+{
+    rig_t r;
+    rig_init(&r);
+    wire_buffer_hdr_t h = { r.run_id, 9, 3, INT64_MAX, 1000, 16 };
+    CHECK_EQ(buffers_slot_receive(&r.slot, r.run_id, &h, 2000), BUFFERS_ACCEPTED);
+    skel_in_rec_t rec = rig_read(&r, 1);
+    CHECK_EQ(rec.new_data, 1);
+    CHECK_EQ(rec.dropped, INT32_MAX);
+    CHECK_EQ(r.in.last_used, INT64_MAX);
+}
+
 static void test_foreign_and_mismatch(void)
 {
     rig_t r;
@@ -152,6 +166,7 @@ int main(void)
     test_stale_half();
     test_drop_half();
     test_loss_and_order();
+    test_sequence_at_int64_max();
     test_foreign_and_mismatch();
     test_warmup_not_counted();
     test_output_encode();
