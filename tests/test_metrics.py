@@ -18,7 +18,7 @@ from skeleton.analysis.measure.faults import (
     lockouts_from_status,
     stall_faults,
 )
-from skeleton.analysis.measure.metrics import dpu_metrics, process_metrics, static_load_pct
+from skeleton.analysis.measure.metrics import dpu_metrics, process_metrics, static_load_pct, unstalled_ns
 from skeleton.analysis.read.records import RECORD_DTYPE, RunRecords, decode_run, lost_batches
 
 
@@ -52,6 +52,22 @@ def test_dpu_utilization_matches_hand_computation() -> None:
     assert d1.processes == ["A", "B"] and d2.processes == ["C"]
     assert d1.static_load_pct == pytest.approx(60.0) and d2.static_load_pct == pytest.approx(25.0)
     assert (d1.overruns, d2.overruns) == (0, 1)
+    assert d1.stall_pct == 0.0 and d1.compute_unstalled_pct == d1.compute_pct  # no stalls
+
+
+def test_unstalled_time_takes_out_only_the_stalls_that_lengthened_the_run() -> None:
+    """Ten 5 ms frames released 0..45 ms: their schedule is 50 ms."""
+    mine = np.zeros(10, dtype=RECORD_DTYPE)
+    mine["release_ns"] = np.arange(10) * 5 * MS
+    # behind by the platform: 62 ms elapsed, 12 ms of it stalls -> its schedule
+    assert unstalled_ns(mine, 62 * MS, 12 * MS, 5 * MS) == 50 * MS
+    # stalls its idle time absorbed: it kept its schedule, nothing comes out
+    assert unstalled_ns(mine, 50 * MS, 8 * MS, 5 * MS) == 50 * MS
+    # overloaded by itself (no stall): what it took, however far past its schedule
+    assert unstalled_ns(mine, 70 * MS, 0, 5 * MS) == 70 * MS
+    # part of the stalls absorbed, part lengthened it: only that part comes out
+    assert unstalled_ns(mine, 70 * MS, 8 * MS, 5 * MS) == 62 * MS
+    assert unstalled_ns(mine, None, 0, 5 * MS) is None
 
 
 def test_process_metrics_counts_latency_and_inputs() -> None:

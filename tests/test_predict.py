@@ -185,7 +185,7 @@ def _measured_vs_predicted(tmp_path: Path, url: str, path: Path,
     run = skel("run", str(path), "--spawn", "--url", url, "--out", str(out), *args)
     assert run.returncode == 0, run.stdout + run.stderr
     pred = predict(load(path))
-    return [(d["id"], d["compute_pct"], pred.dpu(d["id"]).compute_pct)
+    return [(d["id"], d["compute_unstalled_pct"], pred.dpu(d["id"]).compute_pct)
             for d in json.loads((out / "report.json").read_text())["dpus"]]
 
 

@@ -22,7 +22,8 @@ from skelmsg.contract import CONFIG_CHANNEL, TIMING_CHANNEL
 
 
 def _dpu(dpu_id: int, compute_pct: float) -> DpuMetrics:
-    return DpuMetrics(dpu_id, [], 5.0, 5.0, compute_pct, 1.0, 1.0, 1.0, compute_pct, 0, 1000.0, 100)
+    return DpuMetrics(dpu_id, [], 5.0, 5.0, compute_pct, 1.0, 1.0, 1.0, compute_pct, 0, 1000.0, 100,
+                      compute_unstalled_pct=compute_pct)
 
 
 def _process(name: str, p99_us: float, inputs: tuple[InputMetrics, ...] = ()) -> ProcessMetrics:

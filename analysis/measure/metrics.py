@@ -116,6 +116,11 @@ class DpuMetrics:
     # the first start of each minor cycle - its release (cyclictest's figure)
     release_latency_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))
     stall_ms: float = 0.0  # time the executive was kept from running (stalls) in the window
+    stall_pct: float | None = None  # that time's share of elapsed_ms: what the platform took
+    # % compute of the time the DPU would have taken had the platform not stalled it
+    # (unstalled_ns): on a machine that never stalls, compute_pct; what the prediction, made
+    # for a dedicated CPU, is held to.
+    compute_unstalled_pct: float | None = None
 
 
 def per_id(ids: np.ndarray, values: dict[int, int]) -> np.ndarray:
@@ -187,6 +192,8 @@ def dpu_metrics(records: np.ndarray, config: Any) -> list[DpuMetrics]:
         overruns = int(np.count_nonzero(_overran(mine[completed(mine)])))
         shares = _utilization(mine)
         elapsed = _elapsed_ns(mine)
+        stall = int(mine["stall_ns"].sum())
+        given = unstalled_ns(mine, elapsed, stall, dpu.minor_cycle_us * 1000)
         out.append(
             DpuMetrics(
                 id=dpu.id,
@@ -202,7 +209,9 @@ def dpu_metrics(records: np.ndarray, config: Any) -> list[DpuMetrics]:
                 elapsed_ms=None if elapsed is None else elapsed / 1e6,
                 records=len(mine),
                 release_latency_us=_latency(frame_release_latency_ns(mine).astype(np.float64) / 1000.0),
-                stall_ms=float(mine["stall_ns"].sum()) / 1e6,
+                stall_ms=stall / 1e6,
+                stall_pct=100.0 * stall / elapsed if elapsed else None,
+                compute_unstalled_pct=100.0 * int(mine["compute_ns"].sum()) / given if given else None,
             )
         )
     return out
@@ -230,6 +239,17 @@ def _elapsed_ns(mine: np.ndarray) -> int | None:
     if len(mine) == 0:
         return None
     return int((cycle_end_ns(mine) + mine["idle_ns"]).max() - mine["release_ns"].min())
+
+
+def unstalled_ns(mine: np.ndarray, elapsed: int | None, stall: int, minor_ns: int) -> int | None:
+    """How long one DPU's measured records would have taken had the platform not stalled it:
+    the elapsed time less the stalls, but never less than the schedule of the frames it ran
+    (a stall that its idle time absorbed did not lengthen the run; an overloaded DPU falls
+    behind by itself) nor more than it took."""
+    if elapsed is None or elapsed <= 0:
+        return None
+    scheduled = int(mine["release_ns"].max() - mine["release_ns"].min()) + minor_ns
+    return min(elapsed, max(elapsed - stall, scheduled))
 
 
 def _utilization(mine: np.ndarray) -> tuple[float | None, float | None, float | None, float | None]:

@@ -5,7 +5,9 @@ system file predicts (host/predict.py, handed over as its JSON, `skel check --js
 The prediction counts only the file's computations and schedule, so what a run measures
 beyond it is the platform's own cost: communication, wake-up, interference. The
 tolerances say how much of that cost passes unremarked:
-- % compute per DPU: within COMPUTE_POINTS either way (sleep mode measures SERVO to 0.03);
+- % compute per DPU: within COMPUTE_POINTS either way (sleep mode measures SERVO to 0.03),
+  measured over the time the platform let the DPU run (DpuMetrics.compute_unstalled_pct): the
+  prediction is for a dedicated CPU, and the stalls are the platform's, reported as such;
 - new / stale share of a reader's cycles and dropped sequences per cycle: within SHARE
   either way (they follow from the two rates alone);
 - response (release -> end of work) per process and chain latency: the measured p99 may
@@ -123,7 +125,8 @@ def beside(prediction: Mapping[str, Any], generation: int, late_pct: int, dpus: 
     measured_dpus = {d.id: d for d in dpus}
     for d in prediction["dpus"]:
         if (m := measured_dpus.get(d["id"])) is not None:
-            out.dpus.append(DpuBeside(d["id"], either_way(d["compute_pct"], m.compute_pct, COMPUTE_POINTS)))
+            compute = either_way(d["compute_pct"], m.compute_unstalled_pct, COMPUTE_POINTS)
+            out.dpus.append(DpuBeside(d["id"], compute))
     by_name = {p.name: p for p in processes}
     for p in prediction["processes"]:
         if (mp := by_name.get(p["name"])) is None:
