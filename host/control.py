@@ -122,6 +122,16 @@ class ControlError(Exception):
     """The control URL cannot be used on this host: one line for the user."""
 
 
+def subscribe(bus: lcm.LCM, url: str, channels: Iterable[str], handler: Callable[[str, bytes], None]) -> None:
+    """HANDLER for every channel of CHANNELS, each with an unbounded queue (LCM would drop the
+    newest messages when one is full); ControlError when the URL's port is taken."""
+    for channel in channels:
+        subscription = bus.subscribe(channel, handler)
+        if subscription is None:  # LCM said why on stderr ("bind: Address already in use")
+            raise ControlError(f"cannot receive on {url}: its port is taken by another program")
+        subscription.set_queue_capacity(0)
+
+
 class Control(Listener):
     """The host's side of the control channels: it hears as a Listener and sends."""
 
@@ -139,11 +149,7 @@ class Control(Listener):
         # and -> its t1, which an answer must echo.
         self._pings: dict[int, dict[int, PingSample]] = {}
         self._ping_t1: dict[int, int] = {}
-        for channel in CHANNELS:
-            subscription = self._lcm.subscribe(channel, self.handle)
-            if subscription is None:  # LCM said why on stderr ("bind: Address already in use")
-                raise ControlError(f"cannot receive on {url}: its port is taken by another program")
-            subscription.set_queue_capacity(0)
+        subscribe(self._lcm, url, CHANNELS, self.handle)
         self._running = True
         self._thread = threading.Thread(target=self._drain, name="lcm-control", daemon=True)
         self._thread.start()

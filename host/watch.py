@@ -26,6 +26,7 @@ from ..analysis.measure.run import analyze_log
 from ..analysis.read.logreader import encode_events, read_bytes
 from ..analysis.read.messages import LogError
 from ..analysis.views.tables import print_report
+from .control import subscribe
 from .listener import CHANNELS, LOST_AFTER_S, Listener
 from .predict_view import predictor
 from .recordstore import RecordStore
@@ -108,9 +109,7 @@ def _subscribe(url: str, heard: Heard) -> Any:
     import lcm
 
     lc = lcm.LCM(url)
-    for channel in CHANNELS:
-        sub = lc.subscribe(channel, heard.handle)
-        sub.set_queue_capacity(0)  # unlimited: LCM would drop the newest batches when full
+    subscribe(lc, url, CHANNELS, heard.handle)
     return lc
 
 
@@ -137,7 +136,7 @@ def watch_command(url: str, once: bool, duration_s: float | None, as_json: bool 
     heard = Heard(keep_events=once, key=key)
     try:
         lc = _subscribe(url, heard)
-    except Exception as e:  # lcm raises IOError/ValueError for a URL it cannot open
+    except RuntimeError as e:  # lcm's for a URL it cannot open; a taken port is ControlError
         print(f"skel watch: cannot open LCM URL {url}: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     deadline = None if duration_s is None else time.monotonic() + duration_s

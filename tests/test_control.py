@@ -4,13 +4,16 @@ host tool nor choose its numbers, and real DPUs are pushed to and run afterwards
 
 from __future__ import annotations
 
+import socket
 import time
 from pathlib import Path
 
 import lcm
+import pytest
 from conftest import EXAMPLES, DpuFarm, skel
 
 import skelmsg
+from skeleton.analysis.exitcodes import EXIT_FAILED
 from skeleton.host.control import Control
 from skeleton.host.listener import REPORTS_KEPT
 from skeleton.host.repair import SeenBatches
@@ -149,3 +152,18 @@ def test_the_log_repair_ignores_a_stray_batch_number() -> None:
     assert seen.missing(None) == [3]
     assert seen.missing(INT64_MAX) == [3]
     assert seen.missing(8) == [3, 5, 6, 7]
+
+
+@pytest.mark.parametrize("command", [("watch", "--duration", "1"), ("status",)])
+def test_a_taken_port_is_said_in_one_line(command: tuple[str, ...]) -> None:
+    """Another program holds the control URL's UDP port without sharing it: LCM cannot bind,
+    and the command says so in one line (it raised AttributeError from a None subscription)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as holder:
+        holder.bind(("0.0.0.0", 0))
+        port = holder.getsockname()[1]
+        done = skel(*command, "--url", f"udpm://239.255.76.67:{port}?ttl=0")
+    assert done.returncode == EXIT_FAILED, done.stdout + done.stderr
+    said = [line for line in done.stderr.splitlines() if line.startswith("skel:")]
+    assert said == [f"skel: cannot receive on udpm://239.255.76.67:{port}?ttl=0: its port is taken by "
+                    "another program"], done.stderr
+    assert "Traceback" not in done.stderr
