@@ -188,7 +188,7 @@ typedef struct {
     int16_t event_queued;
     int32_t event_dropped;
     int64_t cycle, minor, release_ns, sched_ns, start_ns, comm_in_ns, blocked_ns, asked_ns, compute_ns,
-        comm_out_ns, idle_ns, slack_ns, stall_ns, preempted_ns, event_ns;
+        comm_out_ns, idle_ns, slack_ns, stall_ns, debt_ns, preempted_ns, event_ns;
     skel_in_rec_t in[SKEL_MAX_IO];
 } skel_rec_t;
 

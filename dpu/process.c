@@ -243,6 +243,7 @@ void process_record_begin(skel_exec_t *x, const skel_process_t *p, int64_t k, in
     rec->start_ns = start + off;
     rec->stall_ns = x->wake_stall_ns;
     x->wake_stall_ns = 0;
+    rec->debt_ns = x->stall_debt_ns; /* the cyclic executive's; 0 on the others */
     rec->event_ns = p->taken_ns >= 0 ? p->taken_ns + off : -1;
     rec->event_queued = p->taken_left;
     rec->event_dropped = p->taken_dropped;

@@ -71,6 +71,7 @@ int timing_batch_init(skel_batch_t *b)
     m->idle_ns = calloc(n, sizeof *m->idle_ns);
     m->slack_ns = calloc(n, sizeof *m->slack_ns);
     m->stall_ns = calloc(n, sizeof *m->stall_ns);
+    m->debt_ns = calloc(n, sizeof *m->debt_ns);
     m->preemptions = calloc(n, sizeof *m->preemptions);
     m->preempted_ns = calloc(n, sizeof *m->preempted_ns);
     m->event_ns = calloc(n, sizeof *m->event_ns);
@@ -87,7 +88,7 @@ int timing_batch_init(skel_batch_t *b)
     m->in_recv_ns = calloc(ni, sizeof *m->in_recv_ns);
     if (!m->process || !m->cycle || !m->minor || !m->release_ns || !m->sched_ns || !m->start_ns ||
         !m->comm_in_ns || !m->blocked_ns || !m->asked_ns || !m->compute_ns || !m->comm_out_ns || !m->idle_ns ||
-        !m->slack_ns || !m->stall_ns || !m->preemptions || !m->preempted_ns || !m->event_ns ||
+        !m->slack_ns || !m->stall_ns || !m->debt_ns || !m->preemptions || !m->preempted_ns || !m->event_ns ||
         !m->event_queued || !m->event_dropped || !m->flags || !m->in_record || !m->in_buffer || !m->in_seq ||
         !m->in_new || !m->in_dropped || !m->in_received || !m->in_sent_ns || !m->in_recv_ns) {
         timing_batch_free(b);
@@ -102,7 +103,7 @@ void timing_batch_free(skel_batch_t *b)
     free(m->process); free(m->cycle); free(m->minor); free(m->release_ns);
     free(m->sched_ns); free(m->start_ns); free(m->comm_in_ns); free(m->blocked_ns); free(m->asked_ns);
     free(m->compute_ns); free(m->comm_out_ns); free(m->idle_ns); free(m->slack_ns);
-    free(m->stall_ns); free(m->preemptions); free(m->preempted_ns);
+    free(m->stall_ns); free(m->debt_ns); free(m->preemptions); free(m->preempted_ns);
     free(m->event_ns); free(m->event_queued); free(m->event_dropped); free(m->flags);
     free(m->in_record); free(m->in_buffer); free(m->in_seq); free(m->in_new);
     free(m->in_dropped); free(m->in_received); free(m->in_sent_ns); free(m->in_recv_ns);
@@ -142,6 +143,7 @@ void timing_batch_add(skel_batch_t *b, const skel_rec_t *rec)
     m->idle_ns[i] = rec->idle_ns;
     m->slack_ns[i] = rec->slack_ns;
     m->stall_ns[i] = rec->stall_ns;
+    m->debt_ns[i] = rec->debt_ns;
     m->preemptions[i] = rec->preemptions;
     m->preempted_ns[i] = rec->preempted_ns;
     m->event_ns[i] = rec->event_ns;

@@ -83,6 +83,7 @@ class Rec:
     flags: int = 0
     sched_ns: int | None = None  # the schedule's start; None: the release
     stall_ns: int = 0
+    debt_ns: int = 0
     # (buffer, seq, new, dropped, received) or (..., sent_ns, recv_ns); without times
     # an input gets sent 1000 + i and received 2000 + i ns (i: its row in the batch)
     inputs: list[tuple[int, ...]] = field(default_factory=list)
@@ -108,6 +109,7 @@ def batches(dpu: int, recs: list[Rec], size: int, run_id: int = RUN_ID,
         t.sched_ns = [r.release_ns if r.sched_ns is None else r.sched_ns for r in chunk]
         t.asked_ns = [r.compute_ns for r in chunk]  # a constant compute, emulated exactly
         t.preemptions, t.preempted_ns = [0] * len(chunk), [0] * len(chunk)  # the cyclic executive
+        t.debt_ns = [r.debt_ns for r in chunk]
         t.event_ns = [-1] * len(chunk)  # no sync: event process
         t.event_queued, t.event_dropped = [0] * len(chunk), [0] * len(chunk)
         rows = [(i, *inp) for i, r in enumerate(chunk) for inp in r.inputs]

@@ -108,16 +108,17 @@ _reattempted: list[str] = []
 
 
 def platform_took_the_cpus(error: BaseException | None) -> bool:
-    """pytest-rerunfailures' condition, asked after a failed attempt (tests run one at a time)."""
+    """pytest-rerunfailures' condition, asked after every attempt (tests run one at a time):
+    with the error of each failed phase, with None after one that passed."""
     if _current is None:
         return False
     ms, share = _current.stolen_share()
     if share < STEAL_SHARE:
         return False
-    if not _current.reported:  # asked once per failed phase
+    if error is not None and not _current.reported:  # once per failed attempt
         _current.reported = True
         _reattempted.append(f"{_current.nodeid}: {ms:.0f} ms stolen ({100 * share:.1f} % of the CPUs' "
-                            f"time){f', {type(error).__name__}' if error is not None else ''}")
+                            f"time), {type(error).__name__}")
     return True
 
 

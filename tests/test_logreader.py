@@ -268,7 +268,7 @@ def _structured(msgs: list[bytes], run_id: int) -> tuple[np.ndarray, np.ndarray]
                          t.release_ns[i], t.sched_ns[i], t.start_ns[i], t.comm_in_ns[i], t.blocked_ns[i],
                          t.asked_ns[i],
                          t.compute_ns[i], t.comm_out_ns[i], t.idle_ns[i], t.slack_ns[i], t.stall_ns[i],
-                         t.preemptions[i], t.preempted_ns[i], t.event_ns[i], t.event_queued[i],
+                         t.debt_ns[i], t.preemptions[i], t.preempted_ns[i], t.event_ns[i], t.event_queued[i],
                          t.event_dropped[i], t.flags[i]))  # fmt: skip
         for j, r in enumerate(t.in_record):
             ins.append((base + r, t.dpu, t.process[r], t.cycle[r], t.in_buffer[j], t.in_seq[j], t.in_new[j],

@@ -18,7 +18,13 @@ from skeleton.analysis.measure.faults import (
     lockouts_from_status,
     stall_faults,
 )
-from skeleton.analysis.measure.metrics import dpu_metrics, process_metrics, static_load_pct, unstalled_ns
+from skeleton.analysis.measure.metrics import (
+    dpu_metrics,
+    process_metrics,
+    static_load_pct,
+    unstalled_lateness_us,
+    unstalled_ns,
+)
 from skeleton.analysis.read.records import RECORD_DTYPE, RunRecords, decode_run, lost_batches
 
 
@@ -70,6 +76,15 @@ def test_unstalled_time_takes_out_only_the_stalls_that_lengthened_the_run() -> N
     assert unstalled_ns(mine, None, 0, 5 * MS) is None
 
 
+def test_unstalled_lateness_leaves_out_the_stalls_not_caught_up_on() -> None:
+    recs = np.zeros(4, dtype=RECORD_DTYPE)
+    recs["debt_ns"] = [9 * MS, 0, 3 * MS, 2 * MS]
+    lateness = np.array([10_000.0, 700.0, 2_000.0, -50.0])  # µs
+    # 10 ms late with 9 ms of stalls owed: 1 ms is the design's; none owed: all of it; more owed
+    # than late: on time; an early start (a computation shorter than configured) stays early
+    assert unstalled_lateness_us(recs, lateness).tolist() == [1_000.0, 700.0, 0.0, -50.0]
+
+
 def test_process_metrics_counts_latency_and_inputs() -> None:
     config = small_config(warmup_cycles=2)
     run = _run(*small_run(warmup=2, cycles=10))
@@ -79,6 +94,7 @@ def test_process_metrics_counts_latency_and_inputs() -> None:
     assert a.latency_us.p99 == pytest.approx(120 + 0.99 * 70)
     assert a.compute_mean_us == pytest.approx(4000.0)
     assert (a.late, a.too_late) == (0, 0)
+    assert a.lateness_unstalled_us == a.lateness_us and a.late_unstalled == a.late  # no stalls owed
     # B starts 4.72..4.79 ms after its release: late (> 40 % of 10 ms), not too late (> 80 %).
     assert (b.late, b.too_late) == (8, 0)
     (b_in,) = b.inputs

@@ -1,5 +1,6 @@
-"""SERVO for a long time: no process falls a period behind and every fault has a cause
-that is not the design. CI runs it for 20 s; `make soak` for 10 minutes (SKEL_SOAK_S)."""
+"""SERVO for a long time: no process falls a period behind by the design (the platform's
+stalls are counted apart) and every fault has a cause that is not the design. CI runs it for
+20 s; `make soak` for 10 minutes (SKEL_SOAK_S)."""
 
 from __future__ import annotations
 
@@ -26,8 +27,9 @@ def test_servo_runs_long_with_no_process_behind(tmp_path: Path, url: str) -> Non
     assert run.returncode == 0, run.stdout + run.stderr
     for proc in report["processes"]:
         assert proc["cycles"] > 0.9 * SOAK_S * 1e6 / proc["period_us"] - 200, proc
-        # Never a period behind: not at p99, and no stretch of it the analysis calls `behind`.
-        assert proc["latency_us"]["p99"] < proc["period_us"], proc
+        # Never a period behind by the design: not at p99 of the lateness the platform's stalls
+        # do not explain, and no stretch the analysis calls `behind` that they do not explain.
+        assert proc["lateness_unstalled_us"]["p99"] < proc["period_us"], proc
     for fault in report["faults"]:
         assert fault["kind"] in ("stall", "behind", "overrun"), fault
         if fault["kind"] == "behind":

@@ -55,6 +55,8 @@ _CYCLE = {
     "comm_out_ns": "time publishing its outputs", "idle_ns": "time waiting for its next release",
     "slack_ns": "time left before its deadline (negative: overrun)",
     "stall_ns": "time the DPU's thread was kept from running (machine stalls)",
+    "debt_ns": "cyclic executive: its stalls since it last slept until a release, at the cycle's "
+               "start: the part of the lateness the platform explains",
     "preemptions": "times higher-priority work took the processor from it (tasking executive)",
     "preempted_ns": "time it was kept off the processor so, between its start and its end",
     "event_ns": "sync: event: when the event the cycle handled reached its DPU (-1: not an event cycle)",

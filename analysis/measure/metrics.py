@@ -18,7 +18,8 @@ Three times per cycle, each its own measure:
 - release latency = start - r_k (the process's release): cyclictest's figure for
   the first process of a minor cycle; a later one includes the ones before it;
 - lateness = start - the schedule's start (r_k plus the configured compute of the
-  processes before it in its minor cycle): what `late` and `too late` judge;
+  processes before it in its minor cycle): what `late` and `too late` judge; less the
+  stalls the DPU had not caught up on (debt_ns), the design's own (lateness_unstalled);
 - the DPU's frame release latency: the first start of each minor cycle - its release.
 """
 
@@ -81,6 +82,10 @@ class ProcessMetrics:
     too_late: int  # lateness > too_late_pct % of the period
     first_overrun_cycle: int | None = None
     lateness_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))  # start - sched
+    # lateness less the part the platform's stalls explain (timing_t.debt_ns), and the cycles
+    # late by it: the design's lateness (the cyclic executive's; the others track no debt)
+    lateness_unstalled_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))
+    late_unstalled: int = 0
     releases_skipped: int = 0  # cycle skipping: a data-synchronised process a period behind
     overruns_stalled: int = 0  # overruns whose cycle lost at least its overshoot to stalls
     stall_ms: float = 0.0  # time its cycles' thread was kept from running
@@ -313,6 +318,7 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
         done = mine[completed(mine)]
         latency = (done["start_ns"] - done["release_ns"]).astype(np.float64) / 1000.0
         lateness = (done["start_ns"] - done["sched_ns"]).astype(np.float64) / 1000.0
+        unstalled = unstalled_lateness_us(done, lateness)
         response = (cycle_end_ns(done) - done["release_ns"]).astype(np.float64) / 1000.0
         overran = _overran(done)
         late_us = proc.period_us * config.late_pct / 100.0
@@ -341,6 +347,8 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
                 ),
                 histograms={"release_latency_us": histogram(latency), "response_us": histogram(response)},
                 lateness_us=_latency(lateness),
+                lateness_unstalled_us=_latency(unstalled),
+                late_unstalled=int(np.count_nonzero(unstalled > late_us)),
                 releases_skipped=int(np.count_nonzero((mine["flags"] & FLAG_RELEASE_SKIPPED) != 0)),
                 overruns_stalled=int(np.count_nonzero(overran & (done["stall_ns"] >= -done["slack_ns"]))),
                 stall_ms=float(mine["stall_ns"].sum()) / 1e6,
@@ -355,6 +363,13 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
             got = done[done["event_ns"] >= 0]
             out[-1].histograms["event_latency_us"] = histogram(event_latency_us(got))
     return out
+
+
+def unstalled_lateness_us(records: np.ndarray, lateness_us: np.ndarray) -> np.ndarray:
+    """Each record's lateness (µs) less the stalls its DPU had not caught up on when it
+    started (debt_ns): what the schedule and the design are late by. An early start stays."""
+    debt_us = records["debt_ns"].astype(np.float64) / 1000.0
+    return np.where(lateness_us > 0, np.maximum(lateness_us - debt_us, 0.0), lateness_us)
 
 
 def event_latency_us(records: np.ndarray) -> np.ndarray:

@@ -33,7 +33,8 @@ if TIMING.head[0][:4] != ("dpu", "run_id", "generation", "batch_seq"):
 # its reader all follow this list.
 CYCLE_FIELDS = (
     "cycle", "minor", "release_ns", "sched_ns", "start_ns", "comm_in_ns", "blocked_ns",
-    "asked_ns", "compute_ns", "comm_out_ns", "idle_ns", "slack_ns", "stall_ns", "preemptions",
+    "asked_ns", "compute_ns", "comm_out_ns", "idle_ns", "slack_ns", "stall_ns", "debt_ns",
+    "preemptions",
     "preempted_ns", "event_ns", "event_queued", "event_dropped",
 )  # fmt: skip
 RECORD_DTYPE = np.dtype(
