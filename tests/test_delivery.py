@@ -44,6 +44,7 @@ def _big_url(extra: str = "") -> str:
     return fresh_url() + extra
 
 
+@pytest.mark.timing  # judges overruns: tests/steal.py
 def test_a_dpu_sizes_its_socket_for_a_large_buffer_and_it_arrives(tmp_path: Path, url: str) -> None:
     need = recv_buf_needed(BIG)
     limit = rmem_max()

@@ -58,10 +58,14 @@ def test_late_is_judged_against_the_schedule_not_the_frame(tmp_path: Path, url: 
     for name in ("forward_kinematics", "force_control", "gravity_comp", "jacobian_update"):
         proc = _process(report, name)
         assert proc["latency_us"]["p50"] > 1000, proc  # its release latency includes those before it
-        # The lateness the platform's stalls explain left out (a VM's stolen time is not the
-        # schedule's): judged against the schedule, late in next to no cycle (was every one).
-        assert proc["late_unstalled"] <= proc["cycles"] // 20, proc
+        # The lateness its DPU's stalls explain left out (a VM's stolen time is not the
+        # schedule's): judged against the schedule, its typical cycle is on time (was late) ...
         assert proc["lateness_unstalled_us"]["p50"] < 1000, proc
+        # ... and late in next to no cycle (was every one). force_control follows
+        # jacobian_transpose's wait for data from DPUs 1 and 2 in its minor cycle: their stalls
+        # make it late too, counted as lateness on DPU 3 (README: lateness unstalled).
+        if name != "force_control":
+            assert proc["late_unstalled"] <= proc["cycles"] // 20, proc
     for dpu in report["dpus"]:  # the frame's own wake-up latency is its own measure
         assert dpu["release_latency_us"]["p50"] < 1000, dpu
     assert "lateness" in run.stdout
