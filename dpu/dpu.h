@@ -584,6 +584,14 @@ void process_commit(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec,
 void process_write_outputs(skel_exec_t *x, skel_process_t *p, int64_t k);
 void process_finish(skel_exec_t *x, skel_process_t *p, skel_rec_t *rec, int64_t release,
                     int64_t t_out, int measured);
+/* Where a step of the cycle that should never wait began: the wall clock, the
+ * thread's CPU time (-1: unknown) and the waits it chose (voluntary switches). */
+typedef struct {
+    int64_t mono_ns, cpu_ns;
+    long chose_to_wait;
+} skel_mark_t;
+skel_mark_t process_mark(int64_t now);
+void process_kept(skel_exec_t *x, skel_rec_t *rec, const skel_mark_t *from, int64_t now);
 
 /* ---- event (event.c) ------------------------------------------------------------ */
 int event_add_process(skel_plan_t *plan, skel_process_t *p, const skelmsg_process_t *src);

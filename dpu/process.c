@@ -3,6 +3,7 @@
  * into a timing record. A data-synchronised wait blocks the whole DPU thread
  * (the procedural model), and is where lockouts show up. */
 #include <string.h>
+#include <sys/resource.h>
 
 #include "dpu.h"
 
@@ -154,6 +155,40 @@ static void process_look(skel_exec_t *x, skel_rec_t *rec, skel_look_t *prev, int
     if (off > x->s->compute.stall_ns) process_stalled(x, rec, off);
 }
 
+/* The thread's CPU time from its own clock (getrusage's lags by up to a tick for a
+ * running thread), the waits it chose from getrusage. */
+static int process_usage(int64_t *cpu_ns, long *chose_to_wait)
+{
+    struct rusage ru;
+    if (getrusage(RUSAGE_THREAD, &ru) != 0) return -1;
+    *chose_to_wait = ru.ru_nvcsw;
+    *cpu_ns = clock_thread_cpu_ns();
+    return 0;
+}
+
+skel_mark_t process_mark(int64_t now)
+{
+    skel_mark_t m = { now, -1, 0 };
+    if (process_usage(&m.cpu_ns, &m.chose_to_wait) != 0) m.cpu_ns = -1;
+    return m;
+}
+
+/* Reading inputs and publishing outputs run: a step that took longer than the
+ * stall threshold while the thread did not run, and did not choose to wait (a
+ * send blocked on a full socket buffer is communication; so, to the kernel, is
+ * a SIGSTOP), was a stall: the hypervisor or another thread had its CPU. Looked
+ * at only when the step was that long, so a usual cycle pays one getrusage per
+ * step. */
+void process_kept(skel_exec_t *x, skel_rec_t *rec, const skel_mark_t *from, int64_t now)
+{
+    int64_t cpu_ns;
+    long chose_to_wait;
+    if (from->cpu_ns < 0 || now - from->mono_ns <= x->s->compute.stall_ns) return;
+    if (process_usage(&cpu_ns, &chose_to_wait) != 0 || chose_to_wait != from->chose_to_wait) return;
+    int64_t off = (now - from->mono_ns) - (cpu_ns - from->cpu_ns);
+    if (off > x->s->compute.stall_ns) process_stalled(x, rec, off);
+}
+
 /* Waits for new data on every required input: 1 when the run ended or stopped
  * first. Cycle K (minor J of the plan) was released at RELEASE; the cycle's
  * inputs were first read from LOOK on. Meanwhile the processes it holds up are
@@ -282,6 +317,7 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
     skel_plan_t *plan = x->plan;
     const int measured = k >= p->measure_from_k;
     int64_t start = clock_mono_ns();
+    const skel_mark_t in_mark = process_mark(start);
     /* A data wait may decide lockouts: it needs to know how long the thread ran from here. */
     const int waits = p->sync == SKELMSG_PROCESS_T_SYNC_DATA;
     const skel_look_t look = { start, waits ? clock_thread_cpu_ns() : 0 };
@@ -294,6 +330,7 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
     process_peek_inputs(plan, p, rec);
     int64_t t_in = clock_mono_ns();
     rec->comm_in_ns = t_in - start;
+    process_kept(x, rec, &in_mark, t_in);
     int stopped = waits && process_wait_data(x, p, k, release, look, rec);
     int64_t t_blocked = clock_mono_ns();
     rec->blocked_ns = t_blocked - t_in;
@@ -309,7 +346,9 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
     rec->compute_ns = compute_run(&x->s->compute, plan->compute, rec->asked_ns, &stall);
     process_stalled(x, rec, stall);
     int64_t t_out = clock_mono_ns();
+    const skel_mark_t out_mark = process_mark(t_out);
     process_write_outputs(x, p, k);
+    process_kept(x, rec, &out_mark, clock_mono_ns());
     process_finish(x, p, rec, release, t_out, measured);
     return PROCESS_DONE;
 }
