@@ -48,31 +48,51 @@ STALL_NS = 100_000
 
 
 # A VM here stalls a thread beyond STALL_NS about every 45 ms, and a stall rules out its
-# hyperperiod and the next: a run of 3 s left too few whole hyperperiods to judge. RUN_S
-# leaves at least twice what 3 s gave on a quiet machine.
+# hyperperiod: a run of 3 s left too few whole hyperperiods to judge. RUN_S leaves at least
+# twice what 3 s gave on a quiet machine.
 RUN_S = 8
 KEPT_SHARE = 0.25
 
 
+def _margin_ms(response_ms: float) -> float:
+    """How far a measured response may be from the ideal one: the DPU's own reading and
+    writing of buffers, and the clock."""
+    return 0.05 * response_ms + 0.2
+
+
 def _run(tmp_path: Path, url: str, tasks: list[tuple[int, int]]) -> pd.DataFrame:
-    """The measured, completed cycles of a RUN_S run, less those of any hyperperiod in which
-    the machine stalled the DPU longer than STALL_NS, and of the next (a stall delays real
-    time, not the schedule: it would add an overrun the design does not have). Columns as
-    the timing table's, plus `task`."""
+    """The measured, completed cycles of a RUN_S run, less those of the hyperperiods the
+    machine disturbed: one in which it stalled the DPU longer than STALL_NS (a stall delays
+    real time, not the schedule: it would add an overrun the design does not have), and one
+    that did not begin as on the ideal schedule, a job released before it still running past
+    its ideal completion (a stall before it left work behind: on this VM, stalls of tens of
+    ms can leave a DPU at 92 % load behind for many hyperperiods). Columns as the timing
+    table's, plus `task`."""
     out = tmp_path / "run"
     run = skel("run", str(_system(tmp_path, tasks, RUN_S)), "--spawn", "--url", url, "--out", str(out))
     assert run.returncode in (0, 1), run.stdout + run.stderr
     timing = skeleton.load_run(out).timing.to_pandas()
-    timing = timing[timing.measured & timing.completed].copy()
+    timing = timing[timing.completed].copy()
     timing["task"] = timing.process - 1
-    hyper = math.lcm(*(t for _, t in tasks)) * MS * 1000
+    hyper_ms = math.lcm(*(t for _, t in tasks))
     period_ns = timing.task.map(lambda i: tasks[i][1] * MS * 1000)
     epoch = (timing.release_ns - timing.cycle * period_ns).min()  # every task's release 0
-    timing["hyper"] = (timing.release_ns - epoch) // hyper
+    release_ms = (timing.release_ns - epoch) / 1e6
+    timing["hyper"] = (release_ms // hyper_ms).astype(int)
     stalled = set(timing.hyper[timing.stall_ns > STALL_NS])
-    # The work a stall delays may spill into the next hyperperiod.
-    kept = timing[~timing.hyper.isin(stalled | {h + 1 for h in stalled})]
-    assert len(kept) >= KEPT_SHARE * len(timing), f"the machine stalled in {len(stalled)} hyperperiods"
+    ideal = ideal_schedule(tasks, (RUN_S + 1) * 1000)
+    end_ms = release_ms + timing.response_us / 1000
+    jobs = [ideal[(i, k)] for i, k in zip(timing.task, timing.cycle, strict=True)]
+    ideal_end = pd.Series([job.completion for job in jobs], index=timing.index)
+    margin = pd.Series([_margin_ms(job.response) for job in jobs], index=timing.index)
+    behind = end_ms - ideal_end > margin
+    # Each hyperperiod that a job behind the ideal schedule ran into from an earlier one.
+    carried = {h for first, last_ms in zip(timing.hyper[behind], end_ms[behind], strict=True)
+               for h in range(first + 1, int(last_ms // hyper_ms) + 1)}
+    measured = timing[timing.measured]
+    kept = measured[~measured.hyper.isin(stalled | carried)]
+    assert len(kept) >= KEPT_SHARE * len(measured), (
+        f"the machine disturbed {len(stalled | carried)} hyperperiods ({len(stalled)} with a stall)")
     return kept
 
 
@@ -86,7 +106,7 @@ def test_rate_monotonic_responses_match_exact_response_time_analysis(tmp_path: P
         assert len(mine) >= 100, mine
         assert r is not None
         worst = mine.response_us.max()
-        assert abs(worst - r * MS) <= 0.05 * r * MS + 200, (f"p{i + 1}", worst, r * MS)
+        assert abs(worst - r * MS) <= _margin_ms(r) * MS, (f"p{i + 1}", worst, r * MS)
         assert not mine.overrun.any(), mine[mine.overrun]
     # Every job is preempted exactly as often as on the ideal schedule (the lowest-priority
     # one, by the others' releases; the others never).
@@ -110,8 +130,8 @@ def test_an_unschedulable_set_misses_exactly_the_deadlines_analysis_predicts(tmp
     assert measured == predicted & ran, (sorted(measured), sorted(predicted & ran))
     assert any(i == 2 for i, _ in measured)  # it did miss
     for (i, k), row in cycles.set_index(["task", "cycle"]).iterrows():
-        r = ideal[(i, k)].response * MS
-        assert abs(row.response_us - r) <= 0.05 * r + 200, (i, k, row)
+        r = ideal[(i, k)].response
+        assert abs(row.response_us - r * MS) <= _margin_ms(r) * MS, (i, k, row)
 
 
 BAD_PRIORITIES = [
