@@ -11,6 +11,7 @@ import itertools
 import os
 import random
 import re
+import signal
 import subprocess
 import sys
 import threading
@@ -28,6 +29,13 @@ from skelmsg.contract import DEFAULT_URL, TIMING_CHANNEL
 
 # Timing tests get another attempt only when the hypervisor took the CPUs (tests/steal.py).
 pytest_plugins = ["steal"]
+
+# A suite started in the background (`make test &`: the shell ignores SIGINT for it) would
+# hand that on to every skel it starts, which then rightly ignores Ctrl-C (host/cli.py): the
+# tests of Ctrl-C need it as a terminal gives it. A handler here is reset to the default in
+# the children.
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 REPO = Path(__file__).resolve().parent.parent
 ASAN_DPU = REPO / "build" / "asan" / "skel-dpu"

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import EXAMPLES, DpuFarm, skel, skel_background
+from conftest import EXAMPLES, Background, DpuFarm, skel, skel_background
 from randsys import random_system
 
 pytestmark = pytest.mark.timing  # judges the DPUs' timing: tests/steal.py
@@ -24,6 +24,14 @@ def _report(out: Path) -> dict:
 
 def _process(report: dict, name: str) -> dict:
     return next(p for p in report["processes"] if p["name"] == name)
+
+
+def _wait_started(dpus: DpuFarm, ids: tuple[int, ...], run: Background) -> None:
+    """Until each of the DPUs IDS has started the run: a loaded machine may take seconds."""
+    deadline = time.monotonic() + 30
+    while not all(re.search(r"run \d+ started", dpus.log(d)) for d in ids):
+        assert time.monotonic() < deadline and run.proc.poll() is None, run.output
+        time.sleep(0.05)
 
 
 @pytest.mark.parametrize("seed", [11, 12, 13])
@@ -144,10 +152,7 @@ def test_a_stall_of_the_machine_is_not_a_lockout(tmp_path: Path, url: str, dpus:
     run = skel_background("run", str(EXAMPLES / "servo.yaml"), "--url", url, "--duration", "4",
                           "-s", "run.warmup_cycles=20", "--out", str(out))
     # In the run, past the warm-up: a loaded machine may take seconds to start it.
-    deadline = time.monotonic() + 30
-    while not all(re.search(r"run \d+ started", dpus.log(d)) for d in (1, 2, 3, 4)):
-        assert time.monotonic() < deadline and run.proc.poll() is None, run.output
-        time.sleep(0.05)
+    _wait_started(dpus, (1, 2, 3, 4), run)
     time.sleep(1.5)
     pids = [d.process.pid for d in dpus.daemons.values()]
     for pid in pids:
@@ -167,29 +172,17 @@ def test_a_stall_of_the_machine_is_not_a_lockout(tmp_path: Path, url: str, dpus:
     assert "STALL host localhost" in run.output
 
 
-BUSY_SYSTEM = """\
-system: busy
-dpus: [{id: 1, compute: sleep}]
-processes:
-  - {id: 1, name: first, dpu: 1, period_us: 5000, compute_us: 1500}
-  - {id: 2, name: second, dpu: 1, period_us: 5000, compute_us: 2500}
-run: {duration_s: 4, warmup_cycles: 20, lockout_cycles: 100, late_pct: 20}
-"""
-
-
 def test_the_lateness_a_stall_explains_is_not_the_designs(tmp_path: Path, url: str, dpus: DpuFarm) -> None:
-    """A DPU 80 % loaded, stopped for 200 ms: it starts its cycles up to 200 ms late and catches
-    up at 1 ms a cycle. All of that lateness is the stall's (timing_t.debt_ns): the design's
-    own, lateness_unstalled, stays under the file's late_pct of the period."""
+    """A DPU 90 % loaded, stopped for 200 ms: it starts its cycles up to 200 ms late and catches
+    up at 0.5 ms a cycle. All of that lateness is the stall's (timing_t.debt_ns): the design's
+    own, lateness_unstalled, stays under late_pct (20 %) of the period."""
     path = tmp_path / "busy.yaml"
-    path.write_text(BUSY_SYSTEM)
+    path.write_text(ONE_DPU)
     dpus.start(1)
     out = tmp_path / "run"
-    run = skel_background("run", str(path), "--url", url, "--out", str(out))
-    deadline = time.monotonic() + 30
-    while not re.search(r"run \d+ started", dpus.log(1)):
-        assert time.monotonic() < deadline and run.proc.poll() is None, run.output
-        time.sleep(0.05)
+    run = skel_background("run", str(path), "--url", url, "-s", "run.duration_s=5", "-s", "run.late_pct=20",
+                          "-s", "run.lockout_cycles=100", "--out", str(out))
+    _wait_started(dpus, (1,), run)
     time.sleep(1.5)  # past the warm-up
     pid = dpus.daemons[1].process.pid
     os.kill(pid, signal.SIGSTOP)
@@ -227,10 +220,7 @@ def test_a_stall_during_a_data_wait_delays_its_lockout_and_ends_nothing_else(
     dpus.start(1, 2)
     out = tmp_path / "run"
     run = skel_background("run", str(path), "--url", url, "--out", str(out))
-    deadline = time.monotonic() + 30
-    while not all(re.search(r"run \d+ started", dpus.log(d)) for d in (1, 2)):
-        assert time.monotonic() < deadline and run.proc.poll() is None, run.output
-        time.sleep(0.05)
+    _wait_started(dpus, (1, 2), run)
     time.sleep(1.0)
     dpus.kill(1)
     time.sleep(0.05)  # the reader waits for `state`, its lockout 200 ms after its release
