@@ -146,7 +146,7 @@ test-tools:
 # with coverage (fuzzer-no-link) and linked into each harness (tests/fuzz/fuzz_<name>.c).
 FUZZ_CC            ?= clang
 FUZZ_SECONDS       ?= 600
-FUZZ_SMOKE_SECONDS ?= 30
+FUZZ_SMOKE_SECONDS ?= 20
 FUZZ_HARNESSES     := buffer event config command seal
 FUZZ_DIR           := $(BUILD)/fuzz
 FUZZ_BINS          := $(patsubst %,$(FUZZ_DIR)/fuzz_%,$(FUZZ_HARNESSES))
@@ -193,7 +193,7 @@ define fuzz_run
 	done
 endef
 
-# The smoke, part of `make test`: every harness for FUZZ_SMOKE_SECONDS (default 30).
+# The smoke, part of `make test`: every harness for FUZZ_SMOKE_SECONDS (default 20).
 test-fuzz: $(FUZZ_BINS)
 	$(call fuzz_run,$(FUZZ_SMOKE_SECONDS),)
 

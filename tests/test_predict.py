@@ -189,6 +189,7 @@ def _measured_vs_predicted(tmp_path: Path, url: str, path: Path,
             for d in json.loads((out / "report.json").read_text())["dpus"]]
 
 
+@pytest.mark.timing  # judges % compute against the prediction: tests/steal.py
 def test_servo_measured_compute_is_the_prediction(tmp_path: Path, url: str) -> None:
     rows = _measured_vs_predicted(tmp_path, url, EXAMPLES / "servo.yaml", "--cycles", "800",
                                   "-s", "run.warmup_cycles=20", "-s", "run.lockout_cycles=20")
@@ -196,6 +197,7 @@ def test_servo_measured_compute_is_the_prediction(tmp_path: Path, url: str) -> N
         assert measured == pytest.approx(predicted, abs=2.0), (dpu, measured, predicted)
 
 
+@pytest.mark.timing
 @pytest.mark.parametrize(("seed", "executive"), [(21, "cyclic"), (22, "threads"), (23, "cyclic")])
 def test_random_systems_measure_what_is_predicted(tmp_path: Path, url: str, seed: int,
                                                  executive: str) -> None:
