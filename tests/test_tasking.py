@@ -91,8 +91,11 @@ def _run(tmp_path: Path, url: str, tasks: list[tuple[int, int]]) -> pd.DataFrame
                for h in range(first + 1, int(last_ms // hyper_ms) + 1)}
     measured = timing[timing.measured]
     kept = measured[~measured.hyper.isin(stalled | carried)]
-    assert len(kept) >= KEPT_SHARE * len(measured), (
-        f"the machine disturbed {len(stalled | carried)} hyperperiods ({len(stalled)} with a stall)")
+    if len(kept) < KEPT_SHARE * len(measured):
+        # Not a verdict on the DPU either way: what is kept is always judged in full.
+        pytest.skip(f"inconclusive: the machine disturbed {len(stalled | carried)} of "
+                    f"{measured.hyper.nunique()} hyperperiods ({len(stalled)} stalled the DPU over "
+                    f"{STALL_NS // 1000} us): fewer than {KEPT_SHARE:.0%} of the jobs left to judge")
     return kept
 
 
