@@ -134,7 +134,7 @@ test-c: $(C_TESTS)
 	@set -e; for t in $(C_TESTS); do echo "== $$t"; $$t; done
 
 test-py: $(BUILD)/skel-dpu $(BUILD)/asan/skel-dpu $(BUILD)/flood $(STAMP) test-tools
-	$(VENV)/bin/pytest -q -rs --durations=15 $(PYTEST_ARGS)
+	$(VENV)/bin/pytest -q -rfEs --durations=15 $(PYTEST_ARGS)
 
 # The multi-host tests (network namespaces, root only) run ip, and nft to lose packets.
 test-tools:
