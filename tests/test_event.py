@@ -92,8 +92,9 @@ def test_a_queue_keeps_the_newest_or_the_oldest_and_counts_what_it_drops(tmp_pat
     for b in range(9):
         newest, oldest = kept["newest", b], kept["oldest", b]
         assert newest[1] >= starts[b] + 2 * MS, (b, newest - starts[b])  # the newest: the burst's last
-        assert (np.diff(oldest) >= 0).all() and oldest[-1] < newest[1], (b, oldest, newest)  # the oldest, in
-        # order (two a loaded generator sent together may share a microsecond stamp)
+        assert (np.diff(oldest) >= 0).all() and oldest[-1] <= newest[1], (b, oldest, newest)  # the oldest,
+        # in order (events a stalled generator sent together may share a microsecond stamp: CI
+        # once saw a whole burst under one)
         assert oldest[0] <= newest[0], (b, oldest, newest)
     report = skel("report", str(out), "--json")
     assert report.returncode == 0, report.stderr

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 import yaml
 from conftest import EXAMPLES
 from netns import Hosts, hosts_fixture
@@ -20,6 +21,7 @@ SCALE = EXAMPLES / "scale-16x2.yaml"
 netns_sixteen_hosts = hosts_fixture(16)
 
 
+@pytest.mark.timing  # judges buffers dropped at 100 Hz on two cores: tests/steal.py
 def test_netns_scale_16_hosts_2_dpus_64_processes_at_100hz(netns_sixteen_hosts: Hosts,
                                                            tmp_path: Path) -> None:
     lab = Lab(netns_sixteen_hosts, tmp_path)

@@ -14,6 +14,7 @@ import socket
 import time
 from pathlib import Path
 
+import pytest
 from conftest import DpuFarm, faults_but_stalls, skel, skel_background
 
 import skelmsg
@@ -50,6 +51,7 @@ def _running(url: str, ids: tuple[int, ...] = (1, 2), timeout_s: float = 20) -> 
         control.close()
 
 
+@pytest.mark.timing  # the first run's faults are judged (faults_but_stalls): tests/steal.py
 def test_second_run_and_push_are_refused_at_once_and_the_first_run_stays_clean(
         tmp_path: Path, url: str, dpus: DpuFarm, state_dir: Path) -> None:
     system = _system(tmp_path)
