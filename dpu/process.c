@@ -320,7 +320,8 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
     const skel_mark_t in_mark = process_mark(start);
     /* A data wait may decide lockouts: it needs to know how long the thread ran from here. */
     const int waits = p->sync == SKELMSG_PROCESS_T_SYNC_DATA;
-    const skel_look_t look = { start, waits ? clock_thread_cpu_ns() : 0 };
+    const int64_t cpu = in_mark.cpu_ns >= 0 ? in_mark.cpu_ns : clock_thread_cpu_ns();
+    const skel_look_t look = { start, waits ? cpu : 0 };
     process_record_begin(x, p, k, minor, release, sched, start, rec);
     if (process_locked_out(x, p, release, start)) {
         process_lockout(x, p, -1, k, release);
