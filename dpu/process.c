@@ -169,7 +169,7 @@ static int process_usage(int64_t *cpu_ns, long *chose_to_wait)
 skel_mark_t process_mark(int64_t now)
 {
     skel_mark_t m = { now, -1, 0 };
-    if (process_usage(&m.cpu_ns, &m.chose_to_wait) != 0) m.cpu_ns = -1;
+    if (process_usage(&m.cpu_ns, &m.chose_to_wait) != 0) m.cpu_ns = -1; /* not judged */
     return m;
 }
 
@@ -177,8 +177,8 @@ skel_mark_t process_mark(int64_t now)
  * stall threshold while the thread did not run, and did not choose to wait (a
  * send blocked on a full socket buffer is communication; so, to the kernel, is
  * a SIGSTOP), was a stall: the hypervisor or another thread had its CPU. Looked
- * at only when the step was that long, so a usual cycle pays one getrusage per
- * step. */
+ * at only when the step was that long; every step still pays its mark (a
+ * getrusage and a read of the thread's CPU clock). */
 void process_kept(skel_exec_t *x, skel_rec_t *rec, const skel_mark_t *from, int64_t now)
 {
     int64_t cpu_ns;
