@@ -28,7 +28,8 @@ def _dpu(dpu_id: int, compute_pct: float) -> DpuMetrics:
 
 def _process(name: str, p99_us: float, inputs: tuple[InputMetrics, ...] = ()) -> ProcessMetrics:
     return ProcessMetrics(1, name, 1, 5000, 100, 0, 0, LatencyUs(10, 20, 30), 1000.0, 100.0, 0, 0,
-                          inputs=list(inputs), response_us=LatencyUs(p99_us / 2, p99_us, p99_us + 1))
+                          inputs=list(inputs), response_us=LatencyUs(p99_us, 9 * p99_us, 9 * p99_us),
+                          response_unstalled_us=LatencyUs(p99_us / 2, p99_us, p99_us + 1))
 
 
 PREDICTION = {
@@ -55,8 +56,9 @@ def test_each_rule_flags_only_beyond_its_tolerance() -> None:
     # % compute: ±2 points either way; a DPU without figures is left out
     assert [(d.id, round(d.compute_pct.delta, 1), d.compute_pct.outside) for d in got.dpus] == [
         (1, 1.9, False), (2, 2.5, True)]
-    # response: the p99 may pass the worst by late_pct (20 %) of the 5 ms period; a paced reader
-    # waits for its writer (not compared), an unbounded worst bounds nothing
+    # response, less its DPU's stalls (the whole is 9x): the p99 may pass the worst by late_pct
+    # (20 %) of the 5 ms period; a paced reader waits for its writer (not compared), an
+    # unbounded worst bounds nothing
     assert {p.name: (p.response_us.delta, p.response_us.outside) for p in got.processes} == {
         "a": (1100, True), "b": (900, False), "c": (49000, False), "d": (None, False)}
     slow, fast = got.inputs
