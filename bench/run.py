@@ -15,14 +15,18 @@
     answer within 30 s);
 (g) floods (bench/flood.py): SERVO signed, while 100 000 hostile messages a second for 10 s
     go to its control and buffer channels, against the same run clean (goals: every message
-    counted as refused, % compute per DPU within 2 points).
+    counted as refused, % compute per DPU within 2 points);
+(h) bookkeeping and (i) cycle rate (bench/cost.py): what a process-cycle of no compute costs
+    the executive and its record (goal: median 1 us), and the highest minor-cycle rate one DPU
+    runs clean (goal: 10 kHz for 10^5 cycles).
 
 Each part writes bench/results/<name>.txt, the headlines go to bench/results/summary.txt.
 Runs use a private multicast port with ttl=0 (nothing leaves the host). About 5 minutes.
 
 Usage: .venv/bin/python bench/run.py [--seconds S] [--records N] [--tasking-seconds S]
        [--allocate-seconds S] [--flood-rate N] [--parts P,...]
-(--parts: only those of wakeup, publish, logreader, compute, tasking, allocate, flood; summary.txt is then
+(--parts: only those of wakeup, publish, logreader, compute, tasking, allocate, flood, bookkeeping, rate;
+summary.txt is then
 left alone and the headlines are printed only.)
 """
 
@@ -31,6 +35,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import ctypes
+import json
 import os
 import re
 import shutil
@@ -38,9 +43,11 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
+import cost  # bench/cost.py, beside this file
 import lcm
 import numpy as np
 
@@ -96,9 +103,9 @@ run: {{warmup_cycles: 20, lockout_cycles: 1000, stop_on: []}}
 
 
 def skel_run(tmp: Path, mode: str, seconds: float, text: str = SYSTEM, name: str = "",
-             warmup: int = WARMUP_CYCLES) -> np.ndarray:
+             warmup: int = WARMUP_CYCLES, flawed: tuple[int, ...] = (3,)) -> np.ndarray:
     """Records of one real run of `text` with the DPU in compute mode `mode`, in
-    tmp/NAME+MODE, from cycle `warmup` on."""
+    tmp/NAME+MODE, from cycle `warmup` on; `flawed`: the exit codes of a run that ran."""
     system = tmp / "bench.yaml"
     system.write_text(text)
     out = tmp / f"{name}{mode}"
@@ -106,7 +113,7 @@ def skel_run(tmp: Path, mode: str, seconds: float, text: str = SYSTEM, name: str
             "--duration", str(seconds), "--out", str(out), "--json", "-s", f"dpu.1.compute={mode}"]
     done = subprocess.run(argv, capture_output=True, text=True, timeout=seconds + 60, cwd=REPO,
                           env={**os.environ, "SKEL_DPU": str(REPO / "build" / "skel-dpu")})
-    if done.returncode not in (0, 3):
+    if done.returncode not in (0, *flawed):
         raise SystemExit(f"bench: skel run ({mode}) failed:\n{done.stdout}{done.stderr}")
     records = load_records(read_log(out / "run.lcm")).records
     return records[records["cycle"] >= warmup]
@@ -390,9 +397,18 @@ def part_flood(tmp: Path, rate: int) -> list[str]:
     return lines(flood_servo(where, URL, rate, FLOOD_SECONDS), rate, FLOOD_POINTS)
 
 
+def cost_run(tmp: Path) -> Callable[[str, str, float], tuple[np.ndarray, dict[str, Any]]]:
+    """bench/cost.py's runner: a sleep-mode run (SCHED_FIFO when permitted), its records
+    past the warm-up and its report; one that overran or lost records (exit 1) ran too."""
+    def run(text: str, name: str, seconds: float) -> tuple[np.ndarray, dict[str, Any]]:
+        records = skel_run(tmp, "sleep", seconds, text, f"{name}-", flawed=(1, 3))
+        return records, json.loads((tmp / f"{name}-sleep" / "report.json").read_text())
+    return run
+
+
 FLOOD_SECONDS = 10
 FLOOD_POINTS = 2.0
-PARTS = ("wakeup", "publish", "logreader", "compute", "tasking", "allocate", "flood")
+PARTS = ("wakeup", "publish", "logreader", "compute", "tasking", "allocate", "flood", "bookkeeping", "rate")
 
 
 def main() -> int:
@@ -430,6 +446,10 @@ def main() -> int:
             parts["allocate"] = part_allocate(args.allocate_seconds)
         if "flood" in wanted:
             parts["flood"] = part_flood(tmp, args.flood_rate)
+        if "bookkeeping" in wanted:
+            parts["bookkeeping"] = cost.part_bookkeeping(cost_run(tmp), URL, args.seconds)
+        if "rate" in wanted:
+            parts["rate"] = cost.part_rate(cost_run(tmp), URL)
     for name, lines in parts.items():
         (RESULTS / f"{name}.txt").write_text("\n".join(lines) + "\n")
         print("\n".join(lines) + "\n")

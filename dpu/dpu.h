@@ -553,6 +553,13 @@ void server_fault(skel_server_t *s, int fault);
 int64_t server_now(const skel_server_t *s); /* reported time: monotonic + test offset */
 
 /* ---- process (process.c): one process's cycle ---------------------------------- */
+/* The wall clock, the thread's CPU time (-1: unknown) and the waits it chose
+ * (voluntary switches) at one instant: what a step's stall is judged from. */
+typedef struct {
+    int64_t mono_ns, cpu_ns;
+    long chose_to_wait;
+} skel_mark_t;
+
 typedef struct {
     skel_server_t *s;
     skel_plan_t *plan;
@@ -563,6 +570,11 @@ typedef struct {
     int announce;              /* a switch happened: publish the generation at its release */
     int64_t wake_stall_ns;     /* the stall of this minor's wake-up, for its first record */
     int64_t stall_debt_ns;     /* stalls since the executive was last on time: lateness they explain */
+    /* The last mark (process_remark) and the stalls charged since: a step that ran
+     * long is judged against it. Stale after a wait the thread chose. */
+    skel_mark_t mark;
+    int64_t mark_charged_ns;
+    int mark_stale;
     /* The cyclic executive's last record of the last minor that ran anything: its idle
      * ends where the next one runs (a sync: event process may leave minors empty). */
     skel_rec_t held;
@@ -584,14 +596,8 @@ void process_commit(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec,
 void process_write_outputs(skel_exec_t *x, skel_process_t *p, int64_t k);
 void process_finish(skel_exec_t *x, skel_process_t *p, skel_rec_t *rec, int64_t release,
                     int64_t t_out, int measured);
-/* Where a step of the cycle that should never wait began: the wall clock, the
- * thread's CPU time (-1: unknown) and the waits it chose (voluntary switches). */
-typedef struct {
-    int64_t mono_ns, cpu_ns;
-    long chose_to_wait;
-} skel_mark_t;
-skel_mark_t process_mark(int64_t now);
-void process_kept(skel_exec_t *x, skel_rec_t *rec, const skel_mark_t *from, int64_t now);
+void process_remark(skel_exec_t *x, int64_t now);
+void process_kept(skel_exec_t *x, skel_rec_t *rec, int64_t step_from, int64_t now);
 
 /* ---- event (event.c) ------------------------------------------------------------ */
 int event_add_process(skel_plan_t *plan, skel_process_t *p, const skelmsg_process_t *src);

@@ -248,6 +248,7 @@ static int executive_wait(skel_exec_t *x, int64_t until)
         if (now >= until) return 0;
         int64_t t = until - now > piece ? now + piece : until;
         struct timespec ts = { .tv_sec = t / SKEL_NS_PER_S, .tv_nsec = t % SKEL_NS_PER_S };
+        x->mark_stale = 1; /* the steps after a chosen sleep are judged from a fresh mark */
         int rc = clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL);
         if (rc != 0 && rc != EINTR) return 1;
     }
@@ -388,7 +389,8 @@ static void executive_cyclic(skel_exec_t *x, const skel_run_t *run)
 
 void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
 {
-    skel_exec_t x = { .s = s, .plan = plan, .end_mono_ns = run->end_mono_ns, .switch_seq = -1 };
+    skel_exec_t x = { .s = s, .plan = plan, .end_mono_ns = run->end_mono_ns, .switch_seq = -1,
+                      .mark_stale = 1 };
     plan_reset_run(plan, run->run_id);
     plan->clock_offset_ns = s->clock_offset_ns;
     executive_pin(plan);

@@ -133,6 +133,7 @@ static void process_stalled(skel_exec_t *x, skel_rec_t *rec, int64_t ns)
 {
     rec->stall_ns += ns;
     x->stall_debt_ns += ns;
+    x->mark_charged_ns += ns;
 }
 
 /* The last look at the clocks of a data wait: wall and thread CPU time. */
@@ -166,39 +167,62 @@ static int process_usage(int64_t *cpu_ns, long *chose_to_wait)
     return 0;
 }
 
-skel_mark_t process_mark(int64_t now)
+static skel_mark_t process_mark(int64_t now)
 {
     skel_mark_t m = { now, -1, 0 };
     if (process_usage(&m.cpu_ns, &m.chose_to_wait) != 0) m.cpu_ns = -1; /* not judged */
     return m;
 }
 
-/* Reading inputs and publishing outputs run: a step that took longer than the
- * stall threshold while the thread did not run, and did not choose to wait (a
- * send blocked on a full socket buffer is communication; so, to the kernel, is
- * a SIGSTOP), was a stall: the hypervisor or another thread had its CPU. Looked
- * at only when the step was that long; every step still pays its mark (a
- * getrusage and a read of the thread's CPU clock). */
-void process_kept(skel_exec_t *x, skel_rec_t *rec, const skel_mark_t *from, int64_t now)
+/* A fresh mark: at the start of the steps that follow a wait the thread chose (the
+ * executive's sleep until a release, a sleeping computation, a data wait), whose
+ * voluntary switches would void any judgement across them. */
+void process_remark(skel_exec_t *x, int64_t now)
 {
+    x->mark = process_mark(now);
+    x->mark_charged_ns = 0;
+    x->mark_stale = 0;
+}
+
+/* Reading inputs and publishing outputs run: a step (from STEP_FROM) that took
+ * longer than the stall threshold while the thread did not run, and did not choose
+ * to wait (a send blocked on a full socket buffer is communication; so, to the
+ * kernel, is a SIGSTOP), was a stall: the hypervisor or another thread had its CPU.
+ * A short step cannot hide one, so it costs two clock reads and no system call; a
+ * long one is judged against the last mark: the time since it that the thread did
+ * not run, less the stalls already charged since, at most the step's own length. */
+void process_kept(skel_exec_t *x, skel_rec_t *rec, int64_t step_from, int64_t now)
+{
+    const int64_t threshold = x->s->compute.stall_ns;
+    if (now - step_from <= threshold) return;
     int64_t cpu_ns;
     long chose_to_wait;
-    if (from->cpu_ns < 0 || now - from->mono_ns <= x->s->compute.stall_ns) return;
-    if (process_usage(&cpu_ns, &chose_to_wait) != 0 || chose_to_wait != from->chose_to_wait) return;
-    int64_t off = (now - from->mono_ns) - (cpu_ns - from->cpu_ns);
-    if (off > x->s->compute.stall_ns) process_stalled(x, rec, off);
+    if (process_usage(&cpu_ns, &chose_to_wait) != 0) return;
+    const skel_mark_t was = x->mark;
+    const int64_t charged = x->mark_charged_ns;
+    x->mark = (skel_mark_t){ now, cpu_ns, chose_to_wait };
+    x->mark_charged_ns = 0;
+    if (was.cpu_ns < 0 || x->mark_stale || chose_to_wait != was.chose_to_wait) {
+        x->mark_stale = 0;
+        return;
+    }
+    int64_t off = (now - was.mono_ns) - (cpu_ns - was.cpu_ns) - charged;
+    if (off > now - step_from) off = now - step_from;
+    if (off > threshold) process_stalled(x, rec, off);
 }
 
 /* Waits for new data on every required input: 1 when the run ended or stopped
- * first. Cycle K (minor J of the plan) was released at RELEASE; the cycle's
- * inputs were first read from LOOK on. Meanwhile the processes it holds up are
- * watched for lockout (process_held_up). */
+ * first. Cycle K (minor J of the plan) was released at RELEASE. Meanwhile the
+ * processes it holds up are watched for lockout (process_held_up). */
 static int process_wait_data(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t release,
-                             skel_look_t look, skel_rec_t *rec)
+                             skel_rec_t *rec)
 {
     skel_plan_t *plan = x->plan;
     const int64_t j = (k - p->k_base) * p->ratio;
     const int64_t lockout_at = process_lockout_at(plan, p, release);
+    if (process_missing(p, rec) < 0) return 0;
+    skel_look_t look = { clock_mono_ns(), clock_thread_cpu_ns() };
+    x->mark_stale = 1; /* it waits: the steps after it are judged from a fresh mark */
     for (;;) {
         int missing = process_missing(p, rec);
         if (missing < 0) return 0;
@@ -317,22 +341,19 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
     skel_plan_t *plan = x->plan;
     const int measured = k >= p->measure_from_k;
     int64_t start = clock_mono_ns();
-    const skel_mark_t in_mark = process_mark(start);
-    /* A data wait may decide lockouts: it needs to know how long the thread ran from here. */
-    const int waits = p->sync == SKELMSG_PROCESS_T_SYNC_DATA;
-    const int64_t cpu = in_mark.cpu_ns >= 0 ? in_mark.cpu_ns : clock_thread_cpu_ns();
-    const skel_look_t look = { start, waits ? cpu : 0 };
+    if (x->mark_stale) process_remark(x, start);
     process_record_begin(x, p, k, minor, release, sched, start, rec);
     if (process_locked_out(x, p, release, start)) {
         process_lockout(x, p, -1, k, release);
         rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
     }
-    (void)link_drain(plan->links, plan->nlinks); /* an lcm error shows as stale inputs */
+    if (p->ninputs > 0) /* nothing to read: no system call */
+        (void)link_drain(plan->links, plan->nlinks); /* an lcm error shows as stale inputs */
     process_peek_inputs(plan, p, rec);
     int64_t t_in = clock_mono_ns();
     rec->comm_in_ns = t_in - start;
-    process_kept(x, rec, &in_mark, t_in);
-    int stopped = waits && process_wait_data(x, p, k, release, look, rec);
+    process_kept(x, rec, start, t_in);
+    int stopped = p->sync == SKELMSG_PROCESS_T_SYNC_DATA && process_wait_data(x, p, k, release, rec);
     int64_t t_blocked = clock_mono_ns();
     rec->blocked_ns = t_blocked - t_in;
     if (stopped) {
@@ -346,10 +367,14 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
     rec->asked_ns = draw_ns(&p->draw, p->compute_ns);
     rec->compute_ns = compute_run(&x->s->compute, plan->compute, rec->asked_ns, &stall);
     process_stalled(x, rec, stall);
+    if (plan->compute == SKELMSG_DPU_T_COMPUTE_SLEEP && rec->asked_ns > x->s->compute.spin_ns)
+        x->mark_stale = 1; /* it slept (a shorter one only spins: compute_sleep) */
     int64_t t_out = clock_mono_ns();
-    const skel_mark_t out_mark = process_mark(t_out);
-    process_write_outputs(x, p, k);
-    process_kept(x, rec, &out_mark, clock_mono_ns());
+    if (p->noutputs > 0 || p->nemits > 0) {
+        if (x->mark_stale) process_remark(x, t_out);
+        process_write_outputs(x, p, k);
+        process_kept(x, rec, t_out, clock_mono_ns());
+    }
     process_finish(x, p, rec, release, t_out, measured);
     return PROCESS_DONE;
 }

@@ -54,6 +54,13 @@ def _micros(v: int) -> int:
     return v
 
 
+def _compute_us(v: int) -> int:
+    # 0 models a process that only communicates (a relay), and measures the executive's own cost.
+    if v < 0:
+        raise ValueError(f"must be 0 or more microseconds, got {v}")
+    return 0 if v == 0 else _micros(v)
+
+
 def _period(v: int) -> int:
     # The DPU refuses a longer period (config.c): said here, before anything runs.
     v = _micros(v)
@@ -254,7 +261,7 @@ def _compute_kind(v: Any) -> str:
 # compute_us: a number, or a mapping describing how it varies. The tags route a value to
 # one branch, so an error names that branch's problem only (yamlfile.field_path skips them).
 Compute = Annotated[
-    Annotated[int, AfterValidator(_micros), Tag("<number>")] | Annotated[ComputeSpec, Tag("<distribution>")],
+    Annotated[int, AfterValidator(_compute_us), Tag("<number>")] | Annotated[ComputeSpec, Tag("<distribution>")],
     Discriminator(_compute_kind),
 ]
 

@@ -36,9 +36,15 @@ def test_servo_survives_a_flood_and_counts_every_hostile_message(tmp_path: Path,
         # every message was counted, by the DPU or by the kernel dropping it at its socket
         assert d.refused <= d.sent <= d.refused + d.socket_drops, d
         assert abs(d.compute_flooded - d.compute_clean) <= COMPUTE_POINTS, d
-    # the analysis is unaffected: every batch is there, no fatal fault, every process ran its cycles
+    # the analysis is unaffected: every batch is there, no fatal fault, every process had its
+    # releases and the flood made none skip more of them than in the clean run (a data reader
+    # skips a release its data comes too late for: the platform's stalls make it skip in the
+    # clean run too, 1.5 % of them once in CI)
     assert flooded["integrity"]["lost_batches"] == []
     assert not flooded.get("fatal"), flooded["faults"]
-    cycles = {p["name"]: p["cycles"] for p in clean["processes"]}
+    before = {p["name"]: p for p in clean["processes"]}
     for p in flooded["processes"]:
-        assert abs(p["cycles"] - cycles[p["name"]]) <= max(2, cycles[p["name"]] // 100), p
+        c = before[p["name"]]
+        releases = c["cycles"] + c["releases_skipped"]
+        assert abs(p["cycles"] + p["releases_skipped"] - releases) <= max(2, releases // 100), (p, c)
+        assert p["releases_skipped"] <= c["releases_skipped"] + max(2, releases // 100), (p, c)

@@ -197,6 +197,33 @@ def test_the_lateness_a_stall_explains_is_not_the_designs(tmp_path: Path, url: s
         assert proc["late_unstalled"] == 0, proc
 
 
+RELAY_SYSTEM = """\
+system: relay
+dpus: [{id: 1}, {id: 2}]
+buffers: [{id: 1, name: raw, bytes: 64}, {id: 2, name: relayed, bytes: 64}]
+processes:
+  - {id: 1, name: sensor, dpu: 1, period_us: 5000, compute_us: 500, outputs: [raw]}
+  - {id: 2, name: relay, dpu: 2, period_us: 5000, compute_us: 0, sync: data,
+     inputs: [raw], outputs: [relayed]}
+  - {id: 3, name: user, dpu: 2, period_us: 5000, compute_us: 1000, inputs: [relayed]}
+run: {duration_s: 2, warmup_cycles: 10, stop_on: [lockout]}
+"""
+
+
+def test_a_process_of_zero_compute_only_communicates(tmp_path: Path, url: str) -> None:
+    """compute_us: 0, a relay: it waits for its data and passes it on, computing nothing."""
+    path = tmp_path / "relay.yaml"
+    path.write_text(RELAY_SYSTEM)
+    out = tmp_path / "run"
+    run = skel("run", str(path), "--spawn", "--url", url, "--out", str(out))
+    assert run.returncode in (0, 1), run.stdout + run.stderr
+    report = _report(out)
+    relay, user = _process(report, "relay"), _process(report, "user")
+    assert relay["cycles"] > 200 and relay["compute_mean_us"] == 0.0, relay
+    assert relay["inputs"][0]["new"] == relay["cycles"], relay  # it ran on each new sample
+    assert user["inputs"][0]["new"] > 0.9 * user["cycles"], user  # and passed it on
+
+
 ORPHAN_SYSTEM = """\
 system: orphan
 dpus: [{id: 1}, {id: 2}]

@@ -24,7 +24,6 @@ from skeleton.analysis.measure.metrics import (
     static_load_pct,
     unstalled_lateness_us,
     unstalled_ns,
-    unstalled_response_us,
 )
 from skeleton.analysis.read.records import RECORD_DTYPE, RunRecords, decode_run, lost_batches
 
@@ -86,17 +85,6 @@ def test_unstalled_lateness_leaves_out_the_stalls_not_caught_up_on() -> None:
     assert unstalled_lateness_us(recs, lateness).tolist() == [1_000.0, 700.0, 0.0, -50.0]
 
 
-def test_unstalled_response_starts_no_sooner_than_its_schedule_and_works_without_its_stalls() -> None:
-    recs = np.zeros(4, dtype=RECORD_DTYPE)
-    recs["debt_ns"] = [9 * MS, 9 * MS, 0, 0]
-    recs["stall_ns"] = [0, 0, 2 * MS, 0]
-    lateness = np.array([10_000.0, 4_000.0, 0.0, -50.0])  # µs
-    response = np.array([12_000.0, 6_000.0, 5_000.0, 1_000.0])
-    # 9 ms owed of 10 ms late: starts 9 ms sooner; 9 ms owed but only 4 ms late: 4 ms sooner
-    # (the schedule); 2 ms stalled within its work: that much shorter; no stall: as measured
-    assert unstalled_response_us(recs, lateness, response).tolist() == [3_000.0, 2_000.0, 3_000.0, 1_000.0]
-
-
 def test_process_metrics_counts_latency_and_inputs() -> None:
     config = small_config(warmup_cycles=2)
     run = _run(*small_run(warmup=2, cycles=10))
@@ -107,7 +95,6 @@ def test_process_metrics_counts_latency_and_inputs() -> None:
     assert a.compute_mean_us == pytest.approx(4000.0)
     assert (a.late, a.too_late) == (0, 0)
     assert a.lateness_unstalled_us == a.lateness_us and a.late_unstalled == a.late  # no stalls owed
-    assert a.response_unstalled_us == a.response_us
     # B starts 4.72..4.79 ms after its release: late (> 40 % of 10 ms), not too late (> 80 %).
     assert (b.late, b.too_late) == (8, 0)
     (b_in,) = b.inputs

@@ -28,8 +28,7 @@ def _dpu(dpu_id: int, compute_pct: float) -> DpuMetrics:
 
 def _process(name: str, p99_us: float, inputs: tuple[InputMetrics, ...] = ()) -> ProcessMetrics:
     return ProcessMetrics(1, name, 1, 5000, 100, 0, 0, LatencyUs(10, 20, 30), 1000.0, 100.0, 0, 0,
-                          inputs=list(inputs), response_us=LatencyUs(p99_us, 9 * p99_us, 9 * p99_us),
-                          response_unstalled_us=LatencyUs(p99_us / 2, p99_us, p99_us + 1))
+                          inputs=list(inputs), response_us=LatencyUs(p99_us / 2, p99_us, p99_us + 1))
 
 
 PREDICTION = {
@@ -56,9 +55,8 @@ def test_each_rule_flags_only_beyond_its_tolerance() -> None:
     # % compute: ±2 points either way; a DPU without figures is left out
     assert [(d.id, round(d.compute_pct.delta, 1), d.compute_pct.outside) for d in got.dpus] == [
         (1, 1.9, False), (2, 2.5, True)]
-    # response, less its DPU's stalls (the whole is 9x): the p99 may pass the worst by late_pct
-    # (20 %) of the 5 ms period; a paced reader waits for its writer (not compared), an
-    # unbounded worst bounds nothing
+    # response: the p99 may pass the worst by late_pct (20 %) of the 5 ms period; a paced reader
+    # waits for its writer (not compared), an unbounded worst bounds nothing
     assert {p.name: (p.response_us.delta, p.response_us.outside) for p in got.processes} == {
         "a": (1100, True), "b": (900, False), "c": (49000, False), "d": (None, False)}
     slow, fast = got.inputs
@@ -115,9 +113,16 @@ def test_servo_measures_its_prediction(tmp_path: Path, url: str) -> None:
     assert len(rated) == 6
     for i in rated:
         assert not (i["new"]["outside"] or i["dropped"]["outside"]), i
-    # computations in sleep mode end no sooner than predicted: the platform only adds
+    # computations in sleep mode end no sooner than predicted: the platform only adds, less than a
+    # period at p99; but a stall of the platform as long as a period (a `stall` fault: this shared
+    # VM's hypervisor takes its CPUs for 5-70 ms at times) delays the responses after it as long
+    # as their DPU takes to catch up (SERVO's DPU 1, at 90 % load, 0.5 ms a frame), whatever the
+    # design: that bound judges the DPUs the platform left alone
+    stalled = {d for f in report["faults"] if f["kind"] == "stall" and f["duration_ms"] >= 5.0
+               for d in f["dpus"]}
     for p in predicted["processes"]:
-        assert -100 <= p["response_us"]["delta"] < 5000, p
+        assert -100 <= p["response_us"]["delta"], p
+        assert p["dpu"] in stalled or p["response_us"]["delta"] < 5000, (p, report["faults"])
     assert {c["name"] for c in predicted["chains"]} == {c["name"] for c in report["chains"]}
 
 

@@ -111,8 +111,8 @@ ERRORS: list[tuple[str, Callable[[Doc], None], str]] = [
     # values
     ("negative period", _set("processes.a.period_us", -5),
      "processes.a.period_us: must be a positive number of microseconds, got -5"),
-    ("zero compute", _set("processes.a.compute_us", 0),
-     "processes.a.compute_us: must be a positive number of microseconds, got 0"),
+    ("negative compute", _set("processes.a.compute_us", -1),
+     "processes.a.compute_us: must be 0 or more microseconds, got -1"),
     ("zero bytes", _set("buffers.a_out.bytes", 0),
      "buffers.a_out.bytes: must be a positive number of bytes, got 0"),
     ("absurd bytes", _set("buffers.a_out.bytes", 5 * 2**20),

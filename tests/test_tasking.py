@@ -79,9 +79,14 @@ def _run(tmp_path: Path, url: str, tasks: list[tuple[int, int]]) -> pd.DataFrame
     epoch = (timing.release_ns - timing.cycle * period_ns).min()  # every task's release 0
     release_ms = (timing.release_ns - epoch) / 1e6
     timing["hyper"] = (release_ms // hyper_ms).astype(int)
-    stalled = set(timing.hyper[timing.stall_ns > STALL_NS])
     ideal = ideal_schedule(tasks, (RUN_S + 1) * 1000)
     end_ms = release_ms + timing.response_us / 1000
+    # Every hyperperiod a stalled job ran in: the stall delays whatever runs after it there,
+    # though the record that carries it may be of a job released in an earlier one.
+    start_ms = (timing.start_ns - epoch) / 1e6
+    hit = timing.stall_ns > STALL_NS
+    stalled = {h for first, last in zip(start_ms[hit] // hyper_ms, end_ms[hit] // hyper_ms, strict=True)
+               for h in range(int(first), int(last) + 1)}
     jobs = [ideal[(i, k)] for i, k in zip(timing.task, timing.cycle, strict=True)]
     ideal_end = pd.Series([job.completion for job in jobs], index=timing.index)
     margin = pd.Series([_margin_ms(job.response) for job in jobs], index=timing.index)

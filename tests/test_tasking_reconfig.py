@@ -177,7 +177,7 @@ def test_live_compute_change_of_a_tasking_dpu_carries_its_jobs_over(dpus: DpuFar
     carried = next(r for r in p1 if r.release_ns == done.at - 2 * MS)
     assert carried.generation == done.g and carried.asked_ns == 3 * MS, carried
     assert 2.99 * MS <= carried.compute_ns < 3.3 * MS and carried.preemptions == 0, carried
-    assert carried.end_ns - carried.release_ns < 3.5 * MS, carried
+    assert carried.end_ns - carried.release_ns - carried.stall_ns < 3.5 * MS, carried  # less the platform's
     # From the next job on p1 computes the new 4 ms; before, the old 3 ms.
     assert all(r.asked_ns == 3 * MS for r in p1 if r.release_ns < done.at)
     new = [r for r in p1 if r.release_ns > done.at]

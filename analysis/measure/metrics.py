@@ -20,8 +20,6 @@ Three times per cycle, each its own measure:
 - lateness = start - the schedule's start (r_k plus the configured compute of the
   processes before it in its minor cycle): what `late` and `too late` judge; less the
   stalls the DPU had not caught up on (debt_ns), the design's own (lateness_unstalled);
-  and response = end of the cycle's work - r_k, less the same stalls and the cycle's own
-  (stall_ns), the response a dedicated CPU would have given (response_unstalled);
 - the DPU's frame release latency: the first start of each minor cycle - its release.
 """
 
@@ -93,8 +91,6 @@ class ProcessMetrics:
     stall_ms: float = 0.0  # time its cycles' thread was kept from running
     inputs: list[InputMetrics] = field(default_factory=list)
     response_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))  # end - release
-    # the response less the stalls that delayed its start and those within its cycle
-    response_unstalled_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))
     slack_us: SlackUs = field(default_factory=lambda: SlackUs(None, None))
     # A compute time that varies (process_t.nquantiles > 0): what the cycles were asked to
     # emulate (the draws) beside what they took, p50/p99/max and mean.
@@ -345,7 +341,6 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
                 first_overrun_cycle=int(done["cycle"][overran].min()) if overran.any() else None,
                 inputs=[_input(my_inputs, b, buffers) for b in proc.inputs],
                 response_us=_latency(response),
-                response_unstalled_us=_latency(unstalled_response_us(done, lateness, response)),
                 slack_us=SlackUs(
                     float(done["slack_ns"].min()) / 1000.0 if len(done) else None,
                     float(done["slack_ns"].mean()) / 1000.0 if len(done) else None,
@@ -375,16 +370,6 @@ def unstalled_lateness_us(records: np.ndarray, lateness_us: np.ndarray) -> np.nd
     started (debt_ns): what the schedule and the design are late by. An early start stays."""
     debt_us = records["debt_ns"].astype(np.float64) / 1000.0
     return np.where(lateness_us > 0, np.maximum(lateness_us - debt_us, 0.0), lateness_us)
-
-
-def unstalled_response_us(records: np.ndarray, lateness_us: np.ndarray,
-                          response_us: np.ndarray) -> np.ndarray:
-    """Each record's response (µs) as the platform's stalls left it: its start earlier by the
-    stalls owed (debt_ns) but never before its schedule, its work shorter by the stalls
-    within it (stall_ns)."""
-    debt_us = records["debt_ns"].astype(np.float64) / 1000.0
-    earlier_us = np.minimum(debt_us, np.maximum(lateness_us, 0.0))
-    return np.maximum(response_us - earlier_us - records["stall_ns"].astype(np.float64) / 1000.0, 0.0)
 
 
 def event_latency_us(records: np.ndarray) -> np.ndarray:

@@ -13,9 +13,7 @@ tolerances say how much of that cost passes unremarked:
 - response (release -> end of work) per process and chain latency: the measured p99 may
   exceed the predicted worst by late_pct (the system file's own lateness tolerance) of the
   process's period, of the tail's for a chain; below the worst is what a bound allows. A
-  data reader paced by a slower writer waits for it in every response: not compared. The
-  response is measured less its DPU's stalls (ProcessMetrics.response_unstalled_us), as
-  % compute is; a chain crosses DPUs, whose stalls no one DPU accounts: measured whole.
+  data reader paced by a slower writer waits for it in every response: not compared.
 """
 
 from __future__ import annotations
@@ -134,9 +132,8 @@ def beside(prediction: Mapping[str, Any], generation: int, late_pct: int, dpus: 
         if (mp := by_name.get(p["name"])) is None:
             continue
         margin = mp.period_us * late_pct / 100
-        measured = mp.response_unstalled_us
-        response = above_worst(p["response_us"], measured.p99, math.inf if p["paced_by"] else margin)
-        out.processes.append(ProcessBeside(p["name"], mp.dpu, response, measured.max, p["paced_by"]))
+        response = above_worst(p["response_us"], mp.response_us.p99, math.inf if p["paced_by"] else margin)
+        out.processes.append(ProcessBeside(p["name"], mp.dpu, response, mp.response_us.max, p["paced_by"]))
     for i in prediction["inputs"]:
         reader = by_name.get(i["reader"])
         found = next((m for m in reader.inputs if m.buffer == i["buffer"]), None) if reader else None

@@ -16,12 +16,13 @@ static void spin_until(int64_t end)
     }
 }
 
-static int64_t kept_ns(skel_exec_t *x, skel_mark_t mark)
+/* The stall process_kept finds in a step from FROM to now. */
+static int64_t kept_ns(skel_exec_t *x, int64_t from)
 {
     skel_rec_t rec;
     memset(&rec, 0, sizeof rec);
     x->stall_debt_ns = 0;
-    process_kept(x, &rec, &mark, clock_mono_ns());
+    process_kept(x, &rec, from, clock_mono_ns());
     CHECK_EQ(rec.stall_ns, x->stall_debt_ns); /* what the record says, the debt owes */
     return rec.stall_ns;
 }
@@ -30,14 +31,26 @@ static int64_t kept_ns(skel_exec_t *x, skel_mark_t mark)
  * most half of it, or the test says nothing), nor is sleeping for 5 ms (a wait it chose). */
 static void test_running_or_waiting_is_no_stall(skel_exec_t *x)
 {
-    skel_mark_t mark = process_mark(clock_mono_ns());
-    CHECK(mark.cpu_ns >= 0);
-    spin_until(mark.mono_ns + 5000000);
-    CHECK(kept_ns(x, mark) < 2500000);
-    mark = process_mark(clock_mono_ns());
+    int64_t from = clock_mono_ns();
+    process_remark(x, from);
+    CHECK(x->mark.cpu_ns >= 0);
+    spin_until(from + 5000000);
+    CHECK(kept_ns(x, from) < 2500000);
+    from = clock_mono_ns();
+    process_remark(x, from);
     struct timespec ts = { 0, 5000000 };
     CHECK_EQ(nanosleep(&ts, NULL), 0);
-    CHECK_EQ(kept_ns(x, mark), 0);
+    CHECK_EQ(kept_ns(x, from), 0);
+}
+
+/* A short step costs no system call and judges nothing: the mark stays. */
+static void test_a_short_step_is_not_judged(skel_exec_t *x)
+{
+    int64_t from = clock_mono_ns();
+    process_remark(x, from);
+    skel_mark_t was = x->mark;
+    CHECK_EQ(kept_ns(x, clock_mono_ns()), 0);
+    CHECK_EQ(x->mark.mono_ns, was.mono_ns);
 }
 
 static sem_t go;
@@ -73,11 +86,16 @@ static void test_a_thread_that_takes_the_cpu_is_a_stall(skel_exec_t *x)
         pthread_attr_destroy(&attr);
         return;
     }
-    skel_mark_t mark = process_mark(clock_mono_ns());
+    int64_t from = clock_mono_ns();
+    process_remark(x, from);
     CHECK_EQ(sem_post(&go), 0);
-    spin_until(mark.mono_ns + 12000000); /* the hog runs 8 ms of these 12 */
-    int64_t stall = kept_ns(x, mark);
+    spin_until(from + 12000000); /* the hog runs 8 ms of these 12 */
+    int64_t stall = kept_ns(x, from);
     CHECK(stall >= 6000000 && stall <= 13000000);
+    /* the next long step is judged from where this one ended: none of the 8 ms again */
+    int64_t step = clock_mono_ns();
+    spin_until(step + 10000000);
+    CHECK(kept_ns(x, step) < 4000000);
     CHECK_EQ(pthread_join(t, NULL), 0);
     pthread_attr_destroy(&attr);
     sem_destroy(&go);
@@ -88,6 +106,7 @@ int main(void)
     server.compute.stall_ns = SKEL_STALL_NS;
     skel_exec_t x = { .s = &server };
     test_running_or_waiting_is_no_stall(&x);
+    test_a_short_step_is_not_judged(&x);
     test_a_thread_that_takes_the_cpu_is_a_stall(&x);
     return CHECK_DONE();
 }

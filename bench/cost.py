@@ -1,0 +1,109 @@
+"""`make bench` parts that weigh the skeleton's own cost (bench/run.py runs them):
+
+(h) bookkeeping: one DPU, 64 processes of zero compute and no buffers in one 1 ms minor
+    cycle; what one process-cycle costs the executive and its timing record is the time
+    from one process's start to the next one's (goals: median <= 1 us, p99 <= 5 us), and
+    the run's own % overhead + % communicate (the time neither computing nor waiting)
+    must agree with that cost and the wake-up (within 1 point);
+(i) cycle rate: one DPU, four processes of 10 us in a 100 us minor cycle (10 kHz) under
+    SCHED_FIFO for 10^5 cycles: no overrun, no lost timing batch; then shorter minor
+    cycles down to the floor the system file allows, each for 2 s: the highest rate run
+    clean is printed.
+
+Each takes `run(text, name, seconds) -> (records, report)`: one real `skel run`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from skelmsg import contract
+
+Run = Callable[[str, str, float], tuple[np.ndarray, dict[str, Any]]]
+
+BOOK_PROCESSES = 64
+BOOK_PERIOD_US = 1000
+BOOK_GOAL_P50_US, BOOK_GOAL_P99_US, BOOK_AGREE_POINTS = 1.0, 5.0, 1.0
+RATE_PROCESSES, RATE_COMPUTE_US, RATE_MINOR_US, RATE_CYCLES = 4, 10, 100, 100_000
+RATE_PROBE_S = 2.0
+RATE_PROBES_US = (80, 67, 50, 40, 33, 25, 20)
+
+
+def system(name: str, url: str, processes: int, period_us: int, compute_us: int) -> str:
+    lines = [f"system: {name}", f'links: [{{name: bus, url: "{url}"}}]', "dpus: [{id: 1, compute: sleep}]",
+             "processes:"]
+    lines += [f"  - {{id: {i}, name: p{i}, dpu: 1, period_us: {period_us}, compute_us: {compute_us}}}"
+              for i in range(1, processes + 1)]
+    lines.append("run: {warmup_cycles: 200, lockout_cycles: 1000, stop_on: []}")
+    return "\n".join(lines) + "\n"
+
+
+def start_gaps_ns(records: np.ndarray) -> np.ndarray:
+    """From each process's start to the next one's in the same minor cycle: what one
+    process-cycle of no compute and no buffers costs, all of it."""
+    order = np.lexsort((records["start_ns"], records["minor"]))
+    minor, start = records["minor"][order], records["start_ns"][order].astype(np.int64)
+    same = minor[1:] == minor[:-1]
+    return (start[1:] - start[:-1])[same]
+
+
+def _us(ns: np.ndarray, q: float) -> float:
+    return float(np.percentile(ns, q)) / 1000.0
+
+
+def part_bookkeeping(run: Run, url: str, seconds: float) -> list[str]:
+    text = system("bookkeeping", url, BOOK_PROCESSES, BOOK_PERIOD_US, 0)
+    records, report = run(text, "bookkeeping", seconds)
+    gaps = start_gaps_ns(records)
+    first = records[records["process"] == 1]
+    wake = (first["start_ns"] - first["release_ns"]).astype(np.int64)
+    p50, p99, mean = _us(gaps, 50), _us(gaps, 99), float(gaps.mean()) / 1000.0
+    dpu = report["dpus"][0]
+    busy = dpu["overhead_pct"] + dpu["communicate_pct"]
+    expected = 100.0 * (float(wake.mean()) / 1000.0 + BOOK_PROCESSES * mean) / BOOK_PERIOD_US
+    ok = p50 <= BOOK_GOAL_P50_US and p99 <= BOOK_GOAL_P99_US and abs(busy - expected) <= BOOK_AGREE_POINTS
+    return [
+        f"bookkeeping: per process-cycle p50 {p50:.2f} us, p99 {p99:.2f} us (goals {BOOK_GOAL_P50_US:g} / "
+        f"{BOOK_GOAL_P99_US:g} us); run's % overhead + % communicate {busy:.1f} vs {expected:.1f} from that "
+        f"cost and the wake-up (within {BOOK_AGREE_POINTS:g} point): {'PASS' if ok else 'FAIL'}",
+        f"# {BOOK_PROCESSES} processes of 0 us and no buffers in one {BOOK_PERIOD_US} us minor cycle, "
+        f"one DPU (sleep: SCHED_FIFO when permitted), {seconds:g} s; a process-cycle: one start to the next",
+        f"per process-cycle: p50 {p50:.2f} us, mean {mean:.2f} us, p99 {p99:.2f} us, "
+        f"max {gaps.max() / 1000:.1f} us ({len(gaps)} gaps)",
+        f"wake-up (first process): p50 {_us(wake, 50):.1f} us, mean {float(wake.mean()) / 1000:.1f} us",
+        f"DPU 1: % compute {dpu['compute_pct']:.2f}, % communicate {dpu['communicate_pct']:.2f}, "
+        f"% wait {dpu['wait_pct']:.2f}, % overhead {dpu['overhead_pct']:.2f}",
+    ]
+
+
+def _clean(records: np.ndarray, report: dict[str, Any]) -> tuple[bool, str]:
+    overruns = sum(p["overruns"] for p in report["processes"])
+    lost = sum(b["to_seq"] - b["from_seq"] + 1 for b in report["integrity"]["lost_batches"])
+    minors = len(np.unique(records["minor"]))
+    said = f"{minors} minor cycles, {overruns} overruns, {lost} timing batches lost"
+    return overruns == 0 and lost == 0, said
+
+
+def part_rate(run: Run, url: str) -> list[str]:
+    hz = 1e6 / RATE_MINOR_US
+    seconds = RATE_CYCLES * RATE_MINOR_US / 1e6
+    text = system("rate", url, RATE_PROCESSES, RATE_MINOR_US, RATE_COMPUTE_US)
+    ok, said = _clean(*run(text, "rate", seconds))
+    lines = [f"# {RATE_PROCESSES} processes of {RATE_COMPUTE_US} us in one minor cycle, one DPU (sleep mode: "
+             f"SCHED_FIFO when permitted); {RATE_MINOR_US} us for {seconds:g} s, then shorter, "
+             f"{RATE_PROBE_S:g} s each, down to the floor ({contract.MIN_PERIOD_US} us)",
+             f"{RATE_MINOR_US} us ({hz / 1000:g} kHz): {said}"]
+    best = RATE_MINOR_US if ok else None
+    for minor_us in (m for m in RATE_PROBES_US if m >= contract.MIN_PERIOD_US):
+        clean, said = _clean(*run(system("rate", url, RATE_PROCESSES, minor_us, RATE_COMPUTE_US),
+                                  f"rate-{minor_us}", RATE_PROBE_S))
+        lines.append(f"{minor_us} us ({1e3 / minor_us:.1f} kHz): {said}")
+        if not clean:
+            break
+        best = minor_us
+    top = f"{1e3 / best:.1f} kHz ({best} us)" if best else "none"
+    return [f"cycle rate: {hz / 1000:g} kHz for {RATE_CYCLES} cycles {'clean' if ok else 'NOT clean'}; "
+            f"highest clean rate {top}: {'PASS' if ok else 'FAIL'}", *lines]
