@@ -261,7 +261,8 @@ def _compute_kind(v: Any) -> str:
 # compute_us: a number, or a mapping describing how it varies. The tags route a value to
 # one branch, so an error names that branch's problem only (yamlfile.field_path skips them).
 Compute = Annotated[
-    Annotated[int, AfterValidator(_compute_us), Tag("<number>")] | Annotated[ComputeSpec, Tag("<distribution>")],
+    Annotated[int, AfterValidator(_compute_us), Tag("<number>")]
+    | Annotated[ComputeSpec, Tag("<distribution>")],
     Discriminator(_compute_kind),
 ]
 

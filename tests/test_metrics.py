@@ -85,6 +85,19 @@ def test_unstalled_lateness_leaves_out_the_stalls_not_caught_up_on() -> None:
     assert unstalled_lateness_us(recs, lateness).tolist() == [1_000.0, 700.0, 0.0, -50.0]
 
 
+@pytest.mark.parametrize(("stall_us", "debt_us", "explained"), [
+    (0, 0, 0), (300, 0, 1), (0, 300, 1), (100, 100, 0), (150, 100, 1)])
+def test_an_overrun_is_the_platforms_when_stalls_cover_its_overshoot(stall_us: int, debt_us: int,
+                                                                     explained: int) -> None:
+    dpu1, dpu2 = small_run(warmup=2, cycles=10)
+    late = dpu2[-1]  # 250 us past its deadline
+    assert late.slack_ns == -250 * US
+    late.stall_ns, late.debt_ns = stall_us * US, debt_us * US  # its own stalls, those still owed
+    run = _run(dpu1, dpu2)
+    c = process_metrics(run.records, run.inputs, small_config(warmup_cycles=2))[2]
+    assert (c.overruns, c.overruns_stalled) == (1, explained)
+
+
 def test_process_metrics_counts_latency_and_inputs() -> None:
     config = small_config(warmup_cycles=2)
     run = _run(*small_run(warmup=2, cycles=10))

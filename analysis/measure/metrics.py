@@ -87,7 +87,10 @@ class ProcessMetrics:
     lateness_unstalled_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))
     late_unstalled: int = 0
     releases_skipped: int = 0  # cycle skipping: a data-synchronised process a period behind
-    overruns_stalled: int = 0  # overruns whose cycle lost at least its overshoot to stalls
+    # overruns whose cycle lost at least its overshoot to stalls, its own or those its DPU had
+    # not caught up on when it started (debt_ns: a DPU catching up after a 50 ms stall overruns
+    # every cycle until it has)
+    overruns_stalled: int = 0
     stall_ms: float = 0.0  # time its cycles' thread was kept from running
     inputs: list[InputMetrics] = field(default_factory=list)
     response_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))  # end - release
@@ -350,7 +353,8 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
                 lateness_unstalled_us=_latency(unstalled),
                 late_unstalled=int(np.count_nonzero(unstalled > late_us)),
                 releases_skipped=int(np.count_nonzero((mine["flags"] & FLAG_RELEASE_SKIPPED) != 0)),
-                overruns_stalled=int(np.count_nonzero(overran & (done["stall_ns"] >= -done["slack_ns"]))),
+                overruns_stalled=int(np.count_nonzero(
+                    overran & (done["stall_ns"] + done["debt_ns"] >= -done["slack_ns"]))),
                 stall_ms=float(mine["stall_ns"].sum()) / 1e6,
                 varying=proc.nquantiles > 0,
                 asked_us=_latency(done["asked_ns"].astype(np.float64) / 1000.0),
