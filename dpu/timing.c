@@ -14,6 +14,11 @@ int timing_ring_init(skel_ring_t *ring, uint64_t cap)
     if (cap == 0 || (cap & (cap - 1)) != 0) return -1;
     ring->recs = calloc(cap, sizeof *ring->recs);
     if (ring->recs == NULL) return -1;
+    /* Every page written now: calloc maps untouched pages, and the ring's first lap
+     * would take a page fault in the cycle loop every few records (measured on
+     * SERVO: ~0.4 a cycle for the first 20 s). */
+    volatile unsigned char *page = (volatile unsigned char *)ring->recs;
+    for (size_t at = 0; at < cap * sizeof *ring->recs; at += 4096) page[at] = 0;
     ring->cap = cap;
     atomic_init(&ring->head, 0);
     atomic_init(&ring->tail, 0);
