@@ -224,7 +224,12 @@ def part_wakeup(tmp: Path, seconds: float) -> list[str]:
         priority = 10 if mode == "sleep" and os.geteuid() == 0 else 0
         lead = seconds + CYCLICTEST_LEAD_S
         ref = cyclictest_start(binary, lead, priority, CYCLICTEST_CPU) if binary else None
-        ns = first_of_minor(skel_run(tmp, mode, seconds, more=(f"dpu.1.cpu={DPU_CPU}",)))
+        try:
+            ns = first_of_minor(skel_run(tmp, mode, seconds, more=(f"dpu.1.cpu={DPU_CPU}",)))
+        except BaseException:
+            if ref is not None:
+                ref.kill()
+            raise
         got = _fifo_priority(tmp, mode)
         klass = f"SCHED_FIFO {got}" if got else "SCHED_OTHER"
         lines.append(f"skel-dpu {mode} ({klass}): p50 {_us(ns, 50):.1f} us, p99 {_us(ns, 99):.1f} us, "

@@ -237,10 +237,9 @@ void executive_poll_switch(skel_exec_t *x)
 }
 
 /* Sleeps until UNTIL (INT64_MAX: until told): 0 reached, 1 stop, 2 the pending
- * switch changed. 50 ms pieces, so a COMMIT is seen within one piece. A wait no
- * longer than the spin stretch (--spin-us) is spun, as a sleeping computation's
- * last stretch is: a wake-up takes tens of us on a virtual machine, so a frame of
- * a fast DPU (10 kHz) that slept would start that late every time. */
+ * switch changed. 50 ms pieces, so a COMMIT is seen within one piece. It always
+ * sleeps, however short the wait: a SCHED_FIFO thread that never slept would be
+ * throttled by the kernel (sched_rt_runtime_us: 50 ms of every second). */
 static int executive_wait(skel_exec_t *x, int64_t until)
 {
     const int64_t piece = 50 * 1000 * 1000LL;
@@ -249,11 +248,7 @@ static int executive_wait(skel_exec_t *x, int64_t until)
         if (atomic_load(&x->s->switch_seq) != x->switch_seq) return 2;
         int64_t now = clock_mono_ns();
         if (now >= until) return 0;
-        if (until - now <= x->s->compute.spin_ns) {
-            while (clock_mono_ns() < until) {
-            }
-            return 0;
-        }
+
         int64_t t = until - now > piece ? now + piece : until;
         struct timespec ts = { .tv_sec = t / SKEL_NS_PER_S, .tv_nsec = t % SKEL_NS_PER_S };
         x->mark_stale = 1; /* the steps after a chosen sleep are judged from a fresh mark */
@@ -279,6 +274,7 @@ int executive_switch(skel_exec_t *x, int64_t j_sw, int ran)
 {
     skel_server_t *s = x->s;
     skel_plan_t *old = x->plan;
+    x->mark_stale = 1; /* a switch takes a lock and may re-pin the thread: judge afresh */
     if (pthread_mutex_lock(&s->lock) != 0) return 0;
     skel_plan_t *next = s->next_plan;
     s->next_plan = NULL;

@@ -199,16 +199,15 @@ void process_kept(skel_exec_t *x, skel_rec_t *rec, int64_t step_from, int64_t no
     long chose_to_wait;
     if (process_usage(&cpu_ns, &chose_to_wait) != 0) return;
     const skel_mark_t was = x->mark;
-    const int64_t charged = x->mark_charged_ns;
+    if (was.cpu_ns >= 0 && !x->mark_stale && chose_to_wait == was.chose_to_wait) {
+        int64_t off = (now - was.mono_ns) - (cpu_ns - was.cpu_ns) - x->mark_charged_ns;
+        if (off > now - step_from) off = now - step_from;
+        if (off > threshold) process_stalled(x, rec, off);
+    }
+    /* the stalls charged so far are before the new mark: none is subtracted again */
     x->mark = (skel_mark_t){ now, cpu_ns, chose_to_wait };
     x->mark_charged_ns = 0;
-    if (was.cpu_ns < 0 || x->mark_stale || chose_to_wait != was.chose_to_wait) {
-        x->mark_stale = 0;
-        return;
-    }
-    int64_t off = (now - was.mono_ns) - (cpu_ns - was.cpu_ns) - charged;
-    if (off > now - step_from) off = now - step_from;
-    if (off > threshold) process_stalled(x, rec, off);
+    x->mark_stale = 0;
 }
 
 /* Waits for new data on every required input: 1 when the run ended or stopped
@@ -367,8 +366,10 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
     rec->asked_ns = draw_ns(&p->draw, p->compute_ns);
     rec->compute_ns = compute_run(&x->s->compute, plan->compute, rec->asked_ns, &stall);
     process_stalled(x, rec, stall);
-    if (plan->compute == SKELMSG_DPU_T_COMPUTE_SLEEP && rec->asked_ns > x->s->compute.spin_ns)
-        x->mark_stale = 1; /* it slept (a shorter one only spins: compute_sleep) */
+    /* A computation sleeps (a voluntary switch), or charges only the stalls that carried
+     * it past its time: what it lost and still ended on time must not be billed to the
+     * next long step. Its steps are judged from a fresh mark. */
+    if (rec->asked_ns > 0) x->mark_stale = 1;
     int64_t t_out = clock_mono_ns();
     if (p->noutputs > 0 || p->nemits > 0) {
         if (x->mark_stale) process_remark(x, t_out);

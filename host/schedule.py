@@ -53,9 +53,11 @@ def response_time(tasks: Sequence[Task], i: int) -> int | None:
     c, _ = tasks[i]
     if utilization(tasks[: i + 1]) > 1:
         return None
-    r = c
+    r = c + sum(cj for cj, _ in tasks[:i])  # from R = C_i alone a task of C_i = 0 stops at 0
     while True:
-        nxt = c + sum(math.ceil(r / tj) * cj for cj, tj in tasks[:i])
+        # A job of no computation still needs the processor at the instant R: a release of
+        # a higher priority at R itself goes first (ideal_schedule), so it counts too.
+        nxt = c + sum((math.ceil(r / tj) if c else r // tj + 1) * cj for cj, tj in tasks[:i])
         if nxt == r:
             return r
         r = nxt

@@ -86,12 +86,17 @@ def test_unstalled_lateness_leaves_out_the_stalls_not_caught_up_on() -> None:
 
 
 @pytest.mark.parametrize(("stall_us", "debt_us", "explained"), [
-    (0, 0, 0), (300, 0, 1), (0, 300, 1), (100, 100, 0), (150, 100, 1)])
+    (0, 0, 0),      # no stall: the design's
+    (300, 0, 1),    # its own stalls cover the 250 us
+    (0, 300, 0),    # stalls owed explain only how late it started: 50 us
+    (300, 300, 0),  # the frame's wake-up stall, in both: once, 300 - 300 + 50
+    (550, 300, 1),  # 250 us its own beyond the wake-up, + 50
+])
 def test_an_overrun_is_the_platforms_when_stalls_cover_its_overshoot(stall_us: int, debt_us: int,
                                                                      explained: int) -> None:
     dpu1, dpu2 = small_run(warmup=2, cycles=10)
-    late = dpu2[-1]  # 250 us past its deadline
-    assert late.slack_ns == -250 * US
+    late = dpu2[-1]  # DPU 2's only process: the first of its frame, 50 us after its release, 250 us past
+    assert late.slack_ns == -250 * US and late.start_ns - late.release_ns == 50 * US
     late.stall_ns, late.debt_ns = stall_us * US, debt_us * US  # its own stalls, those still owed
     run = _run(dpu1, dpu2)
     c = process_metrics(run.records, run.inputs, small_config(warmup_cycles=2))[2]

@@ -142,6 +142,14 @@ def test_an_unschedulable_set_misses_exactly_the_deadlines_analysis_predicts(tmp
         assert abs(row.response_us - r * MS) <= _margin_ms(r) * MS, (i, k, row)
 
 
+def test_a_task_of_zero_compute_responds_after_the_work_above_it() -> None:
+    # a relay of no computation still waits for the higher priorities' work at the critical
+    # instant, and for a release that comes at the instant it would run (p1's second, at 5)
+    tasks = [(2, 5), (3, 10), (0, 20)]
+    assert response_times(tasks) == [2, 5, 7]
+    assert ideal_schedule(tasks, 20)[(2, 0)].completion == 7
+
+
 BAD_PRIORITIES = [
     ("-s", "process.p1.priority=100", "processes.p1.priority"),
     ("-s", "process.p1.priority=0", "processes.p1.priority"),

@@ -87,9 +87,8 @@ class ProcessMetrics:
     lateness_unstalled_us: LatencyUs = field(default_factory=lambda: LatencyUs(None, None, None))
     late_unstalled: int = 0
     releases_skipped: int = 0  # cycle skipping: a data-synchronised process a period behind
-    # overruns whose cycle lost at least its overshoot to stalls, its own or those its DPU had
-    # not caught up on when it started (debt_ns: a DPU catching up after a 50 ms stall overruns
-    # every cycle until it has)
+    # overruns that stalls explain (stall_explains): a DPU catching up after a 50 ms stall
+    # overruns every cycle until it has
     overruns_stalled: int = 0
     stall_ms: float = 0.0  # time its cycles' thread was kept from running
     inputs: list[InputMetrics] = field(default_factory=list)
@@ -312,13 +311,16 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
     at = np.flatnonzero(in_window)
     order, by_process = group_slices(records["process"][at].astype(np.int64))
     at = at[order]
+    firsts = first_of_frame(records)
     in_order, in_by_process = group_slices(counted_inputs["process"].astype(np.int64))
     counted_inputs = counted_inputs[in_order]
     out = []
     for proc in sorted(config.processes, key=lambda p: p.id):
-        mine = records[at[by_process.get(int(proc.id), slice(0, 0))]]
+        rows = at[by_process.get(int(proc.id), slice(0, 0))]
+        mine = records[rows]
         skipped = (mine["flags"] & FLAG_SKIPPED) != 0
         done = mine[completed(mine)]
+        done_first = firsts[rows][completed(mine)]
         latency = (done["start_ns"] - done["release_ns"]).astype(np.float64) / 1000.0
         lateness = (done["start_ns"] - done["sched_ns"]).astype(np.float64) / 1000.0
         unstalled = unstalled_lateness_us(done, lateness)
@@ -353,8 +355,7 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
                 lateness_unstalled_us=_latency(unstalled),
                 late_unstalled=int(np.count_nonzero(unstalled > late_us)),
                 releases_skipped=int(np.count_nonzero((mine["flags"] & FLAG_RELEASE_SKIPPED) != 0)),
-                overruns_stalled=int(np.count_nonzero(
-                    overran & (done["stall_ns"] + done["debt_ns"] >= -done["slack_ns"]))),
+                overruns_stalled=int(np.count_nonzero(overran & stall_explains(done, done_first))),
                 stall_ms=float(mine["stall_ns"].sum()) / 1e6,
                 varying=proc.nquantiles > 0,
                 asked_us=_latency(done["asked_ns"].astype(np.float64) / 1000.0),
@@ -367,6 +368,27 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
             got = done[done["event_ns"] >= 0]
             out[-1].histograms["event_latency_us"] = histogram(event_latency_us(got))
     return out
+
+
+def first_of_frame(records: np.ndarray) -> np.ndarray:
+    """Whether each record is the first its DPU started in its minor cycle."""
+    order = np.lexsort((records["start_ns"], records["minor"], records["dpu"]))
+    dpu, minor = records["dpu"][order], records["minor"][order]
+    out = np.zeros(len(records), dtype=bool)
+    out[order] = np.r_[True, (dpu[1:] != dpu[:-1]) | (minor[1:] != minor[:-1])][: len(records)]
+    return out
+
+
+def stall_explains(records: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """Whether the stalls account for each record's overshoot (-slack): those within its
+    cycle, plus those its DPU had not caught up on (debt_ns) as far as they made it start
+    late. The first record of a frame carries the frame's wake-up stall in both stall_ns and
+    debt_ns (the executive's debt restarts from it): counted once."""
+    debt = records["debt_ns"].astype(np.int64)
+    own = records["stall_ns"].astype(np.int64)
+    own = np.where(first, np.maximum(own - debt, 0), own)
+    late = np.maximum(records["start_ns"].astype(np.int64) - records["sched_ns"].astype(np.int64), 0)
+    return own + np.minimum(debt, late) >= -records["slack_ns"].astype(np.int64)
 
 
 def unstalled_lateness_us(records: np.ndarray, lateness_us: np.ndarray) -> np.ndarray:
