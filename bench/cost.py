@@ -62,7 +62,8 @@ def frame_costs_ns(records: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     return wake, gaps, end[last] - start[last]
 
 
-def _us(ns: np.ndarray, q: float) -> float:
+def us_at(ns: np.ndarray, q: float) -> float:
+    """The q-th percentile of nanoseconds, in µs (bench/run.py uses it too)."""
     return float(np.percentile(ns, q)) / 1000.0
 
 
@@ -70,7 +71,7 @@ def part_bookkeeping(run: Run, url: str, seconds: float) -> list[str]:
     text = system("bookkeeping", url, BOOK_PROCESSES, BOOK_PERIOD_US, 0)
     records, report = run(text, "bookkeeping", seconds)
     wake, gaps, tail = frame_costs_ns(records)
-    p50, p99, mean = _us(gaps, 50), _us(gaps, 99), float(gaps.mean()) / 1000.0
+    p50, p99, mean = us_at(gaps, 50), us_at(gaps, 99), float(gaps.mean()) / 1000.0
     dpu = report["dpus"][0]
     # The run's time neither computing nor waiting, against what the wake-ups and the
     # process-cycles of its frames add up to
@@ -85,7 +86,7 @@ def part_bookkeeping(run: Run, url: str, seconds: float) -> list[str]:
         f"one DPU (sleep: SCHED_FIFO when permitted), {seconds:g} s; a process-cycle: one start to the next",
         f"per process-cycle: p50 {p50:.2f} us, mean {mean:.2f} us, p99 {p99:.2f} us, "
         f"max {gaps.max() / 1000:.1f} us ({len(gaps)} gaps)",
-        f"wake-up per frame: p50 {_us(wake, 50):.1f} us, mean {float(wake.mean()) / 1000:.1f} us",
+        f"wake-up per frame: p50 {us_at(wake, 50):.1f} us, mean {float(wake.mean()) / 1000:.1f} us",
         f"DPU 1: % compute {dpu['compute_pct']:.2f}, % communicate {dpu['communicate_pct']:.2f}, "
         f"% wait {dpu['wait_pct']:.2f}, % overhead {dpu['overhead_pct']:.2f} "
         f"(% stall {dpu['stall_pct']:.2f})",

@@ -50,6 +50,7 @@ from typing import Any
 import cost  # bench/cost.py, beside this file
 import lcm
 import numpy as np
+from cost import us_at
 
 import skelmsg
 from skeleton.analysis.read.logreader import read_log
@@ -85,10 +86,6 @@ lc.subscribe(".*", lambda channel, data: None)
 while True:
     lc.handle()
 """
-
-
-def _us(ns: np.ndarray, q: float) -> float:
-    return float(np.percentile(ns, q)) / 1000.0
 
 
 COMPUTE_SYSTEM = f"""\
@@ -232,20 +229,20 @@ def part_wakeup(tmp: Path, seconds: float) -> list[str]:
             raise
         got = _fifo_priority(tmp, mode)
         klass = f"SCHED_FIFO {got}" if got else "SCHED_OTHER"
-        lines.append(f"skel-dpu {mode} ({klass}): p50 {_us(ns, 50):.1f} us, p99 {_us(ns, 99):.1f} us, "
+        lines.append(f"skel-dpu {mode} ({klass}): p50 {us_at(ns, 50):.1f} us, p99 {us_at(ns, 99):.1f} us, "
                      f"max {ns.max() / 1000:.1f} us ({len(ns)} minor cycles)")
         if ref is None:
-            heads.append(f"{mode} {_us(ns, 99):.1f} us, cyclictest skipped: {why}")
+            heads.append(f"{mode} {us_at(ns, 99):.1f} us, cyclictest skipped: {why}")
             continue
         theirs = cyclictest_result(ref, lead)
         note = "" if got == priority else f" (NOT the DPU's class: it got {klass})"
         same = f"SCHED_FIFO {priority}" if priority else "SCHED_OTHER, timer slack 1 ns"
         lines.append(f"cyclictest ({same}{note}): p50 {theirs['p50']:.0f} us, p99 {theirs['p99']:.0f} us, "
                      f"max {theirs['max']:.0f} us ({theirs['samples']:.0f} wake-ups)")
-        mine = _us(ns, 99)
+        mine = us_at(ns, 99)
         ratio = ratios[mode] = mine / max(theirs["p99"], 1.0)  # cyclictest counts whole µs: never 0
         heads.append(f"{mode} {mine:.1f} us vs {theirs['p99']:.0f} us (ratio {ratio:.2f}; p50 "
-                     f"{_us(ns, 50):.1f} vs {theirs['p50']:.0f} us, {klass})")
+                     f"{us_at(ns, 50):.1f} vs {theirs['p50']:.0f} us, {klass})")
     verdict = "" if "sleep" not in ratios else f": {'PASS' if ratios['sleep'] <= 1.2 else 'FAIL'} (sleep)"
     return [f"wake-up p99 (goal: ratio 1.2), skel vs cyclictest side by side: {'; '.join(heads)}{verdict}",
             *lines]
@@ -288,12 +285,12 @@ def part_publish(tmp: Path, seconds: float, records: np.ndarray | None) -> list[
     lines = [f"# one {BUFFER_BYTES}-byte buffer ({size} bytes encoded buffer_t) per {PERIOD_US} us cycle, "
              f"{len(ours)} cycles; bare: lcm_publish() of {size} bytes, {count} times, same period, "
              "same listeners (its own socket, lcm-logger, a Python subscriber)",
-             f"skel-dpu comm_out: mean {ours.mean() / 1000:.2f} us, p50 {_us(ours, 50):.2f} us, "
-             f"p99 {_us(ours, 99):.2f} us, max {ours.max() / 1000:.1f} us",
+             f"skel-dpu comm_out: mean {ours.mean() / 1000:.2f} us, p50 {us_at(ours, 50):.2f} us, "
+             f"p99 {us_at(ours, 99):.2f} us, max {ours.max() / 1000:.1f} us",
              f"bare lcm_publish: mean {mean / 1000:.2f} us, p50 {p50 / 1000:.2f} us, "
              f"p99 {p99 / 1000:.2f} us, max {worst / 1000:.1f} us"]
-    head = (f"publish: skel {_us(ours, 50):.2f} us, bare lcm {p50 / 1000:.2f} us "
-            f"(ratio {_us(ours, 50) / max(p50 / 1000, 1e-3):.2f}, p50 per {size}-byte message)")
+    head = (f"publish: skel {us_at(ours, 50):.2f} us, bare lcm {p50 / 1000:.2f} us "
+            f"(ratio {us_at(ours, 50) / max(p50 / 1000, 1e-3):.2f}, p50 per {size}-byte message)")
     return [head, *lines]
 
 
@@ -362,7 +359,7 @@ def part_tasking(tmp: Path, seconds: float) -> list[str]:
     records = skel_run(tmp, "sleep", seconds, tasking_system(tasks), "tasking-", warmup=0)
     dev = tasking_deviations(records, tasks)
     start, end = np.abs(dev["start"]), np.abs(dev["end"])
-    p99 = _us(start, 99)
+    p99 = us_at(start, 99)
     verdict = "PASS" if p99 <= TASKING_GOAL_US else "FAIL"
     rta = [r / 1000 if r is not None else None for r in response_times(tasks)]
     spec = ", ".join(f"{c / 1000:g}/{t / 1000:g}" for c, t in tasks)
@@ -373,10 +370,10 @@ def part_tasking(tmp: Path, seconds: float) -> list[str]:
         f"# rate-monotonic C/T = {spec} ms (U = {float(utilization(tasks)):.3f}, exact RTA R = {rta} ms), "
         f"{seconds:.0f} s, jobs released in the first {TASKING_SKIP_S} s excluded; each job aligned with the "
         "ideal schedule's by its release (the run's t0 + k x T)",
-        f"|start - ideal start|: p50 {_us(start, 50):.1f} us, p99 {p99:.1f} us, "
+        f"|start - ideal start|: p50 {us_at(start, 50):.1f} us, p99 {p99:.1f} us, "
         f"max {start.max() / 1000:.1f} us ({len(start)} jobs; signed: min {late.min() / 1000:+.1f} us, "
         f"mean {late.mean() / 1000:+.1f} us)",
-        f"|completion - ideal completion|: p50 {_us(end, 50):.1f} us, p99 {_us(end, 99):.1f} us, "
+        f"|completion - ideal completion|: p50 {us_at(end, 50):.1f} us, p99 {us_at(end, 99):.1f} us, "
         f"max {end.max() / 1000:.1f} us (the DPU's reading and writing of a job take the processor too)",
         f"jobs with a stall of the machine (a wake-up or gap over the stall threshold): "
         f"{int(dev['stalled'].sum())} of {len(start)}",
