@@ -2,6 +2,7 @@
  * appears at the edges (a START instant, a message's kernel receive stamp), and
  * is converted with one simultaneous reading of both clocks. */
 #include <errno.h>
+#include <sys/resource.h>
 #include <time.h>
 
 #include "dpu.h"
@@ -17,6 +18,12 @@ static int64_t clock_read(clockid_t id)
 int64_t clock_mono_ns(void) { return clock_read(CLOCK_MONOTONIC); }
 int64_t clock_utc_ns(void) { return clock_read(CLOCK_REALTIME); }
 int64_t clock_thread_cpu_ns(void) { return clock_read(CLOCK_THREAD_CPUTIME_ID); }
+
+int64_t clock_thread_preemptions(void)
+{
+    struct rusage ru;
+    return getrusage(RUSAGE_THREAD, &ru) == 0 ? ru.ru_nivcsw : 0;
+}
 
 int64_t clock_utc_to_mono(int64_t at_utc_ns, int64_t now_mono_ns, int64_t now_utc_ns)
 {

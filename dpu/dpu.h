@@ -66,6 +66,8 @@ void log_sanitize(char *line); /* control characters -> '?', in place */
 int64_t clock_mono_ns(void);
 int64_t clock_utc_ns(void);
 int64_t clock_thread_cpu_ns(void);
+/* The calling thread's involuntary context switches so far (0 if unknown). */
+int64_t clock_thread_preemptions(void);
 /* The monotonic instant of UTC instant AT, given one simultaneous reading of both clocks. */
 int64_t clock_utc_to_mono(int64_t at_utc_ns, int64_t now_mono_ns, int64_t now_utc_ns);
 int64_t clock_mono_to_utc(int64_t at_mono_ns, int64_t now_mono_ns, int64_t now_utc_ns);
@@ -176,6 +178,11 @@ typedef struct {
 int compute_calibrate(skel_compute_t *c);
 double compute_check_calibration(const skel_compute_t *c); /* % slower than the reference */
 int64_t compute_run(const skel_compute_t *c, int mode, int64_t ns, int64_t *stall);
+/* Busy until the thread was seen holding the processor NS (gaps longer than
+ * the stall threshold are not counted); returns that time. UNSWITCHED (or
+ * NULL) gets the gaps during which the thread was not switched out: the
+ * machine stopped the CPU. */
+int64_t compute_held(const skel_compute_t *c, int64_t ns, int64_t *unswitched);
 uint64_t compute_work_kernel(uint64_t iterations);
 
 /* ---- timing (timing.c): per-cycle records, SPSC ring, timing_t batches ---------- */

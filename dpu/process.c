@@ -371,6 +371,10 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
      * next long step. Its steps are judged from a fresh mark. */
     if (rec->asked_ns > 0) x->mark_stale = 1;
     int64_t t_out = clock_mono_ns();
+    /* What of the computation's wall time it did not compute: the platform's
+     * (its stall), so that the record's parts add up to where its work ended. */
+    rec->preempted_ns = t_out - t_blocked - rec->compute_ns;
+    if (rec->preempted_ns < 0) rec->preempted_ns = 0;
     if (p->noutputs > 0 || p->nemits > 0) {
         if (x->mark_stale) process_remark(x, t_out);
         process_write_outputs(x, p, k);

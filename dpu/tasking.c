@@ -197,6 +197,9 @@ static void tasking_complete(skel_exec_t *x, skel_process_t *p)
 {
     skel_plan_t *plan = x->plan;
     int64_t t_out = clock_mono_ns();
+    /* Its computation ended at its slice's end: a later wake-up (its stall) kept
+     * it, so that the record's parts add up to where its work ended. */
+    if (t_out > p->slice_mono_ns) p->rec.preempted_ns += t_out - p->slice_mono_ns;
     const int measured = p->k_base + p->next_k >= p->measure_from_k;
     process_write_outputs(x, p, p->k_base + p->next_k);
     process_finish(x, p, &p->rec, p->job_release, t_out, measured);
@@ -288,9 +291,13 @@ void tasking_run(skel_exec_t *x)
             cur->rec.preemptions++;
         if (h != NULL) tasking_flush(x, &idle, now);
         if (h != cur && h != NULL) {
-            if (h->job == TASK_READY) tasking_start(x, h, vt, now); /* takes x->wake_stall_ns */
-            else h->rec.preempted_ns += now - h->slice_mono_ns;
-            h->slice_mono_ns = clock_mono_ns();
+            if (h->job == TASK_READY) {
+                tasking_start(x, h, vt, now); /* takes x->wake_stall_ns; its slice starts */
+            } else {
+                int64_t resumed = clock_mono_ns();
+                h->rec.preempted_ns += resumed - h->slice_mono_ns;
+                h->slice_mono_ns = resumed;
+            }
         }
         if (h != NULL) { /* a late wake-up delayed the job that runs after it */
             h->rec.stall_ns += x->wake_stall_ns;

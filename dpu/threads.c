@@ -28,14 +28,18 @@
  * A job's record: start_ns is when it got the processor for the first time
  * (for a data job: once its data came), sched_ns when the processor was its by
  * the schedule (its release or its data, or the completion before it), the
- * computation's compute_ns the time it ran (CPU time in CPU and WORK; in WALL
+ * computation's compute_ns the time it ran (CPU time in WORK; in CPU and WALL
  * the wall time it held the processor: a gap of more than the stall threshold
  * between two looks at the clock is time it was preempted, not computation),
  * preempted_ns the time its computation did not run between its start and its
  * end, and preemptions the involuntary context switches of its thread during
  * the job (getrusage RUSAGE_THREAD). The kernel cannot tell the DPU who took
- * the processor, so stall_ns is 0: on a faithful run only the DPU's
- * higher-priority processes can (and interrupts, which are not switches).
+ * the processor: on a faithful run only the DPU's higher-priority processes
+ * can. But a gap in a CPU or WALL computation during which its thread was not
+ * switched out is not preemption: the machine stopped the CPU (a VM's vCPU
+ * not running, a long interrupt). That part of preempted_ns is also the job's
+ * stall_ns (the platform's, as on the other executives). In WORK such time is
+ * charged to the thread's CPU time: it shows as slower work.
  * Where SCHED_FIFO or the pinning is refused, the DPU says so once in its log
  * and the run's status and report carry FAULT_NOT_FAITHFUL: the kernel's
  * ordinary time sharing then stands in for the model.
@@ -56,7 +60,6 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/eventfd.h>
-#include <sys/resource.h>
 #include <sys/sysinfo.h>
 #include <unistd.h>
 
@@ -197,28 +200,18 @@ static int threads_wait(threads_worker_t *w, int64_t until, int watch)
     return failed || atomic_load(&t->done);
 }
 
-/* The computation, in mode MODE: what it ran (the record's compute). */
-static int64_t threads_compute(const skel_compute_t *c, int mode, int64_t ns)
+/* The computation, in mode MODE: what it ran (the record's compute); the time
+ * the machine stopped it is added to *STALL. */
+static int64_t threads_compute(const skel_compute_t *c, int mode, int64_t ns, int64_t *stall)
 {
-    if (mode != SKELMSG_DPU_T_COMPUTE_WALL) {
-        int64_t stall = 0; /* CPU, WORK: wall less CPU time, which is preempted_ns here */
-        return compute_run(c, mode, ns, &stall);
+    if (mode == SKELMSG_DPU_T_COMPUTE_WORK) {
+        int64_t off_cpu = 0; /* wall less CPU time, which is preempted_ns here */
+        return compute_run(c, mode, ns, &off_cpu);
     }
-    /* WALL: the wall time it held the processor; a gap between two looks longer
-     * than the stall threshold is time it was preempted. */
-    int64_t ran = 0, prev = clock_mono_ns();
-    while (ran < ns) {
-        int64_t now = clock_mono_ns(), d = now - prev;
-        if (d <= c->stall_ns) ran += d;
-        prev = now;
-    }
-    return ran;
-}
-
-static int64_t threads_nivcsw(void)
-{
-    struct rusage ru;
-    return getrusage(RUSAGE_THREAD, &ru) == 0 ? ru.ru_nivcsw : 0;
+    /* CPU, WALL: the wall time it held the processor; a gap between two looks
+     * longer than the stall threshold is time it was preempted, or, when its
+     * thread was not switched out meanwhile, time the machine stopped the CPU. */
+    return compute_held(c, ns, stall);
 }
 
 /* P's next release (INT64_MAX: an event process none of whose events waits). */
@@ -267,7 +260,7 @@ static void threads_job(threads_worker_t *w)
     skel_process_t *p = w->p;
     skel_rec_t *rec = &w->rec;
     int64_t k = p->k_base + p->next_k;
-    int64_t csw0 = threads_nivcsw();
+    int64_t csw0 = clock_thread_preemptions();
     int64_t start = clock_mono_ns();
     /* The processor was this job's at its release (or data), or at the completion
      * that freed it: what is left to the start is the kernel's latency. */
@@ -286,8 +279,10 @@ static void threads_job(threads_worker_t *w)
     threads_unlock(t);
     int64_t t_in = clock_mono_ns();
     rec->comm_in_ns = t_in - start;
-    rec->compute_ns = threads_compute(&t->s->compute, mode, rec->asked_ns);
+    int64_t stall = 0;
+    rec->compute_ns = threads_compute(&t->s->compute, mode, rec->asked_ns, &stall);
     int64_t t_out = clock_mono_ns();
+    rec->stall_ns += stall; /* also in preempted_ns: the parts add up to the job's end */
     rec->preempted_ns = t_out - t_in - rec->compute_ns;
     if (rec->preempted_ns < 0) rec->preempted_ns = 0;
     threads_lock(t);
@@ -299,7 +294,7 @@ static void threads_job(threads_worker_t *w)
     process_write_outputs(&w->x, p, k);
     threads_kick(t, w); /* a local output may be what a data wait waits for */
     process_finish(&w->x, p, rec, p->job_release, t_out, measured);
-    int64_t csw = threads_nivcsw() - csw0;
+    int64_t csw = clock_thread_preemptions() - csw0;
     rec->preemptions = csw > INT32_MAX ? INT32_MAX : (int32_t)csw;
     p->job = TASK_NONE;
     p->next_k++;
