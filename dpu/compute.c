@@ -16,9 +16,8 @@
  *          when the daemon starts (the reference) and checked at every run
  *          start: a slower or throttled CPU takes longer, as real code would.
  * What a cycle reports as its compute: the time the computation ran, i.e. the
- * wall time for SLEEP and WALL, the time it held the processor for CPU, the
- * thread's CPU time for WORK, less
- * the time the thread was kept from running. That time is not computation: it
+ * wall time for SLEEP, WALL and WORK and the time it held the processor for
+ * CPU, less the time the thread was kept from running. That time is not computation: it
  * lengthens the cycle (response, slack, overruns) and shows as % overhead and
  * as stalls, so % compute is what the computations took even on a CPU the DPU
  * shares.
@@ -27,7 +26,8 @@
  * made it end (stalls): SLEEP and WALL by a wake-up or a gap between two looks
  * at the clock longer than the stall threshold (50 us: far above a look at the
  * clock, above most wake-up latencies) that carried them past their end, CPU
- * and WORK by their wall time less the time they ran. That is the platform's (the
+ * by its wall time less the time it ran, WORK by what its chunks took beyond
+ * their work. That is the platform's (the
  * machine, the hypervisor, other threads on the CPU), not the design's. */
 #include <math.h>
 #include <time.h>
@@ -163,11 +163,34 @@ int64_t compute_held(const skel_compute_t *c, int64_t ns, int64_t *unswitched)
     return held;
 }
 
-static void compute_work(const skel_compute_t *c, int64_t ns)
+/* WORK's kernel runs in chunks of this much work, the clock read after each. */
+#define COMPUTE_WORK_CHUNK_NS 10000
+
+/* Runs the kernel for NS of work at the calibrated rate, from START. A chunk
+ * that took longer than its work by more than the stall threshold was kept
+ * from running (a stop of the machine, a preemption) for that excess: added to
+ * *LOST, so that it is not the computation's. Read by the wall clock, not the
+ * thread's CPU clock, which lags and jumps on a VM (see CPU above). A CPU
+ * slower than at calibration, even 5 times, makes every chunk longer by less
+ * than the threshold: that is the computation's, as in real code. */
+static void compute_work(const skel_compute_t *c, int64_t start, int64_t ns, int64_t *lost)
 {
-    volatile uint64_t sink;
+    if (!(c->work_iters_per_us > 0)) return;
+    volatile uint64_t sink = 0;
     double iterations = (double)ns / 1000.0 * c->work_iters_per_us;
-    sink = compute_work_kernel(iterations > 0 ? (uint64_t)llround(iterations) : 0);
+    uint64_t left = iterations > 0 ? (uint64_t)llround(iterations) : 0;
+    uint64_t chunk = (uint64_t)llround(c->work_iters_per_us * COMPUTE_WORK_CHUNK_NS / 1000.0);
+    if (chunk < 1) chunk = 1;
+    int64_t prev = start;
+    while (left > 0) {
+        uint64_t n = left < chunk ? left : chunk;
+        sink += compute_work_kernel(n);
+        left -= n;
+        int64_t now = clock_mono_ns();
+        int64_t over = now - prev - (int64_t)((double)n * 1000.0 / c->work_iters_per_us);
+        if (over > c->stall_ns) *lost += over;
+        prev = now;
+    }
     (void)sink;
 }
 
@@ -180,20 +203,11 @@ int64_t compute_run(const skel_compute_t *c, int mode, int64_t ns, int64_t *stal
     switch (mode) {
     case SKELMSG_DPU_T_COMPUTE_SLEEP: compute_sleep(c, start, ns, &lost); break;
     case SKELMSG_DPU_T_COMPUTE_WALL: compute_spin_until(c, start, start + ns, &lost); break;
-    case SKELMSG_DPU_T_COMPUTE_CPU:
-    case SKELMSG_DPU_T_COMPUTE_WORK: {
-        int64_t used;
-        if (mode == SKELMSG_DPU_T_COMPUTE_CPU) {
-            used = compute_held(c, ns, NULL);
-        } else {
-            int64_t cpu0 = clock_thread_cpu_ns();
-            compute_work(c, ns);
-            used = clock_thread_cpu_ns() - cpu0;
-        }
-        int64_t wall = clock_mono_ns() - start;
-        if (used > wall) used = wall; /* WORK's CPU clock caught up a lag (see CPU above) */
-        int64_t off_cpu = wall - used; /* the time it was not running */
-        if (off_cpu > c->stall_ns) *stall += off_cpu;
+    case SKELMSG_DPU_T_COMPUTE_WORK: compute_work(c, start, ns, &lost); break;
+    case SKELMSG_DPU_T_COMPUTE_CPU: {
+        int64_t used = compute_held(c, ns, NULL);
+        int64_t off = clock_mono_ns() - start - used; /* the time it was not running */
+        if (off > c->stall_ns) *stall += off;
         return used;
     }
     default: break; /* config.c rejects unknown modes */

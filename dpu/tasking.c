@@ -317,9 +317,13 @@ void tasking_run(skel_exec_t *x)
         if (t_sw < next) next = t_sw;
         if (x->end_mono_ns < next) next = x->end_mono_ns;
         /* Between two waits the thread works (inputs, outputs): time it did not run
-         * there is a stall too, and it delays the job that runs next. */
+         * there is a stall too. It delayed the job that has the processor now (its
+         * start or its inputs), or, with none, the job that runs next. */
         int64_t off = clock_mono_ns() - woke_mono - (clock_thread_cpu_ns() - woke_cpu);
-        if (off > x->s->compute.stall_ns) x->wake_stall_ns += off;
+        if (off > x->s->compute.stall_ns) {
+            if (h != NULL) h->rec.stall_ns += off;
+            else x->wake_stall_ns += off;
+        }
         int64_t stall = 0;
         int rc = tasking_wait(x, next, watch, &stall);
         if (h != NULL) h->rec.stall_ns += stall; /* the running job's end came that late */

@@ -28,9 +28,11 @@
  * A job's record: start_ns is when it got the processor for the first time
  * (for a data job: once its data came), sched_ns when the processor was its by
  * the schedule (its release or its data, or the completion before it), the
- * computation's compute_ns the time it ran (CPU time in WORK; in CPU and WALL
- * the wall time it held the processor: a gap of more than the stall threshold
- * between two looks at the clock is time it was preempted, not computation),
+ * computation's compute_ns the time it ran (in CPU and WALL the wall time it
+ * held the processor: a gap of more than the stall threshold between two looks
+ * at the clock is time it was preempted, not computation; in WORK the wall time
+ * of its chunks of work less what a chunk took beyond its work and the stall
+ * threshold),
  * preempted_ns the time its computation did not run between its start and its
  * end, and preemptions the involuntary context switches of its thread during
  * the job (getrusage RUSAGE_THREAD). The kernel cannot tell the DPU who took
@@ -38,8 +40,8 @@
  * can. But a gap in a CPU or WALL computation during which its thread was not
  * switched out is not preemption: the machine stopped the CPU (a VM's vCPU
  * not running, a long interrupt). That part of preempted_ns is also the job's
- * stall_ns (the platform's, as on the other executives). In WORK such time is
- * charged to the thread's CPU time: it shows as slower work.
+ * stall_ns (the platform's, as on the other executives). In WORK it is
+ * preempted_ns only.
  * Where SCHED_FIFO or the pinning is refused, the DPU says so once in its log
  * and the run's status and report carry FAULT_NOT_FAITHFUL: the kernel's
  * ordinary time sharing then stands in for the model.
@@ -79,6 +81,7 @@ typedef struct {
     int kick_fd;                   /* eventfd: new data or an event, a switch, the run's end */
     int waiting;                   /* in a wait on the links (lock): what another drains wakes it */
     int64_t ready_ns;              /* its data job's data came (lock) */
+    int64_t woke_ns;               /* its last wake-up from a wait, before it took the lock */
     skel_rec_t rec;                /* the job's record */
 } threads_worker_t;
 
@@ -191,6 +194,7 @@ static int threads_wait(threads_worker_t *w, int64_t until, int watch)
     w->waiting = watch;
     threads_unlock(t);
     int rc = ppoll(fds, (nfds_t)n, &ts, NULL);
+    w->woke_ns = clock_mono_ns();
     int failed = rc < 0 && errno != EINTR;
     uint64_t v;
     if (rc > 0 && (fds[n - 2].revents & POLLIN) && read(w->kick_fd, &v, sizeof v) < 0 && errno != EAGAIN)
@@ -205,8 +209,8 @@ static int threads_wait(threads_worker_t *w, int64_t until, int watch)
 static int64_t threads_compute(const skel_compute_t *c, int mode, int64_t ns, int64_t *stall)
 {
     if (mode == SKELMSG_DPU_T_COMPUTE_WORK) {
-        int64_t off_cpu = 0; /* wall less CPU time, which is preempted_ns here */
-        return compute_run(c, mode, ns, &off_cpu);
+        int64_t kept = 0; /* what its chunks took beyond their work: preempted_ns here */
+        return compute_run(c, mode, ns, &kept);
     }
     /* CPU, WALL: the wall time it held the processor; a gap between two looks
      * longer than the stall threshold is time it was preempted, or, when its
@@ -269,6 +273,10 @@ static void threads_job(threads_worker_t *w)
     threads_flush_idle(t, start);
     t->active++;
     process_record_begin(&w->x, p, k, tasking_minor(plan, p), p->job_release, sched, start, rec);
+    /* Woken later than the processor was its by more than the stall threshold:
+     * the kernel or the machine kept it, as a late wake-up is a stall on the
+     * other executives (waiting for the lock after is the bus, not counted). */
+    if (w->woke_ns - sched > t->s->compute.stall_ns) rec->stall_ns += w->woke_ns - sched;
     if (k == p->lockout_k) rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
     rec->generation = p->job_generation;
     (void)threads_look(w, rec); /* a data job's data is still new: only its own commit uses it */

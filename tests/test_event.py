@@ -76,6 +76,12 @@ def test_a_queue_keeps_the_newest_or_the_oldest_and_counts_what_it_drops(tmp_pat
     got = cycles[cycles.event_ns >= 0].copy()
     got["burst"] = np.searchsorted(starts, got.event_ns, side="right") - 1
     kept = {}
+    # The DPU's stalls (a stop of its thread, a wake-up later than the processor was its: on
+    # CI's VM up to 17 ms that steal does not show, in 0 to 7 of the 9 bursts of a run) are the
+    # platform's: a burst whose jobs recorded over 1 ms of them is not judged on time, and at
+    # least 3 bursts are.
+    stalled = set(got.burst[got.stall_ns > 1_000_000])
+    assert len(stalled - {9}) <= 6, got[got.stall_ns > 1_000_000][["process", "cycle", "stall_ns"]]
     for name, handled, dropped in (("newest", 2, 3), ("oldest", 3, 2)):
         mine = got[(got.process_name == name) & (got.burst < 9)]  # the last burst may be cut off
         assert mine.burst.nunique() == 9, mine
@@ -83,6 +89,8 @@ def test_a_queue_keeps_the_newest_or_the_oldest_and_counts_what_it_drops(tmp_pat
             assert len(burst) == handled, (name, b, burst)
             assert burst.event_dropped.sum() == dropped, (name, b, burst)
             kept[name, b] = burst.event_ns.to_numpy()
+            if b in stalled:
+                continue
             # The first runs at once; the next waits for its period, 50 ms after the first's
             # release (the period spaces releases: a first start late by a stall, 1.3 ms once in
             # CI, does not push the next one back; the burst's events themselves may come late

@@ -1,8 +1,9 @@
 /* test_compute.c: each compute mode emulates the time asked. SLEEP and WALL
  * report wall time (generous upper bounds: the machine running the tests may
- * be busy), CPU the time the thread held the processor and WORK its CPU time,
- * which another process on the core does not stretch: those are held close to
- * what was asked. */
+ * be busy), CPU the time the thread held the processor and WORK the wall time
+ * of its chunks of work less what a chunk took beyond its work, which another
+ * process on the core does not stretch: those are held close to what was
+ * asked. */
 #include "check.h"
 #include "dpu.h"
 #include "skelmsg_dpu_t.h"
@@ -40,7 +41,7 @@ static void test_modes(void)
         works[i] = median_of(&c, SKELMSG_DPU_T_COMPUTE_WORK, ns);
     }
     int64_t work_ns = median5(works);
-    printf("2 ms asked: sleep %.3f wall %.3f ms (wall time), cpu %.3f work %.3f ms (CPU time)\n",
+    printf("2 ms asked: sleep %.3f wall %.3f ms (wall time), cpu %.3f work %.3f ms (time run)\n",
            sleep_ns / 1e6, wall_ns / 1e6, cpu_ns / 1e6, work_ns / 1e6);
     CHECK(sleep_ns >= ns && sleep_ns < ns + 5000000);
     CHECK(wall_ns >= ns && wall_ns < ns + 5000000);
