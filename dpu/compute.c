@@ -17,18 +17,18 @@
  *          start: a slower or throttled CPU takes longer, as real code would.
  * What a cycle reports as its compute: the time the computation ran, i.e. the
  * wall time for SLEEP, WALL and WORK and the time it held the processor for
- * CPU, less the time the thread was kept from running. That time is not computation: it
- * lengthens the cycle (response, slack, overruns) and shows as % overhead and
- * as stalls, so % compute is what the computations took even on a CPU the DPU
- * shares.
+ * CPU, less the time the thread was kept from running. That time is not
+ * computation: it lengthens the cycle (response, slack, overruns) and shows as
+ * % overhead and as stalls, so % compute is what the computations took even on
+ * a CPU the DPU shares.
  *
  * Every mode also reports how much later than asked the thread's not running
  * made it end (stalls): SLEEP and WALL by a wake-up or a gap between two looks
  * at the clock longer than the stall threshold (50 us: far above a look at the
  * clock, above most wake-up latencies) that carried them past their end, CPU
  * by its wall time less the time it ran, WORK by what its chunks took beyond
- * their work. That is the platform's (the
- * machine, the hypervisor, other threads on the CPU), not the design's. */
+ * their work. That is the platform's (the machine, the hypervisor, other
+ * threads on the CPU), not the design's. */
 #include <math.h>
 #include <time.h>
 
