@@ -31,8 +31,8 @@
  * computation's compute_ns the time it ran (in CPU and WALL the wall time it
  * held the processor: a gap of more than the stall threshold between two looks
  * at the clock is time it was preempted, not computation; in WORK the wall time
- * of its chunks of work less what a chunk took beyond its work and the stall
- * threshold),
+ * of its chunks of work, less the excess of each chunk that took more than the
+ * stall threshold beyond its work),
  * preempted_ns the time its computation did not run between its start and its
  * end, and preemptions the involuntary context switches of its thread during
  * the job (getrusage RUSAGE_THREAD). The kernel cannot tell the DPU who took
