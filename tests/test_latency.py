@@ -27,7 +27,7 @@ from rich.console import Console
 from skeleton.analysis.measure.chains import chain_metrics
 from skeleton.analysis.measure.latency import ClockOffsets, buffer_metrics
 from skeleton.analysis.measure.run import load_run
-from skeleton.analysis.read.records import decode_run
+from skeleton.analysis.read.records import FLAG_RELEASE_SKIPPED, decode_run
 from skeleton.analysis.views.tables import print_report
 from skelmsg.contract import CLOCK_CHANNEL, CONFIG_CHANNEL, TIMING_CHANNEL
 
@@ -108,6 +108,23 @@ def test_loss_separates_superseded_from_lost() -> None:
     assert (c.new, c.dropped, c.received, c.superseded, c.lost) == (3, 6, 7, 4, 2)
     assert (b_out.published, b_out.dropped, b_out.lost) == (9, 6, 2)
     assert c.samples == 3  # one per new cycle, never one per stale cycle
+
+
+def test_a_sequence_its_writer_never_sent_is_not_lost() -> None:
+    # A data-synchronised writer skips its releases 3 and 7 (cycle skipping after a stall): its
+    # readers see those sequences dropped, but nothing was lost on the link.
+    config = small_config(warmup_cycles=1)
+    seen = [(0, 1, 0, 1), (2, 1, 1, 2), (5, 1, 2, 1), (9, 1, 3, 3)]
+    recs = [Rec(2, k, k, k * 20 * MS, k * 20 * MS, inputs=[(1, *s)]) for k, s in enumerate(seen)]
+    writer = [Rec(1, k, k, k * 10 * MS, k * 10 * MS, flags=FLAG_RELEASE_SKIPPED if k in (3, 7) else 0)
+              for k in range(10)]
+    run = decode_run([t.encode() for t in batches(1, writer, 4) + batches(2, recs, 4)], RUN_ID)
+    b_out = next(b for b in buffer_metrics(run.records, run.inputs, config) if b.buffer == "b_out")
+    (c,) = b_out.readers
+    # Measured cycles 1..3 dropped 1 + 2 + 3 = 6 (seqs 1; 3, 4; 6, 7, 8): 3 and 7 were never
+    # sent, 1, 6 and 8 were received and superseded (6 received, 3 new), and 4 was lost.
+    assert (c.new, c.dropped, c.received, c.unpublished, c.superseded) == (3, 6, 6, 2, 3)
+    assert c.lost == 1 and b_out.lost == 1
 
 
 def _lineage_run(c_ahead_ns: int) -> tuple[list[Rec], list[Rec]]:

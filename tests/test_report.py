@@ -164,7 +164,7 @@ def test_one_generation_prints_no_window_header(tmp_path: Path) -> None:
     assert len(rep.windows) == 1 and rep.windows[0].dpus == rep.dpus
     text = _render(rep)
     assert "== generation" not in text and "per chain" not in text  # no chain in this system
-    assert re.search(r"│ b_out +│ B -> C +│ +1\.0 │ +1\.0 │ +1\.0 │ +3 │ +0 │", text)
+    assert re.search(r"│ b_out +│ B -> C +│ +1\.0 │ +1\.0 │ +1\.0 │ +0 │ +3 │ +0 │", text)
     assert re.search(r"│ A +│ +4655 │ +4689 │ +4690 │ +5310 │ +5345 │", text)
 
 

@@ -18,12 +18,15 @@ counted again, so each sequence contributes at most one sample per reader.
 Loss at one reader, over the measured window (completed cycles):
 - new: cycles that found a newer sequence; each such cycle uses exactly one message.
 - dropped: sequences skipped between two used ones (Σ in_dropped). A skipped
-  sequence was either received and superseded before the reader ran (the writer is
-  faster than the reader) or never received (lost on the link).
+  sequence was either never sent (its writer, a data-synchronised process, skipped
+  that release: a RELEASE_SKIPPED record of the writer's, cycle k being sequence k),
+  received and superseded before the reader ran (the writer is faster than the
+  reader), or never received (lost on the link).
+- unpublished: the dropped sequences that were never sent.
 - received: messages received (Σ in_received), including superseded ones.
 - superseded = received - new: received but never used (overwritten by a newer one
   before the reader's next cycle, or arriving late and out of order).
-- lost = max(0, dropped - superseded): sequences never received.
+- lost = max(0, dropped - unpublished - superseded): sequences sent and never received.
 A buffer's `published` is the number of its writer's completed measured cycles (a
 cycle k publishes sequence k on every output).
 
@@ -38,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from ..read.records import FLAG_RELEASE_SKIPPED
 from .metrics import completed, measured
 from .stats import Histogram, LatencyUs, group_slices, histogram, latency_us
 
@@ -113,6 +117,7 @@ class ReaderMetrics:
     new: int
     dropped: int
     received: int
+    unpublished: int  # dropped sequences the writer never sent (it skipped that release)
     superseded: int
     lost: int
     histogram: Histogram = field(default_factory=Histogram)
@@ -147,6 +152,17 @@ def transport_latency_ns(
     return recv - sent
 
 
+def unpublished_in_gaps(rows: np.ndarray, skipped: np.ndarray) -> int:
+    """How many of the sequences the input `rows` dropped (each row's `dropped` ones just
+    before its `seq`) are among `skipped`, the sorted cycles whose release the writer skipped."""
+    gaps = rows[(rows["dropped"] > 0) & (rows["seq"] >= 0)]
+    if len(gaps) == 0 or len(skipped) == 0:
+        return 0
+    seq = gaps["seq"].astype(np.int64)
+    first = seq - gaps["dropped"].astype(np.int64)
+    return int((np.searchsorted(skipped, seq) - np.searchsorted(skipped, first)).sum())
+
+
 def buffer_metrics(
     records: np.ndarray, inputs: np.ndarray, config: Any, clock: ClockOffsets = NO_OFFSETS
 ) -> list[BufferMetrics]:
@@ -157,6 +173,7 @@ def buffer_metrics(
     counted = counted[order]
     done = measured(records, config) & completed(records)
     done_per_process = dict(zip(*np.unique(records["process"][done], return_counts=True), strict=True))
+    release_skipped = (records["flags"] & FLAG_RELEASE_SKIPPED) != 0
     out = []
     for buf in sorted(config.buffers, key=lambda b: b.id):
         readers = sorted((p for p in config.processes if buf.id in p.inputs), key=lambda p: p.id)
@@ -174,6 +191,8 @@ def buffer_metrics(
             dropped = int(rows["dropped"].sum())
             received = int(rows["received"].sum())
             superseded = max(0, received - new)
+            skipped = np.sort(records["cycle"][release_skipped & (records["process"] == buf.writer)])
+            unpublished = unpublished_in_gaps(rows, skipped)
             reader_metrics.append(
                 ReaderMetrics(
                     process=reader.name,
@@ -182,8 +201,9 @@ def buffer_metrics(
                     new=new,
                     dropped=dropped,
                     received=received,
+                    unpublished=unpublished,
                     superseded=superseded,
-                    lost=max(0, dropped - superseded),
+                    lost=max(0, dropped - unpublished - superseded),
                     histogram=histogram(lat_us),
                 )
             )
