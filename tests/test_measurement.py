@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 from conftest import EXAMPLES, Background, DpuFarm, skel, skel_background
 from randsys import random_system
+from steal import longest_dpu_stall_ms
 
 import skeleton
 
@@ -337,3 +338,8 @@ def test_a_records_parts_add_up_to_where_its_work_ended(tmp_path: Path, url: str
     off = t.assign(by=real_end - parts)[real_end != parts]
     assert off.empty, off[["process", "cycle", "preempted_ns", "stall_ns", "by"]]
     assert t.preempted_ns.max() >= 10_000_000, t.preempted_ns.describe()  # a stop was in there
+    # The DPU's log says so at the run's end (what tests/steal.py reads to attempt a test again).
+    waited = time.monotonic() + 5
+    while longest_dpu_stall_ms(tmp_path) < 10 and time.monotonic() < waited:
+        time.sleep(0.05)
+    assert longest_dpu_stall_ms(tmp_path) >= 10, dpus.log(1)
