@@ -86,6 +86,10 @@ static void test_a_thread_that_takes_the_cpu_is_a_stall(skel_exec_t *x)
         pthread_attr_destroy(&attr);
         return;
     }
+    /* Below the hog, above every ordinary process: on a busy machine a neighbour taking
+     * our CPU would be a stall too, and the steps after the hog's must have none. */
+    struct sched_param below = { .sched_priority = 5 }, none = { .sched_priority = 0 };
+    CHECK_EQ(pthread_setschedparam(pthread_self(), SCHED_FIFO, &below), 0);
     int64_t from = clock_mono_ns();
     process_remark(x, from);
     CHECK_EQ(sem_post(&go), 0);
@@ -96,6 +100,7 @@ static void test_a_thread_that_takes_the_cpu_is_a_stall(skel_exec_t *x)
     int64_t step = clock_mono_ns();
     spin_until(step + 10000000);
     CHECK(kept_ns(x, step) < 4000000);
+    CHECK_EQ(pthread_setschedparam(pthread_self(), SCHED_OTHER, &none), 0);
     CHECK_EQ(pthread_join(t, NULL), 0);
     pthread_attr_destroy(&attr);
     sem_destroy(&go);
