@@ -75,6 +75,14 @@ static void control_finish_run(skel_control_t *c)
 {
     skel_server_t *s = c->s;
     control_drain_timing(c, 1);
+    /* Before the report: whoever reads the log of a run that went wrong (a user, the test
+     * harness once the host has the report) finds the platform's part of it there. The
+     * longest stall is one cycle's (a record's stall_ns). */
+    log_line("DPU %d: run %lld ended: %lld minor cycles, %lld overruns, %d lockouts, %lld timing lost, "
+             "longest platform stall %.1f ms",
+             s->dpu_id, (long long)s->run_id, (long long)atomic_load(&s->minor_cycles),
+             (long long)atomic_load(&s->overruns), s->nlockouts,
+             (long long)atomic_load(&s->ring.lost), (double)atomic_load(&s->longest_stall_ns) / 1e6);
     if (report_publish(s, s->plan, &c->history) != 0) log_line("cannot publish the report of run %lld",
                                                   (long long)s->run_id);
     apply_install_next(c); /* a switch the run did not reach takes effect now */
@@ -85,13 +93,6 @@ static void control_finish_run(skel_control_t *c)
     int apply = s->apply_pending;
     s->apply_pending = 0;
     pthread_mutex_unlock(&s->lock);
-    /* The platform's part of the run, in the log too: whoever reads the log of a run
-     * that went wrong (a user, the test harness) learns whether the machine stopped it. */
-    log_line("DPU %d: run %lld ended: %lld minor cycles, %lld overruns, %d lockouts, %lld timing lost, "
-             "longest platform stall %.1f ms",
-             s->dpu_id, (long long)s->run_id, (long long)atomic_load(&s->minor_cycles),
-             (long long)atomic_load(&s->overruns), s->nlockouts,
-             (long long)atomic_load(&s->ring.lost), (double)atomic_load(&s->longest_stall_ns) / 1e6);
     for (int i = 0; s->verbose && s->plan != NULL && i < s->plan->nprocesses; i++) {
         const skel_process_t *p = &s->plan->processes[i];
         log_line("DPU %d:   process %d: %lld measured cycles, %lld overruns, max latency %lld us%s",

@@ -282,18 +282,21 @@ void tasking_run(skel_exec_t *x)
             plan = x->plan;
             continue;
         }
-        /* From here to the job's start the thread only decides (no link is read or
-         * written): a step of it longer than the stall threshold is the platform's, read
-         * by the wall clock alone, as the thread CPU clock charges a VM's stopped vCPU to
-         * the thread and so cannot see it. It delayed the job that runs next. */
+        /* Releasing the jobs due only decides, in memory (no link read or written, no
+         * lock, no system call): taking longer than the stall threshold there is the
+         * platform's, read by the wall clock alone, as the thread CPU clock charges a VM's
+         * stopped vCPU to the thread and so cannot see it. It delays the job that runs
+         * next. (The CPU-clock check below sees only a stop that was not charged, another
+         * thread's: in this window that would count twice, but no other thread of a faithful
+         * run can take the processor for that long.) */
         const int64_t decide_from = clock_mono_ns();
         tasking_release_due(x, vt);
         released = vt;
+        const int64_t decided = clock_mono_ns() - decide_from;
+        if (decided > x->s->compute.stall_ns) x->wake_stall_ns += decided;
         int64_t next = tasking_lockouts(x, vt);
         skel_process_t *h = tasking_highest(plan);
         int64_t now = clock_mono_ns();
-        const int64_t decided = now - decide_from > x->s->compute.stall_ns ? now - decide_from : 0;
-        x->wake_stall_ns += decided;
         if (h != cur && cur != NULL && cur->job == TASK_STARTED) /* preempted at the last event */
             cur->rec.preemptions++;
         if (h != NULL) tasking_flush(x, &idle, now);
@@ -326,7 +329,7 @@ void tasking_run(skel_exec_t *x)
         /* Between two waits the thread works (inputs, outputs): time it did not run
          * there is a stall too. It delayed the job that has the processor now (its
          * start or its inputs), or, with none, the job that runs next. */
-        int64_t off = clock_mono_ns() - woke_mono - (clock_thread_cpu_ns() - woke_cpu) - decided;
+        int64_t off = clock_mono_ns() - woke_mono - (clock_thread_cpu_ns() - woke_cpu);
         if (off > x->s->compute.stall_ns) {
             if (h != NULL) h->rec.stall_ns += off;
             else x->wake_stall_ns += off;

@@ -7,7 +7,7 @@ stops for tens of milliseconds at once, and such a test fails on the platform, n
 The hypervisor also stops a vCPU without the guest counting it as steal at all (on our CI's
 VMs: gaps of 1-17 ms, 1.5-2 % of the time, with 0-3 ticks of steal): only the DPUs see those,
 as stalls (a gap in a computation or a wake-up later than the stall threshold, with no switch
-of the thread), and each DPU's log says at the end of a run how long its longest one was.
+of the thread), and each DPU's log says at the end of a run the most one cycle lost to them.
 
 Steal comes in spells (here: seconds to tens of seconds at 10-45 % of the CPUs, between long
 stretches under 2 %). So an attempt of such a test does not start in one: while more than
@@ -16,7 +16,7 @@ QUIET_WAIT_S per attempt and QUIET_BUDGET_S in the session (CI's time is bounded
 
 Such a test fails as usual, but when the CPU time stolen during the failed attempt is at least
 STEAL_SHARE of the CPUs' time, or a DPU of the attempt (a log under its tmp_path) was stalled
-by the platform for STALL_MS or longer at once, pytest-rerunfailures runs it again from its
+by the platform for STALL_MS or longer in one cycle, pytest-rerunfailures runs it again from its
 fixtures up, at most REATTEMPTS more times. Every attempt asserts the same thing, so a fault of
 ours fails each of them; the session's summary names every test that needed another attempt,
 what was stolen and how long a DPU was stalled, and how long attempts waited for a spell to pass.
@@ -146,7 +146,7 @@ def platform_took_the_cpus(error: BaseException | None) -> bool:
     if error is not None and not _current.reported:  # once per failed attempt
         _current.reported = True
         _reattempted.append(f"{_current.nodeid}: {ms:.0f} ms stolen ({100 * share:.1f} % of the CPUs' "
-                            f"time), a DPU stalled {stall_ms:.1f} ms at once, {type(error).__name__}")
+                            f"time), a DPU stalled {stall_ms:.1f} ms in one cycle, {type(error).__name__}")
     return True
 
 

@@ -125,6 +125,13 @@ def test_a_sequence_its_writer_never_sent_is_not_lost() -> None:
     # sent, 1, 6 and 8 were received and superseded (6 received, 3 new), and 4 was lost.
     assert (c.new, c.dropped, c.received, c.unpublished, c.superseded) == (3, 6, 6, 2, 3)
     assert c.lost == 1 and b_out.lost == 1
+    # A window after a live switch holds no record of releases skipped before it: the run's do.
+    window = run.records.copy()
+    window["flags"] &= ~FLAG_RELEASE_SKIPPED
+    alone = next(b for b in buffer_metrics(window, run.inputs, config) if b.buffer == "b_out")
+    assert (alone.readers[0].unpublished, alone.lost) == (0, 3)
+    whole = buffer_metrics(window, run.inputs, config, run_records=run.records)
+    assert next(b for b in whole if b.buffer == "b_out").lost == 1
 
 
 def _lineage_run(c_ahead_ns: int) -> tuple[list[Rec], list[Rec]]:

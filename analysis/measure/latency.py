@@ -164,16 +164,20 @@ def unpublished_in_gaps(rows: np.ndarray, skipped: np.ndarray) -> int:
 
 
 def buffer_metrics(
-    records: np.ndarray, inputs: np.ndarray, config: Any, clock: ClockOffsets = NO_OFFSETS
+    records: np.ndarray, inputs: np.ndarray, config: Any, clock: ClockOffsets = NO_OFFSETS,
+    run_records: np.ndarray | None = None,
 ) -> list[BufferMetrics]:
-    """Per buffer (config order by id) that has a reader, over the measured window."""
+    """Per buffer (config order by id) that has a reader, over the measured window.
+    `run_records`: the whole run's (default: `records`), where the writers' skipped releases
+    are looked up: a gap after a live switch may hold sequences skipped before it."""
     procs = {p.id: p for p in config.processes}
     counted = inputs[counted_inputs(records, inputs, config)]
     order, groups = group_slices((counted["buffer"].astype(np.int64) << 16) + counted["process"])
     counted = counted[order]
     done = measured(records, config) & completed(records)
     done_per_process = dict(zip(*np.unique(records["process"][done], return_counts=True), strict=True))
-    release_skipped = (records["flags"] & FLAG_RELEASE_SKIPPED) != 0
+    everything = records if run_records is None else run_records
+    skips = everything[(everything["flags"] & FLAG_RELEASE_SKIPPED) != 0]
     out = []
     for buf in sorted(config.buffers, key=lambda b: b.id):
         readers = sorted((p for p in config.processes if buf.id in p.inputs), key=lambda p: p.id)
@@ -191,7 +195,7 @@ def buffer_metrics(
             dropped = int(rows["dropped"].sum())
             received = int(rows["received"].sum())
             superseded = max(0, received - new)
-            skipped = np.sort(records["cycle"][release_skipped & (records["process"] == buf.writer)])
+            skipped = np.sort(skips["cycle"][skips["process"] == buf.writer])
             unpublished = unpublished_in_gaps(rows, skipped)
             reader_metrics.append(
                 ReaderMetrics(

@@ -144,7 +144,8 @@ def build_report(
     lost = dpu_lost_faults(config, run.records, heartbeats, run.run_id)
     last_i = len(generations) - 1
     windows = [
-        build_window(by_generation[g], records, inputs, locks[i], lost if i == last_i else (), clock)
+        build_window(by_generation[g], records, inputs, locks[i], lost if i == last_i else (), clock,
+                     run.records)
         for i, (g, (records, inputs)) in enumerate(zip(generations, parts, strict=True))
     ]
     last = windows[-1]

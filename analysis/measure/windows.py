@@ -76,9 +76,11 @@ def build_window(
     lockouts: dict[int, Lockout] | None = None,
     lost: Sequence[Fault] = (),
     clock: ClockOffsets = NO_OFFSETS,
+    run_records: np.ndarray | None = None,
 ) -> WindowReport:
     """Every table of one generation window. `lockouts`: the ones status_t reported in
-    this window; `lost`: the run's lost DPUs (a fact of the whole run: last window only)."""
+    this window; `lost`: the run's lost DPUs (a fact of the whole run: last window only);
+    `run_records`: every window's records (what a buffer's loss looks up across a switch)."""
     processes = process_metrics(records, inputs, config)
     locks = lockouts_from_records(records, lockouts or {})
     delivery, locks = delivery_faults(config, records, inputs, locks)
@@ -89,7 +91,7 @@ def build_window(
         end_ns=end,
         dpus=dpu_metrics(records, config),
         processes=processes,
-        buffers=buffer_metrics(records, inputs, config, clock),
+        buffers=buffer_metrics(records, inputs, config, clock, run_records),
         chains=chain_metrics(records, inputs, config, clock),
         faults=(
             delivery

@@ -204,10 +204,10 @@ def buffer_table(report: RunReport, window: WindowReport | None = None) -> Table
             rows.append([b.buffer, f"{b.writer} -> {r.process}", _num(lat.p50), _num(lat.p99), _num(lat.max),
                          str(r.unpublished), str(r.superseded), str(r.lost)])  # fmt: skip
     columns = [("buffer", False), ("writer -> reader", False), ("p50", True), ("p99", True), ("max", True),
-               ("un-\nsent", True), ("super-\nseded", True), ("lost", True)]  # fmt: skip
+               ("unpub-\nlished", True), ("super-\nseded", True), ("lost", True)]  # fmt: skip
     title = (
         "per buffer: transport latency in µs (send -> receive, clock offsets removed); "
-        "of the dropped sequences, unsent ones their writer skipped, superseded ones were received, "
+        "of the dropped sequences, unpublished ones their writer skipped, superseded ones were received, "
         "lost ones never"
     )
     return _table(title, columns, rows)
