@@ -118,7 +118,11 @@ def flood_servo(tmp: Path, url: str, rate: int, seconds: float) -> FloodResult:
     time.sleep(SETTLE_S)
     pids = _dpu_pids(url)
     drops_before = {d: socket_drops(p) for d, p in pids.items()}
-    channels = [contract.CONFIG_CHANNEL, contract.COMMAND_CHANNEL, *(b.channel for b in system.buffers)]
+    # Each buffer's channel on its writer's port, where its readers listen (a local one: nowhere).
+    on_url = system.with_url(url)
+    wire = {b.channel: on_url.buffer_url(b.id) for b in system.buffers}
+    channels = [contract.CONFIG_CHANNEL, contract.COMMAND_CHANNEL,
+                *(f"{channel}@{on}" for channel, on in wire.items() if on)]
     flood = subprocess.run([str(FLOOD), url, str(rate), f"{seconds:g}", *channels], capture_output=True,
                            text=True, timeout=seconds * 10 + 60)
     if flood.returncode != 0:

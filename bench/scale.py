@@ -6,7 +6,7 @@ hosts (tests/netns, root only) and prints the share of buffers dropped, for find
 largest clean system by hand:
 
     .venv/bin/python bench/scale.py 16 2 --processes 2 --hz 100 --seconds 3
-    .venv/bin/python bench/scale.py 24 2 --hz 200 --links 8 --yaml > /tmp/s.yaml   # only the file
+    .venv/bin/python bench/scale.py 24 2 --hz 200 --yaml > /tmp/s.yaml   # only the file
 
 The design: every DPU runs pairs of (writer, reader) in that order; each reader reads the
 buffer of the same pair on the DPU with the same place on the next host, so every buffer
@@ -15,8 +15,9 @@ late writer shows as blocked time, never as a stale read followed by a skipped s
 and `dropped` counts lost datagrams. The wait also holds the reader's DPU back, so a
 stalled DPU slows its writers' readers instead of being overrun by them (flow control);
 with a fifth of the period computed per DPU, the ring catches up within a few cycles.
-Buffers are spread over `links` UDP ports (round robin): a DPU joins only the ports it
-uses, so it receives a few buffers' traffic, not the whole system's.
+Every buffer is on the one link, and so on its writer's own port (host/link.py): a DPU
+opens only the ports of the writers it reads, so it receives a few buffers' traffic, not
+the whole system's.
 """
 
 from __future__ import annotations
@@ -39,11 +40,10 @@ from skelmsg.contract import DEFAULT_URL
 REPO = Path(__file__).resolve().parent.parent
 # LCM's own group and port (the default URL's), inside the test hosts.
 GROUP, CONTROL_PORT = urlsplit(DEFAULT_URL).hostname, urlsplit(DEFAULT_URL).port
-FIRST_DATA_PORT = 7670
 
 
-def system_yaml(hosts: int, dpus_per_host: int, processes: int = 2, hz: int = 100, links: int = 8,
-                seconds: float = 3.0, host_prefix: str = "skelh", buffer_bytes: int = 64) -> str:
+def system_yaml(hosts: int, dpus_per_host: int, processes: int = 2, hz: int = 100, seconds: float = 3.0,
+                host_prefix: str = "skelh", buffer_bytes: int = 64) -> str:
     """The scale system as YAML text; `processes` per DPU (even: writer/reader pairs)."""
     if processes < 2 or processes % 2:
         raise ValueError(f"processes per DPU must be an even number >= 2, got {processes}")
@@ -53,8 +53,7 @@ def system_yaml(hosts: int, dpus_per_host: int, processes: int = 2, hz: int = 10
     compute_us = max(period_us // (5 * processes), 50)
     doc: dict[str, Any] = {
         "system": f"scale-{hosts}x{dpus_per_host}x{processes}-{hz}hz",
-        "links": [{"name": "bus", "url": f"udpm://{GROUP}:{CONTROL_PORT}?ttl=1"}]
-        + [{"name": f"data{k}", "url": f"udpm://{GROUP}:{FIRST_DATA_PORT + k}?ttl=1"} for k in range(links)],
+        "links": [{"name": "bus", "url": f"udpm://{GROUP}:{CONTROL_PORT}?ttl=1"}],
         "dpus": [{"id": d, "host": f"{host_prefix}{(d - 1) // dpus_per_host + 1}", "compute": "sleep"}
                  for d in range(1, ndpus + 1)],
         "buffers": [],
@@ -66,8 +65,7 @@ def system_yaml(hosts: int, dpus_per_host: int, processes: int = 2, hz: int = 10
         for k in range(pairs):
             ident = (d - 1) * pairs + k + 1
             read = (source - 1) * pairs + k + 1
-            doc["buffers"].append({"id": ident, "name": f"b{ident}", "bytes": buffer_bytes,
-                                   "link": f"data{(ident - 1) % links}"})
+            doc["buffers"].append({"id": ident, "name": f"b{ident}", "bytes": buffer_bytes})
             doc["processes"].append({"id": 2 * ident - 1, "name": f"w{ident}", "dpu": d, "order": k + 1,
                                      "period_us": period_us, "compute_us": compute_us,
                                      "outputs": [f"b{ident}"]})
@@ -145,12 +143,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("dpus_per_host", type=int)
     parser.add_argument("--processes", type=int, default=2, help="per DPU (even)")
     parser.add_argument("--hz", type=int, default=100)
-    parser.add_argument("--links", type=int, default=8)
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--yaml", action="store_true", help="print the system file and stop")
     parser.add_argument("--dpu", type=Path, default=REPO / "build" / "skel-dpu", help="the skel-dpu binary")
     args = parser.parse_args(argv)
-    text = system_yaml(args.hosts, args.dpus_per_host, args.processes, args.hz, args.links, args.seconds)
+    text = system_yaml(args.hosts, args.dpus_per_host, args.processes, args.hz, args.seconds)
     if args.yaml:
         print(text, end="")
         return 0
@@ -166,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
         dropped, total = dropped_share(report)
         faults = sorted({f["kind"] for f in report["faults"]})
         print(f"{args.hosts} hosts x {args.dpus_per_host} DPUs x {args.processes} processes at {args.hz} Hz"
-              f" ({args.links} data links): exit {code}, dropped {dropped}/{total}"
+              f" (a port per writer): exit {code}, dropped {dropped}/{total}"
               f" = {100 * dropped / max(total, 1):.3f} %, faults {faults or 'none'},"
               f" {time.monotonic() - started:.1f} s")
     return 0

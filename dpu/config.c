@@ -72,12 +72,6 @@ const skelmsg_link_t *config_link(const skelmsg_config_t *cfg, int16_t id)
     return NULL;
 }
 
-const char *config_link_url(const skelmsg_config_t *cfg, int16_t id)
-{
-    const skelmsg_link_t *l = config_link(cfg, id);
-    return l != NULL ? l->url : NULL;
-}
-
 static int config_dpu_reaches(const skelmsg_dpu_t *d, int16_t link)
 {
     for (int i = 0; i < d->nlinks; i++)
@@ -120,12 +114,18 @@ static int config_check_buffer(const skelmsg_config_t *cfg, const skelmsg_dpu_t 
                            SKEL_MAX_BUFFER_BYTES);
     const skelmsg_link_t *l = config_link(cfg, b->link);
     if (l == NULL) return config_fail(reason, len, "buffer %d: unknown link %d", b->id, b->link);
-    if (l->url[0] == '\0') return config_check_local(cfg, b, d->id, reason, len);
+    if (l->url[0] == '\0') {
+        if (b->url[0] != '\0')
+            return config_fail(reason, len, "buffer %d: on local link %d but sent to '%.64s'", b->id,
+                               b->link, b->url);
+        return config_check_local(cfg, b, d->id, reason, len);
+    }
     /* liblcm opens whatever provider a URL names (file:// writes a log file wherever it
-     * says, tcpq:// connects out): a link is multicast, as the host's schema allows. */
-    if (strncmp(l->url, "udpm://", 7) != 0)
-        return config_fail(reason, len, "buffer %d: link %d (%.64s) URL '%.64s' is not udpm://", b->id,
-                           b->link, l->name, l->url);
+     * says, tcpq:// connects out): a link is multicast, as the host's schema allows, and so
+     * is the URL on its writer's port that the buffer travels on. */
+    if (strncmp(l->url, "udpm://", 7) != 0 || strncmp(b->url, "udpm://", 7) != 0)
+        return config_fail(reason, len, "buffer %d: link %d (%.64s) URL '%.64s' or '%.64s' is not udpm://",
+                           b->id, b->link, l->name, l->url, b->url);
     if (!config_dpu_reaches(d, b->link))
         return config_fail(reason, len, "buffer %d: link %d (%s) is not in DPU %d's links",
                            b->id, b->link, l->name, d->id);
@@ -342,7 +342,7 @@ static int config_check_ids(const skelmsg_config_t *cfg, char *reason, size_t le
     return 0;
 }
 
-/* Distinct URLs we need stay within SKEL_MAX_LINKS; buffers we read must not
+/* Distinct buffer URLs we need stay within SKEL_MAX_LINKS; buffers we read must not
  * share a channel on one URL (a reader could not tell them apart). */
 static int config_check_links(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d, char *reason,
                               size_t len)
@@ -355,18 +355,17 @@ static int config_check_links(const skelmsg_config_t *cfg, const skelmsg_dpu_t *
         for (int q = 0; q < p->ninputs + p->noutputs; q++) {
             int16_t id = q < p->ninputs ? p->inputs[q] : p->outputs[q - p->ninputs];
             const skelmsg_buffer_desc_t *b = config_buffer(cfg, id);
-            const char *url = config_link(cfg, b->link)->url;
+            const char *url = b->url;
             if (url[0] == '\0') continue;
             int u = 0;
             while (u < nurls && strcmp(urls[u], url) != 0) u++;
             if (u == nurls && nurls == SKEL_MAX_LINKS)
-                return config_fail(reason, len, "DPU %d: more than %d distinct link URLs", d->id,
+                return config_fail(reason, len, "DPU %d: more than %d distinct buffer URLs (writers' ports)", d->id,
                                    SKEL_MAX_LINKS);
             if (u == nurls) urls[nurls++] = url;
             for (int j = 0; j < cfg->nbuffers; j++) {
                 const skelmsg_buffer_desc_t *o = &cfg->buffers[j];
-                const skelmsg_link_t *ol = config_link(cfg, o->link);
-                if (o->id != b->id && ol != NULL && strcmp(ol->url, url) == 0 &&
+                if (o->id != b->id && strcmp(o->url, url) == 0 &&
                     strcmp(o->channel, b->channel) == 0)
                     return config_fail(reason, len, "buffers %d and %d share channel '%s' on %s",
                                        b->id, o->id, b->channel, url);

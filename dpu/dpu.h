@@ -438,7 +438,6 @@ int64_t config_minor_us(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d);
 int64_t config_common_us(const skelmsg_config_t *cfg);
 const skelmsg_buffer_desc_t *config_buffer(const skelmsg_config_t *cfg, int16_t id);
 const skelmsg_link_t *config_link(const skelmsg_config_t *cfg, int16_t id);
-const char *config_link_url(const skelmsg_config_t *cfg, int16_t id); /* NULL: no such link */
 skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason, size_t len);
 int plan_open_links(skel_plan_t *plan, const char *control_url, atomic_int_fast64_t *rejected,
                     char *reason, size_t len);

@@ -36,7 +36,7 @@ static int plan_slot_index(skel_plan_t *plan, const skelmsg_config_t *cfg, int16
     skel_slot_t *slot = &plan->slots[plan->nslots];
     slot->buffer = id;
     slot->writer = b->writer;
-    slot->link = plan_link_index(plan, config_link_url(cfg, b->link));
+    slot->link = plan_link_index(plan, b->url);
     slot->channel = strdup(b->channel);
     slot->plan = plan;
     if (slot->link == -2 || slot->channel == NULL) return -1;
@@ -63,7 +63,7 @@ static int plan_add_output(skel_plan_t *plan, const skelmsg_config_t *cfg, skel_
     const skelmsg_buffer_desc_t *b = config_buffer(cfg, id);
     out->buffer = id;
     out->bytes = b->bytes;
-    out->link = plan_link_index(plan, config_link_url(cfg, b->link));
+    out->link = plan_link_index(plan, b->url);
     out->local_slot = -1;
     out->channel = strdup(b->channel);
     out->enc_len = wire_buffer_encoded_size(b->bytes);
@@ -71,14 +71,14 @@ static int plan_add_output(skel_plan_t *plan, const skelmsg_config_t *cfg, skel_
     return out->link == -2 || out->channel == NULL || out->enc == NULL ? -1 : 0;
 }
 
-/* Each link's socket receives every message on its URL, read or not: size it for the
- * largest buffer any process sends there (link.c asks the kernel for it). */
+/* Each link's socket receives every message on its URL (a writer's port), read or
+ * not: size it for the largest buffer sent there (link.c asks the kernel for it). */
 static void plan_size_links(skel_plan_t *plan, const skelmsg_config_t *cfg)
 {
     for (int i = 0; i < cfg->nbuffers; i++) {
         const skelmsg_buffer_desc_t *b = &cfg->buffers[i];
-        const char *url = config_link_url(cfg, b->link);
-        if (url == NULL || b->bytes <= 0 || b->bytes > SKEL_MAX_BUFFER_BYTES) continue;
+        const char *url = b->url;
+        if (b->bytes <= 0 || b->bytes > SKEL_MAX_BUFFER_BYTES) continue;
         int32_t encoded = wire_buffer_encoded_size(b->bytes);
         for (int l = 0; l < plan->nlinks; l++)
             if (strcmp(plan->links[l].url, url) == 0 && encoded > plan->links[l].largest)

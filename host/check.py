@@ -23,6 +23,7 @@ from rich.table import Table
 
 from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_OK
 from .doctor import check_buffer_socket, rmem_max
+from .link import parse_url
 from .predict import Prediction, event_rate, predict
 from .predict_view import print_prediction
 from .system import System, SystemFileError, load
@@ -76,7 +77,17 @@ def summarize(system: System, prediction: Prediction) -> dict[str, Any]:
         for p in system.processes if p.varying
     ]
     return {"system": system.name, "dpus": dpus, "varying_compute": varying, "events": _events(system),
-            "prediction": prediction.to_json(), "warnings": warnings(system) + list(prediction.warnings)}
+            "ports": _ports(system), "prediction": prediction.to_json(),
+            "warnings": warnings(system) + list(prediction.warnings)}
+
+
+def _ports(system: System) -> list[dict[str, Any]]:
+    """Per udpm link, the UDP ports it uses: its own (control, for the default link) and
+    each writer's (host/link.py): what a lab's firewall must let through."""
+    by_port = sorted(system.writer_ports.items(), key=lambda item: item[1])
+    return [{"link": link.name, "port": parse_url(link.url).port,
+             "writers": {system.process(w).name: port for (on, w), port in by_port if on == link.id}}
+            for link in system.links if not link.local]
 
 
 def _events(system: System) -> list[dict[str, Any]]:
@@ -210,6 +221,10 @@ def _print(system: System, summary: dict[str, Any], prediction: Prediction, out:
         awaited = ", ".join(f"{a['process']} (queue {a['queue']})" for a in e["awaited_by"]) or "nobody"
         console.print(f"event {e['event']}: {e['source']}{rate}; awaited by {awaited}", soft_wrap=True,
                       markup=False)
+    for link in summary["ports"]:
+        writers = ", ".join(f"{name} {port}" for name, port in link["writers"].items()) or "none"
+        console.print(f"link {link['link']}: UDP port {link['port']}; its writers' buffers on {writers}",
+                      soft_wrap=True, markup=False)
     print_prediction(console, prediction)
     for w in summary["warnings"]:
         console.print(f"[yellow]WARN[/] {w}", soft_wrap=True)

@@ -11,7 +11,6 @@ datagram on the URL itself (ttl=0 keeps it on this host).
 from __future__ import annotations
 
 import argparse
-import ipaddress
 import json
 import os
 import re
@@ -23,7 +22,6 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Literal, TextIO
-from urllib.parse import parse_qs, urlsplit
 
 from rich.console import Console
 from rich.text import Text
@@ -32,8 +30,8 @@ from skelmsg.contract import DEFAULT_URL, KEY_ENV
 
 from ..analysis.exitcodes import EXIT_FAILED, EXIT_OK
 from ..analysis.measure.faults import recv_buf_needed
+from .link import LcmUrl, parse_url
 
-LCM_GROUP, LCM_PORT = urlsplit(DEFAULT_URL).hostname, urlsplit(DEFAULT_URL).port
 MIN_RMEM_BYTES = 2 * 1024 * 1024
 GOOD_RMEM_BYTES = 8 * 1024 * 1024
 SELF_TEST_S = 1.0
@@ -52,37 +50,6 @@ class Check:
     @property
     def level(self) -> str:
         return "OK" if self.ok else self.severity.upper()
-
-
-@dataclass(frozen=True)
-class LcmUrl:
-    provider: str
-    group: str
-    port: int
-    ttl: int
-    recv_buf_size: int | None = None
-
-
-def parse_url(url: str) -> LcmUrl:
-    """udpm://GROUP:PORT?ttl=N (LCM's defaults fill what is left out); ValueError says what is wrong."""
-    # The contract's DEFAULT_URL is liblcm's own default: an empty URL, or a missing part, means it.
-    parts = urlsplit(url or os.environ.get("LCM_DEFAULT_URL") or DEFAULT_URL)
-    if parts.scheme != "udpm":
-        return LcmUrl(parts.scheme, "", 0, 0)
-    query = {key: values[-1] for key, values in parse_qs(parts.query).items()}
-    try:
-        group = parts.hostname or LCM_GROUP
-        port = parts.port or LCM_PORT
-        ttl = int(query.get("ttl", "0"))
-        recv = int(query["recv_buf_size"]) if "recv_buf_size" in query else None
-        address = ipaddress.IPv4Address(group)
-    except ValueError as exc:
-        raise ValueError(f"{url!r} is not udpm://GROUP:PORT?ttl=N ({exc})") from None
-    if not address.is_multicast:
-        raise ValueError(f"{group} in {url!r} is not a multicast group (224.0.0.0/4); LCM uses {LCM_GROUP}")
-    if not 0 <= ttl <= 255:
-        raise ValueError(f"ttl={ttl} in {url!r}: expected 0 (this host) or 1 (the local network)")
-    return LcmUrl("udpm", group, port, ttl, recv)
 
 
 # --- small readers of the system's state ----------------------------------------------------

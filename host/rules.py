@@ -18,6 +18,7 @@ from typing import Any
 from skelmsg import contract
 
 from .compute import ComputeError, varying
+from .link import parse_url, port_clash, writer_ports
 from .schema import (
     ABSURD_COMPUTE_PERIODS,
     DEFAULT_LINK,
@@ -62,6 +63,7 @@ def resolve(spec: SystemSpec, base: Path) -> Resolved:
     varying = _varying(spec, base)
     writers = _writers(spec, ports)
     _reach(spec, dpu_links, buffer_links, writers, ports)
+    _link_ports(spec, links, buffer_links, writers)
     minor = _minor_cycles(spec)
     order = _orders(spec)
     priority = _priorities(spec, order)
@@ -243,6 +245,23 @@ def _writers(spec: SystemSpec, ports: Ports) -> dict[int, str]:
                           "a buffer has exactly one writer")
         out[b.id] = names[0]
     return out
+
+
+def _link_ports(spec: SystemSpec, links: tuple[Link, ...], buffer_links: dict[int, Link],
+                writers: dict[int, str]) -> None:
+    """Each writer's buffers get a port of their own next to their link's (host/link.py):
+    the ports must exist and no two links may share one."""
+    for link in links:
+        if not link.local:
+            try:
+                parse_url(link.url)
+            except ValueError as exc:
+                raise Invalid(f"links[{link.id - 1}].url", str(exc)) from None
+    ids = {p.name: p.id for p in spec.processes}
+    ports = writer_ports(links, ((buffer_links[b.id].id, ids[writers[b.id]]) for b in spec.buffers))
+    clash = port_clash(links, ports)
+    if clash is not None:
+        raise Invalid(f"links[{clash[0].id - 1}].url", clash[1])
 
 
 def _reach(spec: SystemSpec, dpu_links: dict[int, tuple[int, ...]],

@@ -7,6 +7,7 @@ rules.py's; wire.py turns a System into the config_t every DPU configures itself
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,6 +18,7 @@ from pydantic import ValidationError
 
 from skelmsg import contract
 
+from .link import with_port, writer_ports
 from .overrides import OverrideError, apply_overrides
 from .rules import Invalid, resolve
 from .schema import (
@@ -78,6 +80,17 @@ class System:
 
     def readers(self, buffer_id: int) -> list[Process]:
         return [p for p in self.processes if buffer_id in p.inputs]
+
+    @functools.cached_property
+    def writer_ports(self) -> dict[tuple[int, int], int]:
+        """(link id, writer process id) -> the port its buffers travel on (host/link.py)."""
+        return writer_ports(self.links, ((b.link, b.writer) for b in self.buffers))
+
+    def buffer_url(self, key: int | str) -> str:
+        """The URL a buffer travels on: its link's, on its writer's port; "" on a local link."""
+        b = self.buffer(key)
+        link = self.link(b.link)
+        return "" if link.local else with_port(link.url, self.writer_ports[b.link, b.writer])
 
     @property
     def default_link(self) -> Link:

@@ -65,6 +65,7 @@ def config_message(system: System, generation: int, run_id: int, committed: bool
         buf = skelmsg.buffer_desc_t()
         buf.id, buf.name, buf.bytes, buf.link, buf.writer, buf.channel = (
             b.id, b.name, b.bytes, b.link, b.writer, b.channel)
+        buf.url = system.buffer_url(b.id)
         msg.buffers.append(buf)
     msg.nbuffers = len(msg.buffers)
     msg.processes = []

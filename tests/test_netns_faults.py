@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 from conftest import EXAMPLES, Background
 from netns import Hosts, hosts_fixture
-from test_netns_lab import PORT, URL, Lab, host_overrides, report_json, stop, wait_until
+from test_netns_lab import URL, Lab, host_overrides, report_json, stop, wait_until
 
 from skeleton.host.spawn import argv_of
 
@@ -146,8 +146,9 @@ def test_netns_five_percent_inbound_loss_shows_as_dropped(netns_three_hosts: Hos
     h1, lossy, tool = netns_three_hosts.names
     lab.dpu(h1, "1")
     lab.dpu(lossy, "2")
-    # Everything other hosts send to the lossy host's port is lost at 5 %: buffers, config, commands.
-    netns_three_hosts.drop_inbound(lossy, 5, udp_port=PORT)
+    # Everything other hosts send to the lossy host is lost at 5 %: buffers (each writer's on a port
+    # of its own), config, commands.
+    netns_three_hosts.drop_inbound(lossy, 5)
     out = tmp_path / "loss"
     done = lab.skel(tool, "run", _system(tmp_path, _loss_system()), "--url", URL,
                     *host_overrides([h1, lossy]), "--out", str(out))

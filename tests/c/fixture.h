@@ -72,9 +72,12 @@ static void fixture_init(fixture_t *f)
     }
     c->ndpus = 2;
     c->dpus = f->dpus;
-    f->buffers[0] = (skelmsg_buffer_desc_t){ 1, (char *)"b1", 1000, 1, 1, (char *)"SKEL_BUF_b1" };
-    f->buffers[1] = (skelmsg_buffer_desc_t){ 2, (char *)"b2", 2000, 1, 3, (char *)"SKEL_BUF_b2" };
-    f->buffers[2] = (skelmsg_buffer_desc_t){ 3, (char *)"b3", 300, 2, 5, (char *)"SKEL_BUF_b3" };
+    /* as host/link.py gives them: link 1's writers (processes 1 and 3) on its port + 1, + 2 */
+    f->buffers[0] = (skelmsg_buffer_desc_t){ 1, (char *)"b1", 1000, 1, (char *)"udpm://239.255.76.67:7800?ttl=0",
+                                             1, (char *)"SKEL_BUF_b1" };
+    f->buffers[1] = (skelmsg_buffer_desc_t){ 2, (char *)"b2", 2000, 1, (char *)"udpm://239.255.76.67:7801?ttl=0",
+                                             3, (char *)"SKEL_BUF_b2" };
+    f->buffers[2] = (skelmsg_buffer_desc_t){ 3, (char *)"b3", 300, 2, (char *)"", 5, (char *)"SKEL_BUF_b3" };
     c->nbuffers = 3;
     c->buffers = f->buffers;
     fixture_process(f, 0, 1, 1, 0, 10000, 2000);

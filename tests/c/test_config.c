@@ -92,8 +92,13 @@ static void test_rejections(void)
     REJECTS(f.dpus[0].speed = 0.0 / 0.0, 0, "DPU 1: speed");
     /* liblcm opens any provider a URL names: only multicast links reach a plan. */
     REJECTS(f.links[0].url = (char *)"file:///tmp/skel-fuzz.log?mode=w", 0,
-            "buffer 1: link 1 (net) URL 'file:///tmp/skel-fuzz.log?mode=w' is not udpm://");
-    REJECTS(f.links[0].url = (char *)"tcpq://localhost:7700", 1, "URL 'tcpq://localhost:7700' is not udpm://");
+            "buffer 1: link 1 (net) URL 'file:///tmp/skel-fuzz.log?mode=w' or 'udpm://239.255.76.67:7800?ttl=0' "
+            "is not udpm://");
+    REJECTS(f.links[0].url = (char *)"tcpq://localhost:7700", 1, "URL 'tcpq://localhost:7700' or");
+    /* ... nor the URL on its writer's port that a buffer travels on, which is what a DPU opens */
+    REJECTS(f.buffers[1].url = (char *)"tcpq://localhost:7700", 1, "or 'tcpq://localhost:7700' is not udpm://");
+    REJECTS(f.buffers[2].url = (char *)"udpm://239.255.76.67:7802", 0,
+            "buffer 3: on local link 2 but sent to 'udpm://239.255.76.67:7802'");
     /* A channel LCM would not publish: longer than LCM_MAX_CHANNEL_NAME_LENGTH. */
     REJECTS(f.buffers[0].channel = (char *)"SKEL_BUF_0123456789012345678901234567890123456789012345678901234", 0,
             "buffer 1: channel 'SKEL_BUF_0123456789012345678901234567890123456789012345678901234...' is "
@@ -111,7 +116,8 @@ static void test_rejections(void)
             "buffer 3 is on a local link but process 5 uses it from DPU 2");
     REJECTS(f.procs[4].id = 1, 0, "process id 1 appears twice");
     REJECTS(f.buffers[1].id = 1, 0, "buffer id 1 appears twice");
-    REJECTS(f.buffers[1].channel = (char *)"SKEL_BUF_b1", 0, "share channel 'SKEL_BUF_b1'");
+    REJECTS(f.buffers[1].channel = (char *)"SKEL_BUF_b1"; f.buffers[1].url = f.buffers[0].url, 0,
+            "share channel 'SKEL_BUF_b1'"); /* on one URL (one writer's port) a reader could not tell */
     REJECTS(f.buffers[0].channel = (char *)SKEL_STATUS_CHANNEL, 0, "SKEL_ control channel");
     REJECTS(f.in[3][1] = 2, 0, "process 4 reads buffer 2 twice");
     REJECTS(f.procs[1].sync = 3, 1, "process 2: unknown sync 3");
@@ -210,13 +216,14 @@ static void test_plan(void)
     CHECK_EQ(plan->processes[1].ratio, 4);
     CHECK_EQ(plan->processes[0].compute_ns, 1000000); /* 2000 us at speed 2 */
     CHECK_EQ(plan->nslots, 2);
-    CHECK_EQ(plan->nlinks, 1);
-    CHECK_HAS(plan->links[0].url, "7799");
+    CHECK_EQ(plan->nlinks, 2); /* the ports of its writer p1 (b1) and of p3, whose b2 p4 reads */
+    CHECK_HAS(plan->links[0].url, ":7800?");
+    CHECK_HAS(plan->links[1].url, ":7801?");
     skel_process_t *p5 = &plan->processes[1], *p4 = &plan->processes[2];
     CHECK_EQ(p5->outputs[0].link, -1);
     CHECK(p5->outputs[0].local_slot >= 0);
     CHECK_EQ(plan->slots[p5->outputs[0].local_slot].buffer, 3);
-    CHECK_EQ(plan->slots[p4->inputs[0].slot].link, 0);
+    CHECK_EQ(plan->slots[p4->inputs[0].slot].link, 1);
     CHECK_EQ(plan->processes[0].outputs[0].enc_len, wire_buffer_encoded_size(1000));
     /* Minor cycles with work: 0 (p1 p5 p4), 2 (p1 p4), 4 (all), ... never 1 or 3. */
     CHECK_EQ(executive_next_release(plan, 0), 0);
@@ -229,7 +236,7 @@ static void test_plan(void)
     plan_free(plan);
 }
 
-/* A link's socket is sized for the largest buffer on its URL (read or not), and only
+/* A link's socket is sized for the largest buffer on its URL (a writer's port), and only
  * asked for when the kernel's default would not hold it. */
 static void test_link_recv_buf_size(void)
 {
@@ -240,26 +247,29 @@ static void test_link_recv_buf_size(void)
     skel_plan_t *plan = plan_build(&f.cfg, 0, reason, sizeof reason);
     CHECK(plan != NULL);
     if (plan == NULL) return;
-    CHECK_EQ(plan->links[0].largest, wire_buffer_encoded_size(2000));
-    CHECK_EQ(link_url(&plan->links[0], url, sizeof url, &asked), 0);
+    CHECK_EQ(plan->links[0].largest, wire_buffer_encoded_size(1000));
+    CHECK_EQ(plan->links[1].largest, wire_buffer_encoded_size(2000));
+    CHECK_EQ(link_url(&plan->links[1], url, sizeof url, &asked), 0);
     CHECK_EQ(asked, 0); /* 2 kB: the default holds it */
     CHECK(strstr(url, "recv_buf_size") == NULL);
     plan_free(plan);
 
-    f.buffers[1].bytes = 1000000; /* written by p3 on DPU 2: DPU 1's socket receives it all the same */
+    f.buffers[1].bytes = 1000000; /* written by p3 on DPU 2, read here: its port's socket grows */
     plan = plan_build(&f.cfg, 0, reason, sizeof reason);
     CHECK(plan != NULL);
     if (plan == NULL) return;
     int32_t want = wire_buffer_encoded_size(1000000) + SKEL_RECV_SLACK_BYTES;
-    CHECK_EQ(link_url(&plan->links[0], url, sizeof url, &asked), 0);
+    CHECK_EQ(link_url(&plan->links[1], url, sizeof url, &asked), 0);
     CHECK_EQ(asked, want);
     char expected[128];
-    snprintf(expected, sizeof expected, "udpm://239.255.76.67:7799?ttl=0&recv_buf_size=%d", want);
+    snprintf(expected, sizeof expected, "udpm://239.255.76.67:7801?ttl=0&recv_buf_size=%d", want);
     CHECK(strcmp(url, expected) == 0);
+    CHECK_EQ(link_url(&plan->links[0], url, sizeof url, &asked), 0); /* p1's port: not at all */
+    CHECK_EQ(asked, 0);
     /* A recv_buf_size the system file gives is the user's choice: kept as it is. */
-    free(plan->links[0].url);
-    plan->links[0].url = strdup("udpm://239.255.76.67:7799?recv_buf_size=4096");
-    CHECK_EQ(link_url(&plan->links[0], url, sizeof url, &asked), 0);
+    free(plan->links[1].url);
+    plan->links[1].url = strdup("udpm://239.255.76.67:7799?recv_buf_size=4096");
+    CHECK_EQ(link_url(&plan->links[1], url, sizeof url, &asked), 0);
     CHECK_EQ(asked, 0);
     CHECK(strcmp(url, "udpm://239.255.76.67:7799?recv_buf_size=4096") == 0);
     plan_free(plan);

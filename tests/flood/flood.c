@@ -1,9 +1,11 @@
 /* flood.c: hostile traffic for the flood test (tests/test_flood.py) and `make bench`.
  *
- *   flood URL RATE SECONDS CHANNEL...
+ *   flood URL RATE SECONDS CHANNEL[@URL]...
  *
  * publishes up to RATE messages a second for SECONDS (wall clock: where the machine cannot
- * send that many, fewer, and it says how many) on the CHANNELs (round robin), cycling
+ * send that many, fewer, and it says how many) on the CHANNELs (round robin), each on its
+ * own URL where one follows it (a buffer's: its writer's port, host/link.py), else on URL,
+ * cycling
  * through four kinds: garbage (random bytes), a foreign fingerprint, our own
  * fingerprints with lengths that lie (command_t, config_t, buffer_t), and well-formed
  * but unsigned command_t (STOP, SHUTDOWN, START: what a DPU without a key would obey).
@@ -89,7 +91,7 @@ static int make(uint8_t *buf, int cap, int kind, uint64_t n)
 int main(int argc, char **argv)
 {
     if (argc < 5) {
-        fprintf(stderr, "usage: flood URL RATE SECONDS CHANNEL...\n");
+        fprintf(stderr, "usage: flood URL RATE SECONDS CHANNEL[@URL]...\n");
         return 2;
     }
     long rate = strtol(argv[2], NULL, 10);
@@ -99,10 +101,28 @@ int main(int argc, char **argv)
         fprintf(stderr, "flood: RATE and SECONDS must be positive, at most %d channels\n", FLOOD_MAX_CHANNELS);
         return 2;
     }
-    lcm_t *lcm = lcm_create(argv[1]);
-    if (lcm == NULL) {
-        fprintf(stderr, "flood: cannot open %s\n", argv[1]);
-        return 1;
+    /* Per channel its name and the lcm_t of its URL (one per distinct URL). */
+    static char *names[FLOOD_MAX_CHANNELS];
+    static const char *urls[FLOOD_MAX_CHANNELS];
+    static lcm_t *lcms[FLOOD_MAX_CHANNELS], *by_channel[FLOOD_MAX_CHANNELS];
+    int nlcms = 0;
+    for (int c = 0; c < nchannels; c++) {
+        names[c] = argv[4 + c];
+        char *at = strchr(names[c], '@');
+        const char *url = at != NULL ? at + 1 : argv[1];
+        if (at != NULL) *at = '\0';
+        int u = 0;
+        while (u < nlcms && strcmp(urls[u], url) != 0) u++;
+        if (u == nlcms) {
+            urls[u] = url;
+            lcms[u] = lcm_create(url);
+            if (lcms[u] == NULL) {
+                fprintf(stderr, "flood: cannot open %s\n", url);
+                return 1;
+            }
+            nlcms++;
+        }
+        by_channel[c] = lcms[u];
     }
     static int64_t sent[FLOOD_MAX_CHANNELS][KINDS];
     int64_t failed = 0, most_behind_ns = 0;
@@ -119,7 +139,7 @@ int main(int argc, char **argv)
         while ((int64_t)n < due && ((n & 63) != 0 || mono_ns() < end)) {
             int channel = (int)(n % (uint64_t)nchannels), kind = (int)((n / (uint64_t)nchannels) % KINDS);
             int len = make(buf, sizeof buf, kind, n);
-            if (len < 0 || lcm_publish(lcm, argv[4 + channel], buf, (unsigned)len) != 0) failed++;
+            if (len < 0 || lcm_publish(by_channel[channel], names[channel], buf, (unsigned)len) != 0) failed++;
             else sent[channel][kind]++;
             n++;
         }
@@ -132,11 +152,11 @@ int main(int argc, char **argv)
     printf("{\"seconds\": %.3f, \"failed\": %lld, \"most_behind_ms\": %.1f, \"sent\": {", took, (long long)failed,
            (double)most_behind_ns / 1e6);
     for (int c = 0; c < nchannels; c++) {
-        printf("%s\"%s\": [", c ? ", " : "", argv[4 + c]);
+        printf("%s\"%s\": [", c ? ", " : "", names[c]);
         for (int k = 0; k < KINDS; k++) printf("%s%lld", k ? ", " : "", (long long)sent[c][k]);
         printf("]");
     }
     printf("}}\n");
-    lcm_destroy(lcm);
+    for (int u = 0; u < nlcms; u++) lcm_destroy(lcms[u]);
     return failed > 0 ? 1 : 0;
 }

@@ -31,7 +31,7 @@ skel_plan_t *fuzz_fixture_plan(int events)
     if (config_validate(&f.cfg, 1, reason, sizeof reason) != 0) fuzz_fail(reason, __FILE__, __LINE__);
     skel_plan_t *plan = plan_build(&f.cfg, 1, reason, sizeof reason);
     if (plan == NULL) fuzz_fail(reason, __FILE__, __LINE__);
-    FUZZ_ASSERT(plan->nlinks == 1 && plan->nslots == 1);
+    FUZZ_ASSERT(plan->nlinks == 2 && plan->nslots == 1); /* the ports of p1, read here, and of p3 */
     if (events) plan->event_link = 0;
     return plan;
 }

@@ -1,0 +1,110 @@
+"""A link on the wire: each writer's buffers travel on a UDP port of their own.
+
+The system file names one `udpm://GROUP:PORT` per link; the host gives every process that
+writes to it a port of its own, PORT + 1, PORT + 2, ... (in the order of the links, then of
+the writers' ids; links that name the same group and port count on together). A DPU opens a
+socket on the ports of the writers it reads (and of its own writers, to send), so it
+receives only what it reads: its receive cost grows with its own inputs, not with the whole
+system's traffic. Ports, not groups: Linux delivers a multicast datagram to every socket
+bound to its port that any socket of the host joined the group for (IP_MULTICAST_ALL), so
+with several DPUs on one host only a port of its own keeps a writer's traffic to its
+readers. Control (config, commands, status, timing) stays on PORT, the control URL.
+
+`buffer_desc_t.url` carries the result to the DPUs (host/wire.py); the rules refuse a
+system whose links' ports would overlap (host/rules.py).
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from urllib.parse import parse_qs, urlsplit, urlunsplit
+
+from skelmsg.contract import DEFAULT_URL
+
+from .schema import Link
+
+MAX_PORT = 65535
+LCM_GROUP, LCM_PORT = urlsplit(DEFAULT_URL).hostname, urlsplit(DEFAULT_URL).port
+
+
+@dataclass(frozen=True)
+class LcmUrl:
+    provider: str
+    group: str
+    port: int
+    ttl: int
+    recv_buf_size: int | None = None
+
+
+def parse_url(url: str) -> LcmUrl:
+    """udpm://GROUP:PORT?ttl=N (LCM's defaults fill what is left out); ValueError says what is wrong."""
+    # The contract's DEFAULT_URL is liblcm's own default: an empty URL, or a missing part, means it.
+    parts = urlsplit(url or os.environ.get("LCM_DEFAULT_URL") or DEFAULT_URL)
+    if parts.scheme != "udpm":
+        return LcmUrl(parts.scheme, "", 0, 0)
+    query = {key: values[-1] for key, values in parse_qs(parts.query).items()}
+    try:
+        group = parts.hostname or LCM_GROUP
+        port = parts.port or LCM_PORT
+        ttl = int(query.get("ttl", "0"))
+        recv = int(query["recv_buf_size"]) if "recv_buf_size" in query else None
+        address = ipaddress.IPv4Address(group)
+    except ValueError as exc:
+        raise ValueError(f"{url!r} is not udpm://GROUP:PORT?ttl=N ({exc})") from None
+    if not address.is_multicast:
+        raise ValueError(f"{group} in {url!r} is not a multicast group (224.0.0.0/4); LCM uses {LCM_GROUP}")
+    if not 0 <= ttl <= 255:
+        raise ValueError(f"ttl={ttl} in {url!r}: expected 0 (this host) or 1 (the local network)")
+    return LcmUrl("udpm", group, port, ttl, recv)
+
+
+def _base(url: str) -> tuple[str, int]:
+    """The group and port a udpm URL names (LCM's defaults fill what it leaves out)."""
+    parsed = parse_url(url)
+    return parsed.group, parsed.port
+
+
+def writer_ports(links: Sequence[Link], pairs: Iterable[tuple[int, int]]) -> dict[tuple[int, int], int]:
+    """(link id, writer process id) -> the port that writer's buffers on that link travel on.
+    `pairs`: every (link id, writer id) in use; local links have none."""
+    url = {link.id: link.url for link in links if not link.local}
+    out: dict[tuple[int, int], int] = {}
+    taken: dict[tuple[str, int], int] = {}
+    for link_id, writer in sorted(set(pairs)):
+        if link_id in url:
+            base = _base(url[link_id])
+            taken[base] = taken.get(base, 0) + 1
+            out[link_id, writer] = base[1] + taken[base]
+    return out
+
+
+def with_port(url: str, port: int) -> str:
+    """URL on PORT: its group and its options (ttl, recv_buf_size) kept."""
+    group, _ = _base(url)
+    parts = urlsplit(url)
+    return urlunsplit((parts.scheme, f"{group}:{port}", parts.path, parts.query, parts.fragment))
+
+
+def port_clash(links: Sequence[Link], ports: dict[tuple[int, int], int]) -> tuple[Link, str] | None:
+    """A link whose ports (its own and its writers') run past 65535 or into another link's,
+    with what to say; None when every link has its ports to itself."""
+    spans: dict[tuple[str, int], tuple[Link, int]] = {}  # per base: its first link, last port
+    for link in links:
+        if link.local:
+            continue
+        base = _base(link.url)
+        last = max((p for (link_id, _), p in ports.items() if link_id == link.id), default=base[1])
+        first, was = spans.get(base, (link, base[1]))
+        spans[base] = (first, max(was, last))
+    for (_, port), (link, last) in spans.items():
+        if last > MAX_PORT:
+            return link, f"its writers need ports {port + 1}..{last}, past {MAX_PORT}"
+        for (other_group, other), (them, their_last) in spans.items():
+            if them is not link and port <= their_last and other <= last:
+                return link, (f"its writers' buffers take ports {port}..{last}, which meet link "
+                              f"{them.name}'s {other}..{their_last} ({other_group}): on one host a "
+                              "port is shared by every group; put the links' ports further apart")
+    return None

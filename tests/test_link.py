@@ -1,0 +1,137 @@
+"""A link's writers each get a port of their own (host/link.py): the host derives it, the
+DPUs open only the ports of the writers they read, `skel check` refuses links whose ports
+would meet. The DPU side is checked at its sockets: the ports a running DPU is bound to."""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+from pathlib import Path
+
+import pytest
+from conftest import DpuFarm, skel, skel_background
+
+from skeleton.host.system import loads
+
+THREE = """\
+system: three
+links:
+  - {{name: bus, url: "{url}"}}
+  - {{name: mem, url: local}}
+dpus: [{{id: 1}}, {{id: 2}}, {{id: 3}}]
+buffers:
+  - {{id: 1, name: a, bytes: 64}}
+  - {{id: 2, name: a2, bytes: 64}}
+  - {{id: 3, name: b, bytes: 64}}
+  - {{id: 4, name: c, bytes: 64, link: mem}}
+processes:
+  - {{id: 1, name: wa, dpu: 1, period_us: 10000, compute_us: 100, outputs: [a, a2]}}
+  - {{id: 2, name: wb, dpu: 2, period_us: 10000, compute_us: 100, outputs: [b]}}
+  - {{id: 3, name: reader, dpu: 3, period_us: 10000, compute_us: 100, inputs: [a], outputs: [c]}}
+  - {{id: 4, name: local, dpu: 3, period_us: 10000, compute_us: 100, inputs: [c]}}
+run: {{duration_s: {duration}, warmup_cycles: 2, lockout_cycles: 50}}
+"""
+
+
+def _three(tmp_path: Path, url: str, duration: float = 1.0) -> Path:
+    path = tmp_path / "three.yaml"
+    path.write_text(THREE.format(url=url, duration=duration))
+    return path
+
+
+def test_each_writer_gets_the_next_port_of_its_link() -> None:
+    system = loads(THREE.format(url="udpm://239.255.76.67:7700?ttl=0&recv_buf_size=300000", duration=1),
+                   "three.yaml")
+    # wa's two buffers share its port; wb has the next; a local buffer has no URL.
+    assert system.buffer_url("a") == "udpm://239.255.76.67:7701?ttl=0&recv_buf_size=300000"
+    assert system.buffer_url("a2") == system.buffer_url("a")
+    assert system.buffer_url("b") == "udpm://239.255.76.67:7702?ttl=0&recv_buf_size=300000"
+    assert system.buffer_url("c") == ""
+    # LCM's defaults fill a URL that leaves the group and port out.
+    bare = loads(THREE.format(url="udpm://", duration=1), "three.yaml")
+    assert bare.buffer_url("b") == "udpm://239.255.76.67:7669"
+
+
+def test_check_lists_the_ports_a_firewall_must_pass(tmp_path: Path) -> None:
+    path = _three(tmp_path, "udpm://239.255.76.67:7700?ttl=1")
+    done = skel("check", str(path), "--json")
+    assert done.returncode == 0, done.stdout + done.stderr
+    ports = json.loads(done.stdout)["ports"]
+    assert ports == [{"link": "bus", "port": 7700, "writers": {"wa": 7701, "wb": 7702}}]
+    text = skel("check", str(path)).stdout
+    assert "link bus: UDP port 7700; its writers' buffers on wa 7701, wb 7702" in text, text
+
+
+def test_two_links_on_one_port_count_their_writers_on() -> None:
+    text = THREE.format(url="udpm://239.255.76.67:7700?ttl=0", duration=1).replace(
+        "  - {name: mem, url: local}", '  - {name: mem, url: local}\n  - {name: side, url: "udpm://239.255.76.67:7700?ttl=0"}'
+    ).replace("{id: 3, name: b, bytes: 64}", "{id: 3, name: b, bytes: 64, link: side}")
+    system = loads(text, "three.yaml")
+    assert system.buffer_url("a").startswith("udpm://239.255.76.67:7701?")
+    assert system.buffer_url("b").startswith("udpm://239.255.76.67:7702?")
+
+
+@pytest.mark.parametrize(("second", "why"), [
+    ("udpm://239.255.76.68:7701?ttl=0", "which meet link side's 7701..7701 (239.255.76.68)"),
+    ("udpm://239.255.76.67:7702?ttl=0", "which meet link side's"),
+])
+def test_check_refuses_links_whose_ports_meet(tmp_path: Path, second: str, why: str) -> None:
+    path = tmp_path / "clash.yaml"
+    path.write_text(THREE.format(url="udpm://239.255.76.67:7700?ttl=0", duration=1).replace(
+        "  - {name: mem, url: local}", f'  - {{name: mem, url: local}}\n  - {{name: side, url: "{second}"}}'))
+    done = skel("check", str(path))
+    assert done.returncode == 2, done.stdout + done.stderr
+    (line,) = done.stderr.strip().splitlines()
+    assert line.startswith(f"{path}: links[0].url: its writers' buffers take ports 7700..7702, "), line
+    assert why in line, line
+
+
+def test_check_refuses_ports_past_65535(tmp_path: Path) -> None:
+    path = _three(tmp_path, "udpm://239.255.76.67:65534?ttl=0")
+    done = skel("check", str(path))
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert done.stderr.strip() == f"{path}: links[0].url: its writers need ports 65535..65536, past 65535"
+
+
+def _bound_udp_ports(pid: int) -> set[int]:
+    """The UDP ports the process's sockets are bound to (its fds' inodes in /proc/net/udp)."""
+    inodes = set()
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        try:
+            target = fd.readlink().as_posix()
+        except OSError:
+            continue  # closed meanwhile
+        if (m := re.fullmatch(r"socket:\[(\d+)\]", target)) is not None:
+            inodes.add(m.group(1))
+    ports = set()
+    for line in Path(f"/proc/{pid}/net/udp").read_text().splitlines()[1:]:
+        fields = line.split()
+        if fields[9] in inodes:
+            ports.add(int(fields[1].split(":")[1], 16))
+    return ports
+
+
+def test_a_dpu_listens_only_on_the_ports_of_the_writers_it_reads(tmp_path: Path, url: str,
+                                                                 dpus: DpuFarm) -> None:
+    system_path = _three(tmp_path, url, duration=3.0)
+    system = loads(system_path.read_text(), system_path).with_url(url)
+    control = int(url.split(":")[2].split("?")[0])
+    port = {name: int(system.buffer_url(name).split(":")[2].split("?")[0]) for name in ("a", "b")}
+    assert port == {"a": control + 1, "b": control + 2}
+    dpus.start(1, 2, 3)
+    run = skel_background("run", str(system_path), "--url", url, "--out", str(tmp_path / "run"))
+    deadline = time.monotonic() + 30
+    while not all(re.search(r"run \d+ started", dpus.log(d)) for d in (1, 2, 3)):
+        assert time.monotonic() < deadline and run.proc.poll() is None, run.output
+        time.sleep(0.05)
+    # (LCM's send sockets are bound too, to ephemeral ports: only the system's ports matter.)
+    ours = {control, *port.values()}
+    bound = {d: _bound_udp_ports(dpus.daemons[d].process.pid) & ours for d in (1, 2, 3)}
+    assert run.wait(60) == 0, run.output
+    # The reader of a, on DPU 3, has a socket on wa's port and none on wb's: the kernel hands it
+    # none of b's datagrams. Each writer's DPU has its own port (it sends there) and control.
+    assert bound[3] - {control} == {port["a"]}, bound
+    assert bound[1] - {control} == {port["a"]}, bound
+    assert bound[2] - {control} == {port["b"]}, bound
+    assert all(control in ports for ports in bound.values()), bound
