@@ -79,6 +79,9 @@ def test_dpu_ignores_undecodable_messages(dpus: DpuFarm, url: str) -> None:
         buffer_channels = [b.channel for b in system.buffers if b.id in (3, 5, 6, 7, 8)]
         hostile += [(ch, _negative_length_buffer()) for ch in buffer_channels]
         hostile += [(ch, b"garbage") for ch in buffer_channels]
+        # a buffer's channel is heard on its writer's port (host/link.py), not on the control URL
+        on_port = {b.channel: lcm.LCM(system.buffer_url(b.id))
+                   for b in system.buffers if b.channel in buffer_channels}
         generation = control.next_generation()
         assert control.push(config_message(system, generation, 0, committed=False), [2]).ok
         # During a run the DPU drains its buffer channels too: send everything then.
@@ -86,7 +89,7 @@ def test_dpu_ignores_undecodable_messages(dpus: DpuFarm, url: str) -> None:
         assert control.wait_for(lambda: control.dpus[2].status.run_id == 6
                                 and control.dpus[2].status.minor_cycles > 10, 5.0)
         for channel, data in hostile:
-            sender.publish(channel, data)
+            on_port.get(channel, sender).publish(channel, data)
         assert control.wait_for(lambda: (2, 6) in control.reports, 5.0)
         assert control.reports[(2, 6)].rejected_messages >= len(hostile), control.reports[(2, 6)]
         assert dpus.daemons[2].alive()
