@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 from conftest import DpuFarm, skel, skel_background
 
+from skeleton.host.link import parse_url
 from skeleton.host.system import loads
 
 THREE = """\
@@ -116,8 +117,8 @@ def test_a_dpu_listens_only_on_the_ports_of_the_writers_it_reads(tmp_path: Path,
                                                                  dpus: DpuFarm) -> None:
     system_path = _three(tmp_path, url, duration=3.0)
     system = loads(system_path.read_text(), system_path).with_url(url)
-    control = int(url.split(":")[2].split("?")[0])
-    port = {name: int(system.buffer_url(name).split(":")[2].split("?")[0]) for name in ("a", "b")}
+    control = parse_url(url).port
+    port = {name: parse_url(system.buffer_url(name)).port for name in ("a", "b")}
     assert port == {"a": control + 1, "b": control + 2}
     dpus.start(1, 2, 3)
     run = skel_background("run", str(system_path), "--url", url, "--out", str(tmp_path / "run"))
