@@ -18,14 +18,17 @@
     counted as refused, % compute per DPU within 2 points);
 (h) bookkeeping and (i) cycle rate (bench/cost.py): what a process-cycle of no compute costs
     the executive and its record (goal: median 1 us), and the highest minor-cycle rate one DPU
-    runs clean (goal: 10 kHz for 10^5 cycles).
+    runs clean (goal: 10 kHz for 10^5 cycles);
+(j) analysis (bench/analysis.py): `skel report` and `skel export` of a SERVO run grown to 10^7
+    records (goals: report in 10 s and 2 GiB, export at 10^6 records/s).
 
 Each part writes bench/results/<name>.txt, the headlines go to bench/results/summary.txt.
 Runs use a private multicast port with ttl=0 (nothing leaves the host). About 5 minutes.
 
 Usage: .venv/bin/python bench/run.py [--seconds S] [--records N] [--tasking-seconds S]
-       [--allocate-seconds S] [--flood-rate N] [--parts P,...]
-(--parts: only those of wakeup, publish, logreader, compute, tasking, allocate, flood, bookkeeping, rate;
+       [--allocate-seconds S] [--flood-rate N] [--analysis-records N] [--parts P,...]
+(--parts: only those of wakeup, publish, logreader, compute, tasking, allocate, flood, bookkeeping, rate,
+analysis;
 summary.txt is then
 left alone and the headlines are printed only.)
 """
@@ -432,7 +435,8 @@ def cost_run(tmp: Path) -> Callable[[str, str, float], tuple[np.ndarray, dict[st
 
 FLOOD_SECONDS = 10
 FLOOD_POINTS = 2.0
-PARTS = ("wakeup", "publish", "logreader", "compute", "tasking", "allocate", "flood", "bookkeeping", "rate")
+PARTS = ("wakeup", "publish", "logreader", "compute", "tasking", "allocate", "flood", "bookkeeping", "rate",
+         "analysis")
 
 
 def main() -> int:
@@ -442,6 +446,8 @@ def main() -> int:
     parser.add_argument("--tasking-seconds", type=float, default=15.0, help="length of the tasking run")
     parser.add_argument("--allocate-seconds", type=float, default=10.0, help="solver limit per allocation")
     parser.add_argument("--flood-rate", type=int, default=100_000, help="hostile messages a second")
+    parser.add_argument("--analysis-records", type=int, default=10_000_000,
+                        help="records of the grown run the analysis part reads and exports")
     parser.add_argument("--parts", default=",".join(PARTS), help=f"comma-separated, of {', '.join(PARTS)}")
     args = parser.parse_args()
     wanted = args.parts.split(",")
@@ -474,6 +480,10 @@ def main() -> int:
             parts["bookkeeping"] = cost.part_bookkeeping(cost_run(tmp), URL, args.seconds)
         if "rate" in wanted:
             parts["rate"] = cost.part_rate(cost_run(tmp), URL)
+        if "analysis" in wanted:
+            from analysis import part_analysis  # bench/analysis.py, beside this file
+
+            parts["analysis"] = part_analysis(tmp, URL, args.analysis_records)
     for name, lines in parts.items():
         (RESULTS / f"{name}.txt").write_text("\n".join(lines) + "\n")
         print("\n".join(lines) + "\n")

@@ -1,5 +1,6 @@
-"""export_mcap.py, mcapsource.py and lcmjson.py on a real run: `skel export`, read back
-with the mcap package and compared with the LCM log record by record."""
+"""export_mcap.py, mcapbulk.py, mcapsource.py and lcmjson.py on a real run: `skel export`,
+read back with the mcap package (timing messages decoded by Foxglove's own ROS 2 CDR
+decoder, mcap-ros2-support) and compared with the LCM log record by record."""
 
 from __future__ import annotations
 
@@ -15,13 +16,15 @@ import pytest
 from conftest import short_servo_run, skel
 from mcap.reader import make_reader
 from mcap.writer import Writer
+from mcap_ros2.decoder import DecoderFactory
 
 import skelmsg
 from skeleton.analysis.measure.run import analyze_log, load_run
-from skeleton.analysis.read.lcmjson import from_json, schema_of, to_json
+from skeleton.analysis.read.lcmjson import schema_of, to_json
 from skeleton.analysis.read.logreader import encode_events, read_bytes, read_log
 from skeleton.analysis.read.mcapsource import read_as_log
 from skeleton.analysis.read.records import load_records
+from skeleton.analysis.views import mcapbulk
 from skeleton.analysis.views.export_mcap import export
 from skelmsg.contract import COMMAND_CHANNEL, CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
@@ -51,19 +54,30 @@ def _messages(path: Path) -> dict[str, list[tuple[Any, Any]]]:
     return out
 
 
+def _timing(path: Path) -> list[tuple[Any, Any, Any]]:
+    """(channel, message, decoded) of every /timing message, decoded as Foxglove would."""
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        assert summary is not None
+        topics = [c.topic for c in summary.channels.values() if c.topic.startswith("/timing/")]
+        return [(c, m, d) for _, c, m, d in reader.iter_decoded_messages(topics, log_time_order=False)]
+
+
 def test_every_timing_record_and_input_matches_the_log(servo_run: Path) -> None:
     log = read_log(servo_run / "run.lcm")
     run = load_records(log)
     config = skelmsg.config_t.decode(bytes(log.messages(CONFIG_CHANNEL)[-1][1]))
     names = {p.id: p.name for p in config.processes}
-    topics = _messages(servo_run / "run.mcap")
+    buffers = {str(b.id): b.name for b in config.buffers}
     by_key = {}
-    for topic, items in topics.items():
-        if topic.startswith("/timing/"):
-            for _, message in items:
-                body = json.loads(message.data)
-                assert topic == f"/timing/{body['dpu']}/{names[body['process']]}"
-                by_key[(body["dpu"], body["batch_seq"], body["index"])] = (message, body)
+    for channel, message, decoded in _timing(servo_run / "run.mcap"):
+        body = {k: getattr(decoded, k) for k in decoded.__slots__}
+        body["inputs"] = [{k: getattr(i, k) for k in i.__slots__} for i in decoded.inputs]
+        assert channel.topic == f"/timing/{body['dpu']}/{names[body['process']]}"
+        assert channel.message_encoding == "cdr" and json.loads(channel.metadata["buffers"]) == buffers
+        assert message.sequence == body["cycle"]
+        by_key[(body["dpu"], body["batch_seq"], body["index"])] = (message, body)
     recs, ins = run.records, run.inputs
     assert len(recs) > 500 and len(by_key) == len(recs)
     statuses = [skelmsg.status_t.decode(bytes(d)) for _, d in log.messages(STATUS_CHANNEL)]
@@ -76,8 +90,9 @@ def test_every_timing_record_and_input_matches_the_log(servo_run: Path) -> None:
         position += 1
         for name in RECORD_FIELDS:
             assert body[name] == int(rec[name]), (r, name)
-        assert body["run_id"] == run.run_id and body["process_name"] == names[int(rec["process"])]
+        assert body["run_id"] == run.run_id
         assert body["release_latency_us"] == pytest.approx((rec["start_ns"] - rec["release_ns"]) / 1000)
+        assert body["overrun"] == bool(rec["flags"] & skelmsg.timing_t.FLAG_OVERRUN)
         # log time: the cycle's start on the wall clock, within a few ms of the status mapping
         assert abs(message.log_time - (int(rec["start_ns"]) + offsets[int(rec["dpu"])])) < 5_000_000
         mine = ins[ins["record"] == r]
@@ -85,15 +100,19 @@ def test_every_timing_record_and_input_matches_the_log(servo_run: Path) -> None:
         for got, want in zip(body["inputs"], mine, strict=True):
             for name in INPUT_FIELDS:
                 assert got[name] == int(want[name]), (r, name)
+            assert got["transport_us"] == pytest.approx((want["recv_ns"] - want["sent_ns"]) / 1000)
 
 
-def test_schemas_are_json_schema_and_every_message_validates(servo_run: Path) -> None:
+def test_schemas_are_json_schema_or_ros2msg_and_every_message_decodes(servo_run: Path) -> None:
     with open(servo_run / "run.mcap", "rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
         assert summary is not None
         schemas = {}
         for schema in summary.schemas.values():
+            if schema.name == "skeleton/msg/TimingRecord":
+                assert schema.encoding == "ros2msg"
+                continue
             assert schema.encoding == "jsonschema"
             body = json.loads(schema.data)
             assert body["type"] == "object" and body["$schema"].endswith("2020-12/schema")
@@ -101,16 +120,45 @@ def test_schemas_are_json_schema_and_every_message_validates(servo_run: Path) ->
             jsonschema.Draft202012Validator.check_schema(body)
             schemas[schema.id] = jsonschema.Draft202012Validator(body)
         for channel in summary.channels.values():
-            assert channel.message_encoding == "json" and channel.schema_id in schemas
-        count = 0
+            assert channel.message_encoding == ("json" if channel.schema_id in schemas else "cdr")
+        count = timing = 0
         for schema, _, message in reader.iter_messages():
             assert schema is not None
-            schemas[schema.id].validate(json.loads(message.data))
+            if schema.id in schemas:
+                schemas[schema.id].validate(json.loads(message.data))
+            else:
+                decoded = DecoderFactory().decoder_for("cdr", schema)(message.data)
+                timing += len(decoded.inputs) >= 0
             count += 1
-        assert count == summary.statistics.message_count
+        records = load_records(read_log(servo_run / "run.lcm")).records
+        assert count == summary.statistics.message_count and timing == len(records)
     titles = {s.schema["title"] for s in schemas.values()}
-    assert {"skeleton.timing_record", "skelmsg.status_t", "skelmsg.config_t", "skelmsg.report_t",
-            "skelmsg.command_t"} <= titles  # fmt: skip
+    assert {"skelmsg.status_t", "skelmsg.config_t", "skelmsg.report_t", "skelmsg.command_t"} <= titles
+
+
+def test_many_chunks_are_indexed_and_read_back_in_time_order(servo_run: Path, tmp_path: Path,
+                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """Small chunks: the chunk and message indexes the readers seek by are right."""
+    monkeypatch.setattr(mcapbulk, "CHUNK_BYTES", 8192)
+    run = load_run(servo_run / "run.lcm")
+    counts = export(run, tmp_path / "small.mcap")
+    with open(tmp_path / "small.mcap", "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None and len(summary.chunk_indexes) > 50
+        times = [m.log_time for _, _, m in reader.iter_messages(log_time_order=True)]
+        assert len(times) == counts["messages"] == summary.statistics.message_count
+        assert times == sorted(times)
+        stats = summary.statistics
+        assert (times[0], times[-1]) == (stats.message_start_time, stats.message_end_time)
+        topic = next(c.topic for c in summary.channels.values() if c.topic.startswith("/timing/"))
+        one = [m for _, _, m in reader.iter_messages(topics=[topic])]
+        assert len(one) == summary.statistics.channel_message_counts[
+            next(c.id for c in summary.channels.values() if c.topic == topic)]
+    with open(tmp_path / "small.mcap", "rb") as f:  # the same messages read without the indexes
+        streamed = [m.log_time for _, _, m in make_reader(f).iter_messages(log_time_order=False)]
+    assert sorted(streamed) == times
+    assert load_run(tmp_path / "small.mcap").report.to_json() == run.report.to_json()
 
 
 def test_status_config_faults_attachment_and_metadata(servo_run: Path) -> None:
@@ -137,8 +185,10 @@ def test_status_config_faults_attachment_and_metadata(servo_run: Path) -> None:
         attachments = list(reader.iter_attachments())
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
     source = (servo_run / "system.yaml").read_text()
-    assert [(a.name, a.media_type) for a in attachments] == [("system.yaml", "application/yaml")]
+    assert [(a.name, a.media_type) for a in attachments] == [("system.yaml", "application/yaml"),
+                                                             ("run.lcm", "application/x-lcm-log")]
     assert attachments[0].data.decode() == configs[-1]["source"] and "system: servo" in source
+    assert attachments[1].data == (servo_run / "run.lcm").read_bytes()
     meta = metadata["skeleton"]
     assert (meta["system"], int(meta["run_id"]), int(meta["lcm_events"])) == ("servo", rep.run_id, len(log))
 
@@ -160,8 +210,8 @@ def test_skel_report_mcap_json_equals_lcm_json(servo_run: Path) -> None:
 
 
 def test_damaged_events_survive_the_round_trip(servo_run: Path, tmp_path: Path) -> None:
-    """Malformed messages and a repeated timing batch are kept as bytes (/lcm/raw):
-    the report of the MCAP counts them as the report of the log does."""
+    """Malformed messages and a repeated timing batch stay in the attached log: the report
+    of the MCAP counts them as the report of the log does; the topics hold only good ones."""
     events = [(e.utime_us, e.channel, e.data) for e in read_log(servo_run / "run.lcm").events]
     timing = next(i for i, e in enumerate(events) if e[1] == TIMING_CHANNEL)
     events.insert(len(events) // 2, events[timing])  # the same batch logged twice
@@ -173,24 +223,30 @@ def test_damaged_events_survive_the_round_trip(servo_run: Path, tmp_path: Path) 
     assert want["integrity"]["malformed"] == {STATUS_CHANNEL: 1, TIMING_CHANNEL: 1}
     export(analyze_log(damaged), tmp_path / "damaged.mcap")
     assert analyze_log(read_as_log(tmp_path / "damaged.mcap")).report.to_json() == want
-    raw = [json.loads(m.data)["channel"] for _, m in _messages(tmp_path / "damaged.mcap")["/lcm/raw"]]
-    assert sorted(raw) == [STATUS_CHANNEL, TIMING_CHANNEL, TIMING_CHANNEL]
+    source = read_log(servo_run / "run.lcm")
+    statuses = sum(len(v) for t, v in _messages(tmp_path / "damaged.mcap").items() if t.endswith("/status"))
+    assert statuses == len(source.messages(STATUS_CHANNEL))
+    assert len(_timing(tmp_path / "damaged.mcap")) == len(load_records(source).records)
 
 
-def test_lcm_json_round_trip_of_every_message_type(servo_run: Path) -> None:
+def test_lcm_json_of_every_message_type_validates_against_its_schema(servo_run: Path) -> None:
     log = read_log(servo_run / "run.lcm")
     seen = set()
     for channel, cls in [(CONFIG_CHANNEL, skelmsg.config_t), (STATUS_CHANNEL, skelmsg.status_t),
                          (REPORT_CHANNEL, skelmsg.report_t), (COMMAND_CHANNEL, skelmsg.command_t),
                          (TIMING_CHANNEL, skelmsg.timing_t)]:  # fmt: skip
+        validator = jsonschema.Draft202012Validator(schema_of(cls))
         for _, data in log.messages(channel):
             msg = cls.decode(bytes(data))
-            assert from_json(cls, json.loads(json.dumps(to_json(msg)))).encode() == bytes(data)
+            body = json.loads(json.dumps(to_json(msg)))
+            validator.validate(body)
+            assert {k: getattr(msg, k) for k in ("dpu", "run_id") if hasattr(msg, k)} == {
+                k: body[k] for k in ("dpu", "run_id") if k in body}
             seen.add(channel)
     assert len(seen) == 5
     buf = skelmsg.buffer_t()
     buf.payload, buf.nbytes = bytes(range(7)), 7
-    assert from_json(skelmsg.buffer_t, to_json(buf)).encode() == buf.encode()
+    assert to_json(buf)["payload"] == "AAECAwQFBg=="
     assert schema_of(skelmsg.buffer_t)["properties"]["payload"]["contentEncoding"] == "base64"
 
 
@@ -213,4 +269,12 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, servo_run: Path) -> No
         read_as_log(foreign)
     with pytest.raises(OSError, match="not a readable MCAP"):
         read_as_log(junk)
+    older = tmp_path / "older.mcap"
+    with open(older, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        writer.add_metadata("skeleton", {"system": "servo"})
+        writer.finish()
+    with pytest.raises(OSError, match=r"no run\.lcm attached: exported by an older skel, export it again"):
+        read_as_log(older)
     assert np.all(np.diff([m.log_time for _, m in _messages(servo_run / "run.mcap")["/dpu/1/status"]]) >= 0)

@@ -81,8 +81,13 @@ class RunAnalysis:
 
     def to_utc_ns(self, dpu: np.ndarray | int, mono_ns: np.ndarray | int) -> np.ndarray:
         """Wall-clock ns (UTC) of DPU monotonic times."""
-        dpus = np.asarray(dpu)
-        offsets = np.vectorize(lambda d: self.utc_offset_ns.get(int(d), 0), otypes=[np.int64])(dpus)
+        dpus = np.asarray(dpu, dtype=np.int64)
+        known = np.array(sorted(self.utc_offset_ns), dtype=np.int64)
+        offsets = np.zeros(dpus.shape, dtype=np.int64)
+        if len(known):
+            at = np.clip(np.searchsorted(known, dpus), 0, len(known) - 1)
+            values = np.array([self.utc_offset_ns[d] for d in known.tolist()], dtype=np.int64)
+            offsets = np.where(known[at] == dpus, values[at], 0)
         return np.asarray(mono_ns, dtype=np.int64) + offsets
 
     def add_prediction(self, predictor: Predictor) -> str | None:

@@ -1,15 +1,15 @@
 """LCM messages <-> JSON, and a JSON Schema for every lcm-gen type.
 
-MCAP has no LCM encoding and Foxglove cannot decode LCM, so `skel export` writes
-JSON messages with jsonschema schemas. Both directions are derived from the lcm-gen
+MCAP has no LCM encoding and Foxglove cannot decode LCM, so `skel export` writes the
+control messages as JSON with jsonschema schemas. Both are derived from the lcm-gen
 Python class (__slots__, __typenames__, __dimensions__), never written by hand, so a
-field added to lcmtypes/ appears in the export and survives the round trip that
-`skel report RUN.mcap` relies on.
+field added to lcmtypes/ appears in the export.
 """
 
 from __future__ import annotations
 
 import base64
+import functools
 import importlib
 from typing import Any
 
@@ -35,6 +35,7 @@ def type_name(cls: type) -> str:
     return f"{cls.__module__.rsplit('.', 1)[0]}.{cls.__name__}"
 
 
+@functools.cache
 def _fields(cls: type) -> list[tuple[str, str, list[Any] | None]]:
     dims = cls.__dimensions__  # type: ignore[attr-defined]
     for slot, d in zip(cls.__slots__, dims, strict=True):  # type: ignore[attr-defined]
@@ -87,21 +88,3 @@ def to_json(msg: Any) -> dict[str, Any]:
         else:
             out[slot] = [to_json(v) for v in value]
     return out
-
-
-def from_json(cls: type, data: dict[str, Any]) -> Any:
-    """The message `to_json` came from: `from_json(type(m), to_json(m)).encode() == m.encode()`."""
-    msg = cls()
-    for slot, typename, dims in _fields(cls):
-        value = data[slot]
-        if dims is None:
-            setattr(msg, slot, value if typename in _JSON_TYPES or typename == "byte" else
-                    from_json(lcm_class(typename), value))
-        elif typename == "byte":
-            setattr(msg, slot, base64.b64decode(value))
-        elif typename in _JSON_TYPES:
-            setattr(msg, slot, list(value))
-        else:
-            item = lcm_class(typename)
-            setattr(msg, slot, [from_json(item, v) for v in value])
-    return msg

@@ -190,12 +190,12 @@ def _select(
     cols: dict[str, np.ndarray], table: np.ndarray, keep: np.ndarray
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Only the batches `keep` (indices into table, in that order), with their records and inputs."""
-    rec = _ranges((np.cumsum(table[:, 3]) - table[:, 3])[keep], table[keep, 3])
-    ins = _ranges((np.cumsum(table[:, 4]) - table[:, 4])[keep], table[keep, 4])
+    rec = concat_ranges((np.cumsum(table[:, 3]) - table[:, 3])[keep], table[keep, 3])
+    ins = concat_ranges((np.cumsum(table[:, 4]) - table[:, 4])[keep], table[keep, 4])
     return {k: v[ins] if k.startswith("in_") else v[rec] for k, v in cols.items()}, table[keep]
 
 
-def _ranges(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+def concat_ranges(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     """The concatenation of arange(start, start + length) for each pair, without a loop."""
     shift = np.repeat(starts - (np.cumsum(lengths) - lengths), lengths)
     return shift + np.arange(int(lengths.sum()), dtype=np.int64)

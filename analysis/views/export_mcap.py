@@ -1,26 +1,28 @@
 """`skel export RUN.lcm RUN.mcap`: one run as an MCAP file Foxglove can open.
 
-MCAP has no LCM encoding and Foxglove cannot decode LCM, so every message is JSON
-with a JSON Schema (lcmjson.py derives both from the generated types). Topics:
+Topics:
 
-  /timing/<dpu>/<process>   one message per process cycle (timing_t record + its inputs)
+  /timing/<dpu>/<process>   one message per process cycle (its timing_t record and its
+                            inputs), ROS 2 CDR with a ros2msg schema: binary, so that
+                            millions are written at numpy speed (mcapbulk.py)
   /dpu/<id>/status          status_t          /dpu/<id>/report   report_t
   /dpu/<id>/clock_offset    clock_offset_t    /config            config_t (every generation)
   /command                  command_t         /faults            the report's faults
-  /lcm/raw                  LCM events kept as bytes: undecodable ones and duplicate batches
+
+MCAP has no LCM encoding and Foxglove cannot decode LCM: the control messages (few) are
+JSON with a JSON Schema derived from the generated types (lcmjson.py).
 
 Times: a timing message's log_time is the cycle's start mapped to wall clock (see
-measure/run.py: per-DPU utc - mono offset from status_t), publish_time its release;
-every other message's log_time is the lcm-logger receive time. `sequence` is the
-index of the LCM event the message came from, so mcapsource.py can rebuild the
-log (same events, same order, same bytes) and `skel report RUN.mcap` gives the
-same tables. The system file is attached as system.yaml; metadata "skeleton" holds
-the system name, run id, generation and the source log's integrity.
+measure/run.py: per-DPU utc - mono offset from status_t), publish_time its release,
+sequence its cycle number; every other message's log_time is the lcm-logger receive
+time. The source log is attached whole as run.lcm (mcapformat.SOURCE_LOG), byte for
+byte with its seals and any damage, so `skel report RUN.mcap` reads exactly what
+`skel report RUN.lcm` reads. The system file is attached as system.yaml; metadata
+"skeleton" holds the system name, run id, generation and the source log's integrity.
 """
 
 from __future__ import annotations
 
-import base64
 import json
 import os
 from collections.abc import Iterator
@@ -29,7 +31,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from mcap.writer import Writer
 
 import skelmsg
 from skelmsg import contract
@@ -39,14 +40,9 @@ from ..measure.faults import KINDS
 from ..measure.metrics import cycle_end_ns
 from ..measure.run import RunAnalysis
 from ..read.lcmjson import schema_of, to_json, type_name
-from ..read.mcapformat import FAULTS_TOPIC, INPUT_FIELDS, METADATA, RAW_TOPIC, TIMING_PREFIX
-from ..read.records import (
-    CYCLE_FIELDS,
-    FLAG_LOCKOUT,
-    FLAG_OVERRUN,
-    FLAG_SKIPPED,
-    decode_timing,
-)
+from ..read.mcapformat import FAULTS_TOPIC, METADATA, SOURCE_LOG, TIMING_PREFIX
+from ..read.records import CYCLE_FIELDS, FLAG_LOCKOUT, FLAG_OVERRUN, FLAG_SKIPPED, concat_ranges
+from .mcapbulk import BulkWriter, MessageSource, scatter
 
 # LCM channel -> (type, topic prefix); the DPU id completes per-DPU topics.
 MESSAGE_CHANNELS: dict[str, tuple[type, str]] = {
@@ -56,35 +52,37 @@ MESSAGE_CHANNELS: dict[str, tuple[type, str]] = {
     contract.REPORT_CHANNEL: (skelmsg.report_t, "/dpu/{dpu}/report"),
     contract.CLOCK_CHANNEL: (skelmsg.clock_offset_t, "/dpu/{dpu}/clock_offset"),
 }
-_INT = {"type": "integer"}
-_NS = {"type": "integer", "description": "DPU CLOCK_MONOTONIC, ns"}
-_CYCLE = [*CYCLE_FIELDS, "flags"]
-TIMING_SCHEMA: dict[str, Any] = {
-    "$schema": "https://json-schema.org/draft/2020-12/schema",
-    "title": "skeleton.timing_record",
-    "description": "One process cycle (a timing_t record) with its input records. "
-    "Ids: `index` is the record's position in its timing_t batch.",
-    "type": "object",
-    "properties": {
-        **{k: _INT for k in ("run_id", "dpu", "process", "generation", "batch_seq", "index", "logged_us")},
-        "process_name": {"type": "string"},
-        **{k: (_NS if k in ("release_ns", "sched_ns", "start_ns") else _INT) for k in _CYCLE},
-        **{k: {"type": "boolean"} for k in ("overrun", "skipped", "lockout")},
-        "release_latency_us": {"type": "number", "description": "start - release"},
-        "response_us": {"type": "number", "description": "end of the cycle's work - release"},
-        "inputs": {
-            "type": "array",
-            "items": {
-                "type": "object",
-                "properties": {**{k: _INT for k in INPUT_FIELDS}, "buffer_name": {"type": "string"},
-                               "transport_us": {"type": "number", "description": "recv_ns - sent_ns"}},
-                "required": [*INPUT_FIELDS, "buffer_name"],
-            },
-        },
-    },
-    "required": ["run_id", "dpu", "process", "generation", "batch_seq", "index", "logged_us", *_CYCLE,
-                 "inputs"],
-}  # fmt: skip
+
+# A timing message, field by field: every integer an int64 and every float a float64,
+# so each lands 8-aligned and a whole chunk of them is one numpy structured array.
+RECORD_INTS = ("run_id", "dpu", "process", "generation", "batch_seq", "index", "logged_us",
+               *CYCLE_FIELDS, "flags")  # fmt: skip
+RECORD_FLOATS = ("release_latency_us", "response_us")
+RECORD_BOOLS = ("overrun", "skipped", "lockout")
+INPUT_INTS = ("buffer", "seq", "new", "dropped", "received", "sent_ns", "recv_ns")
+INPUT_FLOATS = ("transport_us",)
+# XCDR1 little endian: a 4-byte encapsulation header, then each field aligned to its own
+# size from the end of that header; the input count (uint32) falls 4-aligned after the
+# bools and one pad byte, and leaves the first input 8-aligned.
+TIMING_CDR = np.dtype(
+    [("encapsulation", "V4")] + [(k, "<i8") for k in RECORD_INTS] + [(k, "<f8") for k in RECORD_FLOATS]
+    + [(k, "u1") for k in RECORD_BOOLS] + [("pad", "u1"), ("ninputs", "<u4")]
+)
+INPUT_CDR = np.dtype([(k, "<i8") for k in INPUT_INTS] + [(k, "<f8") for k in INPUT_FLOATS])
+CDR_LE = b"\x00\x01\x00\x00"
+if (TIMING_CDR.itemsize - 4) % 8 or INPUT_CDR.itemsize % 8:
+    raise ImportError("the timing CDR layout lost its alignment: keep 8-byte fields first")
+_SEP = "=" * 80
+TIMING_SCHEMA = "\n".join(
+    ["# One process cycle (a timing_t record) with its input records. Times in ns of the DPU's",
+     "# CLOCK_MONOTONIC; index: the record's position in its timing_t batch; logged_us: when",
+     "# the logger heard that batch. The topic names the DPU and the process; the channel's",
+     "# metadata maps buffer ids to names."]
+    + [f"int64 {k}" for k in RECORD_INTS] + [f"float64 {k}" for k in RECORD_FLOATS]
+    + [f"bool {k}" for k in RECORD_BOOLS]
+    + ["skeleton/TimingInput[] inputs", _SEP, "MSG: skeleton/TimingInput"]
+    + [f"int64 {k}" for k in INPUT_INTS] + [f"float64 {k}" for k in INPUT_FLOATS]
+) + "\n"
 _OPT_STR = {"type": ["string", "null"]}
 _OPT_INT = {"type": ["integer", "null"]}
 FAULT_SCHEMA: dict[str, Any] = {
@@ -104,169 +102,151 @@ FAULT_SCHEMA: dict[str, Any] = {
     },
     "required": ["kind", "detail"],
 }  # fmt: skip
-RAW_SCHEMA: dict[str, Any] = {
-    "$schema": "https://json-schema.org/draft/2020-12/schema",
-    "title": "skeleton.lcm_event",
-    "description": "An LCM event kept as bytes (it did not decode, or repeats a timing batch)",
-    "type": "object",
-    "properties": {"channel": {"type": "string"}, "utime_us": _INT,
-                   "data": {"type": "string", "contentEncoding": "base64"}},
-    "required": ["channel", "utime_us", "data"],
-}  # fmt: skip
-
-
-class _Out:
-    """The MCAP writer with schemas and channels registered on first use."""
-
-    def __init__(self, writer: Writer) -> None:
-        self.writer = writer
-        self.schemas: dict[str, int] = {}
-        self.channels: dict[str, int] = {}
-
-    def channel(self, topic: str, schema: dict[str, Any], meta: dict[str, str]) -> int:
-        if topic not in self.channels:
-            title = schema["title"]
-            if title not in self.schemas:
-                self.schemas[title] = self.writer.register_schema(
-                    name=title, encoding="jsonschema", data=json.dumps(schema).encode()
-                )
-            self.channels[topic] = self.writer.register_channel(
-                topic=topic, message_encoding="json", schema_id=self.schemas[title], metadata=meta
-            )
-        return self.channels[topic]
 
 
 def export(data: RunAnalysis, mcap: str | os.PathLike[str]) -> dict[str, int]:
     """Write the MCAP; returns counts of what was written."""
-    messages = sorted(_messages(data), key=lambda m: (m[0], m[1]))
     tmp = Path(f"{os.fspath(mcap)}.part")
     with open(tmp, "wb") as stream:
-        out = _Out(Writer(stream))
-        out.writer.start(profile="", library="skeleton skel export")
-        for log_time, seq, topic, schema, meta, publish_time, body in messages:
-            out.writer.add_message(
-                channel_id=out.channel(topic, schema, meta), log_time=log_time,
-                data=json.dumps(body, separators=(",", ":")).encode(),
-                publish_time=publish_time, sequence=seq,
-            )  # fmt: skip
-        _attach(out.writer, data)
-        out.writer.finish()
+        out = BulkWriter(stream, library="skeleton skel export")
+        timing = _timing_source(data, out)
+        json_messages = _JsonMessages(out)
+        json_messages.add_control(data)
+        json_messages.add_faults(data)
+        out.messages([timing, json_messages.source()])
+        _attach(out, data)
+        out.finish()
     tmp.replace(mcap)  # never leave a half-written file under the final name
-    timing = sum(1 for m in messages if m[2].startswith(TIMING_PREFIX))
-    return {"messages": len(messages), "timing": timing, "topics": len(out.channels)}
+    return {"messages": out.messages_written, "timing": len(timing.size), "topics": len(out.channels)}
 
 
-Message = tuple[int, int, str, dict[str, Any], dict[str, str], int, dict[str, Any]]
+class _JsonMessages:
+    """The few messages written as JSON, gathered before the one call that writes all."""
+
+    def __init__(self, out: BulkWriter) -> None:
+        self.out = out
+        self.schemas: dict[str, int] = {}
+        self.channels: dict[str, int] = {}
+        self.rows: list[tuple[int, int, int, int]] = []  # (channel, sequence, log_time, publish_time)
+        self.payloads: list[bytes] = []
+
+    def add(self, topic: str, schema: dict[str, Any], meta: dict[str, str], sequence: int, log_time: int,
+            publish_time: int, body: dict[str, Any]) -> None:  # fmt: skip
+        if topic not in self.channels:
+            title = schema["title"]
+            if title not in self.schemas:
+                self.schemas[title] = self.out.schema(title, "jsonschema", json.dumps(schema).encode())
+            self.channels[topic] = self.out.channel(topic, "json", self.schemas[title], meta)
+        self.rows.append((self.channels[topic], sequence, log_time, publish_time))
+        self.payloads.append(json.dumps(body, separators=(",", ":")).encode())
+
+    def add_control(self, data: RunAnalysis) -> None:
+        """The control-plane messages that decode (the attached log keeps the rest)."""
+        log = data.log
+        for channel, (cls, pattern) in MESSAGE_CHANNELS.items():
+            schema = schema_of(cls)
+            meta = {"lcm_channel": channel, "lcm_type": type_name(cls)}
+            for i in log.indices(channel).tolist():
+                utime = int(log.utime_us[i])
+                try:
+                    msg = cls.decode(bytes(log.data(i)))  # type: ignore[attr-defined]
+                except Exception:  # malformed: counted by the analysis, kept in the attached log
+                    continue
+                topic = pattern.format(dpu=getattr(msg, "dpu", 0))
+                publish = msg.utc_ns if cls is skelmsg.status_t else utime * 1000
+                self.add(topic, schema, meta, i, utime * 1000, max(publish, 0), to_json(msg))
+
+    def add_faults(self, data: RunAnalysis) -> None:
+        for when, fault in _faults(data):
+            self.add(FAULTS_TOPIC, FAULT_SCHEMA, {}, 0, max(when, 0), max(when, 0), asdict(fault))
+
+    def source(self) -> MessageSource:
+        channel, sequence, log_time, publish = (list(c) for c in zip(*self.rows, strict=True)) if self.rows \
+            else ([], [], [], [])  # fmt: skip
+        return MessageSource.of_bytes(channel, sequence, log_time, publish, self.payloads)
 
 
-def _messages(data: RunAnalysis) -> Iterator[Message]:
-    log = data.log
-    raw = set(_raw_timing_events(data))
-    for channel, (cls, pattern) in MESSAGE_CHANNELS.items():
-        schema = schema_of(cls)
-        meta = {"lcm_channel": channel, "lcm_type": type_name(cls)}
-        for i in log.indices(channel).tolist():
-            utime = int(log.utime_us[i])
-            try:
-                msg = cls.decode(bytes(log.data(i)))  # type: ignore[attr-defined]
-            except Exception:  # malformed: kept as bytes so the rebuilt log counts it too
-                raw.add(i)
-                continue
-            topic = pattern.format(dpu=getattr(msg, "dpu", 0))
-            publish = msg.utc_ns if cls is skelmsg.status_t else utime * 1000
-            yield utime * 1000, i, topic, schema, meta, max(publish, 0), to_json(msg)
-    for i in sorted(raw):
-        channel = log.channels[int(log.channel_id[i])]
-        body = {"channel": channel, "utime_us": int(log.utime_us[i]),
-                "data": base64.b64encode(bytes(log.data(i))).decode("ascii")}  # fmt: skip
-        utime = int(log.utime_us[i]) * 1000
-        yield utime, i, RAW_TOPIC, RAW_SCHEMA, {"lcm_channel": channel}, utime, body
-    yield from _timing_messages(data)
-    yield from _fault_messages(data)
-
-
-def _batch_events(data: RunAnalysis) -> dict[tuple[int, int], int]:
-    """(dpu, batch_seq) of every kept batch -> index of its LCM event (the first good copy)."""
-    log, run = data.log, data.recorded
-    idx = log.indices(TIMING_CHANNEL)
-    ok, heads = data.heads
-    kept = set(zip(run.records["dpu"].tolist(), run.records["batch_seq"].tolist(), strict=True))
-    out: dict[tuple[int, int], int] = {}
-    mine = np.flatnonzero(ok & (heads["run_id"] == run.run_id))
-    for j in mine.tolist():
-        key = (int(heads["dpu"][j]), int(heads["batch_seq"][j]))
-        if key in kept and key not in out and _decodes(data, int(idx[j])):
-            out[key] = int(idx[j])
-    return out
-
-
-def _decodes(data: RunAnalysis, i: int) -> bool:
-    log = data.log
-    one = decode_timing(log.buf, log.data_offset[i : i + 1], log.data_len[i : i + 1], data.recorded.run_id)
-    return one.batches == 1 and one.malformed == 0
-
-
-def _raw_timing_events(data: RunAnalysis) -> list[int]:
-    """Timing events the records do not represent: undecodable (any run) and repeated
-    batches of this run. Other runs' good batches are not exported."""
-    log = data.log
-    idx = log.indices(TIMING_CHANNEL)
-    ok, heads = data.heads
-    used = set(_batch_events(data).values())
-    mine = ok & (heads["run_id"] == data.recorded.run_id)
-    return [int(i) for i, m, good in zip(idx.tolist(), mine.tolist(), ok.tolist(), strict=True)
-            if not good or (m and i not in used)]  # fmt: skip
-
-
-def _timing_messages(data: RunAnalysis) -> Iterator[Message]:
-    run, log = data.recorded, data.log
+def _timing_source(data: RunAnalysis, out: BulkWriter) -> MessageSource:
+    """Every process cycle of the run as a CDR message, built chunk by chunk from the
+    record columns (no Python per record)."""
+    run = data.recorded
     recs = run.records
-    if not len(recs):
-        return
-    events = _batch_events(data)
-    names = data.process_names()
-    buffers = {b.id: b.name for b in data.config.buffers}
+    n = len(recs)
+    cols = {k: recs[k] for k in ("dpu", "process", "generation", "batch_seq", *CYCLE_FIELDS, "flags")}
     # Position of each record inside its batch: batches are contiguous in `records`.
-    key_change = np.r_[True, (np.diff(recs["dpu"]) != 0) | (np.diff(recs["batch_seq"]) != 0)]
-    first = np.maximum.accumulate(np.where(key_change, np.arange(len(recs)), 0))
-    index = (np.arange(len(recs)) - first).tolist()
-    order = np.argsort(run.inputs["record"], kind="stable")
-    ins = run.inputs[order]
-    in_bounds = np.searchsorted(ins["record"], np.arange(len(recs) + 1)).tolist()
-    in_cols = {k: ins[k].tolist() for k in INPUT_FIELDS}
-    cols = {k: recs[k].tolist() for k in ("dpu", "process", "generation", "batch_seq", *_CYCLE)}
-    log_times = data.to_utc_ns(recs["dpu"], recs["start_ns"]).tolist()
-    releases = data.to_utc_ns(recs["dpu"], recs["release_ns"]).tolist()
-    response_us = ((cycle_end_ns(recs) - recs["release_ns"]) / 1000.0).tolist()
-    for r in range(len(recs)):
-        dpu, proc, flags = cols["dpu"][r], cols["process"][r], cols["flags"][r]
-        event = events[(dpu, cols["batch_seq"][r])]
-        a, b = in_bounds[r], in_bounds[r + 1]
-        inputs = []
-        for k in range(a, b):
-            item = {f: in_cols[f][k] for f in INPUT_FIELDS}
-            item["buffer_name"] = buffers.get(item["buffer"], f"buffer {item['buffer']}")
-            item["transport_us"] = (item["recv_ns"] - item["sent_ns"]) / 1000.0
-            inputs.append(item)
-        body: dict[str, Any] = {
-            "run_id": run.run_id, "dpu": dpu, "process": proc,
-            "process_name": names.get(proc, f"process {proc}"),
-            "generation": cols["generation"][r], "batch_seq": cols["batch_seq"][r], "index": index[r],
-            "logged_us": int(log.utime_us[event]),
-            **{k: cols[k][r] for k in _CYCLE},
-            "overrun": bool(flags & FLAG_OVERRUN), "skipped": bool(flags & FLAG_SKIPPED),
-            "lockout": bool(flags & FLAG_LOCKOUT),
-            "release_latency_us": (cols["start_ns"][r] - cols["release_ns"][r]) / 1000.0,
-            "response_us": response_us[r],
-            "inputs": inputs,
-        }  # fmt: skip
-        topic = f"{TIMING_PREFIX}{dpu}/{body['process_name']}"
-        meta = {"lcm_channel": TIMING_CHANNEL, "lcm_type": "skelmsg.timing_t (one record)"}
-        yield max(log_times[r], 0), event, topic, TIMING_SCHEMA, meta, max(releases[r], 0), body
+    new_batch = np.r_[True, (np.diff(cols["dpu"]) != 0) | (np.diff(cols["batch_seq"]) != 0)]
+    batch_start = np.flatnonzero(new_batch) if n else np.zeros(0, dtype=np.int64)
+    per_batch = np.diff(np.r_[batch_start, n])
+    index = np.arange(n) - np.repeat(batch_start, per_batch)
+    logged = np.repeat(_logged_us(data, cols["dpu"][batch_start], cols["batch_seq"][batch_start]), per_batch)
+    log_time = data.to_utc_ns(cols["dpu"], cols["start_ns"])
+    release = data.to_utc_ns(cols["dpu"], cols["release_ns"])
+    response_us = (cycle_end_ns(recs) - cols["release_ns"]) / 1000.0
+    ins = run.inputs[np.argsort(run.inputs["record"], kind="stable")]
+    in_cols = {k: ins[k] for k in INPUT_INTS}
+    in_first = np.searchsorted(ins["record"], np.arange(n))
+    in_count = np.searchsorted(ins["record"], np.arange(n), side="right") - in_first
+    channel = _timing_channels(data, out, cols["dpu"], cols["process"])
+
+    def fill(chunk: np.ndarray, ids: np.ndarray, at: np.ndarray) -> None:
+        head = np.zeros(len(ids), dtype=TIMING_CDR)
+        head["encapsulation"] = CDR_LE
+        head["run_id"] = run.run_id
+        for k, v in cols.items():
+            head[k] = v[ids]
+        head["index"], head["logged_us"] = index[ids], logged[ids]
+        head["release_latency_us"] = (cols["start_ns"][ids] - cols["release_ns"][ids]) / 1000.0
+        head["response_us"] = response_us[ids]
+        flags = cols["flags"][ids]
+        for k, bit in zip(RECORD_BOOLS, (FLAG_OVERRUN, FLAG_SKIPPED, FLAG_LOCKOUT), strict=True):
+            head[k] = (flags & bit) != 0
+        counts = in_count[ids]
+        head["ninputs"] = counts
+        scatter(chunk, at, head)
+        rows = concat_ranges(in_first[ids], counts)
+        if not len(rows):
+            return
+        items = np.empty(len(rows), dtype=INPUT_CDR)
+        for k, v in in_cols.items():
+            items[k] = v[rows]
+        items["transport_us"] = (in_cols["recv_ns"][rows] - in_cols["sent_ns"][rows]) / 1000.0
+        before = np.cumsum(counts) - counts  # inputs of the earlier messages
+        first = np.repeat(at + TIMING_CDR.itemsize - before * INPUT_CDR.itemsize, counts)
+        scatter(chunk, first + np.arange(len(rows)) * INPUT_CDR.itemsize, items)
+
+    return MessageSource(channel=channel, sequence=cols["cycle"], log_time=log_time, publish_time=release,
+                         size=TIMING_CDR.itemsize + in_count * INPUT_CDR.itemsize, fill=fill)  # fmt: skip
 
 
-def _fault_messages(data: RunAnalysis) -> Iterator[Message]:
-    """One message per fault, at the start of the cycle it names (else at the run's end)."""
+def _timing_channels(data: RunAnalysis, out: BulkWriter, dpu: np.ndarray, process: np.ndarray) -> np.ndarray:
+    """The MCAP channel of each record: one per (DPU, process)."""
+    names = data.process_names()
+    buffers = json.dumps({str(b.id): b.name for b in data.config.buffers})
+    schema = out.schema("skeleton/msg/TimingRecord", "ros2msg", TIMING_SCHEMA.encode())
+    keys, inverse = np.unique(dpu.astype(np.int64) * 65536 + process.astype(np.int64), return_inverse=True)
+    ids = [
+        out.channel(f"{TIMING_PREFIX}{d}/{names.get(p, f'process {p}')}", "cdr", schema,
+                    {"lcm_channel": TIMING_CHANNEL, "lcm_type": "skelmsg.timing_t (one record)",
+                     "dpu": str(d), "process": str(p), "buffers": buffers})
+        for d, p in zip((keys // 65536).tolist(), (keys % 65536).tolist(), strict=True)
+    ]  # fmt: skip
+    return np.asarray(ids, dtype=np.uint16)[inverse.reshape(-1)] if len(ids) else np.zeros(0, np.uint16)
+
+
+def _logged_us(data: RunAnalysis, dpu: np.ndarray, batch_seq: np.ndarray) -> np.ndarray:
+    """When the logger heard each batch (dpu, batch_seq) of the run: its first copy's time."""
+    log = data.log
+    ok, heads = data.heads
+    idx = log.indices(TIMING_CHANNEL)
+    mine = np.flatnonzero(ok & (heads["run_id"] == data.recorded.run_id))[::-1]  # the first copy wins
+    heard = dict(zip(zip(heads["dpu"][mine].tolist(), heads["batch_seq"][mine].tolist(), strict=True),
+                     log.utime_us[idx[mine]].tolist(), strict=True))  # fmt: skip
+    return np.array([heard.get(key, 0) for key in zip(dpu.tolist(), batch_seq.tolist(), strict=True)],
+                    dtype=np.int64)  # fmt: skip
+
+
+def _faults(data: RunAnalysis) -> Iterator[tuple[int, Any]]:
+    """Each fault with its time: the start of the cycle it names (else the run's end)."""
     recs = data.records
     ids = {p.name: p.id for p in data.config.processes}
     end = int(data.to_utc_ns(recs["dpu"], recs["start_ns"]).max()) if len(recs) else 0
@@ -276,25 +256,26 @@ def _fault_messages(data: RunAnalysis) -> Iterator[Message]:
             hit = recs[(recs["process"] == ids[fault.process]) & (recs["cycle"] == fault.cycle)]
             if len(hit):
                 when = int(data.to_utc_ns(hit["dpu"][:1], hit["start_ns"][:1])[0])
-        yield max(when, 0), 0, FAULTS_TOPIC, FAULT_SCHEMA, {}, max(when, 0), asdict(fault)
+        yield when, fault
 
 
-def _attach(writer: Writer, data: RunAnalysis) -> None:
-    config, integ = data.config, data.log.integrity
+def _attach(out: BulkWriter, data: RunAnalysis) -> None:
+    config, log = data.config, data.log
+    integ = log.integrity
     when = int(config.sent_utc_ns) if config.sent_utc_ns > 0 else 0
-    writer.add_attachment(create_time=when, log_time=when, name="system.yaml",
-                          media_type="application/yaml", data=config.source.encode())  # fmt: skip
-    writer.add_metadata(
+    out.attach("system.yaml", "application/yaml", config.source.encode(), when)
+    out.attach(SOURCE_LOG, "application/x-lcm-log", memoryview(log.buf[: log.size]), when)
+    out.metadata(
         METADATA,
         {
             "system": config.system,
             "run_id": str(data.report.run_id),
             "generation": str(config.generation),
-            "source_log": os.path.basename(data.log.path),
+            "source_log": os.path.basename(log.path),
             "lcm_events": str(integ.events),
             "corrupt_ranges": json.dumps([list(r) for r in integ.corrupt_ranges]),
             "truncated_tail": json.dumps(integ.truncated_tail),
-            # The MCAP holds the messages without their seals: whether a key checked them goes here.
+            # The topics hold the messages without their seals (the attached log keeps them).
             "signed": json.dumps(integ.signed),
             "checked": json.dumps(integ.checked),
             "unauthenticated": str(integ.unauthenticated),
