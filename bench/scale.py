@@ -15,9 +15,10 @@ late writer shows as blocked time, never as a stale read followed by a skipped s
 and `dropped` counts lost datagrams. The wait also holds the reader's DPU back, so a
 stalled DPU slows its writers' readers instead of being overrun by them (flow control);
 with a fifth of the period computed per DPU, the ring catches up within a few cycles.
-Every buffer is on the one link, and so on its writer's own port (host/link.py): a DPU
-opens only the ports of the writers it reads, so it receives a few buffers' traffic, not
-the whole system's.
+Every buffer is on the one link, and so on its writer's own group and port (host/link.py):
+a DPU opens only the writers it reads, so it receives a few buffers' traffic, not the whole
+system's. `--snooping` makes the hosts' bridge snoop IGMP (and be the querier), as a lab
+switch that does: each writer's datagrams then reach only the hosts that read them.
 """
 
 from __future__ import annotations
@@ -108,7 +109,7 @@ def dropped_share(report: dict[str, Any]) -> tuple[int, int]:
 
 def run_on_hosts(system_text: str, hosts: int, dpus_per_host: int, workdir: Path,
                  dpu_binary: Path = REPO / "build" / "skel-dpu",
-                 dpu_args: tuple[str, ...] = ()) -> tuple[int, dict[str, Any], str]:
+                 dpu_args: tuple[str, ...] = (), snooping: bool = False) -> tuple[int, dict[str, Any], str]:
     """Start the DPUs on namespace hosts, `skel run` from host 1; (exit code, report.json, output)."""
     sys.path.insert(0, str(REPO / "tests"))
     from netns import Hosts, cleanup_stale
@@ -117,7 +118,7 @@ def run_on_hosts(system_text: str, hosts: int, dpus_per_host: int, workdir: Path
     url = f"udpm://{GROUP}:{CONTROL_PORT}?ttl=1"
     path = workdir / "system.yaml"
     path.write_text(system_text)
-    with Hosts(hosts, "skbench") as net:
+    with Hosts(hosts, "skbench", snooping=snooping) as net:
         # The file names the harness's default hosts (skelhN): map them onto these.
         names = {f"skelh{i}": name for i, name in enumerate(net.names, start=1)}
         doc = yaml.safe_load(system_text)
@@ -146,6 +147,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--yaml", action="store_true", help="print the system file and stop")
     parser.add_argument("--dpu", type=Path, default=REPO / "build" / "skel-dpu", help="the skel-dpu binary")
+    parser.add_argument("--snooping", action="store_true", help="the bridge snoops IGMP, as a lab switch may")
     args = parser.parse_args(argv)
     text = system_yaml(args.hosts, args.dpus_per_host, args.processes, args.hz, args.seconds)
     if args.yaml:
@@ -156,14 +158,16 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     with tempfile.TemporaryDirectory(prefix="skel-scale-") as tmp:
         started = time.monotonic()
-        code, report, output = run_on_hosts(text, args.hosts, args.dpus_per_host, Path(tmp), args.dpu)
+        code, report, output = run_on_hosts(text, args.hosts, args.dpus_per_host, Path(tmp), args.dpu,
+                                            snooping=args.snooping)
         if not report:
             print(output, file=sys.stderr)
             return 1
         dropped, total = dropped_share(report)
         faults = sorted({f["kind"] for f in report["faults"]})
         print(f"{args.hosts} hosts x {args.dpus_per_host} DPUs x {args.processes} processes at {args.hz} Hz"
-              f" (a port per writer): exit {code}, dropped {dropped}/{total}"
+              f" (a group and port per writer, bridge snooping {'on' if args.snooping else 'off'}):"
+              f" exit {code}, dropped {dropped}/{total}"
               f" = {100 * dropped / max(total, 1):.3f} %, faults {faults or 'none'},"
               f" {time.monotonic() - started:.1f} s")
     return 0

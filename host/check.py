@@ -23,7 +23,7 @@ from rich.table import Table
 
 from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_OK
 from .doctor import check_buffer_socket, rmem_max
-from .link import parse_url
+from .link import parse_url, writer_url
 from .predict import Prediction, event_rate, predict
 from .predict_view import print_prediction
 from .system import System, SystemFileError, load
@@ -82,12 +82,20 @@ def summarize(system: System, prediction: Prediction) -> dict[str, Any]:
 
 
 def _ports(system: System) -> list[dict[str, Any]]:
-    """Per udpm link, the UDP ports it uses: its own (control, for the default link) and
-    each writer's (host/link.py): what a lab's firewall must let through."""
+    """Per udpm link, the groups and UDP ports it uses: its own (control, for the default
+    link) and each writer's (host/link.py): what a lab's firewall and switches must pass."""
     by_port = sorted(system.writer_ports.items(), key=lambda item: item[1])
-    return [{"link": link.name, "port": parse_url(link.url).port,
-             "writers": {system.process(w).name: port for (on, w), port in by_port if on == link.id}}
-            for link in system.links if not link.local]
+    out = []
+    for link in system.links:
+        if link.local:
+            continue
+        url = parse_url(link.url)
+        mine = [(system.process(w).name, parse_url(writer_url(link.url, port)))
+                for (on, w), port in by_port if on == link.id]  # fmt: skip
+        out.append({"link": link.name, "group": url.group, "port": url.port,
+                    "writers": {name: w.port for name, w in mine},
+                    "groups": {name: w.group for name, w in mine}})  # fmt: skip
+    return out
 
 
 def _events(system: System) -> list[dict[str, Any]]:
@@ -222,9 +230,9 @@ def _print(system: System, summary: dict[str, Any], prediction: Prediction, out:
         console.print(f"event {e['event']}: {e['source']}{rate}; awaited by {awaited}", soft_wrap=True,
                       markup=False)
     for link in summary["ports"]:
-        writers = ", ".join(f"{name} {port}" for name, port in link["writers"].items()) or "none"
-        console.print(f"link {link['link']}: UDP port {link['port']}; its writers' buffers on {writers}",
-                      soft_wrap=True, markup=False)
+        writers = ", ".join(f"{name} {link['groups'][name]}:{port}" for name, port in link["writers"].items())
+        console.print(f"link {link['link']}: {link['group']}:{link['port']} (UDP); its writers' buffers on "
+                      f"{writers or 'none'}", soft_wrap=True, markup=False)
     print_prediction(console, prediction)
     for w in summary["warnings"]:
         console.print(f"[yellow]WARN[/] {w}", soft_wrap=True)

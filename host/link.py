@@ -1,17 +1,22 @@
-"""A link on the wire: each writer's buffers travel on a UDP port of their own.
+"""A link on the wire: each writer's buffers travel on a multicast group and a UDP port of
+their own.
 
 The system file names one `udpm://GROUP:PORT` per link; the host gives every process that
-writes to it a port of its own, PORT + 1, PORT + 2, ... (in the order of the links, then of
-the writers' ids; links that name the same group and port count on together). A DPU opens a
-socket on the ports of the writers it reads (and of its own writers, to send), so it
-receives only what it reads: its receive cost grows with its own inputs, not with the whole
-system's traffic. Ports, not groups: Linux delivers a multicast datagram to every socket
-bound to its port that any socket of the host joined the group for (IP_MULTICAST_ALL), so
-with several DPUs on one host only a port of its own keeps a writer's traffic to its
-readers. Control (config, commands, status, timing) stays on PORT, the control URL.
+writes to it the next group and the next port, GROUP + 1 and PORT + 1, GROUP + 2 and
+PORT + 2, ... (in the order of the links, then of the writers' ids; links that name the same
+group and port count on together). A DPU opens a socket on the writers it reads (and its
+own writers', to send), so it receives only what it reads: its receive cost grows with its
+own inputs, not with the whole system's traffic. Both, because each works where the other
+cannot: on one host Linux hands a multicast datagram to every socket bound to its port that
+any socket of the host joined the group for (IP_MULTICAST_ALL), so only a port of its own
+keeps a writer's traffic from the other DPUs there; across hosts a switch (or bridge) that
+snoops IGMP forwards a group only to the hosts that joined it, so only a group of its own
+keeps a writer's traffic off the hosts that do not read it. Control (config, commands,
+status, timing) stays on GROUP:PORT, the control URL.
 
 `buffer_desc_t.url` carries the result to the DPUs (host/wire.py); the rules refuse a
-system whose links' ports would overlap (host/rules.py).
+system whose links' ports would overlap or whose groups would leave the multicast range
+(host/rules.py).
 """
 
 from __future__ import annotations
@@ -81,16 +86,33 @@ def writer_ports(links: Sequence[Link], pairs: Iterable[tuple[int, int]]) -> dic
     return out
 
 
-def with_port(url: str, port: int) -> str:
-    """URL on PORT: its group and its options (ttl, recv_buf_size) kept."""
-    group, _ = _base(url)
+def writer_url(url: str, port: int) -> str:
+    """The URL of a writer given `port` on link `url`: as many groups on as ports on, its
+    options (ttl, recv_buf_size) kept."""
+    group, base = _base(url)
     parts = urlsplit(url)
-    return urlunsplit((parts.scheme, f"{group}:{port}", parts.path, parts.query, parts.fragment))
+    moved = ipaddress.IPv4Address(group) + (port - base)
+    return urlunsplit((parts.scheme, f"{moved}:{port}", parts.path, parts.query, parts.fragment))
+
+
+def _outside_groups(group: str, count: int) -> str | None:
+    """Why GROUP + 1 .. GROUP + count are not all usable multicast groups, or None."""
+    first = ipaddress.IPv4Address(group)
+    try:
+        last = first + count
+    except ipaddress.AddressValueError:
+        return f"its writers need groups past 255.255.255.255 from {group}"
+    local = ipaddress.IPv4Network("224.0.0.0/24")  # routers and switches flood it: never snooped
+    if not last.is_multicast or any(g in local for g in (first + 1, last)):
+        return (f"its writers need groups {first + 1}..{last}, outside the multicast groups "
+                f"a switch can keep apart (224.0.1.0-239.255.255.255): choose a lower group")
+    return None
 
 
 def port_clash(links: Sequence[Link], ports: dict[tuple[int, int], int]) -> tuple[Link, str] | None:
     """A link whose ports (its own and its writers') run past 65535 or into another link's,
-    with what to say; None when every link has its ports to itself."""
+    or whose writers' groups leave the multicast range, with what to say; None when every
+    link has its ports and groups to itself."""
     spans: dict[tuple[str, int], tuple[Link, int]] = {}  # per base: its first link, last port
     for link in links:
         if link.local:
@@ -99,9 +121,11 @@ def port_clash(links: Sequence[Link], ports: dict[tuple[int, int], int]) -> tupl
         last = max((p for (link_id, _), p in ports.items() if link_id == link.id), default=base[1])
         first, was = spans.get(base, (link, base[1]))
         spans[base] = (first, max(was, last))
-    for (_, port), (link, last) in spans.items():
+    for (group, port), (link, last) in spans.items():
         if last > MAX_PORT:
             return link, f"its writers need ports {port + 1}..{last}, past {MAX_PORT}"
+        if last > port and (why := _outside_groups(group, last - port)) is not None:
+            return link, why
         for (other_group, other), (them, their_last) in spans.items():
             if them is not link and port <= their_last and other <= last:
                 return link, (f"its writers' buffers take ports {port}..{last}, which meet link "

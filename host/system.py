@@ -18,7 +18,7 @@ from pydantic import ValidationError
 
 from skelmsg import contract
 
-from .link import with_port, writer_ports
+from .link import writer_ports, writer_url
 from .overrides import OverrideError, apply_overrides
 from .rules import Invalid, resolve
 from .schema import (
@@ -87,10 +87,10 @@ class System:
         return writer_ports(self.links, ((b.link, b.writer) for b in self.buffers))
 
     def buffer_url(self, key: int | str) -> str:
-        """The URL a buffer travels on: its link's, on its writer's port; "" on a local link."""
+        """The URL a buffer travels on: its writer's group and port on its link; "" on a local link."""
         b = self.buffer(key)
         link = self.link(b.link)
-        return "" if link.local else with_port(link.url, self.writer_ports[b.link, b.writer])
+        return "" if link.local else writer_url(link.url, self.writer_ports[b.link, b.writer])
 
     @property
     def default_link(self) -> Link:

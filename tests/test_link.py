@@ -1,6 +1,8 @@
-"""A link's writers each get a port of their own (host/link.py): the host derives it, the
-DPUs open only the ports of the writers they read, `skel check` refuses links whose ports
-would meet. The DPU side is checked at its sockets: the ports a running DPU is bound to."""
+"""A link's writers each get a group and a port of their own (host/link.py): the host
+derives them, the DPUs open only the writers they read, `skel check` refuses links whose
+ports would meet or whose groups would leave the multicast range. The DPU side is checked
+at its sockets (the ports a running DPU is bound to) and, across namespace hosts, at the
+groups each host joined (tests/test_netns_scale.py)."""
 
 from __future__ import annotations
 
@@ -44,14 +46,14 @@ def _three(tmp_path: Path, url: str, duration: float = 1.0) -> Path:
 def test_each_writer_gets_the_next_port_of_its_link() -> None:
     system = loads(THREE.format(url="udpm://239.255.76.67:7700?ttl=0&recv_buf_size=300000", duration=1),
                    "three.yaml")
-    # wa's two buffers share its port; wb has the next; a local buffer has no URL.
-    assert system.buffer_url("a") == "udpm://239.255.76.67:7701?ttl=0&recv_buf_size=300000"
+    # wa's two buffers share its group and port; wb has the next; a local buffer has no URL.
+    assert system.buffer_url("a") == "udpm://239.255.76.68:7701?ttl=0&recv_buf_size=300000"
     assert system.buffer_url("a2") == system.buffer_url("a")
-    assert system.buffer_url("b") == "udpm://239.255.76.67:7702?ttl=0&recv_buf_size=300000"
+    assert system.buffer_url("b") == "udpm://239.255.76.69:7702?ttl=0&recv_buf_size=300000"
     assert system.buffer_url("c") == ""
     # LCM's defaults fill a URL that leaves the group and port out.
     bare = loads(THREE.format(url="udpm://", duration=1), "three.yaml")
-    assert bare.buffer_url("b") == "udpm://239.255.76.67:7669"
+    assert bare.buffer_url("b") == "udpm://239.255.76.69:7669"
 
 
 def test_check_lists_the_ports_a_firewall_must_pass(tmp_path: Path) -> None:
@@ -59,9 +61,12 @@ def test_check_lists_the_ports_a_firewall_must_pass(tmp_path: Path) -> None:
     done = skel("check", str(path), "--json")
     assert done.returncode == 0, done.stdout + done.stderr
     ports = json.loads(done.stdout)["ports"]
-    assert ports == [{"link": "bus", "port": 7700, "writers": {"wa": 7701, "wb": 7702}}]
+    writers, groups = {"wa": 7701, "wb": 7702}, {"wa": "239.255.76.68", "wb": "239.255.76.69"}
+    link = {"link": "bus", "group": "239.255.76.67", "port": 7700}
+    assert ports == [{**link, "writers": writers, "groups": groups}]
     text = skel("check", str(path)).stdout
-    assert "link bus: UDP port 7700; its writers' buffers on wa 7701, wb 7702" in text, text
+    assert ("link bus: 239.255.76.67:7700 (UDP); its writers' buffers on wa 239.255.76.68:7701, "
+            "wb 239.255.76.69:7702") in text, text
 
 
 def test_two_links_on_one_port_count_their_writers_on() -> None:
@@ -69,8 +74,8 @@ def test_two_links_on_one_port_count_their_writers_on() -> None:
         "  - {name: mem, url: local}", '  - {name: mem, url: local}\n  - {name: side, url: "udpm://239.255.76.67:7700?ttl=0"}'
     ).replace("{id: 3, name: b, bytes: 64}", "{id: 3, name: b, bytes: 64, link: side}")
     system = loads(text, "three.yaml")
-    assert system.buffer_url("a").startswith("udpm://239.255.76.67:7701?")
-    assert system.buffer_url("b").startswith("udpm://239.255.76.67:7702?")
+    assert system.buffer_url("a").startswith("udpm://239.255.76.68:7701?")
+    assert system.buffer_url("b").startswith("udpm://239.255.76.69:7702?")
 
 
 @pytest.mark.parametrize(("second", "why"), [
@@ -93,6 +98,18 @@ def test_check_refuses_ports_past_65535(tmp_path: Path) -> None:
     done = skel("check", str(path))
     assert done.returncode == 2, done.stdout + done.stderr
     assert done.stderr.strip() == f"{path}: links[0].url: its writers need ports 65535..65536, past 65535"
+
+
+@pytest.mark.parametrize(("group", "why"), [
+    ("239.255.255.255", "its writers need groups 240.0.0.0..240.0.0.1, outside the multicast groups"),
+    ("224.0.0.250", "its writers need groups 224.0.0.251..224.0.0.252, outside the multicast groups"),
+])
+def test_check_refuses_writer_groups_a_switch_cannot_keep_apart(tmp_path: Path, group: str, why: str) -> None:
+    path = _three(tmp_path, f"udpm://{group}:7700?ttl=0")
+    done = skel("check", str(path))
+    assert done.returncode == 2, done.stdout + done.stderr
+    (line,) = done.stderr.strip().splitlines()
+    assert line.startswith(f"{path}: links[0].url: {why}"), line
 
 
 def _bound_udp_ports(pid: int) -> set[int]:

@@ -7,14 +7,19 @@ the system and the network carry, not the sanitizer's overhead times 32.
 
 from __future__ import annotations
 
+import ipaddress
 import json
+import re
 from pathlib import Path
 
 import pytest
 import yaml
 from conftest import EXAMPLES
 from netns import Hosts, hosts_fixture
-from test_netns_lab import RELEASE_DPU, Lab, design_flaws
+from test_netns_lab import RELEASE_DPU, URL, Lab, design_flaws
+
+from skeleton.host.link import parse_url
+from skeleton.host.system import loads
 
 SCALE = EXAMPLES / "scale-16x2.yaml"
 
@@ -34,6 +39,12 @@ def test_netns_scale_16_hosts_2_dpus_64_processes_at_100hz(netns_sixteen_hosts: 
     done = lab.skel(netns_sixteen_hosts.names[0], "run", str(SCALE), "--wait-dpus", "15", "--out", str(out))
     assert (out / "report.json").exists(), done.stdout + done.stderr
     report = json.loads((out / "report.json").read_text())
+    # Each host joined the control group and the groups of the buffers its DPUs read or
+    # write, no other: a bridge that snoops IGMP keeps every other writer's traffic off it.
+    joined = {h: _groups(netns_sixteen_hosts.run(h, ["cat", "/proc/net/igmp"], capture_output=True,
+                                                  text=True, check=True).stdout)
+              for h in netns_sixteen_hosts.names}  # fmt: skip
+    assert joined == _groups_needed(SCALE.read_text()), joined
 
     run = system["run"]
     cycles = int(run["duration_s"] * 100)
@@ -61,3 +72,29 @@ def test_netns_scale_16_hosts_2_dpus_64_processes_at_100hz(netns_sixteen_hosts: 
     assert lost / total < 0.001, (lost, total)
     assert (dropped - skipped) / total < 0.001, (dropped, skipped, total)
     assert not report["integrity"]["lost_batches"], report["integrity"]
+
+
+def _groups(igmp: str) -> set[str]:
+    """The 239/8 groups joined on eth0, from /proc/net/igmp (groups as little-endian hex)."""
+    groups, device = set(), ""
+    for line in igmp.splitlines()[1:]:
+        if m := re.match(r"\d+\s+(\S+)\s*:", line):
+            device = m.group(1)
+        elif device == "eth0" and (m := re.match(r"\s+([0-9A-F]{8})\s", line)):
+            group = ipaddress.IPv4Address(int(m.group(1), 16).to_bytes(4, "little"))
+            if group in ipaddress.IPv4Network("239.0.0.0/8"):
+                groups.add(str(group))
+    return groups
+
+
+def _groups_needed(text: str) -> dict[str, set[str]]:
+    """Per host: the control group and the group of every buffer its DPUs read or write."""
+    system = loads(text, SCALE)
+    host_of = {d.id: d.host for d in system.dpus}
+    needed = {h: {parse_url(URL).group} for h in host_of.values()}
+    for b in system.buffers:
+        group = parse_url(system.buffer_url(b.id)).group
+        for p in system.processes:
+            if p.id == b.writer or b.id in p.inputs:
+                needed[host_of[p.dpu]].add(group)
+    return needed

@@ -154,7 +154,8 @@ def require_command(name: str, package: str) -> None:
 class Hosts:
     """N hosts in network namespaces on one bridge; a context manager that removes them all."""
 
-    def __init__(self, n: int, prefix: str = "skel", *, tag: str | None = None) -> None:
+    def __init__(self, n: int, prefix: str = "skel", *, tag: str | None = None,
+                 snooping: bool = False) -> None:
         if not 1 <= n <= 200:
             raise ValueError(f"Hosts: n={n}, expected 1..200")
         self.prefix = prefix
@@ -166,6 +167,7 @@ class Hosts:
         self._addr = {name: f"{SUBNET}.{i}" for i, name in enumerate(self.names, start=1)}
         self._procs: list[subprocess.Popen[Any]] = []
         self._closed = False
+        self._snooping = snooping
         atexit.register(self.close)  # a test that forgets `with` still leaves nothing behind
         try:
             self._build()
@@ -179,8 +181,11 @@ class Hosts:
         _ip("netns", "add", br)
         _ip("-n", br, "link", "set", "lo", "up")
         _ip("-n", br, "link", "add", BRIDGE, "type", "bridge")
-        # Without a querier, IGMP snooping ends up forwarding multicast to no port.
-        _ip("-n", br, "link", "set", BRIDGE, "type", "bridge", "mcast_snooping", "0")
+        # snooping: the bridge forwards a group only to the hosts that joined it, as a lab
+        # switch that snoops IGMP does; it is the querier (without one, snooping ends up
+        # forwarding multicast to no port). Otherwise every host gets every group.
+        snoop = ("mcast_snooping", "1", "mcast_querier", "1") if self._snooping else ("mcast_snooping", "0")
+        _ip("-n", br, "link", "set", BRIDGE, "type", "bridge", *snoop)
         _ip("-n", br, "link", "set", BRIDGE, "up")
         for i, name in enumerate(self.names, start=1):
             netns, port = self._netns[name], f"vh{i}"
