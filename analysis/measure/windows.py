@@ -52,7 +52,10 @@ class WindowReport:
 
 def window_records(run: RunRecords, generation: int) -> tuple[np.ndarray, np.ndarray]:
     """The records of one generation and their input records (re-indexed to them)."""
-    keep = np.flatnonzero(run.records["generation"] == generation)
+    mine = run.records["generation"] == generation
+    if mine.all():  # one generation: the run's own tables, no copy of millions of rows
+        return run.records, run.inputs
+    keep = np.flatnonzero(mine)
     inputs = run.inputs[np.isin(run.inputs["record"], keep)].copy()
     inputs["record"] = np.searchsorted(keep, inputs["record"])
     return run.records[keep], inputs
