@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from skeleton.analysis.measure.metrics import cycle_end_ns
+from skeleton.analysis.measure.metrics import cycle_end_ns, first_of_frame
 from skelmsg import contract
 
 Run = Callable[[str, str, float], tuple[np.ndarray, dict[str, Any]]]
@@ -52,10 +52,10 @@ def frame_costs_ns(records: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     costs, all of it) and the last process's own length."""
     order = np.lexsort((records["start_ns"], records["minor"]))
     recs = records[order]
-    minor, start = recs["minor"], recs["start_ns"].astype(np.int64)
+    start = recs["start_ns"].astype(np.int64)
     end = cycle_end_ns(recs).astype(np.int64)
-    first = np.r_[True, minor[1:] != minor[:-1]]
-    last = np.r_[minor[1:] != minor[:-1], True]
+    first = first_of_frame(recs)
+    last = np.r_[first[1:], True]
     gaps = (start[1:] - start[:-1])[~first[1:]]
     prev_end = np.r_[np.iinfo(np.int64).min, end[last][:-1]]
     wake = start[first] - np.maximum(recs["release_ns"][first].astype(np.int64), prev_end)

@@ -56,6 +56,7 @@ import numpy as np
 from cost import us_at
 
 import skelmsg
+from skeleton.analysis.measure.metrics import first_of_frame
 from skeleton.analysis.read.logreader import read_log
 from skeleton.analysis.read.records import load_records
 from skeleton.host import spawn
@@ -125,9 +126,7 @@ def skel_run(tmp: Path, mode: str, seconds: float, text: str = SYSTEM, name: str
 
 def first_of_minor(records: np.ndarray) -> np.ndarray:
     """Release latency (ns) of the first process started in each minor cycle."""
-    order = np.lexsort((records["start_ns"], records["minor"]))
-    minor = records["minor"][order]
-    first = order[np.r_[True, minor[1:] != minor[:-1]]]
+    first = first_of_frame(records)
     return (records["start_ns"][first] - records["release_ns"][first]).astype(np.int64)
 
 
