@@ -11,6 +11,7 @@ from __future__ import annotations
 import base64
 import functools
 import importlib
+import operator
 from typing import Any
 
 _JSON_TYPES = {
@@ -74,13 +75,26 @@ def schema_of(cls: type, top: bool = True) -> dict[str, Any]:
     return schema
 
 
+@functools.cache
+def _plan(cls: type) -> tuple[tuple[str, ...], operator.attrgetter[Any], list[tuple[int, str, str, bool]]]:
+    """How to_json reads a `cls`: every field at once, then only the ones that are not
+    plain values (arrays, bytes, nested types) looked at again."""
+    fields = _fields(cls)
+    names = tuple(slot for slot, _, _ in fields)
+    special = [(i, slot, typename, dims is not None) for i, (slot, typename, dims) in enumerate(fields)
+               if dims is not None or (typename not in _JSON_TYPES and typename != "byte")]  # fmt: skip
+    return names, operator.attrgetter(*names), special
+
+
 def to_json(msg: Any) -> dict[str, Any]:
     """Every field of a decoded LCM message, as JSON-ready values (nested types as objects)."""
-    out: dict[str, Any] = {}
-    for slot, typename, dims in _fields(type(msg)):
-        value = getattr(msg, slot)
-        if dims is None:
-            out[slot] = value if typename in _JSON_TYPES or typename == "byte" else to_json(value)
+    names, getter, special = _plan(type(msg))
+    values = getter(msg) if len(names) > 1 else (getter(msg),)
+    out = dict(zip(names, values, strict=True))
+    for i, slot, typename, array in special:
+        value = values[i]
+        if not array:
+            out[slot] = to_json(value)
         elif typename == "byte":
             out[slot] = base64.b64encode(bytes(value)).decode("ascii")
         elif typename in _JSON_TYPES:

@@ -41,6 +41,7 @@ from ..measure.metrics import cycle_end_ns
 from ..measure.run import RunAnalysis
 from ..read.lcmjson import schema_of, to_json, type_name
 from ..read.mcapformat import FAULTS_TOPIC, METADATA, SOURCE_LOG, TIMING_PREFIX
+from ..read.messages import decode_timed
 from ..read.records import CYCLE_FIELDS, FLAG_LOCKOUT, FLAG_OVERRUN, FLAG_SKIPPED, concat_ranges
 from .mcapbulk import BulkWriter, MessageSource, scatter
 
@@ -141,20 +142,15 @@ class _JsonMessages:
         self.payloads.append(json.dumps(body, separators=(",", ":")).encode())
 
     def add_control(self, data: RunAnalysis) -> None:
-        """The control-plane messages that decode (the attached log keeps the rest)."""
-        log = data.log
+        """The control-plane messages that decode (the attached log keeps the rest); the
+        statuses, the many, as the analysis decoded them."""
         for channel, (cls, pattern) in MESSAGE_CHANNELS.items():
             schema = schema_of(cls)
             meta = {"lcm_channel": channel, "lcm_type": type_name(cls)}
-            for i in log.indices(channel).tolist():
-                utime = int(log.utime_us[i])
-                try:
-                    msg = cls.decode(bytes(log.data(i)))  # type: ignore[attr-defined]
-                except Exception:  # malformed: counted by the analysis, kept in the attached log
-                    continue
+            for seq, (utime, msg) in enumerate(_decoded(data, channel, cls)):
                 topic = pattern.format(dpu=getattr(msg, "dpu", 0))
                 publish = msg.utc_ns if cls is skelmsg.status_t else utime * 1000
-                self.add(topic, schema, meta, i, utime * 1000, max(publish, 0), to_json(msg))
+                self.add(topic, schema, meta, seq, utime * 1000, max(publish, 0), to_json(msg))
 
     def add_faults(self, data: RunAnalysis) -> None:
         for when, fault in _faults(data):
@@ -164,6 +160,13 @@ class _JsonMessages:
         channel, sequence, log_time, publish = (list(c) for c in zip(*self.rows, strict=True)) if self.rows \
             else ([], [], [], [])  # fmt: skip
         return MessageSource.of_bytes(channel, sequence, log_time, publish, self.payloads)
+
+
+def _decoded(data: RunAnalysis, channel: str, cls: type) -> list[tuple[int, Any]]:
+    """(utime_us, message) of every message on `channel` that decodes, in log order."""
+    if channel == contract.STATUS_CHANNEL:
+        return data.messages.statuses
+    return decode_timed(data.log, channel, cls.decode, {})  # type: ignore[attr-defined]
 
 
 def _timing_source(data: RunAnalysis, out: BulkWriter) -> MessageSource:
