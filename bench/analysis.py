@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -33,12 +34,13 @@ REPORT_S, REPORT_GIB, EXPORT_PER_S = 10.0, 2.0, 1_000_000
 def _timed(argv: list[str]) -> tuple[float, float]:
     """(wall s, peak resident GiB) of one command, its output discarded."""
     start = time.monotonic()
-    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=REPO)
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.monotonic() - start
-    if os.waitstatus_to_exitcode(status) not in (0, 3):
-        why = proc.stderr.read().decode() if proc.stderr else ""
-        raise SystemExit(f"bench: {' '.join(argv)} failed: {why}")
+    with tempfile.TemporaryFile() as err:  # a pipe read only after the exit could fill and block it
+        proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err, cwd=REPO)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.monotonic() - start
+        if os.waitstatus_to_exitcode(status) not in (0, 3):
+            err.seek(0)
+            raise SystemExit(f"bench: {' '.join(argv)} failed: {err.read().decode(errors='replace')}")
     return wall, usage.ru_maxrss / 2**20
 
 

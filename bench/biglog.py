@@ -114,7 +114,15 @@ def grow(source: Path, out: Path, records: int) -> int:
     periods = {p.id: p.period_us * 1000 for p in config.processes}
     minors = {d.id: d.minor_cycle_us * 1000 for d in config.dpus}
     hyper = math.lcm(*[v for v in (*periods.values(), *minors.values()) if v > 0])
-    span = int(recs["release_ns"].max() - recs["release_ns"].min()) + hyper
+    # A tile must outlast everything it repeats, on each clock: the releases and the
+    # statuses (the DPUs' clock) and the logger's times, else time steps back between tiles.
+    statuses = [skelmsg.status_t.decode(bytes(d)).mono_ns for _, d in log.messages(STATUS_CHANNEL)]
+    tiled = np.isin(log.channel_id, [log.channels.index(c) for c in (TIMING_CHANNEL, STATUS_CHANNEL,
+                                                                      CLOCK_CHANNEL) if c in log.channels])
+    utimes = log.utime_us[tiled]
+    span = max(int(recs["release_ns"].max() - recs["release_ns"].min()),
+               max(statuses, default=0) - min(statuses, default=0),
+               1000 * int(utimes.max() - utimes.min())) + hyper
     tile_ns = -(-span // hyper) * hyper
     cycles = {p: tile_ns // per if per else int(recs["cycle"][recs["process"] == p].max()) + 1
               for p, per in periods.items()}  # fmt: skip

@@ -46,7 +46,7 @@ def system(name: str, url: str, processes: int, period_us: int, compute_us: int)
 
 
 def frame_costs_ns(records: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per minor cycle of processes of no compute and no buffers: its wake-up (the first start
+    """Per minor cycle of one DPU's processes of no compute and no buffers: its wake-up (the first start
     less its release, or less the previous frame's end when that came later: a DPU behind runs
     on at once), the gaps from each process's start to the next one's (what a process-cycle
     costs, all of it) and the last process's own length."""

@@ -96,16 +96,15 @@ def writer_url(url: str, port: int) -> str:
 
 
 def _outside_groups(group: str, count: int) -> str | None:
-    """Why GROUP + 1 .. GROUP + count are not all usable multicast groups, or None."""
-    first = ipaddress.IPv4Address(group)
-    try:
-        last = first + count
-    except ipaddress.AddressValueError:
-        return f"its writers need groups past 255.255.255.255 from {group}"
+    """Why GROUP + 1 .. GROUP + count are not all usable multicast groups, or None. (count is
+    below 65536: the ports are checked first, so the sum stays an IPv4 address.)"""
+    first, last = ipaddress.IPv4Address(group) + 1, ipaddress.IPv4Address(group) + count
     local = ipaddress.IPv4Network("224.0.0.0/24")  # routers and switches flood it: never snooped
-    if not last.is_multicast or any(g in local for g in (first + 1, last)):
-        return (f"its writers need groups {first + 1}..{last}, outside the multicast groups "
-                f"a switch can keep apart (224.0.1.0-239.255.255.255): choose a lower group")
+    if not last.is_multicast or first in local or last in local:
+        top = ipaddress.IPv4Address("239.255.255.255") - count
+        return (f"its writers need groups {first}..{last}, outside the multicast groups a switch "
+                f"can keep apart (224.0.1.0-239.255.255.255): give the link a group from 224.0.1.0 "
+                f"to {top}")
     return None
 
 

@@ -5,6 +5,7 @@ decoder, mcap-ros2-support) and compared with the LCM log record by record."""
 from __future__ import annotations
 
 import json
+import struct
 from collections import defaultdict
 from collections.abc import Iterator
 from pathlib import Path
@@ -13,6 +14,7 @@ from typing import Any
 import jsonschema
 import numpy as np
 import pytest
+import zstandard
 from conftest import short_servo_run, skel
 from mcap.reader import make_reader
 from mcap.writer import Writer
@@ -158,7 +160,59 @@ def test_many_chunks_are_indexed_and_read_back_in_time_order(servo_run: Path, tm
     with open(tmp_path / "small.mcap", "rb") as f:  # the same messages read without the indexes
         streamed = [m.log_time for _, _, m in make_reader(f).iter_messages(log_time_order=False)]
     assert sorted(streamed) == times
+    assert _indexed_messages(tmp_path / "small.mcap", summary) == len(times)
     assert load_run(tmp_path / "small.mcap").report.to_json() == run.report.to_json()
+
+
+def _indexed_messages(path: Path, summary: Any) -> int:
+    """Follows every chunk index to its chunk and every message index entry to the message
+    it names (the mcap reader reads neither: Foxglove seeks by them); the entries counted."""
+    data = path.read_bytes()
+    entries = 0
+    for chunk in summary.chunk_indexes:
+        op, length = struct.unpack_from("<BQ", data, chunk.chunk_start_offset)
+        assert op == 0x06 and 9 + length == chunk.chunk_length
+        at = chunk.chunk_start_offset + 9 + 8 + 8 + 8 + 4
+        (name,) = struct.unpack_from("<I", data, at)
+        (size,) = struct.unpack_from("<Q", data, at + 4 + name)
+        packed = data[at + 4 + name + 8 : at + 4 + name + 8 + size]
+        assert size == chunk.compressed_size
+        records = zstandard.decompress(packed, chunk.uncompressed_size) if chunk.compression else packed
+        end = chunk.chunk_start_offset + chunk.chunk_length
+        assert end + chunk.message_index_length <= len(data)
+        for channel, offset in chunk.message_index_offsets.items():
+            assert end <= offset < end + chunk.message_index_length
+            op, _, on, size = struct.unpack_from("<BQHI", data, offset)
+            assert (op, on) == (0x07, channel)
+            previous = -1
+            for k in range(size // 16):
+                log_time, where = struct.unpack_from("<QQ", data, offset + 15 + 16 * k)
+                op, _, on, _, at_time = struct.unpack_from("<BQHIQ", records, where)
+                assert (op, on, at_time) == (0x05, channel, log_time) and log_time >= previous
+                previous = log_time
+                entries += 1
+    return entries
+
+
+def test_the_report_of_an_mcap_is_of_the_run_exported(servo_run: Path, tmp_path: Path) -> None:
+    """The attached log may hold other runs: `skel report RUN.mcap` reports the exported one."""
+    events = [(e.utime_us, e.channel, bytes(e.data)) for e in read_log(servo_run / "run.lcm").events]
+    earlier = []
+    for utime, channel, data in events:
+        cls = {TIMING_CHANNEL: skelmsg.timing_t, STATUS_CHANNEL: skelmsg.status_t,
+               REPORT_CHANNEL: skelmsg.report_t}.get(channel)  # fmt: skip
+        if cls is not None:
+            msg = cls.decode(data)
+            msg.run_id -= 1000
+            data = msg.encode()
+        earlier.append((utime - 100_000_000, channel, data))
+    two = tmp_path / "two.lcm"
+    two.write_bytes(encode_events(earlier + events))
+    first = load_run(two).report.run_id - 1000
+    exported = skel("export", str(two), str(tmp_path / "first.mcap"), "--run-id", str(first))
+    assert exported.returncode == 0, exported.stderr
+    assert load_run(tmp_path / "first.mcap").report.run_id == first
+    assert load_run(tmp_path / "first.mcap", first + 1000).report.run_id == first + 1000
 
 
 def test_status_config_faults_attachment_and_metadata(servo_run: Path) -> None:

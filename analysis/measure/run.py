@@ -161,7 +161,7 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None) -
     if not runs:
         raise LogError(f"no timing records (channel {TIMING_CHANNEL}) in this log")
     if run_id is None:
-        run_id = runs[-1]
+        run_id = log.run_id if log.run_id in runs else runs[-1]
     elif run_id not in runs:
         raise LogError(f"no timing records for run {run_id} (runs in this log: {', '.join(map(str, runs))})")
     # The generations are known from the batches' headers, before any record is decoded.

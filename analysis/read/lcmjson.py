@@ -83,13 +83,13 @@ def _plan(cls: type) -> tuple[tuple[str, ...], operator.attrgetter[Any], list[tu
     names = tuple(slot for slot, _, _ in fields)
     special = [(i, slot, typename, dims is not None) for i, (slot, typename, dims) in enumerate(fields)
                if dims is not None or (typename not in _JSON_TYPES and typename != "byte")]  # fmt: skip
-    return names, operator.attrgetter(*names), special
+    return names, operator.attrgetter(*names or ("__class__",)), special
 
 
 def to_json(msg: Any) -> dict[str, Any]:
     """Every field of a decoded LCM message, as JSON-ready values (nested types as objects)."""
     names, getter, special = _plan(type(msg))
-    values = getter(msg) if len(names) > 1 else (getter(msg),)
+    values = () if not names else getter(msg) if len(names) > 1 else (getter(msg),)
     out = dict(zip(names, values, strict=True))
     for i, slot, typename, array in special:
         value = values[i]

@@ -79,6 +79,7 @@ class Log:
     data_offset: np.ndarray  # int64
     data_len: np.ndarray  # int64
     integrity: Integrity
+    run_id: int | None = None  # the run the file is about (an MCAP export's), else the last one
 
     def __len__(self) -> int:
         return len(self.offset)

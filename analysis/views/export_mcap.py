@@ -226,12 +226,14 @@ def _timing_channels(data: RunAnalysis, out: BulkWriter, dpu: np.ndarray, proces
     names = data.process_names()
     buffers = json.dumps({str(b.id): b.name for b in data.config.buffers})
     schema = out.schema("skeleton/msg/TimingRecord", "ros2msg", TIMING_SCHEMA.encode())
-    keys, inverse = np.unique(dpu.astype(np.int64) * 65536 + process.astype(np.int64), return_inverse=True)
+    # One key per (dpu, process), both int16: shifted to 0..65535 so the key splits back.
+    keys, inverse = np.unique((dpu.astype(np.int64) + 32768) * 65536 + (process.astype(np.int64) + 32768),
+                              return_inverse=True)  # fmt: skip
     ids = [
         out.channel(f"{TIMING_PREFIX}{d}/{names.get(p, f'process {p}')}", "cdr", schema,
                     {"lcm_channel": TIMING_CHANNEL, "lcm_type": "skelmsg.timing_t (one record)",
                      "dpu": str(d), "process": str(p), "buffers": buffers})
-        for d, p in zip((keys // 65536).tolist(), (keys % 65536).tolist(), strict=True)
+        for d, p in zip((keys // 65536 - 32768).tolist(), (keys % 65536 - 32768).tolist(), strict=True)
     ]  # fmt: skip
     return np.asarray(ids, dtype=np.uint16)[inverse.reshape(-1)] if len(ids) else np.zeros(0, np.uint16)
 
