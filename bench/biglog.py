@@ -114,15 +114,7 @@ def grow(source: Path, out: Path, records: int) -> int:
     periods = {p.id: p.period_us * 1000 for p in config.processes}
     minors = {d.id: d.minor_cycle_us * 1000 for d in config.dpus}
     hyper = math.lcm(*[v for v in (*periods.values(), *minors.values()) if v > 0])
-    # A tile must outlast everything it repeats, on each clock: the releases and the
-    # statuses (the DPUs' clock) and the logger's times, else time steps back between tiles.
-    statuses = [skelmsg.status_t.decode(bytes(d)).mono_ns for _, d in log.messages(STATUS_CHANNEL)]
-    tiled = np.isin(log.channel_id, [log.channels.index(c) for c in (TIMING_CHANNEL, STATUS_CHANNEL,
-                                                                      CLOCK_CHANNEL) if c in log.channels])
-    utimes = log.utime_us[tiled]
-    span = max(int(recs["release_ns"].max() - recs["release_ns"].min()),
-               max(statuses, default=0) - min(statuses, default=0),
-               1000 * int(utimes.max() - utimes.min())) + hyper
+    span = int(recs["release_ns"].max() - recs["release_ns"].min()) + hyper
     tile_ns = -(-span // hyper) * hyper
     cycles = {p: tile_ns // per if per else int(recs["cycle"][recs["process"] == p].max()) + 1
               for p, per in periods.items()}  # fmt: skip
@@ -131,6 +123,9 @@ def grow(source: Path, out: Path, records: int) -> int:
     writer = {b.id: b.writer for b in config.buffers}
     copies = max(1, -(-records // len(recs)))
     first_timing = int(log.utime_us[log.indices(TIMING_CHANNEL)].min())
+    # The statuses and clock estimates heard during one tile are repeated with it; those
+    # before the run (the DPUs' heartbeats while idle) and after stay at its two ends.
+    window = (first_timing, first_timing + tile_ns // 1000)
 
     tile, start, end = _Tile(), [], []
     for event in log.iter_events():
@@ -153,6 +148,8 @@ def grow(source: Path, out: Path, records: int) -> int:
                 for f in ("in_sent_ns", "in_recv_ns"):
                     moves.append((_positions(t, f, m), np.where(np.array(getattr(t, f)) > 0, tile_ns, 0)))
             tile.add(event.channel, event.utime_us, data, moves)
+        elif event.channel in (STATUS_CHANNEL, CLOCK_CHANNEL) and not window[0] <= event.utime_us < window[1]:
+            (start if event.utime_us < window[0] else end).append((event.channel, event.utime_us, data))
         elif event.channel == STATUS_CHANNEL:
             s = skelmsg.status_t.decode(data)
             moves = [(_positions(s, f, 1), np.array([tile_ns])) for f in ("mono_ns", "utc_ns")]

@@ -251,16 +251,23 @@ def _logged_us(data: RunAnalysis, dpu: np.ndarray, batch_seq: np.ndarray) -> np.
 
 
 def _faults(data: RunAnalysis) -> Iterator[tuple[int, Any]]:
-    """Each fault with its time: the start of the cycle it names (else the run's end)."""
+    """Each fault with its time: the start of the cycle it names (else the run's end),
+    looked up among the records sorted once by (process, cycle): no pass over them per fault."""
     recs = data.records
     ids = {p.name: p.id for p in data.config.processes}
-    end = int(data.to_utc_ns(recs["dpu"], recs["start_ns"]).max()) if len(recs) else 0
+    starts = data.to_utc_ns(recs["dpu"], recs["start_ns"])
+    end = int(starts.max()) if len(recs) else 0
+    order = np.lexsort((recs["cycle"], recs["process"]))
+    process, cycle = recs["process"][order], recs["cycle"][order]
     for fault in data.report.faults:
         when = end
         if fault.process in ids and fault.cycle is not None:
-            hit = recs[(recs["process"] == ids[fault.process]) & (recs["cycle"] == fault.cycle)]
-            if len(hit):
-                when = int(data.to_utc_ns(hit["dpu"][:1], hit["start_ns"][:1])[0])
+            pid = ids[fault.process]
+            low = np.searchsorted(process, pid, side="left")
+            high = np.searchsorted(process, pid, side="right")
+            at = low + np.searchsorted(cycle[low:high], fault.cycle)
+            if at < high and cycle[at] == fault.cycle:
+                when = int(starts[order[at]])
         yield when, fault
 
 
