@@ -309,8 +309,11 @@ def dpu_lost_faults(config: Any, records: np.ndarray, heartbeats: Sequence[Heart
     for dpu in dpus:
         mine = [(t, h) for t, h in heard if h.dpu == dpu and start <= t <= end]
         pids = list(dict.fromkeys(h.pid for _, h in mine))
-        times = [start, *(t for t, _ in mine), end]
-        silent, since, gap = max((_unheard(a, b, silences), a, b - a) for a, b in itertools.pairwise(times))
+        times = np.array([start, *(t for t, _ in mine), end], dtype=np.int64)
+        unheard = _unheard(times, silences)
+        # the longest unheard stretch; on a tie, the later one (as max over (unheard, a, b - a))
+        k = int(np.lexsort((np.diff(times), times[:-1], unheard))[-1])
+        silent, since, gap = int(unheard[k]), int(times[k]), int(times[k + 1] - times[k])
         if len(pids) > 1:
             detail = f"restarted during the run (pid {pids[0]}, then {pids[-1]})"
         elif silent > LOST_GAP_US and not mine:
@@ -325,9 +328,20 @@ def dpu_lost_faults(config: Any, records: np.ndarray, heartbeats: Sequence[Heart
     return faults
 
 
-def _unheard(a: int, b: int, silences: list[tuple[int, int]]) -> int:
-    """How much of (a, b) the log was recording other heartbeats (not in a log silence)."""
-    return (b - a) - sum(max(0, min(b, y) - max(a, x)) for x, y in silences)
+def _unheard(times: np.ndarray, silences: list[tuple[int, int]]) -> np.ndarray:
+    """For each stretch between consecutive `times`, how much of it the log was recording
+    other heartbeats (not in a log silence). The silences are sorted and disjoint: the
+    silence before any instant is a prefix sum, so this is O(log silences) per stretch
+    (a long run with many short log silences made the pairwise sum quadratic)."""
+    if not silences:
+        return np.diff(times)
+    x = np.array([a for a, _ in silences], dtype=np.int64)
+    y = np.array([b for _, b in silences], dtype=np.int64)
+    total = np.cumsum(y - x)
+    last = np.searchsorted(x, times, side="right") - 1  # the last silence starting before each time
+    at = np.maximum(last, 0)
+    covered = np.where(last >= 0, total[at] - np.maximum(0, y[at] - times), 0)
+    return np.diff(times) - np.diff(covered)
 
 
 def _index(config: Any) -> tuple[dict[int, str], dict[int, int], dict[int, Any]]:
