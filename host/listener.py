@@ -23,7 +23,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import skelmsg
 from skelmsg import contract
@@ -39,6 +39,7 @@ from skelmsg.contract import (
 
 from ..analysis.measure.faults import LOST_AFTER_S, Fault
 from ..analysis.measure.report import RunReport, build_report
+from ..analysis.read.records import RunRecords
 from ..analysis.read.seal import Verdict, Verifier
 from .recordstore import RecordStore
 
@@ -75,6 +76,7 @@ STATUSES_BEFORE_RUN = 1024   # statuses kept before a run is followed (its locko
 # again once this many times its last cost has passed (a long run's cost grows), so it takes
 # a bounded share of a core; a new lockout in a heartbeat makes it run at once.
 FAULTS_COST_FACTOR = 5.0
+T = TypeVar("T")
 _TIMING_FP = skelmsg.timing_t._get_packed_fingerprint()
 _TIMING_HEAD = struct.Struct(">hqq")  # dpu, run_id, generation after the fingerprint
 
@@ -341,13 +343,24 @@ class Listener:
         """The report of the followed run over what was heard so far, by `skel report`'s
         code (None before a run, its records and its config)."""
         self.absorb()
+        return self.report_of(self.run_records())
+
+    def run_records(self) -> RunRecords | None:
+        """The followed run's records decoded so far (absorb decodes the newest), and the
+        batches lost by the DPUs' own counts when their reports came."""
         with self.lock:
-            store, statuses, configs = self.store, list(self.statuses), dict(self.configs)
+            store = self.store
+            reports = [r for (_, run_id), r in self.reports.items() if run_id == self.run_id]
+        return None if store is None else store.run({r.dpu: r.timing_batches for r in reports})
+
+    def report_of(self, run: RunRecords | None) -> RunReport | None:
+        """The report of `run` (a run_records() of the followed run), by `skel report`'s code."""
+        with self.lock:
+            statuses, configs = list(self.statuses), dict(self.configs)
             reports = [r for (_, run_id), r in self.reports.items() if run_id == self.run_id]
             malformed = dict(self.malformed)
-        if store is None or store.n_records == 0:
+        if run is None or len(run.records) == 0:
             return None
-        run = store.run({r.dpu: r.timing_batches for r in reports})
         config = configs.get(max(run.generations))
         if config is None:
             return None
@@ -366,15 +379,27 @@ class Listener:
         once when a heartbeat names a new lockout) and, while `running`, the DPUs of its
         config whose heartbeats stopped (LOST_AFTER_S). Once the run is over (`running`
         false) the report's own dpu_lost counts instead."""
-        now = time.monotonic()
-        with self.lock:
-            locks = sum(len(s.lockouts) for s in self.statuses)
-        report = None
-        if now >= self._faults_due or locks > self._locks_seen or not running:
-            report = self.report()
-            self._faults_due = now + FAULTS_COST_FACTOR * (time.monotonic() - now)
-            self._locks_seen = locks
+        report = self.timed_search(self.report) if self.faults_due() or not running else None
         return self.announce(report, running)
+
+    def faults_due(self) -> bool:
+        """Whether to search the records for faults again: FAULTS_COST_FACTOR times the last
+        search's cost has passed, or a heartbeat named a lockout not known then."""
+        return time.monotonic() >= self._faults_due or self._lockouts_heard() > self._locks_seen
+
+    def timed_search(self, search: Callable[[], T]) -> T:
+        """search() (a report of the records heard), its cost and the lockouts heard before
+        it noted for faults_due."""
+        locks, started = self._lockouts_heard(), time.monotonic()
+        try:
+            return search()
+        finally:
+            self._faults_due = time.monotonic() + FAULTS_COST_FACTOR * (time.monotonic() - started)
+            self._locks_seen = locks
+
+    def _lockouts_heard(self) -> int:
+        with self.lock:
+            return sum(len(s.lockouts) for s in self.statuses)
 
     def announce(self, report: RunReport | None, running: bool) -> list[Fault]:
         """The faults of `report` (a report() of the followed run) and the DPUs lost
@@ -392,12 +417,13 @@ class Listener:
             found += [Fault(kind="dpu_lost", dpu=d, detail=f"not heard for {now - views[d].heard_mono:.2f} s"
                             if d in views else "never heard") for d in lost]
         new = []
-        for fault in found:
-            key = fault_key(fault)
-            if key not in self._announced:
-                self._announced.add(key)
-                new.append(fault)
-                self.faults.append((time.monotonic() - self.started, fault_line(fault)))
+        with self.lock:  # a live view announces from two threads (watch._FaultFinder)
+            for fault in found:
+                key = fault_key(fault)
+                if key not in self._announced:
+                    self._announced.add(key)
+                    new.append(fault)
+                    self.faults.append((time.monotonic() - self.started, fault_line(fault)))
         return new
 
     # --- waiting ----------------------------------------------------------------------

@@ -3,6 +3,8 @@ refresh's new batches instead of decoding every batch again."""
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from ..analysis.read.coltable import ColumnTable
@@ -11,10 +13,12 @@ from ..analysis.read.records import INPUT_DTYPE, RECORD_DTYPE, RunRecords, decod
 
 class RecordStore:
     """The timing records of one run, decoded batch by batch as they arrive, in numpy
-    arrays grown in chunks (doubling), so a refresh costs the new batches only."""
+    arrays grown in chunks (doubling), so a refresh costs the new batches only. One thread
+    adds; any may take run() (a view of the rows added so far) meanwhile."""
 
     def __init__(self, run_id: int) -> None:
         self.run_id = run_id
+        self.lock = threading.Lock()
         self.records = {name: np.empty(4096, dtype=RECORD_DTYPE[name]) for name in RECORD_DTYPE.names or ()}
         self.inputs = {name: np.empty(8192, dtype=INPUT_DTYPE[name]) for name in INPUT_DTYPE.names or ()}
         self.n_records = 0
@@ -30,6 +34,10 @@ class RecordStore:
         if not messages:
             return
         chunk = decode_run(messages, self.run_id)
+        with self.lock:
+            self._add(chunk)
+
+    def _add(self, chunk: RunRecords) -> None:
         self.malformed += chunk.malformed
         self.duplicates += chunk.duplicates
         rec = chunk.records
@@ -52,6 +60,10 @@ class RecordStore:
         self.generations.update(np.unique(rec["generation"][fresh]).tolist())
 
     def run(self, expected_batches: dict[int, int] | None = None) -> RunRecords:
+        with self.lock:
+            return self._run(expected_batches)
+
+    def _run(self, expected_batches: dict[int, int] | None) -> RunRecords:
         return RunRecords(
             run_id=self.run_id,
             records=ColumnTable({k: v[: self.n_records] for k, v in self.records.items()}, RECORD_DTYPE),

@@ -1,9 +1,11 @@
 """`skel watch`: a live view of a run (or of lcm-logplayer replaying one): what a
-Listener hears (listener.py), its tables computed by `skel report`'s code
-(report.build_report over the records heard so far, appended batch by batch).
+Listener hears (listener.py), its tables kept up to date as the records arrive
+(analysis/measure/tally.py: each refresh costs the new records only, by `skel report`'s
+definitions) and its faults found by `skel report`'s whole analysis (report.build_report
+over the records heard so far) in a thread of their own, as often as that allows.
 
 The view subscribes to config, status, timing, report and clock (queues unlimited: a
-timing batch must never be dropped by LCM) and redraws twice a second. `--once`
+timing batch must never be dropped by LCM) and redraws every REFRESH_S. `--once`
 follows one run without a display and, when it ends, prints the final tables by
 running `skel report`'s analysis over an in-memory log of what it heard, so both
 print the same tables for the same messages.
@@ -13,6 +15,7 @@ from __future__ import annotations
 
 import json
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -23,6 +26,7 @@ from rich.live import Live
 from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
 from ..analysis.measure.report import RunReport
 from ..analysis.measure.run import analyze_log
+from ..analysis.measure.tally import GenerationTally, RunTally
 from ..analysis.read.logreader import encode_events, read_bytes
 from ..analysis.read.messages import LogError
 from ..analysis.views.tables import print_report
@@ -47,7 +51,10 @@ class Heard:
         self.key = key
         self.keep_events = keep_events
         self.events: list[tuple[int, str, bytes]] = []
-        self.covered = 0  # records the last snapshot's tables cover
+        self._tally: RunTally | None = None
+        self.tables: GenerationTally | None = None  # of the followed run, the last refresh's
+        self.lost_batches = 0  # timing batches of the followed run lost so far
+        self.covered = 0  # records the last search for faults covered
 
     @property
     def run_id(self) -> int | None:
@@ -84,18 +91,37 @@ class Heard:
         everyone = bool(config and reported >= {d.id for d in config.dpus})
         return everyone and now - heard.last_report > REPORT_GRACE_S
 
-    def snapshot(self) -> RunReport | None:
-        """The report of the records heard so far (None before a run and its config);
-        the faults it finds are listed (`faults`) as they appear."""
-        if self.listener.store is None:
+    def refresh(self) -> GenerationTally | None:
+        """Decode the batches heard since the last refresh and tally their records: the
+        tables of the run's newest generation (None before a run, its records and its config)."""
+        self.listener.absorb()
+        run = self.listener.run_records()
+        if run is None or len(run.records) == 0:
+            return self.tables
+        if self._tally is None or self._tally.run_id != run.run_id:
+            self._tally, self.tables = RunTally(run.run_id), None
+        with self.listener.lock:
+            configs = dict(self.listener.configs)
+        self.tables = self._tally.update(run, configs) or self.tables
+        self.lost_batches = sum(b["to_seq"] - b["from_seq"] + 1 for b in run.lost_batches)
+        self.listener.announce(None, running=self._running())  # DPUs lost: at once, not at the next search
+        return self.tables
+
+    def find_faults(self) -> RunReport | None:
+        """The report of the records decoded so far (None before a run and its config); the
+        faults it finds are listed (`faults`) as they appear. Safe beside refresh()."""
+        run = self.listener.run_records()
+        report = self.listener.report_of(run)
+        if report is None or run is None:
             return None
-        report = self.listener.report()
-        self.covered = self.listener.store.n_records
-        # A DPU is lost while the others' timing still flows; when the whole run stopped
-        # (or the replay ended), nobody is.
-        flowing = time.monotonic() - self.listener.last_timing <= LOST_AFTER_S
-        self.listener.announce(report, running=flowing and not self.ended())
+        self.covered = len(run.records)
+        self.listener.announce(report, running=self._running())
         return report
+
+    def _running(self) -> bool:
+        """A DPU is lost while the others' timing still flows; when the whole run stopped
+        (or the replay ended), nobody is."""
+        return time.monotonic() - self.listener.last_timing <= LOST_AFTER_S and not self.ended()
 
     def final(self) -> tuple[RunReport, str | None]:
         """`skel report`'s analysis over an in-memory log of everything heard, its prediction
@@ -151,22 +177,39 @@ def watch_command(url: str, once: bool, duration_s: float | None, as_json: bool 
 
 def _live(lc: Any, heard: Heard, url: str, deadline: float | None) -> None:
     console = Console()
-    report, due = None, 0.0
-    with Live(render(heard, None, url), console=console, auto_refresh=False, transient=False) as live:
-        while deadline is None or time.monotonic() < deadline:
-            tick = time.monotonic() + REFRESH_S
-            _pump(lc, tick if deadline is None else min(tick, deadline))
-            heard.listener.absorb()
-            if report is not None and report.run_id != heard.run_id:
-                report, due = None, 0.0  # a new run: the old tables are not its tables
-            start = time.monotonic()
-            if start >= due:
-                # The tables cost O(records so far): once they take more than a third of
-                # the time, recompute less often; the view (records, faults, states)
-                # still refreshes every REFRESH_S.
-                report = heard.snapshot() or report
-                due = start + 2 * (time.monotonic() - start)
-            live.update(render(heard, report, url), refresh=True)
+    finder = _FaultFinder(heard)
+    with Live(render(heard, url), console=console, auto_refresh=False, transient=False) as live:
+        try:
+            while deadline is None or time.monotonic() < deadline:
+                tick = time.monotonic() + REFRESH_S
+                _pump(lc, tick if deadline is None else min(tick, deadline))
+                heard.refresh()
+                live.update(render(heard, url), refresh=True)
+        finally:
+            finder.stop()
+
+
+class _FaultFinder:
+    """Looks for the run's faults with `skel report`'s whole analysis, again and again, in a
+    thread of its own: at 10^6 records one search takes seconds, which the tables (tallied
+    at every refresh) must not wait for. Like `skel run`'s, a search waits FAULTS_COST_FACTOR
+    times the last one's cost (the DPUs on this machine need the CPU more) unless a
+    heartbeat names a new lockout. The view says how many records the last one covered."""
+
+    def __init__(self, heard: Heard) -> None:
+        self.heard = heard
+        self._stopped = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="skel-watch-faults", daemon=True)
+        self._thread.start()
+
+    def _loop(self) -> None:
+        listener = self.heard.listener
+        while not self._stopped.wait(REFRESH_S):
+            if listener.faults_due():
+                listener.timed_search(self.heard.find_faults)
+
+    def stop(self) -> None:
+        self._stopped.set()
 
 
 def _once(lc: Any, heard: Heard, url: str, deadline: float | None, as_json: bool) -> int:

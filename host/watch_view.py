@@ -1,5 +1,6 @@
 """What `skel watch` draws: per-DPU utilization bars, per-process overruns and release
-latency, faults as they happened (rich renderables, no terminal I/O here)."""
+latency (the live tables, analysis/measure/tally.py), faults as they were found (rich
+renderables, no terminal I/O here)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 
-from ..analysis.measure.report import RunReport
+from ..analysis.measure.tally import GenerationTally
 from .listener import STATE_NAMES, RecordStore
 
 
@@ -19,6 +20,8 @@ class Heard(Protocol):
     run_id: int | None
     store: RecordStore | None
     latest: dict[int, Any]
+    tables: GenerationTally | None
+    lost_batches: int
     covered: int
     faults: list[tuple[float, str]]
 
@@ -44,24 +47,24 @@ def _num(value: float | None, digits: int = 1) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
 
-def render(heard: Heard, report: RunReport | None, url: str) -> Group:
+def render(heard: Heard, url: str) -> Group:
     if heard.store is None:
         dpus = ", ".join(f"DPU {d} {STATE_NAMES.get(s.state, s.state)}"
                          for d, s in sorted(heard.latest.items()))
         return Group(Text(f"skel watch {url}: waiting for a run" + (f" ({dpus})" if dpus else "")))
-    elapsed = max((d.elapsed_ms or 0.0 for d in report.dpus), default=0.0) / 1000 if report else 0.0
+    tables = heard.tables
     head = Text(f"run {heard.run_id}")
-    if report is not None:
-        lost = sum(b["to_seq"] - b["from_seq"] + 1 for b in report.integrity.lost_batches)
-        head.append(f" · {report.system} · generation {report.generation} · elapsed {elapsed:.1f} s · "
-                    f"{heard.store.n_records} records · {lost} batches lost")
+    if tables is not None:
+        head.append(f" · {tables.config.system} · generation {tables.generation} · elapsed "
+                    f"{tables.elapsed_ms / 1000:.1f} s · {heard.store.n_records} records · "
+                    f"{heard.lost_batches} batches lost")
         if heard.store.n_records > heard.covered:
-            head.append(f" · tables over the first {heard.covered}", style="yellow")
+            head.append(f" · faults searched in the first {heard.covered}", style="yellow")
     else:
         head.append(" · waiting for its config_t")
     parts: list[Any] = [head]
-    if report is not None:
-        parts += [_dpu_view(heard, report), _process_view(report)]
+    if tables is not None:
+        parts += [_dpu_view(heard, tables), _process_view(tables)]
     legend = Text("bars: ")
     for name, style in SHARES:
         legend.append("█ ", style=style).append(f"{name}  ")
@@ -75,14 +78,14 @@ def render(heard: Heard, report: RunReport | None, url: str) -> Group:
     return Group(*parts)
 
 
-def _dpu_view(heard: Heard, report: RunReport) -> Table:
+def _dpu_view(heard: Heard, tables: GenerationTally) -> Table:
     table = Table(title="per DPU: utilization so far (warm-up excluded)")
     for name, justify in (("DPU", "right"), ("state", "left"), ("utilization", "left"), ("% comp", "right"),
                           ("% comm", "right"), ("% wait", "right"), ("% ovhd", "right"), ("ovr", "right"),
                           ("records", "right")):  # fmt: skip
         table.add_column(name, justify=justify, no_wrap=True)  # type: ignore[arg-type]
-    for d in report.dpus:
-        shares = [d.compute_pct, d.communicate_pct, d.wait_pct, d.overhead_pct]
+    for d in tables.dpus:
+        shares = list(d.shares_pct)
         status = heard.latest.get(d.id)
         state = "-" if status is None else STATE_NAMES.get(status.state, str(status.state))
         table.add_row(str(d.id), state, _bar(shares), *(_num(s) for s in shares), str(d.overruns),
@@ -90,11 +93,11 @@ def _dpu_view(heard: Heard, report: RunReport) -> Table:
     return table
 
 
-def _process_view(report: RunReport) -> Table:
+def _process_view(tables: GenerationTally) -> Table:
     table = Table(title="per process: release latency (µs) and overruns so far")
     for name in ("process", "DPU", "cycles", "ovr", "p50", "p99", "max", "late/too late"):
         table.add_column(name, justify="left" if name == "process" else "right", no_wrap=True)
-    for p in report.processes:
+    for p in tables.processes:
         lat = p.latency_us
         ovr = Text(str(p.overruns), style="bold red" if p.overruns else "")
         table.add_row(p.name, str(p.dpu), str(p.cycles), ovr, _num(lat.p50), _num(lat.p99), _num(lat.max),

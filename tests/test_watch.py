@@ -3,6 +3,7 @@ run and its faults, and the incremental record store equals the one-shot decode.
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import io
 import os
@@ -14,11 +15,15 @@ from pathlib import Path
 
 import lcm
 import numpy as np
-from analysis_synth import RUN_ID, batches, small_config, small_run, status
-from conftest import EXAMPLES, LOCKOUT_SYSTEM, REPO, fresh_url, skel
+from analysis_synth import GENERATION, MS, RUN_ID, batches, small_config, small_run, status
+from conftest import EXAMPLES, LOCKOUT_SYSTEM, REPO, fresh_url, short_servo_run, skel
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 from rich.console import Console
 
-from skeleton.analysis.measure.report import build_report
+from skeleton.analysis.measure.report import RunReport, build_report
+from skeleton.analysis.measure.run import load_run
+from skeleton.analysis.measure.tally import GenerationTally, RunTally
 from skeleton.analysis.read.records import decode_run
 from skeleton.host.recordstore import RecordStore
 from skeleton.host.watch import Heard
@@ -127,7 +132,7 @@ def test_record_store_in_chunks_equals_one_decode() -> None:
     assert store.run({1: len(batches(1, small_run()[0], 3)) + 2}).lost_batches[-1]["dpu"] == 1
 
 
-def test_heard_messages_give_the_report_and_a_view() -> None:
+def test_heard_messages_give_the_tables_the_faults_and_a_view() -> None:
     heard = Heard(keep_events=False)
     config = small_config()
     heard.handle(CONFIG_CHANNEL, config.encode())
@@ -135,13 +140,80 @@ def test_heard_messages_give_the_report_and_a_view() -> None:
     for data in _synthetic_messages():
         heard.handle(TIMING_CHANNEL, data)
     heard.handle(TIMING_CHANNEL, b"junk")
-    report = heard.snapshot()
-    assert report is not None and heard.run_id == RUN_ID
+    tables = heard.refresh()
+    report = heard.find_faults()
+    assert tables is not None and report is not None and heard.run_id == RUN_ID
     expected = build_report(config, decode_run(_synthetic_messages(), RUN_ID), [status(2, [(2, 1, 7)])])
-    assert [d.compute_pct for d in report.dpus] == [d.compute_pct for d in expected.dpus]
+    assert [d.shares_pct[0] for d in tables.dpus] == [d.compute_pct for d in expected.dpus]
     assert report.integrity.malformed == {TIMING_CHANNEL: 1}
     assert any("lockout: C (DPU 2) at cycle 7, waiting on b_out" in text for _, text in heard.faults)
     console = Console(width=160, record=True, file=io.StringIO())
-    console.print(render(heard, report, "udpm://x"))
+    console.print(render(heard, "udpm://x"))
     text = console.export_text()
     assert f"run {RUN_ID}" in text and "hungry" not in text and "lockout: C" in text
+    assert "faults searched" not in text  # the search covered every record heard
+    heard.handle(TIMING_CHANNEL, batches(1, small_run(cycles=12)[0][20:], 4, first_seq=100)[0].encode())
+    heard.refresh()
+    console.print(render(heard, "udpm://x"))
+    assert f"faults searched in the first {heard.covered}" in console.export_text()
+
+
+def _same_tables(tables: GenerationTally, report: RunReport) -> None:
+    """The live tables hold exactly the report's figures for the same records."""
+    assert [(d.id, d.records, d.overruns, d.shares_pct, d.elapsed_ms) for d in tables.dpus] == [
+        (d.id, d.records, d.overruns, (d.compute_pct, d.communicate_pct, d.wait_pct, d.overhead_pct),
+         d.elapsed_ms)
+        for d in report.dpus
+    ]
+    assert [(p.id, p.cycles, p.overruns, p.late, p.too_late, p.latency_us) for p in tables.processes] == [
+        (p.id, p.cycles, p.overruns, p.late, p.too_late, p.latency_us) for p in report.processes
+    ]
+
+
+@settings(max_examples=60, deadline=None)
+@example(order=[*range(1, 10), 0], sizes=[9, 1])  # the window opens earlier at the last batch
+@given(st.permutations(range(10)), st.lists(st.integers(1, 4), min_size=10, max_size=10))
+def test_the_tables_tallied_chunk_by_chunk_equal_the_reports(order: list[int], sizes: list[int]) -> None:
+    """Batches in any order, refreshed after chunks of any size: the report's figures every
+    time. A's first release is a cycle early, so the batch holding it opens DPU 1's
+    measurement window a cycle earlier: heard late, the DPU is tallied again."""
+    dpu1, dpu2 = small_run()
+    dpu1[0].release_ns -= 10 * MS
+    msgs = [t.encode() for t in batches(1, dpu1, 3) + batches(2, dpu2, 2)]
+    assert len(msgs) == len(order)
+    msgs = [msgs[i] for i in order]
+    config = small_config()
+    store, tally, at = RecordStore(RUN_ID), RunTally(RUN_ID), 0
+    for size in sizes:
+        store.add(msgs[at : at + size])
+        at += size
+        tables = tally.update(store.run(), {config.generation: config})
+        assert tables is not None
+        _same_tables(tables, build_report(config, store.run()))
+        if at >= len(msgs):
+            break
+
+
+def test_the_tables_follow_the_newest_generation() -> None:
+    dpu1, dpu2 = small_run()
+    old, new = small_config(), small_config(generation=GENERATION + 1)
+    store, tally = RecordStore(RUN_ID), RunTally(RUN_ID)
+    store.add([t.encode() for t in batches(1, dpu1[:10], 3) + batches(2, dpu2[:2], 2)])
+    assert tally.update(store.run(), {old.generation: old}).generation == GENERATION
+    later = batches(1, dpu1[10:], 3, generation=new.generation, first_seq=10)
+    store.add([t.encode() for t in later + batches(2, dpu2[2:], 2, generation=new.generation, first_seq=10)])
+    tables = tally.update(store.run(), {old.generation: old, new.generation: new})
+    assert tables.generation == new.generation
+    _same_tables(tables, build_report(new, store.run(), configs={old.generation: old}))
+
+
+def test_a_real_runs_tables_tallied_as_heard_equal_skel_reports(tmp_path: Path) -> None:
+    short_servo_run(tmp_path)
+    run = load_run(tmp_path / "run.lcm")
+    records = run.recorded.records
+    tally, configs = RunTally(run.report.run_id), {run.config.generation: run.config}
+    for end in range(0, len(records) + 1, max(1, len(records) // 7)):
+        tally.update(dataclasses.replace(run.recorded, records=records[:end]), configs)
+    tables = tally.update(run.recorded, configs)
+    assert tables is not None and sum(p.cycles for p in tables.processes) > 1000
+    _same_tables(tables, run.report)

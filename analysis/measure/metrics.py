@@ -156,11 +156,12 @@ def window_start_ns(records: np.ndarray, config: Any) -> dict[int, int]:
     return out
 
 
-def measured(records: np.ndarray, config: Any) -> np.ndarray:
-    """Mask of the records in their DPU's measurement window."""
+def measured(records: np.ndarray, config: Any, starts: dict[int, int] | None = None) -> np.ndarray:
+    """Mask of the records in their DPU's measurement window (`starts`: window_start_ns of
+    these records or of a larger set holding them)."""
     if len(records) == 0:
         return np.zeros(0, dtype=bool)
-    return records["release_ns"] >= per_id(records["dpu"], window_start_ns(records, config))
+    return records["release_ns"] >= per_id(records["dpu"], starts or window_start_ns(records, config))
 
 
 def completed(records: np.ndarray) -> np.ndarray:
@@ -196,9 +197,9 @@ def dpu_metrics(records: np.ndarray, config: Any) -> list[DpuMetrics]:
     for dpu in sorted(config.dpus, key=lambda d: d.id):
         procs = sorted((p for p in config.processes if p.dpu == dpu.id), key=lambda p: (p.order, p.id))
         mine = window[window["dpu"] == dpu.id]
-        overruns = int(np.count_nonzero(_overran(mine[completed(mine)])))
-        shares = _utilization(mine)
+        overruns = int(np.count_nonzero(overran(mine[completed(mine)])))
         elapsed = _elapsed_ns(mine)
+        shares = utilization_pct(*shares_ns(mine), elapsed)
         stall = int(mine["stall_ns"].sum())
         given = unstalled_ns(mine, elapsed, stall, dpu.minor_cycle_us * 1000)
         out.append(
@@ -245,7 +246,12 @@ def _elapsed_ns(mine: np.ndarray) -> int | None:
     """From the first measured release to the end of the last measured work plus its idle."""
     if len(mine) == 0:
         return None
-    return int((cycle_end_ns(mine) + mine["idle_ns"]).max() - mine["release_ns"].min())
+    return int(work_end_ns(mine).max() - mine["release_ns"].min())
+
+
+def work_end_ns(records: np.ndarray) -> np.ndarray:
+    """When each cycle's time on its DPU ended: the end of its work plus its idle."""
+    return cycle_end_ns(records) + records["idle_ns"]
 
 
 def unstalled_ns(mine: np.ndarray, elapsed: int | None, stall: int, minor_ns: int) -> int | None:
@@ -259,15 +265,13 @@ def unstalled_ns(mine: np.ndarray, elapsed: int | None, stall: int, minor_ns: in
     return min(elapsed, max(elapsed - stall, scheduled))
 
 
-def _utilization(mine: np.ndarray) -> tuple[float | None, float | None, float | None, float | None]:
-    """(% compute, % communicate, % wait, % overhead) of one DPU's measured records.
-
+def shares_ns(mine: np.ndarray) -> tuple[int, int, int]:
+    """One DPU's measured (compute, communicate, wait) time: the sums utilization_pct divides.
     Partial (skipped) cycles count: the DPU really spent that time."""
-    return utilization_pct(
+    return (
         int(mine["compute_ns"].sum()),
         int(mine["comm_in_ns"].sum() + mine["comm_out_ns"].sum()),
         int(mine["blocked_ns"].sum() + mine["idle_ns"].sum()),
-        _elapsed_ns(mine),
     )
 
 
@@ -293,7 +297,8 @@ def _measured_cycle_ms(mine: np.ndarray) -> float | None:
     return float(starts[-1] - starts[0]) / (len(starts) - 1) / 1e6
 
 
-def _overran(records: np.ndarray) -> np.ndarray:
+def overran(records: np.ndarray) -> np.ndarray:
+    """Mask of the cycles that overran: flagged by the DPU, or ended past their deadline."""
     return ((records["flags"] & FLAG_OVERRUN) != 0) | (records["slack_ns"] < 0)
 
 
@@ -321,13 +326,12 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
         skipped = (mine["flags"] & FLAG_SKIPPED) != 0
         done = mine[completed(mine)]
         done_first = firsts[rows][completed(mine)]
-        latency = (done["start_ns"] - done["release_ns"]).astype(np.float64) / 1000.0
-        lateness = (done["start_ns"] - done["sched_ns"]).astype(np.float64) / 1000.0
+        latency = release_latency_us(done)
+        lateness = lateness_us(done)
         unstalled = unstalled_lateness_us(done, lateness)
         response = (cycle_end_ns(done) - done["release_ns"]).astype(np.float64) / 1000.0
-        overran = _overran(done)
-        late_us = proc.period_us * config.late_pct / 100.0
-        too_late_us = proc.period_us * config.too_late_pct / 100.0
+        did_overrun = overran(done)
+        late_us, too_late_us = late_limits_us(proc, config)
         my_inputs = counted_inputs[in_by_process.get(int(proc.id), slice(0, 0))]
         out.append(
             ProcessMetrics(
@@ -337,13 +341,13 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
                 period_us=proc.period_us,
                 cycles=len(done),
                 skipped=int(np.count_nonzero(skipped)),
-                overruns=int(np.count_nonzero(overran)),
+                overruns=int(np.count_nonzero(did_overrun)),
                 latency_us=_latency(latency),
                 compute_mean_us=float(done["compute_ns"].mean()) / 1000.0 if len(done) else None,
                 slack_min_us=float(done["slack_ns"].min()) / 1000.0 if len(done) else None,
                 late=int(np.count_nonzero(lateness > late_us)),
                 too_late=int(np.count_nonzero(lateness > too_late_us)),
-                first_overrun_cycle=int(done["cycle"][overran].min()) if overran.any() else None,
+                first_overrun_cycle=int(done["cycle"][did_overrun].min()) if did_overrun.any() else None,
                 inputs=[_input(my_inputs, b, buffers) for b in proc.inputs],
                 response_us=_latency(response),
                 slack_us=SlackUs(
@@ -355,7 +359,7 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
                 lateness_unstalled_us=_latency(unstalled),
                 late_unstalled=int(np.count_nonzero(unstalled > late_us)),
                 releases_skipped=int(np.count_nonzero((mine["flags"] & FLAG_RELEASE_SKIPPED) != 0)),
-                overruns_stalled=int(np.count_nonzero(overran & stall_explains(done, done_first))),
+                overruns_stalled=int(np.count_nonzero(did_overrun & stall_explains(done, done_first))),
                 stall_ms=float(mine["stall_ns"].sum()) / 1e6,
                 varying=proc.nquantiles > 0,
                 asked_us=_latency(done["asked_ns"].astype(np.float64) / 1000.0),
@@ -368,6 +372,21 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
             got = done[done["event_ns"] >= 0]
             out[-1].histograms["event_latency_us"] = histogram(event_latency_us(got))
     return out
+
+
+def release_latency_us(records: np.ndarray) -> np.ndarray:
+    """start - release of each record, in µs."""
+    return (records["start_ns"] - records["release_ns"]).astype(np.float64) / 1000.0
+
+
+def lateness_us(records: np.ndarray) -> np.ndarray:
+    """start - the schedule's start of each record, in µs."""
+    return (records["start_ns"] - records["sched_ns"]).astype(np.float64) / 1000.0
+
+
+def late_limits_us(proc: Any, config: Any) -> tuple[float, float]:
+    """The lateness (µs) beyond which a cycle of `proc` is late, and too late."""
+    return proc.period_us * config.late_pct / 100.0, proc.period_us * config.too_late_pct / 100.0
 
 
 def first_of_frame(records: np.ndarray) -> np.ndarray:

@@ -29,7 +29,7 @@ from .faults import (
     stall_faults,
 )
 from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets, buffer_metrics
-from .metrics import DpuMetrics, ProcessMetrics, cycle_end_ns, dpu_metrics, measured, process_metrics
+from .metrics import DpuMetrics, ProcessMetrics, dpu_metrics, measured, process_metrics, work_end_ns
 
 
 @dataclass
@@ -68,7 +68,7 @@ def _span(records: np.ndarray, config: Any, clock: ClockOffsets) -> tuple[int | 
     if len(mine) == 0:
         return None, None
     start = clock.to_host_many(mine["dpu"], mine["release_ns"])
-    end = clock.to_host_many(mine["dpu"], cycle_end_ns(mine) + mine["idle_ns"])
+    end = clock.to_host_many(mine["dpu"], work_end_ns(mine))
     return int(start.min()), int(end.max())
 
 

@@ -259,11 +259,11 @@ def lost_batches(
     dpus = set(np.unique(dpu).tolist()) | set((expected or {}).keys())
     for d in sorted(dpus):
         seqs = np.unique(batch_seq[dpu == d])
-        previous = -1
-        for s in seqs.tolist():
-            if s > previous + 1:
-                lost.append({"dpu": d, "from_seq": previous + 1, "to_seq": s - 1})
-            previous = s
+        before = np.r_[-1, seqs[:-1]]  # the sequence heard before each (-1: none)
+        gaps = np.flatnonzero(seqs > before + 1)
+        lost += [{"dpu": d, "from_seq": b + 1, "to_seq": s - 1}
+                 for b, s in zip(before[gaps].tolist(), seqs[gaps].tolist(), strict=True)]
+        previous = int(seqs[-1]) if len(seqs) else -1
         published = (expected or {}).get(d)
         if published is not None and published - 1 > previous:
             lost.append({"dpu": d, "from_seq": previous + 1, "to_seq": published - 1})

@@ -1,0 +1,177 @@
+"""The live tables, kept up to date as records arrive: per DPU its utilization shares,
+overruns and measured records; per process its cycles, overruns, release latency
+(p50/p99/max) and late / too late cycles. Each figure is metrics.py's definition, so
+after any chunking the tables equal `skel report`'s for the same records.
+
+`skel watch` refreshes every 0.4 s: rebuilding the report from every record heard costs
+O(run) each time (seconds at 10^6 records). Here a refresh costs the records that came
+since the last one: sums, counts and extremes are added, and each process's release
+latencies are kept sorted (one merge per chunk) so its percentiles are read off one
+array. Only when a DPU's measurement window moves (a batch older than any heard before
+arrives late) is the generation tallied again from all its records.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..read.records import RunRecords
+from .metrics import (
+    completed,
+    late_limits_us,
+    lateness_us,
+    measured,
+    overran,
+    release_latency_us,
+    shares_ns,
+    utilization_pct,
+    window_start_ns,
+    work_end_ns,
+)
+from .stats import LatencyUs, group_slices, latency_us
+
+
+@dataclass
+class DpuTally:
+    """One DPU's measured records so far: the columns of its row in the live table."""
+
+    id: int
+    records: int = 0
+    overruns: int = 0
+    compute_ns: int = 0
+    communicate_ns: int = 0
+    wait_ns: int = 0
+    first_release_ns: int | None = None
+    last_end_ns: int | None = None
+
+    @property
+    def elapsed_ms(self) -> float | None:
+        elapsed = self._elapsed_ns()
+        return None if elapsed is None else elapsed / 1e6
+
+    def _elapsed_ns(self) -> int | None:
+        if self.first_release_ns is None or self.last_end_ns is None:
+            return None
+        return self.last_end_ns - self.first_release_ns
+
+    @property
+    def shares_pct(self) -> tuple[float | None, float | None, float | None, float | None]:
+        """(% compute, % communicate, % wait, % overhead): the report's DpuMetrics figures."""
+        return utilization_pct(self.compute_ns, self.communicate_ns, self.wait_ns, self._elapsed_ns())
+
+    def add(self, mine: np.ndarray) -> None:
+        if len(mine) == 0:
+            return
+        compute, communicate, wait = shares_ns(mine)
+        self.compute_ns += compute
+        self.communicate_ns += communicate
+        self.wait_ns += wait
+        self.records += len(mine)
+        self.overruns += int(np.count_nonzero(overran(mine[completed(mine)])))
+        first, end = int(mine["release_ns"].min()), int(work_end_ns(mine).max())
+        self.first_release_ns = first if self.first_release_ns is None else min(first, self.first_release_ns)
+        self.last_end_ns = end if self.last_end_ns is None else max(end, self.last_end_ns)
+
+
+@dataclass
+class ProcessTally:
+    """One process's completed measured cycles so far."""
+
+    id: int
+    name: str
+    dpu: int
+    late_limits_us: tuple[float, float]
+    cycles: int = 0
+    overruns: int = 0
+    late: int = 0
+    too_late: int = 0
+    latencies_us: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.float64))  # sorted
+
+    @property
+    def latency_us(self) -> LatencyUs:
+        return latency_us(self.latencies_us)
+
+    def add(self, mine: np.ndarray) -> None:
+        done = mine[completed(mine)]
+        if len(done) == 0:
+            return
+        self.cycles += len(done)
+        self.overruns += int(np.count_nonzero(overran(done)))
+        lateness = lateness_us(done)
+        self.late += int(np.count_nonzero(lateness > self.late_limits_us[0]))
+        self.too_late += int(np.count_nonzero(lateness > self.late_limits_us[1]))
+        new = np.sort(release_latency_us(done))
+        self.latencies_us = np.insert(self.latencies_us, np.searchsorted(self.latencies_us, new), new)
+
+
+class GenerationTally:
+    """The live tables of one config generation's window."""
+
+    def __init__(self, config: Any) -> None:
+        self.config = config
+        self.generation = int(config.generation)
+        self.dpus = [DpuTally(int(d.id)) for d in sorted(config.dpus, key=lambda d: d.id)]
+        self.processes = [
+            ProcessTally(int(p.id), p.name, int(p.dpu), late_limits_us(p, config))
+            for p in sorted(config.processes, key=lambda p: p.id)
+        ]
+        self._dpu = {d.id: d for d in self.dpus}
+        self._process = {p.id: p for p in self.processes}
+        self.window_starts: dict[int, int] = {}
+
+    def add(self, records: np.ndarray) -> bool:
+        """Tally a chunk of this generation's records; False (nothing tallied) when the chunk
+        would open a DPU's measurement window earlier than the records tallied so far."""
+        if len(records) == 0:
+            return True
+        starts = window_start_ns(records, self.config)
+        if any(d in self.window_starts and s < self.window_starts[d] for d, s in starts.items()):
+            return False
+        for dpu, start in starts.items():
+            self.window_starts.setdefault(dpu, start)
+        window = records[measured(records, self.config, self.window_starts)]
+        order, by_dpu = group_slices(window["dpu"].astype(np.int64))
+        for dpu, rows in by_dpu.items():
+            if dpu in self._dpu:
+                self._dpu[dpu].add(window[order[rows]])
+        order, by_process = group_slices(window["process"].astype(np.int64))
+        for proc, rows in by_process.items():
+            if proc in self._process:
+                self._process[proc].add(window[order[rows]])
+        return True
+
+    @property
+    def elapsed_ms(self) -> float:
+        return max((d.elapsed_ms or 0.0 for d in self.dpus), default=0.0)
+
+
+class RunTally:
+    """The live tables of a followed run's newest generation (with a config), fed the
+    run's records as they grow."""
+
+    def __init__(self, run_id: int) -> None:
+        self.run_id = run_id
+        self.tables: GenerationTally | None = None
+        self.seen = 0  # records of the run tallied (or passed over: another generation's)
+
+    def update(self, run: RunRecords, configs: dict[int, Any]) -> GenerationTally | None:
+        """Tally the records of `run` past those seen before (`run` only ever grows)."""
+        newest = max((g for g in run.generations if g in configs), default=None)
+        if newest is None:
+            return None
+        if self.tables is None or self.tables.generation != newest:
+            self.tables, self.seen = GenerationTally(configs[newest]), 0
+        fresh = run.records[self.seen :]
+        self.seen = len(run.records)
+        if not self.tables.add(_of(fresh, newest)):
+            self.tables = GenerationTally(configs[newest])
+            self.tables.add(_of(run.records, newest))
+        return self.tables
+
+
+def _of(records: np.ndarray, generation: int) -> np.ndarray:
+    mine = records["generation"] == generation
+    return records if mine.all() else records[mine]
