@@ -314,10 +314,10 @@ def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> lis
     # One sort per array instead of one full-array mask per process; the records are
     # indexed, not copied, until one process's are taken.
     at = np.flatnonzero(in_window)
-    order, by_process = group_slices(records["process"][at].astype(np.int64))
+    order, by_process = group_slices(records["process"][at])
     at = at[order]
     firsts = first_of_frame(records)
-    in_order, in_by_process = group_slices(counted_inputs["process"].astype(np.int64))
+    in_order, in_by_process = group_slices(counted_inputs["process"])
     counted_inputs = counted_inputs[in_order]
     out = []
     for proc in sorted(config.processes, key=lambda p: p.id):

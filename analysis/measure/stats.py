@@ -52,8 +52,13 @@ def histogram(samples: np.ndarray, bins: int = HISTOGRAM_BINS) -> Histogram:
 
 def group_slices(keys: np.ndarray) -> tuple[np.ndarray, dict[int, slice]]:
     """A stable sort order of `keys` and, per key, its slice of the sorted rows: one
-    sort instead of one full-array mask per group."""
+    sort instead of one full-array mask per group. Keys of 16 bits or fewer (process and
+    DPU ids as the records hold them) sort by radix, several times faster than int64."""
     order = np.argsort(keys, kind="stable")
     sorted_keys = keys[order]
-    values, first, counts = np.unique(sorted_keys, return_index=True, return_counts=True)
-    return order, {int(v): slice(int(f), int(f + c)) for v, f, c in zip(values, first, counts, strict=True)}
+    if len(keys) == 0:
+        return order, {}
+    cuts = np.flatnonzero(sorted_keys[1:] != sorted_keys[:-1]) + 1
+    firsts, ends = np.r_[0, cuts].tolist(), np.r_[cuts, len(keys)].tolist()
+    values = sorted_keys[firsts].tolist()
+    return order, {int(v): slice(f, e) for v, f, e in zip(values, firsts, ends, strict=True)}

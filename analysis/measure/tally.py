@@ -133,11 +133,11 @@ class GenerationTally:
         for dpu, start in starts.items():
             self.window_starts.setdefault(dpu, start)
         window = records[measured(records, self.config, self.window_starts)]
-        order, by_dpu = group_slices(window["dpu"].astype(np.int64))
+        order, by_dpu = group_slices(window["dpu"])
         for dpu, rows in by_dpu.items():
             if dpu in self._dpu:
                 self._dpu[dpu].add(window[order[rows]])
-        order, by_process = group_slices(window["process"].astype(np.int64))
+        order, by_process = group_slices(window["process"])
         for proc, rows in by_process.items():
             if proc in self._process:
                 self._process[proc].add(window[order[rows]])

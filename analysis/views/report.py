@@ -13,8 +13,6 @@ from ..exitcodes import EXIT_BAD_INPUT, EXIT_FATAL_FLAW, EXIT_OK
 from ..measure.predicted import Predictor
 from ..measure.run import RunAnalysis, load_run
 from ..read.messages import LogError
-from .html import write_html
-from .plots import write_plots
 from .tables import print_report
 
 
@@ -45,6 +43,11 @@ def report_command(path: str | os.PathLike[str], as_json: bool, run_id: int | No
 
 
 def write_plot_dir(run: RunAnalysis, out_dir: Path, source: str) -> None:
+    # Imported here: matplotlib takes most of a second to import, which a report without
+    # plots (most of them, and every `skel report --json`) should not pay.
+    from .html import write_html
+    from .plots import write_plots
+
     out_dir.mkdir(parents=True, exist_ok=True)
     made = write_plots(run, out_dir)
     page = write_html(run, made, out_dir, source=source)
