@@ -130,7 +130,8 @@ def _watch(held: int, path: Path) -> list[str]:
             heard_records.append((heard.store.n_records if heard.store else 0) - before)
             time.sleep(max(0.0, REFRESH_S - costs[-1]))  # the search for faults goes on meanwhile
     finally:
-        finder.stop()
+        finder.stop(wait_s=60)  # no search left running beside the timed commands that follow
+    finder.check()
     worst = max(costs)
     ok = worst <= REFRESH_S / 2
     return [

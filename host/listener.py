@@ -166,6 +166,9 @@ class Listener:
         self.last_report = 0.0
         self.faults: list[tuple[float, str]] = []   # (s since the run was first heard, fault_line)
         self._announced: set[tuple[Any, ...]] = set()
+        # The followed run's lockouts heard in heartbeats, (DPU, process, cycle): each heartbeat
+        # repeats its DPU's, so they are counted once each.
+        self._lockouts: set[tuple[int, int, int]] = set()
         self._locks_seen = 0
         self._faults_due = 0.0
         self._handlers: dict[str, Callable[[bytes, int], None]] = {
@@ -259,6 +262,8 @@ class Listener:
                 self.statuses.append(status)
                 if self.store is None:
                     del self.statuses[:-STATUSES_BEFORE_RUN]
+                else:
+                    self._lockouts.update((status.dpu, lock.process, lock.cycle) for lock in status.lockouts)
             self.status_heard(status, heard_ns)
             self.changed.notify_all()
 
@@ -327,6 +332,7 @@ class Listener:
         self.pending, self.faults, self.next_run = [], [], None
         self.generations = set()
         self.statuses = [s for s in self.statuses if s.run_id == run_id]
+        self._lockouts = {(s.dpu, lock.process, lock.cycle) for s in self.statuses for lock in s.lockouts}
         self._announced, self._locks_seen, self._faults_due = set(), 0, 0.0
         self.started = time.monotonic()
         self.last_report = 0.0
@@ -388,26 +394,29 @@ class Listener:
         return time.monotonic() >= self._faults_due or self._lockouts_heard() > self._locks_seen
 
     def timed_search(self, search: Callable[[], T]) -> T:
-        """search() (a report of the records heard), its cost and the lockouts heard before
-        it noted for faults_due."""
-        locks, started = self._lockouts_heard(), time.monotonic()
+        """search() (a report of the followed run's records), its cost and the lockouts heard
+        before it noted for faults_due, unless a newer run was followed meanwhile."""
+        with self.lock:
+            run_id, locks = self.run_id, len(self._lockouts)
+        started = time.monotonic()
         try:
             return search()
         finally:
-            self._faults_due = time.monotonic() + FAULTS_COST_FACTOR * (time.monotonic() - started)
-            self._locks_seen = locks
+            with self.lock:
+                if self.run_id == run_id:
+                    self._faults_due = time.monotonic() + FAULTS_COST_FACTOR * (time.monotonic() - started)
+                    self._locks_seen = locks
 
     def _lockouts_heard(self) -> int:
         with self.lock:
-            return sum(len(s.lockouts) for s in self.statuses)
+            return len(self._lockouts)
 
     def announce(self, report: RunReport | None, running: bool) -> list[Fault]:
-        """The faults of `report` (a report() of the followed run) and the DPUs lost
-        meanwhile that were not returned before; each is also listed in `faults`."""
+        """The faults of `report` (a report of the followed run's records: one of a run
+        followed before, which a search begun earlier may hand in, is dropped) and the DPUs
+        lost meanwhile that were not returned before; each is also listed in `faults`."""
         now = time.monotonic()
-        found: list[Fault] = []
-        if report is not None:
-            found += [f for f in report.faults if f.kind != "dpu_lost" or not running]
+        found = [] if report is None else [f for f in report.faults if f.kind != "dpu_lost" or not running]
         with self.lock:
             newest = max(self.generations, default=max(self.configs, default=-1))
             config = self.configs.get(newest)
@@ -418,6 +427,8 @@ class Listener:
                             if d in views else "never heard") for d in lost]
         new = []
         with self.lock:  # a live view announces from two threads (watch._FaultFinder)
+            if report is not None and report.run_id != self.run_id:
+                return new
             for fault in found:
                 key = fault_key(fault)
                 if key not in self._announced:

@@ -54,7 +54,7 @@ class Heard:
         self._tally: RunTally | None = None
         self.tables: GenerationTally | None = None  # of the followed run, the last refresh's
         self.lost_batches = 0  # timing batches of the followed run lost so far
-        self.covered = 0  # records the last search for faults covered
+        self._covered: tuple[int | None, int] = (None, 0)  # (run, records) the last search for faults covered
 
     @property
     def run_id(self) -> int | None:
@@ -96,14 +96,15 @@ class Heard:
         tables of the run's newest generation (None before a run, its records and its config)."""
         self.listener.absorb()
         run = self.listener.run_records()
-        if run is None or len(run.records) == 0:
-            return self.tables
-        if self._tally is None or self._tally.run_id != run.run_id:
-            self._tally, self.tables = RunTally(run.run_id), None
-        with self.listener.lock:
-            configs = dict(self.listener.configs)
-        self.tables = self._tally.update(run, configs) or self.tables
-        self.lost_batches = sum(b["to_seq"] - b["from_seq"] + 1 for b in run.lost_batches)
+        if run is None:
+            return None
+        if self._tally is None or self._tally.run_id != run.run_id:  # a new run: none of the old tables
+            self._tally, self.tables, self.lost_batches = RunTally(run.run_id), None, 0
+        if len(run.records):
+            with self.listener.lock:
+                configs = dict(self.listener.configs)
+            self.tables = self._tally.update(run, configs) or self.tables
+            self.lost_batches = sum(b["to_seq"] - b["from_seq"] + 1 for b in run.lost_batches)
         self.listener.announce(None, running=self._running())  # DPUs lost: at once, not at the next search
         return self.tables
 
@@ -114,9 +115,15 @@ class Heard:
         report = self.listener.report_of(run)
         if report is None or run is None:
             return None
-        self.covered = len(run.records)
+        self._covered = (run.run_id, len(run.records))
         self.listener.announce(report, running=self._running())
         return report
+
+    @property
+    def covered(self) -> int:
+        """The followed run's records the last search for faults covered."""
+        run_id, records = self._covered
+        return records if run_id == self.run_id else 0
 
     def _running(self) -> bool:
         """A DPU is lost while the others' timing still flows; when the whole run stopped
@@ -184,6 +191,7 @@ def _live(lc: Any, heard: Heard, url: str, deadline: float | None) -> None:
                 tick = time.monotonic() + REFRESH_S
                 _pump(lc, tick if deadline is None else min(tick, deadline))
                 heard.refresh()
+                finder.check()
                 live.update(render(heard, url), refresh=True)
         finally:
             finder.stop()
@@ -194,22 +202,33 @@ class _FaultFinder:
     thread of its own: at 10^6 records one search takes seconds, which the tables (tallied
     at every refresh) must not wait for. Like `skel run`'s, a search waits FAULTS_COST_FACTOR
     times the last one's cost (the DPUs on this machine need the CPU more) unless a
-    heartbeat names a new lockout. The view says how many records the last one covered."""
+    heartbeat names a lockout not known at the last one. The view says how many records
+    the last one covered. An error in a search stops the thread and is raised by check()."""
 
     def __init__(self, heard: Heard) -> None:
         self.heard = heard
+        self.error: BaseException | None = None
         self._stopped = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="skel-watch-faults", daemon=True)
         self._thread.start()
 
     def _loop(self) -> None:
         listener = self.heard.listener
-        while not self._stopped.wait(REFRESH_S):
-            if listener.faults_due():
-                listener.timed_search(self.heard.find_faults)
+        try:
+            while not self._stopped.wait(REFRESH_S):
+                if listener.faults_due():
+                    listener.timed_search(self.heard.find_faults)
+        except BaseException as e:  # handed to the main thread, raised there
+            self.error = e
 
-    def stop(self) -> None:
+    def check(self) -> None:
+        if self.error is not None:
+            raise self.error
+
+    def stop(self, wait_s: float = 0.0) -> None:
+        """Stop searching; wait up to `wait_s` for a search under way to end."""
         self._stopped.set()
+        self._thread.join(wait_s)
 
 
 def _once(lc: Any, heard: Heard, url: str, deadline: float | None, as_json: bool) -> int:

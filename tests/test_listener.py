@@ -112,3 +112,32 @@ def test_a_dpu_is_lost_after_lost_after_s_without_a_heartbeat() -> None:
     assert re.fullmatch(r"dpu_lost: DPU 1 not heard for 0\.[6-9]\d s", line), line
     listener.handle(STATUS_CHANNEL, b"junk")   # a malformed message is counted, not a crash
     assert listener.malformed == {STATUS_CHANNEL: 1}
+
+
+def test_a_lockout_repeated_by_heartbeats_does_not_make_the_search_due_again() -> None:
+    """Each heartbeat repeats its DPU's lockouts: only one not heard before brings the next
+    search for faults forward; otherwise it waits FAULTS_COST_FACTOR times the last one's cost."""
+    listener = Listener()
+    listener.follow(RUN_ID)
+    _heard(listener)
+    listener.timed_search(lambda: time.sleep(0.2))
+    assert not listener.faults_due()
+    for _ in range(5):
+        listener.handle(STATUS_CHANNEL, status(2, [(2, 1, 7)]).encode())  # the lockout _heard sent
+    assert not listener.faults_due()
+    listener.handle(STATUS_CHANNEL, status(1, [(0, -1, 9)]).encode())
+    assert listener.faults_due()
+
+
+def test_a_report_of_a_run_no_longer_followed_says_nothing() -> None:
+    """A search for faults begun before the listener followed a newer run hands in the old
+    run's report: its faults are not the new run's."""
+    listener = Listener(auto_follow=True)
+    listener.follow(RUN_ID)
+    _heard(listener)
+    old = listener.report()
+    assert old is not None and old.faults
+    dpu1, _ = small_run()
+    listener.handle(TIMING_CHANNEL, batches(1, dpu1, 3, run_id=RUN_ID + 1)[0].encode())
+    assert listener.run_id == RUN_ID + 1
+    assert listener.announce(old, running=False) == [] and listener.faults == []

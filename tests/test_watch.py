@@ -15,6 +15,7 @@ from pathlib import Path
 
 import lcm
 import numpy as np
+import pytest
 from analysis_synth import GENERATION, MS, RUN_ID, batches, small_config, small_run, status
 from conftest import EXAMPLES, LOCKOUT_SYSTEM, REPO, fresh_url, short_servo_run, skel
 from hypothesis import example, given, settings
@@ -26,7 +27,7 @@ from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.measure.tally import GenerationTally, RunTally
 from skeleton.analysis.read.records import decode_run
 from skeleton.host.recordstore import RecordStore
-from skeleton.host.watch import Heard
+from skeleton.host.watch import Heard, _FaultFinder
 from skeleton.host.watch_view import render
 from skelmsg.contract import CONFIG_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
@@ -217,3 +218,41 @@ def test_a_real_runs_tables_tallied_as_heard_equal_skel_reports(tmp_path: Path) 
     tables = tally.update(run.recorded, configs)
     assert tables is not None and sum(p.cycles for p in tables.processes) > 1000
     _same_tables(tables, run.report)
+
+
+def test_a_new_run_shows_none_of_the_old_runs_tables() -> None:
+    heard = Heard(keep_events=False)
+    heard.handle(CONFIG_CHANNEL, small_config().encode())
+    for data in _synthetic_messages():
+        heard.handle(TIMING_CHANNEL, data)
+    assert heard.refresh() is not None and heard.find_faults() is not None and heard.covered > 0
+    heard.handle(TIMING_CHANNEL, _empty_batch(RUN_ID + 1))  # the next run: no records yet
+    assert heard.run_id == RUN_ID + 1
+    assert heard.refresh() is None and heard.tables is None and heard.lost_batches == 0 and heard.covered == 0
+
+
+def _empty_batch(run_id: int) -> bytes:
+    """A timing batch of `run_id` that holds no record."""
+    t = batches(1, small_run()[0][:1], 3, run_id=run_id)[0]
+    for name in t.__slots__:
+        value = getattr(t, name)
+        if isinstance(value, list):
+            setattr(t, name, [])
+    t.n, t.ninputs = 0, 0
+    return t.encode()
+
+
+def test_an_error_in_the_search_for_faults_stops_skel_watch(monkeypatch: pytest.MonkeyPatch) -> None:
+    heard = Heard(keep_events=False)
+
+    def broken() -> None:
+        raise RuntimeError("a bug in the analysis")
+
+    monkeypatch.setattr(heard, "find_faults", broken)
+    monkeypatch.setattr(heard.listener, "faults_due", lambda: True)
+    finder = _FaultFinder(heard)
+    deadline = time.monotonic() + 10
+    while finder.error is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    with pytest.raises(RuntimeError, match="a bug in the analysis"):
+        finder.check()

@@ -1,13 +1,16 @@
 """The live tables, kept up to date as records arrive: per DPU its utilization shares,
 overruns and measured records; per process its cycles, overruns, release latency
 (p50/p99/max) and late / too late cycles. Each figure is metrics.py's definition, so
-after any chunking the tables equal `skel report`'s for the same records.
+after any chunking the tables equal `skel report`'s for the same records (as long as a
+DPU's summed times fit in int64 ns, which a damaged record of 10^18 ns may break: the
+tally's sums are exact where the report's numpy sums wrap).
 
 `skel watch` refreshes every 0.4 s: rebuilding the report from every record heard costs
-O(run) each time (seconds at 10^6 records). Here a refresh costs the records that came
-since the last one: sums, counts and extremes are added, and each process's release
-latencies are kept sorted (one merge per chunk) so its percentiles are read off one
-array. Only when a DPU's measurement window moves (a batch older than any heard before
+seconds at 10^6 records. Here only the records that came since the last refresh are
+decoded and tallied: sums, counts and extremes are added, and each process's release
+latencies are merged into a sorted array. What a refresh still does over the whole run is
+memory-speed work: that merge copies each process's array, and the percentiles are read
+from it. Only when a DPU's measurement window moves (a batch older than any heard before
 arrives late) is the generation tallied again from all its records.
 """
 
