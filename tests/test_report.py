@@ -1,4 +1,4 @@
-"""report.py (analyze, JSON, report_command) and tables.py on synthetic logs."""
+"""report.py (analyze, JSON, report_command) and tables.py on synthetic logs and a real run."""
 
 from __future__ import annotations
 
@@ -9,9 +9,11 @@ from pathlib import Path
 
 import pytest
 from analysis_synth import GENERATION, RUN_ID, batches, report, small_config, small_run, status, write_log
+from conftest import short_servo_run
 from rich.console import Console
 
 from skeleton.analysis.measure.run import load_run
+from skeleton.analysis.read import parallel
 from skeleton.analysis.views.report import report_command
 from skeleton.analysis.views.tables import print_report
 from skelmsg.contract import CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
@@ -196,3 +198,17 @@ def test_a_stray_timing_batch_of_an_unknown_generation_is_counted_not_fatal(tmp_
     assert rep["generation"] == GENERATION
     assert rep["dpus"] == clean["dpus"] and rep["processes"] == clean["processes"]
     assert rep["integrity"]["malformed"].get("SKEL_TIMING (no config for its generation)") == 2
+
+
+def test_a_window_built_side_by_side_reports_what_one_built_alone_does(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The window's tables and fault searches run in threads on a large run
+    (windows.build_window): a real run's report must not depend on it."""
+    short_servo_run(tmp_path)
+    monkeypatch.setattr(parallel, "WORTH_BYTES", 1 << 62)
+    alone = load_run(tmp_path / "run.lcm").report.to_json()
+    monkeypatch.setattr(parallel, "WORTH_BYTES", 0)
+    side_by_side = load_run(tmp_path / "run.lcm").report.to_json()
+    assert sum(p["cycles"] for p in alone["processes"]) > 1000
+    assert side_by_side == alone

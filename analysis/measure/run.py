@@ -16,6 +16,7 @@ min(logged utime - latest start) bounds the offset from above (by the batching d
 from __future__ import annotations
 
 import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -25,7 +26,7 @@ import numpy as np
 from skelmsg.contract import CONFIG_CHANNEL, TIMING_CHANNEL
 
 from ..read.logreader import Log
-from ..read.messages import LogError, Messages, open_run_log, read_messages
+from ..read.messages import LogError, Messages, open_run_log, published_batches, read_messages
 from ..read.records import Heads, RunRecords, load_records, run_ids, timing_heads
 from ..read.seal import KeyFileError, authenticate
 from .columns import Table, faults_table, receptions_table, report_tables, timing_table
@@ -166,9 +167,13 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None) -
         raise LogError(f"no timing records for run {run_id} (runs in this log: {', '.join(map(str, runs))})")
     # The generations are known from the batches' headers, before any record is decoded.
     ok, head = heads
-    messages = read_messages(log, set(head["generation"][ok & (head["run_id"] == run_id)].tolist()))
-    expected = {r.dpu: r.timing_batches for r in messages.reports if r.run_id == run_id}
-    recorded = load_records(log, run_id, expected_batches=expected, heads=heads)
+    generations = set(head["generation"][ok & (head["run_id"] == run_id)].tolist())
+    # The statuses decode one by one in Python, the records in numpy calls that release the
+    # GIL: side by side, the one hides behind the other on a run of millions of records.
+    with ThreadPoolExecutor(1) as pool:
+        pending = pool.submit(read_messages, log, generations)
+        recorded = load_records(log, run_id, expected_batches=published_batches(log, run_id), heads=heads)
+        messages = pending.result()
     malformed = {TIMING_CHANNEL: recorded.malformed, **messages.malformed}
     configs = {g: c for g, c in messages.configs.items() if g in recorded.generations}
     for g in recorded.generations:

@@ -8,12 +8,13 @@ allocation), so a table never mixes two systems.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from ..read.parallel import map_threads
 from ..read.records import RunRecords
 from .chains import ChainMetrics, chain_metrics
 from .faults import (
@@ -84,29 +85,51 @@ def build_window(
     """Every table of one generation window. `lockouts`: the ones status_t reported in
     this window; `lost`: the run's lost DPUs (a fact of the whole run: last window only);
     `run_records`: every window's records (what a buffer's loss looks up across a switch)."""
-    processes = process_metrics(records, inputs, config)
-    locks = lockouts_from_records(records, lockouts or {})
-    delivery, locks = delivery_faults(config, records, inputs, locks)
-    start, end = _span(records, config, clock)
+    def delivery() -> tuple[list[Fault], dict[int, Lockout]]:
+        return delivery_faults(config, records, inputs, lockouts_from_records(records, lockouts or {}))
+
+    # The tables and searches below read the same records and write nothing shared: numpy's
+    # sorts, gathers and sums release the GIL, so on a run of millions of records they go
+    # side by side on the machine's cores (largest first, so neither core waits at the end).
+    tasks: dict[str, Callable[[], Any]] = {
+        "processes": lambda: process_metrics(records, inputs, config),
+        "buffers": lambda: buffer_metrics(records, inputs, config, clock, run_records),
+        "chains": lambda: chain_metrics(records, inputs, config, clock),
+        "behind": lambda: behind_faults(records, config),
+        "dpus": lambda: dpu_metrics(records, config),
+        "span": lambda: _span(records, config, clock),
+        "delivery": delivery,
+        "stalls": lambda: stall_faults(records, config),
+    }
+    done = dict(zip(tasks, map_threads(lambda task: task(), tasks.values(), _work_bytes(records, inputs)),
+                    strict=True))  # fmt: skip
+    processes = done["processes"]
+    delivered, locks = done["delivery"]
+    start, end = done["span"]
     return WindowReport(
         generation=int(config.generation),
         start_ns=start,
         end_ns=end,
-        dpus=dpu_metrics(records, config),
+        dpus=done["dpus"],
         processes=processes,
-        buffers=buffer_metrics(records, inputs, config, clock, run_records),
-        chains=chain_metrics(records, inputs, config, clock),
+        buffers=done["buffers"],
+        chains=done["chains"],
         faults=(
-            delivery
+            delivered
             + lockout_faults(locks, config)
             + jam_faults(locks, config)
-            + behind_faults(records, config)
+            + done["behind"]
             + skipping_faults(processes, config)
-            + stall_faults(records, config)
+            + done["stalls"]
             + overrun_faults(processes)
             + list(lost)
         ),
     )
+
+
+def _work_bytes(records: np.ndarray, inputs: np.ndarray) -> int:
+    """About how many bytes of columns the window's tables read (map_threads' threshold)."""
+    return len(records) * records.dtype.itemsize + len(inputs) * inputs.dtype.itemsize
 
 
 def split_lockouts(lockouts: dict[int, Lockout], windows: Sequence[np.ndarray]) -> list[dict[int, Lockout]]:

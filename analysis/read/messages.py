@@ -70,6 +70,13 @@ def read_messages(log: Log, generations: Iterable[int]) -> Messages:
     )
 
 
+def published_batches(log: Log, run_id: int) -> dict[int, int]:
+    """dpu -> the timing batches its report_t says it published in `run_id` (the few reports
+    decoded on their own, before the rest: read_messages counts their damage)."""
+    reports = decode_timed(log, REPORT_CHANNEL, skelmsg.report_t.decode, {})
+    return {r.dpu: r.timing_batches for _, r in reports if r.run_id == run_id}
+
+
 def decode_timed(log: Log, channel: str, decode: Callable[[bytes], T],
                  malformed: dict[str, int]) -> list[tuple[int, T]]:
     """(utime_us, message) of every message on a channel; malformed ones are counted and skipped."""
