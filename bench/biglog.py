@@ -34,21 +34,25 @@ from skelmsg.contract import (
     TIMING_CHANNEL,  # fmt: skip
 )
 
-SENTINEL = 0x5EED_0000_0000_0000
 _HEADER = struct.Struct(">Iqqii")
 
 
 def _positions(msg: Any, field: str, count: int) -> np.ndarray:
-    """Byte offsets of the `count` int64 values of `field` in msg.encode(): found by
-    encoding it once with sentinel values there (the encoding keeps its length)."""
+    """Byte offsets of the `count` int64 values of `field` in msg.encode(): the bytes that
+    differ between two encodings with different values there (the encoding keeps its
+    length). A search for one sentinel's bytes would also match them straddling two
+    neighbouring values: a blocked_ns ending in the sentinel's first bytes did."""
     value = getattr(msg, field)
     many = isinstance(value, (list, tuple))
-    setattr(msg, field, [SENTINEL + i for i in range(count)] if many else SENTINEL)
-    at = msg.encode().find(struct.pack(">q", SENTINEL))
+    encoded = []
+    for fill in (0x1111_1111_1111_1111, 0x2222_2222_2222_2222):  # every byte differs
+        setattr(msg, field, [fill + i for i in range(count)] if many else fill)
+        encoded.append(np.frombuffer(msg.encode(), dtype=np.uint8))
     setattr(msg, field, value)
-    if at < 0:
+    differ = np.flatnonzero(encoded[0] != encoded[1])
+    if len(differ) != 8 * count:
         raise ValueError(f"{type(msg).__name__}.{field}: not found")
-    return at + 8 * np.arange(count, dtype=np.int64)
+    return int(differ[0]) + 8 * np.arange(count, dtype=np.int64)
 
 
 class _Tile:

@@ -23,7 +23,7 @@ import skelmsg
 from skelmsg.contract import RECV_SLACK_BYTES
 
 from ..read.records import FLAG_LOCKOUT
-from .metrics import ProcessMetrics, completed, frame_release_latency_ns, measured, per_id, static_load_pct
+from .metrics import ProcessMetrics, completed, frames, measured, per_id, smallest_per_dpu, static_load_pct
 
 # Every kind of fault, and those that say the architecture does not work (exit 3);
 # `behind` only when the platform does not explain it (Fault.fatal).
@@ -363,7 +363,7 @@ BEHIND_MIN_FRAMES = 20
 
 def first_release_ns(records: np.ndarray) -> dict[int, int]:
     """Per DPU, its first release: the origin of a fault's `at_s`."""
-    return {int(d): int(records["release_ns"][records["dpu"] == d].min()) for d in np.unique(records["dpu"])}
+    return smallest_per_dpu(records["dpu"], records["release_ns"])
 
 
 def stall_threshold_ns(config: Any, dpu: int) -> int:
@@ -446,8 +446,8 @@ def behind_faults(records: np.ndarray, config: Any) -> list[Fault]:
         minor_ns = dpu.minor_cycle_us * 1000
         if not mine_measured.any() or minor_ns <= 0:
             continue
-        late = frame_release_latency_ns(mine)  # per minor, in minor order
-        minors = np.unique(mine["minor"])
+        minors, starts, releases = frames(mine)
+        late = starts - releases
         window_minor = mine["minor"][mine_measured].min()
         for first, last in _runs(late > minor_ns, BEHIND_MIN_FRAMES):
             lo, hi = minors[first], minors[last]

@@ -26,7 +26,7 @@ Three times per cycle, each its own measure:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -149,11 +149,15 @@ def window_start_ns(records: np.ndarray, config: Any) -> dict[int, int]:
         longest[p.dpu] = max(longest.get(p.dpu, 0), p.period_us * 1000)
     period = per_id(records["process"], {p.id: p.period_us * 1000 for p in config.processes})
     t0 = records["release_ns"] - records["cycle"] * period
-    out = {}
-    for dpu in np.unique(records["dpu"]).tolist():
-        mine = records["dpu"] == dpu
-        out[int(dpu)] = int(t0[mine].min()) + config.warmup_cycles * longest.get(int(dpu), 0)
-    return out
+    return {dpu: first + config.warmup_cycles * longest.get(dpu, 0)
+            for dpu, first in smallest_per_dpu(records["dpu"], t0).items()}
+
+
+def smallest_per_dpu(dpu: np.ndarray, values: np.ndarray) -> dict[int, int]:
+    """dpu -> the smallest of its `values`: one sort of the 16-bit ids, not a mask per DPU."""
+    order, groups = group_slices(dpu)
+    ordered = values[order]
+    return {d: int(ordered[rows].min()) for d, rows in groups.items()}
 
 
 def measured(records: np.ndarray, config: Any, starts: dict[int, int] | None = None) -> np.ndarray:
@@ -225,21 +229,29 @@ def dpu_metrics(records: np.ndarray, config: Any) -> list[DpuMetrics]:
     return out
 
 
-def frames(mine: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per minor cycle of one DPU's records, in minor order: (first start, release)."""
+class Frames(NamedTuple):
+    """One DPU's minor cycles, in minor order."""
+
+    minor: np.ndarray  # the minor cycle's index
+    start: np.ndarray  # its first record's start
+    release: np.ndarray  # its release
+
+
+def frames(mine: np.ndarray) -> Frames:
+    """The minor cycles of one DPU's records."""
     if len(mine) == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        return Frames(*(np.zeros(0, dtype=np.int64) for _ in range(3)))
     order = np.argsort(mine["minor"], kind="stable")
     minor = mine["minor"][order]
     first = np.flatnonzero(np.r_[True, minor[1:] != minor[:-1]])
-    starts = np.minimum.reduceat(mine["start_ns"][order], first)
-    return starts, np.minimum.reduceat(mine["release_ns"][order], first)
+    return Frames(minor[first], np.minimum.reduceat(mine["start_ns"][order], first),
+                  np.minimum.reduceat(mine["release_ns"][order], first))
 
 
 def frame_release_latency_ns(mine: np.ndarray) -> np.ndarray:
     """Per minor cycle of one DPU's records: its first start - its release."""
-    starts, releases = frames(mine)
-    return starts - releases
+    of = frames(mine)
+    return of.start - of.release
 
 
 def _elapsed_ns(mine: np.ndarray) -> int | None:
@@ -291,7 +303,7 @@ def utilization_pct(
 
 def _measured_cycle_ms(mine: np.ndarray) -> float | None:
     """Mean interval between consecutive minor-cycle starts (earliest start per minor index)."""
-    starts, _ = frames(mine)
+    starts = frames(mine).start
     if len(starts) < 2:
         return None
     return float(starts[-1] - starts[0]) / (len(starts) - 1) / 1e6

@@ -260,7 +260,7 @@ def schedule(data: RunAnalysis) -> Figure:
         if len(mine) == 0:
             ax.text(0.5, 0.5, "no cycle", ha="center", va="center", transform=ax.transAxes)
             continue
-        starts, releases = frames(mine)
+        _, starts, releases = frames(mine)
         ax.plot((releases - releases[0]) / 1e9, (starts - releases) / 1e6, color=COMPUTE, linewidth=0.8)
         ax.axhline(dpu.minor_cycle_us / 1000, color="black", linestyle="--", linewidth=0.8)
         for f in data.report.faults:
