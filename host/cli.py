@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
 import time
@@ -19,7 +20,7 @@ from rich.table import Table
 
 from skelmsg.contract import DEFAULT_URL, KEY_ENV
 
-from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED
+from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_BROKEN_PIPE, EXIT_FAILED, EXIT_INTERRUPTED
 from ..analysis.read.messages import run_log_path
 from ..analysis.read.seal import KeyFileError, key_path, load_key, write_key
 from . import spawn
@@ -181,6 +182,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_FAILED
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # The reader stopped reading (`skel report --json | head`): end as a tool killed by
+        # SIGPIPE does, without a traceback; stdout goes to /dev/null so that flushing it at
+        # exit does not fail again.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
     finally:
         _exiting = True
 

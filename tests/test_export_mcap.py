@@ -27,7 +27,7 @@ from skeleton.analysis.read.logreader import encode_events, read_bytes, read_log
 from skeleton.analysis.read.mcapsource import read_as_log
 from skeleton.analysis.read.records import load_records
 from skeleton.analysis.views import mcapbulk
-from skeleton.analysis.views.export_mcap import export
+from skeleton.analysis.views.export_mcap import _pairs, export
 from skelmsg.contract import COMMAND_CHANNEL, CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 RECORD_FIELDS = ["dpu", "process", "generation", "batch_seq", "cycle", "minor", "release_ns",
@@ -332,3 +332,18 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, servo_run: Path) -> No
     with pytest.raises(OSError, match=r"no run\.lcm attached: exported by an older skel, export it again"):
         read_as_log(older)
     assert np.all(np.diff([m.log_time for _, m in _messages(servo_run / "run.mcap")["/dpu/1/status"]]) >= 0)
+
+
+@pytest.mark.parametrize("moved", [False, True])
+def test_a_records_topic_is_its_dpu_and_process_pair_whether_or_not_a_process_moved(moved: bool) -> None:
+    """_pairs looks processes up in a table when each ran on one DPU, and sorts the pairs
+    when one moved (a live switch): the same pairs and indices as sorting them every time."""
+    rng = np.random.default_rng(7)
+    process = rng.integers(-5, 40, 10_000).astype(np.int16)
+    dpu = (process % 7 - 3).astype(np.int16)
+    if moved:
+        dpu[:50] += 1
+    keys, index = _pairs(dpu, process)
+    expected = np.unique((dpu.astype(np.int64) + 32768) * 65536 + process.astype(np.int64) + 32768,
+                         return_inverse=True)  # fmt: skip
+    assert np.array_equal(keys, expected[0]) and np.array_equal(index, expected[1].reshape(-1))

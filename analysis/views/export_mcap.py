@@ -226,16 +226,33 @@ def _timing_channels(data: RunAnalysis, out: BulkWriter, dpu: np.ndarray, proces
     names = data.process_names()
     buffers = json.dumps({str(b.id): b.name for b in data.config.buffers})
     schema = out.schema("skeleton/msg/TimingRecord", "ros2msg", TIMING_SCHEMA.encode())
-    # One key per (dpu, process), both int16: shifted to 0..65535 so the key splits back.
-    keys, inverse = np.unique((dpu.astype(np.int64) + 32768) * 65536 + (process.astype(np.int64) + 32768),
-                              return_inverse=True)  # fmt: skip
+    keys, inverse = _pairs(dpu, process)
     ids = [
         out.channel(f"{TIMING_PREFIX}{d}/{names.get(p, f'process {p}')}", "cdr", schema,
                     {"lcm_channel": TIMING_CHANNEL, "lcm_type": "skelmsg.timing_t (one record)",
                      "dpu": str(d), "process": str(p), "buffers": buffers})
         for d, p in zip((keys // 65536 - 32768).tolist(), (keys % 65536 - 32768).tolist(), strict=True)
     ]  # fmt: skip
-    return np.asarray(ids, dtype=np.uint16)[inverse.reshape(-1)] if len(ids) else np.zeros(0, np.uint16)
+    return np.asarray(ids, dtype=np.uint16)[inverse] if len(ids) else np.zeros(0, np.uint16)
+
+
+def _pairs(dpu: np.ndarray, process: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct (dpu, process) pairs as sorted keys (dpu + 32768) * 65536 + process + 32768
+    (both int16, so the key splits back), and each record's index among them. A process that
+    ran on one DPU only (every run without a live move) is looked up in a table of the 2^16
+    process ids instead of sorting every record's key."""
+    proc = process.astype(np.int64) + 32768
+    home = np.zeros(1 << 16, dtype=np.int64)
+    home[proc] = dpu.astype(np.int64) + 32768
+    if not np.array_equal(home[proc], dpu.astype(np.int64) + 32768):  # moved: sort the keys
+        keys, inverse = np.unique((dpu.astype(np.int64) + 32768) * 65536 + proc,
+                                  return_inverse=True)  # fmt: skip
+        return keys, inverse.reshape(-1)
+    present = np.flatnonzero(np.bincount(proc, minlength=1 << 16))
+    keys = np.sort(home[present] * 65536 + present)
+    index = np.zeros(1 << 16, dtype=np.int64)
+    index[keys % 65536] = np.arange(len(keys))
+    return keys, index[proc]
 
 
 def _logged_us(data: RunAnalysis, dpu: np.ndarray, batch_seq: np.ndarray) -> np.ndarray:

@@ -184,10 +184,19 @@ class BulkWriter:
 
     def _chunk(self, packed: bytes, size: int, index: bytes, offsets: dict[int, int], start: int,
                end: int) -> None:  # fmt: skip
-        chunk = Chunk(compression=self.compression if self.compression == "zstd" else "", data=packed,
+        chunk = Chunk(compression=self.compression if self.compression == "zstd" else "", data=b"",
                       message_start_time=max(start, 0), message_end_time=max(end, 0),
                       uncompressed_crc=0, uncompressed_size=size)  # fmt: skip
-        offset, length = self._put(chunk)
+        # The record written as its fields and then the data itself: through the package's
+        # RecordBuilder the data, most of the file, would be copied twice on the way.
+        head = RecordBuilder()
+        chunk.write(head)
+        fields = head.end()[9:-8]  # less its opcode and length, and the empty data's length
+        offset = self.stream.tell()
+        self.stream.write(struct.pack("<BQ", Opcode.CHUNK, len(fields) + 8 + len(packed)) + fields
+                          + struct.pack("<Q", len(packed)))  # fmt: skip
+        self.stream.write(packed)
+        length = self.stream.tell() - offset
         index_at = self.stream.tell()
         self.stream.write(index)
         self.chunk_indexes.append(ChunkIndex(
