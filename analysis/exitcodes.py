@@ -1,7 +1,7 @@
 """The exit codes of every `skel` command, defined once.
 
 In analysis/ because both halves of the tool return them and analysis/ never
-imports host/; README.md's "Exit codes" paragraph lists the same five.
+imports host/; README.md's "Exit codes" paragraph lists the same six.
 """
 
 from __future__ import annotations
@@ -11,3 +11,4 @@ EXIT_FAILED = 1        # an operation failed: a DPU silent or lost, a push rejec
 EXIT_BAD_INPUT = 2     # a file or option that cannot be used: one line `FILE: field.path: problem`
 EXIT_FATAL_FLAW = 3    # a lockout or a jam was measured
 EXIT_INTERRUPTED = 130  # Ctrl-C or SIGTERM: 128 + SIGINT, as shells report a command ended by Ctrl-C
+EXIT_BROKEN_PIPE = 141  # the reader of its output stopped (`| head`): 128 + SIGPIPE, as a killed `cat`

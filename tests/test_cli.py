@@ -4,6 +4,7 @@ report), output to a file or pipe keeps every column, and the exit codes are the
 
 from __future__ import annotations
 
+import fcntl
 import io
 import json
 import os
@@ -154,6 +155,19 @@ def test_tables_through_a_pipe_keep_every_column(tmp_path: Path) -> None:
 
 
 # --- exit codes ------------------------------------------------------------------------------------
+def test_a_reader_that_stops_early_ends_the_report_without_a_traceback(tmp_path: Path) -> None:
+    log = _wide_log(tmp_path / "run.lcm")
+    read_end, write_end = os.pipe()
+    fcntl.fcntl(write_end, fcntl.F_SETPIPE_SZ, 4096)  # the report (~50 kB) cannot all fit in it
+    report = subprocess.Popen([sys.executable, "-m", "skeleton.host.cli", "report", str(log), "--json"],
+                              cwd=REPO, stdout=write_end, stderr=subprocess.PIPE)  # fmt: skip
+    os.close(write_end)
+    assert os.read(read_end, 1) == b"{"
+    os.close(read_end)  # as `| head -c 1` does
+    assert report.wait(timeout=60) == exitcodes.EXIT_BROKEN_PIPE
+    assert report.stderr is not None and b"Traceback" not in report.stderr.read()
+
+
 def test_exit_codes_are_defined_in_one_module() -> None:
     """host/ and analysis/ return the codes of analysis/exitcodes.py, never their own."""
     definition = re.compile(r"^\s*(EXIT_\w+\s*(,\s*EXIT_\w+\s*)*=|return 13\d\b)", re.MULTILINE)
