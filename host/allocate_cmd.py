@@ -55,7 +55,7 @@ def _pins(system: System, given: list[str], dpus: list[int]) -> dict[str, int]:
 
 
 def allocate_command(args: argparse.Namespace) -> int:
-    from ..analysis.views.tables import output_console
+    from ..analysis.views.console import output_console
     from .allocate import NoFit, allocate, targets
 
     system = load(args.file, args.overrides)  # --url is the verifying runs', not the new file's

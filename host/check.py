@@ -22,6 +22,7 @@ from rich.console import Console, JustifyMethod
 from rich.table import Table
 
 from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_OK
+from ..analysis.views.console import OutputConsole
 from .doctor import check_buffer_socket, rmem_max
 from .link import parse_url, writer_url
 from .predict import Prediction, event_rate, predict
@@ -199,7 +200,7 @@ def _is_this_machine(host: str) -> bool:
 
 
 def _print(system: System, summary: dict[str, Any], prediction: Prediction, out: TextIO) -> None:
-    console = Console(file=out, highlight=False, width=max(100, Console(file=out).width))
+    console = OutputConsole(file=out, highlight=False, width=max(100, Console(file=out).width))
     run = (f"{system.run.cycles} cycles of {system.critical_period_us / 1000:g} ms"
            if system.run.cycles is not None else f"{system.run.duration_s:g} s")
     console.print(f"system [bold]{system.name}[/] ({system.path}): {len(system.dpus)} DPUs, "

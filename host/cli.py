@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import signal
 import sys
 import time
@@ -23,6 +22,7 @@ from skelmsg.contract import DEFAULT_URL, KEY_ENV
 from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_BROKEN_PIPE, EXIT_FAILED, EXIT_INTERRUPTED
 from ..analysis.read.messages import run_log_path
 from ..analysis.read.seal import KeyFileError, key_path, load_key, write_key
+from ..analysis.views.console import reader_gone, stdout_to_devnull
 from . import spawn
 from .control import Control, ControlError
 from .listener import QUIET_S, is_run_id
@@ -162,15 +162,23 @@ def _interrupted(_signum: int, _frame: object) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     global _exiting
-    args = build_parser().parse_args(argv)
-    signal.signal(signal.SIGTERM, _interrupted)
-    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not when started ignoring it
-        signal.signal(signal.SIGINT, _interrupted)
     try:
-        if args.command not in UNKEYED:
-            args.key_file = key_path(args.key)
-            args.key = load_key(args.key_file) if args.key_file is not None else None
-        return COMMANDS[args.command](args)
+        try:
+            args = build_parser().parse_args(argv)
+            signal.signal(signal.SIGTERM, _interrupted)
+            if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not when started ignoring it
+                signal.signal(signal.SIGINT, _interrupted)
+            if args.command not in UNKEYED:
+                args.key_file = key_path(args.key)
+                args.key = load_key(args.key_file) if args.key_file is not None else None
+            code = COMMANDS[args.command](args)
+        finally:
+            # What is still buffered goes now, where a reader gone is caught below, not in
+            # Python's flush at exit ("Exception ignored", exit 120); --help's text too.
+            sys.stdout.flush()
+        # The reader stopped reading (`skel report | head`, `skel run | grep -m1 FAULT`):
+        # the command finished quietly (console.py); it ends as a tool killed by SIGPIPE does.
+        return EXIT_BROKEN_PIPE if reader_gone() else code
     except KeyFileError as error:
         print(f"skel: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -182,11 +190,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_FAILED
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
-    except BrokenPipeError:
-        # The reader stopped reading (`skel report --json | head`): end as a tool killed by
-        # SIGPIPE does, without a traceback; stdout goes to /dev/null so that flushing it at
-        # exit does not fail again.
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except BrokenPipeError:  # a plain print (--json) to a reader gone: no traceback
+        stdout_to_devnull()
         return EXIT_BROKEN_PIPE
     finally:
         _exiting = True
@@ -266,7 +271,7 @@ def cmd_push(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from ..analysis.views.tables import output_console
+    from ..analysis.views.console import output_console
     from .run import RunOptions, run
 
     pushed_generation = None
@@ -302,7 +307,7 @@ def _listen(control: Control, args: argparse.Namespace) -> float:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    from ..analysis.views.tables import output_console
+    from ..analysis.views.console import output_console
 
     if args.wait < 0:
         print(f"skel status: --wait {args.wait:g}: must be >= 0", file=sys.stderr)
@@ -362,7 +367,7 @@ def _json_or_nothing(rows: list[dict], as_json: bool, nothing: str) -> int | Non
 
 
 def cmd_clock(args: argparse.Namespace) -> int:
-    from ..analysis.views.tables import output_console
+    from ..analysis.views.console import output_console
     from . import clock
 
     if args.samples < 1 or args.wait < 0:

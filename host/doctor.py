@@ -23,13 +23,13 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Literal, TextIO
 
-from rich.console import Console
 from rich.text import Text
 
 from skelmsg.contract import DEFAULT_URL, KEY_ENV
 
 from ..analysis.exitcodes import EXIT_FAILED, EXIT_OK
 from ..analysis.measure.faults import recv_buf_needed
+from ..analysis.views.console import OutputConsole
 from .link import LcmUrl, parse_url
 
 MIN_RMEM_BYTES = 2 * 1024 * 1024
@@ -344,7 +344,7 @@ def doctor(url: str, out: TextIO = sys.stdout, as_json: bool = False, keyed: boo
         doc = {"url": url, "ok": healthy, "checks": [{**asdict(c), "level": c.level} for c in checks]}
         out.write(json.dumps(doc, indent=2) + "\n")
         return EXIT_OK if healthy else EXIT_FAILED
-    console = Console(file=out, highlight=False, soft_wrap=True)  # soft_wrap: one line per finding
+    console = OutputConsole(file=out, highlight=False, soft_wrap=True)  # soft_wrap: one line per finding
     for check in checks:
         line = Text(f"{check.level:<5}", style=STYLE[check.level])
         line.append(f" {check.name:<15} {check.detail}")

@@ -38,6 +38,7 @@ from ..analysis.measure.faults import LOST_AFTER_S, Fault
 from ..analysis.measure.metrics import utilization_pct
 from ..analysis.measure.run import load_run
 from ..analysis.read.messages import LogError
+from ..analysis.views.console import OutputConsole
 from ..analysis.views.tables import print_report
 from . import owner, spawn
 from .check import delivery_warnings, warmup_warnings
@@ -93,7 +94,7 @@ def default_out(system: System) -> Path:
 
 
 def run(system: System, options: RunOptions, console: Console | None = None) -> int:
-    console = console or Console()
+    console = console or OutputConsole()
     out = options.out or default_out(system)
     out.mkdir(parents=True, exist_ok=True)
     (out / "system.yaml").write_text(system.source_text)

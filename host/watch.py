@@ -20,7 +20,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rich.console import Console
 from rich.live import Live
 
 from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
@@ -29,6 +28,7 @@ from ..analysis.measure.run import analyze_log
 from ..analysis.measure.tally import GenerationTally, RunTally
 from ..analysis.read.logreader import encode_events, read_bytes
 from ..analysis.read.messages import LogError
+from ..analysis.views.console import OutputConsole
 from ..analysis.views.tables import print_report
 from .control import subscribe
 from .listener import CHANNELS, LOST_AFTER_S, Listener
@@ -183,7 +183,7 @@ def watch_command(url: str, once: bool, duration_s: float | None, as_json: bool 
 
 
 def _live(lc: Any, heard: Heard, url: str, deadline: float | None) -> None:
-    console = Console()
+    console = OutputConsole()
     finder = _FaultFinder(heard)
     with Live(render(heard, url), console=console, auto_refresh=False, transient=False) as live:
         try:

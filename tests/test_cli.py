@@ -15,13 +15,15 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from analysis_synth import batches, report, small_config, small_run, status, write_log
 from conftest import EXAMPLES, REPO, SANITIZER_ERROR, DpuFarm, skel
 from rich.console import Console
 
 from skeleton.analysis import exitcodes
 from skeleton.analysis.measure.run import load_run
-from skeleton.analysis.views.tables import UNLIMITED_WIDTH, print_report, process_table
+from skeleton.analysis.views.console import UNLIMITED_WIDTH
+from skeleton.analysis.views.tables import print_report, process_table
 from skeleton.host import spawn
 from skeleton.host.control import Control
 from skelmsg.contract import CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
@@ -166,6 +168,45 @@ def test_a_reader_that_stops_early_ends_the_report_without_a_traceback(tmp_path:
     os.close(read_end)  # as `| head -c 1` does
     assert report.wait(timeout=60) == exitcodes.EXIT_BROKEN_PIPE
     assert report.stderr is not None and b"Traceback" not in report.stderr.read()
+
+
+def _closed_pipe() -> int:
+    """The write end of a pipe nobody reads (`| true`): every write to it fails."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    return write_end
+
+
+@pytest.mark.parametrize("args", [["check", str(PAIR), "--json"], ["check", str(PAIR)], ["--help"]],
+                         ids=["print", "rich", "argparse"])
+def test_a_reader_gone_before_a_short_output_ends_the_command_with_141(args: list[str]) -> None:
+    """Output smaller than stdout's buffer is written when Python flushes it at exit, outside
+    any handler ("Exception ignored", exit 120), and rich's console exits with 1 on its own."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # the buffer as a user has it
+    write_end = _closed_pipe()
+    done = subprocess.run([sys.executable, "-m", "skeleton.host.cli", *args], cwd=REPO, stdout=write_end,
+                          stderr=subprocess.PIPE, text=True, env=env, timeout=60)  # fmt: skip
+    os.close(write_end)
+    assert done.returncode == exitcodes.EXIT_BROKEN_PIPE, done.stderr
+    assert not DUMP.search(done.stderr), done.stderr
+
+
+def test_a_run_whose_reader_goes_away_runs_to_its_report(url: str, tmp_path: Path) -> None:
+    """`skel run FILE | grep -m1 FAULT`: the run goes on quietly, stops its DPUs and keeps its
+    log and report; the command then ends with 141."""
+    out = tmp_path / "run"
+    write_end = _closed_pipe()
+    args = ["run", str(PAIR), "--spawn", "--url", url, "--duration", "2", "-s", "run.warmup_cycles=5",
+            "--out", str(out)]
+    run = subprocess.run([sys.executable, "-m", "skeleton.host.cli", *args], cwd=REPO, stdout=write_end,
+                         stderr=subprocess.PIPE, text=True, timeout=120)  # fmt: skip
+    os.close(write_end)
+    assert run.returncode == exitcodes.EXIT_BROKEN_PIPE, run.stderr
+    assert not DUMP.search(run.stderr) and "warning:" not in run.stderr, run.stderr  # DPUs ended well
+    cycles = {p["name"]: p["cycles"] for p in json.loads((out / "report.json").read_text())["processes"]}
+    assert set(cycles) == {"slow_writer", "fast_writer", "fast_reader", "slow_reader"}, cycles
+    assert min(cycles.values()) > 0, cycles
+    assert len(load_run(out / "run.lcm").records) > 0
 
 
 def test_exit_codes_are_defined_in_one_module() -> None:

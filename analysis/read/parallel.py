@@ -25,5 +25,9 @@ def map_threads(fn: Callable[[T], R], items: Iterable[T], work_bytes: int) -> li
     items = list(items)
     if WORKERS < 2 or len(items) < 2 or work_bytes < WORTH_BYTES:
         return [fn(item) for item in items]
-    with ThreadPoolExecutor(min(WORKERS, len(items))) as pool:
+    pool = ThreadPoolExecutor(min(WORKERS, len(items)))
+    try:
         return list(pool.map(fn, items))
+    finally:
+        # After Ctrl-C or an error, what has not started does not (a with-block would run it all first).
+        pool.shutdown(cancel_futures=True)

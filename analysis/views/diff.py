@@ -192,7 +192,7 @@ def diff_rows(
 def print_diff(diff: dict[str, Any], console: Any = None) -> None:
     from rich.table import Table
 
-    from .tables import output_console  # rich is only needed for tables
+    from .console import output_console  # rich is only needed for tables
 
     console = console or output_console()
     for side in ("a", "b"):

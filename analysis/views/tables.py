@@ -4,7 +4,7 @@ window when the config changed mid-run.
 
 Rendering is deterministic (no clock, no terminal-dependent content beyond the
 console's width), so `skel run` and `skel report` print the same tables for one run.
-Printed to a file or a pipe, nothing limits the width (see output_console).
+Printed to a file or a pipe, nothing limits the width (see console.output_console).
 """
 
 from __future__ import annotations
@@ -17,17 +17,7 @@ from rich.table import Table
 from ..measure.predicted import PLATFORM, Beside, Predicted
 from ..measure.report import RunReport
 from ..measure.windows import WindowReport
-
-# Not a terminal: rich would render at $COLUMNS or 80 columns and drop the columns of a
-# wider table; a file or a CI log has no edge, so it gets every column.
-UNLIMITED_WIDTH = 100_000
-
-
-def output_console(**options: Any) -> Console:
-    """The console a command prints its tables on: a terminal's own width, and for a file
-    or a pipe no limit (tables keep every column, lines are not wrapped)."""
-    console = Console(**options)
-    return console if console.is_terminal else Console(width=UNLIMITED_WIDTH, **options)
+from .console import output_console
 
 
 def _num(value: float | None, digits: int = 1) -> str:
