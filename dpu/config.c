@@ -342,13 +342,19 @@ static int config_check_ids(const skelmsg_config_t *cfg, char *reason, size_t le
     return 0;
 }
 
-/* Distinct buffer URLs we need stay within SKEL_MAX_LINKS; buffers we read must not
- * share a channel on one URL (a reader could not tell them apart). */
+/* Distinct buffer URLs we need, and the control URL when our processes await or emit
+ * events (event_open adds it as a link), stay within SKEL_MAX_LINKS; buffers we read
+ * must not share a channel on one URL (a reader could not tell them apart). */
 static int config_check_links(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d, char *reason,
                               size_t len)
 {
     const char *urls[SKEL_MAX_LINKS];
     int nurls = 0;
+    for (int i = 0; i < cfg->nprocesses && nurls == 0; i++) {
+        const skelmsg_process_t *p = &cfg->processes[i];
+        if (p->dpu == d->id && (p->sync == SKELMSG_PROCESS_T_SYNC_EVENT || p->nemits > 0))
+            urls[nurls++] = ""; /* the control URL: no buffer URL is empty */
+    }
     for (int i = 0; i < cfg->nprocesses; i++) {
         const skelmsg_process_t *p = &cfg->processes[i];
         if (p->dpu != d->id) continue;
@@ -360,8 +366,8 @@ static int config_check_links(const skelmsg_config_t *cfg, const skelmsg_dpu_t *
             int u = 0;
             while (u < nurls && strcmp(urls[u], url) != 0) u++;
             if (u == nurls && nurls == SKEL_MAX_LINKS)
-                return config_fail(reason, len, "DPU %d: more than %d distinct buffer URLs (writers' ports)", d->id,
-                                   SKEL_MAX_LINKS);
+                return config_fail(reason, len, "DPU %d: more than %d links (a group and port per writer "
+                                   "it reads or is, and the control URL for events)", d->id, SKEL_MAX_LINKS);
             if (u == nurls) urls[nurls++] = url;
             for (int j = 0; j < cfg->nbuffers; j++) {
                 const skelmsg_buffer_desc_t *o = &cfg->buffers[j];

@@ -164,7 +164,10 @@ int event_open(skel_plan_t *plan, const char *control_url)
             skel_link_t *l = &plan->links[plan->nlinks];
             l->url = strdup(control_url);
             l->fd = -1;
-            if (l->url == NULL || link_open(l) != 0) return -1;
+            if (l->url == NULL || link_open(l) != 0) {
+                link_close(l); /* not counted in nlinks: plan_free would not free it */
+                return -1;
+            }
             plan->event_link = plan->nlinks++;
         }
         for (int i = 0; i < plan->nevents; i++)

@@ -24,7 +24,7 @@ from rich.table import Table
 from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_OK
 from ..analysis.views.console import OutputConsole
 from .doctor import check_buffer_socket, rmem_max
-from .link import parse_url, writer_url
+from .link import group_overlap, parse_url, writer_url
 from .predict import Prediction, event_rate, predict
 from .predict_view import print_prediction
 from .system import System, SystemFileError, load
@@ -136,6 +136,8 @@ def warnings(system: System) -> list[str]:
             out.append(f"DPU {d.id}: static load {100 * load_by_dpu[d.id]:.1f} % on average but "
                        f"{100 * worst_by_dpu[d.id]:.1f} % when its varying computations draw their maximum: "
                        "cycles with long draws will overrun")
+    if (shared := group_overlap(system.links, system.writer_ports)) is not None:
+        out.append(shared)
     out += _core_warnings(system, load_by_dpu)
     out += warmup_warnings(system)
     out += delivery_warnings(system)

@@ -105,14 +105,22 @@ def _outside_groups(group: str, count: int) -> str | None:
         return (f"its writers need groups {first}..{last}, outside the multicast groups a switch "
                 f"can keep apart (224.0.1.0-239.255.255.255): give the link a group from 224.0.1.0 "
                 f"to {top}")
+    # A switch snoops by Ethernet address, which keeps only a group's low 23 bits: those that
+    # 224.0.0.x has (239.0.0.x, 239.128.0.x, ...) are flooded as it is.
+    flooded = next((first + i for i in range(count) if (int(first) + i) & 0x7FFFFF < 256), None)
+    if flooded is not None:
+        return (f"its writers need groups {first}..{last}, and {flooded} shares its Ethernet address with "
+                f"224.0.0.{int(flooded) & 0xFF}, which switches flood to every host: give the link a "
+                "group whose writers' groups stay clear of x.0.0.0-x.0.0.255 and x.128.0.0-x.128.0.255")
     return None
 
 
-def port_clash(links: Sequence[Link], ports: dict[tuple[int, int], int]) -> tuple[Link, str] | None:
-    """A link whose ports (its own and its writers') run past 65535 or into another link's,
-    or whose writers' groups leave the multicast range, with what to say; None when every
-    link has its ports and groups to itself."""
-    spans: dict[tuple[str, int], tuple[Link, int]] = {}  # per base: its first link, last port
+Spans = dict[tuple[str, int], tuple[Link, int]]
+
+
+def _spans(links: Sequence[Link], ports: dict[tuple[int, int], int]) -> Spans:
+    """Per base group and port in use: the first link naming it and the last port its writers take."""
+    spans: Spans = {}
     for link in links:
         if link.local:
             continue
@@ -120,6 +128,14 @@ def port_clash(links: Sequence[Link], ports: dict[tuple[int, int], int]) -> tupl
         last = max((p for (link_id, _), p in ports.items() if link_id == link.id), default=base[1])
         first, was = spans.get(base, (link, base[1]))
         spans[base] = (first, max(was, last))
+    return spans
+
+
+def port_clash(links: Sequence[Link], ports: dict[tuple[int, int], int]) -> tuple[Link, str] | None:
+    """A link whose ports (its own and its writers') run past 65535 or into another link's,
+    or whose writers' groups leave the multicast range, with what to say; None when every
+    link has its ports and groups to itself."""
+    spans = _spans(links, ports)
     for (group, port), (link, last) in spans.items():
         if last > MAX_PORT:
             return link, f"its writers need ports {port + 1}..{last}, past {MAX_PORT}"
@@ -130,4 +146,24 @@ def port_clash(links: Sequence[Link], ports: dict[tuple[int, int], int]) -> tupl
                 return link, (f"its writers' buffers take ports {port}..{last}, which meet link "
                               f"{them.name}'s {other}..{their_last} ({other_group}): on one host a "
                               "port is shared by every group; put the links' ports further apart")
+    return None
+
+
+def group_overlap(links: Sequence[Link], ports: dict[tuple[int, int], int]) -> str | None:
+    """Two links whose groups (their own and their writers') meet, said as a warning; None
+    when each link has its groups to itself. Their ports differ (port_clash), so every
+    buffer still reaches its readers and no others; but a switch that snoops IGMP forwards
+    a group to every host that joined it for either link."""
+    groups = [(link, int(ipaddress.IPv4Address(group)), last - port)
+              for (group, port), (link, last) in _spans(links, ports).items()]
+    for i, (link, first, count) in enumerate(groups):
+        for them, their_first, their_count in groups[i + 1:]:
+            if first <= their_first + their_count and their_first <= first + count:
+                shared = (ipaddress.IPv4Address(max(first, their_first)),
+                          ipaddress.IPv4Address(min(first + count, their_first + their_count)))
+                after = ipaddress.IPv4Address(first + count + 1)
+                return (f"links {link.name} and {them.name} share multicast groups {shared[0]}..{shared[1]} "
+                        f"(a link's own group and its writers'): a switch that snoops IGMP then sends each "
+                        f"link's traffic on them to the hosts of both; give link {them.name} a group from "
+                        f"{after} on")
     return None

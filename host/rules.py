@@ -63,8 +63,9 @@ def resolve(spec: SystemSpec, base: Path) -> Resolved:
     varying = _varying(spec, base)
     writers = _writers(spec, ports)
     _reach(spec, dpu_links, buffer_links, writers, ports)
-    _link_ports(spec, links, buffer_links, writers)
+    writer_port = _link_ports(spec, links, buffer_links, writers)
     minor = _minor_cycles(spec)
+    _links_opened(spec, buffer_links, writers, ports, writer_port)
     order = _orders(spec)
     priority = _priorities(spec, order)
     by_name = {p.name: p for p in spec.processes}
@@ -248,7 +249,7 @@ def _writers(spec: SystemSpec, ports: Ports) -> dict[int, str]:
 
 
 def _link_ports(spec: SystemSpec, links: tuple[Link, ...], buffer_links: dict[int, Link],
-                writers: dict[int, str]) -> None:
+                writers: dict[int, str]) -> dict[tuple[int, int], int]:
     """Each writer's buffers get a port of their own next to their link's (host/link.py):
     the ports must exist and no two links may share one."""
     for link in links:
@@ -262,6 +263,24 @@ def _link_ports(spec: SystemSpec, links: tuple[Link, ...], buffer_links: dict[in
     clash = port_clash(links, ports)
     if clash is not None:
         raise Invalid(f"links[{clash[0].id - 1}].url", clash[1])
+    return ports
+
+
+def _links_opened(spec: SystemSpec, buffer_links: dict[int, Link], writers: dict[int, str],
+                  ports: Ports, writer_port: dict[tuple[int, int], int]) -> None:
+    """A DPU opens a link per writer it reads or is (its group and port), and the control URL
+    when it awaits or emits events (dpu/event.c): at most contract.MAX_LINKS."""
+    ids = {p.name: p.id for p in spec.processes}
+    for d in spec.dpus:
+        mine = [p for p in spec.processes if p.dpu == d.id]
+        used = {writer_port[buffer_links[b].id, ids[writers[b]]] for p in mine
+                for b in ports[p.id][0] + ports[p.id][1] if not buffer_links[b].local}  # fmt: skip
+        events = any(p.sync == "event" or p.emits for p in mine)
+        if len(used) + events > contract.MAX_LINKS:
+            said = " and the control URL for its events" if events else ""
+            raise Invalid(f"dpus.{d.id}", f"its processes read or write the buffers of {len(used)} writers "
+                          f"(a group and port each){said}; a DPU opens at most {contract.MAX_LINKS}: "
+                          "spread its processes over more DPUs")
 
 
 def _reach(spec: SystemSpec, dpu_links: dict[int, tuple[int, ...]],

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from conftest import DpuFarm, skel, skel_background
 
-from skeleton.host.link import parse_url
+from skeleton.host.link import group_overlap, parse_url
 from skeleton.host.system import loads
 
 THREE = """\
@@ -35,6 +35,9 @@ processes:
   - {{id: 4, name: local, dpu: 3, period_us: 10000, compute_us: 100, inputs: [c]}}
 run: {{duration_s: {duration}, warmup_cycles: 2, lockout_cycles: 50}}
 """
+
+
+BUS = "udpm://239.255.76.67:7700?ttl=0"
 
 
 def _three(tmp_path: Path, url: str, duration: float = 1.0) -> Path:
@@ -70,10 +73,7 @@ def test_check_lists_the_ports_a_firewall_must_pass(tmp_path: Path) -> None:
 
 
 def test_two_links_on_one_port_count_their_writers_on() -> None:
-    text = THREE.format(url="udpm://239.255.76.67:7700?ttl=0", duration=1).replace(
-        "  - {name: mem, url: local}", '  - {name: mem, url: local}\n  - {name: side, url: "udpm://239.255.76.67:7700?ttl=0"}'
-    ).replace("{id: 3, name: b, bytes: 64}", "{id: 3, name: b, bytes: 64, link: side}")
-    system = loads(text, "three.yaml")
+    system = loads(_with_side(BUS, BUS), "three.yaml")
     assert system.buffer_url("a").startswith("udpm://239.255.76.68:7701?")
     assert system.buffer_url("b").startswith("udpm://239.255.76.69:7702?")
 
@@ -103,6 +103,8 @@ def test_check_refuses_ports_past_65535(tmp_path: Path) -> None:
 @pytest.mark.parametrize(("group", "why"), [
     ("239.255.255.255", "its writers need groups 240.0.0.0..240.0.0.1, outside the multicast groups"),
     ("224.0.0.250", "its writers need groups 224.0.0.251..224.0.0.252, outside the multicast groups"),
+    ("239.127.255.255", "its writers need groups 239.128.0.0..239.128.0.1, and 239.128.0.0 shares its "
+                        "Ethernet address with 224.0.0.0, which switches flood"),
 ])
 def test_check_refuses_writer_groups_a_switch_cannot_keep_apart(tmp_path: Path, group: str, why: str) -> None:
     path = _three(tmp_path, f"udpm://{group}:7700?ttl=0")
@@ -110,6 +112,68 @@ def test_check_refuses_writer_groups_a_switch_cannot_keep_apart(tmp_path: Path, 
     assert done.returncode == 2, done.stdout + done.stderr
     (line,) = done.stderr.strip().splitlines()
     assert line.startswith(f"{path}: links[0].url: {why}"), line
+
+
+def _with_side(url: str, side: str) -> str:
+    """THREE with wb's buffer on a second link, `side`."""
+    return THREE.format(url=url, duration=1).replace(
+        "  - {name: mem, url: local}", f'  - {{name: mem, url: local}}\n  - {{name: side, url: "{side}"}}'
+    ).replace("{id: 3, name: b, bytes: 64}", "{id: 3, name: b, bytes: 64, link: side}")
+
+
+def test_check_warns_of_links_whose_groups_meet(tmp_path: Path) -> None:
+    """Two links on one group, their ports apart: valid (each buffer still reaches only its
+    readers), but each link's writers get the same groups, which a snooping switch cannot
+    keep apart: said once."""
+    path = tmp_path / "shared.yaml"
+    path.write_text(_with_side(BUS, "udpm://239.255.76.67:7800?ttl=0"))
+    done = skel("check", str(path), "--json")
+    assert done.returncode == 0, done.stdout + done.stderr
+    shared = [w for w in json.loads(done.stdout)["warnings"] if "share multicast groups" in w]
+    assert shared == ["links bus and side share multicast groups 239.255.76.67..239.255.76.68 (a link's own "
+                      "group and its writers'): a switch that snoops IGMP then sends each link's traffic on "
+                      "them to the hosts of both; give link side a group from 239.255.76.69 on"], shared
+    apart = loads(_with_side(BUS, "udpm://239.255.76.69:7800?ttl=0"), "x.yaml")
+    assert group_overlap(apart.links, apart.writer_ports) is None
+    together = loads(_with_side(BUS, BUS), "x.yaml")
+    assert group_overlap(together.links, together.writer_ports) is None  # counted on together
+
+
+def _many_writers(writers: int, events: bool) -> str:
+    """DPU 1 reads the buffers of `writers` processes on DPUs 2 and 3 (16 inputs a reader)."""
+    lines = ["system: many", "dpus: [{id: 1}, {id: 2}, {id: 3}]", "buffers:"]
+    lines += [f"  - {{id: {w}, name: b{w}, bytes: 8}}" for w in range(1, writers + 1)]
+    lines += ["processes:"]
+    lines += [f"  - {{id: {w}, name: w{w}, dpu: {2 + w % 2}, period_us: 10000, compute_us: 10, "
+              f"outputs: [b{w}]}}" for w in range(1, writers + 1)]  # fmt: skip
+    for r, first in enumerate(range(1, writers + 1, 16)):
+        inputs = ", ".join(f"b{w}" for w in range(first, min(first + 16, writers + 1)))
+        emits = ", emits: [tick]" if events and r == 0 else ""
+        lines += [f"  - {{id: {100 + r}, name: r{r}, dpu: 1, period_us: 10000, compute_us: 10, "
+                  f"inputs: [{inputs}]{emits}}}"]
+    if events:
+        lines += ["  - {id: 99, name: ticked, dpu: 3, sync: event, event: tick, period_us: 1000, "
+                  "compute_us: 10}"]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize(("writers", "events", "refused"), [
+    (64, False, False), (65, False, True), (63, True, False), (64, True, True),
+])
+def test_check_refuses_a_dpu_that_needs_more_links_than_it_opens(
+    tmp_path: Path, writers: int, events: bool, refused: bool
+) -> None:
+    """A DPU opens a link per writer it reads or is, and the control URL when it awaits or
+    emits events (contract MAX_LINKS): more is refused by skel check, not at the push."""
+    path = tmp_path / "many.yaml"
+    path.write_text(_many_writers(writers, events))
+    done = skel("check", str(path))
+    assert done.returncode == (2 if refused else 0), done.stdout + done.stderr
+    if refused:
+        said = " and the control URL for its events" if events else ""
+        assert done.stderr.strip() == (f"{path}: dpus.1: its processes read or write the buffers of "
+                                       f"{writers} writers (a group and port each){said}; a DPU opens at "
+                                       "most 64: spread its processes over more DPUs"), done.stderr
 
 
 def _bound_udp_ports(pid: int) -> set[int]:

@@ -197,6 +197,48 @@ static void test_rejections(void)
     }
 }
 
+/* DPU 1 writing the buffers of `urls` distinct URLs (every process moved to it, each
+ * writing up to SKEL_MAX_IO buffers of a URL each), emitting an event or not. */
+static int validate_urls(int urls, int events)
+{
+    static skelmsg_buffer_desc_t many[3 + 5 * SKEL_MAX_IO];
+    static char url[3 + 5 * SKEL_MAX_IO][48], channel[3 + 5 * SKEL_MAX_IO][24];
+    static char *emits[1] = { (char *)"tick" };
+    fixture_t f;
+    fixture_init(&f);
+    memcpy(many, f.buffers, sizeof f.buffers);
+    f.procs[1].dpu = f.procs[2].dpu = 1; /* all five on DPU 1: b1 and b2 are two URLs */
+    f.procs[1].order = 3;
+    f.procs[2].order = 4;
+    int n = 3;
+    for (int i = 0; i < 5 && n - 1 < urls; i++)
+        for (skelmsg_process_t *p = &f.procs[i]; p->noutputs < SKEL_MAX_IO && n - 1 < urls; n++) {
+            snprintf(url[n], sizeof url[n], "udpm://239.255.77.%d:%d?ttl=0", n, 7900 + n);
+            snprintf(channel[n], sizeof channel[n], "SKEL_BUF_m%d", n);
+            many[n] = (skelmsg_buffer_desc_t){ (int16_t)(n + 1), (char *)"m", 8, 1, url[n], p->id, channel[n] };
+            f.out[i][p->noutputs++] = (int16_t)(n + 1);
+        }
+    CHECK_EQ(n - 1, urls); /* b1, b2 and the new ones */
+    f.cfg.buffers = many;
+    f.cfg.nbuffers = n;
+    if (events) {
+        f.procs[0].nemits = 1;
+        f.procs[0].emits = emits;
+    }
+    return validate(&f, 0);
+}
+
+static void test_links_limit(void)
+{
+    CHECK_EQ(validate_urls(SKEL_MAX_LINKS, 0), 0);
+    CHECK(validate_urls(SKEL_MAX_LINKS + 1, 0) != 0);
+    CHECK_HAS(reason, "DPU 1: more than 64 links");
+    /* Events travel on the control URL, which the DPU then opens as one link more. */
+    CHECK_EQ(validate_urls(SKEL_MAX_LINKS - 1, 1), 0);
+    CHECK(validate_urls(SKEL_MAX_LINKS, 1) != 0);
+    CHECK_HAS(reason, "DPU 1: more than 64 links");
+}
+
 static void test_plan(void)
 {
     fixture_t f;
@@ -282,5 +324,6 @@ int main(void)
     test_rejections();
     test_plan();
     test_link_recv_buf_size();
+    test_links_limit();
     return CHECK_DONE();
 }
