@@ -259,7 +259,7 @@ int history_resend(skel_history_t *h, lcm_t *lcm, const skel_resend_t *ask, int 
 typedef struct {
     char *url;
     lcm_t *lcm;
-    int fd;
+    int fd;                    /* LCM's notify pipe once something is subscribed; -1 on a link only written */
     int32_t largest;           /* the largest message (encoded bytes) its socket receives */
     int64_t last_arrival_ns;   /* the latest receive stamp given out (link_arrival_ns) */
 } skel_link_t;

@@ -63,8 +63,12 @@ int link_open(skel_link_t *link)
                  "to %d bytes", link->url, asked, link->largest);
     link->lcm = lcm_create(url);
     if (link->lcm == NULL) return -1;
-    link->fd = lcm_get_fileno(link->lcm);
-    return link->fd >= 0 ? 0 : -1;
+    /* Nothing received yet: LCM joins the group, binds the port and starts its receive
+     * thread on the first subscription (link_subscribe_channel). A link we only write to
+     * never does, so our own datagrams, looped back by the kernel for readers on this
+     * host, wake no thread of ours: two wake-ups saved per buffer sent. */
+    link->fd = -1;
+    return 0;
 }
 
 void link_close(skel_link_t *link)
@@ -142,6 +146,7 @@ int link_subscribe_channel(skel_link_t *link, const char *channel, lcm_msg_handl
     if (link_channel_regex(channel, regex, sizeof regex) != 0) return -1;
     lcm_subscription_t *sub = lcm_subscribe(link->lcm, regex, handler, user);
     if (sub == NULL) return -1;
+    if (link->fd < 0 && (link->fd = lcm_get_fileno(link->lcm)) < 0) return -1;
     /* LCM's default queue drops the newest past 30 messages: nothing may be lost here. */
     return lcm_subscription_set_queue_capacity(sub, 0) == 0 ? 0 : -1;
 }
@@ -150,6 +155,7 @@ int link_drain(skel_link_t *links, int nlinks)
 {
     int handled = 0;
     for (int i = 0; i < nlinks; i++) {
+        if (links[i].fd < 0) continue; /* written only: lcm_handle would start receiving */
         for (int n = 0; n < LINK_DRAIN_MAX; n++) {
             int rc = lcm_handle_timeout(links[i].lcm, 0);
             if (rc < 0) return -1;
