@@ -136,7 +136,7 @@ def warnings(system: System) -> list[str]:
             out.append(f"DPU {d.id}: static load {100 * load_by_dpu[d.id]:.1f} % on average but "
                        f"{100 * worst_by_dpu[d.id]:.1f} % when its varying computations draw their maximum: "
                        "cycles with long draws will overrun")
-    if (shared := group_overlap(system.links, system.writer_ports)) is not None:
+    if (shared := group_overlap(system.links, system.writer_ports, system.default_link.url)) is not None:
         out.append(shared)
     out += _core_warnings(system, load_by_dpu)
     out += warmup_warnings(system)

@@ -149,21 +149,28 @@ def port_clash(links: Sequence[Link], ports: dict[tuple[int, int], int]) -> tupl
     return None
 
 
-def group_overlap(links: Sequence[Link], ports: dict[tuple[int, int], int]) -> str | None:
-    """Two links whose groups (their own and their writers') meet, said as a warning; None
-    when each link has its groups to itself. Their ports differ (port_clash), so every
-    buffer still reaches its readers and no others; but a switch that snoops IGMP forwards
-    a group to every host that joined it for either link."""
-    groups = [(link, int(ipaddress.IPv4Address(group)), last - port)
-              for (group, port), (link, last) in _spans(links, ports).items()]
+def group_overlap(links: Sequence[Link], ports: dict[tuple[int, int], int], control_url: str) -> str | None:
+    """Two links whose writers' groups meet, or writers on the control group, said as a
+    warning; None when every writer's group is its own. Their ports differ (port_clash), so
+    every buffer still reaches its readers and no others; but a switch that snoops IGMP
+    forwards a group to every host that joined it for either."""
+    control = int(ipaddress.IPv4Address(parse_url(control_url).group))
+    # A link's own group carries nothing of its writers (only the control URL's carries control).
+    groups = [(link, int(ipaddress.IPv4Address(group)) + 1, last - port)
+              for (group, port), (link, last) in _spans(links, ports).items() if last > port]
     for i, (link, first, count) in enumerate(groups):
+        if first <= control < first + count:
+            return (f"link {link.name}'s writers' groups {ipaddress.IPv4Address(first)}.."
+                    f"{ipaddress.IPv4Address(first + count - 1)} hold the control group "
+                    f"{ipaddress.IPv4Address(control)}, which every host joins: a writer's buffers there go "
+                    f"to every host; move link {link.name}'s group so that its writers' leave it out")
         for them, their_first, their_count in groups[i + 1:]:
-            if first <= their_first + their_count and their_first <= first + count:
+            if first < their_first + their_count and their_first < first + count:
                 shared = (ipaddress.IPv4Address(max(first, their_first)),
-                          ipaddress.IPv4Address(min(first + count, their_first + their_count)))
-                after = ipaddress.IPv4Address(first + count + 1)
-                return (f"links {link.name} and {them.name} share multicast groups {shared[0]}..{shared[1]} "
-                        f"(a link's own group and its writers'): a switch that snoops IGMP then sends each "
-                        f"link's traffic on them to the hosts of both; give link {them.name} a group from "
+                          ipaddress.IPv4Address(min(first + count, their_first + their_count) - 1))
+                after = ipaddress.IPv4Address(first + count)
+                return (f"links {link.name} and {them.name} share their writers' multicast groups "
+                        f"{shared[0]}..{shared[1]}: a switch that snoops IGMP then sends each link's "
+                        f"buffers on them to the hosts of both; give link {them.name} a group from "
                         f"{after} on")
     return None

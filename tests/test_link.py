@@ -129,14 +129,18 @@ def test_check_warns_of_links_whose_groups_meet(tmp_path: Path) -> None:
     path.write_text(_with_side(BUS, "udpm://239.255.76.67:7800?ttl=0"))
     done = skel("check", str(path), "--json")
     assert done.returncode == 0, done.stdout + done.stderr
-    shared = [w for w in json.loads(done.stdout)["warnings"] if "share multicast groups" in w]
-    assert shared == ["links bus and side share multicast groups 239.255.76.67..239.255.76.68 (a link's own "
-                      "group and its writers'): a switch that snoops IGMP then sends each link's traffic on "
-                      "them to the hosts of both; give link side a group from 239.255.76.69 on"], shared
+    shared = [w for w in json.loads(done.stdout)["warnings"] if "groups" in w]
+    assert shared == ["links bus and side share their writers' multicast groups 239.255.76.68.."
+                      "239.255.76.68: a switch that snoops IGMP then sends each link's buffers on them to "
+                      "the hosts of both; give link side a group from 239.255.76.69 on"], shared
+    control = loads(_with_side(BUS, "udpm://239.255.76.66:7800?ttl=0"), "x.yaml")
+    said = group_overlap(control.links, control.writer_ports, control.default_link.url)
+    assert said is not None and said.startswith("link side's writers' groups 239.255.76.67..239.255.76.67 "
+                                                 "hold the control group 239.255.76.67"), said
     apart = loads(_with_side(BUS, "udpm://239.255.76.69:7800?ttl=0"), "x.yaml")
-    assert group_overlap(apart.links, apart.writer_ports) is None
+    assert group_overlap(apart.links, apart.writer_ports, apart.default_link.url) is None
     together = loads(_with_side(BUS, BUS), "x.yaml")
-    assert group_overlap(together.links, together.writer_ports) is None  # counted on together
+    assert group_overlap(together.links, together.writer_ports, BUS) is None  # counted on together
 
 
 def _many_writers(writers: int, events: bool) -> str:
