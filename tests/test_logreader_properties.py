@@ -73,3 +73,17 @@ def test_flipped_bits_lose_only_the_events_they_touch(real: bytes, flips: list[i
     for event in untouched:
         assert event in got, (at, event[0])
     _analyse(bytes(damaged))
+
+
+def test_an_event_between_two_damaged_sync_words_is_kept(real: bytes) -> None:
+    """Found by the property above: with the first event's sync word damaged the reader
+    looks for the next, and the second event, whole, was refused because the sync word
+    after it was damaged too."""
+    spans = _spans(real)
+    damaged = bytearray(real)
+    damaged[spans[0][0]] ^= 1
+    damaged[spans[2][0]] ^= 1
+    log = read_bytes(bytes(damaged))
+    got = [(log.channels[int(log.channel_id[i])], bytes(log.data(i))) for i in range(len(log))]
+    assert (spans[1][2], spans[1][3]) in got
+    assert [c for c, _ in got] == [c for _, _, c, _ in spans[1:2] + spans[3:]]
