@@ -59,8 +59,8 @@ import skelmsg
 from skeleton.analysis.measure.metrics import first_of_frame
 from skeleton.analysis.read.logreader import read_log
 from skeleton.analysis.read.records import load_records
-from skeleton.host import spawn
 from skeleton.host.schedule import ideal_schedule, response_times, utilization
+from skeleton.host.system import loads
 
 BENCH = Path(__file__).resolve().parent
 REPO = BENCH.parent
@@ -79,16 +79,6 @@ buffers: [{{id: 1, name: out, bytes: {BUFFER_BYTES}}}]
 processes:
   - {{id: 1, name: cyclic, dpu: 1, period_us: {PERIOD_US}, compute_us: 100, outputs: [out]}}
 run: {{warmup_cycles: {WARMUP_CYCLES}, lockout_cycles: 1000, stop_on: []}}
-"""
-
-
-# A Python LCM listener on every channel: what `skel run`'s host tool is during a run.
-SINK = """
-import sys, lcm
-lc = lcm.LCM(sys.argv[1])
-lc.subscribe(".*", lambda channel, data: None)
-while True:
-    lc.handle()
 """
 
 
@@ -269,24 +259,19 @@ def part_publish(tmp: Path, seconds: float, records: np.ndarray | None) -> list[
     size = len(msg.encode())
     exe = build_publisher(tmp)
     count = int(seconds * 1e6 / PERIOD_US)
-    # The same listeners as in the run: on loopback a publish delivers to every socket on
-    # the port, so each one costs the publisher (lcm-logger, and the host tool's stand-in).
-    logger = spawn.start_logger(URL, tmp / "bare.lcm")
-    sink = subprocess.Popen([sys.executable, "-c", SINK, URL])
-    try:
-        done = subprocess.run([str(exe), URL, str(size), str(PERIOD_US), str(count)], capture_output=True,
-                              text=True, timeout=seconds + 30)
-    finally:
-        sink.terminate()
-        sink.wait()
-        spawn.stop(logger)
+    # The same URL as the run's buffer, with the same listeners: none. On loopback a publish
+    # delivers to every socket on its port, so each would cost the publisher; the run's
+    # logger and host tool hear the record URL, and nothing reads the buffer.
+    url = loads(SYSTEM, "bench.yaml").buffer_url("out")
+    done = subprocess.run([str(exe), url, str(size), str(PERIOD_US), str(count)], capture_output=True,
+                          text=True, timeout=seconds + 30)
     if done.returncode != 0:
         raise SystemExit(f"bench: lcm_publish failed: {done.stderr.strip()}")
     _, mean, p50, p99, worst = map(int, done.stdout.split())
     ours = records["comm_out_ns"] if records is not None else np.zeros(1)
     lines = [f"# one {BUFFER_BYTES}-byte buffer ({size} bytes encoded buffer_t) per {PERIOD_US} us cycle, "
              f"{len(ours)} cycles; bare: lcm_publish() of {size} bytes, {count} times, same period, "
-             "same listeners (its own socket, lcm-logger, a Python subscriber)",
+             "same URL (the writer's own group and port) and listeners (none)",
              f"skel-dpu comm_out: mean {ours.mean() / 1000:.2f} us, p50 {us_at(ours, 50):.2f} us, "
              f"p99 {us_at(ours, 99):.2f} us, max {ours.max() / 1000:.1f} us",
              f"bare lcm_publish: mean {mean / 1000:.2f} us, p50 {p50 / 1000:.2f} us, "

@@ -24,7 +24,7 @@ static skel_plan_t *apply_build(skel_control_t *c)
     if (cfg == NULL) return NULL;
     skel_plan_t *plan = plan_build(cfg, index, reason, sizeof reason);
     (void)pthread_setname_np(pthread_self(), "lcm-link"); /* for LCM's threads, as in control.c */
-    if (plan != NULL && plan_open_links(plan, s->url, &s->rejected, reason, sizeof reason) != 0) {
+    if (plan != NULL && plan_open_links(plan, s->url, s->rec_url, &s->rejected, reason, sizeof reason) != 0) {
         plan_free(plan);
         plan = NULL;
     }

@@ -223,7 +223,7 @@ static void command_resend(skel_control_t *c, const skelmsg_command_t *cmd)
 {
     skel_resend_t ask = { cmd->run_id, cmd->batch_from, cmd->batch_to, cmd->with_report };
     int gone = 0;
-    int sent = history_resend(&c->history, c->s->ctl, &ask, &gone);
+    int sent = history_resend(&c->history, c->s->rec, &ask, &gone);
     log_line("DPU %d: re-sent %d of run %lld (batches %lld..%lld%s)%s", c->s->dpu_id, sent,
              (long long)cmd->run_id, (long long)cmd->batch_from, (long long)cmd->batch_to,
              cmd->with_report ? " and the report" : "",

@@ -45,7 +45,7 @@ static void control_publish_batch(skel_control_t *c)
     c->batch.msg.run_id = s->run_id;
     c->batch.msg.generation = c->batch_generation;
     c->batch.msg.batch_seq = c->batch_seq++;
-    if (history_publish_batch(&c->history, s->ctl, &c->batch.msg) != 0)
+    if (history_publish_batch(&c->history, s->rec, &c->batch.msg) != 0)
         log_line("cannot publish timing batch %lld", (long long)c->batch.msg.batch_seq);
     atomic_fetch_add(&s->timing_batches, 1);
     timing_batch_clear(&c->batch);

@@ -270,6 +270,7 @@ typedef struct {
  * twice what is asked, for its bookkeeping, up to net.core.rmem_max. */
 int link_url(const skel_link_t *link, char *out, size_t len, int32_t *asked);
 int link_open(skel_link_t *link);
+int link_record_url(const char *control, char *out, size_t len);
 void link_close(skel_link_t *link);
 void link_receive(skel_slot_t *slot, const lcm_recv_buf_t *rbuf); /* a buffer_t on SLOT's channel */
 int link_subscribe(skel_link_t *link, skel_slot_t *slot);
@@ -419,6 +420,8 @@ typedef struct skel_plan {
     int nsources;
     skel_source_t sources[SKEL_MAX_EVENTS];
     lcm_t *gen_lcm;             /* the generator thread's own lcm_t */
+    lcm_t *gen_rec;             /* ... and its own on the record URL, for the log's copy */
+    lcm_t *emit_rec;            /* the executive's on the record URL, for the log's copy of what it emits */
     pthread_t gen_thread;
     int gen_started;
     atomic_int gen_stop;
@@ -439,7 +442,7 @@ int64_t config_common_us(const skelmsg_config_t *cfg);
 const skelmsg_buffer_desc_t *config_buffer(const skelmsg_config_t *cfg, int16_t id);
 const skelmsg_link_t *config_link(const skelmsg_config_t *cfg, int16_t id);
 skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason, size_t len);
-int plan_open_links(skel_plan_t *plan, const char *control_url, atomic_int_fast64_t *rejected,
+int plan_open_links(skel_plan_t *plan, const char *control_url, const char *record_url, atomic_int_fast64_t *rejected,
                     char *reason, size_t len);
 void plan_free(skel_plan_t *plan);
 void plan_reset_run(skel_plan_t *plan, int64_t run_id);
@@ -506,7 +509,9 @@ typedef struct skel_server {
     int rt_priority;           /* SCHED_FIFO priority of a run's cycles; 0 never, -1 default */
     int rt_warned;             /* executive thread only: SCHED_FIFO refused, said once */
 
-    lcm_t *ctl;                /* control thread's lcm_t on the control URL */
+    lcm_t *ctl;                /* control thread's lcm_t on the control URL: it receives there */
+    lcm_t *rec;                /* control thread's lcm_t on the record URL: it only sends there */
+    char rec_url[1024];
     skel_seal_t seal;          /* control thread's: the key, and what it refused */
     int wake_fd;               /* eventfd: anything -> executive (stop, quit) */
     int notify_fd;             /* eventfd: executive -> control (events) */
@@ -554,6 +559,8 @@ typedef struct skel_server {
 
 int server_init(skel_server_t *s);
 void server_free(skel_server_t *s);
+int server_open(skel_server_t *s, char *why, size_t len);
+void server_close(skel_server_t *s);
 void server_wake(int fd);
 void server_fault(skel_server_t *s, int fault);
 int64_t server_now(const skel_server_t *s); /* reported time: monotonic + test offset */
@@ -608,7 +615,7 @@ void process_kept(skel_exec_t *x, skel_rec_t *rec, int64_t step_from, int64_t no
 /* ---- event (event.c) ------------------------------------------------------------ */
 int event_add_process(skel_plan_t *plan, skel_process_t *p, const skelmsg_process_t *src);
 int event_add_sources(skel_plan_t *plan, const skelmsg_config_t *cfg, int16_t dpu);
-int event_open(skel_plan_t *plan, const char *control_url);
+int event_open(skel_plan_t *plan, const char *control_url, const char *record_url);
 void event_receive(skel_event_t *e, const lcm_recv_buf_t *rbuf); /* an event_t on E's channel */
 void event_free(skel_plan_t *plan);
 void event_reset_run(skel_plan_t *plan);

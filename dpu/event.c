@@ -151,12 +151,15 @@ static void event_on_message(const lcm_recv_buf_t *rbuf, const char *channel, vo
 }
 
 /* The network side: the control URL joins the plan's links when an event is awaited
- * or emitted here, and the generators get an lcm_t of their own (another thread). */
-int event_open(skel_plan_t *plan, const char *control_url)
+ * or emitted here, and the generators get an lcm_t of their own (another thread). What
+ * this DPU sends goes to the record URL too, for the log (contract: RECORD_OFFSET); each
+ * sending thread has its lcm_t there, so neither waits on the other's lock. */
+int event_open(skel_plan_t *plan, const char *control_url, const char *record_url)
 {
-    int used = plan->awaits_events;
-    for (int i = 0; i < plan->nprocesses; i++) used |= plan->processes[i].nemits > 0;
-    if (used) {
+    int emits = 0;
+    for (int i = 0; i < plan->nprocesses; i++) emits |= plan->processes[i].nemits > 0;
+    if (emits && (plan->emit_rec = lcm_create(record_url)) == NULL) return -1;
+    if (plan->awaits_events || emits) {
         for (int i = 0; i < plan->nlinks && plan->event_link < 0; i++)
             if (strcmp(plan->links[i].url, control_url) == 0) plan->event_link = i;
         if (plan->event_link < 0) {
@@ -176,7 +179,9 @@ int event_open(skel_plan_t *plan, const char *control_url)
                                        event_on_message, &plan->events[i]) != 0)
                 return -1;
     }
-    if (plan->nsources > 0 && (plan->gen_lcm = lcm_create(control_url)) == NULL) return -1;
+    if (plan->nsources > 0 && ((plan->gen_lcm = lcm_create(control_url)) == NULL ||
+                               (plan->gen_rec = lcm_create(record_url)) == NULL))
+        return -1;
     return 0;
 }
 
@@ -184,6 +189,8 @@ void event_free(skel_plan_t *plan)
 {
     event_generators_stop(plan);
     if (plan->gen_lcm != NULL) lcm_destroy(plan->gen_lcm);
+    if (plan->gen_rec != NULL) lcm_destroy(plan->gen_rec);
+    if (plan->emit_rec != NULL) lcm_destroy(plan->emit_rec);
     for (int i = 0; i < plan->nevents; i++) {
         free(plan->events[i].name);
         free(plan->events[i].channel);
@@ -252,13 +259,15 @@ static int event_encode(skel_event_t *e, uint8_t *enc, int cap, int64_t run_id, 
     return skelmsg_event_t_encode(enc, 0, cap, &msg);
 }
 
-/* P's cycle ended: it fires each event it emits (the executive thread's lcm_t). */
+/* P's cycle ended: it fires each event it emits (the executive thread's lcm_t), and
+ * sends the log its copy. */
 void event_emit(skel_plan_t *plan, const skel_process_t *p, int64_t now_ns)
 {
     for (int i = 0; i < p->nemits; i++) {
         skel_event_t *e = &plan->events[p->emits[i]];
         int len = event_encode(e, e->enc, e->enc_cap, plan->run_id, plan->dpu, p->id, e->seq++, now_ns);
-        if ((len < 0 || lcm_publish(plan->links[plan->event_link].lcm, e->channel, e->enc, (unsigned)len) != 0)
+        if ((len < 0 || lcm_publish(plan->links[plan->event_link].lcm, e->channel, e->enc, (unsigned)len) != 0 ||
+             lcm_publish(plan->emit_rec, e->channel, e->enc, (unsigned)len) != 0)
             && plan->publish_errors++ == 0)
             log_line("DPU %d: process %d cannot publish event %s", plan->dpu, p->id, e->name);
     }
@@ -298,7 +307,8 @@ static void *event_generate(void *arg)
         skel_event_t *e = &plan->events[g->event];
         int len = event_encode(e, g->enc, g->enc_cap, plan->run_id, plan->dpu, 0, g->k,
                                g->next_ns + plan->clock_offset_ns);
-        if (len < 0 || lcm_publish(plan->gen_lcm, e->channel, g->enc, (unsigned)len) != 0)
+        if (len < 0 || lcm_publish(plan->gen_lcm, e->channel, g->enc, (unsigned)len) != 0 ||
+            lcm_publish(plan->gen_rec, e->channel, g->enc, (unsigned)len) != 0)
             log_line("DPU %d: cannot publish generated event %s", plan->dpu, e->name);
         g->k++;
         g->next_ns = event_source_next(g, plan->run_t0_ns, g->next_ns);

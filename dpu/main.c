@@ -18,7 +18,8 @@ static void usage(void)
             "                [--rt-priority N] [--key FILE] [--verbose]\n"
             "  --id N|auto          this DPU's id in the config; auto: the DPU whose host is this\n"
             "                       machine's host name\n"
-            "  --url URL            control URL (default %s)\n"
+            "  --url URL            control URL (default %s); status and timing go to its\n"
+            "                       record URL, the group and port each one lower\n"
             "  --clock-offset-ns N  test option: add N to every reported timestamp\n"
             "  --spin-us N          compute mode SLEEP spins the last N us (default 150)\n"
             "  --rt-priority N      run cycles under SCHED_FIFO priority N (1-99; 0: never);\n"
@@ -136,20 +137,19 @@ int main(int argc, char **argv)
         return SKEL_EXIT_FAILED;
     }
     if (block_signals() != 0) return SKEL_EXIT_FAILED;
-    s->ctl = lcm_create(s->url);
-    if (s->ctl == NULL) {
-        log_line("cannot open control URL %s (is there a multicast route?)", s->url);
+    if (server_open(s, why, sizeof why) != 0) {
+        log_line("%s", why);
         return SKEL_EXIT_FAILED;
     }
     if (control_init(&control, s) != 0) { log_line("out of memory"); return SKEL_EXIT_FAILED; }
-    log_line("DPU %s on %s: control %s (%s), WORK %.1f iterations/us, clock offset %lld ns",
-             s->id_arg >= 0 ? argv[2] : "auto", s->hostname, s->url,
+    log_line("DPU %s on %s: control %s, record %s (%s), WORK %.1f iterations/us, clock offset %lld ns",
+             s->id_arg >= 0 ? argv[2] : "auto", s->hostname, s->url, s->rec_url,
              s->seal.keyed ? "signed" : "unauthenticated: no key", s->compute.work_iters_per_us,
              (long long)s->clock_offset_ns);
     int rc = run_threads(s, &control);
     control_free(&control);
     seal_free(&s->seal);
-    lcm_destroy(s->ctl);
+    server_close(s);
     server_free(s);
     return rc == 0 ? SKEL_EXIT_OK : SKEL_EXIT_FAILED;
 }

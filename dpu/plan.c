@@ -182,7 +182,7 @@ oom:
 
 /* The network side of applying: lcm_t per URL, a subscription per slot read
  * over a link. Made by the control thread, used afterwards by the executive. */
-int plan_open_links(skel_plan_t *plan, const char *control_url, atomic_int_fast64_t *rejected,
+int plan_open_links(skel_plan_t *plan, const char *control_url, const char *record_url, atomic_int_fast64_t *rejected,
                     char *reason, size_t len)
 {
     plan->rejected = rejected;
@@ -200,7 +200,7 @@ int plan_open_links(skel_plan_t *plan, const char *control_url, atomic_int_fast6
             return -1;
         }
     }
-    if (event_open(plan, control_url) != 0) {
+    if (event_open(plan, control_url, record_url) != 0) {
         snprintf(reason, len, "DPU %d: cannot open or subscribe to its events on %s", plan->dpu, control_url);
         return -1;
     }

@@ -72,7 +72,7 @@ int report_status_publish(skel_control_t *c)
     c->status_due = 0;
     uint8_t enc[SKEL_STATUS_BYTES];
     int len = skelmsg_status_t_encode(enc, 0, sizeof enc, &st);
-    return len < 0 ? -1 : seal_publish(&c->s->seal, c->s->ctl, SKEL_STATUS_CHANNEL, enc, len);
+    return len < 0 ? -1 : seal_publish(&c->s->seal, c->s->rec, SKEL_STATUS_CHANNEL, enc, len);
 }
 
 /* A config or command refused (or, forced, let through): REASON goes in the
@@ -155,7 +155,7 @@ int report_publish(skel_server_t *s, const skel_plan_t *plan, skel_history_t *hi
     r.stall_ns = d->stall_ns;
     r.nprocesses = (int16_t)n;
     r.processes = procs;
-    int rc = history_publish_report(history, s->ctl, &r);
+    int rc = history_publish_report(history, s->rec, &r);
     free(procs);
     free(ins);
     return rc;

@@ -1,6 +1,7 @@
 /* server.c: the one server struct's life cycle and the few helpers both
  * threads use on it (wake-ups, faults, the reported clock). */
 #include <errno.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/eventfd.h>
@@ -57,6 +58,33 @@ void server_free(skel_server_t *s)
     if (s->notify_fd >= 0) close(s->notify_fd);
     pthread_cond_destroy(&s->cond);
     pthread_mutex_destroy(&s->lock);
+}
+
+/* The control thread's two lcm_t: on S->url, where the DPU receives, and on its record
+ * URL (link_record_url), where it only sends. 0, or -1 with WHY. */
+int server_open(skel_server_t *s, char *why, size_t len)
+{
+    if (link_record_url(s->url, s->rec_url, sizeof s->rec_url) != 0) {
+        snprintf(why, len, "--url %s: expected udpm://GROUP:PORT?options, its group and port above "
+                 "the record URL's offset (%d)", s->url, SKEL_RECORD_OFFSET);
+        return -1;
+    }
+    s->ctl = lcm_create(s->url);
+    s->rec = s->ctl != NULL ? lcm_create(s->rec_url) : NULL;
+    if (s->rec == NULL) {
+        snprintf(why, len, "cannot open %s URL %s (is there a multicast route?)", s->ctl ? "record" : "control",
+                 s->ctl ? s->rec_url : s->url);
+        server_close(s);
+        return -1;
+    }
+    return 0;
+}
+
+void server_close(skel_server_t *s)
+{
+    if (s->rec != NULL) lcm_destroy(s->rec);
+    if (s->ctl != NULL) lcm_destroy(s->ctl);
+    s->rec = s->ctl = NULL;
 }
 
 /* Async-signal-safe: a write to an eventfd. A full counter is still readable. */

@@ -380,7 +380,7 @@ def cmd_clock(args: argparse.Namespace) -> int:
         listened = _listen(control, args)
         ids = sorted(i for i in control.snapshot() if i >= 0)
         found = clock.estimate(control, ids, samples=args.samples)
-        clock.publish(control, found)  # a logger on the URL records them too
+        clock.publish(control, found)  # for the logger, on the record URL
     finally:
         control.close()
     for line in control.key_lines():
@@ -456,7 +456,11 @@ def cmd_event(args: argparse.Namespace) -> int:
     if problem:
         print(f"skel event {args.name}: {problem}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    sent = event.send(args.url, args.name, args.count, args.rate)  # events are not signed (README: Security)
+    try:
+        sent = event.send(args.url, args.name, args.count, args.rate)  # not signed (README: Security)
+    except ValueError as error:  # a URL whose record URL is none (host/link.py)
+        print(f"skel event {args.name}: {error}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     print(f"sent {sent} event{'s' if sent != 1 else ''} {args.name} on {args.url}")
     return 0
 

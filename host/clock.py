@@ -81,7 +81,7 @@ def estimate(control: Control, dpu_ids: Iterable[int], samples: int = SAMPLES, s
 
 def publish(control: Control, estimates: dict[int, ClockEstimate]) -> None:
     for found in estimates.values():
-        control.publish(CLOCK_CHANNEL, found.to_message())
+        control.record(CLOCK_CHANNEL, found.to_message())
 
 
 class ClockKeeper:

@@ -1,10 +1,12 @@
 """Talking to the DPUs: config broadcast, commands and pings.
 
-One `Control` owns one LCM instance on the control URL and a thread that drains
-it into the Listener it is (listener.py: what the heartbeats, reports and configs
-say, decoded once and kept). Everything it asks goes out as config_t and
-command_t. Commands are repeated a few times (multicast may lose one) and the
-DPUs act on each command sequence number once.
+One `Control` sends on the control URL, where the DPUs listen, and hears on the
+record URL (host/link.py: record_url), where they send heartbeats, timing and
+reports; a thread drains that into the Listener it is (listener.py: what the
+heartbeats, reports and configs say, decoded once and kept). Everything it asks
+goes out as config_t and command_t, on both URLs: the DPUs act on the one, the
+logger records the other. Commands are repeated a few times (multicast may lose
+one) and the DPUs act on each command sequence number once.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import skelmsg
 from skelmsg import contract
 
 from ..analysis.read.seal import Signer
+from .link import record_url
 from .listener import CHANNELS, Listener, is_generation
 
 COMMAND_REPEATS = 3
@@ -144,12 +147,17 @@ class Control(Listener):
         self._signer = Signer(key, self.session) if key is not None else None
         self.sender = f"{socket.gethostname()} pid {os.getpid()}"
         self.force = False  # `--force`: act during another session's run
-        self._lcm = lcm.LCM(url)
+        try:
+            self.record_url = record_url(url)
+        except ValueError as exc:
+            raise ControlError(str(exc)) from None
+        self._lcm = lcm.LCM(url)  # only sends: LCM joins no group until something subscribes
+        self._record = lcm.LCM(self.record_url)
         # seq of each PING we sent -> the first answer of each DPU (later heartbeats repeat it),
         # and -> its t1, which an answer must echo.
         self._pings: dict[int, dict[int, PingSample]] = {}
         self._ping_t1: dict[int, int] = {}
-        subscribe(self._lcm, url, CHANNELS, self.handle)
+        subscribe(self._record, self.record_url, CHANNELS, self.handle)
         self._running = True
         self._thread = threading.Thread(target=self._drain, name="lcm-control", daemon=True)
         self._thread.start()
@@ -160,7 +168,7 @@ class Control(Listener):
         # they would only cut LCM's wait short, and it reports that as an error.
         signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
         while self._running:
-            self._lcm.handle_timeout(50)
+            self._record.handle_timeout(50)
 
     def status_heard(self, status: skelmsg.status_t, heard_ns: int) -> None:
         answers = self._pings.get(status.ping_seq)
@@ -233,11 +241,20 @@ class Control(Listener):
             self._send(contract.COMMAND_CHANNEL, data)  # each repeat sealed anew: a newer counter
         return cmd.seq
 
-    def publish(self, channel: str, message: object) -> None:
-        self._send(channel, message.encode())  # type: ignore[attr-defined]
+    def record(self, channel: str, message: object) -> None:
+        """For the log only (the record URL): what no DPU acts on."""
+        self._record.publish(channel, self._sealed(channel, message.encode()))  # type: ignore[attr-defined]
 
     def _send(self, channel: str, data: bytes) -> None:
-        self._lcm.publish(channel, data if self._signer is None else self._signer.seal(channel, data))
+        """To the DPUs first, then the log's copy: the same bytes, seal and all. A copy sealed
+        anew would carry a counter no DPU has seen, so the log's last one, played back to
+        the DPUs, would pass as new."""
+        sealed = self._sealed(channel, data)
+        self._lcm.publish(channel, sealed)
+        self._record.publish(channel, sealed)
+
+    def _sealed(self, channel: str, data: bytes) -> bytes:
+        return data if self._signer is None else self._signer.seal(channel, data)
 
     def ping(self, dpu: int = -1) -> int:
         """Send one PING (not repeated: a lost one is just a lost sample); return its seq.

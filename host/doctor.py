@@ -30,7 +30,7 @@ from skelmsg.contract import DEFAULT_URL, KEY_ENV
 from ..analysis.exitcodes import EXIT_FAILED, EXIT_OK
 from ..analysis.measure.faults import recv_buf_needed
 from ..analysis.views.console import OutputConsole
-from .link import LcmUrl, parse_url
+from .link import LcmUrl, parse_url, record_url
 
 MIN_RMEM_BYTES = 2 * 1024 * 1024
 GOOD_RMEM_BYTES = 8 * 1024 * 1024
@@ -321,7 +321,20 @@ def run_checks(url: str) -> list[Check]:
                                    parsed.recv_buf_size),
               *check_firewall(parsed)]
     failed = any(not c.ok and c.severity == "fail" for c in checks)
-    return [*checks, check_self_test(url, failed)]
+    return [*checks, check_self_test(url, failed), *_record_checks(url, failed)]
+
+
+def _record_checks(url: str, earlier_failed: bool) -> list[Check]:
+    """The record URL (host/link.py: record_url), where the DPUs send heartbeats, timing and
+    reports: the same group's route, so only its port's firewall and a message of its own."""
+    try:
+        record = record_url(url)
+    except ValueError as exc:
+        return [Check("record URL", False, str(exc), f"--url '{DEFAULT_URL}'")]
+    blocked = [c for c in check_firewall(parse_url(record)) if not c.ok]
+    test = check_self_test(record, earlier_failed or any(c.severity == "fail" for c in blocked))
+    said = f"{record} (heartbeats, timing, reports): {test.detail}"
+    return [*blocked, Check("record URL", test.ok, said, test.fix, test.severity)]
 
 
 STYLE = {"OK": "green", "WARN": "yellow", "FAIL": "bold red"}

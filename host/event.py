@@ -2,7 +2,8 @@
 of kind host), for the processes that await it (`sync: event`).
 
 Each event is one event_t on its channel (EVENT_CHANNEL_PREFIX + NAME) of the control URL,
-with run_id 0: whichever run is going takes it; between runs the DPUs ignore it.
+with run_id 0: whichever run is going takes it; between runs the DPUs ignore it. A copy goes
+to the record URL, for the log.
 """
 
 from __future__ import annotations
@@ -14,12 +15,14 @@ import lcm
 import skelmsg
 from skelmsg import contract
 
+from .link import record_url
+
 
 def send(url: str, name: str, count: int = 1, rate_hz: float = 10.0) -> int:
     """Publish COUNT events NAME at RATE_HZ, on an absolute grid (a slow publish does not
     stretch the rest); returns how many were sent."""
     channel = contract.EVENT_CHANNEL_PREFIX + name
-    bus = lcm.LCM(url)
+    bus, log = lcm.LCM(url), lcm.LCM(record_url(url))
     msg = skelmsg.event_t()
     msg.run_id, msg.dpu, msg.process, msg.name = 0, 0, 0, name
     t0 = time.monotonic()
@@ -28,5 +31,7 @@ def send(url: str, name: str, count: int = 1, rate_hz: float = 10.0) -> int:
         if delay > 0:
             time.sleep(delay)
         msg.seq, msg.sent_ns = seq, time.monotonic_ns()
-        bus.publish(channel, msg.encode())
+        data = msg.encode()
+        bus.publish(channel, data)
+        log.publish(channel, data)
     return count

@@ -11,8 +11,10 @@ cannot: on one host Linux hands a multicast datagram to every socket bound to it
 any socket of the host joined the group for (IP_MULTICAST_ALL), so only a port of its own
 keeps a writer's traffic from the other DPUs there; across hosts a switch (or bridge) that
 snoops IGMP forwards a group only to the hosts that joined it, so only a group of its own
-keeps a writer's traffic off the hosts that do not read it. Control (config, commands,
-status, timing) stays on GROUP:PORT, the control URL.
+keeps a writer's traffic off the hosts that do not read it. Control (configs, commands,
+events) stays on the first link's GROUP:PORT, the control URL, and what a run records
+(heartbeats, timing, reports) travels on its record URL, GROUP - 1:PORT - 1, which only the
+host and the logger join: no DPU wakes for another's records (record_url).
 
 `buffer_desc_t.url` carries the result to the DPUs (host/wire.py); the rules refuse a
 system whose links' ports would overlap or whose groups would leave the multicast range
@@ -27,7 +29,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from urllib.parse import parse_qs, urlsplit, urlunsplit
 
-from skelmsg.contract import DEFAULT_URL
+from skelmsg.contract import DEFAULT_URL, RECORD_OFFSET
 
 from .schema import Link
 
@@ -64,6 +66,22 @@ def parse_url(url: str) -> LcmUrl:
     if not 0 <= ttl <= 255:
         raise ValueError(f"ttl={ttl} in {url!r}: expected 0 (this host) or 1 (the local network)")
     return LcmUrl("udpm", group, port, ttl, recv)
+
+
+def record_url(control_url: str) -> str:
+    """Where a run's records travel (contract: RECORD_OFFSET): the control URL's group and
+    port each that much lower, its options kept; dpu/link.c's link_record_url says the same.
+    Another provider's URL is its own record URL. ValueError says what is wrong."""
+    parsed = parse_url(control_url)
+    if parsed.provider != "udpm":
+        return control_url or os.environ.get("LCM_DEFAULT_URL") or DEFAULT_URL
+    parts = urlsplit(control_url or os.environ.get("LCM_DEFAULT_URL") or DEFAULT_URL)
+    group = ipaddress.IPv4Address(parsed.group) - RECORD_OFFSET
+    if parsed.port <= RECORD_OFFSET or not group.is_multicast:
+        raise ValueError(f"{control_url!r}: its record URL, group and port each {RECORD_OFFSET} lower, "
+                         "would leave the multicast groups or the ports")
+    return urlunsplit((parts.scheme, f"{group}:{parsed.port - RECORD_OFFSET}", parts.path, parts.query,
+                       parts.fragment))
 
 
 def _base(url: str) -> tuple[str, int]:
@@ -136,7 +154,13 @@ def port_clash(links: Sequence[Link], ports: dict[tuple[int, int], int]) -> tupl
     or whose writers' groups leave the multicast range, with what to say; None when every
     link has its ports and groups to itself."""
     spans = _spans(links, ports)
+    control = next((link for link in links if not link.local), None)
+    record = parse_url(record_url(control.url)).port if control is not None else None
     for (group, port), (link, last) in spans.items():
+        if record is not None and port < record <= last:
+            return link, (f"its writers' buffers take ports {port + 1}..{last}, which hold port {record} of "
+                          f"the record URL ({record_url(control.url)}: the DPUs' heartbeats and timing); "
+                          "put the link's port further from the control URL's")
         if last > MAX_PORT:
             return link, f"its writers need ports {port + 1}..{last}, past {MAX_PORT}"
         if last > port and (why := _outside_groups(group, last - port)) is not None:

@@ -18,7 +18,7 @@ from typing import Any
 from skelmsg import contract
 
 from .compute import ComputeError, varying
-from .link import parse_url, port_clash, writer_ports
+from .link import parse_url, port_clash, record_url, writer_ports
 from .schema import (
     ABSURD_COMPUTE_PERIODS,
     DEFAULT_LINK,
@@ -252,10 +252,13 @@ def _link_ports(spec: SystemSpec, links: tuple[Link, ...], buffer_links: dict[in
                 writers: dict[int, str]) -> dict[tuple[int, int], int]:
     """Each writer's buffers get a port of their own next to their link's (host/link.py):
     the ports must exist and no two links may share one."""
+    control = next((link for link in links if not link.local), None)
     for link in links:
         if not link.local:
             try:
                 parse_url(link.url)
+                if link is control:  # its record URL too: the DPUs' heartbeats and timing go there
+                    record_url(link.url)
             except ValueError as exc:
                 raise Invalid(f"links[{link.id - 1}].url", str(exc)) from None
     ids = {p.name: p.id for p in spec.processes}

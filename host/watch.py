@@ -31,6 +31,7 @@ from ..analysis.read.messages import LogError
 from ..analysis.views.console import OutputConsole
 from ..analysis.views.tables import print_report
 from .control import subscribe
+from .link import record_url
 from .listener import CHANNELS, LOST_AFTER_S, Listener
 from .predict_view import predictor
 from .recordstore import RecordStore
@@ -139,10 +140,12 @@ class Heard:
 
 
 def _subscribe(url: str, heard: Heard) -> Any:
+    """Heard hears the record URL of the control URL `url`: what a run records (host/link.py)."""
     import lcm
 
-    lc = lcm.LCM(url)
-    subscribe(lc, url, CHANNELS, heard.handle)
+    record = record_url(url)
+    lc = lcm.LCM(record)
+    subscribe(lc, record, CHANNELS, heard.handle)
     return lc
 
 
@@ -169,7 +172,7 @@ def watch_command(url: str, once: bool, duration_s: float | None, as_json: bool 
     heard = Heard(keep_events=once, key=key)
     try:
         lc = _subscribe(url, heard)
-    except RuntimeError as e:  # lcm's for a URL it cannot open; a taken port is ControlError
+    except (RuntimeError, ValueError) as e:  # lcm's, or record_url's; a taken port is ControlError
         print(f"skel watch: cannot open LCM URL {url}: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     deadline = None if duration_s is None else time.monotonic() + duration_s
@@ -233,7 +236,8 @@ class _FaultFinder:
 
 def _once(lc: Any, heard: Heard, url: str, deadline: float | None, as_json: bool) -> int:
     # Subscribed: say so, so a script may start a replay now without losing its first messages.
-    print(f"skel watch: waiting for a run on {url}", file=sys.stderr, flush=True)
+    print(f"skel watch: waiting for a run on {url} (hearing its record URL {record_url(url)})",
+          file=sys.stderr, flush=True)
     announced = None
     while not heard.ended() and (deadline is None or time.monotonic() < deadline):
         tick = time.monotonic() + REFRESH_S

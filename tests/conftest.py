@@ -25,6 +25,7 @@ from hypothesis import settings
 
 import skelmsg
 from skeleton.host import spawn
+from skeleton.host.link import record_url
 from skelmsg.contract import DEFAULT_URL, TIMING_CHANNEL
 
 # Timing tests get another attempt only when the hypervisor took the CPUs (tests/steal.py).
@@ -207,7 +208,7 @@ class TimingTap:
         self.run_id = run_id
         self.records: list = []  # of the subclass's record type
         self._lock = threading.Lock()
-        self._lcm = lcm.LCM(url)
+        self._lcm = lcm.LCM(record_url(url))  # where the DPUs send timing (host/link.py)
         self._lcm.subscribe(TIMING_CHANNEL, self._handle).set_queue_capacity(0)
         self._running = True
         self._thread = threading.Thread(target=self._drain, daemon=True)

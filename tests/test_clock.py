@@ -11,6 +11,7 @@ from conftest import DpuFarm, fresh_url, skel
 import skelmsg
 from skeleton.host import clock
 from skeleton.host.control import Control, PingSample
+from skeleton.host.link import record_url
 from skelmsg.contract import CLOCK_CHANNEL
 
 TOLERANCE_NS = 200_000
@@ -43,7 +44,7 @@ def test_estimate_recovers_injected_offsets_and_publishes_them(dpus: DpuFarm, ur
     dpus.start(2, extra=["--clock-offset-ns", "-3000000"])
     dpus.start(3)
     heard: list[skelmsg.clock_offset_t] = []
-    listener = lcm.LCM(url)
+    listener = lcm.LCM(record_url(url))  # the logger's URL: clock estimates are for the log
     listener.subscribe(CLOCK_CHANNEL, lambda _c, data: heard.append(skelmsg.clock_offset_t.decode(data)))
     control = Control(url)
     try:

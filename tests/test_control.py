@@ -15,6 +15,7 @@ from conftest import EXAMPLES, DpuFarm, skel
 import skelmsg
 from skeleton.analysis.exitcodes import EXIT_FAILED
 from skeleton.host.control import Control
+from skeleton.host.link import record_url
 from skeleton.host.listener import REPORTS_KEPT
 from skeleton.host.repair import SeenBatches
 from skeleton.host.system import load
@@ -26,10 +27,12 @@ PAIR = EXAMPLES / "pair-10ms-5ms.yaml"
 
 
 def _publish(url: str, channel: str, *messages: object, repeats: int = 3) -> None:
-    lc = lcm.LCM(url)
+    """As another host tool (or DPU) would: on the control URL and its record URL."""
+    buses = [lcm.LCM(url), lcm.LCM(record_url(url))]
     for _ in range(repeats):  # multicast may lose one
         for message in messages:
-            lc.publish(channel, message.encode())  # type: ignore[attr-defined]
+            for bus in buses:
+                bus.publish(channel, message.encode())  # type: ignore[attr-defined]
         time.sleep(0.05)
 
 
@@ -117,8 +120,8 @@ def test_stray_heartbeats_reports_and_configs_are_bounded(url: str) -> None:
         assert len(control.reports) <= REPORTS_KEPT
         # Generations no host tool makes are not kept as configs to re-send.
         for generation in (-5, INT64_MAX):
-            _publish(url, CONFIG_CHANNEL, _stray_config(url, generation, committed=True, valid=True),
-                     repeats=1)
+            stray = _stray_config(url, generation, committed=True, valid=True)
+            _publish(url, CONFIG_CHANNEL, stray, repeats=1)
         time.sleep(0.3)
         assert not control.configs
         assert control.rejected_messages >= 4  # DPU ids 0 and -9, the bad report, the configs
@@ -156,14 +159,15 @@ def test_the_log_repair_ignores_a_stray_batch_number() -> None:
 
 @pytest.mark.parametrize("command", [("watch", "--duration", "1"), ("status",)])
 def test_a_taken_port_is_said_in_one_line(command: tuple[str, ...]) -> None:
-    """Another program holds the control URL's UDP port without sharing it: LCM cannot bind,
-    and the command says so in one line (it raised AttributeError from a None subscription)."""
+    """Another program holds the UDP port the host hears on (the record URL's: the control
+    URL's less one) without sharing it: LCM cannot bind, and the command says so in one line
+    (it raised AttributeError from a None subscription)."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as holder:
         holder.bind(("0.0.0.0", 0))
         port = holder.getsockname()[1]
-        done = skel(*command, "--url", f"udpm://239.255.76.67:{port}?ttl=0")
+        done = skel(*command, "--url", f"udpm://239.255.76.67:{port + 1}?ttl=0")
     assert done.returncode == EXIT_FAILED, done.stdout + done.stderr
     said = [line for line in done.stderr.splitlines() if line.startswith("skel:")]
-    assert said == [f"skel: cannot receive on udpm://239.255.76.67:{port}?ttl=0: its port is taken by "
+    assert said == [f"skel: cannot receive on udpm://239.255.76.66:{port}?ttl=0: its port is taken by "
                     "another program"], done.stderr
     assert "Traceback" not in done.stderr

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from conftest import DpuFarm, skel, skel_background
 
-from skeleton.host.link import group_overlap, parse_url
+from skeleton.host.link import group_overlap, parse_url, record_url
 from skeleton.host.system import loads
 
 THREE = """\
@@ -91,6 +91,31 @@ def test_check_refuses_links_whose_ports_meet(tmp_path: Path, second: str, why: 
     (line,) = done.stderr.strip().splitlines()
     assert line.startswith(f"{path}: links[0].url: its writers' buffers take ports 7700..7702, "), line
     assert why in line, line
+
+
+def test_check_refuses_writers_on_the_record_port(tmp_path: Path) -> None:
+    """The first link's URL is the control URL; its record URL, a port below, is the DPUs'
+    heartbeats and timing: a writer there would send every buffer to the host and logger."""
+    path = tmp_path / "record.yaml"
+    path.write_text(_with_side(BUS, "udpm://239.255.70.1:7698?ttl=0"))  # wb's buffers: 7699
+    done = skel("check", str(path))
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert done.stderr.strip() == (
+        f"{path}: links[2].url: its writers' buffers take ports 7699..7699, which hold port 7699 of the "
+        "record URL (udpm://239.255.76.66:7699?ttl=0: the DPUs' heartbeats and timing); put the link's "
+        "port further from the control URL's")
+
+
+def test_record_url_is_the_control_urls_group_and_port_less_one() -> None:
+    """dpu/link.c's link_record_url holds to the same cases (tests/c/test_config.c)."""
+    assert record_url("udpm://239.255.80.67:7667?ttl=0") == "udpm://239.255.80.66:7666?ttl=0"
+    assert record_url("udpm://239.1.0.0:9000") == "udpm://239.0.255.255:8999"
+    assert record_url("udpm://?ttl=1") == "udpm://239.255.76.66:7666?ttl=1"
+    assert record_url("udpm://239.255.0.9?ttl=1") == "udpm://239.255.0.8:7666?ttl=1"
+    assert record_url("memq://") == "memq://"
+    for bad in ("udpm://239.255.76.67:1", "udpm://224.0.0.0:7667"):
+        with pytest.raises(ValueError, match="record URL"):
+            record_url(bad)
 
 
 def test_check_refuses_ports_past_65535(tmp_path: Path) -> None:
@@ -212,7 +237,9 @@ def test_a_dpu_listens_only_on_the_ports_of_the_writers_it_reads(tmp_path: Path,
         assert time.monotonic() < deadline and run.proc.poll() is None, run.output
         time.sleep(0.05)
     # (LCM's send sockets are bound too, to ephemeral ports: only the system's ports matter.)
-    ours = {control, *port.values()}
+    record = parse_url(record_url(url)).port
+    assert record == control - 1
+    ours = {control, record, *port.values()}
     bound = {d: _bound_udp_ports(dpus.daemons[d].process.pid) & ours for d in (1, 2, 3)}
     assert run.wait(60) == 0, run.output
     # The reader of a, on DPU 3, has a socket on wa's port and none on wb's: the kernel hands it
@@ -222,3 +249,6 @@ def test_a_dpu_listens_only_on_the_ports_of_the_writers_it_reads(tmp_path: Path,
     assert bound[1] - {control} == set(), bound
     assert bound[2] - {control} == set(), bound
     assert all(control in ports for ports in bound.values()), bound
+    # No DPU listens where the others send their heartbeats, timing and reports: the kernel
+    # hands it none of them (only the host and the logger are bound to the record port).
+    assert all(record not in ports for ports in bound.values()), bound

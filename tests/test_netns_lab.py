@@ -21,6 +21,7 @@ import pytest
 from conftest import ASAN_DPU, EXAMPLES, REPO, SANITIZER_ERROR
 from netns import Hosts, hosts_fixture
 
+from skeleton.host.link import record_url
 from skeleton.host.spawn import LOGGED_CHANNELS
 
 pytestmark = pytest.mark.timing  # judges the DPUs' timing: tests/steal.py
@@ -68,8 +69,10 @@ class Lab:
     def logger(self, host: str, path: Path) -> subprocess.Popen[bytes]:
         """lcm-logger on `host` writing `path`; returns once the file is open."""
         with open(path.with_suffix(".logger.txt"), "wb") as out:
-            proc = self.hosts.popen(host, [str(LOGGER), "-f", "-q", "-l", URL, "-c", LOGGED_CHANNELS,
-                                           "--flush-interval=50", str(path)], stdout=out, stderr=out)
+            # On the record URL, where a run's messages travel (host/link.py), as the README says.
+            argv = [str(LOGGER), "-f", "-q", "-l", record_url(URL), "-c", LOGGED_CHANNELS,
+                    "--flush-interval=50", str(path)]
+            proc = self.hosts.popen(host, argv, stdout=out, stderr=out)
         wait_until(path.exists, 5, f"lcm-logger on {host} did not open {path}")
         return proc
 

@@ -18,7 +18,7 @@ from conftest import EXAMPLES
 from netns import Hosts, hosts_fixture
 from test_netns_lab import RELEASE_DPU, URL, Lab, design_flaws
 
-from skeleton.host.link import parse_url
+from skeleton.host.link import parse_url, record_url
 from skeleton.host.system import loads
 
 SCALE = EXAMPLES / "scale-16x2.yaml"
@@ -39,8 +39,9 @@ def test_netns_scale_16_hosts_2_dpus_64_processes_at_100hz(netns_sixteen_hosts: 
     done = lab.skel(netns_sixteen_hosts.names[0], "run", str(SCALE), "--wait-dpus", "15", "--out", str(out))
     assert (out / "report.json").exists(), done.stdout + done.stderr
     report = json.loads((out / "report.json").read_text())
-    # Each host joined the control group and the groups of the buffers its DPUs read or
-    # write, no other: a bridge that snoops IGMP keeps every other writer's traffic off it.
+    # Each host joined the control and record groups and the groups of the buffers its DPUs
+    # read or write, no other: a bridge that snoops IGMP keeps every other writer's traffic
+    # off it. (LCM joins a group it only sends to as well: the record group, and a writer's.)
     joined = {h: _groups(netns_sixteen_hosts.run(h, ["cat", "/proc/net/igmp"], capture_output=True,
                                                   text=True, check=True).stdout)
               for h in netns_sixteen_hosts.names}  # fmt: skip
@@ -88,10 +89,11 @@ def _groups(igmp: str) -> set[str]:
 
 
 def _groups_needed(text: str) -> dict[str, set[str]]:
-    """Per host: the control group and the group of every buffer its DPUs read or write."""
+    """Per host: the control and record groups and the group of every buffer its DPUs read or
+    write."""
     system = loads(text, SCALE)
     host_of = {d.id: d.host for d in system.dpus}
-    needed = {h: {parse_url(URL).group} for h in host_of.values()}
+    needed = {h: {parse_url(URL).group, parse_url(record_url(URL)).group} for h in host_of.values()}
     for b in system.buffers:
         group = parse_url(system.buffer_url(b.id)).group
         for p in system.processes:

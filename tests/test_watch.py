@@ -26,6 +26,7 @@ from skeleton.analysis.measure.report import RunReport, build_report
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.measure.tally import GenerationTally, RunTally
 from skeleton.analysis.read.records import decode_run
+from skeleton.host.link import record_url
 from skeleton.host.recordstore import RecordStore
 from skeleton.host.watch import Heard, _FaultFinder
 from skeleton.host.watch_view import render
@@ -56,8 +57,9 @@ def _replay_once(log: Path, replay_url: str) -> tuple[subprocess.CompletedProces
     assert watch.stderr is not None
     ready = watch.stderr.readline()  # printed once subscribed: nothing of the replay is missed
     assert "waiting for a run" in ready, ready
-    player = subprocess.run([str(LOGPLAYER), "-s", "1", "-l", replay_url, str(log)], capture_output=True,
-                            text=True, timeout=60)
+    # The watch hears the record URL of its --url, as the logger does (host/link.py).
+    player = subprocess.run([str(LOGPLAYER), "-s", "1", "-l", record_url(replay_url), str(log)],
+                            capture_output=True, text=True, timeout=60)
     assert player.returncode == 0, player.stderr
     out, err = watch.communicate(timeout=60)
     report = skel("report", str(log))

@@ -317,6 +317,29 @@ static void test_link_recv_buf_size(void)
     plan_free(plan);
 }
 
+/* The record URL (contract RECORD_OFFSET): the control URL's group and port one lower,
+ * LCM's defaults for what is left out, the options kept; tests/test_link.py holds the host's
+ * record_url to the same cases. */
+static void test_record_url(void)
+{
+    char url[128];
+    CHECK_EQ(link_record_url("udpm://239.255.80.67:7667?ttl=0", url, sizeof url), 0);
+    CHECK(strcmp(url, "udpm://239.255.80.66:7666?ttl=0") == 0);
+    CHECK_EQ(link_record_url("udpm://239.1.0.0:9000", url, sizeof url), 0); /* the borrow crosses octets */
+    CHECK(strcmp(url, "udpm://239.0.255.255:8999") == 0);
+    CHECK_EQ(link_record_url("udpm://?ttl=1", url, sizeof url), 0);
+    CHECK(strcmp(url, "udpm://239.255.76.66:7666?ttl=1") == 0);
+    CHECK_EQ(link_record_url("udpm://239.255.0.9?ttl=1", url, sizeof url), 0);
+    CHECK(strcmp(url, "udpm://239.255.0.8:7666?ttl=1") == 0);
+    CHECK_EQ(link_record_url("memq://", url, sizeof url), 0); /* no ports: the same URL */
+    CHECK(strcmp(url, "memq://") == 0);
+    CHECK_EQ(link_record_url("udpm://239.255.76.67:1", url, sizeof url), -1);
+    CHECK_EQ(link_record_url("udpm://224.0.0.0:7667", url, sizeof url), -1); /* 223.255.255.255: not multicast */
+    CHECK_EQ(link_record_url("udpm://239.255.76.300:7667", url, sizeof url), -1);
+    CHECK_EQ(link_record_url("udpm://239.255.76:7667", url, sizeof url), -1);
+    CHECK_EQ(link_record_url("udpm://239.255.80.67:7667?ttl=0", url, 20), -1);
+}
+
 int main(void)
 {
     test_find_self();
@@ -325,5 +348,6 @@ int main(void)
     test_plan();
     test_link_recv_buf_size();
     test_links_limit();
+    test_record_url();
     return CHECK_DONE();
 }
