@@ -19,7 +19,10 @@
 (h) bookkeeping and (i) cycle rate (bench/cost.py): what a process-cycle of no compute costs
     the executive and its record (goal: median 1 us), and the highest minor-cycle rate one DPU
     runs clean (goal: 10 kHz for 10^5 cycles);
-(j) analysis (bench/analysis.py): `skel report` and `skel export` of a SERVO run grown to 10^7
+(j) scale (bench/scale.py, root only): namespace hosts on one bridge, sizes from 64 to 512
+    processes at 100 Hz until one past the goal is not clean (goal: 64 DPUs and 256 processes
+    with no buffer dropped and no lockout); the largest clean size;
+(k) analysis (bench/analysis.py): `skel report` and `skel export` of a SERVO run grown to 10^7
     records (goals: report in 10 s and 2 GiB, export at 10^6 records/s).
 
 Each part writes bench/results/<name>.txt, the headlines go to bench/results/summary.txt.
@@ -28,7 +31,7 @@ Runs use a private multicast port with ttl=0 (nothing leaves the host). About 5 
 Usage: .venv/bin/python bench/run.py [--seconds S] [--records N] [--tasking-seconds S]
        [--allocate-seconds S] [--flood-rate N] [--analysis-records N] [--parts P,...]
 (--parts: only those of wakeup, publish, logreader, compute, tasking, allocate, flood, bookkeeping, rate,
-analysis;
+scale, analysis;
 summary.txt is then
 left alone and the headlines are printed only.)
 """
@@ -420,7 +423,7 @@ def cost_run(tmp: Path) -> Callable[[str, str, float], tuple[np.ndarray, dict[st
 FLOOD_SECONDS = 10
 FLOOD_POINTS = 2.0
 PARTS = ("wakeup", "publish", "logreader", "compute", "tasking", "allocate", "flood", "bookkeeping", "rate",
-         "analysis")
+         "scale", "analysis")
 
 
 def main() -> int:
@@ -464,6 +467,10 @@ def main() -> int:
             parts["bookkeeping"] = cost.part_bookkeeping(cost_run(tmp), URL, args.seconds)
         if "rate" in wanted:
             parts["rate"] = cost.part_rate(cost_run(tmp), URL)
+        if "scale" in wanted:
+            from scale import part_scale  # bench/scale.py, beside this file
+
+            parts["scale"] = part_scale()
         if "analysis" in wanted:
             from analysis import part_analysis  # bench/analysis.py, beside this file
 

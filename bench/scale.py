@@ -6,6 +6,7 @@ hosts (tests/netns, root only) and prints the share of buffers dropped, for find
 largest clean system by hand:
 
     .venv/bin/python bench/scale.py 16 2 --processes 2 --hz 100 --seconds 3
+    .venv/bin/python bench/scale.py --sweep    # make bench's part scale: sizes up to past the goal
     .venv/bin/python bench/scale.py 24 2 --hz 200 --yaml > /tmp/s.yaml   # only the file
 
 The design: every DPU runs pairs of (writer, reader) in that order; each reader reads the
@@ -32,6 +33,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
@@ -141,38 +143,122 @@ def run_on_hosts(system_text: str, hosts: int, dpus_per_host: int, workdir: Path
     return done.returncode, report, done.stdout + done.stderr
 
 
+@dataclass(frozen=True)
+class Size:
+    hosts: int
+    dpus_per_host: int
+    processes: int  # per DPU
+    hz: int = 100
+
+    def __str__(self) -> str:
+        return f"{self.hosts} x {self.dpus_per_host} x {self.processes} at {self.hz} Hz"
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One run of a size: `skel run`'s exit code, dropped and used sequences, the faults."""
+
+    size: Size
+    code: int
+    dropped: int
+    total: int
+    faults: tuple[str, ...]
+    seconds: float
+
+    @property
+    def clean(self) -> bool:
+        """Every buffer used, no lockout, no DPU lost: what the goal asks."""
+        return self.code == 0 and self.dropped == 0 and self.total > 0
+
+    def __str__(self) -> str:
+        ndpus = self.size.hosts * self.size.dpus_per_host
+        return (f"{self.size} ({ndpus} DPUs, {ndpus * self.size.processes} processes): exit {self.code}, "
+                f"dropped {self.dropped}/{self.total} = {100 * self.dropped / max(self.total, 1):.3f} %, "
+                f"faults {', '.join(self.faults) or 'none'}, {self.seconds:.1f} s")
+
+
+def measure(size: Size, seconds: float = 3.0, dpu: Path = REPO / "build" / "skel-dpu",
+            dpu_args: tuple[str, ...] = (), snooping: bool = False) -> Outcome:
+    """Run SIZE once on namespace hosts (root only); RuntimeError with the output when there is no report."""
+    text = system_yaml(size.hosts, size.dpus_per_host, size.processes, size.hz, seconds)
+    with tempfile.TemporaryDirectory(prefix="skel-scale-") as tmp:
+        started = time.monotonic()
+        code, report, output = run_on_hosts(text, size.hosts, size.dpus_per_host, Path(tmp), dpu, dpu_args,
+                                            snooping=snooping)
+    if not report:
+        raise RuntimeError(output)
+    dropped, total = dropped_share(report)
+    faults = tuple(sorted({f["kind"] for f in report["faults"]}))
+    return Outcome(size, code, dropped, total, faults, time.monotonic() - started)
+
+
+# The sweep's sizes, smallest first: 64, 128 and 256 processes (GOAL: issue 13's 64 DPUs and
+# 256 processes at 100 Hz), then past it.
+SWEEP = (Size(16, 2, 2), Size(32, 2, 2), Size(32, 2, 4), Size(48, 2, 4), Size(64, 2, 4))
+GOAL = Size(32, 2, 4)
+
+
+def sweep(sizes: tuple[Size, ...] = SWEEP, say: Any = print, **options: Any) -> list[Outcome]:
+    """Each size once, smallest first, until one past GOAL is not clean."""
+    outcomes = []
+    for size in sizes:
+        outcomes.append(measure(size, **options))
+        say(f"  {outcomes[-1]}")
+        if not outcomes[-1].clean and size.hosts * size.processes >= GOAL.hosts * GOAL.processes:
+            break
+    return outcomes
+
+
+def part_scale() -> list[str]:
+    """`make bench` part scale: the sweep, its largest clean size and the goal's PASS/FAIL."""
+    if os.geteuid() != 0:
+        return ["scale: not run (namespace hosts need root)"]
+    lines: list[str] = []
+    outcomes = sweep(say=lines.append)
+    clean = [o.size for o in outcomes if o.clean]
+    goal = next((o for o in outcomes if o.size == GOAL), None)
+    verdict = "PASS" if goal is not None and goal.clean else "FAIL"
+    head = (f"scale: largest clean {clean[-1] if clean else 'none'}; goal {GOAL} (64 DPUs, 256 processes): "
+            f"{verdict}")
+    return [head, "# namespace hosts on one bridge (no snooping), default DPU options, 3 s runs; clean: "
+            "exit 0, no buffer dropped, no lockout (bench/scale.py)", *lines]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("hosts", type=int)
-    parser.add_argument("dpus_per_host", type=int)
+    parser.add_argument("hosts", type=int, nargs="?")
+    parser.add_argument("dpus_per_host", type=int, nargs="?")
     parser.add_argument("--processes", type=int, default=2, help="per DPU (even)")
     parser.add_argument("--hz", type=int, default=100)
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--yaml", action="store_true", help="print the system file and stop")
+    parser.add_argument("--sweep", action="store_true", help="the bench's sizes, smallest first (no HOSTS)")
     parser.add_argument("--dpu", type=Path, default=REPO / "build" / "skel-dpu", help="the skel-dpu binary")
     parser.add_argument("--snooping", action="store_true", help="the bridge snoops IGMP, as a lab switch may")
+    parser.add_argument("--spin-us", type=int, default=None,
+                        help="the DPUs' --spin-us: how much of a `sleep` compute spins (default theirs: 150)")
     args = parser.parse_args(argv)
-    text = system_yaml(args.hosts, args.dpus_per_host, args.processes, args.hz, args.seconds)
+    if args.sweep != (args.hosts is None):
+        parser.error("give HOSTS DPUS_PER_HOST, or --sweep")
     if args.yaml:
-        print(text, end="")
+        print(system_yaml(args.hosts, args.dpus_per_host, args.processes, args.hz, args.seconds), end="")
         return 0
     if os.geteuid() != 0:
         print("namespace hosts need root: run this with sudo", file=sys.stderr)
         return 1
-    with tempfile.TemporaryDirectory(prefix="skel-scale-") as tmp:
-        started = time.monotonic()
-        code, report, output = run_on_hosts(text, args.hosts, args.dpus_per_host, Path(tmp), args.dpu,
-                                            snooping=args.snooping)
-        if not report:
-            print(output, file=sys.stderr)
-            return 1
-        dropped, total = dropped_share(report)
-        faults = sorted({f["kind"] for f in report["faults"]})
-        print(f"{args.hosts} hosts x {args.dpus_per_host} DPUs x {args.processes} processes at {args.hz} Hz"
-              f" (a group and port per writer, bridge snooping {'on' if args.snooping else 'off'}):"
-              f" exit {code}, dropped {dropped}/{total}"
-              f" = {100 * dropped / max(total, 1):.3f} %, faults {faults or 'none'},"
-              f" {time.monotonic() - started:.1f} s")
+    dpu_args = () if args.spin_us is None else ("--spin-us", str(args.spin_us))
+    options = {"seconds": args.seconds, "dpu": args.dpu, "dpu_args": dpu_args, "snooping": args.snooping}
+    print(f"a group and port per writer, bridge snooping {'on' if args.snooping else 'off'}"
+          f"{'' if args.spin_us is None else f', spin {args.spin_us} us'}:")
+    try:
+        if args.sweep:
+            clean = [o.size for o in sweep(**options) if o.clean]
+            print(f"largest clean: {clean[-1] if clean else 'none'}")
+        else:
+            print(f"  {measure(Size(args.hosts, args.dpus_per_host, args.processes, args.hz), **options)}")
+    except RuntimeError as error:
+        print(error, file=sys.stderr)
+        return 1
     return 0
 
 

@@ -23,12 +23,20 @@ static skel_plan_t *apply_build(skel_control_t *c)
     pthread_mutex_unlock(&s->lock);
     if (cfg == NULL) return NULL;
     skel_plan_t *plan = plan_build(cfg, index, reason, sizeof reason);
+    /* LCM's receive threads, started by plan_open_links, inherit our name and policy. A
+     * buffer a process waits on must not queue behind every ordinary thread of a busy
+     * machine: they take the executive's SCHED_FIFO priority (they wake only on a datagram). */
+    int prio = plan != NULL ? executive_rt_priority(s, plan) : 0;
+    struct sched_param fifo = { .sched_priority = prio }, other = { .sched_priority = 0 };
+    int raised = prio > 0 && pthread_setschedparam(pthread_self(), SCHED_FIFO, &fifo) == 0;
     (void)pthread_setname_np(pthread_self(), "lcm-link"); /* for LCM's threads, as in control.c */
     if (plan != NULL && plan_open_links(plan, s->url, s->rec_url, &s->rejected, reason, sizeof reason) != 0) {
         plan_free(plan);
         plan = NULL;
     }
     (void)pthread_setname_np(pthread_self(), "skel-ctl");
+    if (raised && pthread_setschedparam(pthread_self(), SCHED_OTHER, &other) != 0)
+        log_line("DPU %d: the control thread stays under SCHED_FIFO %d", s->dpu_id, prio);
     if (plan == NULL) report_reject(c, cfg->generation, reason, 1);
     wire_free_config(cfg);
     return plan;

@@ -615,6 +615,7 @@ void process_kept(skel_exec_t *x, skel_rec_t *rec, int64_t step_from, int64_t no
 /* ---- event (event.c) ------------------------------------------------------------ */
 int event_add_process(skel_plan_t *plan, skel_process_t *p, const skelmsg_process_t *src);
 int event_add_sources(skel_plan_t *plan, const skelmsg_config_t *cfg, int16_t dpu);
+int executive_rt_priority(const skel_server_t *s, const skel_plan_t *plan); /* 0: SCHED_OTHER */
 int event_open(skel_plan_t *plan, const char *control_url, const char *record_url);
 void event_receive(skel_event_t *e, const lcm_recv_buf_t *rbuf); /* an event_t on E's channel */
 void event_free(skel_plan_t *plan);

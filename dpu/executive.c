@@ -45,11 +45,14 @@ static void executive_pin(const skel_plan_t *plan)
  * So a run's cycles go under SCHED_FIFO where permitted; they sleep nearly all
  * the time, so this cannot starve the machine. The spinning modes stay
  * SCHED_OTHER unless --rt-priority asks. Between runs: SCHED_OTHER. */
+int executive_rt_priority(const skel_server_t *s, const skel_plan_t *plan)
+{
+    return s->rt_priority >= 0 ? s->rt_priority : plan->compute == SKELMSG_DPU_T_COMPUTE_SLEEP ? SKEL_RT_PRIORITY : 0;
+}
+
 static int executive_schedule(skel_server_t *s, const skel_plan_t *plan, int running)
 {
-    int prio = s->rt_priority >= 0 ? s->rt_priority
-               : plan->compute == SKELMSG_DPU_T_COMPUTE_SLEEP ? SKEL_RT_PRIORITY : 0;
-    if (!running) prio = 0;
+    int prio = running ? executive_rt_priority(s, plan) : 0;
     struct sched_param sp = { .sched_priority = prio };
     int rc = pthread_setschedparam(pthread_self(), prio > 0 ? SCHED_FIFO : SCHED_OTHER, &sp);
     if (rc != 0 && !s->rt_warned) {
