@@ -23,8 +23,8 @@ from rich.table import Table
 
 from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_OK
 from ..analysis.views.console import OutputConsole
-from .doctor import check_buffer_socket, rmem_max
-from .link import group_overlap, parse_url, writer_url
+from .doctor import check_buffer_socket
+from .link import group_overlap, parse_url, rmem_max, writer_url
 from .predict import Prediction, event_rate, predict
 from .predict_view import print_prediction
 from .system import System, SystemFileError, load

@@ -27,7 +27,7 @@ import skelmsg
 from skelmsg import contract
 
 from ..analysis.read.seal import Signer
-from .link import record_url
+from .link import record_listen_url, record_url, rmem_max
 from .listener import CHANNELS, Listener, is_generation
 
 COMMAND_REPEATS = 3
@@ -151,8 +151,9 @@ class Control(Listener):
             self.record_url = record_url(url)
         except ValueError as exc:
             raise ControlError(str(exc)) from None
-        self._lcm = lcm.LCM(url)  # only sends: LCM joins no group until something subscribes
-        self._record = lcm.LCM(self.record_url)
+        self.listen_url = record_listen_url(url, rmem_max())  # the record URL, a socket buffer asked
+        self._lcm = lcm.LCM(url)  # only sends: no socket on the control port
+        self._record = lcm.LCM(self.listen_url)
         # seq of each PING we sent -> the first answer of each DPU (later heartbeats repeat it),
         # and -> its t1, which an answer must echo.
         self._pings: dict[int, dict[int, PingSample]] = {}

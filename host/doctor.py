@@ -20,7 +20,6 @@ import subprocess
 import sys
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import Literal, TextIO
 
 from rich.text import Text
@@ -30,7 +29,7 @@ from skelmsg.contract import DEFAULT_URL, KEY_ENV
 from ..analysis.exitcodes import EXIT_FAILED, EXIT_OK
 from ..analysis.measure.faults import recv_buf_needed
 from ..analysis.views.console import OutputConsole
-from .link import LcmUrl, parse_url, record_url
+from .link import LcmUrl, parse_url, record_url, rmem_max, sysctl
 
 MIN_RMEM_BYTES = 2 * 1024 * 1024
 GOOD_RMEM_BYTES = 8 * 1024 * 1024
@@ -59,13 +58,6 @@ def _ip_json(*args: str) -> list[dict[str, object]] | None:
     if done.returncode != 0:
         return None
     return json.loads(done.stdout or "[]")
-
-
-def _sysctl(path: str) -> int | None:
-    try:
-        return int(Path("/proc/sys", path).read_text().split()[0])
-    except (OSError, ValueError, IndexError):
-        return None
 
 
 def _route_dev(group: str) -> str | None:
@@ -167,10 +159,6 @@ def check_buffer_socket(buffer: str, payload_bytes: int, rmem_max: int | None,
                      f"buffer but net.core.rmem_max is {rmem_max}: it would never arrive",
                      f"sysctl -w net.core.rmem_max={need}")
     return Check(name, True, f"{payload_bytes} bytes fit a reader's socket receive buffer")
-
-
-def rmem_max() -> int | None:
-    return _sysctl("net/core/rmem_max")
 
 
 def _port_in(spec: str, port: int) -> bool:
@@ -302,8 +290,8 @@ def _route_checks(url: LcmUrl) -> list[Check]:
     iface = dev or suggested
     if iface != "IFACE":
         checks.append(check_interface(iface, _link(iface)))
-        checks.append(check_rp_filter(url, iface, _sysctl("net/ipv4/conf/all/rp_filter"),
-                                      _sysctl(f"net/ipv4/conf/{iface}/rp_filter")))
+        checks.append(check_rp_filter(url, iface, sysctl("net/ipv4/conf/all/rp_filter"),
+                                      sysctl(f"net/ipv4/conf/{iface}/rp_filter")))
     return checks
 
 
@@ -317,7 +305,7 @@ def run_checks(url: str) -> list[Check]:
         return [*checks, check_self_test(url, False)]
     checks = [Check("url", True, f"group {parsed.group}, port {parsed.port}, ttl {parsed.ttl}"),
               check_ttl(parsed), *_route_checks(parsed),
-              check_socket_buffers(_sysctl("net/core/rmem_max"), _sysctl("net/core/rmem_default"),
+              check_socket_buffers(rmem_max(), sysctl("net/core/rmem_default"),
                                    parsed.recv_buf_size),
               *check_firewall(parsed)]
     failed = any(not c.ok and c.severity == "fail" for c in checks)

@@ -27,6 +27,7 @@ import ipaddress
 import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from urllib.parse import parse_qs, urlsplit, urlunsplit
 
 from skelmsg.contract import DEFAULT_URL, RECORD_OFFSET
@@ -34,6 +35,11 @@ from skelmsg.contract import DEFAULT_URL, RECORD_OFFSET
 from .schema import Link
 
 MAX_PORT = 65535
+# What the host tool and the logger ask the kernel to buffer on the record URL (capped at
+# net.core.rmem_max): every DPU's timing batch comes in the same few milliseconds, after
+# the same releases, and a default socket buffer (208 KiB, half of it bookkeeping) held
+# the batches of some 10 DPUs: the rest were lost and asked for again, heartbeats with them.
+RECORD_RECV_BYTES = 8 * 1024 * 1024
 LCM_GROUP, LCM_PORT = urlsplit(DEFAULT_URL).hostname, urlsplit(DEFAULT_URL).port
 
 
@@ -82,6 +88,30 @@ def record_url(control_url: str) -> str:
                          "would leave the multicast groups or the ports")
     return urlunsplit((parts.scheme, f"{group}:{parsed.port - RECORD_OFFSET}", parts.path, parts.query,
                        parts.fragment))
+
+
+def record_listen_url(control_url: str, limit: int | None) -> str:
+    """The record URL as its listeners open it: asking for RECORD_RECV_BYTES of socket
+    buffer, or `limit` (net.core.rmem_max: LCM warns when it gets less than it asked) when
+    that is less, unless the URL asks for a size itself."""
+    url = record_url(control_url)
+    ask = min(RECORD_RECV_BYTES, limit or 0)
+    if parse_url(url).provider != "udpm" or "recv_buf_size=" in url or ask <= 0:
+        return url
+    return f"{url}{'&' if '?' in url else '?'}recv_buf_size={ask}"
+
+
+def sysctl(path: str) -> int | None:
+    """The integer under /proc/sys/PATH, None when there is none."""
+    try:
+        return int(Path("/proc/sys", path).read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def rmem_max() -> int | None:
+    """net.core.rmem_max: the most socket buffer LCM may ask for (None: unknown)."""
+    return sysctl("net/core/rmem_max")
 
 
 def _base(url: str) -> tuple[str, int]:

@@ -144,7 +144,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
                 _print_push_failure(console, pushed)
                 return EXIT_FAILED
         if options.logger == "local":
-            keeper = LoggerKeeper(control.record_url, out / "run.lcm", logger_deadline_s, say=console.print)
+            keeper = LoggerKeeper(control.listen_url, out / "run.lcm", logger_deadline_s, say=console.print)
             # Its file exists before it has joined the group: wait for the first heartbeat it records.
             _wait_nonempty(out / "run.lcm", LOGGER_READY_S)
             repair = LogRepair(control, out / "run.lcm", run_id, dpu_ids, keeper)

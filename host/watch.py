@@ -31,7 +31,7 @@ from ..analysis.read.messages import LogError
 from ..analysis.views.console import OutputConsole
 from ..analysis.views.tables import print_report
 from .control import subscribe
-from .link import record_url
+from .link import record_listen_url, record_url, rmem_max
 from .listener import CHANNELS, LOST_AFTER_S, Listener
 from .predict_view import predictor
 from .recordstore import RecordStore
@@ -144,7 +144,7 @@ def _subscribe(url: str, heard: Heard) -> Any:
     import lcm
 
     record = record_url(url)
-    lc = lcm.LCM(record)
+    lc = lcm.LCM(record_listen_url(url, rmem_max()))
     subscribe(lc, record, CHANNELS, heard.handle)
     return lc
 

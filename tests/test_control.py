@@ -4,7 +4,10 @@ host tool nor choose its numbers, and real DPUs are pushed to and run afterwards
 
 from __future__ import annotations
 
+import os
+import re
 import socket
+import subprocess
 import time
 from pathlib import Path
 
@@ -15,7 +18,7 @@ from conftest import EXAMPLES, DpuFarm, skel
 import skelmsg
 from skeleton.analysis.exitcodes import EXIT_FAILED
 from skeleton.host.control import Control
-from skeleton.host.link import record_url
+from skeleton.host.link import RECORD_RECV_BYTES, parse_url, record_listen_url, record_url, rmem_max
 from skeleton.host.listener import REPORTS_KEPT
 from skeleton.host.repair import SeenBatches
 from skeleton.host.system import load
@@ -171,3 +174,21 @@ def test_a_taken_port_is_said_in_one_line(command: tuple[str, ...]) -> None:
     assert said == [f"skel: cannot receive on udpm://239.255.76.66:{port}?ttl=0: its port is taken by "
                     "another program"], done.stderr
     assert "Traceback" not in done.stderr
+
+
+def test_the_host_asks_for_a_large_socket_buffer_on_the_record_url(url: str) -> None:
+    """Every DPU's timing batch comes after the same releases: the host's socket on the record
+    URL asks for RECORD_RECV_BYTES (capped at net.core.rmem_max), which the kernel doubles."""
+    limit = rmem_max()
+    control = Control(url)
+    try:
+        port = parse_url(control.record_url).port
+        done = subprocess.run(["ss", "-uanpm", f"sport = :{port}"], capture_output=True, text=True,
+                              check=True)
+    finally:
+        control.close()
+    mine = done.stdout.split(f"pid={os.getpid()},")[1]
+    (granted,) = re.findall(r"rb(\d+)", mine)[:1]
+    assert limit is not None and int(granted) == 2 * min(RECORD_RECV_BYTES, limit), done.stdout
+    assert record_listen_url(url, None) == record_url(url)  # rmem_max unknown: LCM's default
+    assert record_listen_url(url + "&recv_buf_size=4096", limit) == record_url(url + "&recv_buf_size=4096")

@@ -15,7 +15,7 @@ import pytest
 from conftest import faults_but_stalls, fresh_url, skel
 
 from skeleton.analysis.measure.faults import recv_buf_needed
-from skeleton.host.doctor import rmem_max
+from skeleton.host.link import rmem_max
 from skelmsg.contract import DEFAULT_URL
 
 BIG = 1_000_000
