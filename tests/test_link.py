@@ -7,6 +7,7 @@ groups each host joined (tests/test_netns_scale.py)."""
 from __future__ import annotations
 
 import json
+import os
 import re
 import time
 from pathlib import Path
@@ -205,6 +206,21 @@ def test_check_refuses_a_dpu_that_needs_more_links_than_it_opens(
                                        "most 64: spread its processes over more DPUs"), done.stderr
 
 
+def _receive_threads(pid: int) -> list[tuple[int, int]]:
+    """(policy, real-time priority) of each of the process's LCM link receive threads: they
+    carry the name the control thread had when it started them (dpu/apply.c)."""
+    found = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            stat = (task / "stat").read_text()
+        except OSError:
+            continue  # ended meanwhile
+        name, fields = stat[stat.index("(") + 1:stat.rindex(")")], stat[stat.rindex(")") + 2:].split()
+        if name == "lcm-link":
+            found.append((int(fields[38]), int(fields[37])))  # policy, rt_priority (proc(5))
+    return found
+
+
 def _bound_udp_ports(pid: int) -> set[int]:
     """The UDP ports the process's sockets are bound to (its fds' inodes in /proc/net/udp)."""
     inodes = set()
@@ -241,6 +257,7 @@ def test_a_dpu_listens_only_on_the_ports_of_the_writers_it_reads(tmp_path: Path,
     assert record == control - 1
     ours = {control, record, *port.values()}
     bound = {d: _bound_udp_ports(dpus.daemons[d].process.pid) & ours for d in (1, 2, 3)}
+    receivers = {d: _receive_threads(dpus.daemons[d].process.pid) for d in (1, 2, 3)}
     assert run.wait(60) == 0, run.output
     # The reader of a, on DPU 3, has a socket on wa's port and none on wb's: the kernel hands it
     # none of b's datagrams. A writer's DPU sends to its port from an ephemeral one and is bound
@@ -252,3 +269,8 @@ def test_a_dpu_listens_only_on_the_ports_of_the_writers_it_reads(tmp_path: Path,
     # No DPU listens where the others send their heartbeats, timing and reports: the kernel
     # hands it none of them (only the host and the logger are bound to the record port).
     assert all(record not in ports for ports in bound.values()), bound
+    # The reader's one receive thread runs under the executive's SCHED_FIFO priority (10 in
+    # `sleep`, where permitted: these tests run as root), so the buffer a process waits on
+    # does not queue behind ordinary threads; the writers' DPUs receive nothing, and have none.
+    fifo = 10 if os.geteuid() == 0 else 0  # dpu.h SKEL_RT_PRIORITY
+    assert receivers == {1: [], 2: [], 3: [(1, fifo) if fifo else (0, 0)]}, receivers
