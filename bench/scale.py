@@ -214,7 +214,10 @@ def part_scale() -> list[str]:
     if os.geteuid() != 0:
         return ["scale: not run (namespace hosts need root)"]
     lines: list[str] = []
-    outcomes = sweep(say=lines.append)
+    try:
+        outcomes = sweep(say=lines.append)
+    except RuntimeError as error:  # a run without a report: its output says why
+        return ["scale: a run ended without a report: FAIL", *lines, *str(error).splitlines()[-20:]]
     clean = [o.size for o in outcomes if o.clean]
     goal = next((o for o in outcomes if o.size == GOAL), None)
     verdict = "PASS" if goal is not None and goal.clean else "FAIL"
@@ -238,8 +241,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--spin-us", type=int, default=None,
                         help="the DPUs' --spin-us: how much of a `sleep` compute spins (default theirs: 150)")
     args = parser.parse_args(argv)
-    if args.sweep != (args.hosts is None):
-        parser.error("give HOSTS DPUS_PER_HOST, or --sweep")
+    if args.sweep != (args.hosts is None) or (args.sweep and args.yaml):
+        parser.error("give HOSTS DPUS_PER_HOST (and --yaml for only the file), or --sweep")
     if args.yaml:
         print(system_yaml(args.hosts, args.dpus_per_host, args.processes, args.hz, args.seconds), end="")
         return 0

@@ -47,40 +47,55 @@ int link_url(const skel_link_t *link, char *out, size_t len, int32_t *asked)
     return n < 0 || (size_t)n >= len ? -1 : 0;
 }
 
+/* The group and port of a udpm URL, LCM's defaults filling what it leaves out, and
+ * where its options start. 1: another provider (no group or port); -1: not
+ * udpm://A.B.C.D:PORT[?options]. An empty URL is $LCM_DEFAULT_URL, else LCM's default. */
+static int link_parse(const char **url, uint32_t *group, unsigned *port, const char **rest)
+{
+    if (*url == NULL || (*url)[0] == '\0') *url = getenv("LCM_DEFAULT_URL");
+    if (*url == NULL || (*url)[0] == '\0') *url = SKEL_DEFAULT_URL;
+    if (strncmp(*url, "udpm://", 7) != 0) return 1;
+    unsigned g[4];
+    if (sscanf(SKEL_DEFAULT_URL, "udpm://%u.%u.%u.%u:%u", &g[0], &g[1], &g[2], &g[3], port) != 5) return -1;
+    const char *at = *url + 7;
+    int used = 0;
+    if (at[0] >= '0' && at[0] <= '9') {
+        if (sscanf(at, "%u.%u.%u.%u%n", &g[0], &g[1], &g[2], &g[3], &used) != 4) return -1;
+        at += used;
+    }
+    if (at[0] == ':') { /* as Python's urlsplit: ":" alone, or port 0, leaves LCM's port */
+        unsigned given = 0;
+        used = 1;
+        if (at[1] >= '0' && at[1] <= '9' && sscanf(at, ":%u%n", &given, &used) != 1) return -1;
+        if (given != 0) *port = given;
+        at += used;
+    }
+    if (at[0] != '\0' && at[0] != '?' && at[0] != '/') return -1;
+    *group = 0;
+    for (int i = 0; i < 4; i++) {
+        if (g[i] > 255) return -1;
+        *group = *group << 8 | g[i];
+    }
+    *rest = at;
+    return *port > 65535 || *group >> 28 != 0xE ? -1 : 0; /* a multicast group, 224.0.0.0/4 */
+}
+
 /* The record URL of CONTROL (contract: RECORD_OFFSET): its group and port each that much
- * lower, its options kept; host/link.py's record_url says the same. LCM's defaults fill a
- * group or port left out, as they do for CONTROL itself; another provider's URL is its own
- * record URL. -1: CONTROL is not udpm://A.B.C.D:PORT[?options], or OUT is too short. */
+ * lower, its options kept; host/link.py's record_url says the same. Another provider's
+ * URL is its own record URL. -1: CONTROL is not udpm://A.B.C.D:PORT[?options], or OUT
+ * is too short. */
 int link_record_url(const char *control, char *out, size_t len)
 {
-    const char *url = control;
-    if (url == NULL || url[0] == '\0') url = getenv("LCM_DEFAULT_URL");
-    if (url == NULL || url[0] == '\0') url = SKEL_DEFAULT_URL;
-    int n;
-    if (strncmp(url, "udpm://", 7) != 0) {
+    uint32_t group;
+    unsigned port;
+    const char *rest, *url = control;
+    int kind = link_parse(&url, &group, &port, &rest), n;
+    if (kind < 0) return -1;
+    if (kind > 0) {
         n = snprintf(out, len, "%s", url);
         return n < 0 || (size_t)n >= len ? -1 : 0;
     }
-    unsigned g[4], port;
-    if (sscanf(SKEL_DEFAULT_URL, "udpm://%u.%u.%u.%u:%u", &g[0], &g[1], &g[2], &g[3], &port) != 5) return -1;
-    const char *rest = url + 7;
-    int used = 0;
-    if (rest[0] >= '0' && rest[0] <= '9') {
-        if (sscanf(rest, "%u.%u.%u.%u%n", &g[0], &g[1], &g[2], &g[3], &used) != 4) return -1;
-        rest += used;
-    }
-    if (rest[0] == ':') {
-        used = 0;
-        if (sscanf(rest, ":%u%n", &port, &used) != 1 || used < 2) return -1;
-        rest += used;
-    }
-    if (rest[0] != '\0' && rest[0] != '?' && rest[0] != '/') return -1;
-    uint32_t group = 0;
-    for (int i = 0; i < 4; i++) {
-        if (g[i] > 255) return -1;
-        group = group << 8 | g[i];
-    }
-    if (port <= SKEL_RECORD_OFFSET || port > 65535 || group < 0xE0000000u + SKEL_RECORD_OFFSET) return -1;
+    if (port <= SKEL_RECORD_OFFSET || group < 0xE0000000u + SKEL_RECORD_OFFSET) return -1;
     group -= SKEL_RECORD_OFFSET;
     n = snprintf(out, len, "udpm://%u.%u.%u.%u:%u%s", group >> 24, group >> 16 & 255, group >> 8 & 255,
                  group & 255, port - SKEL_RECORD_OFFSET, rest);

@@ -1,7 +1,7 @@
 /* seal.c: signed control. With a key, a control message is accepted only with a
  * seal (lcmtypes/seal_t.lcm) whose HMAC-SHA256 matches and whose counter is newer
  * than the last one accepted from its sender; what the DPU publishes on the
- * control URL carries a seal of its own. Without a key nothing is signed, and a
+ * record URL carries a seal of its own. Without a key nothing is signed, and a
  * sealed message is refused: a DPU and a host that disagree about the key must
  * fail loudly, not half work.
  *

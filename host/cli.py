@@ -332,7 +332,8 @@ def cmd_status(args: argparse.Namespace) -> int:
              "run_end_utc_ns": v.status.run_end_utc_ns,
              "heard_s_ago": round(now - v.heard_mono, 2)}
             for v in views]
-    done = _json_or_nothing(rows, args.json, f"no DPU heard on {args.url} in {listened:.1f} s")
+    done = _json_or_nothing(rows, args.json, f"no DPU heard on {args.url} (its record URL "
+                                              f"{control.record_url}) in {listened:.1f} s")
     if done is not None:
         return done
     table = Table(title=f"DPUs on {args.url}")
@@ -387,7 +388,8 @@ def cmd_clock(args: argparse.Namespace) -> int:
         print(line, file=sys.stderr)
     rows = [e.to_json() for _, e in sorted(found.items())]
     done = _json_or_nothing(rows, args.json,
-                            f"no DPU heard on {args.url} in {listened:.1f} s (or none answered the pings)")
+                            f"no DPU heard on {args.url} (its record URL {control.record_url}) in "
+                            f"{listened:.1f} s (or none answered the pings)")
     if done is not None:
         return done
     table = Table(title=f"clock offsets on {args.url} (DPU - host, best of {args.samples})")

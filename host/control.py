@@ -152,8 +152,10 @@ class Control(Listener):
         except ValueError as exc:
             raise ControlError(str(exc)) from None
         self.listen_url = record_listen_url(url, rmem_max())  # the record URL, a socket buffer asked
-        self._lcm = lcm.LCM(url)  # only sends: no socket on the control port
         self._record = lcm.LCM(self.listen_url)
+        # Only sends: no socket on the control port. (Another provider than udpm has no ports:
+        # its record URL is the control URL, one instance.)
+        self._lcm = self._record if self.record_url == url else lcm.LCM(url)
         # seq of each PING we sent -> the first answer of each DPU (later heartbeats repeat it),
         # and -> its t1, which an answer must echo.
         self._pings: dict[int, dict[int, PingSample]] = {}
@@ -252,7 +254,8 @@ class Control(Listener):
         the DPUs, would pass as new."""
         sealed = self._sealed(channel, data)
         self._lcm.publish(channel, sealed)
-        self._record.publish(channel, sealed)
+        if self._lcm is not self._record:
+            self._record.publish(channel, sealed)
 
     def _sealed(self, channel: str, data: bytes) -> bytes:
         return data if self._signer is None else self._signer.seal(channel, data)

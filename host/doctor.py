@@ -314,7 +314,8 @@ def run_checks(url: str) -> list[Check]:
 
 def _record_checks(url: str, earlier_failed: bool) -> list[Check]:
     """The record URL (host/link.py: record_url), where the DPUs send heartbeats, timing and
-    reports: the same group's route, so only its port's firewall and a message of its own."""
+    reports: its port's firewall and a message of its own (its group, one below the control
+    group, takes the same route in practice: one to 224.0.0.0/4 covers both)."""
     try:
         record = record_url(url)
     except ValueError as exc:

@@ -22,7 +22,8 @@ def send(url: str, name: str, count: int = 1, rate_hz: float = 10.0) -> int:
     """Publish COUNT events NAME at RATE_HZ, on an absolute grid (a slow publish does not
     stretch the rest); returns how many were sent."""
     channel = contract.EVENT_CHANNEL_PREFIX + name
-    bus, log = lcm.LCM(url), lcm.LCM(record_url(url))
+    bus = lcm.LCM(url)
+    log = bus if record_url(url) == url else lcm.LCM(record_url(url))  # the same, without ports
     msg = skelmsg.event_t()
     msg.run_id, msg.dpu, msg.process, msg.name = 0, 0, 0, name
     t0 = time.monotonic()
@@ -33,5 +34,6 @@ def send(url: str, name: str, count: int = 1, rate_hz: float = 10.0) -> int:
         msg.seq, msg.sent_ns = seq, time.monotonic_ns()
         data = msg.encode()
         bus.publish(channel, data)
-        log.publish(channel, data)
+        if log is not bus:
+            log.publish(channel, data)
     return count

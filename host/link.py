@@ -204,20 +204,22 @@ def port_clash(links: Sequence[Link], ports: dict[tuple[int, int], int]) -> tupl
 
 
 def group_overlap(links: Sequence[Link], ports: dict[tuple[int, int], int], control_url: str) -> str | None:
-    """Two links whose writers' groups meet, or writers on the control group, said as a
-    warning; None when every writer's group is its own. Their ports differ (port_clash), so
-    every buffer still reaches its readers and no others; but a switch that snoops IGMP
+    """Two links whose writers' groups meet, or writers on the control or record group, said
+    as a warning; None when every writer's group is its own. Their ports differ (port_clash),
+    so every buffer still reaches its readers and no others; but a switch that snoops IGMP
     forwards a group to every host that joined it for either."""
-    control = int(ipaddress.IPv4Address(parse_url(control_url).group))
+    shared = {int(ipaddress.IPv4Address(parse_url(url).group)): what
+              for url, what in ((record_url(control_url), "record"), (control_url, "control"))}
     # A link's own group carries nothing of its writers (only the control URL's carries control).
     groups = [(link, int(ipaddress.IPv4Address(group)) + 1, last - port)
               for (group, port), (link, last) in _spans(links, ports).items() if last > port]
     for i, (link, first, count) in enumerate(groups):
-        if first <= control < first + count:
-            return (f"link {link.name}'s writers' groups {ipaddress.IPv4Address(first)}.."
-                    f"{ipaddress.IPv4Address(first + count - 1)} hold the control group "
-                    f"{ipaddress.IPv4Address(control)}, which every host joins: a writer's buffers there go "
-                    f"to every host; move link {link.name}'s group so that its writers' leave it out")
+        for group, what in shared.items():
+            if first <= group < first + count:
+                return (f"link {link.name}'s writers' groups {ipaddress.IPv4Address(first)}.."
+                        f"{ipaddress.IPv4Address(first + count - 1)} hold the {what} group "
+                        f"{ipaddress.IPv4Address(group)}, which every host joins: a writer's buffers there "
+                        f"go to every host; move link {link.name}'s group so that its writers' leave it out")
         for them, their_first, their_count in groups[i + 1:]:
             if first < their_first + their_count and their_first < first + count:
                 shared = (ipaddress.IPv4Address(max(first, their_first)),

@@ -125,9 +125,10 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         silent = control.wait_heard(dpu_ids, options.wait_dpus_s,
                                     introduce=lambda g: config_message(system, g, 0, committed=False))
         if silent:
-            console.print(f"[red]no heartbeat from DPU {', '.join(map(str, silent))} on {url} in "
-                          f"{options.wait_dpus_s:g} s[/]: start them (`skel up FILE` or skel-dpu --id N "
-                          "on their hosts), use --spawn, or wait longer (--wait-dpus S)")
+            console.print(f"[red]no heartbeat from DPU {', '.join(map(str, silent))} on {url} (heard on its "
+                          f"record URL {control.record_url}) in {options.wait_dpus_s:g} s[/]: start them "
+                          "(`skel up FILE` or skel-dpu --id N on their hosts), use --spawn, or wait longer "
+                          "(--wait-dpus S); a firewall must pass both ports")
             for line in control.key_lines():
                 console.print(f"[red]{line}[/]", soft_wrap=True)
             return EXIT_FAILED

@@ -71,7 +71,7 @@ def test_status_lists_every_auto_dpu_not_one(url: str, tmp_path: Path) -> None:
 def test_status_with_nothing_up_says_how_long_it_listened(url: str) -> None:
     done = skel("status", "--url", url, "--wait", "3")
     assert done.returncode == exitcodes.EXIT_FAILED, done.stdout + done.stderr
-    assert re.search(r"no DPU heard on \S+ in 1\.\d s", done.stdout), done.stdout
+    assert re.search(r"no DPU heard on \S+ \(its record URL \S+\) in 1\.\d s", done.stdout), done.stdout
 
 
 # --- Ctrl-C and SIGTERM --------------------------------------------------------------------------

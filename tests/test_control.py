@@ -192,3 +192,31 @@ def test_the_host_asks_for_a_large_socket_buffer_on_the_record_url(url: str) -> 
     assert limit is not None and int(granted) == 2 * min(RECORD_RECV_BYTES, limit), done.stdout
     assert record_listen_url(url, None) == record_url(url)  # rmem_max unknown: LCM's default
     assert record_listen_url(url + "&recv_buf_size=4096", limit) == record_url(url + "&recv_buf_size=4096")
+
+
+def test_a_system_one_port_above_does_not_configure_or_command_ours(dpus: DpuFarm, url: str) -> None:
+    """Another system's host sends its log the copies of its configs and commands on its record
+    URL, a group and a port below its control URL: with its control port one above ours, that
+    is our control port. They must not reach our DPUs: LCM binds each receive socket to its
+    group, not to every address, so the kernel hands ours only what is sent to our group."""
+    dpus.start(1, 2)
+    parsed = parse_url(url)
+    above = url.replace(f":{parsed.port}", f":{parsed.port + 1}")
+    assert parse_url(record_url(above)).port == parsed.port
+    ours, theirs = Control(url), Control(above)
+    try:
+        assert not ours.wait_heard([1, 2], 10.0)
+        generation = theirs.next_generation()
+        theirs.publish_config(config_message(load(PAIR).with_url(above), generation, 0, committed=True))
+        theirs.command(skelmsg.command_t.SHUTDOWN)
+        time.sleep(1.0)
+        statuses = {i: ours.dpus[i].status for i in (1, 2)}
+        assert all(st.generation == 0 and st.staged_generation == 0 and st.rejected_generation == 0
+                   for st in statuses.values()), statuses
+        assert all(dpus.daemons[i].alive() for i in (1, 2))
+        # What is sent to our control URL still arrives: our host configures them.
+        generation = ours.next_generation()
+        assert ours.push(config_message(load(PAIR).with_url(url), generation, 0, committed=False), [1, 2]).ok
+    finally:
+        ours.close()
+        theirs.close()

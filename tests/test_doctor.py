@@ -140,6 +140,7 @@ def test_netns_doctor_healthy_host_exits_0(netns_host: Hosts) -> None:
     assert code == 0, out
     assert "FAIL" not in out
     assert _line(out, "self-test").startswith("OK")
+    assert _line(out, "record URL").startswith("OK  ") and "udpm://239.255.76.66:7666?ttl=1" in out, out
 
 
 def test_netns_doctor_json(netns_host: Hosts) -> None:
@@ -193,4 +194,20 @@ def test_netns_doctor_firewall_drop_on_the_port(netns_host: Hosts) -> None:
     assert line.startswith("FAIL") and re.search(r"fix: nft delete rule inet fw input handle \d+$", line)
     assert _line(out, "self-test").startswith("FAIL")
     _apply_fix(netns_host, line)
+    assert _doctor_in(netns_host)[0] == 0
+
+
+def test_netns_doctor_firewall_drop_on_the_record_port(netns_host: Hosts) -> None:
+    """The DPUs' heartbeats and timing go to the record URL's port, one below the control
+    port: a firewall that drops it is found, and the record URL's own message fails."""
+    require_command("nft", "nftables")
+    script = "table inet fw { chain input { type filter hook input priority 0; udp dport 7666 drop; }; }"
+    netns_host.run("skelh1", ["nft", "-f", "-"], input=script, text=True, check=True)
+    code, out = _doctor_in(netns_host)
+    assert code == 1
+    failed = [ln for ln in out.splitlines() if re.match(r"FAIL +firewall ", ln)]
+    assert len(failed) == 1 and "7666" in failed[0], out
+    assert _line(out, "self-test").startswith("OK")  # the control URL itself is open
+    assert _line(out, "record URL").startswith("FAIL")
+    _apply_fix(netns_host, failed[0])
     assert _doctor_in(netns_host)[0] == 0

@@ -9,12 +9,14 @@ from __future__ import annotations
 import json
 import os
 import re
+import subprocess
 import time
 from pathlib import Path
 
 import pytest
 from conftest import DpuFarm, skel, skel_background
 
+from skeleton.host import spawn
 from skeleton.host.link import group_overlap, parse_url, record_url
 from skeleton.host.system import loads
 
@@ -107,16 +109,34 @@ def test_check_refuses_writers_on_the_record_port(tmp_path: Path) -> None:
         "port further from the control URL's")
 
 
+def test_check_and_the_dpu_refuse_a_control_url_without_a_record_url(tmp_path: Path) -> None:
+    """Control on 224.0.0.0: its record group, one below, is not a multicast group."""
+    path = _three(tmp_path, "udpm://224.0.0.0:7700?ttl=0")
+    done = skel("check", str(path))
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert done.stderr.strip() == (f"{path}: links[0].url: 'udpm://224.0.0.0:7700?ttl=0': its record "
+                                   "URL, group and port each 1 lower, would leave the multicast groups or "
+                                   "the ports")
+    dpu = subprocess.run([str(spawn.dpu_binary()), "--id", "1", "--url", "udpm://224.0.0.0:7700?ttl=0"],
+                         capture_output=True, text=True, timeout=60)
+    assert dpu.returncode == 1, dpu.stdout + dpu.stderr
+    assert "--url udpm://224.0.0.0:7700?ttl=0: expected udpm://GROUP:PORT?options" in dpu.stderr, dpu.stderr
+
+
 def test_record_url_is_the_control_urls_group_and_port_less_one() -> None:
     """dpu/link.c's link_record_url holds to the same cases (tests/c/test_config.c)."""
     assert record_url("udpm://239.255.80.67:7667?ttl=0") == "udpm://239.255.80.66:7666?ttl=0"
     assert record_url("udpm://239.1.0.0:9000") == "udpm://239.0.255.255:8999"
     assert record_url("udpm://?ttl=1") == "udpm://239.255.76.66:7666?ttl=1"
     assert record_url("udpm://239.255.0.9?ttl=1") == "udpm://239.255.0.8:7666?ttl=1"
+    assert record_url("udpm://239.255.0.9:?ttl=1") == "udpm://239.255.0.8:7666?ttl=1"
+    assert record_url("udpm://239.255.0.9:0") == "udpm://239.255.0.8:7666"
     assert record_url("memq://") == "memq://"
     for bad in ("udpm://239.255.76.67:1", "udpm://224.0.0.0:7667"):
         with pytest.raises(ValueError, match="record URL"):
             record_url(bad)
+    with pytest.raises(ValueError, match="not a multicast group"):
+        record_url("udpm://240.0.0.1:7667")
 
 
 def test_check_refuses_ports_past_65535(tmp_path: Path) -> None:
@@ -163,6 +183,9 @@ def test_check_warns_of_links_whose_groups_meet(tmp_path: Path) -> None:
     said = group_overlap(control.links, control.writer_ports, control.default_link.url)
     assert said is not None and said.startswith("link side's writers' groups 239.255.76.67..239.255.76.67 "
                                                  "hold the control group 239.255.76.67"), said
+    record = loads(_with_side(BUS, "udpm://239.255.76.65:7800?ttl=0"), "x.yaml")  # the record group, .66
+    said = group_overlap(record.links, record.writer_ports, record.default_link.url)
+    assert said is not None and "hold the record group 239.255.76.66, which every host joins" in said, said
     apart = loads(_with_side(BUS, "udpm://239.255.76.69:7800?ttl=0"), "x.yaml")
     assert group_overlap(apart.links, apart.writer_ports, apart.default_link.url) is None
     together = loads(_with_side(BUS, BUS), "x.yaml")

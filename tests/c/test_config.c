@@ -331,6 +331,11 @@ static void test_record_url(void)
     CHECK(strcmp(url, "udpm://239.255.76.66:7666?ttl=1") == 0);
     CHECK_EQ(link_record_url("udpm://239.255.0.9?ttl=1", url, sizeof url), 0);
     CHECK(strcmp(url, "udpm://239.255.0.8:7666?ttl=1") == 0);
+    CHECK_EQ(link_record_url("udpm://239.255.0.9:?ttl=1", url, sizeof url), 0); /* ":" or ":0": LCM's port */
+    CHECK(strcmp(url, "udpm://239.255.0.8:7666?ttl=1") == 0);
+    CHECK_EQ(link_record_url("udpm://239.255.0.9:0", url, sizeof url), 0);
+    CHECK(strcmp(url, "udpm://239.255.0.8:7666") == 0);
+    CHECK_EQ(link_record_url("udpm://240.0.0.1:7667", url, sizeof url), -1); /* not a multicast group */
     CHECK_EQ(link_record_url("memq://", url, sizeof url), 0); /* no ports: the same URL */
     CHECK(strcmp(url, "memq://") == 0);
     CHECK_EQ(link_record_url("udpm://239.255.76.67:1", url, sizeof url), -1);
