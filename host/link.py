@@ -6,12 +6,11 @@ writes to it the next group and the next port, GROUP + 1 and PORT + 1, GROUP + 2
 PORT + 2, ... (in the order of the links, then of the writers' ids; links that name the same
 group and port count on together). A DPU opens a socket on the writers it reads (and its
 own writers', to send), so it receives only what it reads: its receive cost grows with its
-own inputs, not with the whole system's traffic. Both, because each works where the other
-cannot: on one host Linux hands a multicast datagram to every socket bound to its port that
-any socket of the host joined the group for (IP_MULTICAST_ALL), so only a port of its own
-keeps a writer's traffic from the other DPUs there; across hosts a switch (or bridge) that
-snoops IGMP forwards a group only to the hosts that joined it, so only a group of its own
-keeps a writer's traffic off the hosts that do not read it. Control (configs, commands,
+own inputs, not with the whole system's traffic. A group because across hosts a switch (or
+bridge) that snoops IGMP forwards a group only to the hosts that joined it, so only a group
+of its own keeps a writer's traffic off the hosts that do not read it; on one host a group
+or a port alone would do, since LCM binds each receive socket to its group and port (the
+ports came first). Control (configs, commands,
 events) stays on the first link's GROUP:PORT, the control URL, and what a run records
 (heartbeats, timing, reports) travels on its record URL, GROUP - 1:PORT - 1, which only the
 host and the logger join: no DPU wakes for another's records (record_url).
