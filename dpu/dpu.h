@@ -442,8 +442,8 @@ int64_t config_common_us(const skelmsg_config_t *cfg);
 const skelmsg_buffer_desc_t *config_buffer(const skelmsg_config_t *cfg, int16_t id);
 const skelmsg_link_t *config_link(const skelmsg_config_t *cfg, int16_t id);
 skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason, size_t len);
-int plan_open_links(skel_plan_t *plan, const char *control_url, const char *record_url, atomic_int_fast64_t *rejected,
-                    char *reason, size_t len);
+int plan_open_links(skel_plan_t *plan, const char *control_url, const char *record_url,
+                    atomic_int_fast64_t *rejected, char *reason, size_t len);
 void plan_free(skel_plan_t *plan);
 void plan_reset_run(skel_plan_t *plan, int64_t run_id);
 int plan_process_index(const skel_plan_t *plan, int16_t id);
@@ -615,7 +615,6 @@ void process_kept(skel_exec_t *x, skel_rec_t *rec, int64_t step_from, int64_t no
 /* ---- event (event.c) ------------------------------------------------------------ */
 int event_add_process(skel_plan_t *plan, skel_process_t *p, const skelmsg_process_t *src);
 int event_add_sources(skel_plan_t *plan, const skelmsg_config_t *cfg, int16_t dpu);
-int executive_rt_priority(const skel_server_t *s, const skel_plan_t *plan); /* 0: SCHED_OTHER */
 int event_open(skel_plan_t *plan, const char *control_url, const char *record_url);
 void event_receive(skel_event_t *e, const lcm_recv_buf_t *rbuf); /* an event_t on E's channel */
 void event_free(skel_plan_t *plan);
@@ -665,6 +664,7 @@ void executive_announce(skel_exec_t *x);
 void *executive_main(void *arg);
 int64_t executive_next_release(const skel_plan_t *plan, int64_t j);
 void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run);
+int executive_rt_priority(const skel_server_t *s, const skel_plan_t *plan); /* 0: SCHED_OTHER */
 
 /* ---- control (control.c): the control thread ------------------------------------ */
 typedef struct {

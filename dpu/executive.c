@@ -47,7 +47,8 @@ static void executive_pin(const skel_plan_t *plan)
  * SCHED_OTHER unless --rt-priority asks. Between runs: SCHED_OTHER. */
 int executive_rt_priority(const skel_server_t *s, const skel_plan_t *plan)
 {
-    return s->rt_priority >= 0 ? s->rt_priority : plan->compute == SKELMSG_DPU_T_COMPUTE_SLEEP ? SKEL_RT_PRIORITY : 0;
+    if (s->rt_priority >= 0) return s->rt_priority;
+    return plan->compute == SKELMSG_DPU_T_COMPUTE_SLEEP ? SKEL_RT_PRIORITY : 0;
 }
 
 static int executive_schedule(skel_server_t *s, const skel_plan_t *plan, int running)

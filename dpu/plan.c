@@ -182,8 +182,8 @@ oom:
 
 /* The network side of applying: lcm_t per URL, a subscription per slot read
  * over a link. Made by the control thread, used afterwards by the executive. */
-int plan_open_links(skel_plan_t *plan, const char *control_url, const char *record_url, atomic_int_fast64_t *rejected,
-                    char *reason, size_t len)
+int plan_open_links(skel_plan_t *plan, const char *control_url, const char *record_url,
+                    atomic_int_fast64_t *rejected, char *reason, size_t len)
 {
     plan->rejected = rejected;
     for (int i = 0; i < plan->nlinks; i++)

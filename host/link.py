@@ -51,10 +51,15 @@ class LcmUrl:
     recv_buf_size: int | None = None
 
 
+def _resolved(url: str) -> str:
+    """What liblcm opens for `url`: an empty one means $LCM_DEFAULT_URL, else its own default
+    (the contract's DEFAULT_URL; a missing group or port means that URL's too)."""
+    return url or os.environ.get("LCM_DEFAULT_URL") or DEFAULT_URL
+
+
 def parse_url(url: str) -> LcmUrl:
     """udpm://GROUP:PORT?ttl=N (LCM's defaults fill what is left out); ValueError says what is wrong."""
-    # The contract's DEFAULT_URL is liblcm's own default: an empty URL, or a missing part, means it.
-    parts = urlsplit(url or os.environ.get("LCM_DEFAULT_URL") or DEFAULT_URL)
+    parts = urlsplit(_resolved(url))
     if parts.scheme != "udpm":
         return LcmUrl(parts.scheme, "", 0, 0)
     query = {key: values[-1] for key, values in parse_qs(parts.query).items()}
@@ -77,10 +82,9 @@ def record_url(control_url: str) -> str:
     """Where a run's records travel (contract: RECORD_OFFSET): the control URL's group and
     port each that much lower, its options kept; dpu/link.c's link_record_url says the same.
     Another provider's URL is its own record URL. ValueError says what is wrong."""
-    parsed = parse_url(control_url)
+    parsed, parts = parse_url(control_url), urlsplit(_resolved(control_url))
     if parsed.provider != "udpm":
-        return control_url or os.environ.get("LCM_DEFAULT_URL") or DEFAULT_URL
-    parts = urlsplit(control_url or os.environ.get("LCM_DEFAULT_URL") or DEFAULT_URL)
+        return _resolved(control_url)
     group = ipaddress.IPv4Address(parsed.group) - RECORD_OFFSET
     if parsed.port <= RECORD_OFFSET or not group.is_multicast:
         raise ValueError(f"{control_url!r}: its record URL, group and port each {RECORD_OFFSET} lower, "
@@ -111,6 +115,11 @@ def sysctl(path: str) -> int | None:
 def rmem_max() -> int | None:
     """net.core.rmem_max: the most socket buffer LCM may ask for (None: unknown)."""
     return sysctl("net/core/rmem_max")
+
+
+def control_link(links: Sequence[Link]) -> Link | None:
+    """The first udpm link: its URL is the control URL (None: every link is local)."""
+    return next((link for link in links if not link.local), None)
 
 
 def _base(url: str) -> tuple[str, int]:
@@ -183,13 +192,14 @@ def port_clash(links: Sequence[Link], ports: dict[tuple[int, int], int]) -> tupl
     or whose writers' groups leave the multicast range, with what to say; None when every
     link has its ports and groups to itself."""
     spans = _spans(links, ports)
-    control = next((link for link in links if not link.local), None)
-    record = parse_url(record_url(control.url)).port if control is not None else None
+    control = control_link(links)
+    record = record_url(control.url) if control is not None else ""
+    record_port = parse_url(record).port if record else None
     for (group, port), (link, last) in spans.items():
-        if record is not None and port < record <= last:
-            return link, (f"its writers' buffers take ports {port + 1}..{last}, which hold port {record} of "
-                          f"the record URL ({record_url(control.url)}: the DPUs' heartbeats and timing); "
-                          "put the link's port further from the control URL's")
+        if record_port is not None and port < record_port <= last:
+            return link, (f"its writers' buffers take ports {port + 1}..{last}, which hold port "
+                          f"{record_port} of the record URL ({record}: the DPUs' heartbeats and timing); put "
+                          "the link's port further from the control URL's")
         if last > MAX_PORT:
             return link, f"its writers need ports {port + 1}..{last}, past {MAX_PORT}"
         if last > port and (why := _outside_groups(group, last - port)) is not None:

@@ -18,7 +18,7 @@ from typing import Any
 from skelmsg import contract
 
 from .compute import ComputeError, varying
-from .link import parse_url, port_clash, record_url, writer_ports
+from .link import control_link, parse_url, port_clash, record_url, writer_ports
 from .schema import (
     ABSURD_COMPUTE_PERIODS,
     DEFAULT_LINK,
@@ -132,7 +132,8 @@ def _buffer_links(spec: SystemSpec, links: tuple[Link, ...]) -> dict[int, Link]:
     _unique(spec.buffers, "buffers", "id")
     _unique(spec.buffers, "buffers", "name")
     by_name = {link.name: link for link in links}
-    default = next(link for link in links if not link.local)
+    default = control_link(links)
+    assert default is not None, "_links refuses a system without a udpm link"
     out: dict[int, Link] = {}
     for b in spec.buffers:
         if b.link is not None and b.link not in by_name:
@@ -252,7 +253,7 @@ def _link_ports(spec: SystemSpec, links: tuple[Link, ...], buffer_links: dict[in
                 writers: dict[int, str]) -> dict[tuple[int, int], int]:
     """Each writer's buffers get a port of their own next to their link's (host/link.py):
     the ports must exist and no two links may share one."""
-    control = next((link for link in links if not link.local), None)
+    control = control_link(links)
     for link in links:
         if not link.local:
             try:

@@ -18,7 +18,7 @@ from pydantic import ValidationError
 
 from skelmsg import contract
 
-from .link import writer_ports, writer_url
+from .link import control_link, writer_ports, writer_url
 from .overrides import OverrideError, apply_overrides
 from .rules import Invalid, resolve
 from .schema import (
@@ -95,7 +95,9 @@ class System:
     @property
     def default_link(self) -> Link:
         """The first udpm link: buffers without a `link:` use it, and so does control traffic."""
-        return next(link for link in self.links if not link.local)
+        found = control_link(self.links)
+        assert found is not None, "rules._links refuses a system without a udpm link"
+        return found
 
     @property
     def critical_period_us(self) -> int:
