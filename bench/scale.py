@@ -150,8 +150,13 @@ class Size:
     processes: int  # per DPU
     hz: int = 100
 
+    @property
+    def dpus(self) -> int:
+        return self.hosts * self.dpus_per_host
+
     def __str__(self) -> str:
-        return f"{self.hosts} x {self.dpus_per_host} x {self.processes} at {self.hz} Hz"
+        return (f"{self.hosts} x {self.dpus_per_host} x {self.processes} at {self.hz} Hz "
+                f"({self.dpus} DPUs, {self.dpus * self.processes} processes)")
 
 
 @dataclass(frozen=True)
@@ -171,8 +176,7 @@ class Outcome:
         return self.code == 0 and self.dropped == 0 and self.total > 0
 
     def __str__(self) -> str:
-        ndpus = self.size.hosts * self.size.dpus_per_host
-        return (f"{self.size} ({ndpus} DPUs, {ndpus * self.size.processes} processes): exit {self.code}, "
+        return (f"{self.size}: exit {self.code}, "
                 f"dropped {self.dropped}/{self.total} = {100 * self.dropped / max(self.total, 1):.3f} %, "
                 f"faults {', '.join(self.faults) or 'none'}, {self.seconds:.1f} s")
 
@@ -204,7 +208,7 @@ def sweep(sizes: tuple[Size, ...] = SWEEP, say: Any = print, **options: Any) -> 
     for size in sizes:
         outcomes.append(measure(size, **options))
         say(f"  {outcomes[-1]}")
-        if not outcomes[-1].clean and size.hosts * size.processes >= GOAL.hosts * GOAL.processes:
+        if not outcomes[-1].clean and size.dpus * size.processes >= GOAL.dpus * GOAL.processes:
             break
     return outcomes
 
@@ -221,8 +225,7 @@ def part_scale() -> list[str]:
     clean = [o.size for o in outcomes if o.clean]
     goal = next((o for o in outcomes if o.size == GOAL), None)
     verdict = "PASS" if goal is not None and goal.clean else "FAIL"
-    head = (f"scale: largest clean {clean[-1] if clean else 'none'}; goal {GOAL} (64 DPUs, 256 processes): "
-            f"{verdict}")
+    head = f"scale: largest clean {clean[-1] if clean else 'none'}; goal {GOAL}: {verdict}"
     return [head, "# namespace hosts on one bridge (no snooping), default DPU options, 3 s runs; clean: "
             "exit 0, no buffer dropped, no lockout (bench/scale.py)", *lines]
 
