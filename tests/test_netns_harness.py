@@ -9,7 +9,7 @@ import sys
 
 import pytest
 from netns import Hosts, cleanup_stale, hosts_fixture, require_root
-from netns.hosts import _netns_list
+from netns.hosts import BRIDGE_NETFILTER, _netns_list
 
 netns_hosts = hosts_fixture(3)
 
@@ -109,6 +109,21 @@ def test_netns_close_leaves_nothing_behind() -> None:
     assert proc.poll() is not None
     assert not set(ours) & set(_netns_list())
     assert _root_links() == links
+
+
+def test_netns_bridge_forwards_without_the_firewall() -> None:
+    """br_netfilter's sysctls are set to 0 in the bridge's namespace only: the root
+    namespace's (the machine's own firewall) stay as they were."""
+    require_root()
+    if not BRIDGE_NETFILTER.exists():
+        pytest.skip("br_netfilter is not loaded: a bridge here runs no firewall anyway")
+    root = {f.name: f.read_text() for f in BRIDGE_NETFILTER.glob("bridge-nf-call-*")}
+    with Hosts(1) as hosts:
+        inside = subprocess.run(["ip", "netns", "exec", hosts.bridge_netns, "sh", "-c",
+                                 f"cat {BRIDGE_NETFILTER}/bridge-nf-call-*"],
+                                capture_output=True, text=True, check=True).stdout.split()
+        assert inside and set(inside) == {"0"}
+    assert {f.name: f.read_text() for f in BRIDGE_NETFILTER.glob("bridge-nf-call-*")} == root
 
 
 def test_netns_cleanup_when_the_body_raises() -> None:

@@ -7,7 +7,8 @@ name is the host's (`skelh1`, `skelh2`, ...), so `skel-dpu --id auto` works.
 The other veth ends sit in one more namespace that holds the bridge. Nothing
 is added to the root namespace: the veth pairs are created inside the bridge
 namespace, so no link, address or route ever appears there, and traffic never
-leaves these namespaces.
+leaves these namespaces. Like a lab switch, the bridge runs no firewall on the frames it
+forwards (see _no_bridge_firewall).
 
 Namespaces are named `<prefix>-<pid>-<rand>-br` / `-h<i>`: parallel runs never
 collide, and `cleanup_stale()` removes those whose owning process is gone.
@@ -69,6 +70,19 @@ def _wrap(netns: str, host: str, argv: Sequence[str]) -> list[str]:
     # A private UTS namespace per process, all named after the host: no holder process to keep alive.
     return ["nsenter", f"--net={NETNS_DIR / netns}", "--", "unshare", "--uts", "--",
             "sh", "-c", 'hostname "$0" && exec "$@"', host, *argv]
+
+
+BRIDGE_NETFILTER = Path("/proc/sys/net/bridge")  # there only while br_netfilter is loaded
+
+
+def _no_bridge_firewall(netns: str) -> None:
+    """A lab switch forwards frames without looking at them. Where br_netfilter is loaded
+    (container runtimes load it), a new namespace's bridge would pass every frame through that
+    namespace's iptables (its sysctls default to 1): at 96 DPUs that work alone dropped
+    half the buffers (`make bench` part scale). The sysctls are the namespace's own."""
+    if BRIDGE_NETFILTER.exists():
+        _check(["ip", "netns", "exec", netns, "sh", "-c",
+                f"for f in {BRIDGE_NETFILTER}/bridge-nf-call-*; do echo 0 > $f; done"])
 
 
 def _netns_list() -> list[str]:
@@ -187,6 +201,7 @@ class Hosts:
         snoop = ("mcast_snooping", "1", "mcast_querier", "1") if self._snooping else ("mcast_snooping", "0")
         _ip("-n", br, "link", "set", BRIDGE, "type", "bridge", *snoop)
         _ip("-n", br, "link", "set", BRIDGE, "up")
+        _no_bridge_firewall(br)
         for i, name in enumerate(self.names, start=1):
             netns, port = self._netns[name], f"vh{i}"
             _ip("netns", "add", netns)
