@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import lcm
@@ -10,7 +11,8 @@ import pytest
 from analysis_synth import RUN_ID, batches, small_config, small_run, status, write_log
 
 import skelmsg
-from skeleton.analysis.read import logreader, parallel
+from skeleton.analysis.measure.run import analyze_log
+from skeleton.analysis.read import flatdecode, logreader, parallel
 from skeleton.analysis.read.flatdecode import FlatLayout
 from skeleton.analysis.read.logreader import SYNC_BYTES, encode_events, read_bytes, read_log
 from skeleton.analysis.read.records import (
@@ -276,7 +278,11 @@ def _structured(msgs: list[bytes], run_id: int) -> tuple[np.ndarray, np.ndarray]
     return np.array(recs, dtype=RECORD_DTYPE), np.array(ins, dtype=INPUT_DTYPE)
 
 
-def test_run_records_equal_the_structured_arrays_field_by_field(tmp_path: Path) -> None:
+@pytest.mark.parametrize("chunk_bytes", [flatdecode.CHUNK_BYTES, 700])  # 700: a few messages a chunk
+def test_run_records_equal_the_structured_arrays_field_by_field(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, chunk_bytes: int
+) -> None:
+    monkeypatch.setattr(flatdecode, "CHUNK_BYTES", chunk_bytes)
     rng = np.random.default_rng(5)
     msgs = [_timing_message(seq, n, m if n else 0, rng) for seq, (n, m) in
             enumerate([(64, 100), (64, 150), (3, 2), (0, 0), (64, 3), (5, 5000), (1, 1)])]  # fmt: skip
@@ -323,3 +329,38 @@ def test_sync_word_scan_finds_every_one_across_chunk_ends(walk_mode: str) -> Non
         buf[at : at + 4] = np.frombuffer(SYNC_BYTES, dtype=np.uint8)
     expected = [i for i in range(len(buf) - 3) if bytes(buf[i : i + 4]) == SYNC_BYTES]
     assert logreader._sync_words(buf).tolist() == expected and len(expected) >= 6
+
+
+def _mapped_kib(path: Path) -> int:
+    """Resident KiB of this process's maps of `path` (/proc/self/smaps)."""
+    total, inside = 0, False
+    for line in Path("/proc/self/smaps").read_text().splitlines():
+        if re.match(r"[0-9a-f]+-[0-9a-f]+ ", line):
+            inside = line.rstrip().endswith(str(path))
+        elif inside and line.startswith("Rss:"):
+            total += int(line.split()[1])
+    return total
+
+
+def test_the_analysis_gives_back_the_pages_of_the_log_it_read(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Decoded a chunk at a time, each chunk's pages given back: a log of 10^7 records
+    (2.3 GB) no longer stays resident beside its columns. The pages are read in full
+    first (the walk reads them all), so without the giving back they would all count."""
+    # Chunks of 1 MiB: a boundary's page read again maps the 64 KiB around it (fault-around)
+    monkeypatch.setattr(flatdecode, "CHUNK_BYTES", 1 << 20)
+    dpu1, dpu2 = small_run(cycles=20000)
+    events = [(CONFIG_CHANNEL, small_config())] + [(TIMING_CHANNEL, t) for t in
+                                                    batches(1, dpu1, 20) + batches(2, dpu2, 20)]  # fmt: skip
+    path = write_log(tmp_path / "run.lcm", events)
+    size_kib = path.stat().st_size // 1024
+    assert size_kib > 8 * 1024
+    log = read_log(path)
+    assert _mapped_kib(path) <= size_kib // 8  # the walk's pages given back
+    for analyse in (load_records, analyze_log):  # the decode alone, then the whole analysis
+        log.buf.sum()  # every page read (as a pass over it does): all resident now
+        assert _mapped_kib(path) >= size_kib * 3 // 4
+        run = analyse(log)
+        assert _mapped_kib(path) <= size_kib // 8, analyse.__name__
+    assert len(run.recorded.records) == len(dpu1) + len(dpu2)

@@ -29,7 +29,7 @@ timing batch, or no data yet) is counted as `broken`, not as a sample.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -70,14 +70,13 @@ def _empty_series() -> ChainSeries:
 class _Lookup:
     """(process, cycle) -> record index and (record, buffer) -> input row, by binary search."""
 
-    def __init__(self, records: np.ndarray, inputs: np.ndarray) -> None:
-        done = np.flatnonzero(completed(records))
-        keys = (records["process"][done].astype(np.int64) << _CYCLE_BITS) + records["cycle"][done]
-        order = np.argsort(keys, kind="stable")
-        self.rec_keys, self.rec_index = keys[order], done[order]
+    def __init__(self, records: np.ndarray, inputs: np.ndarray, done: np.ndarray) -> None:
+        done = np.flatnonzero(done)
+        processes = records["process"][done]
+        keys = (processes.astype(np.int64) << _CYCLE_BITS) + records["cycle"][done]
+        self.rec_keys, self.rec_index = _sorted(keys, np.argsort(processes, kind="stable"), done)
         ikeys = (inputs["record"].astype(np.int64) << 16) + (inputs["buffer"].astype(np.int64) & 0xFFFF)
-        iorder = np.argsort(ikeys, kind="stable")
-        self.in_keys, self.in_index = ikeys[iorder], iorder
+        self.in_keys, self.in_index = _sorted(ikeys, None, np.arange(len(ikeys)))
 
     @staticmethod
     def _find(keys: np.ndarray, index: np.ndarray, wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -108,8 +107,35 @@ def chain_buffers(chain: Any, config: Any) -> list[int] | None:
     return out
 
 
+def _sorted(keys: np.ndarray, order: np.ndarray | None, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(keys, index) in key order, from an `order` (None: as they are) that sorts them or
+    nearly does: the records come in cycle order per process, so ordered by process (a
+    radix sort of the 16-bit ids) they are sorted; the inputs come in record order. The
+    full sort left, if anything is out of place, is of a nearly sorted array: numpy's is
+    fast at that."""
+    if order is not None:
+        keys, index = keys[order], index[order]
+    if len(keys) > 1 and bool(np.any(keys[1:] < keys[:-1])):
+        again = np.argsort(keys, kind="stable")
+        keys, index = keys[again], index[again]
+    return keys, index
+
+
+class _Run(NamedTuple):
+    """What every chain of a window looks up: built once for all of them."""
+
+    look: _Lookup
+    done: np.ndarray  # completed(records)
+    in_window: np.ndarray  # measured(records, config)
+
+    @classmethod
+    def of(cls, records: np.ndarray, inputs: np.ndarray, config: Any) -> _Run:
+        done = completed(records)
+        return cls(_Lookup(records, inputs, done), done, measured(records, config))
+
+
 def chain_series(
-    records: np.ndarray, inputs: np.ndarray, config: Any, chain: Any, clock: ClockOffsets = NO_OFFSETS
+    records: np.ndarray, inputs: np.ndarray, config: Any, chain: Any, clock: ClockOffsets, run: _Run
 ) -> tuple[ChainSeries, int]:
     """The samples of one chain and the number of broken tail cycles."""
     steps = chain_buffers(chain, config)
@@ -117,11 +143,11 @@ def chain_series(
     pids = [int(p) for p in chain.processes]
     if steps is None or len(inputs) == 0:
         return _empty_series(), 0
-    look = _Lookup(records, inputs)
+    look = run.look
     tail = pids[-1]
     # Every completed tail cycle's row on the last buffer (warm-up too: it tells
     # which values the measured window saw before).
-    rec_done = completed(records)
+    rec_done = run.done
     tail_rows = np.flatnonzero(
         (inputs["process"] == tail) & (inputs["buffer"] == steps[-1]) & rec_done[inputs["record"]]
     )
@@ -138,7 +164,7 @@ def chain_series(
     earlier = np.maximum.accumulate(np.r_[-1, head_cycle[:-1]]) if len(head_cycle) else head_cycle
     first = ok & (head_cycle > earlier)
     tail_rec = inputs["record"][tail_rows]
-    in_window = measured(records, config)[tail_rec]
+    in_window = run.in_window[tail_rec]
     broken = int(np.count_nonzero(in_window & ~ok & (inputs["new"][tail_rows] != 0)))
     keep = first & in_window & (inputs["new"][tail_rows] != 0)  # a stale input brings nothing
     rec = records[tail_rec[keep]]
@@ -154,8 +180,10 @@ def chain_metrics(
     names = {p.id: p.name for p in config.processes}
     buffers = {b.id: b.name for b in config.buffers}
     out = []
+    run = _Run.of(records, inputs, config) if config.chains and len(inputs) else None
     for chain in config.chains:
-        series, broken = chain_series(records, inputs, config, chain, clock)
+        series, broken = (_empty_series(), 0) if run is None else chain_series(records, inputs, config, chain,
+                                                                                clock, run)  # fmt: skip
         lat_us = series.latency_ns.astype(np.float64) / 1000.0
         steps = chain_buffers(chain, config) or []
         out.append(

@@ -43,7 +43,7 @@ import numpy as np
 
 from ..read.records import FLAG_RELEASE_SKIPPED
 from .metrics import completed, measured
-from .stats import Histogram, LatencyUs, group_slices, histogram, latency_us
+from .stats import Histogram, LatencyUs, group_pairs, histogram, latency_us
 
 
 class ClockOffsets:
@@ -135,13 +135,6 @@ class BufferMetrics:
     readers: list[ReaderMetrics] = field(default_factory=list)
 
 
-def counted_inputs(records: np.ndarray, inputs: np.ndarray, config: Any) -> np.ndarray:
-    """Mask of the input records that count: those of completed, measured cycles."""
-    if len(inputs) == 0:
-        return np.zeros(0, dtype=bool)
-    return (measured(records, config) & completed(records))[inputs["record"]]
-
-
 def transport_latency_ns(
     rows: np.ndarray, reader_dpu: int, writer_dpu: int, clock: ClockOffsets
 ) -> np.ndarray:
@@ -171,10 +164,10 @@ def buffer_metrics(
     `run_records`: the whole run's (default: `records`), where the writers' skipped releases
     are looked up: a gap after a live switch may hold sequences skipped before it."""
     procs = {p.id: p for p in config.processes}
-    counted = inputs[counted_inputs(records, inputs, config)]
-    order, groups = group_slices((counted["buffer"].astype(np.int64) << 16) + counted["process"])
-    counted = counted[order]
     done = measured(records, config) & completed(records)
+    counted = inputs[done[inputs["record"]]] if len(inputs) else inputs
+    order, groups = group_pairs(counted["buffer"], counted["process"])
+    counted = counted[order]
     done_per_process = dict(zip(*np.unique(records["process"][done], return_counts=True), strict=True))
     everything = records if run_records is None else run_records
     skips = everything[(everything["flags"] & FLAG_RELEASE_SKIPPED) != 0]
@@ -188,7 +181,7 @@ def buffer_metrics(
         pooled: list[np.ndarray] = []
         reader_metrics = []
         for reader in readers:
-            rows = counted[groups.get((int(buf.id) << 16) + int(reader.id), slice(0, 0))]
+            rows = counted[groups.get((int(buf.id), int(reader.id)), slice(0, 0))]
             lat_us = transport_latency_ns(rows, reader.dpu, writer_dpu, clock).astype(np.float64) / 1000.0
             pooled.append(lat_us)
             new = int(np.count_nonzero(rows["new"]))

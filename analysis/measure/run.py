@@ -174,6 +174,7 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None) -
         pending = pool.submit(read_messages, log, generations)
         recorded = load_records(log, run_id, expected_batches=published_batches(log, run_id), heads=heads)
         messages = pending.result()
+    log.release()  # every message needed is decoded: the log's pages are given back (Log.release)
     malformed = {TIMING_CHANNEL: recorded.malformed, **messages.malformed}
     configs = {g: c for g, c in messages.configs.items() if g in recorded.generations}
     for g in recorded.generations:

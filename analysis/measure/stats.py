@@ -54,11 +54,36 @@ def group_slices(keys: np.ndarray) -> tuple[np.ndarray, dict[int, slice]]:
     """A stable sort order of `keys` and, per key, its slice of the sorted rows: one
     sort instead of one full-array mask per group. Keys of 16 bits or fewer (process and
     DPU ids as the records hold them) sort by radix, several times faster than int64."""
-    order = np.argsort(keys, kind="stable")
-    sorted_keys = keys[order]
     if len(keys) == 0:
-        return order, {}
+        return np.zeros(0, dtype=np.intp), {}
+    order = np.argsort(_narrow(keys), kind="stable")
+    sorted_keys = keys[order]
     cuts = np.flatnonzero(sorted_keys[1:] != sorted_keys[:-1]) + 1
     firsts, ends = np.r_[0, cuts].tolist(), np.r_[cuts, len(keys)].tolist()
     values = sorted_keys[firsts].tolist()
     return order, {int(v): slice(f, e) for v, f, e in zip(values, firsts, ends, strict=True)}
+
+
+def group_pairs(first: np.ndarray, second: np.ndarray) -> tuple[np.ndarray, dict[tuple[int, int], slice]]:
+    """group_slices by (first, second) pairs of ids: numbered densely, a few ids' pairs
+    sort by radix as one id does."""
+    if len(first) == 0:
+        return np.zeros(0, dtype=np.intp), {}
+    a0, b0 = int(first.min()), int(second.min())
+    width = int(second.max()) - b0 + 1
+    keys = first.astype(np.int64)  # in place from here: these columns hold millions of rows
+    keys -= a0
+    keys *= width
+    keys += second
+    keys -= b0
+    order, groups = group_slices(keys)
+    return order, {(a0 + key // width, b0 + key % width): rows for key, rows in groups.items()}
+
+
+def _narrow(keys: np.ndarray) -> np.ndarray:
+    """Wider keys that span fewer than 2^16 values, as uint16 from their smallest: numpy
+    sorts those by radix too."""
+    if keys.dtype.itemsize <= 2 or keys.dtype.kind not in "iu":
+        return keys
+    low, high = int(keys.min()), int(keys.max())
+    return (keys - low).astype(np.uint16) if high - low < 1 << 16 else keys

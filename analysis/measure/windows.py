@@ -63,14 +63,17 @@ def window_records(run: RunRecords, generation: int) -> tuple[np.ndarray, np.nda
 
 
 def _span(records: np.ndarray, config: Any, clock: ClockOffsets) -> tuple[int | None, int | None]:
-    mine = records[measured(records, config)]
-    if len(mine) == 0:
-        mine = records
-    if len(mine) == 0:
+    if len(records) == 0:
         return None, None
-    start = clock.to_host_many(mine["dpu"], mine["release_ns"])
-    end = clock.to_host_many(mine["dpu"], work_end_ns(mine))
-    return int(start.min()), int(end.max())
+    mine = measured(records, config)
+    if not mine.any():
+        mine[...] = True
+    # Over the whole columns, the measured ones picked in the reductions: gathering the
+    # measured records first copied every column it read (a second of 2 at 10^7 records).
+    start = clock.to_host_many(records["dpu"], records["release_ns"])
+    end = clock.to_host_many(records["dpu"], work_end_ns(records))
+    top = np.iinfo(np.int64)
+    return int(start.min(where=mine, initial=top.max)), int(end.max(where=mine, initial=top.min))
 
 
 def build_window(

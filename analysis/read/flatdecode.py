@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import itertools
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -100,16 +101,55 @@ class Decoded:
     columns: dict[str, np.ndarray]  # array field -> native-endian values of the ok messages
 
 
-def decode_many(layout: FlatLayout, buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> Decoded:
+def decode_many(
+    layout: FlatLayout, buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray,
+    release: Callable[[int, int], None] | None = None,
+) -> Decoded:
     """Decode the messages at buf[starts[i] : starts[i] + lengths[i]] in bulk.
 
-    Every step is one numpy operation over all messages, never a Python loop per
+    Every step is one numpy operation over many messages, never a Python loop per
     message: positions follow from the length fields, and each array element is read
-    with one fancy index over the whole buffer. A message whose fingerprint, lengths
-    or size do not fit is marked not ok (malformed) and contributes nothing.
+    with one fancy index. A message whose fingerprint, lengths or size do not fit is
+    marked not ok (malformed) and contributes nothing. The arrays are read CHUNK_BYTES
+    of the file at a time, and `release(start, end)` is then told that buf[start:end]
+    will not be read again (Log.release gives a map's pages back).
     """
     starts = np.asarray(starts, dtype=np.int64)
     end = starts + np.asarray(lengths, dtype=np.int64)
+    # The messages' heads a chunk at a time too: they lie on most pages of a timing log.
+    found = [_place(layout, buf, starts[lo:hi], end[lo:hi], release)
+             for lo, hi in _chunks(starts, end) or [(0, 0)]]  # fmt: skip
+    ok = np.concatenate([f[0] for f in found])
+    scalars = {name: np.concatenate([f[1][name] for f in found]) for name in found[0][1]}
+    placed = [(step, np.concatenate([f[2][i][1] for f in found])) for i, (step, _) in enumerate(found[0][2])]
+    good = np.flatnonzero(ok)
+    counts = {step.length: scalars[step.length][good].astype(np.int64) for step, _ in placed}
+    plan = [
+        _Column(name, at[good] + j * counts[step.length] * step.dtype.itemsize, step.length, step.dtype)
+        for step, at in placed
+        for j, name in enumerate(step.names)  # array j of a run starts j * n * size bytes in
+    ]
+    # Every column is a view into one arena: one big allocation is mapped with huge
+    # pages, where one allocation per column costs a page fault every 4 kB (measured:
+    # more than the copying itself).
+    sizes = [int(counts[c.length].sum()) * c.dtype.itemsize for c in plan]
+    arena = np.empty(sum(sizes), dtype=np.uint8)
+    outs = [out.view(c.dtype) for c, out in zip(plan, np.split(arena, np.cumsum(sizes)[:-1]), strict=True)] \
+        if plan else []  # fmt: skip
+    firsts = {length: np.cumsum(n) - n for length, n in counts.items()}
+    for lo, hi in _chunks(starts[good], end[good]):
+        _fill(plan, outs, buf, counts, firsts, lo, hi)
+        if release is not None:
+            release(int(starts[good[lo]]), int(end[good[hi - 1]]))
+    columns = {c.name: out.view(c.dtype.newbyteorder("=")) for c, out in zip(plan, outs, strict=True)}
+    return Decoded(ok=ok, scalars=scalars, counts=counts, columns=columns)
+
+
+def _place(
+    layout: FlatLayout, buf: np.ndarray, starts: np.ndarray, end: np.ndarray,
+    release: Callable[[int, int], None] | None,
+) -> tuple[np.ndarray, dict[str, np.ndarray], list[tuple[_Arrays, np.ndarray]]]:
+    """(ok, scalars, where each array starts) of the messages from `starts` to `end`."""
     fp = int.from_bytes(layout.fingerprint, "big")
     ok = end - starts >= 8
     ok &= _gather(buf, np.where(ok, starts, 0), np.dtype(">u8")) == fp
@@ -132,34 +172,53 @@ def decode_many(layout: FlatLayout, buf: np.ndarray, starts: np.ndarray, lengths
             placed.append((step, pos))
             pos = pos + n * step.dtype.itemsize * len(step.names)
             ok &= pos <= end
-    good = np.flatnonzero(ok)
-    counts = {step.length: scalars[step.length][good].astype(np.int64) for step, _ in placed}
-    # Every column is a view into one arena: one big allocation is mapped with huge
-    # pages, where one allocation per column costs a page fault every 4 kB (measured:
-    # more than the copying itself). Padded rows go through one reused scratch area.
-    plan = [
-        (name, at[good] + j * counts[step.length] * step.dtype.itemsize, counts[step.length], step.dtype)
-        for step, at in placed
-        for j, name in enumerate(step.names)  # array j of a run starts j * n * size bytes in
-    ]
-    sizes = [int(n.sum()) * dtype.itemsize for _, _, n, dtype in plan]
-    arena = np.empty(sum(sizes), dtype=np.uint8)
-    paddings = {id(n): _Padding.of(n) for n in counts.values() if _unequal(n) and _padded(n)}
-    scratch_bytes = max([paddings[id(n)].elements * dtype.itemsize for _, _, n, dtype in plan
-                         if id(n) in paddings] + [0])
-    outs = np.split(arena, np.cumsum(sizes)[:-1]) if plan else []
-    columns = {name: out.view(dtype.newbyteorder("="))
-               for (name, _, _, dtype), out in zip(plan, outs, strict=True)}
-    # Columns are filled side by side (parallel.py), each worker with its own scratch.
-    workers = min(WORKERS, len(plan))
+    if release is not None and len(starts):
+        release(int(starts[0]), int(end.max()))
+    return ok, scalars, placed
+
+
+@dataclass(frozen=True)
+class _Column:
+    name: str
+    at: np.ndarray  # per message: the byte where its values start
+    length: str  # the length field that counts them
+    dtype: np.dtype[Any]  # on the wire
+
+
+CHUNK_BYTES = 256 << 20  # of the file read at once: what a decode holds of a mapped log
+
+
+def _chunks(starts: np.ndarray, ends: np.ndarray) -> list[tuple[int, int]]:
+    """Consecutive runs [lo, hi) of the messages, each spanning about CHUNK_BYTES of the file."""
+    if len(starts) == 0:
+        return []
+    cuts = np.searchsorted(starts, np.arange(int(starts[0]), int(ends.max()), CHUNK_BYTES)[1:])
+    bounds = np.unique(np.r_[0, cuts, len(starts)])
+    return list(zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True))
+
+
+def _fill(
+    plan: list[_Column], outs: list[np.ndarray], buf: np.ndarray, counts: dict[str, np.ndarray],
+    firsts: dict[str, np.ndarray], lo: int, hi: int,
+) -> None:
+    """The values of messages [lo, hi) into their places in `outs`, the columns side by side
+    (parallel.py), each worker with its own scratch for padded rows."""
+    n = {length: c[lo:hi] for length, c in counts.items()}
+    paddings = {length: _Padding.of(m) for length, m in n.items() if _unequal(m) and _padded(m)}
+    scratch_bytes = max([paddings[c.length].elements * c.dtype.itemsize for c in plan if c.length in paddings]
+                        + [0])  # fmt: skip
+    first = {length: int(f[lo]) for length, f in firsts.items()}
+    total = {length: int(m.sum()) for length, m in n.items()}
+    work = [(c, out[first[c.length] : first[c.length] + total[c.length]])
+            for c, out in zip(plan, outs, strict=True)]  # fmt: skip
+    workers = min(WORKERS, len(work))
 
     def fill(worker: int) -> None:
         scratch = np.empty(scratch_bytes, dtype=np.uint8)
-        for (_, at_j, n, dtype), out in itertools.islice(zip(plan, outs, strict=True), worker, None, workers):
-            _concat_into(out.view(dtype), buf, at_j, n, scratch, paddings.get(id(n)))
+        for c, out in itertools.islice(work, worker, None, workers):
+            _concat_into(out, buf, c.at[lo:hi], n[c.length], scratch, paddings.get(c.length))
 
-    map_threads(fill, range(workers), sum(sizes))
-    return Decoded(ok=ok, scalars=scalars, counts=counts, columns=columns)
+    map_threads(fill, range(workers), sum(out.nbytes for _, out in work))
 
 
 def _unequal(n: np.ndarray) -> bool:
@@ -271,17 +330,27 @@ def _items(buf: np.ndarray, width: int) -> np.ndarray:
 
 
 def decode_heads(
-    layout: FlatLayout, buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray
+    layout: FlatLayout, buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray,
+    release: Callable[[int, int], None] | None = None,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Only the scalars in front of the first array (fingerprint checked): enough to
-    choose messages (a run, a DPU) before decoding their arrays."""
+    choose messages (a run, a DPU) before decoding their arrays. `release`: as decode_many's."""
     starts = np.asarray(starts, dtype=np.int64)
+    lengths = np.asarray(lengths, dtype=np.int64)
     first = layout.steps[0]
     if not isinstance(first, _Scalars):
         raise TypeError(f"{layout.name} starts with an array")
-    ok = np.asarray(lengths, dtype=np.int64) >= 8 + first.fmt.size
-    ok &= _gather(buf, np.where(ok, starts, 0), np.dtype(">u8")) == int.from_bytes(layout.fingerprint, "big")
-    values = _gather(buf, np.where(ok, starts + 8, 0), _record_dtype(first))
+    fp = int.from_bytes(layout.fingerprint, "big")
+    oks, heads = [], []
+    for lo, hi in _chunks(starts, starts + lengths) or [(0, 0)]:
+        at = starts[lo:hi]
+        ok = lengths[lo:hi] >= 8 + first.fmt.size
+        ok &= _gather(buf, np.where(ok, at, 0), np.dtype(">u8")) == fp
+        heads.append(_gather(buf, np.where(ok, at + 8, 0), _record_dtype(first)))
+        oks.append(ok)
+        if release is not None and hi > lo:
+            release(int(at[0]), int(at[-1]) + 8 + first.fmt.size)
+    ok, values = np.concatenate(oks), np.concatenate(heads)
     return ok, {name: np.where(ok, values[name], 0) for name in first.names}
 
 

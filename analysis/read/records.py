@@ -7,7 +7,7 @@ Works on raw message bytes, so a log, a replay and a live subscription all use i
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -84,7 +84,7 @@ def _timing_events(log: Log) -> tuple[np.ndarray, np.ndarray]:
 def timing_heads(log: Log) -> Heads:
     """The header of every timing batch in the log, in file order: enough to pick a run,
     its generations and its DPUs' batches without decoding a record."""
-    return decode_heads(TIMING, log.buf, *_timing_events(log))
+    return decode_heads(TIMING, log.buf, *_timing_events(log), release=log.release)
 
 
 def run_ids(log: Log, heads: Heads | None = None) -> list[int]:
@@ -108,7 +108,7 @@ def load_records(
         runs = run_ids(log, heads)
         run_id = runs[-1] if runs else 0
     return decode_timing(log.buf, *_timing_events(log), run_id=run_id, expected_batches=expected_batches,
-                         heads=heads)
+                         heads=heads, release=log.release)
 
 
 def decode_run(
@@ -134,14 +134,16 @@ def decode_timing(
     run_id: int,
     expected_batches: dict[int, int] | None = None,
     heads: Heads | None = None,
+    release: Callable[[int, int], None] | None = None,
 ) -> RunRecords:
     """The timing_t messages at buf[starts[i]:+lengths[i]] that belong to `run_id`.
     `expected_batches` (dpu -> batches the DPU says it published, from report_t)
-    reveals batches lost at the end of a run; `heads`, when known, are those messages'."""
-    ok, heads = heads or decode_heads(TIMING, buf, starts, lengths)
+    reveals batches lost at the end of a run; `heads`, when known, are those messages';
+    `release`: see flatdecode.decode_many."""
+    ok, heads = heads or decode_heads(TIMING, buf, starts, lengths, release)
     malformed = int(np.count_nonzero(~ok))
     chosen = np.flatnonzero(ok & (heads["run_id"] == run_id))
-    dec = decode_many(TIMING, buf, np.asarray(starts)[chosen], np.asarray(lengths)[chosen])
+    dec = decode_many(TIMING, buf, np.asarray(starts)[chosen], np.asarray(lengths)[chosen], release)
     malformed += int(np.count_nonzero(~dec.ok))
     good = np.flatnonzero(dec.ok)
     table = np.stack(
