@@ -28,7 +28,7 @@ from ..analysis.measure.run import analyze_log
 from ..analysis.measure.tally import GenerationTally, RunTally
 from ..analysis.read.logreader import encode_events, read_bytes
 from ..analysis.read.messages import LogError
-from ..analysis.views.console import OutputConsole
+from ..analysis.views.console import OutputConsole, reader_closed
 from ..analysis.views.tables import print_report
 from .control import subscribe
 from .link import record_listen_url, record_url, rmem_max
@@ -190,7 +190,9 @@ def _live(lc: Any, heard: Heard, url: str, deadline: float | None) -> None:
     finder = _FaultFinder(heard)
     with Live(render(heard, url), console=console, auto_refresh=False, transient=False) as live:
         try:
-            while deadline is None or time.monotonic() < deadline:
+            # A view nobody reads any more (`skel watch | head`, the reader gone before the view's
+            # only drawing at the end) has nothing left to do: watching changes no run.
+            while (deadline is None or time.monotonic() < deadline) and not reader_closed():
                 tick = time.monotonic() + REFRESH_S
                 _pump(lc, tick if deadline is None else min(tick, deadline))
                 heard.refresh()

@@ -191,6 +191,17 @@ def test_a_reader_gone_before_a_short_output_ends_the_command_with_141(args: lis
     assert not DUMP.search(done.stderr), done.stderr
 
 
+def test_skel_watch_ends_when_its_reader_goes_away(url: str) -> None:
+    """`skel watch | head`: piped, the view is drawn once, when it stops; a reader gone
+    before then ends the watch (at its next refresh), which changes no run."""
+    write_end = _closed_pipe()
+    argv = [sys.executable, "-m", "skeleton.host.cli", "watch", "--url", url, "--duration", "120"]
+    watch = subprocess.Popen(argv, cwd=REPO, stdout=write_end, stderr=subprocess.PIPE)
+    os.close(write_end)
+    assert watch.wait(timeout=60) == exitcodes.EXIT_BROKEN_PIPE
+    assert watch.stderr is not None and not DUMP.search(watch.stderr.read().decode())
+
+
 def test_a_run_whose_reader_goes_away_runs_to_its_report(url: str, tmp_path: Path) -> None:
     """`skel run FILE | grep -m1 FAULT`: the run goes on quietly, stops its DPUs and keeps its
     log and report; the command then ends with 141."""

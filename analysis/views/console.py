@@ -11,6 +11,7 @@ because `reader_gone()` says so.
 from __future__ import annotations
 
 import os
+import select
 import sys
 from typing import Any
 
@@ -37,6 +38,19 @@ def stdout_to_devnull() -> None:
 
 
 def reader_gone() -> bool:
+    return _reader_gone
+
+
+def reader_closed() -> bool:
+    """Has stdout's reader closed its end, though nothing was written since? For a
+    command that writes only at its end (`skel watch | head` draws its view once, when it
+    stops): the writer of a pipe is told by POLLERR. A file or a terminal never says so."""
+    if _reader_gone:
+        return True
+    poll = select.poll()
+    poll.register(sys.stdout.fileno(), 0)  # no event asked: only errors and hang-ups come back
+    if any(events & (select.POLLERR | select.POLLHUP) for _, events in poll.poll(0)):
+        stdout_to_devnull()
     return _reader_gone
 
 
