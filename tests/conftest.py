@@ -160,6 +160,17 @@ def faults_but_stalls(report: dict) -> list[dict]:
             and not (f["kind"] == "overrun" and (f["process"], f["dpu"]) in stalled)]
 
 
+def mapped_kib(path: Path) -> int:
+    """Resident KiB of this process's maps of `path` (/proc/self/smaps)."""
+    total, inside = 0, False
+    for line in Path("/proc/self/smaps").read_text().splitlines():
+        if re.match(r"[0-9a-f]+-[0-9a-f]+ ", line):
+            inside = line.rstrip().endswith(str(path))
+        elif inside and line.startswith("Rss:"):
+            total += int(line.split()[1])
+    return total
+
+
 def skel(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     """Run the real `skel` command line, as a user would."""
     assert ASAN_DPU.exists(), f"{ASAN_DPU} missing: run `make test` (it builds it)"

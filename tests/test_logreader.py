@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import lcm
 import numpy as np
 import pytest
 from analysis_synth import RUN_ID, batches, small_config, small_run, status, write_log
+from conftest import mapped_kib
 
 import skelmsg
 from skeleton.analysis.measure.run import analyze_log
@@ -331,17 +331,6 @@ def test_sync_word_scan_finds_every_one_across_chunk_ends(walk_mode: str) -> Non
     assert logreader._sync_words(buf).tolist() == expected and len(expected) >= 6
 
 
-def _mapped_kib(path: Path) -> int:
-    """Resident KiB of this process's maps of `path` (/proc/self/smaps)."""
-    total, inside = 0, False
-    for line in Path("/proc/self/smaps").read_text().splitlines():
-        if re.match(r"[0-9a-f]+-[0-9a-f]+ ", line):
-            inside = line.rstrip().endswith(str(path))
-        elif inside and line.startswith("Rss:"):
-            total += int(line.split()[1])
-    return total
-
-
 def test_the_analysis_gives_back_the_pages_of_the_log_it_read(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -357,10 +346,10 @@ def test_the_analysis_gives_back_the_pages_of_the_log_it_read(
     size_kib = path.stat().st_size // 1024
     assert size_kib > 8 * 1024
     log = read_log(path)
-    assert _mapped_kib(path) <= size_kib // 8  # the walk's pages given back
+    assert mapped_kib(path) <= size_kib // 8  # the walk's pages given back
     for analyse in (load_records, analyze_log):  # the decode alone, then the whole analysis
         log.buf.sum()  # every page read (as a pass over it does): all resident now
-        assert _mapped_kib(path) >= size_kib * 3 // 4
+        assert mapped_kib(path) >= size_kib * 3 // 4
         run = analyse(log)
-        assert _mapped_kib(path) <= size_kib // 8, analyse.__name__
+        assert mapped_kib(path) <= size_kib // 8, analyse.__name__
     assert len(run.recorded.records) == len(dpu1) + len(dpu2)

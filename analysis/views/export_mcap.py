@@ -293,7 +293,7 @@ def _attach(out: BulkWriter, data: RunAnalysis) -> None:
     integ = log.integrity
     when = int(config.sent_utc_ns) if config.sent_utc_ns > 0 else 0
     out.attach("system.yaml", "application/yaml", config.source.encode(), when)
-    out.attach(SOURCE_LOG, "application/x-lcm-log", memoryview(log.buf[: log.size]), when)
+    out.attach(SOURCE_LOG, "application/x-lcm-log", memoryview(log.buf[: log.size]), when, log.release)
     out.metadata(
         METADATA,
         {

@@ -44,6 +44,7 @@ from ..read.parallel import WORKERS
 
 MAGIC = bytes([137, 77, 67, 65, 80, 48, 13, 10])
 CHUNK_BYTES = 4 << 20  # uncompressed: Foxglove's and the mcap tools' usual size
+ATTACH_BYTES = 256 << 20  # of an attachment written at once
 # A message record: opcode, record length, channel id, sequence, log time, publish time.
 MESSAGE_HEAD = np.dtype([("op", "u1"), ("length", "<u8"), ("channel", "<u2"), ("sequence", "<u4"),
                          ("log_time", "<u8"), ("publish_time", "<u8")])  # fmt: skip
@@ -207,9 +208,11 @@ class BulkWriter:
             compressed_size=len(packed), uncompressed_size=size,
         ))  # fmt: skip
 
-    def attach(self, name: str, media_type: str, data: bytes | memoryview, log_time: int) -> None:
+    def attach(self, name: str, media_type: str, data: bytes | memoryview, log_time: int,
+               written: Callable[[int, int], None] | None = None) -> None:
         """An attachment written straight from `data` (a memory map stays unread until
-        written: no copy of a large log). Its CRC is 0, "not computed" in the spec."""
+        written: no copy of a large log), ATTACH_BYTES at a time, `written(start, end)` told
+        of each (Log.release gives a map's pages back). Its CRC is 0, "not computed" in the spec."""
         fields = RecordBuilder()
         fields.write8(log_time)
         fields.write8(log_time)
@@ -219,7 +222,12 @@ class BulkWriter:
         head = fields.end()
         offset = self.stream.tell()
         self.stream.write(struct.pack("<BQ", Opcode.ATTACHMENT, len(head) + len(data) + 4) + head)
-        self.stream.write(data)
+        view = memoryview(data).cast("B")
+        for start in range(0, len(view), ATTACH_BYTES):
+            end = min(len(view), start + ATTACH_BYTES)
+            self.stream.write(view[start:end])
+            if written is not None:
+                written(start, end)
         self.stream.write(struct.pack("<I", 0))
         self.attachment_indexes.append(AttachmentIndex(
             offset=offset, length=9 + len(head) + len(data) + 4, log_time=log_time, create_time=log_time,
