@@ -134,14 +134,14 @@ class _Run(NamedTuple):
         return cls(_Lookup(records, inputs, done), done, measured(records, config))
 
 
-def chain_series(
+def _chain_series(
     records: np.ndarray, inputs: np.ndarray, config: Any, chain: Any, clock: ClockOffsets, run: _Run
 ) -> tuple[ChainSeries, int]:
     """The samples of one chain and the number of broken tail cycles."""
     steps = chain_buffers(chain, config)
     procs = {p.id: p for p in config.processes}
     pids = [int(p) for p in chain.processes]
-    if steps is None or len(inputs) == 0:
+    if steps is None:
         return _empty_series(), 0
     look = run.look
     tail = pids[-1]
@@ -182,8 +182,10 @@ def chain_metrics(
     out = []
     run = _Run.of(records, inputs, config) if config.chains and len(inputs) else None
     for chain in config.chains:
-        series, broken = (_empty_series(), 0) if run is None else chain_series(records, inputs, config, chain,
-                                                                                clock, run)  # fmt: skip
+        if run is None:
+            series, broken = _empty_series(), 0
+        else:
+            series, broken = _chain_series(records, inputs, config, chain, clock, run)
         lat_us = series.latency_ns.astype(np.float64) / 1000.0
         steps = chain_buffers(chain, config) or []
         out.append(

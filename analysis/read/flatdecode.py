@@ -110,9 +110,11 @@ def decode_many(
     Every step is one numpy operation over many messages, never a Python loop per
     message: positions follow from the length fields, and each array element is read
     with one fancy index. A message whose fingerprint, lengths or size do not fit is
-    marked not ok (malformed) and contributes nothing. The arrays are read CHUNK_BYTES
-    of the file at a time, and `release(start, end)` is then told that buf[start:end]
-    will not be read again (Log.release gives a map's pages back).
+    marked not ok (malformed) and contributes nothing. The messages are read CHUNK_BYTES
+    of the file at a time, their heads first, then their arrays, and `release(start, end)`
+    is told after each chunk that buf[start:end] is not needed for now (Log.release gives
+    a map's pages back: read again, they cost a page fault each, so a page is faulted in
+    about three times over a decode: the heads, the arrays' places, their values).
     """
     starts = np.asarray(starts, dtype=np.int64)
     end = starts + np.asarray(lengths, dtype=np.int64)
@@ -334,7 +336,8 @@ def decode_heads(
     release: Callable[[int, int], None] | None = None,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Only the scalars in front of the first array (fingerprint checked): enough to
-    choose messages (a run, a DPU) before decoding their arrays. `release`: as decode_many's."""
+    choose messages (a run, a DPU) before decoding their arrays. `release`: as decode_many's
+    (called with what it no longer needs, not a promise never to read it again)."""
     starts = np.asarray(starts, dtype=np.int64)
     lengths = np.asarray(lengths, dtype=np.int64)
     first = layout.steps[0]

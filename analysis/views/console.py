@@ -44,12 +44,13 @@ def reader_gone() -> bool:
 def reader_closed() -> bool:
     """Has stdout's reader closed its end, though nothing was written since? For a
     command that writes only at its end (`skel watch | head` draws its view once, when it
-    stops): the writer of a pipe is told by POLLERR. A file or a terminal never says so."""
+    stops): the writer of a pipe is told by POLLERR, a hung-up terminal by POLLHUP, a
+    descriptor closed under us by POLLNVAL. A file never says so."""
     if _reader_gone:
         return True
     poll = select.poll()
     poll.register(sys.stdout.fileno(), 0)  # no event asked: only errors and hang-ups come back
-    if any(events & (select.POLLERR | select.POLLHUP) for _, events in poll.poll(0)):
+    if any(events & (select.POLLERR | select.POLLHUP | select.POLLNVAL) for _, events in poll.poll(0)):
         stdout_to_devnull()
     return _reader_gone
 

@@ -218,11 +218,11 @@ class BulkWriter:
         fields.write8(log_time)
         fields.write_prefixed_string(name)
         fields.write_prefixed_string(media_type)
-        fields.write8(len(data))
+        view = memoryview(data).cast("B")
+        fields.write8(view.nbytes)
         head = fields.end()
         offset = self.stream.tell()
-        self.stream.write(struct.pack("<BQ", Opcode.ATTACHMENT, len(head) + len(data) + 4) + head)
-        view = memoryview(data).cast("B")
+        self.stream.write(struct.pack("<BQ", Opcode.ATTACHMENT, len(head) + view.nbytes + 4) + head)
         for start in range(0, len(view), ATTACH_BYTES):
             end = min(len(view), start + ATTACH_BYTES)
             self.stream.write(view[start:end])
@@ -230,8 +230,8 @@ class BulkWriter:
                 written(start, end)
         self.stream.write(struct.pack("<I", 0))
         self.attachment_indexes.append(AttachmentIndex(
-            offset=offset, length=9 + len(head) + len(data) + 4, log_time=log_time, create_time=log_time,
-            data_size=len(data), name=name, media_type=media_type,
+            offset=offset, length=9 + len(head) + view.nbytes + 4, log_time=log_time, create_time=log_time,
+            data_size=view.nbytes, name=name, media_type=media_type,
         ))  # fmt: skip
 
     def metadata(self, name: str, values: Mapping[str, str]) -> None:
