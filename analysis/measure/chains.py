@@ -70,13 +70,18 @@ def _empty_series() -> ChainSeries:
 class _Lookup:
     """(process, cycle) -> record index and (record, buffer) -> input row, by binary search."""
 
-    def __init__(self, records: np.ndarray, inputs: np.ndarray, done: np.ndarray) -> None:
-        done = np.flatnonzero(done)
-        processes = records["process"][done]
-        keys = (processes.astype(np.int64) << _CYCLE_BITS) + records["cycle"][done]
-        self.rec_keys, self.rec_index = _sorted(keys, np.argsort(processes, kind="stable"), done)
-        ikeys = (inputs["record"].astype(np.int64) << 16) + (inputs["buffer"].astype(np.int64) & 0xFFFF)
-        self.in_keys, self.in_index = _sorted(ikeys, None, np.arange(len(ikeys)))
+    def __init__(self, records: np.ndarray, inputs: np.ndarray, done: np.ndarray, processes: list[int],
+                 buffers: list[int]) -> None:  # fmt: skip
+        # Only what the chains step through: their processes' completed records and the input
+        # rows on their buffers, where a system's chains name a few of its processes.
+        rows = np.flatnonzero(done & np.isin(records["process"], processes))
+        ids = records["process"][rows]
+        keys = (ids.astype(np.int64) << _CYCLE_BITS) + records["cycle"][rows]
+        self.rec_keys, self.rec_index = _sorted(keys, np.argsort(ids, kind="stable"), rows)
+        on = np.flatnonzero(np.isin(inputs["buffer"], buffers))
+        buffer = inputs["buffer"][on].astype(np.int64)
+        ikeys = (inputs["record"][on].astype(np.int64) << 16) + (buffer & 0xFFFF)
+        self.in_keys, self.in_index = _sorted(ikeys, None, on)
 
     @staticmethod
     def _find(keys: np.ndarray, index: np.ndarray, wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -131,7 +136,9 @@ class _Run(NamedTuple):
     @classmethod
     def of(cls, records: np.ndarray, inputs: np.ndarray, config: Any) -> _Run:
         done = completed(records)
-        return cls(_Lookup(records, inputs, done), done, measured(records, config))
+        processes = sorted({int(p) for chain in config.chains for p in chain.processes})
+        buffers = sorted({b for chain in config.chains for b in chain_buffers(chain, config) or []})
+        return cls(_Lookup(records, inputs, done, processes, buffers), done, measured(records, config))
 
 
 def _chain_series(
