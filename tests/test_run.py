@@ -3,10 +3,15 @@
 from __future__ import annotations
 
 import json
+import os
+import threading
 from pathlib import Path
 
 import pytest
 from conftest import EXAMPLES, LOCKOUT_SYSTEM, skel
+
+from skeleton.host.run import keep_off_dpu_cpus
+from skeleton.host.system import System, load
 
 PAPER_COMPUTE_PCT = {1: 90.3, 2: 73.4, 3: 86.0, 4: 96.5}
 # DPUs 1 and 3 are 86-90 % loaded: after a scheduling hiccup of a shared 2-core machine they
@@ -201,3 +206,29 @@ def test_run_warns_when_a_process_would_stay_in_warm_up(tmp_path: Path, url: str
     for name in ("dynamics", "gravity_comp", "jacobian_update"):
         assert f"WARN process {name}: its warm-up" in run.stdout, run.stdout
     assert "WARN process executor" not in run.stdout
+
+
+def _affinity_after_keep_off(system: System) -> set[int]:
+    """keep_off_dpu_cpus in a thread of its own: the affinity it sets is the calling thread's."""
+    got: list[set[int]] = []
+    worker = threading.Thread(target=lambda: got.append(keep_off_dpu_cpus(system)))
+    worker.start()
+    worker.join()
+    return got[0]
+
+
+def test_the_host_tool_keeps_off_the_cpus_its_dpus_are_pinned_to() -> None:
+    """Under SCHED_OTHER a DPU waking on a CPU where `skel run`'s live analysis runs waits
+    out the scheduler's slice (`make bench` part wakeup): the tool moves off the CPUs this
+    host's DPUs are pinned to, when others are left; a DPU of another host pins nothing here."""
+    allowed = os.sched_getaffinity(0)
+    if len(allowed) < 2:
+        pytest.skip("one CPU: nowhere else to go")
+    first, last = min(allowed), max(allowed)
+    pair = EXAMPLES / "pair-10ms-5ms.yaml"
+    assert _affinity_after_keep_off(load(pair, [f"dpu.1.cpu={first}"])) == allowed - {first}
+    assert _affinity_after_keep_off(load(pair, [f"dpu.1.cpu={first}", "dpu.1.host=elsewhere"])) == allowed
+    assert _affinity_after_keep_off(load(pair)) == allowed
+    if len(allowed) == 2:  # every CPU taken: the tool stays where it may run
+        assert _affinity_after_keep_off(load(pair, [f"dpu.1.cpu={first}", f"dpu.2.cpu={last}"])) == allowed
+    assert os.sched_getaffinity(0) == allowed
