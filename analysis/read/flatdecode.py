@@ -13,7 +13,7 @@ import itertools
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -119,16 +119,14 @@ def decode_many(
     starts = np.asarray(starts, dtype=np.int64)
     end = starts + np.asarray(lengths, dtype=np.int64)
     # The messages' heads a chunk at a time too: they lie on most pages of a timing log.
-    found = [_place(layout, buf, starts[lo:hi], end[lo:hi], release)
-             for lo, hi in _chunks(starts, end) or [(0, 0)]]  # fmt: skip
-    ok = np.concatenate([f[0] for f in found])
-    scalars = {name: np.concatenate([f[1][name] for f in found]) for name in found[0][1]}
-    placed = [(step, np.concatenate([f[2][i][1] for f in found])) for i, (step, _) in enumerate(found[0][2])]
+    ok, scalars, placed = _Placed.concat([_place(layout, buf, starts[lo:hi], end[lo:hi], release)
+                                          for lo, hi in _chunks(starts, end) or [(0, 0)]])  # fmt: skip
+    arrays = [step for step in layout.steps if isinstance(step, _Arrays)]
     good = np.flatnonzero(ok)
-    counts = {step.length: scalars[step.length][good].astype(np.int64) for step, _ in placed}
+    counts = {step.length: scalars[step.length][good].astype(np.int64) for step in arrays}
     plan = [
         _Column(name, at[good] + j * counts[step.length] * step.dtype.itemsize, step.length, step.dtype)
-        for step, at in placed
+        for step, at in zip(arrays, placed, strict=True)
         for j, name in enumerate(step.names)  # array j of a run starts j * n * size bytes in
     ]
     # Every column is a view into one arena: one big allocation is mapped with huge
@@ -147,17 +145,33 @@ def decode_many(
     return Decoded(ok=ok, scalars=scalars, counts=counts, columns=columns)
 
 
+class _Placed(NamedTuple):
+    """Where the values of some messages lie."""
+
+    ok: np.ndarray  # per message, as Decoded.ok
+    scalars: dict[str, np.ndarray]  # per message, as Decoded.scalars
+    arrays: list[np.ndarray]  # per run of arrays (layout order), per message: the byte it starts at
+
+    @classmethod
+    def concat(cls, parts: list[_Placed]) -> _Placed:
+        """Consecutive messages' parts as one."""
+        ok = np.concatenate([p.ok for p in parts])
+        scalars = {name: np.concatenate([p.scalars[name] for p in parts]) for name in parts[0].scalars}
+        arrays = [np.concatenate(runs) for runs in zip(*(p.arrays for p in parts), strict=True)]
+        return cls(ok, scalars, arrays)
+
+
 def _place(
     layout: FlatLayout, buf: np.ndarray, starts: np.ndarray, end: np.ndarray,
     release: Callable[[int, int], None] | None,
-) -> tuple[np.ndarray, dict[str, np.ndarray], list[tuple[_Arrays, np.ndarray]]]:
-    """(ok, scalars, where each array starts) of the messages from `starts` to `end`."""
+) -> _Placed:
+    """Where the values of the messages from `starts` to `end` lie."""
     fp = int.from_bytes(layout.fingerprint, "big")
     ok = end - starts >= 8
     ok &= _gather(buf, np.where(ok, starts, 0), np.dtype(">u8")) == fp
     pos = starts + 8
     scalars: dict[str, np.ndarray] = {}
-    placed: list[tuple[_Arrays, np.ndarray]] = []
+    placed: list[np.ndarray] = []
     for step in layout.steps:
         if isinstance(step, _Scalars):
             ok &= pos + step.fmt.size <= end
@@ -171,12 +185,12 @@ def _place(
             # int64 before multiplying: an int32 length of 2**30 times 8 bytes wrapped negative,
             # passed the size check and asked for a 39 GiB column (a flipped bit, Hypothesis)
             n = np.where(ok, n, 0).astype(np.int64)
-            placed.append((step, pos))
+            placed.append(pos)
             pos = pos + n * step.dtype.itemsize * len(step.names)
             ok &= pos <= end
     if release is not None and len(starts):
         release(int(starts[0]), int(end.max()))
-    return ok, scalars, placed
+    return _Placed(ok, scalars, placed)
 
 
 @dataclass(frozen=True)
