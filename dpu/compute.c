@@ -58,19 +58,50 @@ static void compute_sort(int64_t *v, int n)
         }
 }
 
-/* Median thread CPU time of RUNS runs of the kernel for ITERATIONS: the median,
- * not the best, because a cycle's computation is a typical run, not the luckiest. */
-static int64_t compute_kernel_median_ns(uint64_t iterations, int runs)
+/* WORK's kernel runs in chunks of this much work, the clock read after each. */
+#define COMPUTE_WORK_CHUNK_NS 10000
+
+/* Runs ITERATIONS of the kernel in chunks of CHUNK, the wall clock read after
+ * each from PREV on, as every WORK computation does; a chunk that took longer
+ * than its work at RATE (iterations per us) by more than STALL_NS adds that
+ * excess to *LOST. */
+static void compute_work_chunks(uint64_t iterations, uint64_t chunk, double rate, int64_t prev,
+                                int64_t stall_ns, int64_t *lost)
 {
-    int64_t v[CALIBRATION_RUNS_MAX];
     volatile uint64_t sink = 0;
+    uint64_t left = iterations;
+    while (left > 0) {
+        uint64_t n = left < chunk ? left : chunk;
+        sink += compute_work_kernel(n);
+        left -= n;
+        int64_t now = clock_mono_ns();
+        int64_t over = now - prev - (int64_t)((double)n * 1000.0 / rate);
+        if (over > stall_ns) *lost += over;
+        prev = now;
+    }
+    (void)sink;
+}
+
+static uint64_t compute_chunk(double rate)
+{
+    uint64_t chunk = (uint64_t)llround(rate * COMPUTE_WORK_CHUNK_NS / 1000.0);
+    return chunk < 1 ? 1 : chunk;
+}
+
+/* Median thread CPU time of RUNS runs of ITERATIONS of the kernel, in chunks of
+ * CHUNK as a computation runs it, clock reads and all (they cost 0.2 % of it
+ * here: calibrated without them, WORK computed that much longer than asked).
+ * The median, not the best, because a cycle's computation is a typical run,
+ * not the luckiest. */
+static int64_t compute_kernel_median_ns(uint64_t iterations, uint64_t chunk, int runs)
+{
+    int64_t v[CALIBRATION_RUNS_MAX], lost = 0;
     if (runs > CALIBRATION_RUNS_MAX) runs = CALIBRATION_RUNS_MAX;
     for (int i = 0; i < runs; i++) {
         int64_t t0 = clock_thread_cpu_ns();
-        sink += compute_work_kernel(iterations);
+        compute_work_chunks(iterations, chunk, 1.0, clock_mono_ns(), INT64_MAX, &lost);
         v[i] = clock_thread_cpu_ns() - t0;
     }
-    (void)sink;
     compute_sort(v, runs);
     return v[runs / 2];
 }
@@ -82,11 +113,12 @@ static int64_t compute_kernel_median_ns(uint64_t iterations, int runs)
  * fraction of a millisecond miss. */
 static double compute_measure_rate(int runs)
 {
-    int64_t probe = compute_kernel_median_ns(100000, 3);
+    int64_t probe = compute_kernel_median_ns(100000, 100000, 3);
     if (probe <= 0) return -1;
-    uint64_t n = (uint64_t)(100000.0 * CALIBRATION_RUN_NS / (double)probe);
+    double guess = 100000.0 * 1000.0 / (double)probe;
+    uint64_t n = (uint64_t)(guess * CALIBRATION_RUN_NS / 1000.0);
     if (n < 1000) n = 1000;
-    int64_t t = compute_kernel_median_ns(n, runs);
+    int64_t t = compute_kernel_median_ns(n, compute_chunk(guess), runs);
     if (t <= 0) return -1;
     return (double)n * 1000.0 / (double)t;
 }
@@ -163,9 +195,6 @@ int64_t compute_held(const skel_compute_t *c, int64_t ns, int64_t *unswitched)
     return held;
 }
 
-/* WORK's kernel runs in chunks of this much work, the clock read after each. */
-#define COMPUTE_WORK_CHUNK_NS 10000
-
 /* Runs the kernel for NS of work at the calibrated rate, from START. A chunk
  * that took longer than its work by more than the stall threshold was kept
  * from running (a stop of the machine, a preemption) for that excess: added to
@@ -175,23 +204,11 @@ int64_t compute_held(const skel_compute_t *c, int64_t ns, int64_t *unswitched)
  * than the threshold: that is the computation's, as in real code. */
 static void compute_work(const skel_compute_t *c, int64_t start, int64_t ns, int64_t *lost)
 {
-    if (!(c->work_iters_per_us > 0)) return;
-    volatile uint64_t sink = 0;
-    double iterations = (double)ns / 1000.0 * c->work_iters_per_us;
-    uint64_t left = iterations > 0 ? (uint64_t)llround(iterations) : 0;
-    uint64_t chunk = (uint64_t)llround(c->work_iters_per_us * COMPUTE_WORK_CHUNK_NS / 1000.0);
-    if (chunk < 1) chunk = 1;
-    int64_t prev = start;
-    while (left > 0) {
-        uint64_t n = left < chunk ? left : chunk;
-        sink += compute_work_kernel(n);
-        left -= n;
-        int64_t now = clock_mono_ns();
-        int64_t over = now - prev - (int64_t)((double)n * 1000.0 / c->work_iters_per_us);
-        if (over > c->stall_ns) *lost += over;
-        prev = now;
-    }
-    (void)sink;
+    double rate = c->work_iters_per_us;
+    if (!(rate > 0)) return;
+    double iterations = (double)ns / 1000.0 * rate;
+    compute_work_chunks(iterations > 0 ? (uint64_t)llround(iterations) : 0, compute_chunk(rate), rate,
+                        start, c->stall_ns, lost);
 }
 
 /* Emulates NS of computation in MODE; returns the compute it reports (the time
