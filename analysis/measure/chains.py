@@ -134,11 +134,11 @@ class _Run(NamedTuple):
     in_window: np.ndarray  # measured(records, config)
 
     @classmethod
-    def of(cls, records: np.ndarray, inputs: np.ndarray, config: Any) -> _Run:
+    def of(cls, records: np.ndarray, inputs: np.ndarray, config: Any, in_window: np.ndarray) -> _Run:
         done = completed(records)
         processes = sorted({int(p) for chain in config.chains for p in chain.processes})
         buffers = sorted({b for chain in config.chains for b in chain_buffers(chain, config) or []})
-        return cls(_Lookup(records, inputs, done, processes, buffers), done, measured(records, config))
+        return cls(_Lookup(records, inputs, done, processes, buffers), done, in_window)
 
 
 def _chain_series(
@@ -181,13 +181,17 @@ def _chain_series(
 
 
 def chain_metrics(
-    records: np.ndarray, inputs: np.ndarray, config: Any, clock: ClockOffsets = NO_OFFSETS
+    records: np.ndarray, inputs: np.ndarray, config: Any, clock: ClockOffsets = NO_OFFSETS,
+    in_window: np.ndarray | None = None,
 ) -> list[ChainMetrics]:
-    """Per chain of the config, in config order."""
+    """Per chain of the config, in config order (`in_window`: measured(records, config), when
+    the caller has it)."""
     names = {p.id: p.name for p in config.processes}
     buffers = {b.id: b.name for b in config.buffers}
     out = []
-    run = _Run.of(records, inputs, config) if config.chains and len(inputs) else None
+    run = None
+    if config.chains and len(inputs):
+        run = _Run.of(records, inputs, config, measured(records, config) if in_window is None else in_window)
     for chain in config.chains:
         if run is None:
             series, broken = _empty_series(), 0

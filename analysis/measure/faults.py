@@ -431,13 +431,15 @@ def stall_faults(records: np.ndarray, config: Any) -> list[Fault]:
     return faults
 
 
-def behind_faults(records: np.ndarray, config: Any) -> list[Fault]:
+def behind_faults(records: np.ndarray, config: Any, in_window: np.ndarray | None = None) -> list[Fault]:
     """A DPU whose minor cycles start more than a minor cycle late, BEHIND_MIN_FRAMES in a
     row or more: how far behind, since when, for how long, and why (a stall of the
-    platform, an overload, a data wait or an overrun)."""
+    platform, an overload, a data wait or an overrun). `in_window`: measured(records, config),
+    when the caller has it."""
     faults = []
     t0 = first_release_ns(records)
-    in_window = measured(records, config)
+    if in_window is None:
+        in_window = measured(records, config)
     for dpu in sorted(config.dpus, key=lambda d: d.id):
         # A DPU that fell behind in its warm-up and is still behind in the window is found
         # from where it fell behind, so that its cause (a stall, say) is not cut off.

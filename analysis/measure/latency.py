@@ -158,13 +158,14 @@ def unpublished_in_gaps(rows: np.ndarray, skipped: np.ndarray) -> int:
 
 def buffer_metrics(
     records: np.ndarray, inputs: np.ndarray, config: Any, clock: ClockOffsets = NO_OFFSETS,
-    run_records: np.ndarray | None = None,
+    run_records: np.ndarray | None = None, in_window: np.ndarray | None = None,
 ) -> list[BufferMetrics]:
     """Per buffer (config order by id) that has a reader, over the measured window.
     `run_records`: the whole run's (default: `records`), where the writers' skipped releases
-    are looked up: a gap after a live switch may hold sequences skipped before it."""
+    are looked up: a gap after a live switch may hold sequences skipped before it.
+    `in_window`: measured(records, config), when the caller has it."""
     procs = {p.id: p for p in config.processes}
-    done = measured(records, config) & completed(records)
+    done = (measured(records, config) if in_window is None else in_window) & completed(records)
     counted = inputs[done[inputs["record"]]] if len(inputs) else inputs
     order, groups = group_pairs(counted["buffer"], counted["process"])
     counted = counted[order]

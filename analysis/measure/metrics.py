@@ -194,9 +194,10 @@ def static_load_pct(config: Any, dpu_id: int) -> float:
     return 100.0 * load / speed
 
 
-def dpu_metrics(records: np.ndarray, config: Any) -> list[DpuMetrics]:
-    """Per DPU (config order by id) over the measured window."""
-    window = records[measured(records, config)]
+def dpu_metrics(records: np.ndarray, config: Any, in_window: np.ndarray | None = None) -> list[DpuMetrics]:
+    """Per DPU (config order by id) over the measured window (`in_window`: measured(records,
+    config), when the caller has it)."""
+    window = records[measured(records, config) if in_window is None else in_window]
     out = []
     for dpu in sorted(config.dpus, key=lambda d: d.id):
         procs = sorted((p for p in config.processes if p.dpu == dpu.id), key=lambda p: (p.order, p.id))
@@ -314,10 +315,14 @@ def overran(records: np.ndarray) -> np.ndarray:
     return ((records["flags"] & FLAG_OVERRUN) != 0) | (records["slack_ns"] < 0)
 
 
-def process_metrics(records: np.ndarray, inputs: np.ndarray, config: Any) -> list[ProcessMetrics]:
-    """Per process (config order by id) over the measured window."""
+def process_metrics(
+    records: np.ndarray, inputs: np.ndarray, config: Any, in_window: np.ndarray | None = None
+) -> list[ProcessMetrics]:
+    """Per process (config order by id) over the measured window (`in_window`: measured(records,
+    config), when the caller has it)."""
     buffers = {b.id: b for b in config.buffers}
-    in_window = measured(records, config)
+    if in_window is None:
+        in_window = measured(records, config)
     # An input record belongs to the window when its cycle record does, and counts
     # only for completed cycles, so new + stale == cycles for every input.
     completed_idx = in_window & completed(records)

@@ -62,12 +62,10 @@ def window_records(run: RunRecords, generation: int) -> tuple[np.ndarray, np.nda
     return run.records[keep], inputs
 
 
-def _span(records: np.ndarray, config: Any, clock: ClockOffsets) -> tuple[int | None, int | None]:
+def _span(records: np.ndarray, in_window: np.ndarray, clock: ClockOffsets) -> tuple[int | None, int | None]:
     if len(records) == 0:
         return None, None
-    mine = measured(records, config)
-    if not mine.any():
-        mine[...] = True
+    mine = in_window if in_window.any() else np.ones(len(records), dtype=bool)
     # Over the whole columns, the measured ones picked in the reductions: gathering the
     # measured records first copied every column it read (a second of 2 at 10^7 records).
     start = clock.to_host_many(records["dpu"], records["release_ns"])
@@ -94,13 +92,15 @@ def build_window(
     # The tables and searches below read the same records and write nothing shared: numpy's
     # sorts, gathers and sums release the GIL, so on a run of millions of records they go
     # side by side on the machine's cores (largest first, so neither core waits at the end).
+    # Which records are in the measurement window: found once, read by every table.
+    win = measured(records, config)
     tasks: dict[str, Callable[[], Any]] = {
-        "processes": lambda: process_metrics(records, inputs, config),
-        "buffers": lambda: buffer_metrics(records, inputs, config, clock, run_records),
-        "chains": lambda: chain_metrics(records, inputs, config, clock),
-        "behind": lambda: behind_faults(records, config),
-        "dpus": lambda: dpu_metrics(records, config),
-        "span": lambda: _span(records, config, clock),
+        "processes": lambda: process_metrics(records, inputs, config, win),
+        "buffers": lambda: buffer_metrics(records, inputs, config, clock, run_records, win),
+        "chains": lambda: chain_metrics(records, inputs, config, clock, win),
+        "behind": lambda: behind_faults(records, config, win),
+        "dpus": lambda: dpu_metrics(records, config, win),
+        "span": lambda: _span(records, win, clock),
         "delivery": delivery,
         "stalls": lambda: stall_faults(records, config),
     }
