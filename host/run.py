@@ -192,17 +192,10 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
 
 
 def keep_off_dpu_cpus(system: System) -> set[int]:
-    """Move the host tool's own work (the live tables and the search for faults, a few ms
-    at each refresh) off the CPUs this host's DPUs are pinned to, when others are left;
-    returns the CPUs it now runs on. Under SCHED_OTHER a DPU waking on a CPU where that
-    work runs waits out the scheduler's slice: 4.4 ms, and a wake-up p99 of 1.6 ms against
-    cyclictest's 0.1 ms (`make bench` part wakeup, `wall` mode). The calling thread and
-    those it starts from now on; the DPUs and the logger are already running."""
-    allowed = os.sched_getaffinity(0)
+    """spawn.keep_off the CPUs this host's DPUs are pinned to, for the calling thread and those
+    it starts from now on (the DPUs and the logger are already running); returns where it runs."""
     pinned = {d.cpu for d in system.dpus if d.cpu is not None and spawn.is_local(d.host)}
-    if pinned & allowed and allowed - pinned:
-        os.sched_setaffinity(0, allowed - pinned)
-    return os.sched_getaffinity(0)
+    return spawn.keep_off(pinned, os.sched_getaffinity(0))
 
 
 def _claim(control: Control, dpu_ids: list[int], force: bool, console: Console) -> bool:

@@ -14,6 +14,7 @@ print the same tables for the same messages.
 from __future__ import annotations
 
 import json
+import os
 import sys
 import threading
 import time
@@ -30,6 +31,7 @@ from ..analysis.read.logreader import encode_events, read_bytes
 from ..analysis.read.messages import LogError
 from ..analysis.views.console import OutputConsole, reader_closed
 from ..analysis.views.tables import print_report
+from . import spawn
 from .control import subscribe
 from .link import record_listen_url, record_url, rmem_max
 from .listener import CHANNELS, LOST_AFTER_S, Listener
@@ -108,6 +110,13 @@ class Heard:
             self.lost_batches = sum(b["to_seq"] - b["from_seq"] + 1 for b in run.lost_batches)
         self.listener.announce(None, running=self._running())  # DPUs lost: at once, not at the next search
         return self.tables
+
+    def pinned_here(self) -> set[int]:
+        """The CPUs this machine's DPUs of the followed run are pinned to (its newest config)."""
+        config = self.listener.config_of(max(self.listener.generations, default=-1))
+        if config is None:
+            return set()
+        return {int(d.cpu) for d in config.dpus if d.cpu >= 0 and spawn.is_local(d.host)}
 
     def find_faults(self) -> RunReport | None:
         """The report of the records decoded so far (None before a run and its config); the
@@ -188,6 +197,7 @@ def watch_command(url: str, once: bool, duration_s: float | None, as_json: bool 
 def _live(lc: Any, heard: Heard, url: str, deadline: float | None) -> None:
     console = OutputConsole()
     finder = _FaultFinder(heard)
+    allowed, pinned = os.sched_getaffinity(0), set[int]()
     with Live(render(heard, url), console=console, auto_refresh=False, transient=False) as live:
         try:
             # A view nobody reads any more (`skel watch | head`, the reader gone before the view's
@@ -196,6 +206,9 @@ def _live(lc: Any, heard: Heard, url: str, deadline: float | None) -> None:
                 tick = time.monotonic() + REFRESH_S
                 _pump(lc, tick if deadline is None else min(tick, deadline))
                 heard.refresh()
+                if heard.pinned_here() != pinned:  # a run that pins DPUs here, or the next one
+                    pinned = heard.pinned_here()
+                    spawn.keep_off(pinned, allowed, [int(t) for t in os.listdir("/proc/self/task")])
                 finder.check()
                 live.update(render(heard, url), refresh=True)
         finally:

@@ -115,6 +115,53 @@ def test_live_view_shows_dpus_processes_and_lockout(tmp_path: Path, url: str) ->
     assert "lockout: hungry_reader (DPU 2)" in shown, shown
 
 
+def _threads_cpus(pid: int) -> dict[int, set[int]]:
+    """Per thread of process `pid`, the CPUs it may run on (its Cpus_allowed_list)."""
+    out = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        listed = re.search(r"^Cpus_allowed_list:\s*(\S+)", (task / "status").read_text(), re.MULTILINE)
+        assert listed, task
+        cpus: set[int] = set()
+        for part in listed.group(1).split(","):
+            first, _, last = part.partition("-")
+            cpus.update(range(int(first), int(last or first) + 1))
+        out[int(task.name)] = cpus
+    return out
+
+
+def test_the_live_view_keeps_off_the_cpus_its_hosts_dpus_are_pinned_to(tmp_path: Path, url: str) -> None:
+    """As `skel run` does (test_run): every thread of a `skel watch` on a DPU's machine leaves
+    the CPU that DPU is pinned to, once it hears the run's config, and no sooner."""
+    allowed = os.sched_getaffinity(0)
+    if len(allowed) < 2:
+        pytest.skip("one CPU: nowhere else to go")
+    pinned = min(allowed)
+    out = tmp_path / "pinned"
+    run = skel("run", str(EXAMPLES / "pair-10ms-5ms.yaml"), "--spawn", "--url", url, "--duration", "1.5",
+               "-s", f"dpu.1.cpu={pinned}", "--out", str(out))
+    assert run.returncode == 0, run.stdout + run.stderr
+    replay_url = fresh_url()
+    watch = _watch("--url", replay_url, "--duration", "60")
+    try:
+        time.sleep(1.0)  # subscribed
+        before = _threads_cpus(watch.pid)
+        assert all(cpus == allowed for cpus in before.values()), before
+        replay = [str(LOGPLAYER), "-s", "1", "-l", record_url(replay_url), str(out / "run.lcm")]
+        player = subprocess.Popen(replay, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 30
+        now = before
+        while any(pinned in cpus for cpus in now.values()):
+            assert time.monotonic() < deadline and watch.poll() is None, now
+            time.sleep(0.1)
+            now = _threads_cpus(watch.pid)
+        assert all(cpus == allowed - {pinned} for cpus in now.values()), now
+        assert len(now) >= 2, now  # its search for faults runs in a thread of its own
+        assert player.wait(timeout=60) == 0
+    finally:
+        watch.kill()
+        watch.communicate(timeout=30)
+
+
 def _synthetic_messages() -> list[bytes]:
     dpu1, dpu2 = small_run()
     return [t.encode() for t in batches(1, dpu1, 3) + batches(2, dpu2, 2)]
