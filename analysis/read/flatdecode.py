@@ -118,9 +118,7 @@ def decode_many(
     """
     starts = np.asarray(starts, dtype=np.int64)
     end = starts + np.asarray(lengths, dtype=np.int64)
-    # The messages' heads a chunk at a time too: they lie on most pages of a timing log.
-    ok, scalars, placed = _Placed.concat([_place(layout, buf, starts[lo:hi], end[lo:hi], release)
-                                          for lo, hi in _chunks(starts, end) or [(0, 0)]])  # fmt: skip
+    ok, scalars, placed = _place_chunks(layout.steps, layout, buf, starts, end, release)
     arrays = [step for step in layout.steps if isinstance(step, _Arrays)]
     good = np.flatnonzero(ok)
     counts = {step.length: scalars[step.length][good].astype(np.int64) for step in arrays}
@@ -161,18 +159,29 @@ class _Placed(NamedTuple):
         return cls(ok, scalars, arrays)
 
 
-def _place(
-    layout: FlatLayout, buf: np.ndarray, starts: np.ndarray, end: np.ndarray,
-    release: Callable[[int, int], None] | None,
+def _place_chunks(
+    steps: tuple[_Scalars | _Arrays, ...], layout: FlatLayout, buf: np.ndarray, starts: np.ndarray,
+    end: np.ndarray, release: Callable[[int, int], None] | None,
 ) -> _Placed:
-    """Where the values of the messages from `starts` to `end` lie."""
+    """_place, a chunk of the file at a time: the messages' heads lie on most pages of a
+    timing log."""
+    return _Placed.concat([_place(steps, layout, buf, starts[lo:hi], end[lo:hi], release)
+                           for lo, hi in _chunks(starts, end) or [(0, 0)]])  # fmt: skip
+
+
+def _place(
+    steps: tuple[_Scalars | _Arrays, ...], layout: FlatLayout, buf: np.ndarray, starts: np.ndarray,
+    end: np.ndarray, release: Callable[[int, int], None] | None,
+) -> _Placed:
+    """Where the values of the messages from `starts` to `end` lie, read as far as `steps`
+    (the first of layout.steps, or all of them) go."""
     fp = int.from_bytes(layout.fingerprint, "big")
     ok = end - starts >= 8
     ok &= _gather(buf, np.where(ok, starts, 0), np.dtype(">u8")) == fp
     pos = starts + 8
     scalars: dict[str, np.ndarray] = {}
     placed: list[np.ndarray] = []
-    for step in layout.steps:
+    for step in steps:
         if isinstance(step, _Scalars):
             ok &= pos + step.fmt.size <= end
             values = _gather(buf, np.where(ok, pos, 0), _record_dtype(step))
@@ -352,23 +361,12 @@ def decode_heads(
     """Only the scalars in front of the first array (fingerprint checked): enough to
     choose messages (a run, a DPU) before decoding their arrays. `release`: as decode_many's
     (called with what it no longer needs, not a promise never to read it again)."""
-    starts = np.asarray(starts, dtype=np.int64)
-    lengths = np.asarray(lengths, dtype=np.int64)
-    first = layout.steps[0]
-    if not isinstance(first, _Scalars):
+    if not isinstance(layout.steps[0], _Scalars):
         raise TypeError(f"{layout.name} starts with an array")
-    fp = int.from_bytes(layout.fingerprint, "big")
-    oks, heads = [], []
-    for lo, hi in _chunks(starts, starts + lengths) or [(0, 0)]:
-        at = starts[lo:hi]
-        ok = lengths[lo:hi] >= 8 + first.fmt.size
-        ok &= _gather(buf, np.where(ok, at, 0), np.dtype(">u8")) == fp
-        heads.append(_gather(buf, np.where(ok, at + 8, 0), _record_dtype(first)))
-        oks.append(ok)
-        if release is not None and hi > lo:
-            release(int(at[0]), int(at[-1]) + 8 + first.fmt.size)
-    ok, values = np.concatenate(oks), np.concatenate(heads)
-    return ok, {name: np.where(ok, values[name], 0) for name in first.names}
+    starts = np.asarray(starts, dtype=np.int64)
+    ok, scalars, _ = _place_chunks(layout.steps[:1], layout, buf, starts,
+                                   starts + np.asarray(lengths, dtype=np.int64), release)
+    return ok, scalars
 
 
 def _record_dtype(step: _Scalars) -> np.dtype[Any]:
