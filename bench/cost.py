@@ -119,8 +119,7 @@ def part_rate(run: Run, url: str) -> list[str]:
     best = RATE_MINOR_US if ok else None
     # 2 s each is weaker evidence than the 10 s at 10 kHz: shorter ones until one is not clean,
     # or longer ones until one is
-    probes = [m for m in RATE_PROBES_US if m >= contract.MIN_PERIOD_US] if ok else list(RATE_FALLBACKS_US)
-    for minor_us in probes:
+    for minor_us in (m for m in (RATE_PROBES_US if ok else RATE_FALLBACKS_US) if m >= contract.MIN_PERIOD_US):
         clean, said = _clean(*run(system("rate", url, RATE_PROCESSES, minor_us, RATE_COMPUTE_US),
                                   f"rate-{minor_us}", RATE_PROBE_S))
         lines.append(f"{minor_us} us ({1e3 / minor_us:.1f} kHz): {said}")

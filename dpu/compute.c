@@ -88,18 +88,18 @@ static uint64_t compute_chunk(double rate)
     return chunk < 1 ? 1 : chunk;
 }
 
-/* Median thread CPU time of RUNS runs of ITERATIONS of the kernel, in chunks of
- * CHUNK as a computation runs it, clock reads and all (they cost 0.2 % of it
- * here: calibrated without them, WORK computed that much longer than asked).
- * The median, not the best, because a cycle's computation is a typical run,
- * not the luckiest. */
-static int64_t compute_kernel_median_ns(uint64_t iterations, uint64_t chunk, int runs)
+/* Median thread CPU time of RUNS runs of ITERATIONS of the kernel, run as a
+ * computation at RATE runs it, clock reads and stall checks and all (they cost
+ * 0.2 % of it here: calibrated without them, WORK computed that much longer
+ * than asked). The median, not the best, because a cycle's computation is a
+ * typical run, not the luckiest. */
+static int64_t compute_kernel_median_ns(const skel_compute_t *c, uint64_t iterations, double rate, int runs)
 {
     int64_t v[CALIBRATION_RUNS_MAX], lost = 0;
     if (runs > CALIBRATION_RUNS_MAX) runs = CALIBRATION_RUNS_MAX;
     for (int i = 0; i < runs; i++) {
         int64_t t0 = clock_thread_cpu_ns();
-        compute_work_chunks(iterations, chunk, 1.0, clock_mono_ns(), INT64_MAX, &lost);
+        compute_work_chunks(iterations, compute_chunk(rate), rate, clock_mono_ns(), c->stall_ns, &lost);
         v[i] = clock_thread_cpu_ns() - t0;
     }
     compute_sort(v, runs);
@@ -111,14 +111,15 @@ static int64_t compute_kernel_median_ns(uint64_t iterations, uint64_t chunk, int
  * as long as a scheduler tick at 250 Hz: the interrupts a computation of
  * milliseconds absorbs (about 1.5 % here) are in the rate, which runs of a
  * fraction of a millisecond miss. */
-static double compute_measure_rate(int runs)
+static double compute_measure_rate(const skel_compute_t *c, int runs)
 {
-    int64_t probe = compute_kernel_median_ns(100000, 100000, 3);
+    /* A rough rate first: 100 000 iterations, chunked as if 1000 ran per us */
+    int64_t probe = compute_kernel_median_ns(c, 100000, 1000.0, 3);
     if (probe <= 0) return -1;
     double guess = 100000.0 * 1000.0 / (double)probe;
     uint64_t n = (uint64_t)(guess * CALIBRATION_RUN_NS / 1000.0);
     if (n < 1000) n = 1000;
-    int64_t t = compute_kernel_median_ns(n, compute_chunk(guess), runs);
+    int64_t t = compute_kernel_median_ns(c, n, guess, runs);
     if (t <= 0) return -1;
     return (double)n * 1000.0 / (double)t;
 }
@@ -134,7 +135,7 @@ int compute_calibrate(skel_compute_t *c)
             struct timespec gap = { .tv_sec = 0, .tv_nsec = 20 * 1000 * 1000 };
             (void)nanosleep(&gap, NULL);
         }
-        double rate = compute_measure_rate(CALIBRATION_RUNS_MAX / 3);
+        double rate = compute_measure_rate(c, CALIBRATION_RUNS_MAX / 3);
         if (rate > best) best = rate;
     }
     if (!(best > 0)) return -1;
@@ -146,7 +147,7 @@ int compute_calibrate(skel_compute_t *c)
  * slower); a run start only measures how far today's CPU is from it. */
 double compute_check_calibration(const skel_compute_t *c)
 {
-    double rate = compute_measure_rate(5);
+    double rate = compute_measure_rate(c, 5);
     if (!(rate > 0) || !(c->work_iters_per_us > 0)) return 0.0;
     return 100.0 * (c->work_iters_per_us - rate) / rate; /* > 0: the kernel now runs slower */
 }

@@ -12,6 +12,7 @@ own session, so a signal to the host tool's process group does not reach it.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -50,11 +51,12 @@ def keep_off(pinned: set[int], allowed: set[int], threads: list[int] | None = No
     refresh) off `pinned`, the CPUs this machine's DPUs are pinned to, when `allowed` has
     others: under SCHED_OTHER a DPU waking on a CPU where that work runs waits out the
     scheduler's slice (4.4 ms; `make bench` part wakeup, `wall` mode: a wake-up p99 of 1.6 ms
-    against cyclictest's 0.1 ms). Sets the affinity of `threads` (native ids; default: the
-    calling thread, and so those it starts from now on) and returns it."""
+    against cyclictest's 0.1 ms). Sets the affinity of `threads` (native ids; None: the
+    calling thread), and so of the threads they start from now on, and returns it."""
     cpus = allowed - pinned if pinned & allowed and allowed - pinned else allowed
-    for tid in threads or [0]:
-        os.sched_setaffinity(tid, cpus)
+    for tid in [0] if threads is None else threads:
+        with contextlib.suppress(ProcessLookupError):  # a thread that ended meanwhile (a pool's)
+            os.sched_setaffinity(tid, cpus)
     return cpus
 
 

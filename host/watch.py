@@ -112,8 +112,12 @@ class Heard:
         return self.tables
 
     def pinned_here(self) -> set[int]:
-        """The CPUs this machine's DPUs of the followed run are pinned to (its newest config)."""
-        config = self.listener.config_of(max(self.listener.generations, default=-1))
+        """The CPUs this machine's DPUs of the followed run are pinned to (its newest config;
+        before its first timing batch, the newest config heard)."""
+        listener = self.listener
+        with listener.lock:
+            newest = max(listener.generations, default=max(listener.configs, default=-1))
+        config = listener.config_of(newest)
         if config is None:
             return set()
         return {int(d.cpu) for d in config.dpus if d.cpu >= 0 and spawn.is_local(d.host)}
@@ -196,8 +200,8 @@ def watch_command(url: str, once: bool, duration_s: float | None, as_json: bool 
 
 def _live(lc: Any, heard: Heard, url: str, deadline: float | None) -> None:
     console = OutputConsole()
+    allowed = os.sched_getaffinity(0)
     finder = _FaultFinder(heard)
-    allowed, pinned = os.sched_getaffinity(0), set[int]()
     with Live(render(heard, url), console=console, auto_refresh=False, transient=False) as live:
         try:
             # A view nobody reads any more (`skel watch | head`, the reader gone before the view's
@@ -206,9 +210,10 @@ def _live(lc: Any, heard: Heard, url: str, deadline: float | None) -> None:
                 tick = time.monotonic() + REFRESH_S
                 _pump(lc, tick if deadline is None else min(tick, deadline))
                 heard.refresh()
-                if heard.pinned_here() != pinned:  # a run that pins DPUs here, or the next one
-                    pinned = heard.pinned_here()
-                    spawn.keep_off(pinned, allowed, [int(t) for t in os.listdir("/proc/self/task")])
+                # Every thread (the search for faults, its pools, numpy's): a run that pins DPUs here,
+                # or the next one; each refresh, as threads come and go.
+                tids = [int(t) for t in os.listdir("/proc/self/task")]
+                spawn.keep_off(heard.pinned_here(), allowed, tids)
                 finder.check()
                 live.update(render(heard, url), refresh=True)
         finally:

@@ -92,8 +92,10 @@ def build_window(
     # The tables and searches below read the same records and write nothing shared: numpy's
     # sorts, gathers and sums release the GIL, so on a run of millions of records they go
     # side by side on the machine's cores (largest first, so neither core waits at the end).
-    # Which records are in the measurement window: found once, read by every table.
+    # Which records are in the measurement window: found once, read by every table (read-only:
+    # the tables run side by side).
     win = measured(records, config)
+    win.flags.writeable = False
     tasks: dict[str, Callable[[], Any]] = {
         "processes": lambda: process_metrics(records, inputs, config, win),
         "buffers": lambda: buffer_metrics(records, inputs, config, clock, run_records, win),
