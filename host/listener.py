@@ -417,9 +417,7 @@ class Listener:
         lost meanwhile that were not returned before; each is also listed in `faults`."""
         now = time.monotonic()
         found = [] if report is None else [f for f in report.faults if f.kind != "dpu_lost" or not running]
-        with self.lock:
-            newest = max(self.generations, default=max(self.configs, default=-1))
-            config = self.configs.get(newest)
+        config = self.newest_config()
         if running and config is not None:
             lost = self.lost(sorted({int(p.dpu) for p in config.processes}))
             views = self.snapshot()
@@ -465,6 +463,12 @@ class Listener:
         with self.lock:
             views = list(self.processes.values())
         return sorted(views, key=lambda v: (v.status.dpu, v.status.host, v.status.pid))
+
+    def newest_config(self) -> skelmsg.config_t | None:
+        """The config of the followed run's newest generation; before its first timing batch,
+        the newest config heard."""
+        with self.lock:
+            return self.configs.get(max(self.generations, default=max(self.configs, default=-1)))
 
     def config_of(self, generation: int) -> skelmsg.config_t | None:
         """The config of `generation` if it was heard on the wire (pushed by any host)."""

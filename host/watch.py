@@ -112,12 +112,8 @@ class Heard:
         return self.tables
 
     def pinned_here(self) -> set[int]:
-        """The CPUs this machine's DPUs of the followed run are pinned to (its newest config;
-        before its first timing batch, the newest config heard)."""
-        listener = self.listener
-        with listener.lock:
-            newest = max(listener.generations, default=max(listener.configs, default=-1))
-        config = listener.config_of(newest)
+        """The CPUs this machine's DPUs of the followed run are pinned to (Listener.newest_config)."""
+        config = self.listener.newest_config()
         if config is None:
             return set()
         return {int(d.cpu) for d in config.dpus if d.cpu >= 0 and spawn.is_local(d.host)}
