@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from fractions import Fraction
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -10,9 +11,9 @@ from analysis_synth import MS, RUN_ID, US, Rec, batches, small_config, small_run
 
 import skelmsg
 from skeleton.analysis.measure.faults import (
-    Heartbeat,
     behind_faults,
     dpu_lost_faults,
+    heartbeats_from_status,
     jam_faults,
     lockout_faults,
     lockouts_from_status,
@@ -266,16 +267,21 @@ def _spans(dpu_releases_ms: dict[int, list[float]]) -> np.ndarray:
     return records
 
 
+def _status(dpu: int, pid: int = 100, run_id: int = RUN_ID,
+            state: int = skelmsg.status_t.STATE_RUNNING) -> skelmsg.status_t:
+    s = status(dpu, [], run_id)
+    s.pid, s.state = pid, state
+    return s
+
+
 def _beats(dpu: int, from_s: float, to_s: float, pid: int = 100, run_id: int = RUN_ID,
-           state: int = skelmsg.status_t.STATE_RUNNING) -> list[Heartbeat]:
-    """A DPU's heartbeats at 5 Hz from `from_s` to `to_s` (heard time)."""
+           state: int = skelmsg.status_t.STATE_RUNNING) -> list[tuple[int, skelmsg.status_t]]:
+    """A DPU's statuses at 5 Hz from `from_s` to `to_s`, with when they were heard (µs)."""
     steps = round((to_s - from_s) * 5)
-    return [Heartbeat(dpu, int((from_s + i / 5) * 1e6), pid, run_id, state) for i in range(steps + 1)]
+    return [(int((from_s + i / 5) * 1e6), _status(dpu, pid, run_id, state)) for i in range(steps + 1)]
 
 
 def test_dpu_lost_when_its_heartbeats_stop_not_when_its_timing_does() -> None:
-    from types import SimpleNamespace
-
     config = SimpleNamespace(processes=[SimpleNamespace(id=i, dpu=i, period_us=5000) for i in (1, 2, 3, 4)])
     # DPU 3's timing stops 3.5 s early (a process waiting for data that never comes) while it
     # heartbeats to the end; DPU 2 falls silent at 1.4 s; DPU 4 is restarted (a new pid) at 1 s.
@@ -283,15 +289,16 @@ def test_dpu_lost_when_its_heartbeats_stop_not_when_its_timing_does() -> None:
     beats = (_beats(1, 0, 4) + _beats(2, 0, 1.4) + _beats(3, 0, 4) + _beats(4, 0, 1)
              + _beats(4, 1.2, 4, pid=101, run_id=0, state=skelmsg.status_t.STATE_READY)
              + _beats(1, 4.2, 5, state=skelmsg.status_t.STATE_READY))
-    faults = dpu_lost_faults(config, records, beats, RUN_ID)
+    # In the order a log gives them: each DPU's batch of statuses, not by time.
+    faults = dpu_lost_faults(config, records, heartbeats_from_status(beats), RUN_ID)
     assert [(f.kind, f.dpu) for f in faults] == [("dpu_lost", 2), ("dpu_lost", 4)], faults
     assert "not heard for 2.60 s from 1.40 s into the run" in faults[0].detail
     assert "restarted during the run (pid 100, then 101)" in faults[1].detail
     # The logger stalled from 1 s to 3.5 s: it heard nobody then, so nobody is lost for it.
-    stalled = [h for h in beats if not 1_000_000 < h.heard_us < 3_500_000 and h.dpu != 4]
-    assert dpu_lost_faults(config, records, stalled, RUN_ID) == []
+    stalled = [(t, s) for t, s in beats if not 1_000_000 < t < 3_500_000 and s.dpu != 4]
+    assert dpu_lost_faults(config, records, heartbeats_from_status(stalled), RUN_ID) == []
     # Heartbeats of another run, or none at all: only a DPU with no timing record is lost.
-    no_times = [Heartbeat(1, None, 100, RUN_ID, 3), Heartbeat(3, None, 100, RUN_ID, 3)]
+    no_times = heartbeats_from_status([(None, _status(1, state=3)), (None, _status(3, state=3))])
     assert [f.dpu for f in dpu_lost_faults(config, _spans({1: [0, 9]}), no_times, RUN_ID)] == [2, 4]
 
 

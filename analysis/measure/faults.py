@@ -12,10 +12,9 @@ links between locked-out processes."""
 
 from __future__ import annotations
 
-import itertools
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -66,22 +65,33 @@ class Lockout:
 
 
 @dataclass(frozen=True)
-class Heartbeat:
-    """One status_t as heard: when (one clock for every DPU: the logger's), from which
+class Heartbeats:
+    """status_t messages as heard, in time order, a column each (a long run logs hundreds
+    of thousands: as objects, their faults took a second): when (one clock for every DPU:
+    the logger's; UNKNOWN where not known: a live view keeps no times), from which
     daemon, in which run and state."""
 
-    dpu: int
-    heard_us: int | None  # None: not known (a live view keeps no times)
-    pid: int
-    run_id: int
-    state: int
+    heard_us: np.ndarray
+    dpu: np.ndarray
+    pid: np.ndarray
+    run_id: np.ndarray
+    state: np.ndarray
+
+    UNKNOWN: ClassVar[int] = -1
 
 
-def heartbeats_from_status(timed: Iterable[tuple[int | None, Any]]) -> list[Heartbeat]:
+def heartbeats_from_status(timed: Iterable[tuple[int | None, Any]]) -> Heartbeats:
     """(heard_us or None, status_t) pairs, as a log gives them, to heartbeats in time order."""
-    beats = [Heartbeat(int(s.dpu), None if t is None else int(t), int(s.pid), int(s.run_id), int(s.state))
-             for t, s in timed]
-    return sorted(beats, key=lambda h: -1 if h.heard_us is None else h.heard_us)
+    pairs = list(timed)
+
+    def column(value: Callable[[tuple[int | None, Any]], int]) -> np.ndarray:
+        return np.fromiter(map(value, pairs), dtype=np.int64, count=len(pairs))
+
+    heard = column(lambda p: Heartbeats.UNKNOWN if p[0] is None else p[0])
+    order = np.argsort(heard, kind="stable")
+    return Heartbeats(heard_us=heard[order], dpu=column(lambda p: p[1].dpu)[order],
+                      pid=column(lambda p: p[1].pid)[order], run_id=column(lambda p: p[1].run_id)[order],
+                      state=column(lambda p: p[1].state)[order])
 
 
 def lockouts_from_status(statuses: Iterable[Any], run_id: int) -> dict[int, Lockout]:
@@ -285,8 +295,7 @@ LOG_SILENT_US = 400_000
 _IN_RUN = (skelmsg.status_t.STATE_ARMED, skelmsg.status_t.STATE_RUNNING)
 
 
-def dpu_lost_faults(config: Any, records: np.ndarray, heartbeats: Sequence[Heartbeat],
-                    run_id: int) -> list[Fault]:
+def dpu_lost_faults(config: Any, records: np.ndarray, beats: Heartbeats, run_id: int) -> list[Fault]:
     """A DPU is lost when its heartbeats stopped during the run: a silence of more than
     LOST_GAP_US while the log heard other DPUs, or a new daemon (pid) answering for it,
     between the run's first heartbeat and the last one of a DPU still running it (one
@@ -296,31 +305,36 @@ def dpu_lost_faults(config: Any, records: np.ndarray, heartbeats: Sequence[Heart
     that does not record them), only a DPU with no timing record and no heartbeat is lost."""
     dpus = sorted({int(p.dpu) for p in config.processes})
     timed = set(np.unique(records["dpu"]).tolist())
-    heard = [(h.heard_us, h) for h in heartbeats if h.heard_us is not None]
-    run = [(t, h) for t, h in heard if h.run_id == run_id]
-    if not run:
-        alive = {h.dpu for h in heartbeats if h.run_id == run_id}
+    heard = beats.heard_us != Heartbeats.UNKNOWN
+    run = heard & (beats.run_id == run_id)
+    if not run.any():
+        alive = set(beats.dpu[beats.run_id == run_id].tolist())
         return [Fault(kind="dpu_lost", dpu=d, detail="no timing records and no heartbeat in this run")
                 for d in dpus if d not in timed and d not in alive]
-    start = min(t for t, _ in run)
-    end = max((t for t, h in run if h.state in _IN_RUN), default=start)
-    silences = [(a, b) for a, b in itertools.pairwise(sorted(t for t, _ in heard)) if b - a > LOG_SILENT_US]
+    start = int(beats.heard_us[run].min())
+    running = run & np.isin(beats.state, _IN_RUN)
+    end = int(beats.heard_us[running].max()) if running.any() else start
+    all_heard = beats.heard_us[heard]  # in time order
+    gaps = np.flatnonzero(np.diff(all_heard) > LOG_SILENT_US)
+    silences = (all_heard[gaps], all_heard[gaps + 1])
+    during = heard & (beats.heard_us >= start) & (beats.heard_us <= end)
     faults = []
     for dpu in dpus:
-        mine = [(t, h) for t, h in heard if h.dpu == dpu and start <= t <= end]
-        pids = list(dict.fromkeys(h.pid for _, h in mine))
-        times = np.array([start, *(t for t, _ in mine), end], dtype=np.int64)
+        mine = during & (beats.dpu == dpu)
+        pids = beats.pid[mine]
+        pids = pids[np.sort(np.unique(pids, return_index=True)[1])]  # in the order first heard
+        times = np.r_[start, beats.heard_us[mine], end]
         unheard = _unheard(times, silences)
         # the longest unheard stretch; on a tie, the later one (as max over (unheard, a, b - a))
         k = int(np.lexsort((np.diff(times), times[:-1], unheard))[-1])
         silent, since, gap = int(unheard[k]), int(times[k]), int(times[k + 1] - times[k])
         if len(pids) > 1:
             detail = f"restarted during the run (pid {pids[0]}, then {pids[-1]})"
-        elif silent > LOST_GAP_US and not mine:
+        elif silent > LOST_GAP_US and not mine.any():
             detail = "no heartbeat during the run"
         elif silent > LOST_GAP_US:
             detail = f"not heard for {gap / 1e6:.2f} s from {(since - start) / 1e6:.2f} s into the run"
-        elif not mine and dpu not in timed:
+        elif not mine.any() and dpu not in timed:
             detail = "no timing records and no heartbeat in this run"
         else:
             continue
@@ -328,15 +342,15 @@ def dpu_lost_faults(config: Any, records: np.ndarray, heartbeats: Sequence[Heart
     return faults
 
 
-def _unheard(times: np.ndarray, silences: list[tuple[int, int]]) -> np.ndarray:
+def _unheard(times: np.ndarray, silences: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """For each stretch between consecutive `times`, how much of it the log was recording
-    other heartbeats (not in a log silence). The silences are sorted and disjoint: the
-    silence before any instant is a prefix sum, so this is O(log silences) per stretch
-    (a long run with many short log silences made the pairwise sum quadratic)."""
-    if not silences:
+    other heartbeats (not in a log silence). The silences (their starts x, ends y) are
+    sorted and disjoint: the silence before any instant is a prefix sum, so this is
+    O(log silences) per stretch (a long run with many short log silences made the
+    pairwise sum quadratic)."""
+    x, y = silences
+    if not len(x):
         return np.diff(times)
-    x = np.array([a for a, _ in silences], dtype=np.int64)
-    y = np.array([b for _, b in silences], dtype=np.int64)
     total = np.cumsum(y - x)
     last = np.searchsorted(x, times, side="right") - 1  # the last silence starting before each time
     at = np.maximum(last, 0)

@@ -15,11 +15,11 @@ import skelmsg
 from ..read.logreader import Integrity
 from ..read.records import RunRecords
 from .chains import ChainMetrics
-from .faults import Fault, Heartbeat, dpu_lost_faults, heartbeats_from_status, lockouts_from_status
+from .faults import Fault, Heartbeats, dpu_lost_faults, heartbeats_from_status, lockouts_from_status
 from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets
-from .metrics import DpuMetrics, ProcessMetrics, measured
+from .metrics import DpuMetrics, ProcessMetrics
 from .predicted import Predicted
-from .windows import WindowReport, build_window, split_lockouts, window_records
+from .windows import WindowReport, build_window, measured_once, split_lockouts, window_records
 
 COMPUTE_MODES = {0: "sleep", 1: "wall", 2: "cpu", 3: "work"}
 
@@ -122,7 +122,7 @@ def build_report(
     malformed: dict[str, int] | None = None,
     configs: Mapping[int, Any] | None = None,
     clock: ClockOffsets | None = None,
-    heartbeats: Sequence[Heartbeat] | None = None,
+    heartbeats: Heartbeats | None = None,
 ) -> RunReport:
     """The report of one run from decoded messages: shared by `analyze` and live views.
 
@@ -143,9 +143,11 @@ def build_report(
         heartbeats = heartbeats_from_status((None, s) for s in statuses)
     lost = dpu_lost_faults(config, run.records, heartbeats, run.run_id)
     last_i = len(generations) - 1
+    last_records = parts[-1][0]
+    last_window = measured_once(last_records, config)  # the cross-check's too
     windows = [
         build_window(by_generation[g], records, inputs, locks[i], lost if i == last_i else (), clock,
-                     run.records)
+                     run.records, last_window if i == last_i else None)
         for i, (g, (records, inputs)) in enumerate(zip(generations, parts, strict=True))
     ]
     last = windows[-1]
@@ -175,7 +177,7 @@ def build_report(
         faults=last.faults,
         compute_modes=modes,
         work_drift_pct={r.dpu: r.work_drift_pct for r in mine if r.compute == skelmsg.dpu_t.COMPUTE_WORK},
-        cross_check=_cross_check(parts[-1][0], config, mine),
+        cross_check=_cross_check(last_records, last_window, mine),
         not_faithful=sorted(r.dpu for r in mine if r.faults & skelmsg.status_t.FAULT_NOT_FAITHFUL),
         buffers=last.buffers,
         chains=last.chains,
@@ -184,21 +186,21 @@ def build_report(
     )
 
 
-def _cross_check(records: np.ndarray, config: Any, reports: Sequence[Any]) -> list[dict[str, Any]]:
-    """The DPU's own running sums (report_t) beside ours: they should agree."""
-    window = records[measured(records, config)]
+def _cross_check(records: np.ndarray, in_window: np.ndarray, reports: Sequence[Any]) -> list[dict[str, Any]]:
+    """The DPU's own running sums (report_t) beside ours over the measured records
+    (`in_window`): they should agree."""
+    def ms(mine: np.ndarray, *fields: str) -> float:
+        return sum(int(records[f].sum(where=mine)) for f in fields) / 1e6
+
     out = []
     for rep in sorted(reports, key=lambda r: r.dpu):
-        mine = window[window["dpu"] == rep.dpu]
+        mine = in_window & (records["dpu"] == rep.dpu)
         out.append(
             {
                 "dpu": rep.dpu,
-                "compute_ms": [rep.compute_ns / 1e6, int(mine["compute_ns"].sum()) / 1e6],
-                "communicate_ms": [
-                    rep.communicate_ns / 1e6,
-                    int(mine["comm_in_ns"].sum() + mine["comm_out_ns"].sum()) / 1e6,
-                ],
-                "wait_ms": [rep.wait_ns / 1e6, int(mine["blocked_ns"].sum() + mine["idle_ns"].sum()) / 1e6],
+                "compute_ms": [rep.compute_ns / 1e6, ms(mine, "compute_ns")],
+                "communicate_ms": [rep.communicate_ns / 1e6, ms(mine, "comm_in_ns", "comm_out_ns")],
+                "wait_ms": [rep.wait_ns / 1e6, ms(mine, "blocked_ns", "idle_ns")],
             }
         )
     return out

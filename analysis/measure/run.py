@@ -198,11 +198,12 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None) -
 
 def utc_offsets(log: Log, run: RunRecords, statuses: list[Any], heads: Heads) -> dict[int, int]:
     """dpu -> utc_ns - mono_ns, for every DPU with records (see the module comment)."""
-    offsets: dict[int, int] = {}
-    for dpu in sorted({s.dpu for s in statuses}):
-        mine = [s for s in statuses if s.dpu == dpu and s.mono_ns > 0 and s.utc_ns > 0]
-        if mine:
-            offsets[dpu] = int(np.median([s.utc_ns - s.mono_ns for s in mine]))
+    def column(field: str) -> np.ndarray:
+        return np.fromiter((getattr(s, field) for s in statuses), dtype=np.int64, count=len(statuses))
+
+    dpu, mono, utc = column("dpu"), column("mono_ns"), column("utc_ns")
+    both = (mono > 0) & (utc > 0)
+    offsets = {d: int(np.median((utc - mono)[both & (dpu == d)])) for d in np.unique(dpu[both]).tolist()}
     missing = set(np.unique(run.records["dpu"]).tolist()) - set(offsets)
     if missing:
         offsets.update(_offsets_from_batches(log, run, missing, heads))

@@ -82,10 +82,12 @@ def build_window(
     lost: Sequence[Fault] = (),
     clock: ClockOffsets = NO_OFFSETS,
     run_records: np.ndarray | None = None,
+    in_window: np.ndarray | None = None,
 ) -> WindowReport:
     """Every table of one generation window. `lockouts`: the ones status_t reported in
     this window; `lost`: the run's lost DPUs (a fact of the whole run: last window only);
-    `run_records`: every window's records (what a buffer's loss looks up across a switch)."""
+    `run_records`: every window's records (what a buffer's loss looks up across a switch);
+    `in_window`: measured(records, config), read-only, when the caller has it."""
     def delivery() -> tuple[list[Fault], dict[int, Lockout]]:
         return delivery_faults(config, records, inputs, lockouts_from_records(records, lockouts or {}))
 
@@ -94,8 +96,7 @@ def build_window(
     # side by side on the machine's cores (largest first, so neither core waits at the end).
     # Which records are in the measurement window: found once, read by every table (read-only:
     # the tables run side by side).
-    win = measured(records, config)
-    win.flags.writeable = False
+    win = measured_once(records, config) if in_window is None else in_window
     tasks: dict[str, Callable[[], Any]] = {
         "processes": lambda: process_metrics(records, inputs, config, win),
         "buffers": lambda: buffer_metrics(records, inputs, config, clock, run_records, win),
@@ -130,6 +131,13 @@ def build_window(
             + list(lost)
         ),
     )
+
+
+def measured_once(records: np.ndarray, config: Any) -> np.ndarray:
+    """measured(records, config), read-only: the window's tables share it side by side."""
+    win = measured(records, config)
+    win.flags.writeable = False
+    return win
 
 
 def _work_bytes(records: np.ndarray, inputs: np.ndarray) -> int:
