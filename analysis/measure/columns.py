@@ -158,7 +158,7 @@ def timing_table(run: RunAnalysis) -> Table:
         "generation": np.asarray(recs["generation"]),
         "dpu": np.asarray(recs["dpu"]), "process": np.asarray(recs["process"]),
         "process_name": [names.get(int(p), "") for p in recs["process"].tolist()],
-        **{f: np.asarray(recs[f]) for f in CYCLE_FIELDS}, "flags": flags.astype(np.int8),
+        **{f: np.asarray(recs[f], dtype=np.int64) for f in CYCLE_FIELDS}, "flags": flags.astype(np.int8),
         "overrun": (flags & FLAG_OVERRUN) != 0, "skipped": (flags & FLAG_SKIPPED) != 0,
         "lockout": (flags & FLAG_LOCKOUT) != 0, "release_skipped": (flags & FLAG_RELEASE_SKIPPED) != 0,
         "measured": measured(recs, run.config) if n else np.zeros(0, dtype=bool),
