@@ -9,9 +9,10 @@ process of its own (wall clock and peak memory from wait4):
   and, in this process, export_mcap.export alone on the run already read (the MCAP
   writing, without the reading and the analysis the command starts with).
 
-Before the report, what fresh memory costs this machine (_fresh_memory_s): where a
-hypervisor backs a guest's pages only when first written, that is a good part of the
-report's time, and it grows with its peak memory.
+The report is timed once what earlier commands freed has settled, beside what fresh
+memory costs this machine and the report again on memory touched just before
+(_memory_share): where a hypervisor backs a guest's pages only when first written, that
+is a good part of the report's time, and it grows with the memory the report touches.
 
 `skel watch` on a run of WATCH_RECORDS (the same run grown to 10^6 records): what `skel
 watch` does at each refresh, timed in this process on the log's messages as they were
@@ -66,32 +67,44 @@ def _timed(argv: list[str]) -> tuple[float, float]:
     return wall, usage.ru_maxrss / 2**20
 
 
-# A new process's first write to 1 GiB of numpy memory, a page at a time.
-FRESH_PROBE = """
-import time, numpy as np
-memory = np.empty(1 << 30, dtype=np.uint8)
+# A new process's first write to some GiB of numpy memory, a page at a time.
+TOUCH = """
+import sys, time, numpy as np
+memory = np.empty(int(sys.argv[1]) << 30, dtype=np.uint8)
 start = time.perf_counter()
 memory[::4096] = 1
 print(time.perf_counter() - start)
 """
-
-
 # Memory a process frees is the hypervisor's again within seconds on this VM (measured: a
 # second probe 0.2 s right after the first, 0.65 s 2 s later, 2.0 s 10 s later).
 SETTLE_S = 15.0
+WARM_GIB = 6  # above the report's peak
 
 
-def _fresh_memory_s() -> float:
-    """Seconds a new process takes to touch 1 GiB for the first time: what each GiB a
-    command holds at its peak costs it on this machine, beside its own work. A bare Linux
-    machine takes about 0.2 s; a VM whose hypervisor backs a page only when the guest first
-    writes it, and takes it back when the guest frees it, up to ten times as long. Measured,
-    like the report after it, once what earlier commands freed has settled (SETTLE_S)."""
-    time.sleep(SETTLE_S)
-    probe = subprocess.run([sys.executable, "-c", FRESH_PROBE], capture_output=True, text=True, check=True,
-                           timeout=120)  # fmt: skip
-    time.sleep(SETTLE_S)
+def _touch_s(gib: int) -> float:
+    """Seconds a new process takes to write `gib` GiB for the first time."""
+    probe = subprocess.run([sys.executable, "-c", TOUCH, str(gib)], capture_output=True, text=True,
+                           check=True, timeout=300)  # fmt: skip
     return float(probe.stdout)
+
+
+def _memory_share(argv: list[str]) -> tuple[float, tuple[float, float], float]:
+    """(seconds a new process takes to touch 1 GiB for the first time, `argv`'s (wall s,
+    peak GiB) measured so, its wall s right after another process touched WARM_GIB and
+    freed them).
+
+    A bare Linux machine takes about 0.2 s for that GiB; a VM whose hypervisor backs a
+    page only when the guest first writes it, and takes it back soon after the guest frees
+    it, up to ten times as long, and every GiB a command touches costs it that. The first
+    two are measured once what earlier commands freed has settled (SETTLE_S), the third
+    on memory the hypervisor still backs: their difference is its share of the command."""
+    time.sleep(SETTLE_S)
+    fresh_s = _touch_s(1)
+    time.sleep(SETTLE_S)
+    cold = _timed(argv)
+    _touch_s(WARM_GIB)
+    warm_s, _ = _timed(argv)
+    return fresh_s, cold, warm_s
 
 
 def part_analysis(tmp: Path, url: str, records: int) -> list[str]:
@@ -106,8 +119,8 @@ def part_analysis(tmp: Path, url: str, records: int) -> list[str]:
     log = tmp / "long.lcm"
     held = grow(source / "run.lcm", log, records)
     skel = [sys.executable, "-m", "skeleton.host.cli"]
-    fresh_s = _fresh_memory_s()
-    report_s, report_gib = _timed([*skel, "report", str(log), "--json"])
+    fresh_s, (report_s, report_gib), warm_s = _memory_share([*skel, "report", str(log), "--json"])
+    time.sleep(SETTLE_S)  # as the report: on memory the machine no longer backs
     export_s, export_gib = _timed([*skel, "export", str(log), str(tmp / "long.mcap")])
     analysed = load_run(log)
     start = time.monotonic()
@@ -124,8 +137,9 @@ def part_analysis(tmp: Path, url: str, records: int) -> list[str]:
         f"  goals (scaled to {held:,} records): report within {REPORT_S * held / 1e7:.1f} s and "
         f"{REPORT_GIB * max(1.0, held / 1e7):.1f} GiB; export at {EXPORT_PER_S:,} records/s; a skel watch "
         f"refresh within {REFRESH_S / 2:.1f} s at {WATCH_RECORDS:,} records",
-        f"  fresh memory: a new process's first touch of 1 GiB took {fresh_s:.2f} s just before the "
-        f"report: its peak of {report_gib:.2f} GiB costs it about {fresh_s * report_gib:.1f} s of that",
+        f"  fresh memory: a new process's first touch of 1 GiB took {fresh_s:.2f} s here; skel report "
+        f"on memory touched just before {warm_s:.1f} s: {report_s - warm_s:.1f} s of its {report_s:.1f} s "
+        f"is the machine backing the memory it touches",
         f"  skel export: {export_s:.1f} s, {export_gib:.2f} GiB; of it the MCAP writing alone "
         f"{write_s:.1f} s ({held / write_s / 1e3:.0f} k records/s), the rest reading and analysing",
         f"  MCAP {(tmp / 'long.mcap').stat().st_size / 1e6:.0f} MB (zstd chunks; the source log attached "

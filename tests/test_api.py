@@ -114,6 +114,8 @@ def test_parquet_tables_load_in_pandas_and_agree_with_report_json(two_runs: tupl
 
     schema = pq.read_schema(tmp_path / "pq" / "timing.parquet")
     assert schema.field("response_us").metadata[b"description"].decode() == COLUMNS["timing"]["response_us"]
+    # Every per-cycle field is an int64 here, however narrow the analysis holds it.
+    assert {str(schema.field(name).type) for name in records.CYCLE_FIELDS} == {"int64"}
     assert json.loads(schema.metadata[b"skeleton"])["run_id"] == want["run_id"]
     faults = pd.read_parquet(tmp_path / "pq" / "faults.parquet")
     assert sorted(faults.kind) == sorted(f["kind"] for f in want["faults"])
