@@ -93,9 +93,10 @@ def _memory_share(argv: list[str]) -> tuple[float, tuple[float, float], float]:
     peak GiB) measured so, its wall s right after another process touched WARM_GIB and
     freed them).
 
-    A bare Linux machine takes about 0.2 s for that GiB; a VM whose hypervisor backs a
-    page only when the guest first writes it, and takes it back soon after the guest frees
-    it, up to ten times as long, and every GiB a command touches costs it that. The first
+    On memory touched just before that GiB takes about 0.2 s here; on a VM whose hypervisor
+    backs a page only when the guest first writes it, and takes it back soon after the guest
+    frees it, fresh memory takes up to ten times as long, and every GiB a command touches
+    costs it that. The first
     two are measured once what earlier commands freed has settled (SETTLE_S), the third
     on memory the hypervisor still backs: their difference is its share of the command."""
     time.sleep(SETTLE_S)
@@ -138,8 +139,8 @@ def part_analysis(tmp: Path, url: str, records: int) -> list[str]:
         f"{REPORT_GIB * max(1.0, held / 1e7):.1f} GiB; export at {EXPORT_PER_S:,} records/s; a skel watch "
         f"refresh within {REFRESH_S / 2:.1f} s at {WATCH_RECORDS:,} records",
         f"  fresh memory: a new process's first touch of 1 GiB took {fresh_s:.2f} s here; skel report "
-        f"on memory touched just before {warm_s:.1f} s: {report_s - warm_s:.1f} s of its {report_s:.1f} s "
-        f"is the machine backing the memory it touches",
+        f"on memory touched just before {warm_s:.1f} s: about {report_s - warm_s:.1f} s of its "
+        f"{report_s:.1f} s is the machine backing the memory it touches",
         f"  skel export: {export_s:.1f} s, {export_gib:.2f} GiB; of it the MCAP writing alone "
         f"{write_s:.1f} s ({held / write_s / 1e3:.0f} k records/s), the rest reading and analysing",
         f"  MCAP {(tmp / 'long.mcap').stat().st_size / 1e6:.0f} MB (zstd chunks; the source log attached "

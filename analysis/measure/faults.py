@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
@@ -66,30 +66,30 @@ class Lockout:
 
 @dataclass(frozen=True)
 class Heartbeats:
-    """status_t messages as heard, in time order, a column each (a long run logs hundreds
-    of thousands: as objects, their faults took a second): when (one clock for every DPU:
-    the logger's; UNKNOWN where not known: a live view keeps no times), from which
-    daemon, in which run and state."""
+    """status_t messages as heard, the ones without a time first, then in time order, a
+    column each (a long run logs hundreds of thousands: as objects, their faults took a
+    second): whether and when it was heard (one clock for every DPU: the logger's; a live
+    view keeps no times), from which daemon, in which run and state."""
 
+    known: np.ndarray  # bool: heard_us is a time
     heard_us: np.ndarray
     dpu: np.ndarray
     pid: np.ndarray
     run_id: np.ndarray
     state: np.ndarray
 
-    UNKNOWN: ClassVar[int] = -1
-
 
 def heartbeats_from_status(timed: Iterable[tuple[int | None, Any]]) -> Heartbeats:
-    """(heard_us or None, status_t) pairs, as a log gives them, to heartbeats in time order."""
+    """(heard_us or None, status_t) pairs, as a log gives them, to Heartbeats."""
     pairs = list(timed)
 
     def column(value: Callable[[tuple[int | None, Any]], int]) -> np.ndarray:
         return np.fromiter(map(value, pairs), dtype=np.int64, count=len(pairs))
 
-    heard = column(lambda p: Heartbeats.UNKNOWN if p[0] is None else p[0])
-    order = np.argsort(heard, kind="stable")
-    return Heartbeats(heard_us=heard[order], dpu=column(lambda p: p[1].dpu)[order],
+    known = np.fromiter((t is not None for t, _ in pairs), dtype=bool, count=len(pairs))
+    heard = column(lambda p: 0 if p[0] is None else p[0])
+    order = np.argsort(np.where(known, heard, np.iinfo(np.int64).min), kind="stable")
+    return Heartbeats(known=known[order], heard_us=heard[order], dpu=column(lambda p: p[1].dpu)[order],
                       pid=column(lambda p: p[1].pid)[order], run_id=column(lambda p: p[1].run_id)[order],
                       state=column(lambda p: p[1].state)[order])
 
@@ -305,7 +305,7 @@ def dpu_lost_faults(config: Any, records: np.ndarray, beats: Heartbeats, run_id:
     that does not record them), only a DPU with no timing record and no heartbeat is lost."""
     dpus = sorted({int(p.dpu) for p in config.processes})
     timed = set(np.unique(records["dpu"]).tolist())
-    heard = beats.heard_us != Heartbeats.UNKNOWN
+    heard = beats.known
     run = heard & (beats.run_id == run_id)
     if not run.any():
         alive = set(beats.dpu[beats.run_id == run_id].tolist())
@@ -314,7 +314,7 @@ def dpu_lost_faults(config: Any, records: np.ndarray, beats: Heartbeats, run_id:
     start = int(beats.heard_us[run].min())
     running = run & np.isin(beats.state, _IN_RUN)
     end = int(beats.heard_us[running].max()) if running.any() else start
-    all_heard = beats.heard_us[heard]  # in time order
+    all_heard = np.sort(beats.heard_us[heard])
     gaps = np.flatnonzero(np.diff(all_heard) > LOG_SILENT_US)
     silences = (all_heard[gaps], all_heard[gaps + 1])
     during = heard & (beats.heard_us >= start) & (beats.heard_us <= end)

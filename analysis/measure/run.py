@@ -70,7 +70,9 @@ class RunAnalysis:
 
     @cached_property
     def records(self) -> Any:
-        """The process-cycle records of the report's generation (a ColumnTable)."""
+        """The process-cycle records of the report's generation (a ColumnTable of RECORD_DTYPE:
+        three counters are narrower than int64, as on the wire; `timing` gives every field
+        as int64)."""
         return self.recorded.records[self._kept]
 
     @cached_property
