@@ -13,6 +13,7 @@ from conftest import mapped_kib
 import skelmsg
 from skeleton.analysis.measure.run import analyze_log
 from skeleton.analysis.read import flatdecode, logreader, parallel
+from skeleton.analysis.read.coltable import ColumnTable
 from skeleton.analysis.read.flatdecode import FlatLayout
 from skeleton.analysis.read.logreader import SYNC_BYTES, encode_events, read_bytes, read_log
 from skeleton.analysis.read.records import (
@@ -276,6 +277,25 @@ def _structured(msgs: list[bytes], run_id: int) -> tuple[np.ndarray, np.ndarray]
             ins.append((base + r, t.dpu, t.process[r], t.cycle[r], t.in_buffer[j], t.in_seq[j], t.in_new[j],
                         t.in_dropped[j], t.in_received[j], t.in_sent_ns[j], t.in_recv_ns[j]))  # fmt: skip
     return np.array(recs, dtype=RECORD_DTYPE), np.array(ins, dtype=INPUT_DTYPE)
+
+
+def test_a_derived_column_is_made_on_first_read_once_for_every_table_indexed_from_it() -> None:
+    made: list[int] = []
+    values = np.arange(10, dtype=np.int64)
+
+    def doubled() -> np.ndarray:
+        made.append(1)
+        return values * 2
+
+    dtype = np.dtype([("a", "i8"), ("b", "i4")])
+    table = ColumnTable.of({"a": values}, dtype, derive={"b": doubled})
+    even, middle = table[values % 2 == 0], table[2:5]
+    assert np.array_equal(even["a"], values[::2]) and not made  # another column: b not made
+    assert np.array_equal(even["b"], values[::2] * 2) and np.array_equal(middle["b"], [4, 6, 8])
+    assert np.array_equal(table[[9, 0]]["b"], [18, 0]) and table["b"].dtype == np.int32
+    assert np.array_equal(np.asarray(table)["b"], values * 2) and len(made) == 1
+    with pytest.raises(ValueError):
+        ColumnTable.of({"a": values, "b": values}, dtype, derive={"b": doubled})
 
 
 @pytest.mark.parametrize("chunk_bytes", [flatdecode.CHUNK_BYTES, 700])  # 700: a few messages a chunk

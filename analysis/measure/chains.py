@@ -158,7 +158,7 @@ def _chain_series(
     tail_rows = np.flatnonzero(
         (inputs["process"] == tail) & (inputs["buffer"] == steps[-1]) & rec_done[inputs["record"]]
     )
-    tail_rows = tail_rows[np.argsort(inputs["cycle"][tail_rows], kind="stable")]
+    tail_rows = tail_rows[np.argsort(records["cycle"][inputs["record"][tail_rows]], kind="stable")]
     rows, ok = tail_rows, inputs["seq"][tail_rows] >= 0
     for i in range(len(steps) - 1, 0, -1):  # step i: pids[i] reads steps[i-1] from pids[i-1]
         rec, found = look.record(pids[i], np.where(ok, inputs["seq"][rows], 0))

@@ -399,10 +399,10 @@ def stall_faults(records: np.ndarray, config: Any) -> list[Fault]:
     events: dict[str, list[tuple[int, int, int, int]]] = {}
     limit = per_id(records["dpu"], {d.id: stall_threshold_ns(config, d.id) for d in config.dpus})
     hit = records[(records["stall_ns"] > 0) & (records["stall_ns"] >= limit)] if len(records) else records
-    for rec in hit:
-        dpu, stall = int(rec["dpu"]), int(rec["stall_ns"])
-        start = int(rec["start_ns"]) - t0
-        end = start + int(rec["comm_in_ns"] + rec["blocked_ns"] + rec["compute_ns"])
+    fields = ("dpu", "stall_ns", "start_ns", "comm_in_ns", "blocked_ns", "compute_ns")
+    for dpu, stall, start, comm_in, blocked, compute in zip(*(hit[f].tolist() for f in fields), strict=True):
+        start -= t0
+        end = start + comm_in + blocked + compute
         events.setdefault(hosts.get(dpu, "?"), []).append((start - stall, end, stall, dpu))
     faults = []
     for host, evs in sorted(events.items()):

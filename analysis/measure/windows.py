@@ -53,8 +53,12 @@ class WindowReport:
 
 def window_records(run: RunRecords, generation: int) -> tuple[np.ndarray, np.ndarray]:
     """The records of one generation and their input records (re-indexed to them)."""
+    # The run's one generation: its own tables, no copy of millions of rows (nor a look at
+    # each record's generation).
+    if run.generations == [generation]:
+        return run.records, run.inputs
     mine = run.records["generation"] == generation
-    if mine.all():  # one generation: the run's own tables, no copy of millions of rows
+    if mine.all():  # no records at all
         return run.records, run.inputs
     keep = np.flatnonzero(mine)
     inputs = run.inputs[np.isin(run.inputs["record"], keep)].copy()

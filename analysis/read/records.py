@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -226,12 +227,14 @@ def _records(cols: dict[str, np.ndarray], table: np.ndarray) -> ColumnTable:
     out = {
         "dpu": np.repeat(table[:, 0].astype(RECORD_DTYPE["dpu"]), counts),
         "process": cols["process"],
-        "generation": np.repeat(table[:, 1], counts),
-        "batch_seq": np.repeat(table[:, 2], counts),
         **{name: cols[name] for name in CYCLE_FIELDS},
         "flags": cols["flags"],
     }
-    return ColumnTable.of(out, RECORD_DTYPE)
+    # Their batch's, repeated for each record only when read (a report of one generation
+    # reads neither).
+    per_batch = {"generation": table[:, 1], "batch_seq": table[:, 2]}
+    return ColumnTable.of(out, RECORD_DTYPE, derive={name: partial(np.repeat, values, counts)
+                                                     for name, values in per_batch.items()})  # fmt: skip
 
 
 def _inputs(cols: dict[str, np.ndarray], table: np.ndarray) -> ColumnTable:
@@ -242,9 +245,7 @@ def _inputs(cols: dict[str, np.ndarray], table: np.ndarray) -> ColumnTable:
     index = np.repeat(first_record, table[:, 4]) + cols["in_record"]
     out = {
         "record": index,
-        "dpu": np.repeat(table[:, 0].astype(INPUT_DTYPE["dpu"]), table[:, 4]),
         "process": cols["process"][index],
-        "cycle": cols["cycle"][index],
         "buffer": cols["in_buffer"],
         "seq": cols["in_seq"],
         "new": cols["in_new"],
@@ -253,7 +254,10 @@ def _inputs(cols: dict[str, np.ndarray], table: np.ndarray) -> ColumnTable:
         "sent_ns": cols["in_sent_ns"],
         "recv_ns": cols["in_recv_ns"],
     }
-    return ColumnTable.of(out, INPUT_DTYPE)
+    # Their record's, made only when read (the report reads the cycle of a few).
+    derive = {"dpu": partial(np.repeat, table[:, 0], table[:, 4]),
+              "cycle": partial(cols["cycle"].take, index)}
+    return ColumnTable.of(out, INPUT_DTYPE, derive=derive)
 
 
 def lost_batches(
