@@ -12,7 +12,7 @@ links between locked-out processes."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -21,6 +21,7 @@ import numpy as np
 import skelmsg
 from skelmsg.contract import RECV_SLACK_BYTES
 
+from ..read.messages import int_columns
 from ..read.records import FLAG_LOCKOUT
 from .metrics import ProcessMetrics, completed, frames, measured, per_id, smallest_per_dpu, static_load_pct
 
@@ -82,16 +83,12 @@ class Heartbeats:
 def heartbeats_from_status(timed: Iterable[tuple[int | None, Any]]) -> Heartbeats:
     """(heard_us or None, status_t) pairs, as a log gives them, to Heartbeats."""
     pairs = list(timed)
-
-    def column(value: Callable[[tuple[int | None, Any]], int]) -> np.ndarray:
-        return np.fromiter(map(value, pairs), dtype=np.int64, count=len(pairs))
-
     known = np.fromiter((t is not None for t, _ in pairs), dtype=bool, count=len(pairs))
-    heard = column(lambda p: 0 if p[0] is None else p[0])
+    heard = np.fromiter((t or 0 for t, _ in pairs), dtype=np.int64, count=len(pairs))
     order = np.argsort(np.where(known, heard, np.iinfo(np.int64).min), kind="stable")
-    return Heartbeats(known=known[order], heard_us=heard[order], dpu=column(lambda p: p[1].dpu)[order],
-                      pid=column(lambda p: p[1].pid)[order], run_id=column(lambda p: p[1].run_id)[order],
-                      state=column(lambda p: p[1].state)[order])
+    dpu, pid, run_id, state = int_columns([s for _, s in pairs], "dpu", "pid", "run_id", "state")
+    return Heartbeats(known=known[order], heard_us=heard[order], dpu=dpu[order], pid=pid[order],
+                      run_id=run_id[order], state=state[order])
 
 
 def lockouts_from_status(statuses: Iterable[Any], run_id: int) -> dict[int, Lockout]:

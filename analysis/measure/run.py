@@ -26,7 +26,7 @@ import numpy as np
 from skelmsg.contract import CONFIG_CHANNEL, TIMING_CHANNEL
 
 from ..read.logreader import Log
-from ..read.messages import LogError, Messages, open_run_log, published_batches, read_messages
+from ..read.messages import LogError, Messages, int_columns, open_run_log, published_batches, read_messages
 from ..read.records import Heads, RunRecords, load_records, run_ids, timing_heads
 from ..read.seal import KeyFileError, authenticate
 from .columns import Table, faults_table, receptions_table, report_tables, timing_table
@@ -200,10 +200,7 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None) -
 
 def utc_offsets(log: Log, run: RunRecords, statuses: list[Any], heads: Heads) -> dict[int, int]:
     """dpu -> utc_ns - mono_ns, for every DPU with records (see the module comment)."""
-    def column(field: str) -> np.ndarray:
-        return np.fromiter((getattr(s, field) for s in statuses), dtype=np.int64, count=len(statuses))
-
-    dpu, mono, utc = column("dpu"), column("mono_ns"), column("utc_ns")
+    dpu, mono, utc = int_columns(statuses, "dpu", "mono_ns", "utc_ns")
     both = (mono > 0) & (utc > 0)
     offsets = {d: int(np.median((utc - mono)[both & (dpu == d)])) for d in np.unique(dpu[both]).tolist()}
     missing = set(np.unique(run.records["dpu"]).tolist()) - set(offsets)

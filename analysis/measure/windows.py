@@ -57,10 +57,7 @@ def window_records(run: RunRecords, generation: int) -> tuple[np.ndarray, np.nda
     # each record's generation).
     if run.generations == [generation]:
         return run.records, run.inputs
-    mine = run.records["generation"] == generation
-    if mine.all():  # no records at all
-        return run.records, run.inputs
-    keep = np.flatnonzero(mine)
+    keep = np.flatnonzero(run.records["generation"] == generation)
     inputs = run.inputs[np.isin(run.inputs["record"], keep)].copy()
     inputs["record"] = np.searchsorted(keep, inputs["record"])
     return run.records[keep], inputs
