@@ -34,6 +34,7 @@ from .faults import heartbeats_from_status
 from .latency import ClockOffsets
 from .predicted import Predictor, beside
 from .report import RunReport, build_report
+from .windows import window_records
 
 NO_CONFIG = f"{TIMING_CHANNEL} (no config for its generation)"
 
@@ -65,22 +66,21 @@ class RunAnalysis:
         return [s for _, s in self.messages.statuses]
 
     @cached_property
-    def _kept(self) -> np.ndarray:
-        return np.flatnonzero(self.recorded.records["generation"] == self.report.generation)
+    def _window(self) -> tuple[Any, Any]:
+        # The run's own tables when it has one generation: no copy of every column.
+        return window_records(self.recorded, self.report.generation)
 
-    @cached_property
+    @property
     def records(self) -> Any:
         """The process-cycle records of the report's generation (a ColumnTable of RECORD_DTYPE:
         three counters are narrower than int64, as on the wire; `timing` gives every field
         as int64)."""
-        return self.recorded.records[self._kept]
+        return self._window[0]
 
-    @cached_property
+    @property
     def inputs(self) -> Any:
         """Their input records; "record" indexes `records`."""
-        inputs = self.recorded.inputs[np.isin(self.recorded.inputs["record"], self._kept)].copy()
-        inputs["record"] = np.searchsorted(self._kept, inputs["record"])
-        return inputs
+        return self._window[1]
 
     def to_utc_ns(self, dpu: np.ndarray | int, mono_ns: np.ndarray | int) -> np.ndarray:
         """Wall-clock ns (UTC) of DPU monotonic times."""
