@@ -152,7 +152,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
             repair = LogRepair(control, out / "run.lcm", run_id, dpu_ids, keeper)
         clocks = ClockKeeper(control, dpu_ids)
         clocks.refresh()  # before START, so the log has offsets for the whole run
-        keep_off_dpu_cpus(system)
+        keep_off_dpu_cpus(system, spawn.own_threads())
         follower = RunFollower(system, control, console)
         control.follow(run_id)
         committed = config_message(system, generation, run_id, committed=True)
@@ -191,11 +191,12 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
     return EXIT_INTERRUPTED if interrupted else code
 
 
-def keep_off_dpu_cpus(system: System) -> set[int]:
-    """spawn.keep_off the CPUs this host's DPUs are pinned to, for the calling thread and those
-    it starts from now on (the DPUs and the logger are already running); returns where it runs."""
+def keep_off_dpu_cpus(system: System, threads: list[int] | None = None) -> set[int]:
+    """spawn.keep_off the CPUs this host's DPUs are pinned to, for `threads` (None: the calling
+    thread) and those they start from now on; the DPUs and the logger are processes of their
+    own, pinned or not by the system file. Returns where the threads run."""
     pinned = {d.cpu for d in system.dpus if d.cpu is not None and spawn.is_local(d.host)}
-    return spawn.keep_off(pinned, os.sched_getaffinity(0))
+    return spawn.keep_off(pinned, os.sched_getaffinity(0), threads)
 
 
 def _claim(control: Control, dpu_ids: list[int], force: bool, console: Console) -> bool:

@@ -60,6 +60,12 @@ def keep_off(pinned: set[int], allowed: set[int], threads: list[int] | None = No
     return cpus
 
 
+def own_threads() -> list[int]:
+    """The native ids of every thread of this process now (the control drain, a logger's
+    keeper, numpy's and pyarrow's pools): keep_off moves them all."""
+    return [int(t) for t in os.listdir("/proc/self/task")]
+
+
 def dpu_binary() -> Path:
     """$SKEL_DPU, else the build in this checkout, else skel-dpu on PATH."""
     candidates = [os.environ.get("SKEL_DPU"), str(REPO / "build" / "skel-dpu"), shutil.which("skel-dpu")]

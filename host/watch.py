@@ -208,8 +208,7 @@ def _live(lc: Any, heard: Heard, url: str, deadline: float | None) -> None:
                 heard.refresh()
                 # Every thread (the search for faults, its pools, numpy's): a run that pins DPUs here,
                 # or the next one; each refresh, as threads come and go.
-                tids = [int(t) for t in os.listdir("/proc/self/task")]
-                spawn.keep_off(heard.pinned_here(), allowed, tids)
+                spawn.keep_off(heard.pinned_here(), allowed, spawn.own_threads())
                 finder.check()
                 live.update(render(heard, url), refresh=True)
         finally:

@@ -171,6 +171,25 @@ def mapped_kib(path: Path) -> int:
     return total
 
 
+def threads_cpus(pid: int) -> dict[int, set[int]]:
+    """Per thread of process `pid`, the CPUs it may run on (its Cpus_allowed_list); a thread
+    that ended meanwhile (a thread pool's) is left out."""
+    out = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            status = (task / "status").read_text()
+        except (FileNotFoundError, ProcessLookupError):
+            continue
+        listed = re.search(r"^Cpus_allowed_list:\s*(\S+)", status, re.MULTILINE)
+        assert listed, task
+        cpus: set[int] = set()
+        for part in listed.group(1).split(","):
+            first, _, last = part.partition("-")
+            cpus.update(range(int(first), int(last or first) + 1))
+        out[int(task.name)] = cpus
+    return out
+
+
 def skel(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     """Run the real `skel` command line, as a user would."""
     assert ASAN_DPU.exists(), f"{ASAN_DPU} missing: run `make test` (it builds it)"

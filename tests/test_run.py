@@ -5,10 +5,11 @@ from __future__ import annotations
 import json
 import os
 import threading
+import time
 from pathlib import Path
 
 import pytest
-from conftest import EXAMPLES, LOCKOUT_SYSTEM, skel
+from conftest import EXAMPLES, LOCKOUT_SYSTEM, skel, skel_background, threads_cpus
 
 from skeleton.host.run import keep_off_dpu_cpus
 from skeleton.host.system import System, load
@@ -232,3 +233,25 @@ def test_the_host_tool_keeps_off_the_cpus_its_dpus_are_pinned_to() -> None:
     if len(allowed) == 2:  # every CPU taken: the tool stays where it may run
         assert _affinity_after_keep_off(load(pair, [f"dpu.1.cpu={first}", f"dpu.2.cpu={last}"])) == allowed
     assert os.sched_getaffinity(0) == allowed
+
+
+def test_a_run_moves_every_thread_of_the_tool_off_its_dpus_pinned_cpu(tmp_path: Path, url: str) -> None:
+    """Not only the live analysis: the thread draining the control URL (every timing batch of
+    the run) and the logger's keeper, started before the run, move too."""
+    allowed = os.sched_getaffinity(0)
+    if len(allowed) < 2:
+        pytest.skip("one CPU: nowhere else to go")
+    pinned = min(allowed)
+    run = skel_background("run", str(EXAMPLES / "pair-10ms-5ms.yaml"), "--spawn", "--url", url,
+                          "--duration", "3", "-s", f"dpu.1.cpu={pinned}", "--out", str(tmp_path / "r"))
+    pid, seen = run.proc.pid, {}
+    deadline = time.monotonic() + 60
+    while run.proc.poll() is None and time.monotonic() < deadline:
+        seen = threads_cpus(pid)
+        if pinned not in seen.get(pid, {pinned}):  # the main thread moved: the run is followed
+            break
+        time.sleep(0.02)
+    now = threads_cpus(pid)
+    assert run.wait(timeout=60) == 0, run.output
+    assert len(now) >= 3 and pinned not in seen[pid], (seen, run.output)  # the drain thread is one
+    assert all(cpus == allowed - {pinned} for cpus in now.values()), now

@@ -17,7 +17,7 @@ import lcm
 import numpy as np
 import pytest
 from analysis_synth import GENERATION, MS, RUN_ID, batches, small_config, small_run, status
-from conftest import EXAMPLES, LOCKOUT_SYSTEM, REPO, fresh_url, short_servo_run, skel
+from conftest import EXAMPLES, LOCKOUT_SYSTEM, REPO, fresh_url, short_servo_run, skel, threads_cpus
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from rich.console import Console
@@ -115,25 +115,6 @@ def test_live_view_shows_dpus_processes_and_lockout(tmp_path: Path, url: str) ->
     assert "lockout: hungry_reader (DPU 2)" in shown, shown
 
 
-def _threads_cpus(pid: int) -> dict[int, set[int]]:
-    """Per thread of process `pid`, the CPUs it may run on (its Cpus_allowed_list); a thread
-    that ended meanwhile (a thread pool's) is left out."""
-    out = {}
-    for task in Path(f"/proc/{pid}/task").iterdir():
-        try:
-            status = (task / "status").read_text()
-        except (FileNotFoundError, ProcessLookupError):
-            continue
-        listed = re.search(r"^Cpus_allowed_list:\s*(\S+)", status, re.MULTILINE)
-        assert listed, task
-        cpus: set[int] = set()
-        for part in listed.group(1).split(","):
-            first, _, last = part.partition("-")
-            cpus.update(range(int(first), int(last or first) + 1))
-        out[int(task.name)] = cpus
-    return out
-
-
 def test_the_live_view_keeps_off_the_cpus_its_hosts_dpus_are_pinned_to(tmp_path: Path, url: str) -> None:
     """As `skel run` does (test_run): a `skel watch` on a DPU's machine moves every thread of
     it off the CPU that DPU is pinned to once it hears the run's config."""
@@ -150,20 +131,20 @@ def test_the_live_view_keeps_off_the_cpus_its_hosts_dpus_are_pinned_to(tmp_path:
     player: subprocess.Popen[bytes] | None = None
     try:
         deadline = time.monotonic() + 30
-        now = _threads_cpus(watch.pid)
+        now = threads_cpus(watch.pid)
         while len(now) < 2:  # the search for faults, in a thread of its own: subscribed by then
             assert time.monotonic() < deadline and watch.poll() is None, now
             time.sleep(0.05)
-            now = _threads_cpus(watch.pid)
+            now = threads_cpus(watch.pid)
         time.sleep(1.0)  # the view refreshed with nothing heard: it keeps every CPU
-        now = _threads_cpus(watch.pid)
+        now = threads_cpus(watch.pid)
         assert all(cpus == allowed for cpus in now.values()), now
         replay = [str(LOGPLAYER), "-s", "1", "-l", record_url(replay_url), str(out / "run.lcm")]
         player = subprocess.Popen(replay, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         while any(pinned in cpus for cpus in now.values()):
             assert time.monotonic() < deadline and watch.poll() is None, now
             time.sleep(0.1)
-            now = _threads_cpus(watch.pid)
+            now = threads_cpus(watch.pid)
         assert all(cpus == allowed - {pinned} for cpus in now.values()), now
         assert player.wait(timeout=60) == 0
     finally:
