@@ -34,7 +34,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .latency import NO_OFFSETS, ClockOffsets
-from .metrics import completed, measured
+from .metrics import completed, window_mask
 from .stats import Histogram, LatencyUs, histogram, latency_us
 
 _CYCLE_BITS = 40  # (process, cycle) -> one int64 key; cycles stay far below 2**40
@@ -191,7 +191,7 @@ def chain_metrics(
     out = []
     run = None
     if config.chains and len(inputs):
-        run = _Run.of(records, inputs, config, measured(records, config) if in_window is None else in_window)
+        run = _Run.of(records, inputs, config, window_mask(records, config, in_window))
     for chain in config.chains:
         if run is None:
             series, broken = _empty_series(), 0

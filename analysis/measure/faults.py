@@ -23,7 +23,7 @@ from skelmsg.contract import RECV_SLACK_BYTES
 
 from ..read.messages import int_columns
 from ..read.records import FLAG_LOCKOUT
-from .metrics import ProcessMetrics, completed, frames, measured, per_id, smallest_per_dpu, static_load_pct
+from .metrics import ProcessMetrics, completed, frames, per_id, smallest_per_dpu, static_load_pct, window_mask
 
 # Every kind of fault, and those that say the architecture does not work (exit 3);
 # `behind` only when the platform does not explain it (Fault.fatal).
@@ -449,8 +449,7 @@ def behind_faults(records: np.ndarray, config: Any, in_window: np.ndarray | None
     when the caller has it."""
     faults = []
     t0 = first_release_ns(records)
-    if in_window is None:
-        in_window = measured(records, config)
+    in_window = window_mask(records, config, in_window)
     for dpu in sorted(config.dpus, key=lambda d: d.id):
         # A DPU that fell behind in its warm-up and is still behind in the window is found
         # from where it fell behind, so that its cause (a stall, say) is not cut off.

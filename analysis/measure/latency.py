@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from ..read.records import FLAG_RELEASE_SKIPPED
-from .metrics import completed, measured
+from .metrics import completed, window_mask
 from .stats import Histogram, LatencyUs, group_pairs, histogram, latency_us
 
 
@@ -165,7 +165,7 @@ def buffer_metrics(
     are looked up: a gap after a live switch may hold sequences skipped before it.
     `in_window`: measured(records, config), when the caller has it."""
     procs = {p.id: p for p in config.processes}
-    done = (measured(records, config) if in_window is None else in_window) & completed(records)
+    done = window_mask(records, config, in_window) & completed(records)
     counted = inputs[done[inputs["record"]]] if len(inputs) else inputs
     order, groups = group_pairs(counted["buffer"], counted["process"])
     counted = counted[order]

@@ -168,6 +168,12 @@ def measured(records: np.ndarray, config: Any, starts: dict[int, int] | None = N
     return records["release_ns"] >= per_id(records["dpu"], starts or window_start_ns(records, config))
 
 
+def window_mask(records: np.ndarray, config: Any, in_window: np.ndarray | None) -> np.ndarray:
+    """`in_window` when the caller has it (build_window finds it once for every table of a
+    window), else measured(records, config): a table called alone finds it itself."""
+    return measured(records, config) if in_window is None else in_window
+
+
 def completed(records: np.ndarray) -> np.ndarray:
     """Mask of the cycles that ran to the end: not partial, not a skipped release."""
     return (records["flags"] & (FLAG_SKIPPED | FLAG_RELEASE_SKIPPED)) == 0
@@ -197,7 +203,7 @@ def static_load_pct(config: Any, dpu_id: int) -> float:
 def dpu_metrics(records: np.ndarray, config: Any, in_window: np.ndarray | None = None) -> list[DpuMetrics]:
     """Per DPU (config order by id) over the measured window (`in_window`: measured(records,
     config), when the caller has it)."""
-    window = records[measured(records, config) if in_window is None else in_window]
+    window = records[window_mask(records, config, in_window)]
     out = []
     for dpu in sorted(config.dpus, key=lambda d: d.id):
         procs = sorted((p for p in config.processes if p.dpu == dpu.id), key=lambda p: (p.order, p.id))
@@ -321,8 +327,7 @@ def process_metrics(
     """Per process (config order by id) over the measured window (`in_window`: measured(records,
     config), when the caller has it)."""
     buffers = {b.id: b for b in config.buffers}
-    if in_window is None:
-        in_window = measured(records, config)
+    in_window = window_mask(records, config, in_window)
     # An input record belongs to the window when its cycle record does, and counts
     # only for completed cycles, so new + stale == cycles for every input.
     completed_idx = in_window & completed(records)
