@@ -105,6 +105,31 @@ def test_every_timing_record_and_input_matches_the_log(servo_run: Path) -> None:
             assert got["transport_us"] == pytest.approx((want["recv_ns"] - want["sent_ns"]) / 1000)
 
 
+def _reversed_inputs(data: bytes) -> bytes:
+    """A timing batch listing its inputs last record first: the wire allows any order."""
+    t = skelmsg.timing_t.decode(data)
+    for name in ("in_record", "in_buffer", "in_seq", "in_new", "in_dropped", "in_received", "in_sent_ns",
+                 "in_recv_ns"):  # fmt: skip
+        setattr(t, name, list(getattr(t, name))[::-1])
+    return t.encode()
+
+
+def test_inputs_a_batch_lists_out_of_order_go_with_their_own_records(servo_run: Path, tmp_path: Path) -> None:
+    events = [(e.utime_us, e.channel, _reversed_inputs(e.data) if e.channel == TIMING_CHANNEL else e.data)
+              for e in read_log(servo_run / "run.lcm").iter_events()]  # fmt: skip
+    shuffled = tmp_path / "run.lcm"
+    shuffled.write_bytes(encode_events(events))
+    export(load_run(shuffled), tmp_path / "run.mcap")
+
+    def inputs(path: Path) -> dict[tuple[int, int, int], list[tuple[int, ...]]]:
+        return {(d.dpu, d.batch_seq, d.index): sorted((i.buffer, i.seq, i.new, i.sent_ns) for i in d.inputs)
+                for _, _, d in _timing(path)}  # fmt: skip
+
+    want = inputs(servo_run / "run.mcap")
+    assert sum(len(v) for v in want.values()) > 500
+    assert inputs(tmp_path / "run.mcap") == want
+
+
 def test_schemas_are_json_schema_or_ros2msg_and_every_message_decodes(servo_run: Path) -> None:
     with open(servo_run / "run.mcap", "rb") as f:
         reader = make_reader(f)
