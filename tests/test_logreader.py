@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import lcm
@@ -162,10 +163,16 @@ def test_fast_timing_decode_equals_generated_decoder() -> None:
         assert run.records[name].tolist() == [v for r in ref for v in getattr(r, name)], name
     pairs = {"buffer": "in_buffer", "seq": "in_seq", "new": "in_new", "dropped": "in_dropped",
              "received": "in_received", "sent_ns": "in_sent_ns", "recv_ns": "in_recv_ns"}  # fmt: skip
-    for ours, theirs in pairs.items():
-        assert run.inputs[ours].tolist() == [v for r in ref for v in getattr(r, theirs)], ours
     base = np.cumsum([0] + [r.n for r in ref])
-    assert run.inputs["record"].tolist() == [base[i] + v for i, r in enumerate(ref) for v in r.in_record]
+    # Each input as the wire lists it, with its record's index in the run; the table holds
+    # them in their records' order (a stable sort: a record's own keep the wire's order).
+    wire = [(base[i] + r.in_record[k], *(getattr(r, theirs)[k] for theirs in pairs.values()))
+            for i, r in enumerate(ref) for k in range(r.ninputs)]  # fmt: skip
+    assert any(a[0] > b[0] for a, b in itertools.pairwise(wire))  # the wire's order is not theirs
+    want = sorted(wire, key=lambda row: row[0])
+    assert run.inputs["record"].tolist() == [row[0] for row in want]
+    for column, ours in enumerate(pairs, start=1):
+        assert run.inputs[ours].tolist() == [row[column] for row in want], ours
 
 
 def test_malformed_timing_messages_are_counted_not_fatal() -> None:
@@ -232,9 +239,9 @@ def test_bulk_decode_of_every_length_pattern(shapes: list[tuple[int, int]]) -> N
     assert run.malformed == 0 and run.batches == len(msgs)
     assert run.records["slack_ns"].tolist() == [v for r in ref for v in r.slack_ns]
     assert run.records["flags"].tolist() == [v for r in ref for v in r.flags]
-    assert run.inputs["recv_ns"].tolist() == [v for r in ref for v in r.in_recv_ns]
-    assert run.inputs["buffer"].tolist() == [v for r in ref for v in r.in_buffer]
-    assert run.inputs["new"].tolist() == [v for r in ref for v in r.in_new]
+    _, inputs = _structured(msgs, RUN_ID)
+    for name in ("record", "recv_ns", "buffer", "new"):
+        assert run.inputs[name].tolist() == inputs[name].tolist(), name
 
 
 def test_sync_words_inside_data_are_not_events(tmp_path: Path, walk_mode: str) -> None:
@@ -253,7 +260,8 @@ def test_sync_words_inside_data_are_not_events(tmp_path: Path, walk_mode: str) -
 
 def _structured(msgs: list[bytes], run_id: int) -> tuple[np.ndarray, np.ndarray]:
     """The records and inputs as the structured arrays they were before columns, built
-    with the generated decoder message by message: first good copy of each batch."""
+    with the generated decoder message by message: first good copy of each batch; the inputs
+    in their records' order (a stable sort of the wire's)."""
     seen: set[tuple[int, int]] = set()
     recs: list[tuple[int, ...]] = []
     ins: list[tuple[int, ...]] = []
@@ -276,6 +284,7 @@ def _structured(msgs: list[bytes], run_id: int) -> tuple[np.ndarray, np.ndarray]
         for j, r in enumerate(t.in_record):
             ins.append((base + r, t.dpu, t.process[r], t.cycle[r], t.in_buffer[j], t.in_seq[j], t.in_new[j],
                         t.in_dropped[j], t.in_received[j], t.in_sent_ns[j], t.in_recv_ns[j]))  # fmt: skip
+    ins.sort(key=lambda row: row[0])
     return np.array(recs, dtype=RECORD_DTYPE), np.array(ins, dtype=INPUT_DTYPE)
 
 

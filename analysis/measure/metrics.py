@@ -32,7 +32,7 @@ import numpy as np
 
 import skelmsg
 
-from ..read.records import FLAG_OVERRUN, FLAG_RELEASE_SKIPPED, FLAG_SKIPPED
+from ..read.records import FLAG_OVERRUN, FLAG_RELEASE_SKIPPED, FLAG_SKIPPED, input_starts, inputs_of
 from .stats import Histogram, LatencyUs, group_slices, histogram
 from .stats import latency_us as _latency
 
@@ -328,33 +328,30 @@ def process_metrics(
     config), when the caller has it)."""
     buffers = {b.id: b for b in config.buffers}
     in_window = window_mask(records, config, in_window)
-    # An input record belongs to the window when its cycle record does, and counts
-    # only for completed cycles, so new + stale == cycles for every input.
-    completed_idx = in_window & completed(records)
-    in_mask = completed_idx[inputs["record"]] if len(inputs) else np.zeros(0, dtype=bool)
-    counted_inputs = inputs[in_mask]
-    # One sort per array instead of one full-array mask per process; the records are
-    # indexed, not copied, until one process's are taken.
+    # One sort instead of one full-array mask per process; the records are indexed, not
+    # copied, until one process's are taken.
     at = np.flatnonzero(in_window)
     order, by_process = group_slices(records["process"][at])
     at = at[order]
     firsts = first_of_frame(records)
-    in_order, in_by_process = group_slices(counted_inputs["process"])
-    counted_inputs = counted_inputs[in_order]
+    starts = input_starts(inputs, len(records))
     out = []
     for proc in sorted(config.processes, key=lambda p: p.id):
         rows = at[by_process.get(int(proc.id), slice(0, 0))]
         mine = records[rows]
         skipped = (mine["flags"] & FLAG_SKIPPED) != 0
-        done = mine[completed(mine)]
-        done_first = firsts[rows][completed(mine)]
+        ran = completed(mine)
+        done = mine[ran]
+        done_first = firsts[rows][ran]
+        # An input record counts when its cycle record is in the window and completed, so
+        # new + stale == cycles for every input.
+        my_inputs = inputs[inputs_of(starts, rows[ran])]
         latency = release_latency_us(done)
         lateness = lateness_us(done)
         unstalled = unstalled_lateness_us(done, lateness)
         response = (cycle_end_ns(done) - done["release_ns"]).astype(np.float64) / 1000.0
         did_overrun = overran(done)
         late_us, too_late_us = late_limits_us(proc, config)
-        my_inputs = counted_inputs[in_by_process.get(int(proc.id), slice(0, 0))]
         out.append(
             ProcessMetrics(
                 id=proc.id,

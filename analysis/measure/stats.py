@@ -64,22 +64,6 @@ def group_slices(keys: np.ndarray) -> tuple[np.ndarray, dict[int, slice]]:
     return order, {int(v): slice(f, e) for v, f, e in zip(values, firsts, ends, strict=True)}
 
 
-def group_pairs(first: np.ndarray, second: np.ndarray) -> tuple[np.ndarray, dict[tuple[int, int], slice]]:
-    """group_slices by (first, second) pairs of ids: numbered densely, a few ids' pairs
-    sort by radix as one id does."""
-    if len(first) == 0:
-        return np.zeros(0, dtype=np.intp), {}
-    a0, b0 = int(first.min()), int(second.min())
-    width = int(second.max()) - b0 + 1
-    keys = first.astype(np.int64)  # in place from here: these columns hold millions of rows
-    keys -= a0
-    keys *= width
-    keys += second
-    keys -= b0
-    order, groups = group_slices(keys)
-    return order, {(a0 + key // width, b0 + key % width): rows for key, rows in groups.items()}
-
-
 def _narrow(keys: np.ndarray) -> np.ndarray:
     """Wider keys that span fewer than 2^16 values, as uint16 from their smallest: numpy
     sorts those by radix too."""

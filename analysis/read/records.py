@@ -69,7 +69,7 @@ class RunRecords:
 
     run_id: int
     records: ColumnTable  # fields of RECORD_DTYPE, in arrival order
-    inputs: ColumnTable  # fields of INPUT_DTYPE
+    inputs: ColumnTable  # fields of INPUT_DTYPE, in their records' order
     batches: int  # distinct batches decoded
     generations: list[int]
     lost_batches: list[dict[str, int]] = field(default_factory=list)
@@ -201,6 +201,20 @@ def _select(
     return {k: v[ins] if k.startswith("in_") else v[rec] for k, v in cols.items()}, table[keep]
 
 
+def input_starts(inputs: ColumnTable, n_records: int) -> np.ndarray:
+    """Where each of `n_records` records' inputs start among `inputs` (in their records' order,
+    as RunRecords holds them), and where the last ones end: n_records + 1 offsets."""
+    out = np.zeros(n_records + 1, dtype=np.int64)
+    if len(inputs):
+        np.cumsum(np.bincount(inputs["record"], minlength=n_records), out=out[1:])
+    return out
+
+
+def inputs_of(starts: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """The rows of the inputs of records `rows`, from their input_starts."""
+    return concat_ranges(starts[rows], starts[rows + 1] - starts[rows])
+
+
 def concat_ranges(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     """The concatenation of arange(start, start + length) for each pair, without a loop."""
     shift = np.repeat(starts - (np.cumsum(lengths) - lengths), lengths)
@@ -243,17 +257,14 @@ def _inputs(cols: dict[str, np.ndarray], table: np.ndarray) -> ColumnTable:
     # in_record is relative to its batch: add the batch's first record index.
     first_record = np.cumsum(table[:, 3]) - table[:, 3]
     index = np.repeat(first_record, table[:, 4]) + cols["in_record"]
-    out = {
-        "record": index,
-        "process": cols["process"][index],
-        "buffer": cols["in_buffer"],
-        "seq": cols["in_seq"],
-        "new": cols["in_new"],
-        "dropped": cols["in_dropped"],
-        "received": cols["in_received"],
-        "sent_ns": cols["in_sent_ns"],
-        "recv_ns": cols["in_recv_ns"],
-    }
+    wire = {name: cols[f"in_{name}"] for name in ("buffer", "seq", "new", "dropped", "received", "sent_ns",
+                                                   "recv_ns")}  # fmt: skip
+    # The inputs go in their records' order, so a record's are one run of rows (input_starts). A
+    # DPU lists them so; a batch that does not (the wire allows it) is put in order here.
+    if np.any(index[1:] < index[:-1]):
+        order = np.argsort(index, kind="stable")
+        index, wire = index[order], {name: column[order] for name, column in wire.items()}
+    out = {"record": index, "process": cols["process"][index], **wire}
     # Their record's, made only when read (the report reads the cycle of a few).
     derive = {"dpu": partial(np.repeat, table[:, 0], table[:, 4]),
               "cycle": partial(cols["cycle"].take, index)}
