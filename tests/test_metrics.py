@@ -21,6 +21,8 @@ from skeleton.analysis.measure.faults import (
 )
 from skeleton.analysis.measure.metrics import (
     dpu_metrics,
+    first_of_frame,
+    first_of_frame_at,
     process_metrics,
     static_load_pct,
     unstalled_lateness_us,
@@ -354,3 +356,16 @@ def test_a_dpu_behind_only_in_its_warm_up_is_no_fault() -> None:
     config.processes = [p for p in config.processes if p.dpu == 1][:1]
     config.nprocesses = 1
     assert behind_faults(_cycles(1, 0, 10, late, {1: 80.0}), config) == []
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_first_of_a_frame_found_among_its_frames_only_is_the_one_found_among_all(seed: int) -> None:
+    """process_metrics asks only for its overruns' frames: same answer, ties (equal starts) included."""
+    rng = np.random.default_rng(seed)
+    n = 400
+    records = np.zeros(n, dtype=RECORD_DTYPE)
+    records["dpu"] = rng.integers(1, 4, n)
+    records["minor"] = rng.integers(0, 30, n)
+    records["start_ns"] = rng.integers(0, 5, n)  # many ties
+    rows = np.sort(rng.choice(n, int(rng.integers(0, 40)), replace=False))
+    assert np.array_equal(first_of_frame_at(records, rows), first_of_frame(records)[rows])

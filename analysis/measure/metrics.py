@@ -333,7 +333,10 @@ def process_metrics(
     at = np.flatnonzero(in_window)
     order, by_process = group_slices(records["process"][at])
     at = at[order]
-    firsts = first_of_frame(records)
+    # Whether a cycle was its frame's first matters only for the overruns (what the stalls explain).
+    over = np.flatnonzero(in_window & completed(records) & overran(records))
+    firsts = np.zeros(len(records), dtype=bool)
+    firsts[over] = first_of_frame_at(records, over)
     starts = input_starts(inputs, len(records))
     out = []
     for proc in sorted(config.processes, key=lambda p: p.id):
@@ -415,6 +418,16 @@ def first_of_frame(records: np.ndarray) -> np.ndarray:
     out = np.zeros(len(records), dtype=bool)
     out[order] = np.r_[True, (dpu[1:] != dpu[:-1]) | (minor[1:] != minor[:-1])][: len(records)]
     return out
+
+
+def first_of_frame_at(records: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """first_of_frame(records)[rows], from the records of the minor cycles of `rows` only: for
+    a few, no sort of every record (0.35 s and 0.2 GB at 10^7)."""
+    if not len(rows):
+        return np.zeros(0, dtype=bool)
+    minor = records["minor"]
+    near = np.flatnonzero(np.isin(minor, np.unique(minor[rows])))
+    return first_of_frame(records[near])[np.searchsorted(near, rows)]
 
 
 def stall_explains(records: np.ndarray, first: np.ndarray) -> np.ndarray:
