@@ -61,8 +61,8 @@ def keep_off(pinned: set[int], allowed: set[int], threads: list[int] | None = No
 
 
 def own_threads() -> list[int]:
-    """The native ids of every thread of this process now (the control drain, a logger's
-    keeper, numpy's and pyarrow's pools): keep_off moves them all."""
+    """The native ids of every thread of this process now (the control drain, numpy's and
+    pyarrow's pools): keep_off moves them all."""
     return [int(t) for t in os.listdir("/proc/self/task")]
 
 

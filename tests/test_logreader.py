@@ -22,6 +22,8 @@ from skeleton.analysis.read.records import (
     RECORD_DTYPE,
     TIMING,
     decode_run,
+    input_starts,
+    inputs_of,
     load_records,
     run_ids,
 )
@@ -382,3 +384,15 @@ def test_the_analysis_gives_back_the_pages_of_the_log_it_read(
         run = analyse(log)
         assert mapped_kib(path) <= size_kib // 8, analyse.__name__
     assert len(run.recorded.records) == len(dpu1) + len(dpu2)
+
+
+def test_a_records_inputs_are_one_run_of_rows_and_out_of_order_inputs_are_refused() -> None:
+    inputs = ColumnTable.of({name: np.zeros(4, dtype=INPUT_DTYPE[name]) for name in INPUT_DTYPE.names or ()},
+                            INPUT_DTYPE)  # fmt: skip
+    inputs["record"] = [0, 0, 2, 3]
+    starts = input_starts(inputs, 5)
+    assert starts.tolist() == [0, 2, 2, 3, 4, 4]
+    assert inputs_of(starts, np.array([0, 3, 4])).tolist() == [0, 1, 3]
+    inputs["record"] = [0, 2, 0, 3]
+    with pytest.raises(ValueError, match="records' order"):
+        input_starts(inputs, 5)

@@ -202,11 +202,15 @@ def _select(
 
 
 def input_starts(inputs: ColumnTable, n_records: int) -> np.ndarray:
-    """Where each of `n_records` records' inputs start among `inputs` (in their records' order,
-    as RunRecords holds them), and where the last ones end: n_records + 1 offsets."""
+    """Where each of `n_records` records' inputs start among `inputs`, and where the last ones
+    end: n_records + 1 offsets. The inputs must be in their records' order, as RunRecords
+    holds them (ValueError otherwise: counted offsets would give other records' inputs)."""
     out = np.zeros(n_records + 1, dtype=np.int64)
     if len(inputs):
-        np.cumsum(np.bincount(inputs["record"], minlength=n_records), out=out[1:])
+        record = inputs["record"]
+        if np.any(record[1:] < record[:-1]):
+            raise ValueError("input records not in their records' order")
+        np.cumsum(np.bincount(record, minlength=n_records), out=out[1:])
     return out
 
 
