@@ -42,8 +42,8 @@ from typing import Any
 import numpy as np
 
 from ..read.records import FLAG_RELEASE_SKIPPED, input_starts, inputs_of
-from .metrics import completed, window_mask
-from .stats import Histogram, LatencyUs, group_slices, histogram, latency_us
+from .metrics import completed, rows_by_process, window_mask
+from .stats import Histogram, LatencyUs, histogram, latency_us
 
 
 class ClockOffsets:
@@ -168,9 +168,7 @@ def buffer_metrics(
     procs = {p.id: p for p in config.processes}
     # The inputs that count: those of the window's completed cycles, taken a reader at a time
     # from its cycle records, not from a sort of every input of the run by buffer and reader.
-    done = np.flatnonzero(window_mask(records, config, in_window) & completed(records))
-    order, by_process = group_slices(records["process"][done])
-    done = done[order]
+    done, by_process = rows_by_process(records, window_mask(records, config, in_window) & completed(records))
     starts = input_starts(inputs, len(records))
     readers_inputs = _ReadersInputs(inputs, starts, done, by_process, config)
     everything = records if run_records is None else run_records

@@ -174,6 +174,14 @@ def window_mask(records: np.ndarray, config: Any, in_window: np.ndarray | None) 
     return measured(records, config) if in_window is None else in_window
 
 
+def rows_by_process(records: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, dict[int, slice]]:
+    """The rows of `mask` grouped by process (each group in arrival order), and each
+    process's slice of them: one sort instead of one full-array mask per process."""
+    rows = np.flatnonzero(mask)
+    order, groups = group_slices(records["process"][rows])
+    return rows[order], groups
+
+
 def completed(records: np.ndarray) -> np.ndarray:
     """Mask of the cycles that ran to the end: not partial, not a skipped release."""
     return (records["flags"] & (FLAG_SKIPPED | FLAG_RELEASE_SKIPPED)) == 0
@@ -328,11 +336,7 @@ def process_metrics(
     config), when the caller has it); `inputs` in their records' order, as RunRecords holds them."""
     buffers = {b.id: b for b in config.buffers}
     in_window = window_mask(records, config, in_window)
-    # One sort instead of one full-array mask per process; the records are indexed, not
-    # copied, until one process's are taken.
-    at = np.flatnonzero(in_window)
-    order, by_process = group_slices(records["process"][at])
-    at = at[order]
+    at, by_process = rows_by_process(records, in_window)  # indexed, not copied, until one process's are taken
     # Whether a cycle was its frame's first matters only for the overruns (what the stalls explain).
     over = np.flatnonzero(in_window & completed(records) & overran(records))
     firsts = np.zeros(len(records), dtype=bool)
