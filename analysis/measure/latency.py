@@ -159,17 +159,19 @@ def unpublished_in_gaps(rows: np.ndarray, skipped: np.ndarray) -> int:
 def buffer_metrics(
     records: np.ndarray, inputs: np.ndarray, config: Any, clock: ClockOffsets = NO_OFFSETS,
     run_records: np.ndarray | None = None, in_window: np.ndarray | None = None,
+    starts: np.ndarray | None = None,
 ) -> list[BufferMetrics]:
     """Per buffer (config order by id) that has a reader, over the measured window; `inputs` in
     their records' order, as RunRecords holds them.
     `run_records`: the whole run's (default: `records`), where the writers' skipped releases
     are looked up: a gap after a live switch may hold sequences skipped before it.
-    `in_window`: measured(records, config), when the caller has it."""
+    `in_window`: measured(records, config), and `starts`: the inputs' input_starts, when the
+    caller has them."""
     procs = {p.id: p for p in config.processes}
     # The inputs that count: those of the window's completed cycles, taken a reader at a time
     # from its cycle records, not from a sort of every input of the run by buffer and reader.
     done, by_process = rows_by_process(records, window_mask(records, config, in_window) & completed(records))
-    starts = input_starts(inputs, len(records))
+    starts = input_starts(inputs, len(records)) if starts is None else starts
     readers_inputs = _ReadersInputs(inputs, starts, done, by_process, config)
     everything = records if run_records is None else run_records
     skips = everything[(everything["flags"] & FLAG_RELEASE_SKIPPED) != 0]

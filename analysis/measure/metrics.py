@@ -330,10 +330,12 @@ def overran(records: np.ndarray) -> np.ndarray:
 
 
 def process_metrics(
-    records: np.ndarray, inputs: np.ndarray, config: Any, in_window: np.ndarray | None = None
+    records: np.ndarray, inputs: np.ndarray, config: Any, in_window: np.ndarray | None = None,
+    starts: np.ndarray | None = None,
 ) -> list[ProcessMetrics]:
     """Per process (config order by id) over the measured window (`in_window`: measured(records,
-    config), when the caller has it); `inputs` in their records' order, as RunRecords holds them."""
+    config), when the caller has it); `inputs` in their records' order, as RunRecords holds them
+    (`starts`: their input_starts, when the caller has them)."""
     buffers = {b.id: b for b in config.buffers}
     in_window = window_mask(records, config, in_window)
     at, by_process = rows_by_process(records, in_window)  # indexed, not copied, until one process's are taken
@@ -341,7 +343,7 @@ def process_metrics(
     over = np.flatnonzero(in_window & completed(records) & overran(records))
     firsts = np.zeros(len(records), dtype=bool)
     firsts[over] = first_of_frame_at(records, over)
-    starts = input_starts(inputs, len(records))
+    starts = input_starts(inputs, len(records)) if starts is None else starts
     out = []
     for proc in sorted(config.processes, key=lambda p: p.id):
         rows = at[by_process.get(int(proc.id), slice(0, 0))]
