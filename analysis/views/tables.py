@@ -20,6 +20,13 @@ from ..measure.windows import WindowReport
 from .console import output_console
 
 
+def _signed(value: float | None, digits: int = 1) -> str:
+    """A difference with its sign: +0.0, never -0.0, for one that rounds to nothing."""
+    if value is None:
+        return "-"
+    return f"{round(value, digits) + 0.0:+.{digits}f}"
+
+
 def _num(value: float | None, digits: int = 1) -> str:
     if value is None:
         return "-"
@@ -90,7 +97,7 @@ def paper_table(report: RunReport, paper: dict[Any, Any], window: WindowReport |
         delta = None if ref.get("compute_pct") is None else d.compute_pct - ref["compute_pct"]
         rows.append([
             str(d.id), theirs("cycle_ms", 2), _num(d.measured_cycle_ms, 2),
-            theirs("compute_pct"), _num(d.compute_pct), "-" if delta is None else f"{delta:+.1f}",
+            theirs("compute_pct"), _num(d.compute_pct), _signed(delta),
             theirs("communicate_pct"), _num(d.communicate_pct), theirs("wait_pct"), _num(d.wait_pct),
         ])  # fmt: skip
     columns = [
@@ -240,7 +247,7 @@ def fault_table(report: RunReport, window: WindowReport | None = None) -> Table:
 def _beside(b: Beside, digits: int = 1) -> list[str]:
     """predicted, measured, Δ."""
     return [_num(b.predicted, digits) if b.predicted is not None else "unbounded", _num(b.measured, digits),
-            "-" if b.delta is None else f"{b.delta:+.{digits}f}"]
+            _signed(b.delta, digits)]
 
 
 OUTSIDE = ("out-\nside", False)
