@@ -18,10 +18,12 @@ from skeleton.analysis.read.coltable import ColumnTable
 from skeleton.analysis.read.flatdecode import FlatLayout
 from skeleton.analysis.read.logreader import SYNC_BYTES, encode_events, read_bytes, read_log
 from skeleton.analysis.read.records import (
+    IMPOSSIBLE_MARGIN_NS,
     INPUT_DTYPE,
     RECORD_DTYPE,
     TIMING,
     decode_run,
+    impossible,
     input_starts,
     inputs_of,
     load_records,
@@ -396,3 +398,19 @@ def test_a_records_inputs_are_one_run_of_rows_and_out_of_order_inputs_are_refuse
     inputs["record"] = [0, 2, 0, 3]
     with pytest.raises(ValueError, match="records' order"):
         input_starts(inputs, 5)
+
+
+@pytest.mark.parametrize("name", ["start_ns", "sched_ns", "slack_ns", "compute_ns", "idle_ns", "event_ns"])
+def test_a_time_a_flipped_bit_put_far_from_its_release_is_impossible(name: str) -> None:
+    dpu1, _ = small_run()
+    records = decode_run([t.encode() for t in batches(1, dpu1, 4)], RUN_ID).records
+    assert not impossible(records, IMPOSSIBLE_MARGIN_NS).any()
+    records[name][5] ^= 1 << 60  # what one flipped bit in the log's bytes does
+    assert np.flatnonzero(impossible(records, IMPOSSIBLE_MARGIN_NS)).tolist() == [5]
+
+
+def test_a_duration_whose_sign_bit_flipped_is_impossible() -> None:
+    dpu1, _ = small_run()
+    records = decode_run([t.encode() for t in batches(1, dpu1, 4)], RUN_ID).records
+    records["blocked_ns"][12] ^= np.int64(-(2**63))
+    assert np.flatnonzero(impossible(records, IMPOSSIBLE_MARGIN_NS)).tolist() == [12]

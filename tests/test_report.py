@@ -12,7 +12,7 @@ from analysis_synth import GENERATION, RUN_ID, batches, report, small_config, sm
 from conftest import short_servo_run
 from rich.console import Console
 
-from skeleton.analysis.measure.run import load_run
+from skeleton.analysis.measure.run import IMPOSSIBLE, load_run
 from skeleton.analysis.read import parallel
 from skeleton.analysis.views.report import report_command
 from skeleton.analysis.views.tables import print_report
@@ -102,6 +102,30 @@ def test_damaged_log_still_reports_and_says_so(tmp_path: Path) -> None:
     text = _render(rep)
     assert "log damaged: 1 corrupt ranges (100 bytes), 1 timing batches lost" in text
     assert "the tables use everything else" in text
+
+
+def test_a_record_a_flipped_bit_made_impossible_is_counted_and_left_out(tmp_path: Path) -> None:
+    """LCM logs carry no checksum: a bit flipped in a record's start decodes. The record goes,
+    with its input; the DPU's figures stay those of the others, and the report says so."""
+    dpu1, dpu2 = small_run()
+    good = load_run(str(write_log(tmp_path / "good.lcm", _events(dpu1, dpu2)))).report
+    hit = next(r for r in dpu1 if r.process == 1 and r.cycle == 5)  # B, measured, with one input
+    hit.start_ns ^= 1 << 60
+    damaged = load_run(str(write_log(tmp_path / "bad.lcm", _events(dpu1, dpu2))))
+    rep = damaged.report
+    assert rep.integrity.malformed == {IMPOSSIBLE: 1}
+    assert len(damaged.recorded.records) == 2 * len(dpu1) // 2 + len(dpu2) - 1
+    a, b = rep.processes[0], rep.processes[1]
+    assert (a.cycles, b.cycles) == (good.processes[0].cycles, good.processes[1].cycles - 1)
+    assert a.inputs == good.processes[0].inputs  # the inputs left are still their own records'
+    assert b.inputs[0].new + b.inputs[0].stale == b.cycles
+    assert b.latency_us.max < 10_000 and rep.dpus[0].elapsed_ms == good.dpus[0].elapsed_ms
+    assert f"malformed messages skipped: {IMPOSSIBLE}: 1" in _render(rep)
+
+
+def _events(dpu1: list, dpu2: list) -> list[tuple[str, object]]:
+    return [(CONFIG_CHANNEL, small_config())] + [(TIMING_CHANNEL, t) for t in batches(1, dpu1, 4)
+                                                   + batches(2, dpu2, 2)]  # fmt: skip
 
 
 def test_tables_are_deterministic_and_show_the_paper(tmp_path: Path) -> None:

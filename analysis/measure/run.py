@@ -37,6 +37,7 @@ from .report import RunReport, build_report
 from .windows import window_records
 
 NO_CONFIG = f"{TIMING_CHANNEL} (no config for its generation)"
+IMPOSSIBLE = f"{TIMING_CHANNEL} (records with impossible times: damaged bytes)"
 
 
 @dataclass
@@ -177,7 +178,7 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None) -
         recorded = load_records(log, run_id, expected_batches=published_batches(log, run_id), heads=heads)
         messages = pending.result()
     log.release()  # every message needed is decoded: the log's pages are given back (Log.release)
-    malformed = {TIMING_CHANNEL: recorded.malformed, **messages.malformed}
+    malformed = {TIMING_CHANNEL: recorded.malformed, IMPOSSIBLE: recorded.impossible, **messages.malformed}
     configs = {g: c for g, c in messages.configs.items() if g in recorded.generations}
     for g in recorded.generations:
         if g not in configs:

@@ -8,7 +8,7 @@ Works on raw message bytes, so a log, a replay and a live subscription all use i
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 
 import numpy as np
@@ -75,6 +75,7 @@ class RunRecords:
     lost_batches: list[dict[str, int]] = field(default_factory=list)
     malformed: int = 0  # timing messages that failed to decode (counted, skipped)
     duplicates: int = 0  # batches seen twice (same dpu, batch_seq)
+    impossible: int = 0  # records with times no cycle of the log can have (counted, left out)
 
 
 Heads = tuple[np.ndarray, np.ndarray]  # (decoded ok, the scalars in front of the arrays) per batch
@@ -111,8 +112,10 @@ def load_records(
     if run_id is None:
         runs = run_ids(log, heads)
         run_id = runs[-1] if runs else 0
-    return decode_timing(log.buf, *_timing_events(log), run_id=run_id, expected_batches=expected_batches,
-                         heads=heads, release=log.release)
+    run = decode_timing(log.buf, *_timing_events(log), run_id=run_id, expected_batches=expected_batches,
+                        heads=heads, release=log.release)
+    span_us = int(log.utime_us.max() - log.utime_us.min()) if len(log.utime_us) else 0
+    return without_impossible(run, 2 * span_us * 1000 + IMPOSSIBLE_MARGIN_NS)
 
 
 def decode_run(
@@ -183,6 +186,53 @@ def decode_timing(
         malformed=malformed,
         duplicates=duplicates,
     )
+
+
+# LCM logs carry no checksum: a flipped bit in a record's times decodes. One start_ns 2^60 ns
+# off made its DPU's elapsed 36 years and its shares 0 %. No cycle recorded in a log can have a
+# time further from its release, or a duration longer, than the log spans: twice that and a
+# minute more is the bound (a minute: a short log's cycles may have begun before it).
+IMPOSSIBLE_MARGIN_NS = 60 * 10**9
+_DURATIONS = ("comm_in_ns", "blocked_ns", "asked_ns", "compute_ns", "comm_out_ns", "idle_ns", "stall_ns",
+              "debt_ns", "preempted_ns")  # fmt: skip
+_ROWS_AT_ONCE = 1 << 20  # rows checked at a time: the float temporaries stay small
+
+
+def impossible(records: ColumnTable, bound_ns: int) -> np.ndarray:
+    """Mask of the records with a time further than `bound_ns` from their release (or, for an
+    event cycle, from their start), or a duration longer (or, sign bit flipped, shorter than
+    minus it)."""
+    out = np.zeros(len(records), dtype=bool)
+    for lo in range(0, len(records), _ROWS_AT_ONCE):
+        part = records[lo : lo + _ROWS_AT_ONCE]
+        # As floats: the difference of two damaged int64 times can wrap into a plausible one.
+        release = part["release_ns"].astype(np.float64)
+        start = part["start_ns"].astype(np.float64)
+        bad = np.abs(start - release) > bound_ns
+        bad |= np.abs(part["sched_ns"] - release) > bound_ns
+        bad |= np.abs(part["slack_ns"]) > bound_ns
+        for name in _DURATIONS:
+            bad |= np.abs(part[name].astype(np.float64)) > bound_ns
+        event = part["event_ns"]
+        bad |= (event != -1) & (np.abs(start - event) > bound_ns)
+        out[lo : lo + len(part)] = bad
+    return out
+
+
+def without_impossible(run: RunRecords, bound_ns: int) -> RunRecords:
+    """`run` less its impossible records (and their inputs), counted in run.impossible."""
+    bad = impossible(run.records, bound_ns)
+    if not bad.any():
+        return run
+    keep = ~bad
+    renumber = np.cumsum(keep) - 1  # a kept record's row among the kept ones
+    records = run.records[keep]
+    inputs = run.inputs[keep[run.inputs["record"]]] if len(run.inputs) else run.inputs
+    columns = {name: np.asarray(inputs[name]) for name in INPUT_DTYPE.names or ()}
+    columns["record"] = renumber[columns["record"]]
+    return replace(run, records=ColumnTable.of({name: np.asarray(records[name]) for name in records.names},
+                                               RECORD_DTYPE),
+                   inputs=ColumnTable.of(columns, INPUT_DTYPE), impossible=int(np.count_nonzero(bad)))
 
 
 def _out_of_order(table: np.ndarray) -> bool:
