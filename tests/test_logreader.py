@@ -18,6 +18,7 @@ from skeleton.analysis.read.coltable import ColumnTable
 from skeleton.analysis.read.flatdecode import FlatLayout
 from skeleton.analysis.read.logreader import SYNC_BYTES, encode_events, read_bytes, read_log
 from skeleton.analysis.read.records import (
+    DURATIONS,
     IMPOSSIBLE_MARGIN_NS,
     INPUT_DTYPE,
     RECORD_DTYPE,
@@ -220,7 +221,8 @@ def _timing_message(seq: int, n: int, m: int, rng: np.random.Generator) -> bytes
     t.dpu, t.run_id, t.generation, t.batch_seq, t.n, t.ninputs = 5, RUN_ID, 2, seq, n, m
     for name, dims in zip(t.__slots__, t.__dimensions__, strict=True):
         if dims is not None:
-            setattr(t, name, rng.integers(-100, 100, n if dims == ["n"] else m).tolist())
+            low = 0 if name in DURATIONS else -100  # a negative duration is impossible: left out
+            setattr(t, name, rng.integers(low, 100, n if dims == ["n"] else m).tolist())
     t.in_record = rng.integers(0, max(n, 1), m).tolist()
     return t.encode()
 
@@ -409,8 +411,9 @@ def test_a_time_a_flipped_bit_put_far_from_its_release_is_impossible(name: str) 
     assert np.flatnonzero(impossible(records, IMPOSSIBLE_MARGIN_NS)).tolist() == [5]
 
 
-def test_a_duration_whose_sign_bit_flipped_is_impossible() -> None:
+def test_a_negative_duration_is_impossible() -> None:
+    """A DPU measures none; a duration's bits inverted make one (-3 ms, within the bound)."""
     dpu1, _ = small_run()
     records = decode_run([t.encode() for t in batches(1, dpu1, 4)], RUN_ID).records
-    records["blocked_ns"][12] ^= np.int64(-(2**63))
-    assert np.flatnonzero(impossible(records, IMPOSSIBLE_MARGIN_NS)).tolist() == [12]
+    records["idle_ns"][13] = ~records["idle_ns"][13]
+    assert np.flatnonzero(impossible(records, IMPOSSIBLE_MARGIN_NS)).tolist() == [13]

@@ -193,15 +193,15 @@ def decode_timing(
 # time further from its release, or a duration longer, than the log spans: twice that and a
 # minute more is the bound (a minute: a short log's cycles may have begun before it).
 IMPOSSIBLE_MARGIN_NS = 60 * 10**9
-_DURATIONS = ("comm_in_ns", "blocked_ns", "asked_ns", "compute_ns", "comm_out_ns", "idle_ns", "stall_ns",
+DURATIONS = ("comm_in_ns", "blocked_ns", "asked_ns", "compute_ns", "comm_out_ns", "idle_ns", "stall_ns",
               "debt_ns", "preempted_ns")  # fmt: skip
 _ROWS_AT_ONCE = 1 << 20  # rows checked at a time: the float temporaries stay small
 
 
 def impossible(records: ColumnTable, bound_ns: int) -> np.ndarray:
     """Mask of the records with a time further than `bound_ns` from their release (or, for an
-    event cycle, from their start), or a duration longer (or, sign bit flipped, shorter than
-    minus it)."""
+    event cycle, from their start), or a duration longer, or below 0 (a DPU measures none so:
+    bits inverted make one)."""
     out = np.zeros(len(records), dtype=bool)
     for lo in range(0, len(records), _ROWS_AT_ONCE):
         part = records[lo : lo + _ROWS_AT_ONCE]
@@ -211,8 +211,8 @@ def impossible(records: ColumnTable, bound_ns: int) -> np.ndarray:
         bad = np.abs(start - release) > bound_ns
         bad |= np.abs(part["sched_ns"] - release) > bound_ns
         bad |= np.abs(part["slack_ns"]) > bound_ns
-        for name in _DURATIONS:
-            bad |= np.abs(part[name].astype(np.float64)) > bound_ns
+        for name in DURATIONS:
+            bad |= (part[name] < 0) | (part[name] > bound_ns)
         event = part["event_ns"]
         bad |= (event != -1) & (np.abs(start - event) > bound_ns)
         out[lo : lo + len(part)] = bad
