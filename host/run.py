@@ -117,6 +117,9 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         if options.spawn:
             # Before anything starts: DPUs of ours already up and busy are someone's run.
             control.wait_for(lambda: set(dpu_ids) <= control.dpus.keys(), owner.HEAR_BEFORE_SPAWN_S)
+            if (up := _already_up(control, system)) is not None:
+                console.print(f"[red]{up}[/]", soft_wrap=True)
+                return EXIT_FAILED
             if not _claim(control, dpu_ids, options.force, console):
                 return EXIT_FAILED
             dpu_deadline_s = options.wait_dpus_s + 2 * PUSH_TIMEOUT_S + logger_deadline_s
@@ -197,6 +200,19 @@ def keep_off_dpu_cpus(system: System, threads: list[int] | None = None) -> set[i
     own, pinned or not by the system file. Returns where the threads run."""
     pinned = {d.cpu for d in system.dpus if d.cpu is not None and spawn.is_local(d.host)}
     return spawn.keep_off(pinned, os.sched_getaffinity(0), threads)
+
+
+def _already_up(control: Control, system: System) -> str | None:
+    """Why --spawn must not start this system's local DPUs: one of their ids already answers
+    (`skel up`, say). A second daemon of an id would run the run beside the first, every
+    buffer arriving twice, and the report would take the two for one DPU restarted."""
+    heard = control.snapshot()
+    up = [heard[d.id].status for d in system.dpus if spawn.is_local(d.host) and d.id in heard]
+    if not up:
+        return None
+    who = ", ".join(f"DPU {s.dpu} (pid {s.pid} on {s.host})" for s in up)
+    return (f"{who} already up on {control.url}: --spawn would start a second DPU of the same id. "
+            "Run without --spawn to use them, or stop them first (`skel down`)")
 
 
 def _claim(control: Control, dpu_ids: list[int], force: bool, console: Console) -> bool:

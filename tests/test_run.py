@@ -178,6 +178,11 @@ def test_push_reconfigures_running_dpus_without_restart(tmp_path: Path, url: str
     try:
         pids_before = {d["dpu"]: d["pid"] for d in json.loads(skel("status", "--url", url, "--json").stdout)}
         assert sorted(pids_before) == [1, 2, 3, 4]
+        # --spawn beside them would start a second DPU of each id: refused, nothing started.
+        twice = skel("run", servo, "--spawn", "--url", url, "--cycles", "10",
+                     "--out", str(tmp_path / "twice"))
+        assert twice.returncode == 1 and "already up" in twice.stdout, twice.stdout + twice.stderr
+        assert not (tmp_path / "twice" / "logs").exists()
         first = skel("run", servo, "--url", url, "--cycles", "300", "-s", "run.warmup_cycles=10",
                      *NOISE_TOLERANT, "--out", str(tmp_path / "a"), "--compare-paper")
         assert first.returncode == 0, first.stdout + first.stderr
