@@ -63,6 +63,9 @@ def parse_url(url: str) -> LcmUrl:
     if parts.scheme != "udpm":
         return LcmUrl(parts.scheme, "", 0, 0)
     query = {key: values[-1] for key, values in parse_qs(parts.query).items()}
+    for key in ("ttl", "recv_buf_size"):
+        if key in query and not query[key].isdigit():
+            raise ValueError(f"{key}={query[key]} in {url!r}: expected a whole number")
     try:
         group = parts.hostname or LCM_GROUP
         port = parts.port or LCM_PORT

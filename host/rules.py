@@ -261,12 +261,12 @@ def _link_ports(spec: SystemSpec, links: tuple[Link, ...], buffer_links: dict[in
                 if link is control:  # its record URL too: the DPUs' heartbeats and timing go there
                     record_url(link.url)
             except ValueError as exc:
-                raise Invalid(f"links[{link.id - 1}].url", str(exc)) from None
+                raise Invalid(f"links.{link.name}.url", str(exc)) from None
     ids = {p.name: p.id for p in spec.processes}
     ports = writer_ports(links, ((buffer_links[b.id].id, ids[writers[b.id]]) for b in spec.buffers))
     clash = port_clash(links, ports)
     if clash is not None:
-        raise Invalid(f"links[{clash[0].id - 1}].url", clash[1])
+        raise Invalid(f"links.{clash[0].name}.url", clash[1])
     return ports
 
 

@@ -92,7 +92,7 @@ def test_check_refuses_links_whose_ports_meet(tmp_path: Path, second: str, why: 
     done = skel("check", str(path))
     assert done.returncode == 2, done.stdout + done.stderr
     (line,) = done.stderr.strip().splitlines()
-    assert line.startswith(f"{path}: links[0].url: its writers' buffers take ports 7700..7702, "), line
+    assert line.startswith(f"{path}: links.bus.url: its writers' buffers take ports 7700..7702, "), line
     assert why in line, line
 
 
@@ -104,7 +104,7 @@ def test_check_refuses_writers_on_the_record_port(tmp_path: Path) -> None:
     done = skel("check", str(path))
     assert done.returncode == 2, done.stdout + done.stderr
     assert done.stderr.strip() == (
-        f"{path}: links[2].url: its writers' buffers take ports 7699..7699, which hold port 7699 of the "
+        f"{path}: links.side.url: its writers' buffers take ports 7699..7699, which hold port 7699 of the "
         "record URL (udpm://239.255.76.66:7699?ttl=0: the DPUs' heartbeats and timing); put the link's "
         "port further from the control URL's")
 
@@ -114,7 +114,7 @@ def test_check_and_the_dpu_refuse_a_control_url_without_a_record_url(tmp_path: P
     path = _three(tmp_path, "udpm://224.0.0.0:7700?ttl=0")
     done = skel("check", str(path))
     assert done.returncode == 2, done.stdout + done.stderr
-    assert done.stderr.strip() == (f"{path}: links[0].url: 'udpm://224.0.0.0:7700?ttl=0': its record "
+    assert done.stderr.strip() == (f"{path}: links.bus.url: 'udpm://224.0.0.0:7700?ttl=0': its record "
                                    "URL, group and port each 1 lower, would leave the multicast groups or "
                                    "the ports")
     dpu = subprocess.run([str(spawn.dpu_binary()), "--id", "1", "--url", "udpm://224.0.0.0:7700?ttl=0"],
@@ -143,7 +143,7 @@ def test_check_refuses_ports_past_65535(tmp_path: Path) -> None:
     path = _three(tmp_path, "udpm://239.255.76.67:65534?ttl=0")
     done = skel("check", str(path))
     assert done.returncode == 2, done.stdout + done.stderr
-    assert done.stderr.strip() == f"{path}: links[0].url: its writers need ports 65535..65536, past 65535"
+    assert done.stderr.strip() == f"{path}: links.bus.url: its writers need ports 65535..65536, past 65535"
 
 
 @pytest.mark.parametrize(("group", "why"), [
@@ -157,7 +157,7 @@ def test_check_refuses_writer_groups_a_switch_cannot_keep_apart(tmp_path: Path, 
     done = skel("check", str(path))
     assert done.returncode == 2, done.stdout + done.stderr
     (line,) = done.stderr.strip().splitlines()
-    assert line.startswith(f"{path}: links[0].url: {why}"), line
+    assert line.startswith(f"{path}: links.bus.url: {why}"), line
 
 
 def _with_side(url: str, side: str) -> str:
