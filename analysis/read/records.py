@@ -194,7 +194,7 @@ def decode_timing(
 # minute more is the bound (a minute: a short log's cycles may have begun before it).
 IMPOSSIBLE_MARGIN_NS = 60 * 10**9
 DURATIONS = ("comm_in_ns", "blocked_ns", "asked_ns", "compute_ns", "comm_out_ns", "idle_ns", "stall_ns",
-              "debt_ns", "preempted_ns")  # fmt: skip
+             "debt_ns", "preempted_ns")  # fmt: skip
 _ROWS_AT_ONCE = 1 << 20  # rows checked at a time: the float temporaries stay small
 
 
@@ -210,7 +210,7 @@ def impossible(records: ColumnTable, bound_ns: int) -> np.ndarray:
         start = part["start_ns"].astype(np.float64)
         bad = np.abs(start - release) > bound_ns
         bad |= np.abs(part["sched_ns"] - release) > bound_ns
-        bad |= np.abs(part["slack_ns"]) > bound_ns
+        bad |= np.abs(part["slack_ns"].astype(np.float64)) > bound_ns  # abs(int64 min) < 0
         for name in DURATIONS:
             bad |= (part[name] < 0) | (part[name] > bound_ns)
         event = part["event_ns"]
