@@ -95,8 +95,12 @@ void executive_account(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *r
 {
     skel_dpu_sums_t *d = &plan->sums;
     if (rec->cycle >= p->measure_from_k) p->sums.wait_ns += rec->idle_ns;
-    if (release < plan->measure_from_ns) return;
+    if (release < plan->measure_from_ns) {
+        if (end > d->warmup_end_ns) d->warmup_end_ns = end; /* a DPU behind its schedule: report.c */
+        return;
+    }
     if (d->first_release_ns < 0) d->first_release_ns = release;
+    if (d->first_start_ns < 0 || rec->start_ns < d->first_start_ns) d->first_start_ns = rec->start_ns;
     d->end_ns = end + rec->idle_ns;
     d->compute_ns += rec->compute_ns;
     d->communicate_ns += rec->comm_in_ns + rec->comm_out_ns;

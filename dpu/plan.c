@@ -249,5 +249,5 @@ void plan_reset_run(skel_plan_t *plan, int64_t run_id)
     plan->minor_base = 0;
     plan->measure_from_ns = 0;
     memset(&plan->sums, 0, sizeof plan->sums);
-    plan->sums.first_release_ns = -1;
+    plan->sums.first_release_ns = plan->sums.first_start_ns = plan->sums.warmup_end_ns = -1;
 }

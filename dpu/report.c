@@ -117,6 +117,15 @@ typedef struct {
     int64_t n_new[SKEL_MAX_IO], stale[SKEL_MAX_IO], dropped[SKEL_MAX_IO];
 } report_inputs_t;
 
+/* Where the window's elapsed time begins (analysis/measure/metrics.py elapsed_ns, the same
+ * definition): its first release, or, when warm-up work was still going on then (a DPU
+ * behind its schedule), when that work ended, at the latest the first measured start. */
+static int64_t report_begin_ns(const skel_dpu_sums_t *d)
+{
+    if (d->warmup_end_ns <= d->first_release_ns) return d->first_release_ns;
+    return d->warmup_end_ns < d->first_start_ns ? d->warmup_end_ns : d->first_start_ns;
+}
+
 int report_publish(skel_server_t *s, const skel_plan_t *plan, skel_history_t *history)
 {
     skelmsg_report_t r;
@@ -142,7 +151,7 @@ int report_publish(skel_server_t *s, const skel_plan_t *plan, skel_history_t *hi
     r.generation = plan->generation;
     r.compute = plan->compute;
     r.speed = plan->speed;
-    r.elapsed_ns = d->first_release_ns >= 0 ? d->end_ns - d->first_release_ns : 0;
+    r.elapsed_ns = d->first_release_ns >= 0 ? d->end_ns - report_begin_ns(d) : 0;
     r.minor_cycles = d->minor_cycles;
     r.compute_ns = d->compute_ns;
     r.communicate_ns = d->communicate_ns;

@@ -211,13 +211,14 @@ def static_load_pct(config: Any, dpu_id: int) -> float:
 def dpu_metrics(records: np.ndarray, config: Any, in_window: np.ndarray | None = None) -> list[DpuMetrics]:
     """Per DPU (config order by id) over the measured window (`in_window`: measured(records,
     config), when the caller has it)."""
-    window = records[window_mask(records, config, in_window)]
+    in_window = window_mask(records, config, in_window)
+    window, warmup = records[in_window], records[~in_window]
     out = []
     for dpu in sorted(config.dpus, key=lambda d: d.id):
         procs = sorted((p for p in config.processes if p.dpu == dpu.id), key=lambda p: (p.order, p.id))
         mine = window[window["dpu"] == dpu.id]
         overruns = int(np.count_nonzero(overran(mine[completed(mine)])))
-        elapsed = _elapsed_ns(mine)
+        elapsed = _elapsed_ns(mine, warmup_end_ns(warmup[warmup["dpu"] == dpu.id]))
         shares = utilization_pct(*shares_ns(mine), elapsed)
         stall = int(mine["stall_ns"].sum())
         given = unstalled_ns(mine, elapsed, stall, dpu.minor_cycle_us * 1000)
@@ -269,11 +270,29 @@ def frame_release_latency_ns(mine: np.ndarray) -> np.ndarray:
     return of.start - of.release
 
 
-def _elapsed_ns(mine: np.ndarray) -> int | None:
-    """From the first measured release to the end of the last measured work plus its idle."""
+def _elapsed_ns(mine: np.ndarray, warmup_end: int | None) -> int | None:
+    """One DPU's measured time (its measured records, `warmup_end`: warmup_end_ns of its others)."""
     if len(mine) == 0:
         return None
-    return int(work_end_ns(mine).max() - mine["release_ns"].min())
+    return elapsed_ns(int(mine["release_ns"].min()), int(mine["start_ns"].min()),
+                      int(work_end_ns(mine).max()), warmup_end)
+
+
+def elapsed_ns(first_release: int, first_start: int, last_end: int, warmup_end: int | None) -> int:
+    """What the DPU's shares divide: from its first measured release to the end of its last
+    measured work plus its idle. A DPU behind its schedule is still working on warm-up cycles
+    at that release, time no share counts (an overloaded one read 88 % compute where it
+    computed 99 % of its time): its measured time begins when that work ended, and no later
+    than its first measured start (a preempted warm-up cycle may end after it)."""
+    begin = first_release
+    if warmup_end is not None and warmup_end > first_release:
+        begin = min(warmup_end, first_start)
+    return last_end - begin
+
+
+def warmup_end_ns(warmup: np.ndarray) -> int | None:
+    """When the work of one DPU's records before its window (`warmup`) ended."""
+    return int(cycle_end_ns(warmup).max()) if len(warmup) else None
 
 
 def work_end_ns(records: np.ndarray) -> np.ndarray:

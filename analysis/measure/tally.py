@@ -24,6 +24,7 @@ import numpy as np
 from ..read.records import RunRecords
 from .metrics import (
     completed,
+    elapsed_ns,
     late_limits_us,
     lateness_us,
     measured,
@@ -31,6 +32,7 @@ from .metrics import (
     release_latency_us,
     shares_ns,
     utilization_pct,
+    warmup_end_ns,
     window_start_ns,
     work_end_ns,
 )
@@ -48,7 +50,9 @@ class DpuTally:
     communicate_ns: int = 0
     wait_ns: int = 0
     first_release_ns: int | None = None
+    first_start_ns: int | None = None
     last_end_ns: int | None = None
+    warmup_end_ns: int | None = None  # metrics.warmup_end_ns of its records before the window
 
     @property
     def elapsed_ms(self) -> float | None:
@@ -56,9 +60,9 @@ class DpuTally:
         return None if elapsed is None else elapsed / 1e6
 
     def _elapsed_ns(self) -> int | None:
-        if self.first_release_ns is None or self.last_end_ns is None:
+        if self.first_release_ns is None or self.first_start_ns is None or self.last_end_ns is None:
             return None
-        return self.last_end_ns - self.first_release_ns
+        return elapsed_ns(self.first_release_ns, self.first_start_ns, self.last_end_ns, self.warmup_end_ns)
 
     @property
     def shares_pct(self) -> tuple[float | None, float | None, float | None, float | None]:
@@ -74,9 +78,17 @@ class DpuTally:
         self.wait_ns += wait
         self.records += len(mine)
         self.overruns += int(np.count_nonzero(overran(mine[completed(mine)])))
-        first, end = int(mine["release_ns"].min()), int(work_end_ns(mine).max())
+        first, start, end = (int(mine["release_ns"].min()), int(mine["start_ns"].min()),
+                             int(work_end_ns(mine).max()))
         self.first_release_ns = first if self.first_release_ns is None else min(first, self.first_release_ns)
+        self.first_start_ns = start if self.first_start_ns is None else min(start, self.first_start_ns)
         self.last_end_ns = end if self.last_end_ns is None else max(end, self.last_end_ns)
+
+    def add_warmup(self, before: np.ndarray) -> None:
+        """Its records released before its window opened."""
+        end = warmup_end_ns(before)
+        if end is not None:
+            self.warmup_end_ns = end if self.warmup_end_ns is None else max(end, self.warmup_end_ns)
 
 
 @dataclass
@@ -135,11 +147,16 @@ class GenerationTally:
             return False
         for dpu, start in starts.items():
             self.window_starts.setdefault(dpu, start)
-        window = records[measured(records, self.config, self.window_starts)]
+        in_window = measured(records, self.config, self.window_starts)
+        window, before = records[in_window], records[~in_window]
         order, by_dpu = group_slices(window["dpu"])
         for dpu, rows in by_dpu.items():
             if dpu in self._dpu:
                 self._dpu[dpu].add(window[order[rows]])
+        order, by_dpu = group_slices(before["dpu"])
+        for dpu, rows in by_dpu.items():
+            if dpu in self._dpu:
+                self._dpu[dpu].add_warmup(before[order[rows]])
         order, by_process = group_slices(window["process"])
         for proc, rows in by_process.items():
             if proc in self._process:
