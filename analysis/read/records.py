@@ -114,8 +114,7 @@ def load_records(
         run_id = runs[-1] if runs else 0
     run = decode_timing(log.buf, *_timing_events(log), run_id=run_id, expected_batches=expected_batches,
                         heads=heads, release=log.release)
-    span_us = int(log.utime_us.max() - log.utime_us.min()) if len(log.utime_us) else 0
-    return without_impossible(run, 2 * span_us * 1000 + IMPOSSIBLE_MARGIN_NS)
+    return without_impossible(run, robust_span(log.utime_us[log.indices(TIMING_CHANNEL)]) * 1000)
 
 
 def decode_run(
@@ -189,39 +188,71 @@ def decode_timing(
 
 
 # LCM logs carry no checksum: a flipped bit in a record's times decodes. One start_ns 2^60 ns
-# off made its DPU's elapsed 36 years and its shares 0 %. No cycle recorded in a log can have a
-# time further from its release, or a duration longer, than the log spans: twice that and a
-# minute more is the bound (a minute: a short log's cycles may have begun before it).
+# off made its DPU's elapsed 36 years and its shares 0 %. A record is impossible when one of
+# its times lies further from its release, or one of its durations runs longer, than twice the
+# larger of what the log spans and the median record's value of that quantity, and a minute
+# more (the median: a log begun long after its run did, an overloaded DPU lagging minutes
+# behind all through it), or when a duration is negative (a DPU measures none; inverted bits
+# make one). The bounds come from robust figures: a damaged time stamp, or damaged records
+# short of half, cannot widen them.
 IMPOSSIBLE_MARGIN_NS = 60 * 10**9
 DURATIONS = ("comm_in_ns", "blocked_ns", "asked_ns", "compute_ns", "comm_out_ns", "idle_ns", "stall_ns",
              "debt_ns", "preempted_ns")  # fmt: skip
 _ROWS_AT_ONCE = 1 << 20  # rows checked at a time: the float temporaries stay small
+_SAMPLE = 1 << 16  # records the usual size of each quantity is read from
 
 
-def impossible(records: ColumnTable, bound_ns: int) -> np.ndarray:
-    """Mask of the records with a time further than `bound_ns` from their release (or, for an
-    event cycle, from their start), or a duration longer, or below 0 (a DPU measures none so:
-    bits inverted make one)."""
+def robust_span(times: np.ndarray) -> int:
+    """How far apart `times` lie, but for their 0.1 % at each end: 0 for none."""
+    if not len(times):
+        return 0
+    low, high = np.quantile(times, [0.001, 0.999])
+    return max(0, int(high) - int(low))
+
+
+def _magnitudes(part: ColumnTable) -> dict[str, np.ndarray]:
+    """|each checked time - its reference| and |each duration|, as floats (the difference of
+    two damaged int64 times can wrap into a plausible one; abs of int64's minimum stays < 0)."""
+    release = part["release_ns"].astype(np.float64)
+    start = part["start_ns"].astype(np.float64)
+    event = part["event_ns"]
+    out = {
+        "start_ns": np.abs(start - release),
+        "sched_ns": np.abs(part["sched_ns"] - release),
+        "slack_ns": np.abs(part["slack_ns"].astype(np.float64)),
+        "event_ns": np.where(event != -1, np.abs(start - event), np.nan),  # NaN: no event cycle
+    }
+    return out | {name: np.abs(part[name].astype(np.float64)) for name in DURATIONS}
+
+
+def _median(values: np.ndarray) -> float:
+    """The median of the values that are numbers; 0 for none."""
+    numbers = values[~np.isnan(values)]
+    return float(np.median(numbers)) if len(numbers) else 0.0
+
+
+def impossible(records: ColumnTable, span_ns: int) -> np.ndarray:
+    """Mask of the impossible records (see above) of a log spanning `span_ns`."""
     out = np.zeros(len(records), dtype=bool)
+    if not len(records):
+        return out
+    usual = _magnitudes(records[:: max(1, len(records) // _SAMPLE)])
+    bounds = {name: 2 * max(span_ns, _median(values)) + IMPOSSIBLE_MARGIN_NS
+              for name, values in usual.items()}  # fmt: skip
     for lo in range(0, len(records), _ROWS_AT_ONCE):
         part = records[lo : lo + _ROWS_AT_ONCE]
-        # As floats: the difference of two damaged int64 times can wrap into a plausible one.
-        release = part["release_ns"].astype(np.float64)
-        start = part["start_ns"].astype(np.float64)
-        bad = np.abs(start - release) > bound_ns
-        bad |= np.abs(part["sched_ns"] - release) > bound_ns
-        bad |= np.abs(part["slack_ns"].astype(np.float64)) > bound_ns  # abs(int64 min) < 0
+        bad = np.zeros(len(part), dtype=bool)
+        for name, values in _magnitudes(part).items():
+            bad |= values > bounds[name]
         for name in DURATIONS:
-            bad |= (part[name] < 0) | (part[name] > bound_ns)
-        event = part["event_ns"]
-        bad |= (event != -1) & (np.abs(start - event) > bound_ns)
+            bad |= part[name] < 0
         out[lo : lo + len(part)] = bad
     return out
 
 
-def without_impossible(run: RunRecords, bound_ns: int) -> RunRecords:
+def without_impossible(run: RunRecords, span_ns: int) -> RunRecords:
     """`run` less its impossible records (and their inputs), counted in run.impossible."""
-    bad = impossible(run.records, bound_ns)
+    bad = impossible(run.records, span_ns)
     if not bad.any():
         return run
     keep = ~bad
