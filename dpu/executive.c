@@ -100,7 +100,8 @@ void executive_account(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *r
         return;
     }
     if (d->first_release_ns < 0) d->first_release_ns = release;
-    if (d->first_start_ns < 0 || rec->start_ns < d->first_start_ns) d->first_start_ns = rec->start_ns;
+    int64_t start = rec->start_ns - (rec->release_ns - release); /* the record's carry the clock offset */
+    if (d->first_start_ns < 0 || start < d->first_start_ns) d->first_start_ns = start;
     d->end_ns = end + rec->idle_ns;
     d->compute_ns += rec->compute_ns;
     d->communicate_ns += rec->comm_in_ns + rec->comm_out_ns;

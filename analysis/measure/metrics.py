@@ -291,8 +291,10 @@ def elapsed_ns(first_release: int, first_start: int, last_end: int, warmup_end: 
 
 
 def warmup_end_ns(warmup: np.ndarray) -> int | None:
-    """When the work of one DPU's records before its window (`warmup`) ended."""
-    return int(cycle_end_ns(warmup).max()) if len(warmup) else None
+    """When the work of one DPU's cycles before its window (`warmup`) ended: its completed ones,
+    as the DPU's own sums see (a skipped release's record is stamped when its data came)."""
+    done = warmup[completed(warmup)]
+    return int(cycle_end_ns(done).max()) if len(done) else None
 
 
 def work_end_ns(records: np.ndarray) -> np.ndarray:
