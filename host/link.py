@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import ipaddress
 import os
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -64,7 +65,7 @@ def parse_url(url: str) -> LcmUrl:
         return LcmUrl(parts.scheme, "", 0, 0)
     query = {key: values[-1] for key, values in parse_qs(parts.query).items()}
     for key in ("ttl", "recv_buf_size"):
-        if key in query and not query[key].isdigit():
+        if key in query and not re.fullmatch(r"[0-9]+", query[key].strip()):
             raise ValueError(f"{key}={query[key]} in {url!r}: expected a whole number")
     try:
         group = parts.hostname or LCM_GROUP
