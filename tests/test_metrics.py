@@ -44,8 +44,8 @@ def _exact(value: float | None, fraction: Fraction) -> None:
 
 def test_a_dpu_behind_at_its_window_counts_its_time_from_the_end_of_its_warm_up_work() -> None:
     """The last warm-up cycle runs 4.51 ms into the window (an overloaded DPU does): that time
-    is no measured cycle's, so the DPU's measured time begins when it ended, in the report,
-    the live tables and the DPU's own sums alike (report.c)."""
+    is no measured cycle's, so the DPU's measured time begins when it ended, in the report and
+    the live tables alike (the DPU's own sums, report.c, follow the same definition)."""
     dpu1, dpu2 = small_run(warmup=2, cycles=10)
     late = next(r for r in dpu1 if r.process == 1 and r.cycle == 1)  # B: the last warm-up cycle
     late.compute_ns += 5 * MS
