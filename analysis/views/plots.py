@@ -139,7 +139,7 @@ def utilization(data: RunAnalysis) -> Figure:
     ax.bar(x + 0.3, load, 0.2, color="none", edgecolor="black", hatch="///",
            label="configured load\n(Σ compute / period)")  # fmt: skip
     for xi, value in zip(x, load, strict=True):
-        ax.text(xi + 0.3, value + 1, f"{value:.0f}", ha="center", va="bottom", fontsize=8)
+        ax.text(xi + 0.3, value + 1, f"{value:.1f}", ha="center", va="bottom", fontsize=8)
     ax.axhline(100, color="black", linewidth=0.6, linestyle=":")
     ax.set_xticks(x, [f"DPU {d.id}\n{d.configured_cycle_ms:g} ms cycle" for d in dpus])
     ax.set_ylabel("% of measured time")
