@@ -117,7 +117,10 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         if options.spawn:
             # Before anything starts: DPUs of ours already up and busy are someone's run.
             control.wait_for(lambda: set(dpu_ids) <= control.dpus.keys(), owner.HEAR_BEFORE_SPAWN_S)
-            if (up := _already_up(control, system)) is not None:
+            # Idle DPUs of our ids (busy ones are someone's run, which _claim names, unless we
+            # --force it: then spawning beside them would still be wrong).
+            up = _already_up(control, system)
+            if up is not None and (options.force or not owner.foreign_runs(control, dpu_ids)):
                 console.print(f"[red]{up}[/]", soft_wrap=True)
                 return EXIT_FAILED
             if not _claim(control, dpu_ids, options.force, console):
