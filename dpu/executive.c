@@ -96,11 +96,14 @@ void executive_account(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *r
     skel_dpu_sums_t *d = &plan->sums;
     if (rec->cycle >= p->measure_from_k) p->sums.wait_ns += rec->idle_ns;
     if (release < plan->measure_from_ns) {
-        if (end > d->warmup_end_ns) d->warmup_end_ns = end; /* a DPU behind its schedule: report.c */
+        /* A DPU behind its schedule (report.c); a skipped release did no work, as the analysis
+         * counts it (metrics.warmup_end_ns: completed cycles only). */
+        int worked = !(rec->flags & SKELMSG_TIMING_T_FLAG_RELEASE_SKIPPED);
+        if (worked && end > d->warmup_end_ns) d->warmup_end_ns = end;
         return;
     }
     if (d->first_release_ns < 0) d->first_release_ns = release;
-    int64_t start = rec->start_ns - (rec->release_ns - release); /* the record's carry the clock offset */
+    int64_t start = rec->start_ns - (rec->release_ns - release); /* a record's times carry the clock offset */
     if (d->first_start_ns < 0 || start < d->first_start_ns) d->first_start_ns = start;
     d->end_ns = end + rec->idle_ns;
     d->compute_ns += rec->compute_ns;
