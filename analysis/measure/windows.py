@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..read.parallel import map_threads
-from ..read.records import RunRecords, input_starts
+from ..read.records import RunRecords, input_starts, select
 from .chains import ChainMetrics, chain_metrics
 from .faults import (
     Fault,
@@ -57,10 +57,7 @@ def window_records(run: RunRecords, generation: int) -> tuple[np.ndarray, np.nda
     # each record's generation).
     if run.generations == [generation]:
         return run.records, run.inputs
-    keep = np.flatnonzero(run.records["generation"] == generation)
-    inputs = run.inputs[np.isin(run.inputs["record"], keep)].copy()
-    inputs["record"] = np.searchsorted(keep, inputs["record"])
-    return run.records[keep], inputs
+    return select(run.records, run.inputs, run.records["generation"] == generation)
 
 
 def _span(records: np.ndarray, in_window: np.ndarray, clock: ClockOffsets) -> tuple[int | None, int | None]:

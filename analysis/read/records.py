@@ -255,15 +255,16 @@ def without_impossible(run: RunRecords, span_ns: int) -> RunRecords:
     bad = impossible(run.records, span_ns)
     if not bad.any():
         return run
-    keep = ~bad
-    renumber = np.cumsum(keep) - 1  # a kept record's row among the kept ones
-    records = run.records[keep]
-    inputs = run.inputs[keep[run.inputs["record"]]] if len(run.inputs) else run.inputs
-    columns = {name: np.asarray(inputs[name]) for name in INPUT_DTYPE.names or ()}
-    columns["record"] = renumber[columns["record"]]
-    return replace(run, records=ColumnTable.of({name: np.asarray(records[name]) for name in records.names},
-                                               RECORD_DTYPE),
-                   inputs=ColumnTable.of(columns, INPUT_DTYPE), impossible=int(np.count_nonzero(bad)))
+    records, inputs = select(run.records, run.inputs, ~bad)
+    return replace(run, records=records, inputs=inputs, impossible=int(np.count_nonzero(bad)))
+
+
+def select(records: ColumnTable, inputs: ColumnTable, keep: np.ndarray) -> tuple[ColumnTable, ColumnTable]:
+    """The records of mask `keep` and their input records, re-indexed to them."""
+    rows = np.flatnonzero(keep)
+    mine = inputs[keep[inputs["record"]]].copy() if len(inputs) else inputs
+    mine["record"] = np.searchsorted(rows, mine["record"])
+    return records[rows], mine
 
 
 def _out_of_order(table: np.ndarray) -> bool:
