@@ -13,7 +13,7 @@ from conftest import skel
 from rich.console import Console
 
 from skeleton.analysis.measure.run import load_run
-from skeleton.analysis.views.diff import diff_command, diff_reports, print_diff
+from skeleton.analysis.views.diff import diff_command, diff_reports, diff_rows, print_diff
 from skelmsg.contract import CONFIG_CHANNEL, REPORT_CHANNEL, TIMING_CHANNEL
 
 
@@ -89,3 +89,13 @@ def test_diff_tables_and_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str])
     junk.write_bytes(b"not a log" * 10)
     assert diff_command(a, junk, as_json=False) == 2
     assert capsys.readouterr().err.strip() == f"{junk}: not an LCM log (no event found)"
+
+
+def test_table_delta_is_that_of_the_shown_values() -> None:
+    # 90.316 and 90.314 show as 90.32 and 90.31: a Δ of 0 beside them would read as a mistake.
+    row = {"id": 1, "status": "both", "compute_pct": {"a": 90.316, "b": 90.314, "delta": 90.314 - 90.316}}
+    assert diff_rows([row], "id", ["compute_pct"]) == [["1", "% compute", "90.32", "90.31", "-0.01"]]
+    row["compute_pct"] = {"a": 1500.2, "b": 1500.4, "delta": 0.2}  # shown without decimals: both 1500
+    assert diff_rows([row], "id", ["compute_pct"])[0][2:] == ["1500", "1500", "0"]
+    row["compute_pct"] = {"a": 3, "b": 5, "delta": 2}
+    assert diff_rows([row], "id", ["compute_pct"])[0][2:] == ["3", "5", "+2"]

@@ -141,15 +141,27 @@ def _fmt(value: Any, signed: bool = False) -> str:
     if value is None:
         return "-"
     if isinstance(value, float):
-        text = f"{value:+.{0 if abs(value) >= 1000 else 2}f}" if signed else _num(value)
+        text = f"{value:+.{_digits(value)}f}" if signed else f"{value:.{_digits(value)}f}"
         return "0" if signed and float(text) == 0 else text
     if isinstance(value, int) and not isinstance(value, bool):
         return f"{value:+d}" if signed and value else str(value)
     return str(value)
 
 
-def _num(value: float) -> str:
-    return f"{value:.{0 if abs(value) >= 1000 else 2}f}"
+def _digits(value: float) -> int:
+    return 0 if abs(value) >= 1000 else 2
+
+
+def _shown_delta(cell: dict[str, Any]) -> str:
+    """The Δ of the A and B the table shows: from the exact values, 90.316 and 90.314 would
+    read 90.32, 90.31 and Δ 0. The JSON keeps the exact delta."""
+    a, b = cell["a"], cell["b"]
+    if isinstance(a, float) or isinstance(b, float):
+        if a is None or b is None:
+            return _fmt(None)
+        delta = float(_fmt(float(b))) - float(_fmt(float(a)))
+        return _fmt(round(delta, max(_digits(float(a)), _digits(float(b)))), signed=True)
+    return _fmt(cell["delta"], signed=True)
 
 
 def _item(row: dict[str, Any], key: str, extra: Sequence[str]) -> list[str]:
@@ -183,7 +195,7 @@ def diff_rows(
                     LABELS.get(m, m),
                     _fmt(cell["a"]),
                     _fmt(cell["b"]),
-                    _fmt(cell["delta"], signed=True),
+                    _shown_delta(cell),
                 ]
             )
     return out
