@@ -1,11 +1,12 @@
 """Compare one process's response time in two runs, with the skeleton Python API.
 
-    .venv/bin/python examples/analysis.py RUN_A RUN_B [--process NAME] [--out response.png]
+    .venv/bin/python examples/analysis.py RUN_A RUN_B [--process NAME] [--out PNG]
 
 RUN_A and RUN_B are run directories (`skel run --out DIR`), run.lcm logs or MCAP exports,
 e.g. the same system before and after moving a process to another DPU. Prints each run's
 p50 / p99 response time of the process (the report's definition: end of the cycle's work
-minus its release, over the measured cycles) and plots it cycle by cycle in both.
+minus its release, over the measured cycles) and plots it cycle by cycle in both, by
+default into RUN_B's directory as response-NAME.png.
 """
 
 from __future__ import annotations
@@ -25,8 +26,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs=2, type=Path)
     parser.add_argument("--process", default="jacobian_transpose")
-    parser.add_argument("--out", type=Path, default=Path("response.png"))
+    parser.add_argument("--out", type=Path)
     args = parser.parse_args()
+    # Beside the run it is about, not in whatever directory the script was started from.
+    where = args.runs[1] if args.runs[1].is_dir() else args.runs[1].parent
+    out = args.out or where / f"response-{args.process}.png"
 
     fig, ax = plt.subplots(figsize=(9, 4))
     runs = [skeleton.load_run(path) for path in args.runs]
@@ -43,8 +47,8 @@ def main() -> None:
     ax.set(xlabel="cycle", ylabel="response time (µs)", title=f"{args.process}: response time")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(args.out, dpi=100)
-    print(f"plot: {args.out}")
+    fig.savefig(out, dpi=100)
+    print(f"plot: {out}")
 
 
 if __name__ == "__main__":
