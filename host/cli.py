@@ -308,6 +308,7 @@ def _listen(control: Control, args: argparse.Namespace) -> float:
 
 def cmd_status(args: argparse.Namespace) -> int:
     from ..analysis.views.console import output_console
+    from . import owner
 
     if args.wait < 0:
         print(f"skel status: --wait {args.wait:g}: must be >= 0", file=sys.stderr)
@@ -328,8 +329,10 @@ def cmd_status(args: argparse.Namespace) -> int:
              "keyed": bool(v.status.keyed),
              "refused": {k: getattr(v.status, f"rejected_{k}")
                          for k in ("unsigned", "signed", "forged", "replayed")},
-             "reject_reason": v.status.reject_reason, "run_owner": v.status.run_owner,
-             "run_end_utc_ns": v.status.run_end_utc_ns,
+             "reject_reason": v.status.reject_reason,
+             # A finished run's owner owns nothing: the DPU keeps the name, the row does not show it.
+             "run_owner": v.status.run_owner if v.state in owner.BUSY else None,
+             "run_end_utc_ns": v.status.run_end_utc_ns if v.state in owner.BUSY else None,
              "heard_s_ago": round(now - v.heard_mono, 2)}
             for v in views]
     done = _json_or_nothing(rows, args.json, f"no DPU heard on {args.url} (its record URL "
@@ -342,7 +345,8 @@ def cmd_status(args: argparse.Namespace) -> int:
     for column in columns:
         table.add_column(column)
     for row in rows:
-        table.add_row(*("auto" if c == "dpu" and row[c] == -1 else str(row[c]) for c in columns))
+        table.add_row(*("auto" if c == "dpu" and row[c] == -1 else "" if row[c] is None else str(row[c])
+                        for c in columns))
     output_console().print(table)
     return 0
 

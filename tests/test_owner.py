@@ -93,6 +93,10 @@ def test_second_run_and_push_are_refused_at_once_and_the_first_run_stays_clean(
     assert not (spawned_out / "logs").exists() and not (spawned_out / "run.lcm").exists()
     assert "staged generation" not in dpus.log(1).split(f"run {run_id} armed")[1]
     assert code == 0, first.output
+    # The run is over: nobody owns the DPUs any more, and their status no longer says so.
+    status = skel("status", "--url", url, "--json", "--wait", "3")
+    rows = {row["dpu"]: row for row in json.loads(status.stdout)}
+    assert [(rows[i]["state"], rows[i]["run_owner"]) for i in (1, 2)] == [("ready", None)] * 2, rows
     report = json.loads((first_out / "report.json").read_text())
     assert len(report["generations"]) == 1, report["generations"]
     assert faults_but_stalls(report) == [], report["faults"]
