@@ -207,15 +207,23 @@ def keep_off_dpu_cpus(system: System, threads: list[int] | None = None) -> set[i
 
 def _already_up(control: Control, system: System) -> str | None:
     """Why --spawn must not start this system's local DPUs: one of their ids already answers
-    (`skel up`, say). A second daemon of an id would run the run beside the first, every
-    buffer arriving twice, and the report would take the two for one DPU restarted."""
+    (`skel up`, say), or will (a daemon started with --id auto on this host). A second daemon
+    of an id would run the run beside the first, every buffer arriving twice, and the report
+    would take the two for one DPU restarted."""
+    local = [d for d in system.dpus if spawn.is_local(d.host)]
     heard = control.snapshot()
-    up = [heard[d.id].status for d in system.dpus if spawn.is_local(d.host) and d.id in heard]
-    if not up:
+    who = [f"DPU {d.id} (pid {heard[d.id].status.pid} on {heard[d.id].status.host})" for d in local
+           if d.id in heard]
+    # A daemon started with --id auto names no DPU until a config does: it then takes the one
+    # DPU of the system whose host is its host name, beside the one --spawn started.
+    for view in control.daemons():
+        mine = [d.id for d in system.dpus if d.host == view.status.host]
+        if view.status.dpu == -1 and len(mine) == 1 and any(d.id == mine[0] for d in local):
+            who.append(f"DPU {mine[0]} (pid {view.status.pid} on {view.status.host}, started with --id auto)")
+    if not who:
         return None
-    who = ", ".join(f"DPU {s.dpu} (pid {s.pid} on {s.host})" for s in up)
-    return (f"{who} already up on {control.url}: --spawn would start a second DPU of the same id. "
-            "Run without --spawn to use them, or stop them first (`skel down`)")
+    return (f"{', '.join(who)} already up on {control.url}: --spawn would start a second DPU of the same "
+            "id. Run without --spawn to use them, or stop them first (`skel down`)")
 
 
 def _claim(control: Control, dpu_ids: list[int], force: bool, console: Console) -> bool:

@@ -10,6 +10,7 @@ import json
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -66,6 +67,22 @@ def test_status_lists_every_auto_dpu_not_one(url: str, tmp_path: Path) -> None:
     for daemon, code in zip(daemons, codes, strict=True):
         log = daemon.log_path.read_bytes()
         assert not SANITIZER_ERROR.search(log) and code == 0, log.decode(errors="replace")
+
+
+def test_spawn_is_refused_beside_an_auto_dpu_that_would_take_one(url: str, tmp_path: Path) -> None:
+    """An --id auto daemon on this host takes the DPU the system gives its host name, once a
+    config names it: --spawn starting that DPU too would run it twice."""
+    system = tmp_path / "pair.yaml"
+    system.write_text(PAIR.read_text().replace("  - {id: 1}", f"  - {{id: 1, host: {socket.gethostname()}}}"))
+    daemon = spawn.start_dpu("auto", url, tmp_path / "auto")  # type: ignore[arg-type]
+    try:
+        done = skel("run", str(system), "--spawn", "--url", url, "--out", str(tmp_path / "run"))
+    finally:
+        code = spawn.stop(daemon)
+    assert done.returncode == exitcodes.EXIT_FAILED, done.stdout + done.stderr
+    assert f"DPU 1 (pid {daemon.process.pid} on {socket.gethostname()}, started with --id auto) already up" \
+        in done.stdout, done.stdout
+    assert not (tmp_path / "run" / "logs").exists() and code == 0
 
 
 def test_status_with_nothing_up_says_how_long_it_listened(url: str) -> None:
