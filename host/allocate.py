@@ -49,7 +49,9 @@ class Allocation:
 
 
 def traffic_bytes_per_s(system: System) -> float:
-    """Bytes/s of the buffers read on another DPU than their writer's."""
+    """Bytes/s of the buffers read on another DPU than their writer's, each writer once a
+    period: the most it sends (a paced reader sends less, a process on host-sent events as
+    often as the host sends, which no file says), so a bound, not the prediction's figure."""
     return sum(1e6 / system.process(b.writer).period_us * wire_bytes(system, b.id) for b in system.buffers
                if any(r.dpu != system.process(b.writer).dpu for r in system.readers(b.id)))
 
@@ -105,6 +107,7 @@ class _Model:
                     self.m.add_bool_or([self.x[p.id, d.id].Not(), self.x[q.id, d.id].Not()])
         self.load = {}
         for d in dpus:
+            # once a period, the most a process runs, however often its events (the host's) come
             share = {p.id: round(PPM * p.compute_us / p.period_us / d.speed) for p in procs}
             self.load[d.id] = sum(share[p.id] * self._at(p.id, d.id) for p in procs)
             self.m.add(self.load[d.id] <= round(PPM * max_load))
@@ -150,12 +153,16 @@ class _Model:
             for r in readers:
                 for d in self.dpus:
                     self.m.add(cross >= self._at(b.writer, d.id) - self._at(r.id, d.id))
+            # once a period, the most a writer sends: the rate of one on host-sent events is unknown
             rate = 1e6 / self.system.process(b.writer).period_us
             out.append(round(rate * wire_bytes(self.system, b.id)) * cross)
         return sum(out)
 
     def latency(self) -> cp_model.LinearExprT:
-        """The worst chain's latency bound (predict's, in us), made linear."""
+        """The worst chain's latency bound (predict's, in us), made linear. Every writer counts
+        once a period and every reader reads within its period: the objective needs a number,
+        where predict() leaves a step on host-sent events unbounded and takes the worse wait
+        after a writer of unknown rate."""
         worst = self.m.new_int_var(0, 10**12, "worst_chain")
         for c in self.system.chains:
             steps = [self.system.process(i) for i in c.processes]

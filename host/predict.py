@@ -8,6 +8,10 @@ counts them; the data-wait structure (a cycle of `sync: data` processes can neve
 an error; a data reader of a slower writer is paced by it); per chain the best and worst
 end-to-end latency; per link its traffic. The DPUs' own costs (communication, wake-up,
 interference) are not in it: what a run measures beyond it is the platform's.
+
+How often the host sends an event (`kind: host`, `skel event`) is in no file, so what follows
+from the rate of a process it drives (directly, through events or data, or by taking the
+time of an overloaded DPU: unknown_rates()) is None: unknown, never held against a run.
 """
 
 from __future__ import annotations
@@ -46,7 +50,7 @@ class DpuPrediction:
     minor_cycle_us: int
     hyperperiod: int                # minor cycles until the frames repeat
     load_pct: float                 # static load: Σ compute / period / speed
-    compute_pct: float              # what a run's % compute will be: at the rates processes run
+    compute_pct: float | None       # what a run's % compute will be: at the rates processes run
     frames: tuple[Frame, ...]       # cyclic: one hyperperiod's frames, grouped by what is due
     schedulable: bool               # cyclic: no frame overflows; tasking: every response <= period
     lockout_ms: float | None        # overloaded: when its first process locks out, from the start
@@ -63,8 +67,8 @@ class ProcessPrediction:
     period_us: int
     compute_us: float               # divided by the DPU's speed
     priority: int                   # tasking; 0 on the cyclic executive
-    rate_hz: float                  # cycles a second it will run (paced, starved or overloaded)
-    paced_by: str | None            # the writer whose data paces it (sync: data)
+    rate_hz: float | None           # cycles a second it will run (paced, starved or overloaded)
+    paced_by: str | None            # the writer whose data paces it (sync: data), or may: of unknown rate
     start_min_us: float             # its computation's start after its release, at the earliest
     start_max_us: float             # ... and at the latest
     response_us: float | None       # worst release -> end of its work; None: unbounded
@@ -77,14 +81,15 @@ class ProcessPrediction:
 @dataclass(frozen=True)
 class InputPrediction:
     """Per reader cycle: the share that finds new data, the share that finds none, and the
-    writer's sequences skipped (dropped) per cycle, as the analysis counts them."""
+    writer's sequences skipped (dropped) per cycle, as the analysis counts them; None: it
+    depends on a rate the host's events decide."""
 
     reader: str
     buffer: str
     writer: str
-    new: float
-    stale: float
-    dropped: float
+    new: float | None
+    stale: float | None
+    dropped: float | None
 
 
 @dataclass(frozen=True)
@@ -101,13 +106,14 @@ class ChainPrediction:
 class LinkPrediction:
     name: str
     local: bool
-    messages_per_s: float
-    bytes_per_s: float              # on the wire: payload, LCM and UDP/IP headers
+    messages_per_s: float | None
+    bytes_per_s: float | None       # on the wire: payload, LCM and UDP/IP headers
     bandwidth_mbps: float | None
 
     @property
     def over(self) -> bool:
-        return self.bandwidth_mbps is not None and 8 * self.bytes_per_s > self.bandwidth_mbps * 1e6
+        return (self.bandwidth_mbps is not None and self.bytes_per_s is not None
+                and 8 * self.bytes_per_s > self.bandwidth_mbps * 1e6)
 
 
 @dataclass(frozen=True)
@@ -158,6 +164,7 @@ def _rounded(value: Any) -> Any:
 def predict(system: System) -> Prediction:
     errors, stuck = deadlocks(system)
     rates, paced = _rates(system, stuck)
+    unknown = unknown_rates(system, stuck)
     timing: dict[int, Timing] = {}
     dpus = []
     for d in system.dpus:
@@ -170,18 +177,20 @@ def predict(system: System) -> Prediction:
             timing.update(cyclic)
         load = sum(frames.compute_us(p, d) / p.period_us for p in mine)
         busy = sum(frames.compute_us(p, d) * rates[p.id] / 1e6 for p in mine)
+        compute = None if any(p.id in unknown for p in mine) else 100 * min(1.0, busy)
         ok = all(_meets(timing[p.id], p) for p in mine) and not any(f.overflows for f in found)
         dpus.append(DpuPrediction(d.id, d.executive, d.speed, d.minor_cycle_us,
                                   frames.hyperperiod(mine, d.minor_cycle_us), 100 * load,
-                                  100 * min(1.0, busy), found, ok, _lockout_ms(system, d, mine, load)))
+                                  compute, found, ok, _lockout_ms(system, d, mine, load)))
     processes = tuple(
         ProcessPrediction(p.name, p.dpu, p.period_us, frames.compute_us(p, system.dpu(p.dpu)), p.priority,
-                          rates[p.id], paced.get(p.id), timing[p.id].start_min_us, timing[p.id].start_max_us,
-                          timing[p.id].response_us)
+                          None if p.id in unknown else rates[p.id], _paced_by(system, p, paced, unknown),
+                          timing[p.id].start_min_us, timing[p.id].start_max_us, timing[p.id].response_us)
         for p in system.processes)
     by_name = {p.name: p for p in processes}
-    prediction = Prediction(system.name, tuple(dpus), processes, _inputs(system, rates),
-                            _chains(system, by_name, rates), _links(system, rates), errors, ())
+    prediction = Prediction(system.name, tuple(dpus), processes, _inputs(system, rates, unknown),
+                            _chains(system, by_name, rates, unknown), _links(system, rates, unknown),
+                            errors, ())
     return Prediction(**{**prediction.__dict__, "warnings": tuple(_warnings(system, prediction))})
 
 
@@ -236,7 +245,8 @@ def _cycle_problem(system: System, loop: list[int], writer: dict[int, int]) -> P
 
 def nominal_rate_hz(system: System, p: Process) -> float:
     """Cycles a second P asks for: one a period; an event process at most one a period and
-    one per event (a host-sent event's rate is unknown: one a period)."""
+    one per event (a host-sent event's rate is unknown: one a period, the most it can be,
+    which only the rates of the processes unknown_rates() leaves out rely on)."""
     rate = 1e6 / p.period_us
     if p.sync == "event":
         events = event_rate(system, p.event, set())
@@ -262,6 +272,47 @@ def event_rate(system: System, name: str, seen: set[str]) -> float | None:
             cycles = min(cycles, trigger)
         rate += cycles
     return rate
+
+
+def unknown_rates(system: System, stuck: set[int]) -> set[int]:
+    """The processes whose rate depends on how often the host sends an event: one awaiting
+    such an event (event_rate() None), or an event a process of unknown rate emits; a data
+    reader requiring such a process's output (it may wait for it); a process such a one may
+    take time from on an overloaded DPU (_may_slow()). A DPU within 100 % slows no process."""
+    writer = {b.id: b.writer for b in system.buffers}
+    out: set[int] = set()
+    grew = True
+    while grew:
+        more = {p.id for p in system.processes if p.id not in out and p.id not in stuck and (
+            (p.sync == "event" and (event_rate(system, p.event, set()) is None
+                                    or any(p.event in system.process(q).emits for q in out)))
+            or any(writer[b] in out for b in p.required)
+            or any(q.id in out for q in _may_slow(system, p)))}
+        out |= more
+        grew = bool(more)
+    return out
+
+
+def _may_slow(system: System, p: Process) -> list[Process]:
+    """The processes of P's DPU that take time P would get when the DPU cannot give all
+    (_serve()): on the tasking executive the higher priorities, once they and P may need
+    more than the DPU; on the cyclic one all, once the DPU's static load is over 100 %."""
+    d = system.dpu(p.dpu)
+    mine = system.processes_on(d.id)
+    if d.executive == "threads":
+        mine = [q for q in mine if q.priority >= p.priority]
+    if sum(frames.compute_us(q, d) / q.period_us for q in mine) <= 1:
+        return []
+    return [q for q in mine if q.id != p.id]
+
+
+def _paced_by(system: System, p: Process, paced: dict[int, str], unknown: set[int]) -> str | None:
+    """The writer pacing P, or, failing one, a required writer of unknown rate: slower than
+    P it would pace it, and its wait would be in P's response."""
+    if p.id in paced:
+        return paced[p.id]
+    writers = (system.process(system.buffer(b).writer) for b in p.required)
+    return next((w.name for w in writers if w.id in unknown), None)
 
 
 def _rates(system: System, stuck: set[int]) -> tuple[dict[int, float], dict[int, str]]:
@@ -330,22 +381,33 @@ def _lockout_ms(system: System, d: Dpu, mine: list[Process], load: float) -> flo
 
 # --- buffers, chains, links ----------------------------------------------------------------
 
-def _inputs(system: System, rates: dict[int, float]) -> tuple[InputPrediction, ...]:
+def _inputs(system: System, rates: dict[int, float], unknown: set[int]) -> tuple[InputPrediction, ...]:
+    """A share is known when every rate the two may run at gives it: an unknown rate is any
+    from 0 up to the one P asks for (nominal_rate_hz), so a writer at least that fast gives
+    every cycle of an unknown reader new data, and one at most that slow drops nothing."""
+    def span(p: Process) -> tuple[float, float]:
+        return (0.0, nominal_rate_hz(system, p)) if p.id in unknown else (rates[p.id], rates[p.id])
+
     out = []
     for p in system.processes:
         for b in map(system.buffer, p.inputs):
-            ratio = rates[b.writer] / rates[p.id] if rates[p.id] > 0 else 0.0
-            new = min(1.0, ratio)
-            out.append(InputPrediction(p.name, b.name, system.process(b.writer).name, new, 1 - new,
-                                       max(0.0, ratio - 1)))
+            w = system.process(b.writer)
+            (low, high), (slow, fast) = span(w), span(p)
+            least = low / fast if fast > 0 else 0.0  # a reader that never runs finds nothing
+            most = high / slow if slow > 0 else (math.inf if high > 0 and fast > 0 else 0.0)
+            new = min(1.0, least) if min(1.0, least) == min(1.0, most) else None
+            stale = None if new is None else 1 - new
+            dropped = max(0.0, least - 1) if max(0.0, least - 1) == max(0.0, most - 1) else None
+            out.append(InputPrediction(p.name, b.name, w.name, new, stale, dropped))
     return tuple(out)
 
 
-def _chains(system: System, by_name: dict[str, ProcessPrediction],
-            rates: dict[int, float]) -> tuple[ChainPrediction, ...]:
+def _chains(system: System, by_name: dict[str, ProcessPrediction], rates: dict[int, float],
+            unknown: set[int]) -> tuple[ChainPrediction, ...]:
     """Per step, the value waits for the reader's next read: at best none; at worst a whole
     reader period plus the spread of its start, or, for a reader paced by that very buffer
-    (it waits for each value), its latest start. A step in the middle then computes (at
+    (it waits for each value), its latest start; a reader of unknown rate that runs on events
+    reads when the next comes, which nothing bounds. A step in the middle then computes (at
     best its compute, at worst up to its response)."""
     out = []
     for c in system.chains:
@@ -354,9 +416,12 @@ def _chains(system: System, by_name: dict[str, ProcessPrediction],
         for i, (before, p) in enumerate(itertools.pairwise(steps), start=1):
             at = by_name[p.name]
             buffer = next(b for b in p.inputs if b in before.outputs)
-            data_paced = buffer in p.required and rates[before.id] <= 1e6 / p.period_us * (1 + 1e-9)
+            fastest = nominal_rate_hz(system, before) if before.id in unknown else rates[before.id]
+            data_paced = buffer in p.required and fastest <= 1e6 / p.period_us * (1 + 1e-9)
             wait = at.start_max_us if data_paced else p.period_us + at.start_max_us - at.start_min_us
-            worst += wait
+            if buffer in p.required and before.id in unknown:  # below its fastest, the writer may pace P
+                wait = max(wait, at.start_max_us)
+            worst += math.inf if p.sync == "event" and p.id in unknown else wait
             if i < len(steps) - 1:
                 best += at.compute_us
                 worst += (at.response_us or math.inf) - at.start_max_us
@@ -370,10 +435,13 @@ def wire_bytes(system: System, buffer_id: int) -> int:
     return BUFFER_T_FIELDS_BYTES + b.bytes + LCM_HEADER_BYTES + len(b.channel) + 1 + UDP_IP_BYTES
 
 
-def _links(system: System, rates: dict[int, float]) -> tuple[LinkPrediction, ...]:
+def _links(system: System, rates: dict[int, float], unknown: set[int]) -> tuple[LinkPrediction, ...]:
     out = []
     for link in system.links:
         mine = [b for b in system.buffers if b.link == link.id]
+        if any(b.writer in unknown for b in mine):
+            out.append(LinkPrediction(link.name, link.local, None, None, link.bandwidth_mbps))
+            continue
         messages = sum(rates[b.writer] for b in mine)
         size = sum(rates[b.writer] * (b.bytes if link.local else wire_bytes(system, b.id)) for b in mine)
         out.append(LinkPrediction(link.name, link.local, messages, size, link.bandwidth_mbps))
@@ -404,6 +472,11 @@ def _warnings(system: System, pred: Prediction) -> list[str]:
         if p.paced_by is None:
             continue
         ask = 1e6 / p.period_us
+        if p.rate_hz is None:
+            out.append(f"{p.name} (sync: data, {ask:g} Hz) waits for {p.paced_by}: how often it runs depends "
+                       f"on events the host sends, and it locks out if {p.paced_by} writes less often than "
+                       f"once every lockout_cycles ({system.run.lockout_cycles}) of its periods")
+            continue
         line = (f"{p.name} (sync: data, {ask:g} Hz) is paced by {p.paced_by}: it will run at "
                 f"{p.rate_hz:.3g} Hz")
         slowest = 1e6 / p.rate_hz if p.rate_hz > 0 else math.inf

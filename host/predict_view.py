@@ -19,6 +19,11 @@ def _ms(us: float | None) -> str:
     return "unbounded" if us is None else f"{us / 1000:.3g}"
 
 
+def _known(value: float | None, spec: str) -> str:
+    """A figure that depends on how often the host sends an event is unknown (predict.py)."""
+    return "unknown" if value is None else f"{value:{spec}}"
+
+
 def _table(*columns: str) -> Table:
     table = Table(box=None, pad_edge=False)
     for i, c in enumerate(columns):
@@ -36,7 +41,8 @@ def print_prediction(console: Console, pred: Prediction) -> None:
                          for f in d.overflowing[:3]) + (" ..." if len(d.overflowing) > 3 else "")
         load = f"[red]{d.load_pct:.1f}[/]" if not d.schedulable else f"{d.load_pct:.1f}"
         dpus.add_row(str(d.id), "tasking" if d.executive == "threads" else "cyclic", load,
-                     f"{d.compute_pct:.1f}", over or "-", f"{d.lockout_ms:.0f}" if d.lockout_ms else "-")
+                     _known(d.compute_pct, ".1f"), over or "-",
+                     f"{d.lockout_ms:.0f}" if d.lockout_ms else "-")
     console.print(dpus)
     procs = _table("process", "DPU", "period ms", "compute ms", "runs Hz", "start ms", "worst response ms")
     for p in pred.processes:
@@ -46,14 +52,15 @@ def print_prediction(console: Console, pred: Prediction) -> None:
         # a DPU that falls ever further behind starts its processes ever later
         start = f"{_ms(p.start_min_us)}..{_ms(p.start_max_us)}" if p.response_us is not None else "-"
         procs.add_row(p.name + paced, str(p.dpu), f"{p.period_us / 1000:g}", f"{p.compute_us / 1000:.4g}",
-                      f"{p.rate_hz:.4g}", start, resp)
+                      _known(p.rate_hz, ".4g"), start, resp)
     console.print(procs)
-    mixed = [i for i in pred.inputs if i.stale > 0.005 or i.dropped > 0.005]
+    mixed = [i for i in pred.inputs if i.stale is None or i.dropped is None or i.stale > 0.005
+             or i.dropped > 0.005]
     if mixed:
         inputs = _table("reader <- buffer (writer)", "new", "stale", "dropped per cycle")
         for i in mixed:
-            inputs.add_row(f"{i.reader} <- {i.buffer} ({i.writer})", f"{i.new:.2f}", f"{i.stale:.2f}",
-                           f"{i.dropped:.2f}")
+            inputs.add_row(f"{i.reader} <- {i.buffer} ({i.writer})", _known(i.new, ".2f"),
+                           _known(i.stale, ".2f"), _known(i.dropped, ".2f"))
         console.print(inputs)
     else:
         console.print("every input: new data each reader cycle, none stale or dropped")
@@ -64,9 +71,9 @@ def print_prediction(console: Console, pred: Prediction) -> None:
         console.print(chains)
     links = _table("link", "messages/s", "Mbit/s")
     for link in pred.links:
-        rate = f"{8 * link.bytes_per_s / 1e6:.3g}"
+        rate = _known(None if link.bytes_per_s is None else 8 * link.bytes_per_s / 1e6, ".3g")
         rate += f" of {link.bandwidth_mbps:g}" if link.bandwidth_mbps else ""
-        links.add_row(link.name + (" (local)" if link.local else ""), f"{link.messages_per_s:.0f}",
+        links.add_row(link.name + (" (local)" if link.local else ""), _known(link.messages_per_s, ".0f"),
                       f"[red]{rate}[/]" if link.over else rate)
     console.print(links)
 
@@ -86,7 +93,8 @@ def print_beside(console: Console, old: Prediction, new: Prediction, traffic: tu
     worst.add_row("every DPU schedulable", *("yes" if p.schedulable else "no" for p in (old, new)))
     for a, b in zip(old.chains, new.chains, strict=True):
         worst.add_row(f"chain {a.name}: worst ms", _ms(a.worst_us), _ms(b.worst_us))
-    worst.add_row("traffic between DPUs kB/s", f"{traffic[0] / 1000:.3g}", f"{traffic[1] / 1000:.3g}")
+    worst.add_row("traffic between DPUs kB/s, at most", f"{traffic[0] / 1000:.3g}",
+                  f"{traffic[1] / 1000:.3g}")
     console.print(worst)
 
 

@@ -286,6 +286,24 @@ run: {{duration_s: 3, warmup_cycles: 0, lockout_cycles: 5, stop_on: [lockout]}}
 """
 
 
+# Processes on events the host sends (`skel event`), whose rate no file says: on_demand on
+# them, follower on the event on_demand emits, waiter on on_demand's data; ticker and
+# listener on DPU 2 run once a period whatever the host does.
+HOST_EVENTS_SYSTEM = """\
+system: host_driven
+dpus: [{id: 1}, {id: 2}, {id: 3}]
+buffers: [{id: 1, name: knock, bytes: 8}, {id: 2, name: tick, bytes: 8}]
+processes:
+  - {id: 1, name: on_demand, dpu: 1, period_us: 1000, compute_us: 100, sync: event, event: go, queue: 64,
+     inputs: [tick], outputs: [knock], emits: [knocked]}
+  - {id: 2, name: ticker, dpu: 2, period_us: 1000, compute_us: 100, outputs: [tick]}
+  - {id: 3, name: listener, dpu: 2, period_us: 5000, compute_us: 500, inputs: [knock]}
+  - {id: 4, name: follower, dpu: 3, period_us: 2000, compute_us: 200, sync: event, event: knocked, queue: 8}
+  - {id: 5, name: waiter, dpu: 3, period_us: 5000, compute_us: 500, sync: data, inputs: [knock]}
+events: [{name: go, kind: host}]
+chains: [[ticker, on_demand, listener], [on_demand, waiter]]
+"""
+
 def short_servo_run(out: Path, speed: int = 3) -> subprocess.CompletedProcess[str]:
     """A real SERVO run of 300 cycles (sanitizer DPUs, a private port) into `out`. Speed 3
     (~30 % load) keeps a busy shared machine from locking it out."""

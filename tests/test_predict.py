@@ -3,13 +3,15 @@ paper's Table 1 and to real runs (sanitizer DPUs, sleep mode, a private port).""
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 
 import pytest
-from conftest import EXAMPLES, LOCKOUT_SYSTEM, skel
+from conftest import EXAMPLES, HOST_EVENTS_SYSTEM, LOCKOUT_SYSTEM, skel
 from randsys import random_system
 
+from skeleton.host.check import check
 from skeleton.host.predict import predict
 from skeleton.host.system import load
 from skelmsg import contract
@@ -152,6 +154,43 @@ processes:
     assert bus.over and not mem.over and mem.bytes_per_s == pytest.approx(10000)
     assert any(w.startswith("link bus: 8.07 Mbit/s of buffers (100 messages/s) exceeds its bandwidth_mbps 1")
                for w in pred.warnings), pred.warnings
+
+
+def test_what_follows_from_a_host_events_rate_is_unknown(tmp_path: Path) -> None:
+    path = tmp_path / "host.yaml"
+    path.write_text(HOST_EVENTS_SYSTEM)
+    pred = predict(load(path))
+    assert {p.name: p.rate_hz for p in pred.processes} == {
+        "on_demand": None, "ticker": 1000, "listener": 200, "follower": None, "waiter": None}
+    assert [d.compute_pct for d in pred.dpus] == [None, pytest.approx(20), None]
+    assert [d.load_pct for d in pred.dpus] == pytest.approx([10, 20, 20])  # static: once a period
+    # a writer as fast as on_demand can run gives it new data every cycle, however few they are
+    assert {(i.reader, i.buffer): (i.new, i.stale, i.dropped) for i in pred.inputs} == {
+        ("on_demand", "tick"): (1.0, 0.0, None), ("listener", "knock"): (None, None, None),
+        ("waiter", "knock"): (None, None, None)}
+    # waiter may be paced by on_demand, so its response may hold the wait: not judged
+    assert pred.process("waiter").paced_by == "on_demand"
+    assert pred.warnings == ("waiter (sync: data, 200 Hz) waits for on_demand: how often it runs depends on "
+                             "events the host sends, and it locks out if on_demand writes less often than "
+                             "once every lockout_cycles (10) of its periods",)
+    # on_demand reads tick at its next event, whenever the host sends it; waiter waits for knock (its
+    # latest start, 0.2 ms after follower) or reads it within its next period and the spread of its
+    # start (5 + 0.2 ms), whichever is worse
+    assert [c.worst_us for c in pred.chains] == [None, 5200]
+    assert (pred.links[0].messages_per_s, pred.links[0].bytes_per_s) == (None, None)
+    as_json = pred.to_json()
+    assert [d["compute_pct"] for d in as_json["dpus"]] == [None, 20.0, None]
+    assert as_json["processes"][0]["rate_hz"] is None and as_json["inputs"][1]["new"] is None
+    out = io.StringIO()
+    assert check(path, out=out) == 0
+    printed = out.getvalue()
+    assert "1       cyclic    10.0              unknown" in printed
+    assert "listener <- knock (on_demand)  unknown  unknown            unknown" in printed
+    # an overloaded cyclic DPU slows all its processes alike, by however much the host asks for
+    crowded = HOST_EVENTS_SYSTEM.replace("ticker, dpu: 2", "ticker, dpu: 1").replace(
+        "compute_us: 100, sync", "compute_us: 950, sync")
+    one = predict(_system(tmp_path, crowded))
+    assert one.process("ticker").rate_hz is None and one.process("listener").rate_hz == 200
 
 
 def test_deadlock_is_refused_with_the_cycle_named(tmp_path: Path) -> None:

@@ -5,19 +5,24 @@ pinned to one CPU, where the platform's cost is the point."""
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 
 import pytest
 from analysis_synth import RUN_ID, batches, small_config, small_run, write_log
-from conftest import EXAMPLES, skel
+from conftest import EXAMPLES, HOST_EVENTS_SYSTEM, skel
+from rich.console import Console
 
 from skeleton.analysis.measure.chains import ChainMetrics
 from skeleton.analysis.measure.metrics import DpuMetrics, InputMetrics, ProcessMetrics
 from skeleton.analysis.measure.predicted import PLATFORM, beside
 from skeleton.analysis.measure.stats import LatencyUs
 from skeleton.analysis.views.report import report_command
+from skeleton.analysis.views.tables import predicted_tables
+from skeleton.host.predict import predict
 from skeleton.host.predict_view import predictor
+from skeleton.host.system import load
 from skelmsg.contract import CONFIG_CHANNEL, TIMING_CHANNEL
 
 
@@ -68,6 +73,38 @@ def test_each_rule_flags_only_beyond_its_tolerance() -> None:
         "a (DPU 1): response p99 6100 µs measured against the predicted worst 5000 µs (+1100 µs, beyond "
         f"late_pct (20 %) of the period): {PLATFORM}",
         f"b <- slow: new share 0.300 measured against predicted 0.210 (+0.090, beyond ±0.05): {PLATFORM}"]
+
+
+def test_what_a_host_events_rate_decides_is_never_outside(tmp_path: Path) -> None:
+    """The host sent a handful of events: what follows from their rate was unknown, so
+    however far the run is from one a period, none of it is the platform's cost."""
+    path = tmp_path / "host.yaml"
+    path.write_text(HOST_EVENTS_SYSTEM)
+    prediction = predict(load(path)).to_json()
+    got = beside(prediction, 1, 20, [_dpu(1, 0.4), _dpu(2, 31.0), _dpu(3, 0.2)],
+                 [_process("on_demand", 100, (InputMetrics("tick", 2, 3, 3, 900, 1000),)),
+                  _process("listener", 600, (InputMetrics("knock", 1, 5, 995, 0, 5),)),
+                  _process("waiter", 900_000, (InputMetrics("knock", 1, 5, 0, 0, 5),))], [])
+    assert [(d.id, d.compute_pct.predicted, d.compute_pct.outside) for d in got.dpus] == [
+        (1, None, False), (2, 20.0, True), (3, None, False)]
+    on_demand, listener, waiter = got.inputs
+    assert (on_demand.new.predicted, on_demand.new.outside) == (1.0, True)  # known: ticker is fast enough
+    assert (on_demand.dropped.predicted, on_demand.dropped.outside) == (None, False)
+    for unknown in (listener, waiter):
+        assert [(b.predicted, b.outside) for b in (unknown.new, unknown.stale, unknown.dropped)] == [
+            (None, False)] * 3
+    # waiter waited for on_demand's knock inside its response: not judged
+    assert next(p for p in got.processes if p.name == "waiter").response_us.outside is False
+    assert got.outside == [
+        f"DPU 2: % compute 31.0 measured against predicted 20.0 (+11.0, beyond ±2 points): {PLATFORM}",
+        f"on_demand <- tick: new share 0.500 measured against predicted 1.000 (-0.500, beyond ±0.05): "
+        f"{PLATFORM}"]
+    console = Console(file=io.StringIO(), width=140, record=True, color_system=None)
+    for table in predicted_tables(got):
+        console.print(table)
+    text = console.export_text()
+    assert "│   1 │ unknown │    0.4 │" in text, text
+    assert "│ listener <- knock (on_demand) │ unknown │" in text, text
 
 
 @pytest.mark.parametrize(("source", "why"), [

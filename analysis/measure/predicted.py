@@ -14,6 +14,8 @@ tolerances say how much of that cost passes unremarked:
   exceed the predicted worst by late_pct (the system file's own lateness tolerance) of the
   process's period, of the tail's for a chain; below the worst is what a bound allows. A
   data reader paced by a slower writer waits for it in every response: not compared.
+A figure the prediction leaves unknown (None: it follows from how often the host sends an
+event, which no file says) is never compared: what a run measures there is no one's cost.
 """
 
 from __future__ import annotations

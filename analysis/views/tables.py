@@ -244,9 +244,10 @@ def fault_table(report: RunReport, window: WindowReport | None = None) -> Table:
     return _table("faults", columns, rows)
 
 
-def _beside(b: Beside, digits: int = 1) -> list[str]:
-    """predicted, measured, Δ."""
-    return [_num(b.predicted, digits) if b.predicted is not None else "unbounded", _num(b.measured, digits),
+def _beside(b: Beside, digits: int = 1, none: str = "unknown") -> list[str]:
+    """predicted, measured, Δ; NONE says why there is no prediction: a worst that bounds
+    nothing is unbounded, a figure that follows from how often the host sends an event unknown."""
+    return [_num(b.predicted, digits) if b.predicted is not None else none, _num(b.measured, digits),
             _signed(b.delta, digits)]
 
 
@@ -265,7 +266,7 @@ def predicted_tables(p: Predicted) -> list[Table]:
     columns = [("DPU", True), ("% comp\npred.", True), ("% comp\nmeas.", True), ("Δ", True), OUTSIDE]
     tables = [_table(title, columns, [[str(d.id), *_beside(d.compute_pct), _flag(d.compute_pct)]
                                       for d in p.dpus])]
-    rows = [[r.name, str(r.dpu), *_beside(r.response_us, 0), _num(r.response_max_us, 0),
+    rows = [[r.name, str(r.dpu), *_beside(r.response_us, 0, "unbounded"), _num(r.response_max_us, 0),
              f"paced by {r.paced_by}" if r.paced_by else _flag(r.response_us)] for r in p.processes]
     tables.append(_table(
         f"per process: worst response predicted, p99 measured, µs (! more than late_pct, {p.late_pct} % of "
@@ -281,7 +282,8 @@ def predicted_tables(p: Predicted) -> list[Table]:
             [("reader <- buffer (writer)", False), ("new\npred.", True), ("new\nmeas.", True), ("Δ", True),
              ("dropped\npred.", True), ("dropped\nmeas.", True), ("Δ", True), OUTSIDE], rows))
     if p.chains:
-        rows = [[c.name, _num(c.best_us, 0), *_beside(c.latency_us, 0), _num(c.latency_max_us, 0),
+        rows = [[c.name, _num(c.best_us, 0), *_beside(c.latency_us, 0, "unbounded"),
+                 _num(c.latency_max_us, 0),
                  _flag(c.latency_us)] for c in p.chains]
         tables.append(_table(
             f"per chain: latency predicted best and worst, measured p99, µs (! more than late_pct, "
