@@ -374,10 +374,10 @@ typedef struct {
 } skel_process_t;
 
 typedef struct {
-    int64_t first_release_ns;  /* -1 until the measured window starts */
+    int64_t first_release_ns;  /* the earliest measured release; -1: none yet */
     int64_t first_start_ns;    /* of a measured cycle; -1: none yet */
     int64_t warmup_end_ns;     /* the latest end of a warm-up cycle's work; -1: none yet */
-    int64_t end_ns;
+    int64_t end_ns;            /* the latest end of a measured cycle's work plus its idle */
     int64_t minor_cycles;
     int64_t compute_ns, communicate_ns, wait_ns, stall_ns;
 } skel_dpu_sums_t;

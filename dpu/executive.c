@@ -89,7 +89,9 @@ static void executive_open_window(skel_plan_t *plan, int64_t t0)
     }
 }
 
-/* The DPU's sums cover its window only; so do the process sums (process.c). */
+/* The DPU's sums cover its window only; so do the process sums (process.c). The tasking
+ * executives sum a job when it completes, not in release order: the window's span is the
+ * earliest release and the latest end summed, whichever came first. */
 void executive_account(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec, int64_t release,
                        int64_t end)
 {
@@ -102,10 +104,10 @@ void executive_account(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *r
         if (worked && end > d->warmup_end_ns) d->warmup_end_ns = end;
         return;
     }
-    if (d->first_release_ns < 0) d->first_release_ns = release;
+    if (d->first_release_ns < 0 || release < d->first_release_ns) d->first_release_ns = release;
     int64_t start = rec->start_ns - (rec->release_ns - release); /* a record's times carry the clock offset */
     if (d->first_start_ns < 0 || start < d->first_start_ns) d->first_start_ns = start;
-    d->end_ns = end + rec->idle_ns;
+    if (end + rec->idle_ns > d->end_ns) d->end_ns = end + rec->idle_ns;
     d->compute_ns += rec->compute_ns;
     d->communicate_ns += rec->comm_in_ns + rec->comm_out_ns;
     d->wait_ns += rec->blocked_ns + rec->idle_ns;

@@ -142,6 +142,25 @@ def test_an_unschedulable_set_misses_exactly_the_deadlines_analysis_predicts(tmp
         assert abs(row.response_us - r * MS) <= _margin_ms(r) * MS, (i, k, row)
 
 
+def test_the_dpus_own_elapsed_time_is_the_analysis_whatever_order_its_jobs_complete_in(
+    tmp_path: Path, url: str
+) -> None:
+    """The DPU sums a job when it completes. Its window opens at 20 ms, where only p2 is
+    released; p1's job released at 21 ms preempts it and completes first: the DPU's own
+    measured time began there, 1 ms after the analysis's (the first release, not the first
+    one summed)."""
+    tasks = [(1, 3), (5, 10)]  # R = 1, 8 ms
+    out = tmp_path / "run"
+    run = skel("run", str(_system(tmp_path, tasks, 1.0)), "--spawn", "--url", url, "--out", str(out))
+    assert run.returncode in (0, 1), run.stdout + run.stderr
+    analysis = skeleton.load_run(out)
+    (own,) = [r for r in analysis.messages.reports if r.run_id == analysis.report.run_id]
+    (dpu,) = analysis.report.dpus
+    assert dpu.elapsed_ms is not None
+    # The same records, summed by each: the same time to the clock's nanosecond.
+    assert own.elapsed_ns / 1e6 == pytest.approx(dpu.elapsed_ms, abs=1e-3), (own.elapsed_ns, dpu)
+
+
 def test_a_task_of_zero_compute_responds_after_the_work_above_it() -> None:
     # a relay of no computation still waits for the higher priorities' work at the critical
     # instant, and for a release that comes at the instant it would run (p1's second, at 5)
