@@ -8,11 +8,24 @@ import re
 from pathlib import Path
 
 import pytest
-from analysis_synth import GENERATION, RUN_ID, batches, report, small_config, small_run, status, write_log
+from analysis_synth import (
+    GENERATION,
+    MS,
+    RUN_ID,
+    US,
+    Rec,
+    batches,
+    report,
+    small_config,
+    small_run,
+    status,
+    write_log,
+)
 from conftest import short_servo_run
 from rich.console import Console
 
 from skeleton.analysis.measure.run import IMPOSSIBLE, load_run
+from skeleton.analysis.measure.tally import RunTally
 from skeleton.analysis.read import parallel
 from skeleton.analysis.views.report import report_command
 from skeleton.analysis.views.tables import print_report
@@ -141,10 +154,11 @@ def test_tables_are_deterministic_and_show_the_paper(tmp_path: Path) -> None:
     assert "log damaged" not in clean and "malformed messages skipped: SKEL_STATUS: 1" in clean
 
 
-def _two_generation_log(path: Path) -> Path:
-    """small_run with the config changed mid-run: A's compute 4 -> 5 ms (static load 60 -> 70 %).
-    DPU 1 runs generation 3 for cycles 0..5 and 4 from 6; DPU 2 (20 ms) switches at cycle 3."""
-    dpu1, dpu2 = small_run()
+def _two_generation_log(path: Path, recs: tuple[list[Rec], list[Rec]] | None = None) -> Path:
+    """small_run (or `recs`, its records changed) with the config changed mid-run: A's compute
+    4 -> 5 ms (static load 60 -> 70 %). DPU 1 runs generation 3 for cycles 0..5 and 4 from 6;
+    DPU 2 (20 ms) switches at cycle 3."""
+    dpu1, dpu2 = recs or small_run()
     new = small_config(generation=GENERATION + 1)
     new.processes[0].compute_us = 5_000
     old_1, new_1 = batches(1, dpu1[:12], 4), batches(1, dpu1[12:], 4, generation=GENERATION + 1, first_seq=3)
@@ -183,6 +197,31 @@ def test_generation_windows_split_the_run(tmp_path: Path) -> None:
         f"== generation {GENERATION + 1} window: 0.040 s"
     )
     assert "run 42, generation 3: per DPU" in text and "run 42, generation 4: per DPU" in text
+
+
+def test_a_dpu_behind_at_a_live_switch_counts_the_new_window_from_the_end_of_the_old_work(
+    tmp_path: Path,
+) -> None:
+    """DPU 1's last cycle of generation 3 (B's cycle 5) runs 2.55 ms into generation 4's first
+    minor cycle, as a DPU behind its schedule at the switch does. No share of the new window
+    counts that time (it read as overhead): the window's measured time begins when that work
+    ended, as after warm-up, in the report and the live tables alike."""
+    dpu1, dpu2 = small_run()
+    late = next(r for r in dpu1 if r.process == 1 and r.cycle == 5)
+    late.compute_ns += 5 * MS
+    late.idle_ns = 0
+    first = next(r for r in dpu1 if r.process == 0 and r.cycle == 6)  # A: generation 4's first
+    first.start_ns = late.end_ns + 100 * US  # one cycle at a time
+    analysis = load_run(str(_two_generation_log(tmp_path / "run.lcm", (dpu1, dpu2))))
+    new = analysis.report.windows[1]
+    assert new.generation == GENERATION + 1
+    assert new.dpus[0].elapsed_ms == pytest.approx(40.0 - 2.55)  # r9 + 10 ms - (r6 + 2.55 ms)
+    assert new.dpus[1].elapsed_ms == pytest.approx(40.25)  # on time: r3 to its overrun's end, r4 + 20.25 ms
+    live = RunTally(RUN_ID).update(analysis.recorded, analysis.messages.configs)
+    assert live is not None and live.generation == GENERATION + 1
+    assert [(d.elapsed_ms, d.shares_pct[0]) for d in live.dpus] == [
+        (d.elapsed_ms, d.compute_pct) for d in new.dpus
+    ]
 
 
 def test_one_generation_prints_no_window_header(tmp_path: Path) -> None:

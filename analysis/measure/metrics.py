@@ -25,6 +25,7 @@ Three times per cycle, each its own measure:
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -208,17 +209,20 @@ def static_load_pct(config: Any, dpu_id: int) -> float:
     return 100.0 * load / speed
 
 
-def dpu_metrics(records: np.ndarray, config: Any, in_window: np.ndarray | None = None) -> list[DpuMetrics]:
+def dpu_metrics(records: np.ndarray, config: Any, in_window: np.ndarray | None = None,
+                earlier: Mapping[int, int] | None = None) -> list[DpuMetrics]:
     """Per DPU (config order by id) over the measured window (`in_window`: measured(records,
-    config), when the caller has it)."""
+    config), when the caller has it); `earlier`: when each DPU's work of the generations
+    before this one ended (windows.earlier_ends_ns), when there were any."""
     in_window = window_mask(records, config, in_window)
-    window, warmup = records[in_window], records[~in_window]
+    window = records[in_window]
+    warmup, earlier = warmup_end_ns(records[~in_window]), earlier or {}
     out = []
     for dpu in sorted(config.dpus, key=lambda d: d.id):
         procs = sorted((p for p in config.processes if p.dpu == dpu.id), key=lambda p: (p.order, p.id))
         mine = window[window["dpu"] == dpu.id]
         overruns = int(np.count_nonzero(overran(mine[completed(mine)])))
-        elapsed = _elapsed_ns(mine, warmup_end_ns(warmup[warmup["dpu"] == dpu.id]))
+        elapsed = _elapsed_ns(mine, latest(warmup.get(dpu.id), earlier.get(dpu.id)))
         shares = utilization_pct(*shares_ns(mine), elapsed)
         stall = int(mine["stall_ns"].sum())
         given = unstalled_ns(mine, elapsed, stall, dpu.minor_cycle_us * 1000)
@@ -271,7 +275,8 @@ def frame_release_latency_ns(mine: np.ndarray) -> np.ndarray:
 
 
 def _elapsed_ns(mine: np.ndarray, warmup_end: int | None) -> int | None:
-    """One DPU's measured time (its measured records, `warmup_end`: warmup_end_ns of its others)."""
+    """One DPU's measured time (its measured records, `warmup_end`: when its work before them
+    ended, warmup_end_ns of its others and of its earlier generations')."""
     if len(mine) == 0:
         return None
     return elapsed_ns(int(mine["release_ns"].min()), int(mine["start_ns"].min()),
@@ -283,18 +288,30 @@ def elapsed_ns(first_release: int, first_start: int, last_end: int, warmup_end: 
     measured work plus its idle. A DPU behind its schedule is still working on warm-up cycles
     at that release, time no share counts (an overloaded one read 88 % compute where it
     computed 99 % of its time): its measured time begins when that work ended, and no later
-    than its first measured start (a preempted warm-up cycle may end after it)."""
+    than its first measured start (a preempted warm-up cycle may end after it). A live switch
+    is the same: a generation's window begins when the DPU's work of the one before ended
+    (`warmup_end`: the later of the two)."""
     begin = first_release
     if warmup_end is not None and warmup_end > first_release:
         begin = min(warmup_end, first_start)
     return last_end - begin
 
 
-def warmup_end_ns(warmup: np.ndarray) -> int | None:
-    """When the work of one DPU's cycles before its window (`warmup`) ended: its completed ones,
-    as the DPU's own sums see (a skipped release's record is stamped when its data came)."""
-    done = warmup[completed(warmup)]
-    return int(cycle_end_ns(done).max()) if len(done) else None
+def warmup_end_ns(before: np.ndarray) -> dict[int, int]:
+    """Per DPU of `before`, cycles that ran before a window (its warm-up, or an earlier
+    generation's), when their work ended: their completed ones, as the DPU's own sums see (a
+    skipped release's record is stamped when its data came). DPUs without one: absent."""
+    none = np.iinfo(np.int64).min
+    order, groups = group_slices(before["dpu"])
+    # Over the columns, not a copy of the rows: an earlier generation may hold millions.
+    end = np.where(completed(before), cycle_end_ns(before), none)[order]
+    ends = {d: int(end[rows].max()) for d, rows in groups.items()}
+    return {d: e for d, e in ends.items() if e != none}
+
+
+def latest(*times: int | None) -> int | None:
+    """The latest of `times` that are known (None: none is)."""
+    return max((t for t in times if t is not None), default=None)
 
 
 def work_end_ns(records: np.ndarray) -> np.ndarray:

@@ -19,7 +19,14 @@ from .faults import Fault, Heartbeats, dpu_lost_faults, heartbeats_from_status, 
 from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets
 from .metrics import DpuMetrics, ProcessMetrics
 from .predicted import Predicted
-from .windows import WindowReport, build_window, measured_once, split_lockouts, window_records
+from .windows import (
+    WindowReport,
+    build_window,
+    earlier_ends_ns,
+    measured_once,
+    split_lockouts,
+    window_records,
+)
 
 COMPUTE_MODES = {0: "sleep", 1: "wall", 2: "cpu", 3: "work"}
 
@@ -145,9 +152,10 @@ def build_report(
     last_i = len(generations) - 1
     last_records = parts[-1][0]
     last_window = measured_once(last_records, config)  # the cross-check's too
+    earlier = earlier_ends_ns([p[0] for p in parts])
     windows = [
         build_window(by_generation[g], records, inputs, locks[i], lost if i == last_i else (), clock,
-                     run.records, last_window if i == last_i else None)
+                     run.records, last_window if i == last_i else None, earlier[i])
         for i, (g, (records, inputs)) in enumerate(zip(generations, parts, strict=True))
     ]
     last = windows[-1]

@@ -27,6 +27,7 @@ from .metrics import (
     elapsed_ns,
     late_limits_us,
     lateness_us,
+    latest,
     measured,
     overran,
     release_latency_us,
@@ -52,7 +53,8 @@ class DpuTally:
     first_release_ns: int | None = None
     first_start_ns: int | None = None
     last_end_ns: int | None = None
-    warmup_end_ns: int | None = None  # metrics.warmup_end_ns of its records before the window
+    # metrics.warmup_end_ns of its records before the window, and of its earlier generations'
+    warmup_end_ns: int | None = None
 
     @property
     def elapsed_ms(self) -> float | None:
@@ -84,11 +86,9 @@ class DpuTally:
         self.first_start_ns = start if self.first_start_ns is None else min(start, self.first_start_ns)
         self.last_end_ns = end if self.last_end_ns is None else max(end, self.last_end_ns)
 
-    def add_warmup(self, before: np.ndarray) -> None:
-        """Its records released before its window opened."""
-        end = warmup_end_ns(before)
-        if end is not None:
-            self.warmup_end_ns = end if self.warmup_end_ns is None else max(end, self.warmup_end_ns)
+    def add_warmup(self, end: int | None) -> None:
+        """When its work before the window ended (metrics.warmup_end_ns), as far as known."""
+        self.warmup_end_ns = latest(end, self.warmup_end_ns)
 
 
 @dataclass
@@ -153,15 +153,18 @@ class GenerationTally:
         for dpu, rows in by_dpu.items():
             if dpu in self._dpu:
                 self._dpu[dpu].add(window[order[rows]])
-        order, by_dpu = group_slices(before["dpu"])
-        for dpu, rows in by_dpu.items():
-            if dpu in self._dpu:
-                self._dpu[dpu].add_warmup(before[order[rows]])
+        self.add_earlier(before)
         order, by_process = group_slices(window["process"])
         for proc, rows in by_process.items():
             if proc in self._process:
                 self._process[proc].add(window[order[rows]])
         return True
+
+    def add_earlier(self, records: np.ndarray) -> None:
+        """Records that ran before the window: its own warm-up, or an earlier generation's."""
+        for dpu, end in warmup_end_ns(records).items():
+            if dpu in self._dpu:
+                self._dpu[dpu].add_warmup(end)
 
     @property
     def elapsed_ms(self) -> float:
@@ -186,10 +189,19 @@ class RunTally:
             self.tables, self.seen = GenerationTally(configs[newest]), 0
         fresh = run.records[self.seen :]
         self.seen = len(run.records)
-        if not self.tables.add(_of(fresh, newest)):
+        # The windows of the report are the generations with a config: so are the earlier ones.
+        earlier = [g for g in configs if g < newest]
+        if not _tally(self.tables, fresh, earlier):
             self.tables = GenerationTally(configs[newest])
-            self.tables.add(_of(run.records, newest))
+            _tally(self.tables, run.records, earlier)
         return self.tables
+
+
+def _tally(tables: GenerationTally, records: np.ndarray, earlier: list[int]) -> bool:
+    """GenerationTally.add of the records of its generation, having seen those of `earlier`."""
+    if earlier:
+        tables.add_earlier(records[np.isin(records["generation"], earlier)])
+    return tables.add(_of(records, tables.generation))
 
 
 def _of(records: np.ndarray, generation: int) -> np.ndarray:

@@ -8,7 +8,7 @@ allocation), so a table never mixes two systems.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -30,7 +30,15 @@ from .faults import (
     stall_faults,
 )
 from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets, buffer_metrics
-from .metrics import DpuMetrics, ProcessMetrics, dpu_metrics, measured, process_metrics, work_end_ns
+from .metrics import (
+    DpuMetrics,
+    ProcessMetrics,
+    dpu_metrics,
+    measured,
+    process_metrics,
+    warmup_end_ns,
+    work_end_ns,
+)
 
 
 @dataclass
@@ -81,11 +89,13 @@ def build_window(
     clock: ClockOffsets = NO_OFFSETS,
     run_records: np.ndarray | None = None,
     in_window: np.ndarray | None = None,
+    earlier: Mapping[int, int] | None = None,
 ) -> WindowReport:
     """Every table of one generation window. `lockouts`: the ones status_t reported in
     this window; `lost`: the run's lost DPUs (a fact of the whole run: last window only);
     `run_records`: every window's records (what a buffer's loss looks up across a switch);
-    `in_window`: measured(records, config), read-only, when the caller has it."""
+    `in_window`: measured(records, config), read-only, when the caller has it; `earlier`:
+    earlier_ends_ns of this window."""
     def delivery() -> tuple[list[Fault], dict[int, Lockout]]:
         return delivery_faults(config, records, inputs, lockouts_from_records(records, lockouts or {}))
 
@@ -103,7 +113,7 @@ def build_window(
         "buffers": lambda: buffer_metrics(records, inputs, config, clock, run_records, win, starts),
         "chains": lambda: chain_metrics(records, inputs, config, clock, win),
         "behind": lambda: behind_faults(records, config, win),
-        "dpus": lambda: dpu_metrics(records, config, win),
+        "dpus": lambda: dpu_metrics(records, config, win, earlier),
         "span": lambda: _span(records, win, clock),
         "delivery": delivery,
         "stalls": lambda: stall_faults(records, config),
@@ -132,6 +142,20 @@ def build_window(
             + list(lost)
         ),
     )
+
+
+def earlier_ends_ns(windows: Sequence[np.ndarray]) -> list[dict[int, int]]:
+    """Per window (records per window, in generation order): when each DPU's work of the
+    windows before it ended (metrics.warmup_end_ns). A DPU behind its schedule at a live
+    switch is still working on the old generation's cycles at the new one's first release:
+    to the new window, that work is what warm-up work is to a run's first."""
+    out: list[dict[int, int]] = [{}]
+    for records in windows[:-1]:
+        ends = dict(out[-1])
+        for dpu, end in warmup_end_ns(records).items():
+            ends[dpu] = max(end, ends.get(dpu, end))
+        out.append(ends)
+    return out
 
 
 def measured_once(records: np.ndarray, config: Any) -> np.ndarray:
