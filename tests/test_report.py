@@ -191,6 +191,9 @@ def test_generation_windows_split_the_run(tmp_path: Path) -> None:
         assert {"dpus", "processes", "buffers", "chains", "faults", "start_ns", "end_ns"} <= set(w)
     assert out["windows"][1]["dpus"] == out["dpus"] and out["windows"][1]["processes"] == out["processes"]
     assert out["windows"][0]["dpus"][0]["compute_mode"] == "sleep"
+    # A DPU sums its own figures over the whole run, across the switch (warm-up once a run): ours,
+    # beside them, add up both windows (A 4 + B 2 ms in 4 + 4 cycles; C 5, then 5 and 19 ms).
+    assert [row["compute_ms"][1] for row in out["cross_check"]] == pytest.approx([48.0, 29.0])
     text = _render(rep)
     assert text.count("== generation") == 2
     assert text.index(f"== generation {GENERATION} window: 0.040 s") < text.index(

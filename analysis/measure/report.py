@@ -150,12 +150,13 @@ def build_report(
         heartbeats = heartbeats_from_status((None, s) for s in statuses)
     lost = dpu_lost_faults(config, run.records, heartbeats, run.run_id)
     last_i = len(generations) - 1
-    last_records = parts[-1][0]
-    last_window = measured_once(last_records, config)  # the cross-check's too
-    earlier = earlier_ends_ns([p[0] for p in parts])
+    # Each window's measured records: its tables' and the cross-check's.
+    measured = [measured_once(records, by_generation[g]) for g, (records, _) in zip(generations, parts,
+                                                                                    strict=True)]
+    ends_before = earlier_ends_ns([p[0] for p in parts])
     windows = [
         build_window(by_generation[g], records, inputs, locks[i], lost if i == last_i else (), clock,
-                     run.records, last_window if i == last_i else None, earlier[i])
+                     run.records, measured[i], ends_before[i])
         for i, (g, (records, inputs)) in enumerate(zip(generations, parts, strict=True))
     ]
     last = windows[-1]
@@ -185,7 +186,7 @@ def build_report(
         faults=last.faults,
         compute_modes=modes,
         work_drift_pct={r.dpu: r.work_drift_pct for r in mine if r.compute == skelmsg.dpu_t.COMPUTE_WORK},
-        cross_check=_cross_check(last_records, last_window, mine),
+        cross_check=_cross_check([p[0] for p in parts], measured, mine),
         not_faithful=sorted(r.dpu for r in mine if r.faults & skelmsg.status_t.FAULT_NOT_FAITHFUL),
         buffers=last.buffers,
         chains=last.chains,
@@ -194,21 +195,26 @@ def build_report(
     )
 
 
-def _cross_check(records: np.ndarray, in_window: np.ndarray, reports: Sequence[Any]) -> list[dict[str, Any]]:
-    """The DPU's own running sums (report_t) beside ours over the measured records
-    (`in_window`): they should agree."""
-    def ms(mine: np.ndarray, *fields: str) -> float:
-        return sum(int(records[f].sum(where=mine)) for f in fields) / 1e6
-
+def _cross_check(windows: Sequence[np.ndarray], measured: Sequence[np.ndarray],
+                 reports: Sequence[Any]) -> list[dict[str, Any]]:
+    """The DPU's own running sums (report_t) beside ours over the measured records of every
+    window (`measured`: each one's mask): they should agree. A DPU sums from its run's window
+    on, across live switches (its warm-up is once a run), so ours add up every generation's."""
     out = []
     for rep in sorted(reports, key=lambda r: r.dpu):
-        mine = in_window & (records["dpu"] == rep.dpu)
+        mine = [(records, mask & (records["dpu"] == rep.dpu)) for records, mask in zip(windows, measured,
+                                                                                        strict=True)]
         out.append(
             {
                 "dpu": rep.dpu,
-                "compute_ms": [rep.compute_ns / 1e6, ms(mine, "compute_ns")],
-                "communicate_ms": [rep.communicate_ns / 1e6, ms(mine, "comm_in_ns", "comm_out_ns")],
-                "wait_ms": [rep.wait_ns / 1e6, ms(mine, "blocked_ns", "idle_ns")],
+                "compute_ms": [rep.compute_ns / 1e6, _sum_ms(mine, "compute_ns")],
+                "communicate_ms": [rep.communicate_ns / 1e6, _sum_ms(mine, "comm_in_ns", "comm_out_ns")],
+                "wait_ms": [rep.wait_ns / 1e6, _sum_ms(mine, "blocked_ns", "idle_ns")],
             }
         )
     return out
+
+
+def _sum_ms(rows: Sequence[tuple[np.ndarray, np.ndarray]], *fields: str) -> float:
+    """The sum of `fields` over the (records, mask) pairs, in ms."""
+    return sum(int(records[f].sum(where=mask)) for records, mask in rows for f in fields) / 1e6
