@@ -316,6 +316,14 @@ def test_dpu_lost_when_its_heartbeats_stop_not_when_its_timing_does() -> None:
     assert [(f.kind, f.dpu) for f in faults] == [("dpu_lost", 2), ("dpu_lost", 4)], faults
     assert "not heard for 2.60 s from 1.40 s into the run" in faults[0].detail
     assert "restarted during the run (pid 100, then 101)" in faults[1].detail
+    # Each heartbeat says when it was sent on its DPU's clock, its records' clock: the silence
+    # is then placed from the run's first release, as every fault's at_s, not from the first
+    # heartbeat heard (ARMED: here half a second before that release).
+    for heard_us, s in beats:
+        s.mono_ns = heard_us * 1000 - 500 * MS
+    faults = dpu_lost_faults(config, records, heartbeats_from_status(beats), RUN_ID)
+    assert "not heard for 2.60 s from 0.90 s into the run" in faults[0].detail, faults[0]
+    assert faults[0].at_s == pytest.approx(0.9)
     # The logger stalled from 1 s to 3.5 s: it heard nobody then, so nobody is lost for it.
     stalled = [(t, s) for t, s in beats if not 1_000_000 < t < 3_500_000 and s.dpu != 4]
     assert dpu_lost_faults(config, records, heartbeats_from_status(stalled), RUN_ID) == []

@@ -170,6 +170,18 @@ def _two_generation_log(path: Path, recs: tuple[list[Rec], list[Rec]] | None = N
     return write_log(path, events)
 
 
+def test_a_later_windows_faults_say_when_from_the_runs_start(tmp_path: Path) -> None:
+    """A fault's at_s counts from the run's first release, in every window: a stall in
+    generation 4 read 15 ms into the run, which was 15 ms into its window (60 ms into the run)."""
+    dpu1, dpu2 = small_run()
+    b8 = next(r for r in dpu1 if r.process == 1 and r.cycle == 8)
+    b8.stall_ns = 10 * MS  # a whole minor cycle of DPU 1: a fault of its own
+    rep = load_run(str(_two_generation_log(tmp_path / "run.lcm", (dpu1, dpu2)))).report
+    stalls = [f for f in rep.windows[1].faults if f.kind == "stall"]
+    # it ended at B's start (80 ms + A's 4.68 ms + 0.1 ms into the run), after 10 ms
+    assert [f.at_s for f in stalls] == [pytest.approx(0.07478)], stalls
+
+
 def test_generation_windows_split_the_run(tmp_path: Path) -> None:
     rep = load_run(str(_two_generation_log(tmp_path / "run.lcm"))).report
     assert rep.generations == [GENERATION, GENERATION + 1] and rep.generation == GENERATION + 1

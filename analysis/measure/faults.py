@@ -12,7 +12,7 @@ links between locked-out processes."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -46,7 +46,7 @@ class Fault:
     root_dpu: int | None = None  # jam: the DPU of the chain's last process
     host: str | None = None  # stall: the host whose DPUs stalled
     dpus: list[int] = field(default_factory=list)  # stall: the DPUs that stalled together
-    at_s: float | None = None  # behind, stall: when, in s from the run's first release
+    at_s: float | None = None  # behind, stall, dpu_lost: when, in s from the run's first release
     duration_ms: float | None = None  # behind: how long; stall: how long the thread could not run
     behind_ms: float | None = None  # behind: the largest lateness of the DPU's minor cycles
     fatal: bool = False  # the design's flaw (exit 3), not the platform's
@@ -78,6 +78,7 @@ class Heartbeats:
     pid: np.ndarray
     run_id: np.ndarray
     state: np.ndarray
+    mono_ns: np.ndarray  # when its DPU sent it, on the clock of its timing records
 
 
 def heartbeats_from_status(timed: Iterable[tuple[int | None, Any]]) -> Heartbeats:
@@ -86,9 +87,10 @@ def heartbeats_from_status(timed: Iterable[tuple[int | None, Any]]) -> Heartbeat
     known = np.fromiter((t is not None for t, _ in pairs), dtype=bool, count=len(pairs))
     heard = np.fromiter((t or 0 for t, _ in pairs), dtype=np.int64, count=len(pairs))
     order = np.argsort(np.where(known, heard, np.iinfo(np.int64).min), kind="stable")
-    dpu, pid, run_id, state = int_columns([s for _, s in pairs], "dpu", "pid", "run_id", "state")
+    dpu, pid, run_id, state, mono = int_columns([s for _, s in pairs], "dpu", "pid", "run_id", "state",
+                                                "mono_ns")
     return Heartbeats(known=known[order], heard_us=heard[order], dpu=dpu[order], pid=pid[order],
-                      run_id=run_id[order], state=state[order])
+                      run_id=run_id[order], state=state[order], mono_ns=mono[order])
 
 
 def lockouts_from_status(statuses: Iterable[Any], run_id: int) -> dict[int, Lockout]:
@@ -316,6 +318,7 @@ def dpu_lost_faults(config: Any, records: np.ndarray, beats: Heartbeats, run_id:
     silences = (all_heard[gaps], all_heard[gaps + 1])
     during = heard & (beats.heard_us >= start) & (beats.heard_us <= end)
     faults = []
+    origin = first_release_ns(records)
     for dpu in dpus:
         mine = during & (beats.dpu == dpu)
         pids = beats.pid[mine]
@@ -325,17 +328,24 @@ def dpu_lost_faults(config: Any, records: np.ndarray, beats: Heartbeats, run_id:
         # the longest unheard stretch; on a tie, the later one (as max over (unheard, a, b - a))
         k = int(np.lexsort((np.diff(times), times[:-1], unheard))[-1])
         silent, since, gap = int(unheard[k]), int(times[k]), int(times[k + 1] - times[k])
+        at_s = None
         if len(pids) > 1:
             detail = f"restarted during the run (pid {pids[0]}, then {pids[-1]})"
         elif silent > LOST_GAP_US and not mine.any():
             detail = "no heartbeat during the run"
         elif silent > LOST_GAP_US:
-            detail = f"not heard for {gap / 1e6:.2f} s from {(since - start) / 1e6:.2f} s into the run"
+            # From the run's first release, as every fault's at_s: its last heartbeat before the
+            # silence, on its own clock, when it has records (the first heartbeat heard is
+            # the ARMED one, half a second and more before the first release).
+            sent = int(beats.mono_ns[mine][k - 1]) if k > 0 else 0
+            at_s = (sent - origin[dpu]) / 1e9 if dpu in origin and sent > 0 else None
+            since_s = at_s if at_s is not None else (since - start) / 1e6
+            detail = f"not heard for {gap / 1e6:.2f} s from {since_s:.2f} s into the run"
         elif not mine.any() and dpu not in timed:
             detail = "no timing records and no heartbeat in this run"
         else:
             continue
-        faults.append(Fault(kind="dpu_lost", dpu=dpu, detail=detail))
+        faults.append(Fault(kind="dpu_lost", dpu=dpu, detail=detail, at_s=at_s))
     return faults
 
 
@@ -384,12 +394,13 @@ def stall_threshold_ns(config: Any, dpu: int) -> int:
     return max(1_000_000, minor_us * 1000 * config.late_pct // 100)
 
 
-def stall_faults(records: np.ndarray, config: Any) -> list[Fault]:
+def stall_faults(records: np.ndarray, config: Any, origin: Mapping[int, int] | None = None) -> list[Fault]:
     """Stalls: cycles whose DPU thread was kept from running (late wake-ups, gaps, preemption:
     timing_t.stall_ns) beyond stall_threshold_ns. The stalls of one host's DPUs that overlap
-    in time are one fault naming the host, when and how long: the platform, not the design."""
+    in time are one fault naming the host, when and how long: the platform, not the design.
+    `origin`: first_release_ns of the whole run, when `records` are one generation's window."""
     hosts = {d.id: d.host for d in config.dpus}
-    t0 = min(first_release_ns(records).values(), default=0)
+    t0 = min((origin if origin is not None else first_release_ns(records)).values(), default=0)
     # A record says how long its thread could not run, not where in the cycle: the stall
     # ended between the cycle's start and its end. Host -> (earliest start, latest end,
     # duration, DPU), on the run's clock.
@@ -442,13 +453,14 @@ def stall_faults(records: np.ndarray, config: Any) -> list[Fault]:
     return faults
 
 
-def behind_faults(records: np.ndarray, config: Any, in_window: np.ndarray | None = None) -> list[Fault]:
+def behind_faults(records: np.ndarray, config: Any, in_window: np.ndarray | None = None,
+                  origin: Mapping[int, int] | None = None) -> list[Fault]:
     """A DPU whose minor cycles start more than a minor cycle late, BEHIND_MIN_FRAMES in a
     row or more: how far behind, since when, for how long, and why (a stall of the
     platform, an overload, a data wait or an overrun). `in_window`: measured(records, config),
-    when the caller has it."""
+    when the caller has it; `origin`: as stall_faults'."""
     faults = []
-    t0 = first_release_ns(records)
+    t0 = origin if origin is not None else first_release_ns(records)
     in_window = window_mask(records, config, in_window)
     for dpu in sorted(config.dpus, key=lambda d: d.id):
         # A DPU that fell behind in its warm-up and is still behind in the window is found

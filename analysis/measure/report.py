@@ -15,7 +15,14 @@ import skelmsg
 from ..read.logreader import Integrity
 from ..read.records import RunRecords
 from .chains import ChainMetrics
-from .faults import Fault, Heartbeats, dpu_lost_faults, heartbeats_from_status, lockouts_from_status
+from .faults import (
+    Fault,
+    Heartbeats,
+    dpu_lost_faults,
+    first_release_ns,
+    heartbeats_from_status,
+    lockouts_from_status,
+)
 from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets
 from .metrics import DpuMetrics, ProcessMetrics
 from .predicted import Predicted
@@ -154,9 +161,11 @@ def build_report(
     measured = [measured_once(records, by_generation[g]) for g, (records, _) in zip(generations, parts,
                                                                                     strict=True)]
     ends_before = earlier_ends_ns([p[0] for p in parts])
+    # Every window's faults say when, from the run's first release: not from their window's.
+    origin = first_release_ns(run.records)
     windows = [
         build_window(by_generation[g], records, inputs, locks[i], lost if i == last_i else (), clock,
-                     run.records, measured[i], ends_before[i])
+                     run.records, measured[i], ends_before[i], origin)
         for i, (g, (records, inputs)) in enumerate(zip(generations, parts, strict=True))
     ]
     last = windows[-1]

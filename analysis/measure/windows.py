@@ -90,12 +90,14 @@ def build_window(
     run_records: np.ndarray | None = None,
     in_window: np.ndarray | None = None,
     earlier: Mapping[int, int] | None = None,
+    origin: Mapping[int, int] | None = None,
 ) -> WindowReport:
     """Every table of one generation window. `lockouts`: the ones status_t reported in
     this window; `lost`: the run's lost DPUs (a fact of the whole run: last window only);
     `run_records`: every window's records (what a buffer's loss looks up across a switch);
     `in_window`: measured(records, config), read-only, when the caller has it; `earlier`:
-    earlier_ends_ns of this window."""
+    earlier_ends_ns of this window; `origin`: the run's first release per DPU (a fault's
+    at_s counts from it), default the window's own."""
     def delivery() -> tuple[list[Fault], dict[int, Lockout]]:
         return delivery_faults(config, records, inputs, lockouts_from_records(records, lockouts or {}))
 
@@ -112,11 +114,11 @@ def build_window(
         "processes": lambda: process_metrics(records, inputs, config, win, starts),
         "buffers": lambda: buffer_metrics(records, inputs, config, clock, run_records, win, starts),
         "chains": lambda: chain_metrics(records, inputs, config, clock, win),
-        "behind": lambda: behind_faults(records, config, win),
+        "behind": lambda: behind_faults(records, config, win, origin),
         "dpus": lambda: dpu_metrics(records, config, win, earlier),
         "span": lambda: _span(records, win, clock),
         "delivery": delivery,
-        "stalls": lambda: stall_faults(records, config),
+        "stalls": lambda: stall_faults(records, config, origin),
     }
     done = dict(zip(tasks, map_threads(lambda task: task(), tasks.values(), _work_bytes(records, inputs)),
                     strict=True))  # fmt: skip
