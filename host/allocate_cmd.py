@@ -99,6 +99,7 @@ def _say(console: Console, system: System, found: Allocation, out: Path) -> None
 def _verify(console: Console, system: System, new_path: Path, args: argparse.Namespace) -> int:
     """Both files, each on local DPUs in sleep mode, then `skel diff` of the two runs."""
     from ..analysis.read.messages import run_log_path
+    from ..analysis.views.console import UNLIMITED_WIDTH
     from ..analysis.views.diff import diff_command
     from .run import RunOptions, run
 
@@ -109,8 +110,14 @@ def _verify(console: Console, system: System, new_path: Path, args: argparse.Nam
         sleep = [f"dpu.{d.id}.compute=sleep" for d in load(path, extra).dpus]
         s = load(path, [*extra, *sleep])
         s = s.with_url(args.url) if args.url else s
+        said = io.StringIO()
         codes[tag] = run(s, RunOptions(spawn=True, out=where / tag, key=args.key, key_file=args.key_file),
-                         console=Console(file=io.StringIO()))
+                         console=Console(file=said, width=UNLIMITED_WIDTH))
+        if not run_log_path(where / tag).exists():
+            # Refused before it started (DPUs of its ids already up, say): its own words say why.
+            console.print(f"{tag}: {path} did not run, exit {codes[tag]}:", markup=False, highlight=False)
+            console.print(said.getvalue().rstrip(), markup=False, highlight=False)
+            return codes[tag] or EXIT_FAILED
         console.print(f"{tag}: {path} ran, exit {codes[tag]} ({where / tag})")
     diff_command(run_log_path(where / "before"), run_log_path(where / "after"), as_json=False, key=args.key)
     return codes["after"]
