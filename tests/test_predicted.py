@@ -15,6 +15,7 @@ from conftest import EXAMPLES, HOST_EVENTS_SYSTEM, skel
 from rich.console import Console
 
 from skeleton.analysis.measure.chains import ChainMetrics
+from skeleton.analysis.measure.faults import Fault
 from skeleton.analysis.measure.metrics import DpuMetrics, InputMetrics, ProcessMetrics
 from skeleton.analysis.measure.predicted import PLATFORM, beside
 from skeleton.analysis.measure.stats import LatencyUs
@@ -73,6 +74,22 @@ def test_each_rule_flags_only_beyond_its_tolerance() -> None:
         "a (DPU 1): response p99 6100 µs measured against the predicted worst 5000 µs (+1100 µs, beyond "
         f"late_pct (20 %) of the period): {PLATFORM}",
         f"b <- slow: new share 0.300 measured against predicted 0.210 (+0.090, beyond ±0.05): {PLATFORM}"]
+
+
+def test_a_run_with_a_lost_dpu_or_a_fatal_fault_blames_that_not_the_platform() -> None:
+    """The prediction leaves out a DPU that died and the design's own fatal faults: a figure
+    outside it in such a run is put down to them (a walk-through's killed DPU read "the
+    platform's own cost")."""
+    figures = ([_dpu(2, 77.5)], [_process("a", 6100)], [])
+    lost = Fault(kind="dpu_lost", dpu=3, detail="not heard for 2.36 s from 1.49 s into the run")
+    jam = Fault(kind="jam", process=1, dpu=1, detail="circular wait")
+    stall = Fault(kind="stall", dpu=1, detail="host h: DPU 1 could not run")
+    for faults, cause in (((lost, jam), "DPU 3 lost during the run (its fault above), not only the platform"),
+                          ((jam,), "the design's own fatal faults above, not only the platform"),
+                          ((stall,), PLATFORM), ((), PLATFORM)):
+        got = beside(PREDICTION, 4, 20, *figures, faults)
+        assert jam.fatal and not stall.fatal and got.cause == cause
+        assert len(got.outside) == 2 and all(line.endswith(f": {cause}") for line in got.outside), got.outside
 
 
 def test_what_a_host_events_rate_decides_is_never_outside(tmp_path: Path) -> None:

@@ -16,16 +16,19 @@ tolerances say how much of that cost passes unremarked:
   data reader paced by a slower writer waits for it in every response: not compared.
 A figure the prediction leaves unknown (None: it follows from how often the host sends an
 event, which no file says) is never compared: what a run measures there is no one's cost.
+A run whose faults name a cause the prediction leaves out (a DPU lost, the design's own
+fatal fault) puts a figure outside its prediction down to that, not to the platform.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from .chains import ChainMetrics
+from .faults import Fault
 from .metrics import DpuMetrics, InputMetrics, ProcessMetrics
 
 COMPUTE_POINTS = 2.0
@@ -95,6 +98,7 @@ class Predicted:
     inputs: list[InputBeside] = field(default_factory=list)
     chains: list[ChainBeside] = field(default_factory=list)
     outside: list[str] = field(default_factory=list)  # one line per figure outside its prediction
+    cause: str = PLATFORM  # what a figure outside its prediction is put down to (cause_of)
 
 
 def either_way(predicted: float | None, measured: float | None, tolerance: float) -> Beside:
@@ -119,11 +123,24 @@ def input_shares(metrics: InputMetrics) -> tuple[float, float, float] | None:
     return metrics.new / cycles, metrics.stale / cycles, metrics.dropped / cycles
 
 
+def cause_of(faults: Sequence[Fault]) -> str:
+    """What the figures outside their prediction are put down to: the platform's own cost,
+    unless the run's faults name what the prediction leaves out and the platform did not do."""
+    lost = sorted({f.dpu for f in faults if f.kind == "dpu_lost" and f.dpu is not None})
+    if lost:
+        return f"DPU {', '.join(map(str, lost))} lost during the run (its fault above), not only the platform"
+    if any(f.fatal for f in faults):
+        return "the design's own fatal faults above, not only the platform"
+    return PLATFORM
+
+
 def beside(prediction: Mapping[str, Any], generation: int, late_pct: int, dpus: list[DpuMetrics],
-           processes: list[ProcessMetrics], chains: list[ChainMetrics]) -> Predicted:
-    """The measured figures of one generation (the report's) beside `prediction`, matched by
-    DPU id, process name, (reader, buffer) and chain name; what either side lacks is left out."""
-    out = Predicted(generation, COMPUTE_POINTS, SHARE, late_pct)
+           processes: list[ProcessMetrics], chains: list[ChainMetrics],
+           faults: Sequence[Fault] = ()) -> Predicted:
+    """The measured figures of one generation (the report's, whose `faults` say what to put
+    a figure outside its prediction down to) beside `prediction`, matched by DPU id, process
+    name, (reader, buffer) and chain name; what either side lacks is left out."""
+    out = Predicted(generation, COMPUTE_POINTS, SHARE, late_pct, cause=cause_of(faults))
     measured_dpus = {d.id: d for d in dpus}
     for d in prediction["dpus"]:
         if (m := measured_dpus.get(d["id"])) is not None:
@@ -157,20 +174,21 @@ def beside(prediction: Mapping[str, Any], generation: int, late_pct: int, dpus: 
 
 
 def _outside_lines(p: Predicted) -> list[str]:
-    lines = [f"DPU {d.id}: % compute {_said(d.compute_pct, 1, '', f'±{p.compute_points:g} points')}"
+    lines = [f"DPU {d.id}: % compute {_said(p, d.compute_pct, 1, '', f'±{p.compute_points:g} points')}"
              for d in p.dpus if d.compute_pct.outside]
     margin = f"late_pct ({p.late_pct} %) of the period"
-    lines += [f"{r.name} (DPU {r.dpu}): response p99 {_said(r.response_us, 0, ' µs', margin, WORST)}"
+    lines += [f"{r.name} (DPU {r.dpu}): response p99 {_said(p, r.response_us, 0, ' µs', margin, WORST)}"
               for r in p.processes if r.response_us.outside]
     for i in p.inputs:  # the stale share is 1 - the new one: outside when that is
-        lines += [f"{i.reader} <- {i.buffer}: {what} {_said(b, 3, '', f'±{p.share:g}')}"
+        lines += [f"{i.reader} <- {i.buffer}: {what} {_said(p, b, 3, '', f'±{p.share:g}')}"
                   for what, b in (("new share", i.new), ("dropped per cycle", i.dropped)) if b.outside]
     margin = f"late_pct ({p.late_pct} %) of the tail's period"
-    lines += [f"chain {c.name}: latency p99 {_said(c.latency_us, 0, ' µs', margin, WORST)}"
+    lines += [f"chain {c.name}: latency p99 {_said(p, c.latency_us, 0, ' µs', margin, WORST)}"
               for c in p.chains if c.latency_us.outside]
     return lines
 
 
-def _said(b: Beside, digits: int, unit: str, tolerance: str, predicted: str = "predicted") -> str:
+def _said(p: Predicted, b: Beside, digits: int, unit: str, tolerance: str,
+          predicted: str = "predicted") -> str:
     return (f"{b.measured:.{digits}f}{unit} measured against {predicted} {b.predicted:.{digits}f}{unit} "
-            f"({b.delta:+.{digits}f}{unit}, beyond {tolerance}): {PLATFORM}")
+            f"({b.delta:+.{digits}f}{unit}, beyond {tolerance}): {p.cause}")

@@ -105,7 +105,7 @@ class RunAnalysis:
             return f"no prediction: {e}"
         rep = self.report
         rep.predicted = beside(prediction, rep.generation, self.config.late_pct, rep.dpus, rep.processes,
-                               rep.chains)
+                               rep.chains, rep.faults)
         return None
 
     def process_names(self) -> dict[int, str]:
