@@ -13,13 +13,12 @@ removes the key, so its default applies.
 from __future__ import annotations
 
 import copy
-import difflib
 from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
 import yaml
 
-from .yamlfile import safe_load
+from .yamlfile import did_you_mean, safe_load
 
 SECTIONS = {
     "process": "processes", "processes": "processes",
@@ -130,6 +129,5 @@ def _check_field(text: str, section: str, field: str, fields: Mapping[str, Colle
     known = fields[section]
     if field not in known:
         noun = "run" if section == "run" else f"a {_NOUN[section]}"
-        near = difflib.get_close_matches(field, list(known), n=1)
-        hint = f"did you mean '{near[0]}'?" if near else f"fields: {', '.join(sorted(known))}"
+        hint = did_you_mean(field, known) or f"fields: {', '.join(sorted(known))}"
         raise OverrideError(text, f"{noun} has no field '{field}'; {hint}")

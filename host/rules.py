@@ -35,7 +35,7 @@ from .schema import (
     SystemSpec,
     Varying,
 )
-from .yamlfile import show
+from .yamlfile import did_you_mean, show
 
 
 class Invalid(Exception):
@@ -204,7 +204,9 @@ def _buffer_refs(spec: SystemSpec, p: ProcessSpec, key: str, refs: Sequence[int 
         found = _find_buffer(spec.buffers, ref)
         if found is None:
             raise Invalid(f"{path}[{j}]", f"no buffer with id {ref}" if isinstance(ref, int) else
-                          f"no buffer named {show(ref)}")
+                          f"no buffer named {show(ref)}; "
+                          + (did_you_mean(ref, [b.name for b in spec.buffers])
+                             or f"buffers: {', '.join(b.name for b in spec.buffers)}"))
         if found.id in out:
             raise Invalid(f"{path}[{j}]", f"buffer {show(found.name)} is listed twice")
         out.append(found.id)
@@ -392,7 +394,8 @@ def _chains(spec: SystemSpec, by_name: dict[str, ProcessSpec]) -> tuple[Chain, .
             raise Invalid(path, "a chain needs at least 2 processes")
         for j, pname in enumerate(c.processes):
             if pname not in by_name:
-                raise Invalid(f"{item}[{j}]", f"no process named {show(pname)}")
+                raise Invalid(f"{item}[{j}]", f"no process named {show(pname)}; "
+                              + (did_you_mean(pname, list(by_name)) or f"processes: {', '.join(by_name)}"))
             if c.processes.index(pname) != j:
                 raise Invalid(f"{item}[{j}]", f"process {show(pname)} is listed twice")
             if j and not set(_outputs(spec, c.processes[j - 1])) & set(_inputs(spec, pname)):

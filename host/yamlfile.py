@@ -248,16 +248,19 @@ def _model_in(annotation: Any) -> type[BaseModel] | None:
     return None
 
 
+def did_you_mean(word: str, known: Collection[str]) -> str | None:
+    """"did you mean 'X'?" for the known name closest to a misspelt one, if one is close."""
+    near = difflib.get_close_matches(word, list(known), n=1)
+    return f"did you mean '{near[0]}'?" if near else None
+
+
 def describe(error: Mapping[str, Any], root: type[BaseModel]) -> str:
     """A pydantic error as a sentence a user can act on."""
     kind, value, ctx = error["type"], error.get("input"), error.get("ctx") or {}
     if kind == "extra_forbidden":
         loc = tuple(error["loc"])
         keys = sorted(known_keys(root, loc[:-1]))
-        near = difflib.get_close_matches(str(loc[-1]), keys, n=1)
-        if near:
-            return f"unknown key; did you mean '{near[0]}'?"
-        return f"unknown key; expected one of: {', '.join(keys)}"
+        return f"unknown key; {did_you_mean(str(loc[-1]), keys) or 'expected one of: ' + ', '.join(keys)}"
     simple = {
         "missing": "required key is missing",
         "int_type": "must be an integer",
