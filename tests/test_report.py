@@ -7,6 +7,7 @@ import json
 import re
 from pathlib import Path
 
+import pandas as pd
 import pytest
 from analysis_synth import (
     GENERATION,
@@ -27,8 +28,10 @@ from rich.console import Console
 from skeleton.analysis.measure.run import IMPOSSIBLE, load_run
 from skeleton.analysis.measure.tally import RunTally
 from skeleton.analysis.read import parallel
+from skeleton.analysis.views.parquet import write_parquet
 from skeleton.analysis.views.report import report_command
 from skeleton.analysis.views.tables import print_report
+from skeleton.analysis.views.trace import write_trace
 from skelmsg.contract import CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 
@@ -154,12 +157,12 @@ def test_tables_are_deterministic_and_show_the_paper(tmp_path: Path) -> None:
     assert "log damaged" not in clean and "malformed messages skipped: SKEL_STATUS: 1" in clean
 
 
-def _two_generation_log(path: Path, recs: tuple[list[Rec], list[Rec]] | None = None) -> Path:
+def _two_generation_log(path: Path, recs: tuple[list[Rec], list[Rec]] | None = None, warmup: int = 2) -> Path:
     """small_run (or `recs`, its records changed) with the config changed mid-run: A's compute
-    4 -> 5 ms (static load 60 -> 70 %). DPU 1 runs generation 3 for cycles 0..5 and 4 from 6;
-    DPU 2 (20 ms) switches at cycle 3."""
+    4 -> 5 ms (static load 60 -> 70 %), warm-up 2 -> `warmup` cycles. DPU 1 runs generation 3
+    for cycles 0..5 and 4 from 6; DPU 2 (20 ms) switches at cycle 3."""
     dpu1, dpu2 = recs or small_run()
-    new = small_config(generation=GENERATION + 1)
+    new = small_config(warmup_cycles=warmup, generation=GENERATION + 1)
     new.processes[0].compute_us = 5_000
     old_1, new_1 = batches(1, dpu1[:12], 4), batches(1, dpu1[12:], 4, generation=GENERATION + 1, first_seq=3)
     old_2, new_2 = batches(2, dpu2[:3], 2), batches(2, dpu2[3:], 2, generation=GENERATION + 1, first_seq=2)
@@ -239,6 +242,43 @@ def test_a_dpu_behind_at_a_live_switch_counts_the_new_window_from_the_end_of_the
     ]
 
 
+def test_the_tables_parquet_and_trace_hold_every_generation(tmp_path: Path) -> None:
+    """The timing and receptions tables (the API's, the Parquet files) and the trace held the
+    report generation's window alone: 2151 of a pushed run's 5307 cycles. Every window's rows
+    now, each with its generation and measured as its own window's config says (generation 4
+    warms up 7 cycles: A and B are measured from cycle 7, C, at 20 ms, not at all)."""
+    run = load_run(_two_generation_log(tmp_path / "run.lcm", warmup=7))
+    every = {(p, k) for p in (0, 1) for k in range(10)} | {(2, k) for k in range(5)}
+    old = {(p, k) for p in (0, 1) for k in range(6)} | {(2, k) for k in range(3)}
+    want_measured = {(p, k) for p in (0, 1) for k in (2, 3, 4, 5, 7, 8, 9)} | {(2, 2)}
+    write_parquet(run, tmp_path / "pq")
+    for timing in (run.timing.to_pandas(), pd.read_parquet(tmp_path / "pq" / "timing.parquet")):
+        rows = list(zip(timing.process, timing.cycle, strict=True))
+        assert sorted(rows) == sorted(every)
+        assert [g for g, row in zip(timing.generation, rows, strict=True) if row in old] == [GENERATION] * 15
+        assert set(timing.generation) == {GENERATION, GENERATION + 1}
+        assert {row for m, row in zip(timing.measured, rows, strict=True) if m} == want_measured
+        assert set(timing.process_name) == {"A", "B", "C"}
+    for receptions in (run.receptions.to_pandas(), pd.read_parquet(tmp_path / "pq" / "receptions.parquet")):
+        gens = {(p, k): g for p, k, g in zip(receptions.process, receptions.cycle, receptions.generation,
+                                             strict=True)}  # fmt: skip
+        assert len(receptions) == 25 and len(gens) == 25
+        assert all(g == (GENERATION if row in old else GENERATION + 1) for row, g in gens.items())
+    write_trace(run, tmp_path / "trace.json")
+    events = json.loads((tmp_path / "trace.json").read_text())["traceEvents"]
+    compute = {(e["tid"], e["args"]["cycle"]) for e in events if e["ph"] == "X" and e["name"] == "compute"}
+    assert compute == set(rows)
+    assert {e["args"]["name"] for e in events if e["name"] == "thread_name"} == {"A", "B", "C"}
+
+
+def test_one_generation_tables_are_over_the_runs_own_records(tmp_path: Path) -> None:
+    """Warm-up rows included, and no copy of the run's columns (10^7 records: gigabytes)."""
+    run = load_run(_log(tmp_path / "run.lcm"))
+    assert run.records is run.recorded.records and run.inputs is run.recorded.inputs
+    timing = run.timing.to_pandas()
+    assert len(timing) == 25 and (~timing.measured).sum() == 2 + 2 + 2  # A, B: cycles 0, 1; C: 0, 1
+
+
 def test_one_generation_prints_no_window_header(tmp_path: Path) -> None:
     rep = load_run(str(_log(tmp_path / "run.lcm"))).report
     assert len(rep.windows) == 1 and rep.windows[0].dpus == rep.dpus
@@ -265,15 +305,19 @@ def test_process_response_slack_and_histograms(tmp_path: Path) -> None:
 def test_a_stray_timing_batch_of_an_unknown_generation_is_counted_not_fatal(tmp_path: Path) -> None:
     """A well-formed timing_t of this run with a generation no config names (2**63-1) made
     the whole report fail; it is now counted and the run's tables are as without it."""
-    clean = load_run(str(_log(tmp_path / "clean.lcm"))).report.to_json()
+    clean_run = load_run(str(_log(tmp_path / "clean.lcm")))
+    clean = clean_run.report.to_json()
     dpu1, _ = small_run()
     stray = batches(1, dpu1[:2], 2, generation=2**63 - 1, first_seq=900)
     path = _log(tmp_path / "run.lcm")
     events_log = path.read_bytes()
     write_log(tmp_path / "stray.lcm", [(TIMING_CHANNEL, t) for t in stray])
     (tmp_path / "both.lcm").write_bytes(events_log + (tmp_path / "stray.lcm").read_bytes())
-    rep = load_run(str(tmp_path / "both.lcm")).report.to_json()
+    both = load_run(str(tmp_path / "both.lcm"))
+    rep = both.report.to_json()
     assert rep["generation"] == GENERATION
+    # Its records are nobody's cycle: not in the tables either.
+    assert both.timing.to_pandas().equals(clean_run.timing.to_pandas())
     assert rep["dpus"] == clean["dpus"] and rep["processes"] == clean["processes"]
     assert rep["integrity"]["malformed"].get("SKEL_TIMING (no config for its generation)") == 2
 

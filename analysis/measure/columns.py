@@ -10,7 +10,7 @@ unless named *_utc_ns (wall clock, from the DPU's status messages).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -31,13 +31,7 @@ class RunAnalysis(Protocol):
     report: RunReport
     clock: ClockOffsets
 
-    @property
-    def config(self) -> Any: ...
-    @property
-    def records(self) -> Any: ...
-    @property
-    def inputs(self) -> Any: ...
-    def process_names(self) -> dict[int, str]: ...
+    def windows(self) -> Iterator[tuple[Any, Any, Any]]: ...
     def to_utc_ns(self, dpu: np.ndarray | int, mono_ns: np.ndarray | int) -> np.ndarray: ...
 
 _RUN = {
@@ -70,7 +64,7 @@ COLUMNS: dict[str, dict[str, str]] = {
         "overrun": "the cycle missed its deadline", "skipped": "the cycle did not run (DPU behind)",
         "lockout": "the process was locked out in this cycle",
         "release_skipped": "a data process a period behind skipped this release",
-        "measured": "inside the DPU's measurement window (after warm-up)",
+        "measured": "inside the DPU's measurement window of the row's generation (after warm-up)",
         "completed": "ran to its end (not skipped, not a skipped release): with `measured`, the "
                      "cycles the report's latencies count",
         "release_latency_us": "start - release", "response_us": "end of the cycle's work - release",
@@ -146,14 +140,33 @@ def _documented(name: str, columns: Mapping[str, Any]) -> Table:
     return Table(name, pa.Table.from_arrays(arrays, schema=pa.schema(fields)))
 
 
+def _joined(name: str, windows: Sequence[Mapping[str, Any]]) -> Table:
+    """One table of every generation window's columns, window after window."""
+    if len(windows) == 1:  # the run's one generation: its columns as they are, no concatenation
+        return _documented(name, windows[0])
+    # An empty window's name columns are of type null: promoted to the others' string.
+    return Table(name, pa.concat_tables([_documented(name, w).to_arrow() for w in windows],
+                                        promote_options="default"))
+
+
+def process_names(config: Any) -> dict[int, str]:
+    """process id -> name in one generation's config_t."""
+    return {p.id: p.name for p in config.processes}
+
+
 def timing_table(run: RunAnalysis) -> Table:
-    recs = run.records
-    names = run.process_names()
+    """Every cycle of every generation window, each measured and named by its own window's
+    config (its warm-up and periods decide `measured`, as in that window's report)."""
+    return _joined("timing", [_timing_columns(run, config, recs) for config, recs, _ in run.windows()])
+
+
+def _timing_columns(run: RunAnalysis, config: Any, recs: Any) -> dict[str, Any]:
+    names = process_names(config)
     flags = np.asarray(recs["flags"]).astype(np.int64)
     start = np.asarray(recs["start_ns"])
     release = np.asarray(recs["release_ns"])
     n = len(recs)
-    columns: dict[str, Any] = {
+    return {
         "run_id": np.full(n, run.report.run_id, dtype=np.int64),
         "generation": np.asarray(recs["generation"]),
         "dpu": np.asarray(recs["dpu"]), "process": np.asarray(recs["process"]),
@@ -161,7 +174,7 @@ def timing_table(run: RunAnalysis) -> Table:
         **{f: np.asarray(recs[f], dtype=np.int64) for f in CYCLE_FIELDS}, "flags": flags.astype(np.int8),
         "overrun": (flags & FLAG_OVERRUN) != 0, "skipped": (flags & FLAG_SKIPPED) != 0,
         "lockout": (flags & FLAG_LOCKOUT) != 0, "release_skipped": (flags & FLAG_RELEASE_SKIPPED) != 0,
-        "measured": measured(recs, run.config) if n else np.zeros(0, dtype=bool),
+        "measured": measured(recs, config),
         "completed": completed(recs) if n else np.zeros(0, dtype=bool),
         "release_latency_us": (start - release) / 1e3,
         "response_us": (cycle_end_ns(recs) - release) / 1e3 if n else np.zeros(0),
@@ -169,15 +182,18 @@ def timing_table(run: RunAnalysis) -> Table:
         "event_response_us": event_response_us(recs) if n else np.zeros(0),
         "start_utc_ns": run.to_utc_ns(np.asarray(recs["dpu"]), start) if n else np.zeros(0, np.int64),
     }  # fmt: skip
-    return _documented("timing", columns)
 
 
 def receptions_table(run: RunAnalysis) -> Table:
-    ins = run.inputs
-    names = run.process_names()
-    buffers = {b.id: b.name for b in run.config.buffers}
-    dpu_of = {p.id: p.dpu for p in run.config.processes}
-    writer_dpu = {b.id: dpu_of.get(b.writer) for b in run.config.buffers}
+    """Every input read in every generation window, named by its own window's config."""
+    return _joined("receptions", [_reception_columns(run, config, ins) for config, _, ins in run.windows()])
+
+
+def _reception_columns(run: RunAnalysis, config: Any, ins: Any) -> dict[str, Any]:
+    names = process_names(config)
+    buffers = {b.id: b.name for b in config.buffers}
+    dpu_of = {p.id: p.dpu for p in config.processes}
+    writer_dpu = {b.id: dpu_of.get(b.writer) for b in config.buffers}
     sent = np.asarray(ins["sent_ns"])
     recv = np.asarray(ins["recv_ns"])
     transport = recv - sent
@@ -191,9 +207,9 @@ def receptions_table(run: RunAnalysis) -> Table:
             transport[sel] = (run.clock.to_host(int(reader), recv[sel])
                               - run.clock.to_host(writer, sent[sel]))
     n = len(ins)
-    columns: dict[str, Any] = {
+    return {
         "run_id": np.full(n, run.report.run_id, dtype=np.int64),
-        "generation": np.full(n, run.report.generation, dtype=np.int64),
+        "generation": np.full(n, config.generation, dtype=np.int64),
         "dpu": np.asarray(ins["dpu"]), "process": np.asarray(ins["process"]),
         "process_name": [names.get(int(p), "") for p in ins["process"].tolist()],
         "cycle": np.asarray(ins["cycle"]), "buffer": np.asarray(ins["buffer"]),
@@ -202,7 +218,6 @@ def receptions_table(run: RunAnalysis) -> Table:
         "dropped": np.asarray(ins["dropped"]), "received": np.asarray(ins["received"]),
         "sent_ns": sent, "recv_ns": recv, "transport_us": transport / 1e3,
     }  # fmt: skip
-    return _documented("receptions", columns)
 
 
 def faults_table(run: RunAnalysis) -> Table:

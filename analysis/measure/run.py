@@ -16,6 +16,7 @@ min(logged utime - latest start) bounds the offset from above (by the batching d
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -29,7 +30,7 @@ from ..read.logreader import Log
 from ..read.messages import LogError, Messages, int_columns, open_run_log, published_batches, read_messages
 from ..read.records import Heads, RunRecords, load_records, run_ids, timing_heads
 from ..read.seal import KeyFileError, authenticate
-from .columns import Table, faults_table, receptions_table, report_tables, timing_table
+from .columns import Table, faults_table, process_names, receptions_table, report_tables, timing_table
 from .faults import heartbeats_from_status
 from .latency import ClockOffsets
 from .predicted import Predictor, beside
@@ -51,6 +52,7 @@ class RunAnalysis:
     report: RunReport
     clock: ClockOffsets  # DPU clock -> host clock (SKEL_CLOCK estimates), as the report uses
     utc_offset_ns: dict[int, int] = field(default_factory=dict)  # dpu -> utc_ns - mono_ns
+    _windows: dict[int, tuple[Any, Any]] = field(default_factory=dict, init=False, repr=False)
 
     @property
     def path(self) -> str:
@@ -66,22 +68,30 @@ class RunAnalysis:
         """Every decodable status_t in the log, in log order."""
         return [s for _, s in self.messages.statuses]
 
-    @cached_property
-    def _window(self) -> tuple[Any, Any]:
-        # The run's own tables when it has one generation: no copy of every column.
-        return window_records(self.recorded, self.report.generation)
+    def window(self, generation: int) -> tuple[Any, Any]:
+        """The process-cycle records of one generation window (a ColumnTable of RECORD_DTYPE:
+        three counters are narrower than int64, as on the wire; `timing` gives every field
+        as int64) and their input records ("record" indexes the former)."""
+        if generation not in self._windows:
+            # The run's own tables when it has one generation: no copy of every column.
+            self._windows[generation] = window_records(self.recorded, generation)
+        return self._windows[generation]
+
+    def windows(self) -> Iterator[tuple[Any, Any, Any]]:
+        """(config_t, records, inputs) of every generation window of the report, in order: every
+        cycle of the run but those of a generation no config names (counted as malformed)."""
+        for w in self.report.windows:
+            yield (self.messages.configs[w.generation], *self.window(w.generation))
 
     @property
     def records(self) -> Any:
-        """The process-cycle records of the report's generation (a ColumnTable of RECORD_DTYPE:
-        three counters are narrower than int64, as on the wire; `timing` gives every field
-        as int64)."""
-        return self._window[0]
+        """The records of the report's generation (`window`); `windows` has every generation's."""
+        return self.window(self.report.generation)[0]
 
     @property
     def inputs(self) -> Any:
         """Their input records; "record" indexes `records`."""
-        return self._window[1]
+        return self.window(self.report.generation)[1]
 
     def to_utc_ns(self, dpu: np.ndarray | int, mono_ns: np.ndarray | int) -> np.ndarray:
         """Wall-clock ns (UTC) of DPU monotonic times."""
@@ -109,7 +119,8 @@ class RunAnalysis:
         return None
 
     def process_names(self) -> dict[int, str]:
-        return {p.id: p.name for p in self.config.processes}
+        """The report generation's (`config`)."""
+        return process_names(self.config)
 
     # The tables of the public API (skeleton/__init__.py) and of `skel export --parquet`.
     @cached_property

@@ -268,7 +268,8 @@ def _logged_us(data: RunAnalysis, dpu: np.ndarray, batch_seq: np.ndarray) -> np.
 
 def _faults(data: RunAnalysis) -> Iterator[tuple[int, Any]]:
     """Each fault with its time: the start of the cycle it names (else the run's end),
-    looked up among the records sorted once by (process, cycle): no pass over them per fault."""
+    looked up among the records sorted once by (process, cycle): no pass over them per fault.
+    The report's faults are its generation's: looked up in that window's records."""
     recs = data.records
     ids = {p.name: p.id for p in data.config.processes}
     starts = data.to_utc_ns(recs["dpu"], recs["start_ns"])

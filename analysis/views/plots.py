@@ -157,7 +157,8 @@ def _host_ns(data: RunAnalysis, recs: np.ndarray, field_ns: np.ndarray) -> np.nd
 
 
 def default_window_ns(data: RunAnalysis) -> tuple[int, int]:
-    """From the moment every process is past warm-up, 4 minor cycles of the slowest DPU."""
+    """From the moment every process is past warm-up, 4 minor cycles of the slowest DPU: in the
+    report generation's window, whose config names the timeline's rows."""
     recs = data.records
     in_window = recs[measured(recs, data.config)]
     use = in_window if len(in_window) else recs
@@ -170,7 +171,8 @@ def default_window_ns(data: RunAnalysis) -> tuple[int, int]:
 
 
 def timeline(data: RunAnalysis, window_ms: tuple[float, float] | None = None) -> tuple[Figure, str]:
-    """A Gantt of every process's phases over a short window, one row per process."""
+    """A Gantt of every process's phases over a short window of the report's generation, one
+    row per process of its config."""
     start, length = default_window_ns(data)
     if window_ms is not None:
         start, length = start + int(window_ms[0] * 1e6), int(window_ms[1] * 1e6)
@@ -249,8 +251,9 @@ def _log_counts(ax: plt.Axes, highest: int) -> None:
 
 
 def schedule(data: RunAnalysis) -> Figure:
-    """Per DPU: each minor cycle's frame release latency over the run, with the faults
-    `behind` and `stall` of the report marked where they happened."""
+    """Per DPU: each minor cycle's frame release latency over the report generation's window
+    (the whole run for one generation), with the faults `behind` and `stall` of the report
+    marked where they happened: their times count from that window's first release."""
     dpus = sorted(data.config.dpus, key=lambda d: d.id)
     fig = _figure(11, 1.0 + 1.6 * len(dpus))
     axes = fig.subplots(len(dpus), 1, sharex=True, squeeze=False)[:, 0]

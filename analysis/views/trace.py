@@ -1,13 +1,14 @@
 """`skel export RUN --trace FILE.json`: the run's timeline as a Chrome / Perfetto trace.
 
 Trace Event Format (JSON), which ui.perfetto.dev and chrome://tracing open: one track
-group per DPU ("pid") and one track per process on it ("tid"). Every cycle that ran is
-four complete events ("ph": "X"), one per phase: comm in, blocked, compute, comm out.
-An overrun is an instant event at its cycle's end (category "overrun"); every fault of
-the report is an instant event (category "fault", named by its kind) at when it
-happened, on its DPU's track group (or the whole trace's when it has no DPU). Times are
-microseconds on the host's clock: each DPU's monotonic clock mapped through the
-clock-offset estimates the report uses (identity on one machine).
+group per DPU ("pid") and one track per process on it ("tid"). Every cycle that ran, in
+every generation window, is four complete events ("ph": "X"), one per phase: comm in,
+blocked, compute, comm out. An overrun is an instant event at its cycle's end (category
+"overrun"); every fault of the report (its generation's) is an instant event (category
+"fault", named by its kind) at when it happened, on its DPU's track group (or the whole
+trace's when it has no DPU). Times are microseconds on the host's clock: each DPU's
+monotonic clock mapped through the clock-offset estimates the report uses (identity on
+one machine).
 """
 
 from __future__ import annotations
@@ -36,7 +37,8 @@ def write_trace(run: RunAnalysis, path: str | os.PathLike[str]) -> int:
     events = list(_metadata(run)) + list(_phases(run)) + list(_faults(run))
     trace = {"traceEvents": events, "displayTimeUnit": "ms",
              "otherData": {"system": run.report.system, "run_id": run.report.run_id,
-                           "generation": run.report.generation}}  # fmt: skip
+                           "generation": run.report.generation,
+                           "generations": run.report.generations}}  # fmt: skip
     tmp = Path(f"{os.fspath(path)}.part")
     tmp.write_text(json.dumps(trace, separators=(",", ":")), encoding="utf-8")
     tmp.replace(path)
@@ -48,16 +50,27 @@ def _host_us(run: RunAnalysis, dpus: np.ndarray, t_ns: np.ndarray) -> np.ndarray
 
 
 def _metadata(run: RunAnalysis) -> Iterator[dict[str, Any]]:
-    hosts = {d.id: d.host for d in run.config.dpus}
+    # Every generation's DPUs and processes, since every window's cycles are on the tracks:
+    # a process a push moved or removed keeps its track, named as its last config names it.
+    hosts: dict[int, str] = {}
+    threads: dict[tuple[int, int], str] = {}
+    for config, _, _ in run.windows():
+        hosts.update((d.id, d.host) for d in config.dpus)
+        threads.update(((p.dpu, p.id), p.name) for p in config.processes)
     for dpu in sorted(hosts):
         yield {"ph": "M", "name": "process_name", "pid": dpu, "args": {"name": f"DPU {dpu} ({hosts[dpu]})"}}
         yield {"ph": "M", "name": "process_sort_index", "pid": dpu, "args": {"sort_index": dpu}}
-    for p in run.config.processes:
-        yield {"ph": "M", "name": "thread_name", "pid": p.dpu, "tid": p.id, "args": {"name": p.name}}
+    for (dpu, pid), name in threads.items():
+        yield {"ph": "M", "name": "thread_name", "pid": dpu, "tid": pid, "args": {"name": name}}
 
 
 def _phases(run: RunAnalysis) -> Iterator[dict[str, Any]]:
-    recs = run.records
+    for _, recs, _ in run.windows():
+        yield from _cycles(run, recs)
+
+
+def _cycles(run: RunAnalysis, recs: Any) -> Iterator[dict[str, Any]]:
+    """The phases and overruns of one window's cycles that ran."""
     ran = (np.asarray(recs["flags"]).astype(np.int64) & (FLAG_SKIPPED | FLAG_RELEASE_SKIPPED)) == 0
     recs = recs[ran]
     dpus = np.asarray(recs["dpu"])
@@ -77,6 +90,7 @@ def _phases(run: RunAnalysis) -> Iterator[dict[str, Any]]:
 
 
 def _faults(run: RunAnalysis) -> Iterator[dict[str, Any]]:
+    """The report's faults: its generation's, timed from that window's first releases."""
     recs = run.records
     origin = first_release_ns(recs) if len(recs) else {}
     period_ns = {p.name: p.period_us * 1000 for p in run.config.processes}
