@@ -56,6 +56,19 @@ def _render(rep: object, paper: dict | None = None) -> str:
     return console.export_text()
 
 
+def test_a_dpu_without_a_measured_cycle_is_said_why(tmp_path: Path) -> None:
+    """Five warm-up cycles of DPU 2's 20 ms outlast its five cycles: its row is all dashes,
+    and the table says why."""
+    dpu1, dpu2 = small_run()
+    events: list[tuple[str, object]] = [(CONFIG_CHANNEL, small_config(warmup_cycles=5))]
+    events += [(TIMING_CHANNEL, t) for t in batches(1, dpu1, 4) + batches(2, dpu2, 2)]
+    rep = load_run(str(write_log(tmp_path / "run.lcm", events))).report
+    assert [d.records for d in rep.dpus] == [10, 0]
+    text = " ".join(_render(rep).split())
+    assert ("DPU 2: no measured cycle here (its warm-up, 5 cycles of its longest period, outlasted this "
+            "window, or it ran none)") in text, text
+
+
 def test_analyze_json_fields(tmp_path: Path) -> None:
     rep = load_run(str(_log(tmp_path / "run.lcm")), None).report
     out = rep.to_json()

@@ -82,7 +82,15 @@ def dpu_table(report: RunReport, window: WindowReport | None = None) -> Table:
         ("wake\np99 µs", True), ("stall\nms", True),
     ]  # fmt: skip
     title = f"{report.system}: run {report.run_id}, generation {part.generation}: per DPU (load = configured)"
-    return _table(title, columns, rows)
+    table = _table(title, columns, rows)
+    # A row of dashes says nothing by itself: a short run, or a window opened by a live switch
+    # late in the run, may end before a slow DPU's warm-up does.
+    unmeasured = [str(d.id) for d in part.dpus if d.records == 0]
+    if unmeasured:
+        table.caption = (f"DPU {', '.join(unmeasured)}: no measured cycle here (its warm-up, "
+                         f"{report.warmup_cycles} cycles of its longest period, outlasted this window, "
+                         "or it ran none)")
+    return table
 
 
 def paper_table(report: RunReport, paper: dict[Any, Any], window: WindowReport | None = None) -> Table:
