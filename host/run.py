@@ -33,6 +33,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 import skelmsg
+from skelmsg.contract import KEY_ENV
 
 from ..analysis.exitcodes import EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
 from ..analysis.measure.faults import LOST_AFTER_S, Fault
@@ -132,11 +133,17 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         silent = control.wait_heard(dpu_ids, options.wait_dpus_s,
                                     introduce=lambda g: config_message(system, g, 0, committed=False))
         if silent:
-            console.print(f"[red]no heartbeat from DPU {', '.join(map(str, silent))} on {url} (heard on its "
-                          f"record URL {control.record_url}) in {options.wait_dpus_s:g} s[/]: start them "
-                          "(`skel up FILE` or skel-dpu --id N on their hosts), use --spawn, or wait longer "
-                          "(--wait-dpus S); a firewall must pass both ports")
-            for line in control.key_lines():
+            refused = control.key_lines()
+            if refused:  # heard, and refused by the key check: starting them or a firewall is not it
+                console.print(f"[red]DPU {', '.join(map(str, silent))} not accepted on {url}: the key "
+                              f"check refused what was heard[/] (`--key` / ${KEY_ENV} must be the DPUs' "
+                              "key, or none on both sides)", soft_wrap=True)
+            else:
+                console.print(f"[red]no heartbeat from DPU {', '.join(map(str, silent))} on {url} (heard on "
+                              f"its record URL {control.record_url}) in {options.wait_dpus_s:g} s[/]: start "
+                              "them (`skel up FILE` or skel-dpu --id N on their hosts), use --spawn, or wait "
+                              "longer (--wait-dpus S); a firewall must pass both ports")
+            for line in refused:
                 console.print(f"[red]{line}[/]", soft_wrap=True)
             return EXIT_FAILED
         if not _claim(control, dpu_ids, options.force, console):

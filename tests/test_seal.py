@@ -166,6 +166,12 @@ def test_a_host_and_dpus_that_disagree_on_the_key_say_so(dpus: DpuFarm, url: str
     assert ("DPU 1: did not answer generation 1: its messages are unsigned: it has no key and this host "
             "has one") in done.stderr, done.stderr
     assert dpus.log(1).count("refused: it is signed: the sender has a key and this DPU none") == 1
+    # A run says the same: its DPUs were heard, the key check refused them (not "start them").
+    run = skel("run", str(PAIR), "--url", url, *system, "--key", str(k1), "--wait-dpus", "2",
+               "--out", str(keys[0].parent / "run"), timeout=60)
+    assert run.returncode == 1, run.stdout + run.stderr
+    assert "DPU 1, 2 not accepted on" in run.stdout and "the key check refused" in run.stdout, run.stdout
+    assert "DPU 1: its messages are unsigned" in run.stdout and "firewall" not in run.stdout, run.stdout
 
 
 def test_a_replayed_start_is_refused(dpus: DpuFarm, url: str, keys: tuple[Path, Path],
