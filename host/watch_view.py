@@ -55,7 +55,11 @@ def render(heard: Heard, url: str) -> Group:
     tables = heard.tables
     head = Text(f"run {heard.run_id}")
     if tables is not None:
-        head.append(f" · {tables.config.system} · generation {tables.generation} · elapsed "
+        # After a live switch the tables are the new generation's window, timed from its start:
+        # said so, or its time read as the run's, begun again.
+        earlier = sorted(g for g in heard.store.generations if g < tables.generation)
+        switched = f" (switched live from {earlier[-1]}; `skel report` has every window)" if earlier else ""
+        head.append(f" · {tables.config.system} · generation {tables.generation}{switched} · measured "
                     f"{tables.elapsed_ms / 1000:.1f} s · {heard.store.n_records} records · "
                     f"{heard.lost_batches} batches lost")
         if heard.store.n_records > heard.covered:

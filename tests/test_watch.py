@@ -249,6 +249,27 @@ def test_the_tables_follow_the_newest_generation() -> None:
     _same_tables(tables, build_report(new, store.run(), configs={old.generation: old}))
 
 
+def test_the_view_says_its_tables_are_a_later_generations_window() -> None:
+    """After a live switch the view's tables are the new generation's, measured from its own
+    start: the head says so (a walk-through read the time begun again as the run's)."""
+    dpu1, dpu2 = small_run()
+    old, new = small_config(), small_config(generation=GENERATION + 1)
+    heard = Heard(keep_events=False)
+    heard.handle(CONFIG_CHANNEL, old.encode())
+    for t in batches(1, dpu1[:10], 3) + batches(2, dpu2[:2], 2):
+        heard.handle(TIMING_CHANNEL, t.encode())
+    heard.handle(CONFIG_CHANNEL, new.encode())
+    for t in (batches(1, dpu1[10:], 3, generation=new.generation, first_seq=10)
+              + batches(2, dpu2[2:], 2, generation=new.generation, first_seq=10)):
+        heard.handle(TIMING_CHANNEL, t.encode())
+    heard.refresh()
+    console = Console(width=200, record=True, file=io.StringIO())
+    console.print(render(heard, "udpm://x"))
+    text = console.export_text()
+    assert (f"generation {GENERATION + 1} (switched live from {GENERATION}; `skel report` has every window) "
+            "· measured") in text, text
+
+
 def test_a_real_runs_tables_tallied_as_heard_equal_skel_reports(tmp_path: Path) -> None:
     short_servo_run(tmp_path)
     run = load_run(tmp_path / "run.lcm")
