@@ -15,6 +15,7 @@ import jsonschema
 import numpy as np
 import pytest
 import zstandard
+from analysis_synth import GENERATION, batches, small_config, small_run, write_log
 from conftest import mapped_kib, short_servo_run, skel
 from mcap.reader import make_reader
 from mcap.writer import Writer
@@ -112,6 +113,22 @@ def _reversed_inputs(data: bytes) -> bytes:
                  "in_recv_ns"):  # fmt: skip
         setattr(t, name, list(getattr(t, name))[::-1])
     return t.encode()
+
+
+def test_a_process_of_an_earlier_generation_only_keeps_its_name(tmp_path: Path) -> None:
+    """A push that removed C: C's records, of the first window, are still C's topic, not
+    'process 2' for want of a name in the last config."""
+    dpu1, dpu2 = small_run()
+    old, new = small_config(), small_config(generation=GENERATION + 1)
+    new.processes = [p for p in new.processes if p.name != "C"]
+    new.nprocesses = len(new.processes)
+    events: list[tuple[str, object]] = [(CONFIG_CHANNEL, old)]
+    events += [(TIMING_CHANNEL, t) for t in batches(1, dpu1[:12], 4) + batches(2, dpu2, 2)]
+    events += [(CONFIG_CHANNEL, new)]
+    events += [(TIMING_CHANNEL, t) for t in batches(1, dpu1[12:], 4, generation=new.generation, first_seq=3)]
+    out = tmp_path / "run.mcap"
+    export(load_run(write_log(tmp_path / "run.lcm", events)), out)
+    assert {channel.topic for channel, _, _ in _timing(out)} == {"/timing/1/A", "/timing/1/B", "/timing/2/C"}
 
 
 def test_inputs_a_batch_lists_out_of_order_go_with_their_own_records(servo_run: Path, tmp_path: Path) -> None:
