@@ -7,8 +7,9 @@ frame (frame 0: every process is due) fits the minor cycle, which is the gcd of 
 periods placed there (pairs of periods bound it; the prediction checks the rest); on the
 tasking executive utilization fits, and exact response-time analysis, which is not
 linear, is checked on each candidate by predict(): a DPU that fails gets a no-good cut
-(those processes, from the failing one's priority up, never all on it again) and the
-model is solved again. Objectives: the worst DPU load, the worst latency of the chains
+(those processes, from the failing one's priority up, never all on it again, while the DPUs
+whose writers its data readers wait for hold what they hold) and the model is solved again.
+Objectives: the worst DPU load, the worst latency of the chains
 (the prediction's bound, made linear: a step's start waits for what runs before it on
 its DPU), or the bytes/s of buffers read on another DPU than their writer's; each ties
 broken by the next. Proven optimal when CP-SAT proves it for the model with its cuts.
@@ -193,10 +194,10 @@ class _Model:
                 out.append(math.ceil(q.compute_us / d.speed) * both)
         return sum(out)
 
-    def cut(self, on: dict[int, int], d: int, names: set[str]) -> None:
-        """Never again all of NAMES on DPU D."""
-        ids = [p.id for p in self.system.processes if p.name in names and on[p.id] == d]
-        self.m.add(sum(self.x[i, d] for i in ids) <= len(ids) - 1)
+    def cut(self, on: dict[int, int], names: dict[int, set[str]]) -> None:
+        """Never again all of NAMES (DPU -> names) on those DPUs together."""
+        placed = [self.x[p.id, on[p.id]] for p in self.system.processes if p.name in names.get(on[p.id], ())]
+        self.m.add(sum(placed) <= len(placed) - 1)
 
     def solve(self, objectives: list[cp_model.LinearExprT],
               seconds: float) -> tuple[dict[int, int], bool] | None:
@@ -284,8 +285,27 @@ def _search(system: System, dpus: list[Dpu], objective: str, pins: dict[str, int
         for d in failed:  # the processes from the first that misses its period up (all, on cyclic)
             mine = [p for p in pred.processes if p.dpu == d.id]
             late = [p.priority for p in mine if not p.schedulable]
-            model.cut(on, d.id, {p.name for p in mine if not late or p.priority >= max(late)})
+            names = {d.id: {p.name for p in mine if not late or p.priority >= max(late)}}
+            for other in _feeding(new, d.id):
+                names[other] = {p.name for p in new.processes_on(other)}
+            model.cut(on, names)
     return None
+
+
+def _feeding(system: System, dpu: int) -> set[int]:
+    """The other DPUs whose processes may decide when DPU's data readers start: a reader waits
+    for a writer of its period in each cycle (predict.py), whose end follows what runs before
+    it there, and so on; what fails on DPU fails only with them as they are."""
+    out: set[int] = set()
+    todo = [dpu]
+    while todo:
+        for r in system.processes_on(todo.pop()):
+            for b in r.required if r.sync == "data" else ():
+                w = system.process(system.buffer(b).writer)
+                if w.period_us == r.period_us and w.dpu != dpu and w.dpu not in out:
+                    out.add(w.dpu)
+                    todo.append(w.dpu)
+    return out
 
 
 def _what_would(system: System, dpus: list[Dpu], pins: dict[str, int], seconds: float,

@@ -4,12 +4,15 @@ what each frame demands, and when each process starts and ends relative to its r
 It mirrors dpu/executive.c: minor cycle j runs, in their order, the processes whose period
 is a multiple r of the minor cycle with r | j (so frame 0 holds every process and is the
 heaviest); a frame that ends late delays the next one, which then starts at once; releases
-are on the absolute grid. Data waits are not modelled here (predict.py paces data readers).
+are on the absolute grid. A `sync: data` process waits in its turn, holding the DPU, until its
+required data of the same cycle comes (`ready`: predict.py knows when its writers end); a
+reader of a slower writer is paced by it (predict.py), not modelled here.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 from .schema import Dpu, Process
@@ -28,15 +31,16 @@ class Frame:
     processes: tuple[str, ...]
     demand_us: float                # Σ compute / speed of the processes due
     minor_cycle_us: int
+    wait_us: float = 0.0            # the most its data readers hold the DPU waiting, in one of them
 
     @property
     def overflows(self) -> bool:
-        return self.demand_us > self.minor_cycle_us
+        return self.demand_us + self.wait_us > self.minor_cycle_us
 
     def to_json(self) -> dict[str, object]:
         return {"first": self.first, "count": self.count, "processes": list(self.processes),
-                "demand_us": round(self.demand_us, 1), "minor_cycle_us": self.minor_cycle_us,
-                "overflows": self.overflows}
+                "demand_us": round(self.demand_us, 1), "wait_us": round(self.wait_us, 1),
+                "minor_cycle_us": self.minor_cycle_us, "overflows": self.overflows}
 
 
 @dataclass(frozen=True)
@@ -60,17 +64,48 @@ def hyperperiod(processes: list[Process], minor_us: int) -> int:
     return math.lcm(*(max(1, p.period_us // minor_us) for p in processes)) if processes else 1
 
 
-def cyclic(d: Dpu, processes: list[Process]) -> tuple[tuple[Frame, ...], dict[int, Timing]]:
+def cyclic(d: Dpu, processes: list[Process], ready: Mapping[int, tuple[float, float]] | None = None
+           ) -> tuple[tuple[Frame, ...], dict[int, Timing]]:
     """The frames of one hyperperiod, grouped by what is due, and each process's timing.
-    `processes` in their order on the DPU."""
+    `processes` in their order on the DPU; `ready`: per data reader, the earliest and the
+    latest its required data of the same cycle comes, after its release."""
     if not processes:
         return (), {}
+    ready = ready or {}
     minor = d.minor_cycle_us
     ratio = {p.id: max(1, p.period_us // minor) for p in processes}
     h = hyperperiod(processes, minor)
     load = sum(compute_us(p, d) / p.period_us for p in processes)
     groups: dict[tuple[str, ...], list[int]] = {}
+    for j in range(min(h, MAX_FRAMES)):
+        due = tuple(p.name for p in processes if j % ratio[p.id] == 0)
+        if due:
+            groups.setdefault(due, [j, 0])[1] += 1
+    latest, waits = _simulate(d, processes, ratio, h, {i: r[1] for i, r in ready.items()})
+    # starts only move later with the data, so the earliest data gives the earliest starts
+    earliest = (_simulate(d, processes, ratio, h, {i: r[0] for i, r in ready.items()})[0]
+                if any(r[0] != r[1] for r in ready.values()) else latest)
+    by_name = {p.name: p for p in processes}
+    out_frames = tuple(Frame(first, count, names, sum(compute_us(by_name[n], d) for n in names), minor,
+                             waits.get(names, 0.0))
+                       for names, (first, count) in sorted(groups.items(), key=lambda kv: kv[1][0]))
+    timing = {}
+    for pid, (_, start_max, end) in latest.items():
+        start_min = earliest[pid][0]
+        bounded = load <= 1 and math.isfinite(end)
+        timing[pid] = Timing(start_min if start_min != math.inf else 0.0, start_max, end if bounded else None)
+    return out_frames, timing
+
+
+def _simulate(d: Dpu, processes: list[Process], ratio: dict[int, int], h: int, ready: Mapping[int, float]
+              ) -> tuple[dict[int, list[float]], dict[tuple[str, ...], float]]:
+    """Per process its earliest and latest start and latest end after its release; per set of
+    processes due, the most they wait for data in one minor cycle begun on time (a late one
+    may wait less, its lateness then spent waiting: what it needs of its own minor cycle is
+    what overflows it)."""
+    minor = d.minor_cycle_us
     seen: dict[int, list[float]] = {p.id: [math.inf, 0.0, 0.0] for p in processes}
+    waits: dict[tuple[str, ...], float] = {}
     t = 0.0
     frames = min(2 * h, MAX_FRAMES)
     settled = h if 2 * h <= MAX_FRAMES else 0  # measure the second hyperperiod, when there is one
@@ -78,19 +113,19 @@ def cyclic(d: Dpu, processes: list[Process]) -> tuple[tuple[Frame, ...], dict[in
         due = [p for p in processes if j % ratio[p.id] == 0]
         if not due:
             continue
-        if j < h:
-            key = tuple(p.name for p in due)
-            groups.setdefault(key, [j, 0])[1] += 1
         t = max(t, j * minor)
+        on_time, waited = float(j * minor), 0.0
         for p in due:
             release = (j // ratio[p.id]) * p.period_us
-            start, t = t, t + compute_us(p, d)
+            data = release + ready.get(p.id, 0.0)
+            waited += max(0.0, data - on_time)
+            on_time = max(on_time, data) + compute_us(p, d)
+            start = max(t, data)
+            t = start + compute_us(p, d)
             if j >= settled:
                 s = seen[p.id]
                 s[:] = min(s[0], start - release), max(s[1], start - release), max(s[2], t - release)
-    by_name = {p.name: p for p in processes}
-    out_frames = tuple(Frame(first, count, names, sum(compute_us(by_name[n], d) for n in names), minor)
-                       for names, (first, count) in sorted(groups.items(), key=lambda kv: kv[1][0]))
-    timing = {pid: Timing(s[0] if s[0] != math.inf else 0.0, s[1], s[2] if load <= 1 else None)
-              for pid, s in seen.items()}
-    return out_frames, timing
+        if j >= settled:
+            key = tuple(p.name for p in due)
+            waits[key] = max(waits.get(key, 0.0), waited)
+    return seen, waits

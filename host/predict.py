@@ -5,9 +5,11 @@ measure; on the cyclic executive every minor cycle's demand against the minor cy
 (frames.py), on the tasking executive exact response-time analysis (schedule.py); per
 input buffer the new / stale / dropped share of the reader's cycles, as the analysis
 counts them; the data-wait structure (a cycle of `sync: data` processes can never start:
-an error; a data reader of a slower writer is paced by it); per chain the best and worst
-end-to-end latency; per link its traffic. The DPUs' own costs (communication, wake-up,
-interference) are not in it: what a run measures beyond it is the platform's.
+an error; a data reader of a slower writer is paced by it; one of a writer of its own period
+waits, each cycle, for that writer's end: _same_cycle(), in its start and all that follows);
+per chain the best and worst end-to-end latency; per link its traffic. The DPUs' own costs
+(communication, wake-up, interference) are not in it: what a run measures beyond it is the
+platform's.
 
 How often the host sends an event (`kind: host`, `skel event`) is in no file, so what follows
 from the rate of a process it drives (directly, through events or data, or by taking the
@@ -165,33 +167,71 @@ def predict(system: System) -> Prediction:
     errors, stuck = deadlocks(system)
     rates, paced = _rates(system, stuck)
     unknown = unknown_rates(system, stuck)
-    timing: dict[int, Timing] = {}
+    waits = _same_cycle(system, stuck | unknown | set(paced))
+    timing, found = _timings(system, waits)
     dpus = []
     for d in system.dpus:
         mine = system.processes_on(d.id)
-        if d.executive == "threads":
-            found: tuple[Frame, ...] = ()
-            timing.update(_tasking(d, mine))
-        else:
-            found, cyclic = frames.cyclic(d, mine)
-            timing.update(cyclic)
         load = sum(frames.compute_us(p, d) / p.period_us for p in mine)
         busy = sum(frames.compute_us(p, d) * rates[p.id] / 1e6 for p in mine)
         compute = None if any(p.id in unknown for p in mine) else 100 * min(1.0, busy)
-        ok = all(_meets(timing[p.id], p) for p in mine) and not any(f.overflows for f in found)
+        ok = all(_meets(timing[p.id], p) for p in mine) and not any(f.overflows for f in found[d.id])
         dpus.append(DpuPrediction(d.id, d.executive, d.speed, d.minor_cycle_us,
                                   frames.hyperperiod(mine, d.minor_cycle_us), 100 * load,
-                                  compute, found, ok, _lockout_ms(system, d, mine, load)))
+                                  compute, found[d.id], ok, _lockout_ms(system, d, mine, load)))
     processes = tuple(
         ProcessPrediction(p.name, p.dpu, p.period_us, frames.compute_us(p, system.dpu(p.dpu)), p.priority,
                           None if p.id in unknown else rates[p.id], _paced_by(system, p, paced, unknown),
                           timing[p.id].start_min_us, timing[p.id].start_max_us, timing[p.id].response_us)
         for p in system.processes)
     by_name = {p.name: p for p in processes}
+    fed = {(r, w.id): _data_at(system, timing, w)[0] for r, ws in waits.items() for _, w in ws}
     prediction = Prediction(system.name, tuple(dpus), processes, _inputs(system, rates, unknown),
-                            _chains(system, by_name, rates, unknown), _links(system, rates, unknown),
+                            _chains(system, by_name, rates, unknown, fed), _links(system, rates, unknown),
                             errors, ())
-    return Prediction(**{**prediction.__dict__, "warnings": tuple(_warnings(system, prediction))})
+    return Prediction(**{**prediction.__dict__, "warnings": tuple(_warnings(system, prediction, waits))})
+
+
+def _data_at(system: System, timing: dict[int, Timing], w: Process) -> tuple[float, float]:
+    """When W's data of a cycle comes, after its release: its earliest and latest end (inf:
+    it falls ever further behind). Its publishing and the transport are the platform's."""
+    t = timing[w.id]
+    return (t.start_min_us + frames.compute_us(w, system.dpu(w.dpu)),
+            t.response_us if t.response_us is not None else math.inf)
+
+
+def _timings(system: System, waits: dict[int, list[tuple[int, Process]]]
+             ) -> tuple[dict[int, Timing], dict[int, tuple[Frame, ...]]]:
+    """Every process's timing and every cyclic DPU's frames, each data reader started no
+    sooner than its data of the same cycle (waits): a writer's end moves its readers', and
+    theirs their readers', one DPU after another, so it is done again until nothing moves."""
+    ready: dict[int, tuple[float, float]] = {}
+    moved: set[int] = set()
+    for _ in range(len(system.processes) + 1):
+        timing, found = _schedule(system, ready)
+        now = {r: (max(_data_at(system, timing, w)[0] for _, w in ws),
+                   max(_data_at(system, timing, w)[1] for _, w in ws)) for r, ws in waits.items()}
+        if now == ready:
+            return timing, found
+        moved, ready = {r for r in now if now[r] != ready.get(r)}, now
+    # still moving: the waits go round DPUs that each hold up the next, and no cycle ever ends
+    return _schedule(system, {r: (e, math.inf) if r in moved else (e, late)
+                              for r, (e, late) in ready.items()})
+
+
+def _schedule(system: System, ready: dict[int, tuple[float, float]]
+              ) -> tuple[dict[int, Timing], dict[int, tuple[Frame, ...]]]:
+    timing: dict[int, Timing] = {}
+    found: dict[int, tuple[Frame, ...]] = {}
+    for d in system.dpus:
+        mine = system.processes_on(d.id)
+        if d.executive == "threads":
+            found[d.id] = ()
+            timing.update(_tasking(d, mine, ready))
+        else:
+            found[d.id], cyclic = frames.cyclic(d, mine, ready)
+            timing.update(cyclic)
+    return timing, found
 
 
 # --- rates and the data-wait structure -----------------------------------------------------
@@ -241,6 +281,29 @@ def _cycle_problem(system: System, loop: list[int], writer: dict[int, int]) -> P
                    f"data-wait deadlock: {' -> '.join([*names, names[0]])} can never start "
                    f"({'; '.join(waits)}); make one of them sync: periodic or take the buffer "
                    "out of its `required`")
+
+
+def _same_cycle(system: System, left_out: set[int]) -> dict[int, list[tuple[int, Process]]]:
+    """Per data reader, the required buffers (and their writers) it waits for in each of its
+    cycles: a writer of its period is released with it (the grid is the run's), so the reader
+    finds what it used last cycle until the writer's computation of this one ends. Not a
+    writer before it in its cyclic frame (it has ended), nor after it there (its last cycle's
+    is new), nor a higher priority on its tasking processor that is ready at its release (it
+    holds the processor until it ends anyway); an event writer runs on no grid. LEFT_OUT:
+    readers that never start, run at an unknown rate or are paced by a slower writer."""
+    out: dict[int, list[tuple[int, Process]]] = {}
+    for p in sorted(system.processes, key=lambda q: -q.priority):  # a higher priority is settled first
+        if p.sync != "data" or p.id in left_out:
+            continue
+        for b in p.required:
+            w = system.process(system.buffer(b).writer)
+            if w.period_us != p.period_us or w.sync == "event":
+                continue
+            if w.dpu == p.dpu and (system.dpu(p.dpu).executive != "threads"
+                                   or (w.priority > p.priority and w.id not in out)):
+                continue
+            out.setdefault(p.id, []).append((b, w))
+    return out
 
 
 def nominal_rate_hz(system: System, p: Process) -> float:
@@ -355,14 +418,17 @@ def _serve(d: Dpu, mine: list[Process], rates: dict[int, float]) -> None:
             rates[p.id] /= busy
 
 
-def _tasking(d: Dpu, mine: list[Process]) -> dict[int, Timing]:
-    """Exact response-time analysis on ns (the DPU's own unit), highest priority first."""
+def _tasking(d: Dpu, mine: list[Process], ready: dict[int, tuple[float, float]]) -> dict[int, Timing]:
+    """Exact response-time analysis on ns (the DPU's own unit), highest priority first. A data
+    reader is ready only when its data comes (READY): from then on it meets at worst the
+    critical instant, and the others meet it at worst there too, so its wait only adds."""
     ranked = sorted(mine, key=lambda p: -p.priority)
     tasks = [(math.ceil(frames.compute_us(p, d) * 1000), p.period_us * 1000) for p in ranked]
     out = {}
     for p, (c, _), r in zip(ranked, tasks, response_times(tasks), strict=True):
-        out[p.id] = Timing(0.0, (r - c) / 1000 if r is not None else math.inf,
-                           r / 1000 if r is not None else None)
+        early, late = ready.get(p.id, (0.0, 0.0))
+        out[p.id] = (Timing(early, late + (r - c) / 1000, late + r / 1000)
+                     if r is not None and math.isfinite(late) else Timing(early, math.inf, None))
     return out
 
 
@@ -403,12 +469,13 @@ def _inputs(system: System, rates: dict[int, float], unknown: set[int]) -> tuple
 
 
 def _chains(system: System, by_name: dict[str, ProcessPrediction], rates: dict[int, float],
-            unknown: set[int]) -> tuple[ChainPrediction, ...]:
+            unknown: set[int], fed: dict[tuple[int, int], float]) -> tuple[ChainPrediction, ...]:
     """Per step, the value waits for the reader's next read: at best none; at worst a whole
     reader period plus the spread of its start, or, for a reader paced by that very buffer
-    (it waits for each value), its latest start; a reader of unknown rate that runs on events
-    reads when the next comes, which nothing bounds. A step in the middle then computes (at
-    best its compute, at worst up to its response)."""
+    (it waits for each value), its latest start, less the writer's earliest end when it waits
+    for the value of its own cycle (FED: (reader, writer) -> that end); a reader of unknown
+    rate that runs on events reads when the next comes, which nothing bounds. A step in the
+    middle then computes (at best its compute, at worst up to its response)."""
     out = []
     for c in system.chains:
         steps = [system.process(i) for i in c.processes]
@@ -419,6 +486,8 @@ def _chains(system: System, by_name: dict[str, ProcessPrediction], rates: dict[i
             fastest = nominal_rate_hz(system, before) if before.id in unknown else rates[before.id]
             data_paced = buffer in p.required and fastest <= 1e6 / p.period_us * (1 + 1e-9)
             wait = at.start_max_us if data_paced else p.period_us + at.start_max_us - at.start_min_us
+            if data_paced and (p.id, before.id) in fed:
+                wait = max(0.0, at.start_max_us - fed[(p.id, before.id)])
             if buffer in p.required and before.id in unknown:  # below its fastest, the writer may pace P
                 wait = max(wait, at.start_max_us)
             worst += math.inf if p.sync == "event" and p.id in unknown else wait
@@ -448,13 +517,37 @@ def _links(system: System, rates: dict[int, float], unknown: set[int]) -> tuple[
     return tuple(out)
 
 
-def _warnings(system: System, pred: Prediction) -> list[str]:
+def _waits_said(system: System, pred: Prediction, waits: dict[int, list[tuple[int, Process]]],
+                names: set[str]) -> str:
+    """What the data readers among NAMES wait for, each cycle: what makes a frame or a response
+    longer than its computations."""
+    said = []
+    for r, ws in waits.items():
+        reader = system.process(r)
+        if reader.name not in names:
+            continue
+        for b, w in ws:
+            end = pred.process(w.name).response_us
+            when = f"at worst {end / 1000:g} ms after their release" if end is not None else "never in time"
+            said.append(f"{reader.name} waits for {system.buffer(b).name} until {w.name} (DPU {w.dpu}) "
+                        f"ends, {when}")
+    return "; ".join(said)
+
+
+def _warnings(system: System, pred: Prediction, waits: dict[int, list[tuple[int, Process]]]) -> list[str]:
     out: list[str] = []
     for d in pred.dpus:
         frames_said = "; ".join(
-            f"minor cycle {f.first} ({f.count} of every {d.hyperperiod}) demands {f.demand_us / 1000:g} "
-            f"ms ({', '.join(f.processes)})" for f in d.overflowing[:3])
+            f"minor cycle {f.first} ({f.count} of every {d.hyperperiod}) demands "
+            + (f"{(f.demand_us + f.wait_us) / 1000:g} ms ({', '.join(f.processes)})"
+               + (f", {f.wait_us / 1000:g} ms of it waiting for data" if f.wait_us > 0 else "")
+               if math.isfinite(f.wait_us) else
+               f"{f.demand_us / 1000:g} ms ({', '.join(f.processes)}) after data that never comes")
+            for f in d.overflowing[:3])
         frames_said += "; ..." if len(d.overflowing) > 3 else ""
+        waited = _waits_said(system, pred, waits, {n for f in d.overflowing if f.wait_us > 0
+                                                   for n in f.processes})
+        frames_said += f": {waited}" if waited else ""
         if d.lockout_ms is not None:
             out.append(f"DPU {d.id}: static load {d.load_pct:.1f} % exceeds 100 %: it will overrun every "
                        f"cycle and fall {100 * (1 - 100 / d.load_pct):.0f} % of the time behind; lockout "
@@ -466,8 +559,10 @@ def _warnings(system: System, pred: Prediction) -> list[str]:
         for p in pred.processes:
             if p.dpu == d.id and d.executive == "threads" and not p.schedulable:
                 resp = f"{p.response_us / 1000:g} ms" if p.response_us is not None else "unbounded"
+                waited = _waits_said(system, pred, waits, {p.name})
                 out.append(f"DPU {d.id}: {p.name} (priority {p.priority}) misses its deadline: worst "
-                           f"response {resp} > period {p.period_us / 1000:g} ms")
+                           f"response {resp} > period {p.period_us / 1000:g} ms"
+                           + (f" ({waited})" if waited else ""))
     for p in pred.processes:
         if p.paced_by is None:
             continue

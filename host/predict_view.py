@@ -3,6 +3,7 @@ the JSON `skel run` and `skel report` hand to the analysis, to lay beside a run'
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -15,8 +16,8 @@ from .system import loads
 from .yamlfile import SystemFileError
 
 
-def _ms(us: float | None) -> str:
-    return "unbounded" if us is None else f"{us / 1000:.3g}"
+def _ms(us: float | None, digits: int = 3) -> str:
+    return "unbounded" if us is None or math.isinf(us) else f"{us / 1000:.{digits}g}"
 
 
 def _known(value: float | None, spec: str) -> str:
@@ -37,7 +38,7 @@ def print_prediction(console: Console, pred: Prediction) -> None:
     dpus = _table("DPU", "executive", "load %", "predicted % compute", "frames that overflow",
                   "lockout at ms")
     for d in pred.dpus:
-        over = ", ".join(f"{f.first} ({f.demand_us / 1000:.4g} of {f.minor_cycle_us / 1000:g} ms)"
+        over = ", ".join(f"{f.first} ({_ms(f.demand_us + f.wait_us, 4)} of {f.minor_cycle_us / 1000:g} ms)"
                          for f in d.overflowing[:3]) + (" ..." if len(d.overflowing) > 3 else "")
         load = f"[red]{d.load_pct:.1f}[/]" if not d.schedulable else f"{d.load_pct:.1f}"
         dpus.add_row(str(d.id), "tasking" if d.executive == "threads" else "cyclic", load,

@@ -53,6 +53,34 @@ def test_servo_predicts_table1_schedulable_and_clean() -> None:
     assert json.loads(json.dumps(pred.to_json()))["dpus"][0]["overflowing_frames"] == []
 
 
+def test_a_data_reader_waits_for_its_writer_of_the_same_cycle() -> None:
+    """Trajectory moved to DPU 2 runs there before joint_sensors, so jacobian_transpose (DPU 3,
+    sync: data on joint_state) finds last cycle's joint_state until joint_sensors ends, 1.37 ms
+    into each cycle, and DPU 3's frame needs 1.37 + 2.8 + 1.5 ms of its 5 (a new user's
+    walk-through: predicted 0..0 and no warning, and the run overran every cycle)."""
+    pred = predict(load(EXAMPLES / "servo.yaml", ["process.trajectory.dpu=2"]))
+    sensors, reader = pred.process("joint_sensors"), pred.process("jacobian_transpose")
+    assert sensors.response_us == pytest.approx(1370)
+    assert reader.start_min_us >= sensors.response_us and reader.start_max_us >= sensors.response_us
+    assert reader.response_us == pytest.approx(1370 + 2800)
+    assert pred.process("force_control").response_us == pytest.approx(5670)
+    frame = pred.dpu(3).frames[0]
+    assert (frame.demand_us, frame.wait_us) == (pytest.approx(4300), pytest.approx(1370)) and frame.overflows
+    assert not pred.dpu(3).schedulable and not pred.schedulable
+    assert pred.warnings == (
+        "DPU 3: frames overflow the 5 ms minor cycle: minor cycle 0 (1 of every 1) demands 5.67 ms "
+        "(jacobian_transpose, force_control), 1.37 ms of it waiting for data: jacobian_transpose waits "
+        "for joint_state until joint_sensors (DPU 2) ends, at worst 1.37 ms after their release",)
+    # the chain counts from joint_sensors' output: jacobian_transpose starts as it comes
+    assert (pred.chains[0].best_us, pred.chains[0].worst_us) == (2800, 2800 + 5000)
+    # on the tasking executive force_control computes while jacobian_transpose waits
+    tasking = predict(load(EXAMPLES / "servo-tasking.yaml", ["process.trajectory.dpu=2"]))
+    assert tasking.process("jacobian_transpose").start_max_us == pytest.approx(1370)
+    assert tasking.process("jacobian_transpose").response_us == pytest.approx(1370 + 2800)
+    assert tasking.process("force_control").response_us == pytest.approx(4300)
+    assert tasking.dpu(3).schedulable
+
+
 def test_servo_at_2_5_ms_predicts_overload_frames_and_lockout() -> None:
     pred = predict(load(EXAMPLES / "servo-2.5ms.yaml"))
     assert [d.schedulable for d in pred.dpus] == [False, False, False, True]
