@@ -170,7 +170,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         control.follow(run_id)
         committed = config_message(system, generation, run_id, committed=True)
         try:
-            _follow(control, follower, clocks, committed, duration_ns, dpu_ids, repair)
+            _follow(control, follower, clocks, committed, duration_ns, dpu_ids, repair, out)
         except KeyboardInterrupt:  # Ctrl-C or SIGTERM: end the run, keep what ran, and say so
             interrupted = True
             console.print("interrupted: stopping the run; its report covers what ran")
@@ -306,8 +306,9 @@ def _stop_reason(fault: Fault) -> str:
 
 
 def _adopt_pushed(control: Control, config: skelmsg.config_t, dpu_ids: list[int],
-                  console: Console) -> skelmsg.config_t:
-    """The config to re-send from now on: ours, or the one a `skel push` committed mid-run.
+                  console: Console, out: Path) -> skelmsg.config_t:
+    """The config to re-send from now on: ours, or the one a `skel push` committed mid-run,
+    whose system file is written to `out`/system-gN.yaml (the run's system.yaml is the first).
 
     The DPUs' heartbeats say which generation they apply; the pushed config itself was
     heard on SKEL_CONFIG when `skel push` staged it (from any host), so the follower
@@ -323,15 +324,18 @@ def _adopt_pushed(control: Control, config: skelmsg.config_t, dpu_ids: list[int]
     adopted = skelmsg.config_t.decode(pushed.encode())  # a copy: the Control's stays as heard
     adopted.committed, adopted.run_id = 1, config.run_id
     by = f" (pushed by {pushed.sender}{', --force' if pushed.force else ''})" if pushed.sender else ""
+    if adopted.source:
+        (out / f"system-g{newest}.yaml").write_text(adopted.source)
     console.print(f"generation {newest} committed mid-run: re-sending it from now on{by}")
     return adopted
 
 
 def _follow(control: Control, follower: RunFollower, clocks: ClockKeeper, config: skelmsg.config_t,
-            duration_ns: int, dpu_ids: list[int], repair: LogRepair | None) -> None:
+            duration_ns: int, dpu_ids: list[int], repair: LogRepair | None, out: Path) -> None:
     """Start the run and follow it; re-send the committed config every second meanwhile, so
     a late or restarted DPU catches up and the log holds the configuration of the run.
-    A generation committed mid-run by `skel push` replaces ours in the re-sends."""
+    A generation committed mid-run by `skel push` replaces ours in the re-sends, and its
+    system file goes beside the run's (`out`/system-gN.yaml)."""
     run_id = config.run_id
     control.publish_config(config)
     start_utc = time.time_ns() + int(START_LEAD_S * 1e9)
@@ -359,7 +363,7 @@ def _follow(control: Control, follower: RunFollower, clocks: ClockKeeper, config
                 break
             progress.update(task, completed=max(0.0, (time.time_ns() - start_utc) / 1e9))
             if time.monotonic() - resent >= CONFIG_RESEND_S:
-                config = _adopt_pushed(control, config, dpu_ids, follower.console)
+                config = _adopt_pushed(control, config, dpu_ids, follower.console, out)
                 control.publish_config(config)
                 resent = time.monotonic()
             if clocks.due():

@@ -130,6 +130,9 @@ def test_netns_push_mid_run_switches_every_dpu_at_one_boundary(netns_hosts: Host
         assert not SANITIZER_ERROR.search(log.read_bytes()), log.read_text(errors="replace")
     assert run.returncode == 0, output
     assert f"generation {new} committed mid-run: re-sending it" in output
+    # The run directory keeps what ran: the pushed generation's system file beside the first.
+    assert "compute_us: 1500" in (out / f"system-g{new}.yaml").read_text()
+    assert "compute_us: 1500" not in (out / "system.yaml").read_text()
 
     report = json.loads(_skel(netns_hosts, "skelh3", "report", str(out / "run.lcm"), "--json").stdout)
     old = min(report["generations"])
