@@ -28,6 +28,7 @@ from rich.console import Console
 from skeleton.analysis.measure.run import IMPOSSIBLE, load_run
 from skeleton.analysis.measure.tally import RunTally
 from skeleton.analysis.read import parallel
+from skeleton.analysis.views import plots
 from skeleton.analysis.views.parquet import write_parquet
 from skeleton.analysis.views.report import report_command
 from skeleton.analysis.views.tables import print_report
@@ -192,10 +193,21 @@ def test_a_later_windows_faults_say_when_from_the_runs_start(tmp_path: Path) -> 
     dpu1, dpu2 = small_run()
     b8 = next(r for r in dpu1 if r.process == 1 and r.cycle == 8)
     b8.stall_ns = 10 * MS  # a whole minor cycle of DPU 1: a fault of its own
-    rep = load_run(str(_two_generation_log(tmp_path / "run.lcm", (dpu1, dpu2)))).report
-    stalls = [f for f in rep.windows[1].faults if f.kind == "stall"]
+    run = load_run(str(_two_generation_log(tmp_path / "run.lcm", (dpu1, dpu2))))
+    stalls = [f for f in run.report.windows[1].faults if f.kind == "stall"]
     # it ended at B's start (80 ms + A's 4.68 ms + 0.1 ms into the run), after 10 ms
     assert [f.at_s for f in stalls] == [pytest.approx(0.07478)], stalls
+    # The trace, which holds every window's cycles, puts it 10 ms before B's cycle 8 starts.
+    write_trace(run, tmp_path / "trace.json")
+    events = json.loads((tmp_path / "trace.json").read_text())["traceEvents"]
+    stall = next(e for e in events if e["ph"] == "i" and e["name"] == "stall")
+    b8 = min(e["ts"] for e in events if e["ph"] == "X" and e["tid"] == 1 and e["args"]["cycle"] == 8)
+    assert stall["ts"] == pytest.approx(b8 - 10_000)
+    # The schedule plot's time axis counts from the run's first release too: DPU 1's curve
+    # begins at its window's first frame, 60 ms in, and the stall is marked at 74.78 ms.
+    ax = plots.schedule(run).axes[0]
+    assert ax.lines[0].get_xdata()[0] == pytest.approx(0.06)
+    assert [p.get_x() for p in ax.patches] == [pytest.approx(0.07478)]
 
 
 def test_generation_windows_split_the_run(tmp_path: Path) -> None:

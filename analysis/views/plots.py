@@ -20,6 +20,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
+from ..measure.faults import first_release_ns
 from ..measure.metrics import LatencyUs, ProcessMetrics, cycle_end_ns, frames, measured
 from ..measure.run import RunAnalysis
 from ..read.records import FLAG_OVERRUN, FLAG_SKIPPED
@@ -253,18 +254,20 @@ def _log_counts(ax: plt.Axes, highest: int) -> None:
 def schedule(data: RunAnalysis) -> Figure:
     """Per DPU: each minor cycle's frame release latency over the report generation's window
     (the whole run for one generation), with the faults `behind` and `stall` of the report
-    marked where they happened: their times count from that window's first release."""
+    marked where they happened: the time axis counts from the run's first release, as their
+    at_s does."""
     dpus = sorted(data.config.dpus, key=lambda d: d.id)
     fig = _figure(11, 1.0 + 1.6 * len(dpus))
     axes = fig.subplots(len(dpus), 1, sharex=True, squeeze=False)[:, 0]
     recs = data.records
+    origin = first_release_ns(data.recorded.records)
     for ax, dpu in zip(axes, dpus, strict=True):
         mine = recs[recs["dpu"] == dpu.id]
         if len(mine) == 0:
             ax.text(0.5, 0.5, "no cycle", ha="center", va="center", transform=ax.transAxes)
             continue
         _, starts, releases = frames(mine)
-        ax.plot((releases - releases[0]) / 1e9, (starts - releases) / 1e6, color=COMPUTE, linewidth=0.8)
+        ax.plot((releases - origin[dpu.id]) / 1e9, (starts - releases) / 1e6, color=COMPUTE, linewidth=0.8)
         ax.axhline(dpu.minor_cycle_us / 1000, color="black", linestyle="--", linewidth=0.8)
         for f in data.report.faults:
             if f.kind == "behind" and f.dpu == dpu.id and f.at_s is not None and f.duration_ms is not None:
