@@ -36,7 +36,9 @@ def main() -> None:
     runs = [skeleton.load_run(path) for path in args.runs]
     for path, run in zip(args.runs, runs, strict=True):
         cycles = run.timing.to_pandas()
-        mine = cycles[(cycles.process_name == args.process) & cycles.measured & cycles.completed]
+        # The report's window: the timing table holds every generation of a run pushed mid-way.
+        mine = cycles[(cycles.process_name == args.process) & (cycles.generation == run.report.generation)
+                      & cycles.measured & cycles.completed]
         p50, p99 = mine.response_us.quantile([0.5, 0.99])
         print(f"{path}: {args.process} response p50 {p50:.1f} us, p99 {p99:.1f} us "
               f"over {len(mine)} cycles")

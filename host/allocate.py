@@ -25,7 +25,7 @@ from itertools import combinations
 from ortools.sat.python import cp_model
 
 from . import yamledit
-from .predict import Prediction, predict, wire_bytes
+from .predict import Prediction, predict, same_cycle_waits, wire_bytes
 from .schema import Dpu, Process
 from .system import System, loads
 
@@ -294,15 +294,15 @@ def _search(system: System, dpus: list[Dpu], objective: str, pins: dict[str, int
 
 def _feeding(system: System, dpu: int) -> set[int]:
     """The other DPUs whose processes may decide when DPU's data readers start: a reader waits
-    for a writer of its period in each cycle (predict.py), whose end follows what runs before
-    it there, and so on; what fails on DPU fails only with them as they are."""
+    for a writer of its period in each cycle (predict.same_cycle_waits), whose end follows what
+    runs before it there, and so on; what fails on DPU fails only with them as they are."""
+    waits = same_cycle_waits(system)
     out: set[int] = set()
     todo = [dpu]
     while todo:
         for r in system.processes_on(todo.pop()):
-            for b in r.required if r.sync == "data" else ():
-                w = system.process(system.buffer(b).writer)
-                if w.period_us == r.period_us and w.dpu != dpu and w.dpu not in out:
+            for _, w in waits.get(r.id, ()):
+                if w.dpu != dpu and w.dpu not in out:
                     out.add(w.dpu)
                     todo.append(w.dpu)
     return out

@@ -6,7 +6,7 @@ measure; on the cyclic executive every minor cycle's demand against the minor cy
 input buffer the new / stale / dropped share of the reader's cycles, as the analysis
 counts them; the data-wait structure (a cycle of `sync: data` processes can never start:
 an error; a data reader of a slower writer is paced by it; one of a writer of its own period
-waits, each cycle, for that writer's end: _same_cycle(), in its start and all that follows);
+waits, each cycle, for that writer's end: same_cycle_waits(), in its start and all that follows);
 per chain the best and worst end-to-end latency; per link its traffic. The DPUs' own costs
 (communication, wake-up, interference) are not in it: what a run measures beyond it is the
 platform's.
@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Collection
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -167,7 +168,7 @@ def predict(system: System) -> Prediction:
     errors, stuck = deadlocks(system)
     rates, paced = _rates(system, stuck)
     unknown = unknown_rates(system, stuck)
-    waits = _same_cycle(system, stuck | unknown | set(paced))
+    waits = same_cycle_waits(system, stuck | unknown | set(paced))
     timing, found = _timings(system, waits)
     dpus = []
     for d in system.dpus:
@@ -283,7 +284,8 @@ def _cycle_problem(system: System, loop: list[int], writer: dict[int, int]) -> P
                    "out of its `required`")
 
 
-def _same_cycle(system: System, left_out: set[int]) -> dict[int, list[tuple[int, Process]]]:
+def same_cycle_waits(system: System,
+                     left_out: Collection[int] = ()) -> dict[int, list[tuple[int, Process]]]:
     """Per data reader, the required buffers (and their writers) it waits for in each of its
     cycles: a writer of its period is released with it (the grid is the run's), so the reader
     finds what it used last cycle until the writer's computation of this one ends. Not a

@@ -66,8 +66,8 @@ def test_a_dpu_without_a_measured_cycle_is_said_why(tmp_path: Path) -> None:
     rep = load_run(str(write_log(tmp_path / "run.lcm", events))).report
     assert [d.records for d in rep.dpus] == [10, 0]
     text = " ".join(_render(rep).split())
-    assert ("DPU 2: no measured cycle here (its warm-up, 5 cycles of its longest period, outlasted this "
-            "window, or it ran none)") in text, text
+    assert ("DPU 2: no measured cycle here (its warm-up, warmup_cycles of its longest period, outlasted "
+            "this window, or it ran none)") in text, text
 
 
 def test_analyze_json_fields(tmp_path: Path) -> None:

@@ -208,7 +208,9 @@ def _cross_check(windows: Sequence[np.ndarray], measured: Sequence[np.ndarray],
                  reports: Sequence[Any]) -> list[dict[str, Any]]:
     """The DPU's own running sums (report_t) beside ours over the measured records of every
     window (`measured`: each one's mask): they should agree. A DPU sums from its run's window
-    on, across live switches (its warm-up is once a run), so ours add up every generation's."""
+    on, across live switches (its warm-up is once a run), so ours add up every generation's.
+    They differ when a push changed warmup_cycles or a DPU's longest period during the run: a
+    window opens by its own config (metrics.window_start_ns), the DPU's by its first one."""
     out = []
     for rep in sorted(reports, key=lambda r: r.dpu):
         mine = [(records, mask & (records["dpu"] == rep.dpu)) for records, mask in zip(windows, measured,

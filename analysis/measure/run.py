@@ -77,11 +77,15 @@ class RunAnalysis:
             self._windows[generation] = window_records(self.recorded, generation)
         return self._windows[generation]
 
+    def window_configs(self) -> list[Any]:
+        """The config_t of every generation window of the report, in order."""
+        return [self.messages.configs[w.generation] for w in self.report.windows]
+
     def windows(self) -> Iterator[tuple[Any, Any, Any]]:
         """(config_t, records, inputs) of every generation window of the report, in order: every
         cycle of the run but those of a generation no config names (counted as malformed)."""
-        for w in self.report.windows:
-            yield (self.messages.configs[w.generation], *self.window(w.generation))
+        for config in self.window_configs():
+            yield (config, *self.window(config.generation))
 
     @property
     def records(self) -> Any:

@@ -223,7 +223,7 @@ def _timing_source(data: RunAnalysis, out: BulkWriter) -> MessageSource:
 def _timing_channels(data: RunAnalysis, out: BulkWriter, dpu: np.ndarray, process: np.ndarray) -> np.ndarray:
     """The MCAP channel of each record: one per (DPU, process), named as the last generation
     that has the process names it (a process of an earlier window only keeps its name)."""
-    configs = [data.messages.configs[w.generation] for w in data.report.windows]
+    configs = data.window_configs()
     names = {p.id: p.name for c in configs for p in c.processes}
     buffers = json.dumps({str(b.id): b.name for c in configs for b in c.buffers})
     schema = out.schema("skeleton/msg/TimingRecord", "ros2msg", TIMING_SCHEMA.encode())

@@ -88,8 +88,7 @@ def dpu_table(report: RunReport, window: WindowReport | None = None) -> Table:
     unmeasured = [str(d.id) for d in part.dpus if d.records == 0]
     if unmeasured:
         table.caption = (f"DPU {', '.join(unmeasured)}: no measured cycle here (its warm-up, "
-                         f"{report.warmup_cycles} cycles of its longest period, outlasted this window, "
-                         "or it ran none)")
+                         "warmup_cycles of its longest period, outlasted this window, or it ran none)")
     return table
 
 

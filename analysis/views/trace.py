@@ -54,7 +54,7 @@ def _metadata(run: RunAnalysis) -> Iterator[dict[str, Any]]:
     # a process a push moved or removed keeps its track, named as its last config names it.
     hosts: dict[int, str] = {}
     threads: dict[tuple[int, int], str] = {}
-    for config, _, _ in run.windows():
+    for config in run.window_configs():
         hosts.update((d.id, d.host) for d in config.dpus)
         threads.update(((p.dpu, p.id), p.name) for p in config.processes)
     for dpu in sorted(hosts):
