@@ -6,7 +6,8 @@ from __future__ import annotations
 
 from typing import Any, Protocol
 
-from rich.console import Group
+from rich.console import Console, ConsoleOptions, Group, RenderResult
+from rich.measure import Measurement
 from rich.table import Table
 from rich.text import Text
 
@@ -25,22 +26,35 @@ class Heard(Protocol):
     covered: int
     faults: list[tuple[float, str]]
 
-BAR_WIDTH = 40
+BAR_WIDTH = 40  # cells, when the terminal has room
+MIN_BAR_WIDTH = 10  # what the bar gives up before the figures beside it are cut
 SHARES = (("compute", "green"), ("communicate", "cyan"), ("wait", "grey50"), ("overhead", "red"))
 
 
-def _bar(shares: list[float | None]) -> Text:
-    """compute / communicate / wait / overhead as one stacked bar of BAR_WIDTH cells."""
-    bar = Text()
-    if any(s is None for s in shares):
-        return bar.append("·" * BAR_WIDTH, style="grey30")
-    cells = [max(0.0, float(s or 0.0)) * BAR_WIDTH / 100.0 for s in shares]
-    used = 0
-    for (_, style), width in zip(SHARES, cells, strict=True):
-        n = min(BAR_WIDTH - used, round(width))
-        bar.append("█" * n, style=style)
-        used += n
-    return bar.append(" " * (BAR_WIDTH - used))
+class Bar:
+    """compute / communicate / wait / overhead as one stacked bar, as wide as its column lets
+    it be: on a narrow terminal the bar shrinks, not the DPU ids and percentages."""
+
+    def __init__(self, shares: list[float | None]) -> None:
+        self.shares = shares
+
+    def __rich_measure__(self, console: Console, options: ConsoleOptions) -> Measurement:
+        return Measurement(MIN_BAR_WIDTH, BAR_WIDTH)
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        yield self.text(max(MIN_BAR_WIDTH, min(BAR_WIDTH, options.max_width)))
+
+    def text(self, width: int) -> Text:
+        bar = Text()
+        if any(s is None for s in self.shares):
+            return bar.append("·" * width, style="grey30")
+        cells = [max(0.0, float(s or 0.0)) * width / 100.0 for s in self.shares]
+        used = 0
+        for (_, style), cell in zip(SHARES, cells, strict=True):
+            n = min(width - used, round(cell))
+            bar.append("█" * n, style=style)
+            used += n
+        return bar.append(" " * (width - used))
 
 
 def _num(value: float | None, digits: int = 1) -> str:
@@ -87,12 +101,14 @@ def _dpu_view(heard: Heard, tables: GenerationTally) -> Table:
     for name, justify in (("DPU", "right"), ("state", "left"), ("utilization", "left"), ("% comp", "right"),
                           ("% comm", "right"), ("% wait", "right"), ("% ovhd", "right"), ("ovr", "right"),
                           ("records", "right")):  # fmt: skip
-        table.add_column(name, justify=justify, no_wrap=True)  # type: ignore[arg-type]
+        # The bar's column is the one rich may narrow (to the bar's least width): the others keep
+        # their figures whole.
+        table.add_column(name, justify=justify, no_wrap=name != "utilization")  # type: ignore[arg-type]
     for d in tables.dpus:
         shares = list(d.shares_pct)
         status = heard.latest.get(d.id)
         state = "-" if status is None else STATE_NAMES.get(status.state, str(status.state))
-        table.add_row(str(d.id), state, _bar(shares), *(_num(s) for s in shares), str(d.overruns),
+        table.add_row(str(d.id), state, Bar(shares), *(_num(s) for s in shares), str(d.overruns),
                       str(d.records))
     return table
 

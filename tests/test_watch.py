@@ -29,7 +29,7 @@ from skeleton.analysis.read.records import decode_run
 from skeleton.host.link import record_url
 from skeleton.host.recordstore import RecordStore
 from skeleton.host.watch import Heard, _FaultFinder
-from skeleton.host.watch_view import render
+from skeleton.host.watch_view import BAR_WIDTH, MIN_BAR_WIDTH, render
 from skelmsg.contract import CONFIG_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 LOGPLAYER = Path(lcm.__file__).parent.parent / "bin" / "lcm-logplayer"
@@ -198,6 +198,23 @@ def test_heard_messages_give_the_tables_the_faults_and_a_view() -> None:
     heard.refresh()
     console.print(render(heard, "udpm://x"))
     assert f"faults searched in the first {heard.covered}" in console.export_text()
+
+
+def test_on_a_narrow_terminal_the_bars_shrink_not_the_figures() -> None:
+    """At 80 columns the utilization bar gave up nothing and the DPU ids and percentages were
+    cut to '…' (walk-through); now the bar shrinks first, and is whole where there is room."""
+    heard = Heard(keep_events=False)
+    heard.handle(CONFIG_CHANNEL, small_config().encode())
+    for data in _synthetic_messages():
+        heard.handle(TIMING_CHANNEL, data)
+    heard.refresh()
+    for width, bar in ((80, MIN_BAR_WIDTH), (160, BAR_WIDTH)):
+        console = Console(width=width, record=True, file=io.StringIO())
+        console.print(render(heard, "udpm://x"))
+        rows = [line for line in console.export_text().splitlines() if "█" in line and line.startswith("│")]
+        assert len(rows) == 2 and all("…" not in row for row in rows), rows
+        assert [len(row.split("│")[3]) - 2 for row in rows] == [bar] * 2, rows  # less the cell's padding
+        assert all(re.search(r"│\s+\d+\.\d │", row) for row in rows), rows
 
 
 def _same_tables(tables: GenerationTally, report: RunReport) -> None:
