@@ -259,7 +259,8 @@ def cmd_push(args: argparse.Namespace) -> int:
     if result.committed:
         when = time.strftime("%H:%M:%S", time.gmtime(result.at_utc_ns / 1e9))
         print(f"generation {generation}: staged on every DPU, committed for {when}."
-              f"{result.at_utc_ns // 1_000_000 % 1000:03d} UTC ({args.at_ms:g} ms after the commit)"
+              f"{result.at_utc_ns // 1_000_000 % 1000:03d} UTC (the DPUs switch to it then: --at-ms "
+              f"{args.at_ms:g} after this push committed it)"
               + (f", mid-run in run {run_id} (at the first cycle boundary all DPUs share from then)"
                  if run_id else ""))
     for fine, text in result.outcome():

@@ -324,9 +324,12 @@ def _adopt_pushed(control: Control, config: skelmsg.config_t, dpu_ids: list[int]
     adopted = skelmsg.config_t.decode(pushed.encode())  # a copy: the Control's stays as heard
     adopted.committed, adopted.run_id = 1, config.run_id
     by = f" (pushed by {pushed.sender}{', --force' if pushed.force else ''})" if pushed.sender else ""
+    kept = ""
     if adopted.source:
         (out / f"system-g{newest}.yaml").write_text(adopted.source)
-    console.print(f"generation {newest} committed mid-run: re-sending it from now on{by}")
+        kept = f"; its system file: {out / f'system-g{newest}.yaml'}"
+    console.print(f"generation {newest} committed mid-run: re-sending it from now on{by} (to a DPU that "
+                  f"rejoins, and into the log){kept}")
     return adopted
 
 
