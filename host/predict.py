@@ -551,9 +551,12 @@ def _warnings(system: System, pred: Prediction, waits: dict[int, list[tuple[int,
                                                    for n in f.processes})
         frames_said += f": {waited}" if waited else ""
         if d.lockout_ms is not None:
-            out.append(f"DPU {d.id}: static load {d.load_pct:.1f} % exceeds 100 %: it will overrun every "
-                       f"cycle and fall {100 * (1 - 100 / d.load_pct):.0f} % of the time behind; lockout "
-                       f"predicted about {d.lockout_ms:.0f} ms into the run"
+            # A process on host-sent events is counted once a period, the most it can run: with
+            # fewer events the DPU may keep up, so the verdict is a bound (compute_pct unknown).
+            most = " (host-sent events at their most, one a period)" if d.compute_pct is None else ""
+            out.append(f"DPU {d.id}: static load {d.load_pct:.1f} % exceeds 100 %{most}: it will overrun "
+                       f"every cycle and fall {100 * (1 - 100 / d.load_pct):.0f} % of the time behind; "
+                       f"lockout predicted about {d.lockout_ms:.0f} ms into the run"
                        + (f"; {frames_said}" if frames_said else ""))
         elif frames_said:
             out.append(f"DPU {d.id}: frames overflow the {d.minor_cycle_us / 1000:g} ms minor cycle: "
