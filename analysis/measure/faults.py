@@ -294,16 +294,19 @@ LOG_SILENT_US = 400_000
 _IN_RUN = (skelmsg.status_t.STATE_ARMED, skelmsg.status_t.STATE_RUNNING)
 
 
-def dpu_lost_faults(config: Any, records: np.ndarray, beats: Heartbeats, run_id: int) -> list[Fault]:
+def dpu_lost_faults(config: Any, records: np.ndarray, beats: Heartbeats, run_id: int,
+                    origin: Mapping[int, int] | None = None) -> list[Fault]:
     """A DPU is lost when its heartbeats stopped during the run: a silence of more than
     LOST_GAP_US while the log heard other DPUs, or a new daemon (pid) answering for it,
     between the run's first heartbeat and the last one of a DPU still running it (one
     clock: when they were heard). A DPU that kept heartbeating is not lost, whatever its
     timing records show (a process waiting for data that never comes stops its timing,
     not its DPU). Without heartbeat times (a live view) or heartbeats of this run (a log
-    that does not record them), only a DPU with no timing record and no heartbeat is lost."""
+    that does not record them), only a DPU with no timing record and no heartbeat is lost.
+    `origin`: first_release_ns(records), when the caller has it."""
     dpus = sorted({int(p.dpu) for p in config.processes})
-    timed = set(np.unique(records["dpu"]).tolist())
+    origin = first_release_ns(records) if origin is None else origin
+    timed = set(origin)  # the DPUs with records
     heard = beats.known
     run = heard & (beats.run_id == run_id)
     if not run.any():
@@ -318,7 +321,6 @@ def dpu_lost_faults(config: Any, records: np.ndarray, beats: Heartbeats, run_id:
     silences = (all_heard[gaps], all_heard[gaps + 1])
     during = heard & (beats.heard_us >= start) & (beats.heard_us <= end)
     faults = []
-    origin = first_release_ns(records)
     for dpu in dpus:
         mine = during & (beats.dpu == dpu)
         pids = beats.pid[mine]

@@ -155,17 +155,17 @@ def build_report(
     locks = split_lockouts(lockouts_from_status(statuses, run.run_id), [p[0] for p in parts])
     if heartbeats is None:
         heartbeats = heartbeats_from_status((None, s) for s in statuses)
-    lost = dpu_lost_faults(config, run.records, heartbeats, run.run_id)
-    last_i = len(generations) - 1
-    # Each window's measured records: its tables' and the cross-check's.
-    measured = [measured_once(records, by_generation[g]) for g, (records, _) in zip(generations, parts,
-                                                                                    strict=True)]
-    ends_before = earlier_ends_ns([p[0] for p in parts])
     # Every window's faults say when, from the run's first release: not from their window's.
     origin = first_release_ns(run.records)
+    lost = dpu_lost_faults(config, run.records, heartbeats, run.run_id, origin)
+    last_i = len(generations) - 1
+    # Each window's measured records: its tables' and the cross-check's.
+    masks = [measured_once(records, by_generation[g])
+             for g, (records, _) in zip(generations, parts, strict=True)]
+    ends_before = earlier_ends_ns([p[0] for p in parts])
     windows = [
         build_window(by_generation[g], records, inputs, locks[i], lost if i == last_i else (), clock,
-                     run.records, measured[i], ends_before[i], origin)
+                     run.records, masks[i], ends_before[i], origin)
         for i, (g, (records, inputs)) in enumerate(zip(generations, parts, strict=True))
     ]
     last = windows[-1]
@@ -195,7 +195,7 @@ def build_report(
         faults=last.faults,
         compute_modes=modes,
         work_drift_pct={r.dpu: r.work_drift_pct for r in mine if r.compute == skelmsg.dpu_t.COMPUTE_WORK},
-        cross_check=_cross_check([p[0] for p in parts], measured, mine),
+        cross_check=_cross_check([p[0] for p in parts], masks, mine),
         not_faithful=sorted(r.dpu for r in mine if r.faults & skelmsg.status_t.FAULT_NOT_FAITHFUL),
         buffers=last.buffers,
         chains=last.chains,
