@@ -117,6 +117,10 @@ def test_run_interrupted_by_ctrl_c_writes_its_report_and_exits_130(url: str, tmp
     # Cut after a second or two of a 30 s run: the report covers what ran, no more.
     assert set(cycles) == {"slow_writer", "fast_writer", "fast_reader", "slow_reader"}, cycles
     assert 0 < cycles["fast_writer"] < 2000, cycles
+    # The log alone says the run was cut short, and by whom: report.json is made from it.
+    stopped = written["stopped"]
+    assert stopped["command"] == "STOP" and stopped["planned_s"] == 30.0, stopped
+    assert 0 < stopped["at_s"] < 20 and stopped["sender"].endswith(f"pid {run.pid}"), stopped
 
 
 def test_watch_ended_by_sigterm_ends_as_by_ctrl_c(dpus: DpuFarm, url: str, tmp_path: Path) -> None:

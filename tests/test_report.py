@@ -25,7 +25,9 @@ from analysis_synth import (
 from conftest import short_servo_run
 from rich.console import Console
 
+import skelmsg
 from skeleton.analysis.measure.run import IMPOSSIBLE, load_run
+from skeleton.analysis.measure.stopped import Stopped, stopped_early
 from skeleton.analysis.measure.tally import RunTally
 from skeleton.analysis.read import parallel
 from skeleton.analysis.views import plots
@@ -360,3 +362,31 @@ def test_a_window_built_side_by_side_reports_what_one_built_alone_does(
     side_by_side = load_run(tmp_path / "run.lcm").report.to_json()
     assert sum(p["cycles"] for p in alone["processes"]) > 1000
     assert side_by_side == alone
+
+
+def _command(kind: int, session: int, **fields: int | str) -> skelmsg.command_t:
+    command = skelmsg.command_t()
+    command.kind, command.session, command.sender = kind, session, f"HOST pid {session}"
+    for name, value in fields.items():
+        setattr(command, name, value)
+    return command
+
+
+def test_only_a_command_the_dpus_obey_before_the_planned_end_stops_a_run() -> None:
+    """A DPU obeys STOP or SHUTDOWN during a run only from the run's session or with force;
+    the host's STOP after the planned end is how every run ends."""
+    at_ns = 1_000_000_000_000
+    start = (at_ns // 1000 - 500, _command(skelmsg.command_t.START, 7, run_id=42, at_utc_ns=at_ns,
+                                           duration_ns=10**10))  # fmt: skip
+    stop, shutdown = skelmsg.command_t.STOP, skelmsg.command_t.SHUTDOWN
+    assert stopped_early([start, (at_ns // 1000 + 11_000_000, _command(stop, 7))], 42) is None
+    assert stopped_early([start, (at_ns // 1000 + 2_000_000, _command(stop, 7))], 43) is None
+    foreign = (at_ns // 1000 + 2_000_000, _command(stop, 8))
+    assert stopped_early([start, foreign], 42) is None
+    forced = (at_ns // 1000 + 3_500_000, _command(shutdown, 8, force=1))
+    assert stopped_early([start, foreign, forced], 42) == Stopped(
+        at_s=3.5, planned_s=10.0, command="SHUTDOWN", sender="HOST pid 8")
+    # A STOP before START is another run's end; a run until STOP (duration 0) has no planned end.
+    assert stopped_early([(0, _command(stop, 7)), start], 42) is None
+    endless = (0, _command(skelmsg.command_t.START, 7, run_id=42, at_utc_ns=at_ns, duration_ns=0))
+    assert stopped_early([endless, (at_ns // 1000 + 1, _command(stop, 7))], 42) is None

@@ -38,6 +38,7 @@ def test_servo_reproduces_table1_and_report_reproduces_run(tmp_path: Path, url: 
         assert abs(parts - 100.0) < 1e-6, dpu
         assert abs(dpu["compute_pct"] - PAPER_COMPUTE_PCT[dpu["id"]]) <= 3.0, dpu
     assert not [f for f in report["faults"] if f["kind"] in ("lockout", "jam")], report["faults"]
+    assert report["stopped"] is None  # it ran its course: the STOP at its end comes after it
     executor = next(p for p in report["processes"] if p["name"] == "executor")
     assert sorted(i["buffer_id"] for i in executor["inputs"]) == [3, 5, 6, 7, 8]
 
@@ -103,8 +104,12 @@ def test_lockout_of_a_data_synchronised_reader(tmp_path: Path, url: str) -> None
     assert fault["process"] == "hungry_reader"
     assert fault["buffer"] == "slow_data"
     assert fault["writer"] == "slow_writer"
-    # stop_on: lockout ends the run early instead of running the full 3 s.
+    # stop_on: lockout ends the run early instead of running the full 3 s, and the log says so.
     assert "stopping early" in run.stdout
+    stopped = _report(out)["stopped"]
+    assert stopped["command"] == "STOP" and stopped["planned_s"] == 3.0, stopped
+    assert 0 <= stopped["at_s"] < 3.0, stopped
+    assert f"the run was stopped at {stopped['at_s']:.2f} s of its planned 3 s" in run.stdout, run.stdout
 
 
 # Two data-synchronised processes, each waiting for the other's output: a deadlock.

@@ -26,6 +26,7 @@ from .faults import (
 from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets
 from .metrics import DpuMetrics, ProcessMetrics
 from .predicted import Predicted
+from .stopped import Stopped, stopped_early
 from .windows import (
     WindowReport,
     build_window,
@@ -86,6 +87,7 @@ class RunReport:
     # the prediction of the report generation's system file beside its figures: `skel run` and
     # `skel report` add it (RunAnalysis.add_prediction), since only the host tool can predict
     predicted: Predicted | None = None
+    stopped: Stopped | None = None  # a command ended the run before its planned end
 
     @property
     def fatal(self) -> bool:
@@ -137,13 +139,15 @@ def build_report(
     configs: Mapping[int, Any] | None = None,
     clock: ClockOffsets | None = None,
     heartbeats: Heartbeats | None = None,
+    commands: Sequence[tuple[int, Any]] = (),
 ) -> RunReport:
     """The report of one run from decoded messages: shared by `analyze` and live views.
 
     `config` is the run's last generation; `configs` (generation -> config_t) adds a
     window for every earlier generation with timing records; `clock` holds the
     clock-offset estimates (none: every DPU on the host's clock); `heartbeats` the
-    statuses with when they were heard (none: `statuses`, times unknown)."""
+    statuses with when they were heard (none: `statuses`, times unknown); `commands` the
+    command_t with when they were heard (stopped.py)."""
     clock = clock or NO_OFFSETS
     earlier = (configs or {}).items()
     by_generation = {g: c for g, c in earlier if g in run.generations and g < config.generation}
@@ -201,6 +205,7 @@ def build_report(
         chains=last.chains,
         windows=windows,
         clock_offsets=clock.latest(),
+        stopped=stopped_early(commands, run.run_id),
     )
 
 

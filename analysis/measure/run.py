@@ -209,7 +209,7 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None) -
     statuses = [s for _, s in messages.statuses]
     report = build_report(configs[last], recorded, statuses, messages.reports, log.integrity, malformed,
                           {g: c for g, c in configs.items() if g != last}, clock,
-                          heartbeats_from_status(messages.statuses))
+                          heartbeats_from_status(messages.statuses), messages.commands)
     return RunAnalysis(log=log, recorded=recorded, heads=heads, messages=messages, report=report, clock=clock,
                        utc_offset_ns=utc_offsets(log, recorded, statuses, heads))
 

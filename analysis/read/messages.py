@@ -3,8 +3,8 @@
 `open_run_log(path)` reads an LCM log, or an MCAP written by `skel export` served as
 one (mcapsource.py). `read_messages(log, generations)` decodes, in one pass per
 channel, what the analysis needs besides the timing records: the config_t of each
-generation, every status_t with when it was heard, the DPUs' report_t and the clock
-offset estimates. A message that does not decode is counted by channel, never fatal.
+generation, every status_t and command_t with when it was heard, the DPUs' report_t and
+the clock offset estimates. A message that does not decode is counted by channel, never fatal.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 import skelmsg
-from skelmsg.contract import CLOCK_CHANNEL, CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL
+from skelmsg.contract import CLOCK_CHANNEL, COMMAND_CHANNEL, CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL
 
 from .logreader import Log, read_log
 from .mcapsource import read_as_log
@@ -57,6 +57,7 @@ class Messages:
     statuses: list[tuple[int, Any]]  # (utime_us heard, status_t), in log order
     reports: list[Any]  # report_t, in log order
     clock_offsets: list[Any]  # clock_offset_t, in log order
+    commands: list[tuple[int, Any]] = field(default_factory=list)  # (utime_us heard, command_t), in log order
     malformed: dict[str, int] = field(default_factory=dict)  # channel -> undecodable messages
 
 
@@ -68,6 +69,7 @@ def read_messages(log: Log, generations: Iterable[int]) -> Messages:
         reports=[m for _, m in decode_timed(log, REPORT_CHANNEL, skelmsg.report_t.decode, malformed)],
         clock_offsets=[m for _, m in decode_timed(log, CLOCK_CHANNEL, skelmsg.clock_offset_t.decode,
                                                   malformed)],
+        commands=decode_timed(log, COMMAND_CHANNEL, skelmsg.command_t.decode, malformed),
         malformed=malformed,
     )
 

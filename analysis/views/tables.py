@@ -334,6 +334,15 @@ def damage_lines(report: RunReport) -> list[str]:
     return lines
 
 
+def stopped_lines(report: RunReport) -> list[str]:
+    """That a command ended the run early, in one line (none for a run that ran its course)."""
+    stop = report.stopped
+    if stop is None:
+        return []
+    return [f"the run was stopped at {stop.at_s:.2f} s of its planned {stop.planned_s:g} s "
+            f"({stop.command} from {stop.sender}): the tables cover what ran"]
+
+
 def faithful_lines(report: RunReport) -> list[str]:
     """A DPU that could not model what was asked, in one line each (none for a faithful run)."""
     return [f"DPU {dpu} is not faithful: its tasking threads got no SCHED_FIFO priority or no pinning "
@@ -373,5 +382,5 @@ def print_report(
         for line in predicted_lines(report.predicted):
             console.print(line, style="yellow" if report.predicted.outside else None, markup=False,
                           highlight=False)
-    for line in faithful_lines(report) + damage_lines(report):
+    for line in stopped_lines(report) + faithful_lines(report) + damage_lines(report):
         console.print(line, style="yellow", markup=False, highlight=False)
