@@ -39,7 +39,7 @@ from skelmsg.contract import (
 
 from ..analysis.measure.faults import LOST_AFTER_S, Fault
 from ..analysis.measure.report import RunReport, build_report
-from ..analysis.read.records import RunRecords
+from ..analysis.read.records import IMPOSSIBLE, RunRecords
 from ..analysis.read.seal import Verdict, Verifier
 from .recordstore import RecordStore
 
@@ -364,14 +364,21 @@ class Listener:
         with self.lock:
             statuses, configs = list(self.statuses), dict(self.configs)
             reports = [r for (_, run_id), r in self.reports.items() if run_id == self.run_id]
-            malformed = dict(self.malformed)
         if run is None or len(run.records) == 0:
             return None
         config = configs.get(max(run.generations))
         if config is None:
             return None
+        return build_report(config, run, statuses, reports, None, self.skipped(run), configs)
+
+    def skipped(self, run: RunRecords) -> dict[str, int]:
+        """What was skipped as malformed (by channel, and `run`'s records with impossible
+        times), under the keys `skel report` counts them by; none of the channels with none."""
+        with self.lock:
+            malformed = dict(self.malformed)
         malformed[TIMING_CHANNEL] = malformed.get(TIMING_CHANNEL, 0) + run.malformed
-        return build_report(config, run, statuses, reports, None, malformed, configs)
+        malformed[IMPOSSIBLE] = run.impossible
+        return {channel: n for channel, n in sorted(malformed.items()) if n}
 
     def lost(self, ids: Iterable[int]) -> list[int]:
         """DPUs among `ids` not heard for LOST_AFTER_S (or never)."""

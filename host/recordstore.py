@@ -1,14 +1,26 @@
 """The timing records of one followed run, kept as they arrive: a live view appends each
-refresh's new batches instead of decoding every batch again."""
+refresh's new batches instead of decoding every batch again. Records with impossible times
+(damaged or forged bytes: records.impossible) are left out and counted, as `skel report`
+leaves them out of a log."""
 
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 
 from ..analysis.read.coltable import ColumnTable
-from ..analysis.read.records import INPUT_DTYPE, RECORD_DTYPE, RunRecords, decode_run, lost_batches
+from ..analysis.read.records import (
+    INPUT_DTYPE,
+    RECORD_DTYPE,
+    RunRecords,
+    decode_run,
+    impossible,
+    lost_batches,
+    select,
+    usual_sizes,
+)
 
 
 class RecordStore:
@@ -29,6 +41,19 @@ class RecordStore:
         self.generations: set[int] = set()
         self.malformed = 0
         self.duplicates = 0
+        self.impossible = 0
+        # What a log's span is to `skel report`: how long this run has been heard (the store is
+        # made when its first batch is).
+        self.heard_since_ns = time.monotonic_ns()
+        # A chunk is judged against the usual sizes of the records held before it, never its own:
+        # a refresh may bring one batch, and a batch made only of damaged or forged records would
+        # widen its own bounds. With nothing held yet, the span alone bounds (the cost: a watch
+        # begun while a DPU lags more than a minute leaves that DPU's records out, counted, until
+        # the run has been heard for up to as long as that lag). The sizes are read again each
+        # time the records held doubled: from a bounded sample, so amortised O(1) per record, and
+        # they follow a lag that grows.
+        self._usual: dict[str, float] = {}  # read at the first add (_usual_of < 0)
+        self._usual_of = -1  # records held when _usual was read
 
     def add(self, messages: list[bytes]) -> None:
         if not messages:
@@ -51,22 +76,30 @@ class RecordStore:
                 self.batch_keys.add((dpu, seq))
                 self.batch_dpu.append(dpu)
                 self.batch_seq.append(seq)
-        renumber = np.cumsum(fresh) - 1 + self.n_records
-        inputs = chunk.inputs[fresh[chunk.inputs["record"]]] if len(chunk.inputs) else chunk.inputs
-        inputs = inputs.copy()
-        inputs["record"] = renumber[inputs["record"]]
-        self.records, self.n_records = _append(self.records, self.n_records, rec[fresh])
+        if self.n_records >= 2 * self._usual_of:
+            self._usual, self._usual_of = usual_sizes(self._held()), self.n_records
+        # Duplicates go first, as in a log: the first copy of a batch is the one judged.
+        keep = fresh.copy()
+        keep[fresh] = ~impossible(rec[fresh], time.monotonic_ns() - self.heard_since_ns, self._usual)
+        self.impossible += int(np.count_nonzero(fresh & ~keep))
+        kept, inputs = select(rec, chunk.inputs, keep)
+        inputs["record"] += self.n_records  # select's copy, or no rows
+        self.records, self.n_records = _append(self.records, self.n_records, kept)
         self.inputs, self.n_inputs = _append(self.inputs, self.n_inputs, inputs)
-        self.generations.update(np.unique(rec["generation"][fresh]).tolist())
+        # Of kept records only: a forged batch's generation would otherwise name the tables'.
+        self.generations.update(np.unique(kept["generation"]).tolist())
 
     def run(self, expected_batches: dict[int, int] | None = None) -> RunRecords:
         with self.lock:
             return self._run(expected_batches)
 
+    def _held(self) -> ColumnTable:
+        return ColumnTable({k: v[: self.n_records] for k, v in self.records.items()}, RECORD_DTYPE)
+
     def _run(self, expected_batches: dict[int, int] | None) -> RunRecords:
         return RunRecords(
             run_id=self.run_id,
-            records=ColumnTable({k: v[: self.n_records] for k, v in self.records.items()}, RECORD_DTYPE),
+            records=self._held(),
             inputs=ColumnTable({k: v[: self.n_inputs] for k, v in self.inputs.items()}, INPUT_DTYPE),
             batches=len(self.batch_keys),
             generations=sorted(self.generations),
@@ -76,6 +109,7 @@ class RecordStore:
             ),
             malformed=self.malformed,
             duplicates=self.duplicates,
+            impossible=self.impossible,
         )
 
 

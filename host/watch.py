@@ -57,6 +57,7 @@ class Heard:
         self._tally: RunTally | None = None
         self.tables: GenerationTally | None = None  # of the followed run, the last refresh's
         self.lost_batches = 0  # timing batches of the followed run lost so far
+        self.skipped: dict[str, int] = {}  # what was skipped as malformed (Listener.skipped)
         self._covered: tuple[int | None, int] = (None, 0)  # (run, records) the last search for faults covered
 
     @property
@@ -103,6 +104,7 @@ class Heard:
             return None
         if self._tally is None or self._tally.run_id != run.run_id:  # a new run: none of the old tables
             self._tally, self.tables, self.lost_batches = RunTally(run.run_id), None, 0
+        self.skipped = self.listener.skipped(run)
         if len(run.records):
             with self.listener.lock:
                 configs = dict(self.listener.configs)

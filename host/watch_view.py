@@ -12,6 +12,7 @@ from rich.table import Table
 from rich.text import Text
 
 from ..analysis.measure.tally import GenerationTally
+from ..analysis.views.tables import malformed_line
 from .listener import STATE_NAMES, RecordStore
 
 
@@ -23,6 +24,7 @@ class Heard(Protocol):
     latest: dict[int, Any]
     tables: GenerationTally | None
     lost_batches: int
+    skipped: dict[str, int]
     covered: int
     faults: list[tuple[float, str]]
 
@@ -81,6 +83,8 @@ def render(heard: Heard, url: str) -> Group:
     else:
         head.append(" · waiting for its config_t")
     parts: list[Any] = [head]
+    if heard.skipped:  # left out of the tables: said so, in `skel report`'s words
+        parts.append(Text(malformed_line(heard.skipped), style="yellow"))
     if tables is not None:
         parts += [_dpu_view(heard, tables), _process_view(tables)]
     legend = Text("bars: ")

@@ -23,9 +23,9 @@ from hypothesis import strategies as st
 from rich.console import Console
 
 from skeleton.analysis.measure.report import RunReport, build_report
-from skeleton.analysis.measure.run import load_run
+from skeleton.analysis.measure.run import IMPOSSIBLE, load_run
 from skeleton.analysis.measure.tally import GenerationTally, RunTally
-from skeleton.analysis.read.records import decode_run
+from skeleton.analysis.read.records import decode_run, impossible
 from skeleton.host.link import record_url
 from skeleton.host.recordstore import RecordStore
 from skeleton.host.watch import Heard, _FaultFinder
@@ -198,6 +198,44 @@ def test_heard_messages_give_the_tables_the_faults_and_a_view() -> None:
     heard.refresh()
     console.print(render(heard, "udpm://x"))
     assert f"faults searched in the first {heard.covered}" in console.export_text()
+
+
+def test_records_with_impossible_times_are_left_out_of_the_live_view_and_counted() -> None:
+    """LCM carries no checksum: a flipped bit in a record's start decodes (2^60 ns: 36 years
+    elapsed, 0 % shares). Live, as in `skel report`, the record goes, with its input, is counted
+    under the report's key and said so; the tables are those of the other records. A batch heard
+    alone whose every record is 18 minutes late (on its own it bounds itself: its median is that
+    lateness) is judged against what was held before it."""
+    config = small_config()
+    dpu1, dpu2 = small_run()
+    hit = next(r for r in dpu1 if r.process == 1 and r.cycle == 5)  # B, measured, with one input
+    clean = [t.encode() for t in batches(1, [r for r in dpu1 if r is not hit], 3) + batches(2, dpu2, 2)]
+    hit.start_ns ^= 1 << 60
+    heard = Heard(keep_events=False)
+    heard.handle(CONFIG_CHANNEL, config.encode())
+    for t in batches(1, dpu1, 3) + batches(2, dpu2, 2):
+        heard.handle(TIMING_CHANNEL, t.encode())
+    tables = heard.refresh()
+    expected = build_report(config, decode_run(clean, RUN_ID))
+    assert tables is not None and heard.store is not None
+    assert heard.store.impossible == 1 and heard.store.n_records == len(dpu1) + len(dpu2) - 1
+    _same_tables(tables, expected)
+    assert tables.dpus[0].elapsed_ms < 1000
+    late = small_run(cycles=12)[0][20:]
+    for r in late:
+        r.start_ns += 1 << 40
+    lone = batches(1, late, len(late), first_seq=len(batches(1, dpu1, 3)))[0].encode()
+    assert not impossible(decode_run([lone], RUN_ID).records, 0).any()  # alone, it would pass
+    heard.handle(TIMING_CHANNEL, lone)
+    tables = heard.refresh()
+    report = heard.find_faults()
+    assert tables is not None and report is not None
+    assert heard.store.impossible == 1 + len(late) and heard.lost_batches == 0
+    _same_tables(tables, expected)
+    assert report.integrity.malformed == {IMPOSSIBLE: 1 + len(late)}
+    console = Console(width=200, record=True, file=io.StringIO())
+    console.print(render(heard, "udpm://x"))
+    assert f"malformed messages skipped: {IMPOSSIBLE}: {1 + len(late)}" in console.export_text()
 
 
 def test_on_a_narrow_terminal_the_bars_shrink_not_the_figures() -> None:

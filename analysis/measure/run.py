@@ -28,7 +28,7 @@ from skelmsg.contract import CONFIG_CHANNEL, TIMING_CHANNEL
 
 from ..read.logreader import Log
 from ..read.messages import LogError, Messages, int_columns, open_run_log, published_batches, read_messages
-from ..read.records import Heads, RunRecords, load_records, run_ids, timing_heads
+from ..read.records import IMPOSSIBLE, Heads, RunRecords, load_records, run_ids, timing_heads
 from ..read.seal import KeyFileError, authenticate
 from .columns import Table, faults_table, process_names, receptions_table, report_tables, timing_table
 from .faults import heartbeats_from_status
@@ -38,7 +38,6 @@ from .report import RunReport, build_report
 from .windows import window_records
 
 NO_CONFIG = f"{TIMING_CHANNEL} (no config for its generation)"
-IMPOSSIBLE = f"{TIMING_CHANNEL} (records with impossible times: damaged bytes)"
 
 
 @dataclass

@@ -196,6 +196,8 @@ def decode_timing(
 # make one). The bounds come from robust figures: a damaged time stamp, or damaged records
 # short of half, cannot widen them.
 IMPOSSIBLE_MARGIN_NS = 60 * 10**9
+# Their count's key among the malformed messages (report.json's integrity.malformed, both views).
+IMPOSSIBLE = f"{TIMING_CHANNEL} (records with impossible times: damaged bytes)"
 DURATIONS = ("comm_in_ns", "blocked_ns", "asked_ns", "compute_ns", "comm_out_ns", "idle_ns", "stall_ns",
              "debt_ns", "preempted_ns")  # fmt: skip
 _ROWS_AT_ONCE = 1 << 20  # rows checked at a time: the float temporaries stay small
@@ -231,14 +233,21 @@ def _median(values: np.ndarray) -> float:
     return float(np.median(numbers)) if len(numbers) else 0.0
 
 
-def impossible(records: ColumnTable, span_ns: int) -> np.ndarray:
-    """Mask of the impossible records (see above) of a log spanning `span_ns`."""
+def usual_sizes(records: ColumnTable) -> dict[str, float]:
+    """The median record's value of each quantity impossible() checks (read from at most
+    _SAMPLE of `records`; 0 for none)."""
+    sample = _magnitudes(records[:: max(1, len(records) // _SAMPLE)])
+    return {name: _median(values) for name, values in sample.items()}
+
+
+def impossible(records: ColumnTable, span_ns: int, usual: dict[str, float] | None = None) -> np.ndarray:
+    """Mask of the impossible records (see above) of a log spanning `span_ns`, against the
+    `usual` sizes (usual_sizes) of other records, or by default of `records` themselves."""
     out = np.zeros(len(records), dtype=bool)
     if not len(records):
         return out
-    usual = _magnitudes(records[:: max(1, len(records) // _SAMPLE)])
-    bounds = {name: 2 * max(span_ns, _median(values)) + IMPOSSIBLE_MARGIN_NS
-              for name, values in usual.items()}  # fmt: skip
+    usual = usual_sizes(records) if usual is None else usual
+    bounds = {name: 2 * max(span_ns, size) + IMPOSSIBLE_MARGIN_NS for name, size in usual.items()}
     for lo in range(0, len(records), _ROWS_AT_ONCE):
         part = records[lo : lo + _ROWS_AT_ONCE]
         bad = np.zeros(len(part), dtype=bool)

@@ -312,6 +312,12 @@ def window_header(window: WindowReport) -> str:
     return f"== generation {window.generation} window: {span} =="
 
 
+def malformed_line(malformed: dict[str, int]) -> str:
+    """The messages (and records) skipped as malformed, per channel: `skel report` and `skel
+    watch` say it in the same words."""
+    return "malformed messages skipped: " + ", ".join(f"{c}: {n}" for c, n in malformed.items())
+
+
 def damage_lines(report: RunReport) -> list[str]:
     """What the reader could not use, in one line each (none for a clean log)."""
     integ = report.integrity
@@ -323,8 +329,7 @@ def damage_lines(report: RunReport) -> list[str]:
             f"{lost} timing batches lost; the tables use everything else"
         )
     if integ.malformed:
-        per_channel = ", ".join(f"{c}: {n}" for c, n in integ.malformed.items())
-        lines.append(f"malformed messages skipped: {per_channel}")
+        lines.append(malformed_line(integ.malformed))
     if integ.unauthenticated:
         lines.append(f"{integ.unauthenticated} messages failed the key check (unsigned, forged or replayed): "
                      "left out, the tables use the genuine ones")
