@@ -23,6 +23,8 @@ from typing import Any
 
 from rich.live import Live
 
+from skelmsg.contract import COMMAND_CHANNEL
+
 from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
 from ..analysis.measure.report import RunReport
 from ..analysis.measure.run import analyze_log
@@ -156,7 +158,9 @@ def _subscribe(url: str, heard: Heard) -> Any:
 
     record = record_url(url)
     lc = lcm.LCM(record_listen_url(url, rmem_max()))
-    subscribe(lc, record, CHANNELS, heard.handle)
+    # The commands too: the live view reads none, but --once's final analysis is `skel report`'s
+    # of everything heard, and a run's START and the STOP that cut it short say it was (stopped.py).
+    subscribe(lc, record, (*CHANNELS, COMMAND_CHANNEL), heard.handle)
     return lc
 
 

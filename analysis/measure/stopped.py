@@ -4,7 +4,12 @@
 run early, but a report is made from the log alone, later and elsewhere: the log holds the
 START (its run_id, the release of cycle 0 and how long the run was to last) and every STOP
 or SHUTDOWN sent, each with the session that sent it. A DPU obeys one during a run only from
-the run's own session, or with `force`; one logged before the planned end stopped the run.
+the run's own session, or with `force`; one sent before the planned end stopped the run.
+
+When it was sent: `skel` numbers its commands by its wall clock at sending (command_t.seq),
+the clock START's instants are on, so a replay heard long after the run (`skel watch --once`
+of lcm-logplayer) dates it as the log does. A command numbered otherwise (another tool's
+counter) is dated when it was heard.
 """
 
 from __future__ import annotations
@@ -17,13 +22,16 @@ import skelmsg
 
 _ENDS = (skelmsg.command_t.STOP, skelmsg.command_t.SHUTDOWN)
 _NAMES = {skelmsg.command_t.STOP: "STOP", skelmsg.command_t.SHUTDOWN: "SHUTDOWN"}
+# A START whose seq lies this close to the release it names was numbered by a wall clock
+# (skel's lead is seconds).
+CLOCKED_WITHIN_NS = 3600 * 10**9
 
 
 @dataclass(frozen=True)
 class Stopped:
     """A run ended by a command before its planned end."""
 
-    at_s: float  # when the command was logged, from the release of cycle 0
+    at_s: float  # when the command was sent, from the release of cycle 0
     planned_s: float  # how long the run was to last
     command: str  # STOP or SHUTDOWN
     sender: str  # who sent it ("HOST pid N")
@@ -43,7 +51,8 @@ def stopped_early(commands: Iterable[tuple[int, Any]], run_id: int) -> Stopped |
             continue
         if command.kind not in _ENDS or not (command.session == start.session or command.force):
             continue
-        at_ns = utime_us * 1000 - start.at_utc_ns
+        clocked = abs(start.seq - start.at_utc_ns) < CLOCKED_WITHIN_NS and command.seq >= start.seq
+        at_ns = (command.seq if clocked else utime_us * 1000) - start.at_utc_ns
         if at_ns < start.duration_ns:
             return Stopped(at_s=max(0, at_ns) / 1e9, planned_s=start.duration_ns / 1e9,
                            command=_NAMES[command.kind], sender=command.sender)
