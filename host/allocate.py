@@ -25,7 +25,7 @@ from itertools import combinations
 from ortools.sat.python import cp_model
 
 from . import yamledit
-from .predict import Prediction, predict, same_cycle_waits, wire_bytes
+from .predict import Prediction, held_up, predict, same_cycle_waits, wire_bytes
 from .schema import Dpu, Process
 from .system import System, loads
 
@@ -205,21 +205,23 @@ class _Model:
         first is proven optimal; None: infeasible, or nothing found in time."""
         optimal, start = True, time.monotonic()
         solution: dict[int, int] | None = None
+        # The bounds that hold each objective at its best are this call's: on the model itself
+        # they outlived it, and a cut of every allocation at that best left none worse to find
+        m = self.m.clone()  # the same variable indices: self.x reads its solutions
         for k, objective in enumerate(objectives):
             solver = cp_model.CpSolver()
             solver.parameters.max_time_in_seconds = max(0.1, seconds - (time.monotonic() - start))
             solver.parameters.num_workers = 2
-            self.m.minimize(objective)
-            status = solver.solve(self.m)
+            m.minimize(objective)
+            status = solver.solve(m)
             if status not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
                 return None if solution is None else (solution, optimal)
             solution = {pid: did for (pid, did), v in self.x.items() if solver.boolean_value(v)}
             optimal = optimal if k else status == cp_model.OPTIMAL
-            self.m.add(objective <= round(solver.objective_value))
-            self.m.clear_hints()  # the next objective starts from this solution
+            m.add(objective <= round(solver.objective_value))
+            m.clear_hints()  # the next objective starts from this solution
             for v in self.x.values():
-                self.m.add_hint(v, solver.boolean_value(v))
-        self.m.clear_objective()
+                m.add_hint(v, solver.boolean_value(v))
         return (solution, optimal) if solution is not None else None
 
 
@@ -280,8 +282,11 @@ def _search(system: System, dpus: list[Dpu], objective: str, pins: dict[str, int
         text, new = candidate(system, dpus, on)
         pred = predict(new)
         failed = [d for d in pred.dpus if not d.schedulable]
-        if not failed:
+        held = held_up(new)  # the order a move gives is rules.py's: only the candidate shows it
+        if not failed and not held:
             return (text, new, pred), optimal, tries
+        for r, _, w in held:  # a deadlock there: never the two on that DPU again
+            model.cut(on, {r.dpu: {r.name, w.name}})
         for d in failed:  # the processes from the first that misses its period up (all, on cyclic)
             mine = [p for p in pred.processes if p.dpu == d.id]
             late = [p.priority for p in mine if not p.schedulable]

@@ -4,10 +4,11 @@ predict(system) -> Prediction. Per DPU its static load and the % compute a run w
 measure; on the cyclic executive every minor cycle's demand against the minor cycle
 (frames.py), on the tasking executive exact response-time analysis (schedule.py); per
 input buffer the new / stale / dropped share of the reader's cycles, as the analysis
-counts them; the data-wait structure (a cycle of `sync: data` processes can never start:
-an error; a data reader of a slower writer is paced by it; one of a writer of its own period
-waits, each cycle, for that writer's end: same_cycle_waits(), in its start and all that follows);
-per chain the best and worst end-to-end latency; per link its traffic. The DPUs' own costs
+counts them; the data-wait structure (a cycle of `sync: data` processes can never start,
+nor can a cyclic DPU whose data reader's wait holds it from its writer there: an error; a
+data reader of a slower writer is paced by it; one of a writer of its own period waits, each
+cycle, for that writer's end: same_cycle_waits(), in its start and all that follows); per
+chain the best and worst end-to-end latency; per link its traffic. The DPUs' own costs
 (communication, wake-up, interference) are not in it: what a run measures beyond it is the
 platform's.
 
@@ -238,19 +239,13 @@ def _schedule(system: System, ready: dict[int, tuple[float, float]]
 # --- rates and the data-wait structure -----------------------------------------------------
 
 def deadlocks(system: System) -> tuple[tuple[Problem, ...], set[int]]:
-    """(one error per cycle of `sync: data` processes waiting for each other, every process
-    that can never start). A data process starts once every required input has a writer
-    that starts; what is left never does, and each of those waits on another of them, so
+    """(one error per cycle of `sync: data` processes waiting for each other and per data
+    reader that holds its cyclic DPU from its writer there (held_up()), every process that
+    can never start). A data process starts once every required input has a writer that
+    starts; what is left never does, and each of those waits on another of them, so
     following the waits from one of them comes round to a cycle."""
     writer = {b.id: b.writer for b in system.buffers}
-    starts = {p.id for p in system.processes if p.sync != "data"}
-    grew = True
-    while grew:
-        more = {p.id for p in system.processes if p.id not in starts
-                and all(writer[b] in starts for b in p.required)}
-        starts |= more
-        grew = bool(more)
-    stuck = {p.id for p in system.processes} - starts
+    stuck = {p.id for p in system.processes} - _starting(system, set())
     errors, named = [], set()
     for p in system.processes:
         if p.id not in stuck or p.id in named:
@@ -268,7 +263,62 @@ def deadlocks(system: System) -> tuple[tuple[Problem, ...], set[int]]:
             continue
         named |= set(path)
         errors.append(_cycle_problem(system, loop, writer))
-    return tuple(errors), stuck
+    held = held_up(system)
+    # a reader already in a cycle can never start anyway: one error names it
+    errors += [_held_problem(system, r, b, w) for r, b, w in held if r.id not in stuck]
+    # the held DPU's one thread never gets past the reader: none of its processes runs on
+    # (those before it once), nor do the readers waiting for them
+    blocked = {p.id for p in system.processes if p.dpu in {r.dpu for r, _, _ in held}}
+    return tuple(errors), {p.id for p in system.processes} - _starting(system, blocked)
+
+
+def _starting(system: System, never: set[int]) -> set[int]:
+    """The processes that start, when NEVER do: a data process once each of its required
+    inputs has a writer that starts."""
+    writer = {b.id: b.writer for b in system.buffers}
+    starts = {p.id for p in system.processes if p.sync != "data" and p.id not in never}
+    grew = True
+    while grew:
+        more = {p.id for p in system.processes if p.id not in starts and p.id not in never
+                and all(writer[b] in starts for b in p.required)}
+        starts |= more
+        grew = bool(more)
+    return starts
+
+
+def held_up(system: System) -> list[tuple[Process, int, Process]]:
+    """(reader, buffer, writer): a `sync: data` reader on the cyclic executive waiting for a
+    required buffer whose writer, on its DPU, cannot run before it needs the data. Its wait
+    holds the DPU's one thread, so the writer never runs again: a writer after it in the
+    order has written nothing in the run's first minor cycle (every process is due there),
+    and one of a longer period (not an event's: it runs on no grid) nothing by its second
+    cycle. A writer of its period or faster before it writes in every minor it is due."""
+    out = []
+    for p in system.processes:
+        if p.sync != "data" or system.dpu(p.dpu).executive == "threads":
+            continue
+        for b in p.required:
+            w = system.process(system.buffer(b).writer)
+            if w.dpu == p.dpu and w.id != p.id and (
+                    w.order > p.order or (w.sync != "event" and w.period_us > p.period_us)):
+                out.append((p, b, w))
+    return out
+
+
+def _held_problem(system: System, r: Process, b: int, w: Process) -> Problem:
+    buffer = system.buffer(b).name
+    if w.order > r.order:
+        why, when, fix = (f"{w.name} runs after it in the DPU's order", "at cycle 0",
+                          f"give {w.name} an order before {r.name}")
+    else:
+        why, when, fix = (f"{w.name} runs every {w.period_us / 1000:g} ms to its "
+                          f"{r.period_us / 1000:g} ms, so its cycle 1 finds no new {buffer}",
+                          "at cycle 1", f"give {w.name} {r.name}'s period or a shorter one")
+    return Problem(f"processes.{r.name}.required",
+                   f"data-wait deadlock on DPU {r.dpu}'s cyclic executive: {r.name} -> {w.name} -> "
+                   f"{r.name} ({r.name} waits for {buffer} from {w.name}; {why}, and {r.name}'s wait "
+                   f"holds the DPU, so {w.name} never runs: both lock out {when}); {fix}, move one of them "
+                   f"to another DPU or take {buffer} out of {r.name}'s `required`")
 
 
 def _cycle_problem(system: System, loop: list[int], writer: dict[int, int]) -> Problem:
@@ -289,8 +339,8 @@ def same_cycle_waits(system: System,
     """Per data reader, the required buffers (and their writers) it waits for in each of its
     cycles: a writer of its period is released with it (the grid is the run's), so the reader
     finds what it used last cycle until the writer's computation of this one ends. Not a
-    writer before it in its cyclic frame (it has ended), nor after it there (its last cycle's
-    is new), nor a higher priority on its tasking processor that is ready at its release (it
+    writer before it in its cyclic frame (it has ended), nor after it there (a deadlock:
+    held_up()), nor a higher priority on its tasking processor that is ready at its release (it
     holds the processor until it ends anyway); an event writer runs on no grid. LEFT_OUT:
     readers that never start, run at an unknown rate or are paced by a slower writer."""
     out: dict[int, list[tuple[int, Process]]] = {}

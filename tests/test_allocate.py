@@ -71,6 +71,25 @@ processes:
     assert all(p.schedulable for p in found.prediction.processes)
 
 
+def test_a_data_reader_and_its_writer_after_it_are_never_put_on_one_cyclic_dpu(tmp_path: Path) -> None:
+    # Together they make the least worst load (60 %), but the reader's wait would hold the DPU
+    # from the writer after it (a deadlock skel check refuses): apart, the worst is 90 %.
+    path = tmp_path / "held.yaml"
+    path.write_text("""\
+system: held
+dpus: [{id: 1}, {id: 2}]
+buffers: [{id: 1, name: sample, bytes: 64}]
+processes:
+  - {id: 1, name: big, dpu: 1, period_us: 10000, compute_us: 6000}
+  - {id: 2, name: reader, dpu: 2, period_us: 10000, compute_us: 3000, sync: data, inputs: [sample]}
+  - {id: 3, name: writer, dpu: 1, period_us: 10000, compute_us: 3000, outputs: [sample]}
+""")
+    found = allocate(load(path))
+    assert found.dpu_of["reader"] != found.dpu_of["writer"]
+    assert found.prediction.errors == () and found.prediction.schedulable
+    assert found.prediction.worst_load_pct == pytest.approx(90)
+
+
 def test_servo_at_2_5_ms_does_not_fit_and_says_what_would(tmp_path: Path) -> None:
     with pytest.raises(NoFit) as no:
         allocate(load(EXAMPLES / "servo-2.5ms.yaml"), 4, max_load=0.9)
