@@ -73,6 +73,8 @@ def print_prediction(console: Console, pred: Prediction) -> None:
     links = _table("link", "messages/s", "Mbit/s")
     for link in pred.links:
         rate = _known(None if link.bytes_per_s is None else 8 * link.bytes_per_s / 1e6, ".3g")
+        if link.bytes_per_s is None and link.over:  # its known part alone is too much
+            rate = f"at least {8 * link.known_bytes_per_s / 1e6:.3g}"
         rate += f" of {link.bandwidth_mbps:g}" if link.bandwidth_mbps else ""
         links.add_row(link.name + (" (local)" if link.local else ""), _known(link.messages_per_s, ".0f"),
                       f"[red]{rate}[/]" if link.over else rate)
