@@ -12,7 +12,8 @@ from conftest import EXAMPLES, DpuFarm, skel
 from randsys import random_pipeline
 
 from skeleton.host.allocate import NoFit, allocate
-from skeleton.host.system import load
+from skeleton.host.predict import predict
+from skeleton.host.system import System, load
 from skelmsg import contract
 
 SERVO = EXAMPLES / "servo.yaml"
@@ -71,23 +72,38 @@ processes:
     assert all(p.schedulable for p in found.prediction.processes)
 
 
+def _reader_and_writer(tmp_path: Path, big_us: int, reader_us: int, reader_first: bool) -> System:
+    """A 10 ms sync: data reader of writer's (3 ms) sample and big, each 10 ms, on two cyclic
+    DPUs: big and writer on DPU 1, reader on DPU 2, before writer in the file or after it."""
+    reader = (f"  - {{id: 2, name: reader, dpu: 2, period_us: 10000, compute_us: {reader_us}, sync: data, "
+              "inputs: [sample]}\n")
+    writer = "  - {id: 3, name: writer, dpu: 1, period_us: 10000, compute_us: 3000, outputs: [sample]}\n"
+    path = tmp_path / "pair.yaml"
+    path.write_text("system: pair\ndpus: [{id: 1}, {id: 2}]\nbuffers: [{id: 1, name: sample, bytes: 64}]\n"
+                    f"processes:\n  - {{id: 1, name: big, dpu: 1, period_us: 10000, compute_us: {big_us}}}\n"
+                    + (reader + writer if reader_first else writer + reader))
+    return load(path)
+
+
 def test_a_data_reader_and_its_writer_after_it_are_never_put_on_one_cyclic_dpu(tmp_path: Path) -> None:
     # Together they make the least worst load (60 %), but the reader's wait would hold the DPU
     # from the writer after it (a deadlock skel check refuses): apart, the worst is 90 %.
-    path = tmp_path / "held.yaml"
-    path.write_text("""\
-system: held
-dpus: [{id: 1}, {id: 2}]
-buffers: [{id: 1, name: sample, bytes: 64}]
-processes:
-  - {id: 1, name: big, dpu: 1, period_us: 10000, compute_us: 6000}
-  - {id: 2, name: reader, dpu: 2, period_us: 10000, compute_us: 3000, sync: data, inputs: [sample]}
-  - {id: 3, name: writer, dpu: 1, period_us: 10000, compute_us: 3000, outputs: [sample]}
-""")
-    found = allocate(load(path))
+    found = allocate(_reader_and_writer(tmp_path, 6000, 3000, reader_first=True))
     assert found.dpu_of["reader"] != found.dpu_of["writer"]
     assert found.prediction.errors == () and found.prediction.schedulable
     assert found.prediction.worst_load_pct == pytest.approx(90)
+
+
+def test_a_cut_for_a_data_readers_wait_holds_only_while_its_writers_dpu_holds_what_it_held(
+        tmp_path: Path) -> None:
+    # The best load (80 %) puts big before writer on DPU 1: writer ends 8 ms in, and reader
+    # (pinned to DPU 2) waits for it and overflows. That fails for DPU 1's processes as much as
+    # for reader: cut without them, reader could never be on DPU 2 again, and nothing would fit.
+    system = _reader_and_writer(tmp_path, 5000, 4000, reader_first=False)
+    assert not predict(system).schedulable
+    found = allocate(system, pins={"writer": 1, "reader": 2})
+    assert found.dpu_of == {"big": 2, "writer": 1, "reader": 2} and found.candidates == 2
+    assert found.prediction.schedulable and found.prediction.worst_load_pct == pytest.approx(90)
 
 
 def test_servo_at_2_5_ms_does_not_fit_and_says_what_would(tmp_path: Path) -> None:
