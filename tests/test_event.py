@@ -5,6 +5,7 @@ every generated instant repeated exactly by the same seed."""
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import lcm
@@ -206,6 +207,48 @@ def test_the_host_sends_events_with_skel_event(tmp_path: Path, url: str) -> None
     assert (mine.event_ns >= 0).all() and mine.event_dropped.sum() == 0
     assert sorted(mine.cycle) == list(range(20))  # its cycles count its events
     assert skel("event", "9x", "--url", url).returncode == 2
+
+
+# DPUs that run on host-sent events alone, one per executive, with a warm-up: events sent
+# long after it must all be measured.
+EVENTS_ONLY = """\
+system: events_only
+dpus: [{id: 1}, {id: 2, executive: threads}]
+processes:
+  - {id: 1, name: on_cyclic, dpu: 1, period_us: 5000, compute_us: 200, sync: event, event: go, queue: 64}
+  - {id: 2, name: on_threads, dpu: 2, period_us: 5000, compute_us: 200, sync: event, event: go, queue: 64}
+events:
+  - {name: go, kind: host}
+run: {duration_s: 5, warmup_cycles: 20, stop_on: []}
+"""
+
+
+def test_a_dpu_of_events_only_measures_from_its_runs_warm_up_not_its_first_event(tmp_path: Path,
+                                                                                   url: str) -> None:
+    """Its cycles count events, not periods: the window opens warmup_cycles periods after the
+    run began, as the DPU's own does, so every event sent after that is measured, and the
+    DPU's running sums agree with the records'."""
+    out = tmp_path / "run"
+    run = skel_background("run", str(_write(tmp_path, "events_only", EVENTS_ONLY)), "--spawn", "--url", url,
+                          "--out", str(out))  # fmt: skip
+    control = Control(url)
+    try:
+        running = control.wait_for(lambda: all(d in control.dpus and control.dpus[d].state == "running"
+                                                for d in (1, 2)), 30)  # fmt: skip
+        assert running, run.output
+    finally:
+        control.close()
+    time.sleep(1.0)  # the warm-up (20 x 5 ms) long over
+    sent = skel("event", "go", "--count", "20", "--rate", "50", "--url", url)
+    assert sent.returncode == 0, sent.stdout + sent.stderr
+    assert run.wait(60) in (0, 1), run.output
+    report = skeleton.load_run(out).report
+    for name in ("on_cyclic", "on_threads"):
+        proc = next(p for p in report.processes if p.name == name)
+        assert proc.events is not None and proc.events.handled == 20, (name, proc.events)
+    for check in report.cross_check:
+        dpu_ms, records_ms = check["compute_ms"]
+        assert records_ms == pytest.approx(dpu_ms, rel=0.05, abs=0.05), check
 
 
 def test_the_event_driven_servo_example_runs(tmp_path: Path, url: str) -> None:

@@ -144,12 +144,22 @@ def window_start_ns(records: np.ndarray, config: Any) -> dict[int, int]:
     """Per DPU with records: when its measurement window opens, on its own clock.
 
     t0 is where cycle 0 of every process was released (release - cycle x period of
-    any record); the window opens warmup_cycles of the DPU's longest period later."""
+    any record); the window opens warmup_cycles of the DPU's longest period later, where
+    the DPU opens its own. A `sync: event` process's cycles count its events, not its
+    periods: its records place t0 by their minor cycle instead (release - minor x minor
+    cycle: exact on the cyclic executive, where such a cycle is released with its frame;
+    at most one minor cycle late on the others, which release it when its event comes), so
+    a DPU of events only opens its window when its run began, not at its first event."""
     longest: dict[int, int] = {}
     for p in config.processes:
         longest[p.dpu] = max(longest.get(p.dpu, 0), p.period_us * 1000)
-    period = per_id(records["process"], {p.id: p.period_us * 1000 for p in config.processes})
-    t0 = records["release_ns"] - records["cycle"] * period
+    minor = {d.id: d.minor_cycle_us * 1000 for d in config.dpus}
+    on_events = {p.id: p for p in config.processes if p.sync == SYNC_EVENT}
+    step = per_id(records["process"], {p.id: minor.get(p.dpu, 0) if p.id in on_events else p.period_us * 1000
+                                       for p in config.processes})  # fmt: skip
+    count = np.where(per_id(records["process"], dict.fromkeys(on_events, 1)) == 1, records["minor"],
+                     records["cycle"])  # fmt: skip
+    t0 = records["release_ns"] - count * step
     return {dpu: first + config.warmup_cycles * longest.get(dpu, 0)
             for dpu, first in smallest_per_dpu(records["dpu"], t0).items()}
 
