@@ -190,24 +190,33 @@ void process_remark(skel_exec_t *x, int64_t now)
  * kernel, is a SIGSTOP), was a stall: the hypervisor or another thread had its CPU.
  * A short step cannot hide one, so it costs two clock reads and no system call; a
  * long one is judged against the last mark: the time since it that the thread did
- * not run, less the stalls already charged since, at most the step's own length. */
-void process_kept(skel_exec_t *x, skel_rec_t *rec, int64_t step_from, int64_t now)
+ * not run, less the stalls already charged since, at most the step's own length.
+ * Returns the stall charged: the platform's, not communication, so the record keeps it
+ * in preempted_ns and the caller takes it out of the step's comm_in_ns or comm_out_ns
+ * (% communicate is the design's; % overhead holds the stalls). */
+int64_t process_kept(skel_exec_t *x, skel_rec_t *rec, int64_t step_from, int64_t now)
 {
     const int64_t threshold = x->s->compute.stall_ns;
-    if (now - step_from <= threshold) return;
+    if (now - step_from <= threshold) return 0;
     int64_t cpu_ns;
     long chose_to_wait;
-    if (process_usage(&cpu_ns, &chose_to_wait) != 0) return;
+    if (process_usage(&cpu_ns, &chose_to_wait) != 0) return 0;
     const skel_mark_t was = x->mark;
+    int64_t charged = 0;
     if (was.cpu_ns >= 0 && !x->mark_stale && chose_to_wait == was.chose_to_wait) {
         int64_t off = (now - was.mono_ns) - (cpu_ns - was.cpu_ns) - x->mark_charged_ns;
         if (off > now - step_from) off = now - step_from;
-        if (off > threshold) process_stalled(x, rec, off);
+        if (off > threshold) {
+            process_stalled(x, rec, off);
+            rec->preempted_ns += off;
+            charged = off;
+        }
     }
     /* the stalls charged so far are before the new mark: none is subtracted again */
     x->mark = (skel_mark_t){ now, cpu_ns, chose_to_wait };
     x->mark_charged_ns = 0;
     x->mark_stale = 0;
+    return charged;
 }
 
 /* Waits for new data on every required input: 1 when the run ended or stopped
@@ -350,8 +359,7 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
         (void)link_drain(plan->links, plan->nlinks); /* an lcm error shows as stale inputs */
     process_peek_inputs(plan, p, rec);
     int64_t t_in = clock_mono_ns();
-    rec->comm_in_ns = t_in - start;
-    process_kept(x, rec, start, t_in);
+    rec->comm_in_ns = t_in - start - process_kept(x, rec, start, t_in);
     int stopped = p->sync == SKELMSG_PROCESS_T_SYNC_DATA && process_wait_data(x, p, k, release, rec);
     int64_t t_blocked = clock_mono_ns();
     rec->blocked_ns = t_blocked - t_in;
@@ -373,13 +381,14 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
     int64_t t_out = clock_mono_ns();
     /* What of the computation's wall time it did not compute: the platform's
      * (its stall), so that the record's parts add up to where its work ended. */
-    rec->preempted_ns = t_out - t_blocked - rec->compute_ns;
-    if (rec->preempted_ns < 0) rec->preempted_ns = 0;
+    if (t_out - t_blocked > rec->compute_ns) rec->preempted_ns += t_out - t_blocked - rec->compute_ns;
+    int64_t kept_out = 0;
     if (p->noutputs > 0 || p->nemits > 0) {
         if (x->mark_stale) process_remark(x, t_out);
         process_write_outputs(x, p, k);
-        process_kept(x, rec, t_out, clock_mono_ns());
+        kept_out = process_kept(x, rec, t_out, clock_mono_ns());
     }
-    process_finish(x, p, rec, release, t_out, measured);
+    /* comm_out_ns runs from where publishing ended less its stall (in preempted_ns) */
+    process_finish(x, p, rec, release, t_out + kept_out, measured);
     return PROCESS_DONE;
 }

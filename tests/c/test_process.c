@@ -22,8 +22,11 @@ static int64_t kept_ns(skel_exec_t *x, int64_t from)
     skel_rec_t rec;
     memset(&rec, 0, sizeof rec);
     x->stall_debt_ns = 0;
-    process_kept(x, &rec, from, clock_mono_ns());
+    int64_t kept = process_kept(x, &rec, from, clock_mono_ns());
     CHECK_EQ(rec.stall_ns, x->stall_debt_ns); /* what the record says, the debt owes */
+    /* the platform's time, not the step's communication: the caller takes it out of that */
+    CHECK_EQ(kept, rec.stall_ns);
+    CHECK_EQ(rec.preempted_ns, kept);
     return rec.stall_ns;
 }
 
