@@ -265,6 +265,8 @@ static int config_check_process(const skelmsg_config_t *cfg, const skelmsg_dpu_t
                            p->id, p->period_us, d->id, (long long)minor_us);
     if (p->compute_us < 0)
         return config_fail(reason, len, "process %d: compute_us %d < 0", p->id, p->compute_us);
+    if (p->ready_us < 0)
+        return config_fail(reason, len, "process %d: ready_us %d < 0", p->id, p->ready_us);
     if (config_check_quantiles(p, reason, len) != 0) return -1;
     if (tasking ? p->priority < 1 || p->priority > SKEL_MAX_PRIORITY : p->priority != 0)
         return config_fail(reason, len, "process %d: priority %d (the tasking executive's: 1..%d; "

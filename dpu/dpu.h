@@ -334,6 +334,8 @@ typedef struct {
     int8_t sync;
     int64_t period_ns;
     int64_t compute_ns;        /* the constant, or the mean of the draws */
+    int64_t ready_ns;          /* cyclic, sync: data: when the schedule has its data come, after
+                                * its release (process_t.ready_us); 0: no wait planned */
     skel_draw_t draw;
     int64_t ratio;             /* period / minor cycle */
     int ninputs, noutputs;

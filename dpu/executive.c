@@ -184,7 +184,10 @@ static void executive_release_held(skel_exec_t *x, int64_t until)
 /* Runs the due processes of minor cycle J in their order; NEXT_R is the next
  * release (INT64_MAX: none), where the idle of the minor's last record ends. The
  * schedule's start of each is the minor's release plus the configured compute of
- * the processes before it. 1 when the run stopped inside it. */
+ * the processes before it and the data waits the design plans for them: a data
+ * reader holds the DPU until its data comes (ready_ns after its release, the
+ * prediction's), so what follows it is scheduled from there and only a longer
+ * wait makes it late. 1 when the run stopped inside it. */
 static int executive_minor(skel_exec_t *x, int64_t j, int64_t next_r)
 {
     skel_plan_t *plan = x->plan;
@@ -211,6 +214,8 @@ static int executive_minor(skel_exec_t *x, int64_t j, int64_t next_r)
             rc = process_cycle(x, p, p->k_base + k, plan->minor_base + j, release, sched, &rec);
             end = release + p->period_ns - rec.slack_ns;
         }
+        /* the plan, not what happened: a skipped release moves it as a run one would */
+        if (release + p->ready_ns > sched) sched = release + p->ready_ns;
         sched += p->compute_ns;
         /* Idle belongs to the last record of the release: gaps between processes are overhead.
          * That record waits for the next minor that runs anything, where its idle ends. */

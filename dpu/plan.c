@@ -99,6 +99,7 @@ static int plan_add_processes(skel_plan_t *plan, const skelmsg_config_t *cfg, in
         p->sync = src->sync;
         p->period_ns = (int64_t)src->period_us * SKEL_NS_PER_US;
         p->compute_ns = (int64_t)((double)src->compute_us * SKEL_NS_PER_US / plan->speed);
+        p->ready_ns = (int64_t)src->ready_us * SKEL_NS_PER_US;
         p->draw.n = src->nquantiles;
         for (int q = 0; q < src->nquantiles; q++)
             p->draw.table_ns[q] = src->quantiles_us[q] * SKEL_NS_PER_US / plan->speed;

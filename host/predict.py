@@ -173,7 +173,7 @@ def predict(system: System) -> Prediction:
     rates, paced = _rates(system, stuck)
     unknown = unknown_rates(system, stuck)
     waits = same_cycle_waits(system, stuck | unknown | set(paced))
-    timing, found = _timings(system, waits)
+    timing, found, _ = _timings(system, waits)
     dpus = []
     for d in system.dpus:
         mine = system.processes_on(d.id)
@@ -205,11 +205,26 @@ def _data_at(system: System, timing: dict[int, Timing], w: Process) -> tuple[flo
             t.response_us if t.response_us is not None else math.inf)
 
 
+def planned_data_us(system: System) -> dict[int, float]:
+    """Per `sync: data` process on a cyclic DPU that waits in each cycle for a writer of its
+    period (same_cycle_waits), the latest its data comes after its release, as the prediction
+    has it (0 and left out: none planned, or never in time). The host sends it to the DPU
+    (process_t.ready_us), whose schedule starts the processes after the reader from there: a
+    wait the design plans is on schedule, only a longer one is lateness."""
+    _, stuck = deadlocks(system)
+    _, paced = _rates(system, stuck)
+    waits = same_cycle_waits(system, stuck | unknown_rates(system, stuck) | set(paced))
+    _, _, ready = _timings(system, waits)
+    return {r: late for r, (_, late) in ready.items()
+            if system.dpu(system.process(r).dpu).executive != "threads" and math.isfinite(late) and late > 0}
+
+
 def _timings(system: System, waits: dict[int, list[tuple[int, Process]]]
-             ) -> tuple[dict[int, Timing], dict[int, tuple[Frame, ...]]]:
+             ) -> tuple[dict[int, Timing], dict[int, tuple[Frame, ...]], dict[int, tuple[float, float]]]:
     """Every process's timing and every cyclic DPU's frames, each data reader started no
     sooner than its data of the same cycle (waits): a writer's end moves its readers', and
-    theirs their readers', one DPU after another, so it is done again until nothing moves."""
+    theirs their readers', one DPU after another, so it is done again until nothing moves.
+    Also, per reader, the earliest and latest its data comes after its release."""
     ready: dict[int, tuple[float, float]] = {}
     moved: set[int] = set()
     for _ in range(len(system.processes) + 1):
@@ -217,11 +232,11 @@ def _timings(system: System, waits: dict[int, list[tuple[int, Process]]]
         now = {r: (max(_data_at(system, timing, w)[0] for _, w in ws),
                    max(_data_at(system, timing, w)[1] for _, w in ws)) for r, ws in waits.items()}
         if now == ready:
-            return timing, found
+            return timing, found, ready
         moved, ready = {r for r in now if now[r] != ready.get(r)}, now
     # still moving: the waits go round DPUs that each hold up the next, and no cycle ever ends
-    return _schedule(system, {r: (e, math.inf) if r in moved else (e, late)
-                              for r, (e, late) in ready.items()})
+    ready = {r: (e, math.inf) if r in moved else (e, late) for r, (e, late) in ready.items()}
+    return (*_schedule(system, ready), ready)
 
 
 def _schedule(system: System, ready: dict[int, tuple[float, float]]

@@ -9,6 +9,7 @@ event's: its name is its channel (EVENT_CHANNEL_PREFIX + name), whoever sends it
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from typing import Any
 
@@ -16,6 +17,7 @@ import yaml
 
 import skelmsg
 
+from .predict import planned_data_us
 from .schema import Event
 from .system import System
 
@@ -69,11 +71,14 @@ def config_message(system: System, generation: int, run_id: int, committed: bool
         msg.buffers.append(buf)
     msg.nbuffers = len(msg.buffers)
     msg.processes = []
+    data_us = planned_data_us(system)
     for p in system.processes:
         proc = skelmsg.process_t()
         proc.id, proc.name, proc.dpu, proc.order = p.id, p.name, p.dpu, p.order
         proc.period_us, proc.compute_us, proc.sync = p.period_us, p.compute_us, SYNC[p.sync]
         proc.priority = p.priority
+        # rounded up: a wait the schedule plans to the µs is on schedule, never late by rounding
+        proc.ready_us = math.ceil(data_us.get(p.id, 0.0))
         proc.inputs = list(p.inputs)
         proc.required = [1 if b in p.required else 0 for b in p.inputs]
         proc.ninputs = len(proc.inputs)
