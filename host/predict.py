@@ -6,7 +6,8 @@ measure; on the cyclic executive every minor cycle's demand against the minor cy
 input buffer the new / stale / dropped share of the reader's cycles, as the analysis
 counts them; the data-wait structure (a cycle of `sync: data` processes can never start,
 nor can a cyclic DPU whose data reader's wait holds it from its writer there: an error; a
-data reader of a slower writer is paced by it; one of a writer of its own period waits, each
+data reader of a slower writer is paced by it, waiting for its next value in each cycle it
+runs (_paced_timings(), in its start and response); one of a writer of its own period waits, each
 cycle, for that writer's end: same_cycle_waits(), in its start and all that follows); per
 chain the best and worst end-to-end latency; per link its traffic. The DPUs' own costs
 (communication, wake-up, interference) are not in it: what a run measures beyond it is the
@@ -184,17 +185,109 @@ def predict(system: System) -> Prediction:
         dpus.append(DpuPrediction(d.id, d.executive, d.speed, d.minor_cycle_us,
                                   frames.hyperperiod(mine, d.minor_cycle_us), 100 * load,
                                   compute, found[d.id], ok, _lockout_ms(system, d, mine, load)))
+    fed = {(r, w.id): _data_at(system, timing, w)[0] for r, ws in waits.items() for _, w in ws}
+    for r, (w, data, at) in _paced_timings(system, timing, rates, paced).items():
+        timing[r], fed[(r, w)] = at, data
     processes = tuple(
         ProcessPrediction(p.name, p.dpu, p.period_us, frames.compute_us(p, system.dpu(p.dpu)), p.priority,
                           None if p.id in unknown else rates[p.id], _paced_by(system, p, paced, unknown),
                           timing[p.id].start_min_us, timing[p.id].start_max_us, timing[p.id].response_us)
         for p in system.processes)
     by_name = {p.name: p for p in processes}
-    fed = {(r, w.id): _data_at(system, timing, w)[0] for r, ws in waits.items() for _, w in ws}
     prediction = Prediction(system.name, tuple(dpus), processes, _inputs(system, rates, unknown),
                             _chains(system, by_name, rates, unknown, fed), _links(system, rates, unknown),
                             errors, ())
     return Prediction(**{**prediction.__dict__, "warnings": tuple(_warnings(system, prediction, waits))})
+
+
+def _paced_timings(system: System, timing: dict[int, Timing], rates: dict[int, float],
+                   paced: dict[int, str]) -> dict[int, tuple[int, float, Timing]]:
+    """Per data reader paced by a slower writer that runs at its own period: (that writer, the
+    earliest its data comes after the release the reader runs it in, the reader's timing with
+    the wait). Each cycle it waits for the writer's next value (the one it used last is not
+    new), so it computes when that comes, in the cycle of the release it reached: on the
+    cyclic executive the wait holds the DPU, a release whose turn comes a period late is
+    skipped, and the one after runs (its turn: the release, or the end of the last cycle, plus
+    what comes before it in its frame, TIMING's start); on the tasking one the latest release
+    at or before the data takes it, plus its response-time analysis' wait. The frames and the
+    processes after the reader are left as they were (not modelled). A writer that is itself
+    paced, or of unknown rate, paces it at no grid: left out."""
+    out: dict[int, tuple[int, float, Timing]] = {}
+    for p in system.processes:
+        w = next((system.process(system.buffer(b).writer) for b in p.required
+                  if system.process(system.buffer(b).writer).name == paced.get(p.id)), None)
+        if w is None or w.sync == "event" or rates[w.id] < 1e6 / w.period_us * (1 - 1e-9):
+            continue
+        d = system.dpu(p.dpu)
+        at, compute = timing[p.id], frames.compute_us(p, d)
+        if at.response_us is None:
+            continue
+        came: list[float] = []
+        starts: list[float] = []
+        ends: list[float] = []
+        for data in sorted(set(_data_at(system, timing, w))):
+            if not math.isfinite(data):
+                break
+            if d.executive == "threads":
+                c, s, e = _paced_tasking(p.period_us, w.period_us, data, at)
+            else:
+                fits = sum(frames.compute_us(q, d) / q.period_us for q in system.processes_on(d.id)) <= 1
+                c, s, e = _paced_cyclic(p.period_us, w.period_us, data, at.start_max_us,
+                                     at.response_us - at.start_max_us - compute, compute, fits)
+            came, starts, ends = came + c, starts + s, ends + e
+        if starts:
+            out[p.id] = (w.id, min(came), Timing(min(starts), max(starts), max(ends)))
+    return out
+
+
+def _pacing_releases(reader_us: int, writer_us: int) -> int:
+    """Reader releases to simulate: two of the common period of reader and writer (the pattern
+    repeats from there), at least 50, at most frames.MAX_FRAMES."""
+    return min(frames.MAX_FRAMES, max(50, 2 * math.lcm(reader_us, writer_us) // reader_us))
+
+
+def _paced_cyclic(period: int, writer: int, data: float, turn: float, after: float, compute: float,
+                  fits: bool) -> tuple[list[float], list[float], list[float]]:
+    """A paced reader on the cyclic executive (dpu/executive.c) whose writer's value m comes at
+    m * WRITER + DATA: when the value each cycle takes came, its computation's start and end,
+    after their release, in the second half of the releases simulated. TURN: what comes before
+    it in its frame; AFTER: after it."""
+    n = _pacing_releases(period, writer)
+    free, last = -math.inf, -1
+    came, starts, ends = [], [], []
+    for k in range(n):
+        release = k * period
+        at = max(release, free) + turn
+        if fits and at >= release + period:
+            continue  # its turn a period late: the release is skipped
+        newest = math.floor((at - data) / writer)
+        if newest > last:
+            last, start = newest, at
+        else:
+            last += 1
+            start = max(at, last * writer + data)
+        free = start + compute + after
+        if k >= n // 2:
+            came.append(last * writer + data - release)
+            starts.append(start - release)
+            ends.append(start + compute - release)
+    return came, starts, ends
+
+
+def _paced_tasking(period: int, writer: int, data: float, at: Timing
+                   ) -> tuple[list[float], list[float], list[float]]:
+    """A paced reader on the tasking executive: each value m (at m * WRITER + DATA) is taken by
+    the latest release at or before it (the earlier ones skip), and from then on it waits as
+    response-time analysis has it (AT: its timing with its data at its release)."""
+    n = _pacing_releases(period, writer) * period // writer
+    came, starts, ends = [], [], []
+    for m in range(n // 2, n):
+        wait = (m * writer + data) % period
+        came.append(wait)
+        starts.append(wait + at.start_min_us)
+        starts.append(wait + at.start_max_us)
+        ends.append(wait + (at.response_us or math.inf))
+    return came, starts, ends
 
 
 def _data_at(system: System, timing: dict[int, Timing], w: Process) -> tuple[float, float]:

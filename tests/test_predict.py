@@ -367,3 +367,36 @@ def test_random_systems_measure_what_is_predicted(tmp_path: Path, url: str, seed
     path.write_text(text)
     for dpu, measured, predicted in _measured_vs_predicted(tmp_path, url, path):
         assert measured == pytest.approx(predicted, abs=2.0), (seed, dpu, measured, predicted)
+
+
+PACED_SYSTEM = """\
+system: paced
+dpus: [{id: 1, compute: sleep}, {id: 2, compute: sleep, executive: EXECUTIVE}]
+buffers: [{id: 1, name: buf, bytes: 100}]
+processes:
+  - {id: 1, name: w, dpu: 1, period_us: 10000, compute_us: 2000, outputs: [buf]}
+  - {id: 2, name: rd5, dpu: 2, period_us: 5000, compute_us: 500, sync: data, inputs: [buf]}
+chains: [{name: c, processes: [w, rd5]}]
+"""
+
+
+def test_a_paced_reader_waits_for_its_writer_in_its_start_and_response(tmp_path: Path) -> None:
+    """A 5 ms data reader of a 10 ms writer (2 ms) elsewhere runs once per value, waiting for it.
+    On the cyclic executive the wait holds the DPU: a cycle ends at 2.5 ms past the value's
+    release, the next release's turn comes then, 2.5 ms late, and it waits for the next value
+    (10 ms on): it computes 12 ms after that release and responds at 12.5 ms, the one between
+    skipped (a real run: start p50 12.6, response p99 12.8 ms). It was predicted 0..0 and 0.5 ms,
+    as if it had no wait. On the tasking executive the release at the value's time takes it: 2
+    and 2.5 ms. The chain's value waits for no turn (it is computed when it comes)."""
+    cyclic = predict(_system(tmp_path, PACED_SYSTEM.replace("EXECUTIVE", "cyclic")))
+    rd5 = cyclic.process("rd5")
+    assert rd5.paced_by == "w" and rd5.rate_hz == pytest.approx(100)
+    assert (rd5.start_min_us, rd5.start_max_us, rd5.response_us) == pytest.approx((12000, 12000, 12500))
+    assert cyclic.chains[0].worst_us == pytest.approx(0)
+    tasking = predict(_system(tmp_path, PACED_SYSTEM.replace("EXECUTIVE", "threads")))
+    rd5 = tasking.process("rd5")
+    assert (rd5.start_min_us, rd5.start_max_us, rd5.response_us) == pytest.approx((2000, 2000, 2500))
+    # the same-cycle wait of a reader of its own period is unchanged: 2 ms, 2.5 ms
+    same = predict(_system(tmp_path, PACED_SYSTEM.replace("EXECUTIVE", "cyclic").replace("5000", "10000")))
+    assert same.process("rd5").paced_by is None
+    assert (same.process("rd5").start_max_us, same.process("rd5").response_us) == pytest.approx((2000, 2500))
