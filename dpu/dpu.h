@@ -604,8 +604,9 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
                   int64_t sched_ns, skel_rec_t *rec);
 void process_record_begin(skel_exec_t *x, const skel_process_t *p, int64_t k, int64_t minor,
                           int64_t release_ns, int64_t sched_ns, int64_t start_ns, skel_rec_t *rec);
+/* WHY: what kept cycle K from completing when it waits on no BUFFER (< 0), for the log. */
 void process_lockout(skel_exec_t *x, skel_process_t *p, int16_t buffer, int64_t k,
-                     int64_t release_ns);
+                     int64_t release_ns, const char *why);
 int64_t process_lockout_at(const skel_plan_t *plan, const skel_process_t *p, int64_t release);
 void process_peek_inputs(const skel_plan_t *plan, const skel_process_t *p, skel_rec_t *rec);
 int process_missing(const skel_process_t *p, const skel_rec_t *rec);

@@ -61,15 +61,14 @@ static int process_lockout_record(skel_exec_t *x, skel_process_t *p, int16_t buf
 }
 
 void process_lockout(skel_exec_t *x, skel_process_t *p, int16_t buffer, int64_t k,
-                     int64_t release_ns)
+                     int64_t release_ns, const char *why)
 {
     if (!process_lockout_record(x, p, buffer, -1, k, release_ns)) return;
     if (buffer >= 0)
         log_line("DPU %d: LOCKOUT process %d cycle %lld (waiting on buffer %d)", x->plan->dpu, p->id,
                  (long long)k, buffer);
     else
-        log_line("DPU %d: LOCKOUT process %d cycle %lld (not run: its DPU is behind)", x->plan->dpu,
-                 p->id, (long long)k);
+        log_line("DPU %d: LOCKOUT process %d cycle %lld (%s)", x->plan->dpu, p->id, (long long)k, why);
 }
 
 /* While P waits in minor J, the DPU's one thread runs nothing else: every other
@@ -238,7 +237,7 @@ static int process_wait_data(skel_exec_t *x, skel_process_t *p, int64_t k, int64
         process_look(x, rec, &look, now);
         if (process_should_stop(x, now)) return 1;
         if (process_locked_out(x, p, release, now)) {
-            process_lockout(x, p, p->inputs[missing].buffer, k, release);
+            process_lockout(x, p, p->inputs[missing].buffer, k, release, "");
             rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
         }
         /* Wake for the next lockout to detect and for the run's end, polling at least every 10 ms. */
@@ -258,6 +257,39 @@ static int process_wait_data(skel_exec_t *x, skel_process_t *p, int64_t k, int64
         if (late > x->s->compute.stall_ns) process_stalled(x, rec, late);
         if (link_drain(plan->links, plan->nlinks) < 0) return 1;
         process_peek_inputs(plan, p, rec);
+    }
+}
+
+/* Emulates cycle K's computation (REC's asked_ns) from NOW, and returns the compute it
+ * reports. A cycle still computing at its lockout instant is locked out then, as the
+ * definition says, not when it ends nor when its next cycle starts (a 300 ms computation
+ * of a 10 ms process with a 100 ms window was named 200 ms late, and as cycle 1): the
+ * computation runs in two calls, cut at that instant. A computation that ends before its
+ * next release (lockout_cycles >= 1 periods from its release) cannot reach it: for it the
+ * check is two additions and a comparison, no clock read, no system call, nothing
+ * allocated. A stall in the first part moves the instant later (stalls do not count), so
+ * the cut is taken again until the computation is done. */
+static int64_t process_compute(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t release,
+                               skel_rec_t *rec, int64_t now)
+{
+    int64_t left = rec->asked_ns, computed = 0;
+    for (;;) {
+        int64_t part = left;
+        if (!p->locked_out && now + left - x->stall_debt_ns >= release + p->period_ns) {
+            const int64_t at = process_lockout_at(x->plan, p, release);
+            if (now - x->stall_debt_ns >= at) { /* process_locked_out, AT worked out once */
+                process_lockout(x, p, -1, k, release, "still computing");
+                rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
+            } else if (process_lockout_due(x, at) - now < part) {
+                part = process_lockout_due(x, at) - now; /* > 0: not locked out yet */
+            }
+        }
+        int64_t stall = 0;
+        computed += compute_run(&x->s->compute, x->plan->compute, part, &stall);
+        process_stalled(x, rec, stall);
+        left -= part;
+        if (left <= 0) return computed;
+        now = clock_mono_ns();
     }
 }
 
@@ -327,6 +359,15 @@ void process_finish(skel_exec_t *x, skel_process_t *p, skel_rec_t *rec, int64_t 
     p->taken_ns = -1; /* its event is handled */
     rec->comm_out_ns = end - t_out;
     rec->slack_ns = release + p->period_ns - end;
+    /* A cycle that completes after its lockout instant was locked out, whatever held it
+     * (a computation the check between its parts did not see past, outputs, a tasking
+     * job preempted): named now at the latest, not when its next cycle starts. Only a
+     * cycle that ended past its next release can be (lockout_cycles >= 1): the others
+     * skip working the instant out (a 64-bit division). */
+    if (!p->locked_out && rec->slack_ns <= 0 && process_locked_out(x, p, release, end)) {
+        process_lockout(x, p, -1, rec->cycle, release, "completed after its lockout instant");
+        rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
+    }
     if (rec->slack_ns < 0) {
         rec->flags |= SKELMSG_TIMING_T_FLAG_OVERRUN;
         atomic_fetch_add(&x->s->overruns, 1);
@@ -352,7 +393,7 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
     if (x->mark_stale) process_remark(x, start);
     process_record_begin(x, p, k, minor, release, sched, start, rec);
     if (process_locked_out(x, p, release, start)) {
-        process_lockout(x, p, -1, k, release);
+        process_lockout(x, p, -1, k, release, "not run: its DPU is behind");
         rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
     }
     if (p->ninputs > 0) /* nothing to read: no system call */
@@ -370,10 +411,8 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
         return PROCESS_STOPPED;
     }
     process_commit(plan, p, rec, measured);
-    int64_t stall = 0;
     rec->asked_ns = draw_ns(&p->draw, p->compute_ns);
-    rec->compute_ns = compute_run(&x->s->compute, plan->compute, rec->asked_ns, &stall);
-    process_stalled(x, rec, stall);
+    rec->compute_ns = process_compute(x, p, k, release, rec, t_blocked);
     /* A computation sleeps (a voluntary switch), or charges only the stalls that carried
      * it past its time: what it lost and still ended on time must not be billed to the
      * next long step. Its steps are judged from a fresh mark. */

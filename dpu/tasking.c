@@ -125,25 +125,22 @@ static void tasking_release_due(skel_exec_t *x, int64_t vt)
     }
 }
 
-/* P's oldest release not started yet, and its cycle *K: its job's while that waits
- * (for data or the processor); the one after its job while that runs (a process
- * behind its releases ages there); else its next. INT64_MAX: none (an event
- * process no event waits for). Both tasking executives lock out by it. */
+/* P's oldest release not completed yet, and its cycle *K: its job's while it has one
+ * (waiting for data or the processor, or started: a job that computes past its lockout
+ * instant is locked out there, and the releases behind it are younger); else its next.
+ * INT64_MAX: none (an event process no event waits for). Both tasking executives lock
+ * out by it. */
 static int64_t tasking_pending(const skel_process_t *p, int64_t *k)
 {
-    if (p->job == TASK_WAITING || p->job == TASK_READY) {
-        *k = p->k_base + p->next_k;
-        return p->job_release;
-    }
-    const int started = p->job == TASK_STARTED;
-    *k = p->k_base + p->next_k + started;
-    return p->event >= 0 ? tasking_event_release(p) : tasking_release(p, p->next_k + started);
+    *k = p->k_base + p->next_k;
+    if (p->job != TASK_NONE) return p->job_release;
+    return p->event >= 0 ? tasking_event_release(p) : tasking_release(p, p->next_k);
 }
 
-/* P's release not started by its lockout instant, by NOW, is locked out, as on the
- * cyclic executive: waiting for data (naming the buffer) or kept from the processor
- * by higher-priority work, or by its own late jobs. Returns NEXT, or the instant
- * P's lockout would be when sooner. */
+/* P's release not completed by its lockout instant, by NOW, is locked out, as on the
+ * cyclic executive: waiting for data (naming the buffer), kept from the processor by
+ * higher-priority work or by its own late jobs, or still computing. Returns NEXT, or
+ * the instant P's lockout would be when sooner. */
 int64_t tasking_lockout(skel_exec_t *x, skel_process_t *p, int64_t now, int64_t next)
 {
     int64_t k, release = tasking_pending(p, &k);
@@ -151,7 +148,8 @@ int64_t tasking_lockout(skel_exec_t *x, skel_process_t *p, int64_t now, int64_t 
     int64_t at = process_lockout_at(x->plan, p, release);
     if (now < at) return at < next ? at : next;
     int missing = p->job == TASK_WAITING ? p->job_missing : -1;
-    process_lockout(x, p, missing >= 0 ? p->inputs[missing].buffer : -1, k, release);
+    process_lockout(x, p, missing >= 0 ? p->inputs[missing].buffer : -1, k, release,
+                    p->job == TASK_STARTED ? "still computing" : "not run: kept from the processor");
     p->lockout_k = k;
     return next;
 }
@@ -201,6 +199,8 @@ static void tasking_complete(skel_exec_t *x, skel_process_t *p)
      * it, so that the record's parts add up to where its work ended. */
     if (t_out > p->slice_mono_ns) p->rec.preempted_ns += t_out - p->slice_mono_ns;
     const int measured = p->k_base + p->next_k >= p->measure_from_k;
+    /* locked out while it ran (tasking_lockout): its own record says so */
+    if (p->k_base + p->next_k == p->lockout_k) p->rec.flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
     process_write_outputs(x, p, p->k_base + p->next_k);
     process_finish(x, p, &p->rec, p->job_release, t_out, measured);
     p->job = TASK_NONE;

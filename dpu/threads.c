@@ -13,9 +13,9 @@
  * carries it over by the same rules (swap.c).
  *
  * The executive thread becomes the watcher: moved off that CPU, it wakes at
- * the lockout instants (a job not started lockout_cycles periods after its
+ * the lockout instants (a job not completed lockout_cycles periods after its
  * release is locked out, as on the other executives: waiting for data, naming
- * the buffer, or kept from the processor), at STOP and at the run's end, when
+ * the buffer, kept from the processor, or still computing), at STOP and at the run's end, when
  * it wakes every thread and joins them.
  *
  * What the threads share (the slots and links, the records' ring, the DPU's
@@ -299,6 +299,8 @@ static void threads_job(threads_worker_t *w)
     plan = t->plan;
     if (p == NULL) return; /* removed: its job is lost, as at a run's end */
     const int measured = k >= p->measure_from_k;
+    /* locked out while it computed (the executive thread's tasking_lockout): its record says so */
+    if (k == p->lockout_k) rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
     process_write_outputs(&w->x, p, k);
     threads_kick(t, w); /* a local output may be what a data wait waits for */
     process_finish(&w->x, p, rec, p->job_release, t_out, measured);

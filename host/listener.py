@@ -109,6 +109,8 @@ def fault_line(fault: Fault) -> str:
         waits = fault.detail
         if fault.buffer and fault.writer:
             waits = f"waiting on {fault.buffer} from {fault.writer}"
+        if fault.buffer and fault.writer and fault.at_s is not None:
+            waits += f"; not completed by {fault.at_s:.3f} s"
         return f"lockout: {where} at cycle {fault.cycle}, {waits}"
     if fault.kind == "jam":
         return f"jam: {' -> '.join(fault.chain)}: {fault.detail}"
@@ -122,9 +124,11 @@ def fault_line(fault: Fault) -> str:
 
 
 def fault_key(fault: Fault) -> tuple[Any, ...]:
-    """What makes a fault the same one as it grows (an overrun's count, a stall's length)."""
-    return (fault.kind, fault.process, fault.dpu, tuple(fault.chain), fault.host, fault.at_s,
-            fault.count is None)
+    """What makes a fault the same one as it grows (an overrun's count, a stall's length).
+    A lockout (once per process per run) and a jam (its chain) are the same whatever their
+    at_s: it counts from the first release heard, which a batch resent late may move."""
+    at_s = None if fault.kind in ("lockout", "jam") else fault.at_s
+    return (fault.kind, fault.process, fault.dpu, tuple(fault.chain), fault.host, at_s, fault.count is None)
 
 
 class Listener:

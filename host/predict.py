@@ -600,12 +600,30 @@ def _meets(t: Timing, p: Process) -> bool:
 
 
 def _lockout_ms(system: System, d: Dpu, mine: list[Process], load: float) -> float | None:
-    """An overloaded DPU falls behind by (1 - 1/load) of the time (it does a second's work in
-    `load` seconds); a process locks out once lockout_cycles of its periods behind."""
+    """When an overloaded DPU's first process locks out, in ms from the run's start.
+
+    The cyclic executive runs its frames back to back from the start, so the work released
+    before r is done by about load x r, and a process's cycle released at r completes about
+    load x r + its part of frame 0 (its own compute and that of those before it in the
+    order). Its cycle k locks out at r_k + lockout_cycles x period when not completed by
+    then: the first k with load x r_k + part >= r_k + L x T (a cycle that would end just
+    at its limit ends after it: the executive's own cost adds up over the cycles). A
+    computation longer than the window locks out cycle 0, at L x T. The tasking executive
+    lets the lowest priorities absorb the overload: there it falls behind by (1 - 1/load)
+    of the time (it does a second's work in `load` seconds) and a process locks out once
+    lockout_cycles of its periods behind."""
     if load <= 1 or not mine:
         return None
-    first = min(system.run.lockout_cycles * p.period_us for p in mine)
-    return first / (1 - 1 / load) / 1000
+    window = {p.id: system.run.lockout_cycles * p.period_us for p in mine}
+    if d.executive == "threads":
+        return min(window.values()) / (1 - 1 / load) / 1000
+    first, part = math.inf, 0.0
+    for p in mine:  # in their order on the DPU, as frame 0 runs them
+        part += frames.compute_us(p, d)
+        # (rounding: 1.2 - 1 is 0.19999999999999996, and an exact k must not become k + 1)
+        k = max(0, math.ceil((window[p.id] - part) / ((load - 1) * p.period_us) - 1e-9))
+        first = min(first, k * p.period_us + window[p.id])
+    return first / 1000
 
 
 # --- buffers, chains, links ----------------------------------------------------------------

@@ -275,6 +275,30 @@ def test_a_data_synchronised_process_is_jammed_by_its_locked_out_writer() -> Non
     assert jam_faults(locks, config) == []
 
 
+def test_a_lockout_says_when_its_cycles_window_ended_not_when_it_was_found() -> None:
+    """at_s is r_k + lockout_cycles x period from the DPU's first release: the definition's
+    instant, the same whether the DPU found it then or later (a stall it did not count)."""
+    config = small_config()  # A: 10 ms on DPU 1, C: 20 ms on DPU 2, lockout_cycles 5
+    t0 = 5_000 * MS
+    beat = status(1, [(0, -1, 7)])
+    beat.lockouts[0].release_ns = t0 + 70 * MS
+    late = status(2, [(2, 1, 4)])
+    late.lockouts[0].release_ns = t0 + 80 * MS
+    locks = lockouts_from_status([beat, late], RUN_ID)
+    a, c = lockout_faults(locks, config, {1: t0, 2: t0})
+    assert (a.process, a.cycle, a.at_s) == ("A", 7, pytest.approx(0.120)), a
+    assert a.detail.endswith("; not completed by 0.120 s"), a.detail
+    assert (c.process, c.cycle, c.at_s) == ("C", 4, pytest.approx(0.180)), c
+    # without the run's first releases, or a release (an old DPU's heartbeat), no instant
+    assert [f.at_s for f in lockout_faults(lockouts_from_status([status(1, [(0, -1, 7)])], RUN_ID), config,
+                                           {1: t0})] == [None]
+    assert [f.at_s for f in lockout_faults(locks, config)] == [None, None]
+    # a jam is dated by its head's lockout
+    chained = locks | lockouts_from_status([status(1, [(1, 0, 7)])], RUN_ID)  # B waits on A's a_out
+    (jam,) = jam_faults(chained, config, {1: t0, 2: t0})
+    assert jam.chain[0] == "C" and jam.at_s == pytest.approx(0.180), jam
+
+
 def test_lockout_without_locked_writer_is_not_a_jam() -> None:
     locks = lockouts_from_status([status(1, [(1, 0, 5)])], RUN_ID)
     assert jam_faults(locks, small_config()) == []

@@ -13,7 +13,7 @@ from randsys import random_system
 
 from skeleton.host.check import check
 from skeleton.host.predict import predict
-from skeleton.host.system import load
+from skeleton.host.system import System, load, loads
 from skelmsg import contract
 
 TABLE1 = {1: 90.3, 2: 73.4, 3: 86.0, 4: 96.5}
@@ -86,11 +86,12 @@ def test_servo_at_2_5_ms_predicts_overload_frames_and_lockout() -> None:
     assert [d.schedulable for d in pred.dpus] == [False, False, False, True]
     assert [f.first for f in pred.dpu(1).overflowing] == [0]
     assert pred.dpu(1).overflowing[0].demand_us == pytest.approx(4515)
-    # 25 ms behind (10 periods) at 180.6 % load: 25 / (1 - 1/1.806) ms
-    assert pred.dpu(1).lockout_ms == pytest.approx(25 / (1 - 1 / 1.806), rel=0.01)
+    # frame 0 (4.515 ms) back to back: forward_kinematics' cycle k ends at 4.515 (k + 1) ms,
+    # past its limit 2.5 k + 25 ms from k = 11, at 52.5 ms (a run: cycle 10 or 11, 50-52.5 ms)
+    assert pred.dpu(1).lockout_ms == pytest.approx(52.5)
     said = "\n".join(pred.warnings)
     assert "DPU 1: static load 180.6 % exceeds 100 %" in said
-    assert "lockout predicted about 56 ms" in said
+    assert "lockout predicted about 52 ms" in said
     assert "minor cycle 0 (1 of every 1) demands 4.515 ms (trajectory, forward_kinematics)" in said
     assert pred.chains[0].worst_us is None
 
@@ -400,3 +401,24 @@ def test_a_paced_reader_waits_for_its_writer_in_its_start_and_response(tmp_path:
     same = predict(_system(tmp_path, PACED_SYSTEM.replace("EXECUTIVE", "cyclic").replace("5000", "10000")))
     assert same.process("rd5").paced_by is None
     assert (same.process("rd5").start_max_us, same.process("rd5").response_us) == pytest.approx((2000, 2500))
+
+
+def _one_process(period_us: int, compute_us: int, lockout_cycles: int) -> System:
+    return loads(f"""\
+system: one
+dpus: [{{id: 1}}]
+processes: [{{id: 1, name: hog, dpu: 1, period_us: {period_us}, compute_us: {compute_us}}}]
+run: {{warmup_cycles: 0, lockout_cycles: {lockout_cycles}}}
+""", "one.yaml")
+
+
+@pytest.mark.parametrize(("compute_us", "lockout_ms"), [
+    (300_000, 100),  # cycle 0 computes past its window (r_0 + 10 x 10 ms): locked out at 100 ms
+    (150_000, 100),
+    (12_000, 540),   # cycle k ends at 12 (k + 1) ms, past 10 k + 100 from k = 44 (just at it: late)
+    (11_000, 990),   # 11 (k + 1) >= 10 k + 100 from k = 89
+])
+def test_predicted_lockout_when_a_cycle_first_ends_past_its_window(compute_us: int, lockout_ms: int) -> None:
+    """The lockout definition, cycle k not completed by r_k + lockout_cycles x period, on the
+    cyclic executive running an overloaded DPU back to back (a run measured 100 and 540 ms)."""
+    assert predict(_one_process(10_000, compute_us, 10)).dpu(1).lockout_ms == pytest.approx(lockout_ms)

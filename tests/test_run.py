@@ -8,9 +8,12 @@ import threading
 import time
 from pathlib import Path
 
+import lcm
 import pytest
 from conftest import EXAMPLES, LOCKOUT_SYSTEM, skel, skel_background, threads_cpus
 
+import skelmsg
+from skeleton.host.predict import predict
 from skeleton.host.run import keep_off_dpu_cpus
 from skeleton.host.system import System, load
 
@@ -149,6 +152,55 @@ def test_lockout_of_a_data_synchronised_reader(tmp_path: Path, url: str) -> None
     assert stopped["command"] == "STOP" and stopped["planned_s"] == 3.0, stopped
     assert 0 <= stopped["at_s"] < 3.0, stopped
     assert f"the run was stopped at {stopped['at_s']:.2f} s of its planned 3 s" in run.stdout, run.stdout
+
+
+# One process whose cycle (150 ms of compute) is longer than its lockout window (5 periods
+# of 10 ms): cycle 0 is still computing when its window ends, 50 ms into the run.
+LONG_CYCLE_SYSTEM = """\
+system: long_cycle
+dpus: [{id: 1, compute: sleep}]
+processes:
+  - {id: 1, name: hog, dpu: 1, period_us: 10000, compute_us: 150000}
+run: {duration_s: 2, warmup_cycles: 0, lockout_cycles: 5, stop_on: [lockout]}
+"""
+
+
+def _lockout_heard_s(log: Path) -> float:
+    """When the first heartbeat naming a lockout was logged, in s after the run's START
+    instant (one host: the DPU's clock is the host's), from the log as written."""
+    start = None
+    for event in lcm.EventLog(str(log), "r"):
+        if event.channel == "SKEL_COMMAND" and start is None:
+            command = skelmsg.command_t.decode(event.data)
+            if command.kind == skelmsg.command_t.START:
+                start = command.at_utc_ns
+        elif event.channel == "SKEL_STATUS" and start is not None:
+            if skelmsg.status_t.decode(event.data).nlockouts:
+                return (event.timestamp * 1000 - start) / 1e9
+    raise AssertionError(f"no heartbeat named a lockout in {log}")
+
+
+@pytest.mark.timing
+def test_a_cycle_computing_past_its_window_locks_out_when_the_window_ends(tmp_path: Path, url: str) -> None:
+    """The lockout definition: cycle k not completed by r_k + lockout_cycles x period. The DPU
+    names cycle 0 while it still computes (it once named cycle 1, when cycle 0 ended), the
+    report says when its window ended, and `skel check` predicted that instant."""
+    path = tmp_path / "long.yaml"
+    path.write_text(LONG_CYCLE_SYSTEM)
+    out = tmp_path / "run"
+    run = skel("run", str(path), "--spawn", "--url", url, "--out", str(out))
+    assert run.returncode == 3, run.stdout + run.stderr
+    (fault,) = [f for f in _report(out)["faults"] if f["kind"] == "lockout"]
+    assert (fault["process"], fault["cycle"], fault["buffer"]) == ("hog", 0, None), fault
+    # r_0 + 5 x 10 ms from the run's first release (r_0 itself)
+    assert fault["at_s"] == pytest.approx(0.050, abs=1e-6), fault
+    assert "not completed by 0.050 s" in fault["detail"], fault
+    assert "FAULT lockout: hog (DPU 1) at cycle 0" in run.stdout, run.stdout
+    # found while cycle 0 computed: its heartbeat logged after 50 ms and well before the
+    # computation's end at 150 ms (this shared VM delays a heartbeat by tens of ms at worst)
+    assert 0.050 <= _lockout_heard_s(out / "run.lcm") < 0.140
+    predicted = predict(load(path)).dpu(1).lockout_ms
+    assert predicted is not None and abs(predicted / 1000 - fault["at_s"]) <= 0.010, predicted
 
 
 # Two data-synchronised processes, each waiting for the other's output: a deadlock.

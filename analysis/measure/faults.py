@@ -46,7 +46,7 @@ class Fault:
     root_dpu: int | None = None  # jam: the DPU of the chain's last process
     host: str | None = None  # stall: the host whose DPUs stalled
     dpus: list[int] = field(default_factory=list)  # stall: the DPUs that stalled together
-    at_s: float | None = None  # behind, stall, dpu_lost: when, in s from the run's first release
+    at_s: float | None = None  # behind, stall, dpu_lost, lockout, jam: when, s from the run's first release
     duration_ms: float | None = None  # behind: how long; stall: how long the thread could not run
     behind_ms: float | None = None  # behind: the largest lateness of the DPU's minor cycles
     fatal: bool = False  # the design's flaw (exit 3), not the platform's
@@ -63,6 +63,7 @@ class Lockout:
     cycle: int
     known_wait: bool = True  # False when only a timing record's flag told us
     behind: int | None = None  # the process of its DPU whose data wait held it up
+    release_ns: int | None = None  # the locked cycle's release, on its records' clock
 
 
 @dataclass(frozen=True)
@@ -103,7 +104,8 @@ def lockouts_from_status(statuses: Iterable[Any], run_id: int) -> dict[int, Lock
             if lock.process not in out:
                 buffer = None if lock.buffer < 0 else int(lock.buffer)
                 behind = None if lock.behind < 0 else int(lock.behind)
-                out[int(lock.process)] = Lockout(int(lock.process), buffer, int(lock.cycle), behind=behind)
+                out[int(lock.process)] = Lockout(int(lock.process), buffer, int(lock.cycle), behind=behind,
+                                                 release_ns=int(lock.release_ns))
     return out
 
 
@@ -114,12 +116,29 @@ def lockouts_from_records(records: np.ndarray, known: dict[int, Lockout]) -> dic
     flagged = records[(records["flags"] & FLAG_LOCKOUT) != 0]
     for proc in np.unique(flagged["process"]).tolist():
         if proc not in out:
-            first = int(flagged["cycle"][flagged["process"] == proc].min())
-            out[proc] = Lockout(proc, None, first, known_wait=False)
+            mine = flagged[flagged["process"] == proc]
+            i = int(np.argmin(mine["cycle"]))
+            out[proc] = Lockout(proc, None, int(mine["cycle"][i]), known_wait=False,
+                                release_ns=int(mine["release_ns"][i]))
     return out
 
 
-def lockout_faults(lockouts: dict[int, Lockout], config: Any) -> list[Fault]:
+def lockout_at_s(lock: Lockout, config: Any, dpu: int | None, origin: Mapping[int, int]) -> float | None:
+    """When `lock`'s cycle passed its limit, r_k + lockout_cycles x period, in s from its
+    DPU's first release (`origin`), as the definition puts it: not when the DPU found it,
+    which is later by the stalls it did not count (or, before it checked at a cycle's end
+    and during its computation, by up to the whole computation). None when unknown."""
+    period_us = next((p.period_us for p in config.processes if p.id == lock.process), None)
+    if lock.release_ns is None or lock.release_ns <= 0 or period_us is None or dpu not in origin:
+        return None
+    limit_ns = lock.release_ns + int(config.lockout_cycles) * int(period_us) * 1000
+    return (limit_ns - origin[dpu]) / 1e9
+
+
+def lockout_faults(lockouts: dict[int, Lockout], config: Any,
+                   origin: Mapping[int, int] | None = None) -> list[Fault]:
+    """One fault per locked-out process, naming its cycle and, with `origin`
+    (first_release_ns of the run), when that cycle's limit passed (at_s)."""
     names, dpus, buffers = _index(config)
     faults = []
     for proc in sorted(lockouts):
@@ -133,7 +152,11 @@ def lockout_faults(lockouts: dict[int, Lockout], config: Any) -> list[Fault]:
             detail = "not waiting for data: its DPU cannot run it"
         else:
             detail = "flagged in the timing records (no status_t)"
-        faults.append(Fault(kind="lockout", detail=detail, **_where(proc, lock, names, dpus, buffers)))
+        at_s = lockout_at_s(lock, config, dpus.get(proc), origin or {})
+        if at_s is not None:
+            detail += f"; not completed by {at_s:.3f} s"
+        where = _where(proc, lock, names, dpus, buffers)
+        faults.append(Fault(kind="lockout", detail=detail, at_s=at_s, **where))
     return faults
 
 
@@ -187,12 +210,14 @@ def _holder(proc: int, lockouts: dict[int, Lockout], config: Any) -> _Hold:
     return _Hold()
 
 
-def jam_faults(lockouts: dict[int, Lockout], config: Any) -> list[Fault]:
+def jam_faults(lockouts: dict[int, Lockout], config: Any,
+               origin: Mapping[int, int] | None = None) -> list[Fault]:
     """A jam: a locked-out process held up by another locked-out process.
 
     One fault per chain, reported from its head (a jammed process nobody jammed
     waits on) back to the root cause: a locked-out process not waiting for data (its
-    DPU is overloaded), a writer that is not locked out, or a circular wait."""
+    DPU is overloaded), a writer that is not locked out, or a circular wait. It names
+    the head's cycle, and its at_s is when that cycle's limit passed (lockout_at_s)."""
     names, dpus, buffers = _index(config)
     holders = {p: _holder(p, lockouts, config) for p in lockouts}
 
@@ -237,6 +262,7 @@ def jam_faults(lockouts: dict[int, Lockout], config: Any) -> list[Fault]:
                 detail=cause,
                 static_load_pct=load,
                 root_dpu=dpus.get(root),
+                at_s=lockout_at_s(lockouts[head], config, dpus.get(head), origin or {}),
             )
         )
     return faults

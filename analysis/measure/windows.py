@@ -22,6 +22,7 @@ from .faults import (
     Lockout,
     behind_faults,
     delivery_faults,
+    first_release_ns,
     jam_faults,
     lockout_faults,
     lockouts_from_records,
@@ -124,6 +125,8 @@ def build_window(
                     strict=True))  # fmt: skip
     processes = done["processes"]
     delivered, locks = done["delivery"]
+    # a lockout's at_s counts from the run's first release, as the other faults' do
+    first = first_release_ns(records) if origin is None else origin
     start, end = done["span"]
     return WindowReport(
         generation=int(config.generation),
@@ -135,8 +138,8 @@ def build_window(
         chains=done["chains"],
         faults=(
             delivered
-            + lockout_faults(locks, config)
-            + jam_faults(locks, config)
+            + lockout_faults(locks, config, first)
+            + jam_faults(locks, config, first)
             + done["behind"]
             + skipping_faults(processes, config)
             + done["stalls"]

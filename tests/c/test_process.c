@@ -1,5 +1,7 @@
 /* test_process.c: a step of a cycle that should not wait (reading inputs, publishing)
- * is a stall when the thread was kept from running, not when it ran or chose to wait. */
+ * is a stall when the thread was kept from running, not when it ran or chose to wait;
+ * a cycle still computing at its lockout instant is locked out at that instant. */
+#include <poll.h>
 #include <pthread.h>
 #include <sched.h>
 #include <semaphore.h>
@@ -109,6 +111,78 @@ static void test_a_thread_that_takes_the_cpu_is_a_stall(skel_exec_t *x)
     sem_destroy(&go);
 }
 
+/* When the DPU's notify_fd (the control thread's: a lockout wakes it) is written. */
+typedef struct {
+    int fd;
+    int64_t woke_ns; /* -1: not within 2 s */
+} notified_t;
+
+static void *watch_notify(void *arg)
+{
+    notified_t *n = arg;
+    struct pollfd pfd = { .fd = n->fd, .events = POLLIN };
+    n->woke_ns = poll(&pfd, 1, 2000) == 1 ? clock_mono_ns() : -1;
+    return NULL;
+}
+
+/* A cycle of a 1 ms process computing 12 ms (sleep mode) with lockout_cycles 5 is still
+ * computing at r_0 + 5 ms: it is locked out then, as cycle 0, not when it ends (12 ms)
+ * or when cycle 1 starts; its computation is the 12 ms asked all the same. A cycle whose
+ * computation ends inside its window is not locked out. */
+static void test_a_computation_past_its_window_locks_out_while_it_runs(void)
+{
+    static skel_server_t s; /* large: not on the stack */
+    CHECK_EQ(server_init(&s), 0);
+    s.compute.stall_ns = SKEL_STALL_NS;
+    s.compute.spin_ns = 150 * SKEL_NS_PER_US;
+    skel_process_t p[2];
+    memset(p, 0, sizeof p);
+    for (int i = 0; i < 2; i++) {
+        p[i].id = (int16_t)(i + 1);
+        p[i].sync = SKELMSG_PROCESS_T_SYNC_PERIODIC;
+        p[i].period_ns = 1000000;
+        p[i].event = -1;
+        p[i].taken_ns = -1;
+        p[i].lockout_k = -1;
+    }
+    p[0].compute_ns = 12000000;
+    p[1].compute_ns = 2000000;
+    skel_plan_t plan;
+    memset(&plan, 0, sizeof plan);
+    plan.dpu = 1;
+    plan.compute = SKELMSG_DPU_T_COMPUTE_SLEEP;
+    plan.lockout_cycles = 5;
+    plan.nprocesses = 2;
+    plan.processes = p;
+    skel_exec_t x = { .s = &s, .plan = &plan, .end_mono_ns = INT64_MAX, .mark_stale = 1 };
+
+    notified_t n = { s.notify_fd, -1 };
+    pthread_t t;
+    CHECK_EQ(pthread_create(&t, NULL, watch_notify, &n), 0);
+    skel_rec_t rec;
+    int64_t release = clock_mono_ns();
+    CHECK_EQ(process_cycle(&x, &p[0], 0, 0, release, release, &rec), PROCESS_DONE);
+    CHECK_EQ(pthread_join(t, NULL), 0);
+    CHECK_EQ(s.nlockouts, 1);
+    CHECK_EQ(s.lockouts[0].process, 1);
+    CHECK_EQ(s.lockouts[0].cycle, 0);
+    CHECK_EQ(s.lockouts[0].buffer, -1);
+    CHECK(rec.flags & SKELMSG_TIMING_T_FLAG_LOCKOUT);
+    /* found at r_0 + 5 ms, later only by the stalls it does not count (and a scheduling
+     * delay of the watcher: 3 ms on a busy VM), long before the computation's end */
+    CHECK(n.woke_ns >= release + 5000000);
+    CHECK(n.woke_ns - release - x.stall_debt_ns < 8000000);
+    CHECK_EQ(rec.asked_ns, 12000000);
+    CHECK(rec.compute_ns > 11700000 && rec.compute_ns < 12300000);
+
+    release = clock_mono_ns();
+    CHECK_EQ(process_cycle(&x, &p[1], 0, 0, release, release, &rec), PROCESS_DONE);
+    CHECK_EQ(s.nlockouts, 1);
+    CHECK(!(rec.flags & SKELMSG_TIMING_T_FLAG_LOCKOUT));
+    CHECK(rec.compute_ns > 1700000 && rec.compute_ns < 2300000);
+    server_free(&s);
+}
+
 int main(void)
 {
     server.compute.stall_ns = SKEL_STALL_NS;
@@ -116,5 +190,6 @@ int main(void)
     test_running_or_waiting_is_no_stall(&x);
     test_a_short_step_is_not_judged(&x);
     test_a_thread_that_takes_the_cpu_is_a_stall(&x);
+    test_a_computation_past_its_window_locks_out_while_it_runs();
     return CHECK_DONE();
 }
