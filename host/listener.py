@@ -21,7 +21,7 @@ from __future__ import annotations
 import struct
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -37,7 +37,7 @@ from skelmsg.contract import (
     TIMING_CHANNEL,
 )
 
-from ..analysis.measure.faults import LOST_AFTER_S, Fault
+from ..analysis.measure.faults import LOST_AFTER_S, Fault, jam_faults, lockout_faults, lockouts_from_status
 from ..analysis.measure.report import RunReport, build_report
 from ..analysis.read.records import IMPOSSIBLE, RunRecords
 from ..analysis.read.seal import Verdict, Verifier
@@ -397,7 +397,22 @@ class Listener:
         config whose heartbeats stopped (LOST_AFTER_S). Once the run is over (`running`
         false) the report's own dpu_lost counts instead."""
         report = self.timed_search(self.report) if self.faults_due() or not running else None
-        return self.announce(report, running)
+        return self.announce(report, running, self.heard_lockouts() if report is None else [])
+
+    def heard_lockouts(self) -> list[Fault]:
+        """The lockouts (and jams) the followed run's heartbeats name, as the report would:
+        a report needs timing records, and a cycle computing past its lockout instant has
+        none until it ends (a DPU that named it at 100 ms stopped on it at 0.56 s, when its
+        300 ms cycle's record came). When its window passed is the records' to say."""
+        config = self.newest_config()
+        with self.lock:
+            if not self._lockouts:  # the statuses are read only when one names a lockout
+                return []
+            statuses, run_id = list(self.statuses), self.run_id
+        if config is None or run_id is None:
+            return []
+        locks = lockouts_from_status(statuses, run_id)
+        return lockout_faults(locks, config) + jam_faults(locks, config)
 
     def faults_due(self) -> bool:
         """Whether to search the records for faults again: FAULTS_COST_FACTOR times the last
@@ -422,12 +437,14 @@ class Listener:
         with self.lock:
             return len(self._lockouts)
 
-    def announce(self, report: RunReport | None, running: bool) -> list[Fault]:
+    def announce(self, report: RunReport | None, running: bool, heard: Sequence[Fault] = ()) -> list[Fault]:
         """The faults of `report` (a report of the followed run's records: one of a run
-        followed before, which a search begun earlier may hand in, is dropped) and the DPUs
-        lost meanwhile that were not returned before; each is also listed in `faults`."""
+        followed before, which a search begun earlier may hand in, is dropped), those `heard`
+        in heartbeats, and the DPUs lost meanwhile that were not returned before; each is also
+        listed in `faults`."""
         now = time.monotonic()
         found = [] if report is None else [f for f in report.faults if f.kind != "dpu_lost" or not running]
+        found += heard
         config = self.newest_config()
         if running and config is not None:
             lost = self.lost(sorted({int(p.dpu) for p in config.processes}))

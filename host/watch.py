@@ -112,7 +112,8 @@ class Heard:
                 configs = dict(self.listener.configs)
             self.tables = self._tally.update(run, configs) or self.tables
             self.lost_batches = sum(b["to_seq"] - b["from_seq"] + 1 for b in run.lost_batches)
-        self.listener.announce(None, running=self._running())  # DPUs lost: at once, not at the next search
+        # DPUs lost and lockouts heartbeats name: at once, not at the next search
+        self.listener.announce(None, self._running(), self.listener.heard_lockouts())
         return self.tables
 
     def pinned_here(self) -> set[int]:

@@ -154,13 +154,13 @@ def test_lockout_of_a_data_synchronised_reader(tmp_path: Path, url: str) -> None
     assert f"the run was stopped at {stopped['at_s']:.2f} s of its planned 3 s" in run.stdout, run.stdout
 
 
-# One process whose cycle (150 ms of compute) is longer than its lockout window (5 periods
+# One process whose cycle (1 s of compute) is longer than its lockout window (5 periods
 # of 10 ms): cycle 0 is still computing when its window ends, 50 ms into the run.
 LONG_CYCLE_SYSTEM = """\
 system: long_cycle
 dpus: [{id: 1, compute: sleep}]
 processes:
-  - {id: 1, name: hog, dpu: 1, period_us: 10000, compute_us: 150000}
+  - {id: 1, name: hog, dpu: 1, period_us: 10000, compute_us: 1000000}
 run: {duration_s: 2, warmup_cycles: 0, lockout_cycles: 5, stop_on: [lockout]}
 """
 
@@ -184,7 +184,8 @@ def _lockout_heard_s(log: Path) -> float:
 def test_a_cycle_computing_past_its_window_locks_out_when_the_window_ends(tmp_path: Path, url: str) -> None:
     """The lockout definition: cycle k not completed by r_k + lockout_cycles x period. The DPU
     names cycle 0 while it still computes (it once named cycle 1, when cycle 0 ended), the
-    report says when its window ended, and `skel check` predicted that instant."""
+    report says when its window ended, `skel check` predicted that instant, and `skel run`
+    stops on it then: from the heartbeat, not a second later from the cycle's record."""
     path = tmp_path / "long.yaml"
     path.write_text(LONG_CYCLE_SYSTEM)
     out = tmp_path / "run"
@@ -197,8 +198,11 @@ def test_a_cycle_computing_past_its_window_locks_out_when_the_window_ends(tmp_pa
     assert "not completed by 0.050 s" in fault["detail"], fault
     assert "FAULT lockout: hog (DPU 1) at cycle 0" in run.stdout, run.stdout
     # found while cycle 0 computed: its heartbeat logged after 50 ms and well before the
-    # computation's end at 150 ms (this shared VM delays a heartbeat by tens of ms at worst)
+    # computation's end (this shared VM delays a heartbeat by tens of ms at worst)
     assert 0.050 <= _lockout_heard_s(out / "run.lcm") < 0.140
+    # stop_on: one lockout window (50 ms) after the heartbeat; it waited for the record at 1 s
+    stopped = _report(out)["stopped"]
+    assert stopped is not None and stopped["at_s"] < 0.6, stopped
     predicted = predict(load(path)).dpu(1).lockout_ms
     assert predicted is not None and abs(predicted / 1000 - fault["at_s"]) <= 0.010, predicted
 
