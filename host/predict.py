@@ -28,7 +28,7 @@ from typing import Any
 
 from . import frames
 from .frames import Frame, Timing
-from .schedule import response_times
+from .schedule import response_times, start_ranges
 from .schema import Dpu, Process
 from .system import System
 
@@ -587,11 +587,18 @@ def _tasking(d: Dpu, mine: list[Process], ready: dict[int, tuple[float, float]])
     critical instant, and the others meet it at worst there too, so its wait only adds."""
     ranked = sorted(mine, key=lambda p: -p.priority)
     tasks = [(math.ceil(frames.compute_us(p, d) * 1000), p.period_us * 1000) for p in ranked]
+    # Periodic processes all released at the run's start: their starts are the ideal schedule's.
+    # A data wait or an event moves releases off the grid it simulates.
+    periodic = not any(p.id in ready or p.sync == "event" for p in ranked)
+    starts = start_ranges(tasks) if periodic else None
     out = {}
-    for p, (c, _), r in zip(ranked, tasks, response_times(tasks), strict=True):
+    for i, (p, (c, _), r) in enumerate(zip(ranked, tasks, response_times(tasks), strict=True)):
         early, late = ready.get(p.id, (0.0, 0.0))
-        out[p.id] = (Timing(early, late + (r - c) / 1000, late + r / 1000)
-                     if r is not None and math.isfinite(late) else Timing(early, math.inf, None))
+        if starts is not None and r is not None:
+            out[p.id] = Timing(starts[i][0] / 1000, starts[i][1] / 1000, r / 1000)
+        else:
+            out[p.id] = (Timing(early, late + (r - c) / 1000, late + r / 1000)
+                         if r is not None and math.isfinite(late) else Timing(early, math.inf, None))
     return out
 
 

@@ -117,6 +117,10 @@ processes:
     ok = predict(_system(tmp_path, text.replace("CC", "7000")))
     assert [ok.process(n).response_us for n in "abc"] == [3000, 6000, 22000]
     assert ok.dpu(1).schedulable
+    # Starts from the ideal schedule of a hyperperiod (24 ms): b's second job meets no a, c's
+    # always starts behind both (the bound response - compute said up to 15 ms)
+    assert [(ok.process(n).start_min_us, ok.process(n).start_max_us) for n in "abc"] == [
+        (0, 0), (0, 3000), (6000, 6000)]
     # README's unschedulable set: 3/8, 6/20, 6/24 ms, R = 30 ms
     late = predict(_system(tmp_path, text.replace("CC", "6000").replace("12000, compute_us: 3000",
                                                                          "20000, compute_us: 6000")))
