@@ -416,6 +416,27 @@ run: {{warmup_cycles: 0, lockout_cycles: {lockout_cycles}}}
 """, "one.yaml")
 
 
+def test_a_paced_writer_drops_the_sequences_of_the_releases_it_skips(tmp_path: Path) -> None:
+    """m (sync: data, 5 ms) is paced by its 10 ms writer to 100 Hz and skips every other
+    release, whose sequence its readers see as dropped (unpublished): t at 5 ms finds new data
+    in half its cycles, each a sequence past the last, 0.5 dropped a cycle (was predicted 0; an
+    audit measured 1.5 for the 4:1 case, predicted 0)."""
+    text = """\
+system: paced_writer
+dpus: [{id: 1}, {id: 2}, {id: 3}]
+buffers: [{id: 1, name: x, bytes: 64}, {id: 2, name: y, bytes: 64}]
+processes:
+  - {id: 1, name: w, dpu: 1, period_us: 10000, compute_us: 1000, outputs: [x]}
+  - {id: 2, name: m, dpu: 2, period_us: 5000, compute_us: 500, sync: data, inputs: [x], outputs: [y]}
+  - {id: 3, name: t, dpu: 3, period_us: 5000, compute_us: 500, inputs: [y]}
+"""
+    pred = predict(_system(tmp_path, text))
+    assert pred.process("m").paced_by == "w"
+    shares = {(i.reader, i.buffer): (i.new, i.stale, i.dropped) for i in pred.inputs}
+    assert shares[("t", "y")] == pytest.approx((0.5, 0.5, 0.5))
+    assert shares[("m", "x")] == pytest.approx((1.0, 0.0, 0.0))
+
+
 @pytest.mark.parametrize(("compute_us", "lockout_ms"), [
     (300_000, 100),  # cycle 0 computes past its window (r_0 + 10 x 10 ms): locked out at 100 ms
     (150_000, 100),
