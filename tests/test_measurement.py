@@ -175,6 +175,32 @@ def test_a_stall_of_the_machine_is_not_a_lockout(tmp_path: Path, url: str, dpus:
     assert "STALL host localhost" in run.output
 
 
+def test_a_lockout_the_writers_stalled_dpu_explains_is_the_platforms(tmp_path: Path, url: str,
+                                                                     dpus: DpuFarm) -> None:
+    """The reader's own stalls do not count towards its lockout; its writer's DPU stopped
+    for 300 ms starves it all the same. Its lockout (and a jam on the writer) is named, with
+    the writer's stall as the cause: the platform's, no exit 3 (it was a fatal flaw)."""
+    dpus.start(1, 2)
+    system = tmp_path / "hiccup.yaml"
+    system.write_text(HICCUP_SYSTEM)
+    out = tmp_path / "run"
+    run = skel_background("run", str(system), "--url", url, "--out", str(out), "-s", "run.lockout_cycles=5",
+                          "-s", "run.stop_on=[]")  # fmt: skip
+    _wait_started(dpus, (1, 2), run)
+    time.sleep(1.5)
+    pid = dpus.daemons[1].process.pid
+    os.kill(pid, signal.SIGSTOP)
+    time.sleep(0.300)  # twelve times the controller's 25 ms lockout window
+    os.kill(pid, signal.SIGCONT)
+    code = run.wait(60)
+    report = _report(out)
+    locks = [f for f in report["faults"] if f["kind"] in ("lockout", "jam")]
+    assert any(f["kind"] == "lockout" and f["process"] == "controller" for f in locks), report["faults"]
+    for fault in locks:
+        assert not fault["fatal"] and "sensor's DPU 1 was kept from running" in fault["detail"], fault
+    assert code == 0, run.output
+
+
 def test_the_lateness_a_stall_explains_is_not_the_designs(tmp_path: Path, url: str, dpus: DpuFarm) -> None:
     """A DPU 90 % loaded, stopped for 200 ms: it starts its cycles up to 200 ms late and catches
     up at 0.5 ms a cycle. All of that lateness is the stall's (timing_t.debt_ns): the design's

@@ -23,6 +23,7 @@ from skelmsg.contract import RECV_SLACK_BYTES
 
 from ..read.messages import int_columns
 from ..read.records import FLAG_LOCKOUT
+from .latency import NO_OFFSETS, ClockOffsets
 from .metrics import ProcessMetrics, completed, frames, per_id, smallest_per_dpu, static_load_pct, window_mask
 
 # Every kind of fault, and those that say the architecture does not work (exit 3);
@@ -135,11 +136,63 @@ def lockout_at_s(lock: Lockout, config: Any, dpu: int | None, origin: Mapping[in
     return (limit_ns - origin[dpu]) / 1e9
 
 
-def lockout_faults(lockouts: dict[int, Lockout], config: Any,
-                   origin: Mapping[int, int] | None = None) -> list[Fault]:
+def writer_stall(records: np.ndarray, config: Any, clock: ClockOffsets, reader: Any, buffers: Iterable[int],
+                 low_ns: int, high_ns: int) -> tuple[Any, int] | None:
+    """(the writer, its DPU's stalls in ns) of the one of `buffers` (read by `reader`) whose
+    writer's DPU was kept from running longest while their data was due, from `low_ns` to
+    `high_ns` on the reader's clock (its records' stalls, by their releases): None for none.
+    A reader's own stalls are not counted against it; its writer's, on another DPU or host,
+    starve it all the same."""
+    writers = {b.id: b.writer for b in config.buffers}
+    procs = {p.id: p for p in config.processes}
+    low, high = clock.to_host(reader.dpu, np.array([low_ns, high_ns], dtype=np.int64)).tolist()
+    best = None
+    for b in buffers:
+        w = procs.get(writers.get(b, -1))
+        if w is None or w.dpu == reader.dpu or not len(records):
+            continue
+        mine = records["dpu"] == w.dpu
+        at = clock.to_host(w.dpu, records["release_ns"][mine])
+        stalled = int(records["stall_ns"][mine][(at >= low) & (at <= high)].sum())
+        if best is None or stalled > best[1]:
+            best = (w, stalled)
+    return best
+
+
+def _stall_words(w: Any, stalled: int) -> str:
+    return (f"{w.name}'s DPU {w.dpu} was kept from running for {stalled / 1e6:.1f} ms meanwhile (stalls: "
+            "the platform, not the design)")
+
+
+def stalled_writers(lockouts: Mapping[int, Lockout], records: np.ndarray, config: Any,
+                    clock: ClockOffsets) -> dict[int, str]:
+    """Per locked-out process waiting for data, why the platform explains it, when it does:
+    its writer's DPU was kept from running (writer_stall) for half the reader's lockout window
+    or more while the locked cycle's data was due (from a writer period before its release to
+    its limit). A DPU stopped for 300 ms made its reader's lockout and a jam read as the
+    design's flaw."""
+    procs = {p.id: p for p in config.processes}
+    writers = {b.id: b.writer for b in config.buffers}
+    out = {}
+    for proc, lock in lockouts.items():
+        p, w = procs.get(proc), procs.get(writers.get(lock.buffer, -1))
+        if p is None or w is None or lock.release_ns is None:
+            continue
+        window = int(config.lockout_cycles) * p.period_us * 1000
+        found = writer_stall(records, config, clock, p, [lock.buffer], lock.release_ns - w.period_us * 1000,
+                             lock.release_ns + window)
+        if found is not None and 2 * found[1] >= window:
+            out[proc] = _stall_words(*found)
+    return out
+
+
+def lockout_faults(lockouts: dict[int, Lockout], config: Any, origin: Mapping[int, int] | None = None,
+                   explained: Mapping[int, str] | None = None) -> list[Fault]:
     """One fault per locked-out process, naming its cycle and, with `origin`
-    (first_release_ns of the run), when that cycle's limit passed (at_s)."""
+    (first_release_ns of the run), when that cycle's limit passed (at_s); one the platform
+    `explained` (stalled_writers) says why and is not the design's flaw."""
     names, dpus, buffers = _index(config)
+    explained = explained or {}
     faults = []
     for proc in sorted(lockouts):
         lock = lockouts[proc]
@@ -155,8 +208,12 @@ def lockout_faults(lockouts: dict[int, Lockout], config: Any,
         at_s = lockout_at_s(lock, config, dpus.get(proc), origin or {})
         if at_s is not None:
             detail += f"; not completed by {at_s:.3f} s"
+        if proc in explained:
+            detail += f"; {explained[proc]}"
         where = _where(proc, lock, names, dpus, buffers)
-        faults.append(Fault(kind="lockout", detail=detail, at_s=at_s, **where))
+        fault = Fault(kind="lockout", detail=detail, at_s=at_s, **where)
+        fault.fatal = proc not in explained
+        faults.append(fault)
     return faults
 
 
@@ -210,15 +267,18 @@ def _holder(proc: int, lockouts: dict[int, Lockout], config: Any) -> _Hold:
     return _Hold()
 
 
-def jam_faults(lockouts: dict[int, Lockout], config: Any,
-               origin: Mapping[int, int] | None = None) -> list[Fault]:
+def jam_faults(lockouts: dict[int, Lockout], config: Any, origin: Mapping[int, int] | None = None,
+               explained: Mapping[int, str] | None = None) -> list[Fault]:
     """A jam: a locked-out process held up by another locked-out process.
 
     One fault per chain, reported from its head (a jammed process nobody jammed
     waits on) back to the root cause: a locked-out process not waiting for data (its
     DPU is overloaded), a writer that is not locked out, or a circular wait. It names
-    the head's cycle, and its at_s is when that cycle's limit passed (lockout_at_s)."""
+    the head's cycle, and its at_s is when that cycle's limit passed (lockout_at_s). A
+    writer not locked out whose reader's lockout the platform `explained` (stalled_writers)
+    is the platform's jam, not the design's."""
     names, dpus, buffers = _index(config)
+    explained = explained or {}
     holders = {p: _holder(p, lockouts, config) for p in lockouts}
 
     def writer_of(proc: int) -> int | None:
@@ -246,6 +306,8 @@ def jam_faults(lockouts: dict[int, Lockout], config: Any,
             cause += " (" + "; ".join(holders[p].how for p in cycle[:-1]) + ")"
         elif w is not None:
             cause = f"{holders[root].how}, which is not locked out"
+            if root in explained:
+                cause += f"; {explained[root]}"
         elif not lockouts[root].known_wait:
             cause = f"{names.get(root)} is locked out; what it waits on is unknown (no status_t)"
         else:
@@ -265,6 +327,7 @@ def jam_faults(lockouts: dict[int, Lockout], config: Any,
                 at_s=lockout_at_s(lockouts[head], config, dpus.get(head), origin or {}),
             )
         )
+        faults[-1].fatal = not (w is not None and w not in chain and root in explained)
     return faults
 
 
@@ -482,11 +545,12 @@ def stall_faults(records: np.ndarray, config: Any, origin: Mapping[int, int] | N
 
 
 def behind_faults(records: np.ndarray, config: Any, in_window: np.ndarray | None = None,
-                  origin: Mapping[int, int] | None = None) -> list[Fault]:
+                  origin: Mapping[int, int] | None = None, clock: ClockOffsets = NO_OFFSETS) -> list[Fault]:
     """A DPU whose minor cycles start more than a minor cycle late, BEHIND_MIN_FRAMES in a
     row or more: how far behind, since when, for how long, and why (a stall of the
     platform, an overload, a data wait or an overrun). `in_window`: measured(records, config),
-    when the caller has it; `origin`: as stall_faults'."""
+    when the caller has it; `origin`: as stall_faults'; `clock`: the DPUs' clocks, to find a
+    data wait's writer stalled on another DPU."""
     faults = []
     t0 = origin if origin is not None else first_release_ns(records)
     in_window = window_mask(records, config, in_window)
@@ -512,6 +576,8 @@ def behind_faults(records: np.ndarray, config: Any, in_window: np.ndarray | None
             worst_minor = minors[first + int(np.argmax(late[first : last + 1]))]
             t_worst = int(span["release_ns"][span["minor"] == worst_minor].min())
             cause, fatal = _why_behind(mine, config, dpu.id, start, t_worst, worst)
+            if fatal and (late_data := _starved(records, config, clock, mine, start, t_worst, worst)):
+                cause, fatal = f"{cause}: {late_data}", False
             at_s, duration_s = (start - t0[dpu.id]) / 1e9, (end - start) / 1e9
             faults.append(Fault(
                 kind="behind", dpu=dpu.id, at_s=at_s, duration_ms=duration_s * 1e3, behind_ms=worst / 1e6,
@@ -519,6 +585,23 @@ def behind_faults(records: np.ndarray, config: Any, in_window: np.ndarray | None
                 detail=f"DPU {dpu.id} ran up to {worst / 1e6:.1f} ms ({worst / minor_ns:.1f} minor cycles) "
                        f"behind its schedule for {duration_s:.2f} s from {at_s:.2f} s: {cause}"))
     return faults
+
+
+def _starved(records: np.ndarray, config: Any, clock: ClockOffsets, mine: np.ndarray, start: int,
+             t_worst: int, worst: int) -> str | None:
+    """Why a DPU behind waiting for data is the platform's doing, when it is: the writer of
+    the longest wait on the way (from `start` - `worst` to `t_worst`) was on a DPU kept from
+    running for half the lateness or more meanwhile (writer_stall)."""
+    way = mine[(mine["release_ns"] >= start - worst) & (mine["release_ns"] <= t_worst)]
+    procs = {p.id: p for p in config.processes}
+    if not len(way) or int(way["blocked_ns"].max()) <= 0:
+        return None
+    reader = procs.get(int(way["process"][np.argmax(way["blocked_ns"])]))
+    if reader is None:
+        return None
+    required = [b for b, needed in zip(reader.inputs, reader.required, strict=True) if needed]
+    found = writer_stall(records, config, clock, reader, required, start - worst, t_worst)
+    return _stall_words(*found) if found is not None and 2 * found[1] >= worst else None
 
 
 def _runs(flags: np.ndarray, min_len: int) -> list[tuple[int, int]]:

@@ -29,6 +29,7 @@ from .faults import (
     overrun_faults,
     skipping_faults,
     stall_faults,
+    stalled_writers,
 )
 from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets, buffer_metrics
 from .metrics import (
@@ -115,7 +116,7 @@ def build_window(
         "processes": lambda: process_metrics(records, inputs, config, win, starts),
         "buffers": lambda: buffer_metrics(records, inputs, config, clock, run_records, win, starts),
         "chains": lambda: chain_metrics(records, inputs, config, clock, win),
-        "behind": lambda: behind_faults(records, config, win, origin),
+        "behind": lambda: behind_faults(records, config, win, origin, clock),
         "dpus": lambda: dpu_metrics(records, config, win, earlier),
         "span": lambda: _span(records, win, clock),
         "delivery": delivery,
@@ -127,6 +128,8 @@ def build_window(
     delivered, locks = done["delivery"]
     # a lockout's at_s counts from the run's first release, as the other faults' do
     first = first_release_ns(records) if origin is None else origin
+    # what the writers' stalls explain: the whole run's records hold a writer's DPU's cycles
+    platform = stalled_writers(locks, records if run_records is None else run_records, config, clock)
     start, end = done["span"]
     return WindowReport(
         generation=int(config.generation),
@@ -138,8 +141,8 @@ def build_window(
         chains=done["chains"],
         faults=(
             delivered
-            + lockout_faults(locks, config, first)
-            + jam_faults(locks, config, first)
+            + lockout_faults(locks, config, first, platform)
+            + jam_faults(locks, config, first, platform)
             + done["behind"]
             + skipping_faults(processes, config)
             + done["stalls"]
