@@ -16,6 +16,7 @@ import skelmsg
 from skeleton.host.predict import predict
 from skeleton.host.run import keep_off_dpu_cpus
 from skeleton.host.system import System, load
+from skelmsg.contract import COMMAND_CHANNEL, STATUS_CHANNEL
 
 PAPER_COMPUTE_PCT = {1: 90.3, 2: 73.4, 3: 86.0, 4: 96.5}
 # DPUs 1 and 3 are 86-90 % loaded: after a scheduling hiccup of a shared 2-core machine they
@@ -170,11 +171,11 @@ def _lockout_heard_s(log: Path) -> float:
     instant (one host: the DPU's clock is the host's), from the log as written."""
     start = None
     for event in lcm.EventLog(str(log), "r"):
-        if event.channel == "SKEL_COMMAND" and start is None:
+        if event.channel == COMMAND_CHANNEL and start is None:
             command = skelmsg.command_t.decode(event.data)
             if command.kind == skelmsg.command_t.START:
                 start = command.at_utc_ns
-        elif event.channel == "SKEL_STATUS" and start is not None:
+        elif event.channel == STATUS_CHANNEL and start is not None:
             if skelmsg.status_t.decode(event.data).nlockouts:
                 return (event.timestamp * 1000 - start) / 1e9
     raise AssertionError(f"no heartbeat named a lockout in {log}")
