@@ -5,8 +5,9 @@ its buffers, the pinned one if pinned); a buffer on a `local` link keeps its wri
 readers together; each DPU's load fits its speed; on the cyclic executive the heaviest
 frame (frame 0: every process is due) fits the minor cycle, which is the gcd of the
 periods placed there (pairs of periods bound it; the prediction checks the rest); on the
-tasking executive utilization fits, and exact response-time analysis, which is not
-linear, is checked on each candidate by predict(): a DPU that fails gets a no-good cut
+tasking executive utilization fits (loads count a varying compute at its mean, frames and
+latency at its largest draw, as the prediction verifies them), and exact response-time
+analysis, which is not linear, is checked on each candidate by predict(): a DPU that fails gets a no-good cut
 (those processes, from the failing one's priority up, never all on it again, while the DPUs
 whose writers its data readers wait for hold what they hold) and the model is solved again.
 Objectives: the worst DPU load, the worst latency of the chains
@@ -124,7 +125,9 @@ class _Model:
         return self.x.get((pid, did), 0)
 
     def _demand(self, d: Dpu) -> cp_model.LinearExprT:
-        return sum(math.ceil(p.compute_us / d.speed) * self._at(p.id, d.id) for p in self.system.processes)
+        # the prediction verifies frames at the largest draws (may_overflow): so does the model
+        return sum(math.ceil(p.worst_compute_us / d.speed) * self._at(p.id, d.id)
+                   for p in self.system.processes)
 
     def _frames(self, d: Dpu, minor: int | None, max_load: float) -> None:
         """Frame 0 holds every process of the DPU: its demand within the minor cycle."""
@@ -138,7 +141,7 @@ class _Model:
             has[t] = self.m.new_bool_var(f"has{d.id}_{t}")
             self.m.add_max_equality(has[t], [self._at(p.id, d.id) for p in self.system.processes
                                              if p.period_us == t] or [0])
-        top = sum(math.ceil(p.compute_us / d.speed) for p in self.system.processes)
+        top = sum(math.ceil(p.worst_compute_us / d.speed) for p in self.system.processes)
         for a, b in ((a, b) for i, a in enumerate(periods) for b in periods[i:]):
             g = math.gcd(a, b)
             if g * max_load < top:
@@ -174,7 +177,7 @@ class _Model:
                 paced = buffer in p.required and before.period_us >= p.period_us
                 total.append(self._start(p) + (0 if paced else p.period_us))
                 if i < len(steps) - 1:
-                    total.append(sum(math.ceil(p.compute_us / d.speed) * self._at(p.id, d.id)
+                    total.append(sum(math.ceil(p.worst_compute_us / d.speed) * self._at(p.id, d.id)
                                      for d in self.dpus))
             self.m.add(worst >= sum(total))
         return worst
@@ -191,7 +194,7 @@ class _Model:
                     continue
                 both = self.m.new_bool_var(f"both{q.id}_{p.id}_{d.id}")
                 self.m.add(both >= self.x[q.id, d.id] + self.x[p.id, d.id] - 1)
-                out.append(math.ceil(q.compute_us / d.speed) * both)
+                out.append(math.ceil(q.worst_compute_us / d.speed) * both)
         return sum(out)
 
     def cut(self, on: dict[int, int], names: dict[int, set[str]]) -> None:
@@ -323,8 +326,9 @@ def _what_would(system: System, dpus: list[Dpu], pins: dict[str, int], seconds: 
     def fits(count: int, speed: float) -> bool:
         return _search(system, targets(system, count, speed), "load", pins, budget, max_load) is not None
 
-    slowest = max(system.processes, key=lambda p: p.compute_us / p.period_us)
-    least = math.ceil(100 * slowest.compute_us / slowest.period_us / max_load) / 100
+    # a process whose largest draw is over its period is schedulable on no DPU slower than that
+    slowest = max(system.processes, key=lambda p: p.worst_compute_us / p.period_us)
+    least = math.ceil(100 * slowest.worst_compute_us / slowest.period_us / max_load) / 100
     speed = max(dpus[-1].speed, least)
     more = next((k for k in range(n + 1, max(n, len(system.processes)) + 1) if fits(k, speed)), None)
     fast = ""
@@ -335,7 +339,9 @@ def _what_would(system: System, dpus: list[Dpu], pins: dict[str, int], seconds: 
             low, high = (low, mid) if fits(n, mid) else (mid, high)
         fast = f"; {n} DPUs of speed {math.ceil(high * 100) / 100:g} would (--speed)"
     if speed > dpus[-1].speed:
-        head = (f"{said}: {slowest.name} computes {slowest.compute_us} us every {slowest.period_us} us, "
+        most = " at most" if slowest.varying else ""
+        head = (f"{said}: {slowest.name} computes{most} {slowest.worst_compute_us:g} us every "
+                f"{slowest.period_us} us, "
                 f"so no DPU of speed {dpus[-1].speed:g} runs it")
         many = f"; {more} DPUs of speed {speed:g} would (--dpus {more} --speed {speed:g})" if more else ""
         return head + many + fast

@@ -12,7 +12,7 @@ reader of a slower writer is paced by it (predict.py), not modelled here.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 from .schema import Dpu, Process
@@ -29,25 +29,38 @@ class Frame:
     first: int
     count: int
     processes: tuple[str, ...]
-    demand_us: float                # Σ compute / speed of the processes due
+    demand_us: float                # Σ compute / speed of the processes due, varying ones at their mean
     minor_cycle_us: int
     wait_us: float = 0.0            # the most its data readers hold the DPU waiting, in one of them
+    # ... with every varying compute at its maximum (the same as the above when none varies)
+    worst_demand_us: float = 0.0
+    worst_wait_us: float = 0.0
 
     @property
     def overflows(self) -> bool:
+        """At the mean draws: it overruns its minor cycle typically, not only on long draws."""
         return self.demand_us + self.wait_us > self.minor_cycle_us
+
+    @property
+    def may_overflow(self) -> bool:
+        """Only when its varying computations draw long (at most their maximum, together)."""
+        return not self.overflows and self.worst_demand_us + self.worst_wait_us > self.minor_cycle_us
 
     def to_json(self) -> dict[str, object]:
         return {"first": self.first, "count": self.count, "processes": list(self.processes),
                 "demand_us": round(self.demand_us, 1), "wait_us": round(self.wait_us, 1),
-                "minor_cycle_us": self.minor_cycle_us, "overflows": self.overflows}
+                "worst_demand_us": round(self.worst_demand_us, 1),
+                "worst_wait_us": round(self.worst_wait_us, 1),
+                "minor_cycle_us": self.minor_cycle_us, "overflows": self.overflows,
+                "may_overflow": self.may_overflow}
 
 
 @dataclass(frozen=True)
 class Timing:
     """One process on its DPU's schedule, relative to its release, in us: the earliest and
     latest start of its computation and its worst response (None: it falls ever further
-    behind)."""
+    behind). The earliest is with every varying compute at its minimum, the latest and the
+    worst at its maximum: bounds on what any draw gives."""
 
     start_min_us: float
     start_max_us: float
@@ -55,8 +68,23 @@ class Timing:
 
 
 def compute_us(p: Process, d: Dpu) -> float:
-    """What the DPU emulates per cycle: the configured compute divided by its speed."""
+    """What the DPU emulates per cycle: the configured compute divided by its speed (a varying
+    one's mean: the figure of averages, loads and rates)."""
     return p.compute_us / d.speed
+
+
+def worst_us(p: Process, d: Dpu) -> float:
+    """The longest a cycle computes: a varying compute's largest draw (the top of its quantile
+    table, dpu/draw.c) divided by the speed, as plan.c divides the table."""
+    return p.worst_compute_us / d.speed
+
+
+def best_us(p: Process, d: Dpu) -> float:
+    """The shortest a cycle computes: a varying compute's smallest draw (its table's bottom)."""
+    return p.best_compute_us / d.speed
+
+
+Compute = Callable[[Process, Dpu], float]
 
 
 def hyperperiod(processes: list[Process], minor_us: int) -> int:
@@ -75,19 +103,25 @@ def cyclic(d: Dpu, processes: list[Process], ready: Mapping[int, tuple[float, fl
     minor = d.minor_cycle_us
     ratio = {p.id: max(1, p.period_us // minor) for p in processes}
     h = hyperperiod(processes, minor)
-    load = sum(compute_us(p, d) / p.period_us for p in processes)
+    # All at their maximum forever is a draw that can happen: past 100 % it falls ever behind.
+    load = sum(worst_us(p, d) / p.period_us for p in processes)
     groups: dict[tuple[str, ...], list[int]] = {}
     for j in range(min(h, MAX_FRAMES)):
         due = tuple(p.name for p in processes if j % ratio[p.id] == 0)
         if due:
             groups.setdefault(due, [j, 0])[1] += 1
-    latest, waits = _simulate(d, processes, ratio, h, {i: r[1] for i, r in ready.items()})
-    # starts only move later with the data, so the earliest data gives the earliest starts
-    earliest = (_simulate(d, processes, ratio, h, {i: r[0] for i, r in ready.items()})[0]
-                if any(r[0] != r[1] for r in ready.values()) else latest)
+    late = {i: r[1] for i, r in ready.items()}
+    varies = any(p.varying for p in processes)
+    latest, worst_waits = _simulate(d, processes, ratio, h, late, worst_us)
+    waits = _simulate(d, processes, ratio, h, late, compute_us)[1] if varies else worst_waits
+    # starts only move later with the data and with longer computations before them, so the
+    # earliest data and the shortest draws give the earliest starts
+    earliest = (_simulate(d, processes, ratio, h, {i: r[0] for i, r in ready.items()}, best_us)[0]
+                if varies or any(r[0] != r[1] for r in ready.values()) else latest)
     by_name = {p.name: p for p in processes}
     out_frames = tuple(Frame(first, count, names, sum(compute_us(by_name[n], d) for n in names), minor,
-                             waits.get(names, 0.0))
+                             waits.get(names, 0.0), sum(worst_us(by_name[n], d) for n in names),
+                             worst_waits.get(names, 0.0))
                        for names, (first, count) in sorted(groups.items(), key=lambda kv: kv[1][0]))
     timing = {}
     for pid, (_, start_max, end) in latest.items():
@@ -97,12 +131,13 @@ def cyclic(d: Dpu, processes: list[Process], ready: Mapping[int, tuple[float, fl
     return out_frames, timing
 
 
-def _simulate(d: Dpu, processes: list[Process], ratio: dict[int, int], h: int, ready: Mapping[int, float]
-              ) -> tuple[dict[int, list[float]], dict[tuple[str, ...], float]]:
+def _simulate(d: Dpu, processes: list[Process], ratio: dict[int, int], h: int, ready: Mapping[int, float],
+              compute: Compute) -> tuple[dict[int, list[float]], dict[tuple[str, ...], float]]:
     """Per process its earliest and latest start and latest end after its release; per set of
     processes due, the most they wait for data in one minor cycle begun on time (a late one
     may wait less, its lateness then spent waiting: what it needs of its own minor cycle is
-    what overflows it)."""
+    what overflows it). COMPUTE: each cycle's computation (the mean, the largest or the
+    smallest draw)."""
     minor = d.minor_cycle_us
     seen: dict[int, list[float]] = {p.id: [math.inf, 0.0, 0.0] for p in processes}
     waits: dict[tuple[str, ...], float] = {}
@@ -119,9 +154,9 @@ def _simulate(d: Dpu, processes: list[Process], ratio: dict[int, int], h: int, r
             release = (j // ratio[p.id]) * p.period_us
             data = release + ready.get(p.id, 0.0)
             waited += max(0.0, data - on_time)
-            on_time = max(on_time, data) + compute_us(p, d)
+            on_time = max(on_time, data) + compute(p, d)
             start = max(t, data)
-            t = start + compute_us(p, d)
+            t = start + compute(p, d)
             if j >= settled:
                 s = seen[p.id]
                 s[:] = min(s[0], start - release), max(s[1], start - release), max(s[2], t - release)

@@ -57,12 +57,18 @@ class DpuPrediction:
     load_pct: float                 # static load: Σ compute / period / speed
     compute_pct: float | None       # what a run's % compute will be: at the rates processes run
     frames: tuple[Frame, ...]       # cyclic: one hyperperiod's frames, grouped by what is due
-    schedulable: bool               # cyclic: no frame overflows; tasking: every response <= period
+    # even at the largest draws: cyclic: no frame overflows, nor may; tasking: every response <= period
+    schedulable: bool
     lockout_ms: float | None        # overloaded: when its first process locks out, from the start
 
     @property
     def overflowing(self) -> tuple[Frame, ...]:
         return tuple(f for f in self.frames if f.overflows)
+
+    @property
+    def may_overflow(self) -> tuple[Frame, ...]:
+        """The frames that overflow only when their varying computations draw long."""
+        return tuple(f for f in self.frames if f.may_overflow)
 
 
 @dataclass(frozen=True)
@@ -70,10 +76,12 @@ class ProcessPrediction:
     name: str
     dpu: int
     period_us: int
-    compute_us: float               # divided by the DPU's speed
+    compute_us: float               # divided by the DPU's speed; a varying one's mean
     priority: int                   # tasking; 0 on the cyclic executive
     rate_hz: float | None           # cycles a second it will run (paced, starved or overloaded)
     paced_by: str | None            # the writer whose data paces it (sync: data), or may: of unknown rate
+    # Bounds over every draw: a varying compute at its minimum for the earliest, at its
+    # maximum (its own and what runs before it) for the latest and the worst.
     start_min_us: float             # its computation's start after its release, at the earliest
     start_max_us: float             # ... and at the latest
     response_us: float | None       # worst release -> end of its work; None: unbounded
@@ -181,7 +189,8 @@ def predict(system: System) -> Prediction:
         load = sum(frames.compute_us(p, d) / p.period_us for p in mine)
         busy = sum(frames.compute_us(p, d) * rates[p.id] / 1e6 for p in mine)
         compute = None if any(p.id in unknown for p in mine) else 100 * min(1.0, busy)
-        ok = all(_meets(timing[p.id], p) for p in mine) and not any(f.overflows for f in found[d.id])
+        ok = all(_meets(timing[p.id], p) for p in mine) and not any(f.overflows or f.may_overflow
+                                                                    for f in found[d.id])
         dpus.append(DpuPrediction(d.id, d.executive, d.speed, d.minor_cycle_us,
                                   frames.hyperperiod(mine, d.minor_cycle_us), 100 * load,
                                   compute, found[d.id], ok, _lockout_ms(system, d, mine, load)))
@@ -219,7 +228,7 @@ def _paced_timings(system: System, timing: dict[int, Timing], rates: dict[int, f
         if w is None or w.sync == "event" or rates[w.id] < 1e6 / w.period_us * (1 - 1e-9):
             continue
         d = system.dpu(p.dpu)
-        at, compute = timing[p.id], frames.compute_us(p, d)
+        at, compute = timing[p.id], frames.worst_us(p, d)  # its latest start and worst end
         if at.response_us is None:
             continue
         came: list[float] = []
@@ -292,9 +301,10 @@ def _paced_tasking(period: int, writer: int, data: float, at: Timing
 
 def _data_at(system: System, timing: dict[int, Timing], w: Process) -> tuple[float, float]:
     """When W's data of a cycle comes, after its release: its earliest and latest end (inf:
-    it falls ever further behind). Its publishing and the transport are the platform's."""
+    it falls ever further behind), at its shortest and longest draws. Its publishing and the
+    transport are the platform's."""
     t = timing[w.id]
-    return (t.start_min_us + frames.compute_us(w, system.dpu(w.dpu)),
+    return (t.start_min_us + frames.best_us(w, system.dpu(w.dpu)),
             t.response_us if t.response_us is not None else math.inf)
 
 
@@ -584,12 +594,15 @@ def _serve(d: Dpu, mine: list[Process], rates: dict[int, float]) -> None:
 def _tasking(d: Dpu, mine: list[Process], ready: dict[int, tuple[float, float]]) -> dict[int, Timing]:
     """Exact response-time analysis on ns (the DPU's own unit), highest priority first. A data
     reader is ready only when its data comes (READY): from then on it meets at worst the
-    critical instant, and the others meet it at worst there too, so its wait only adds."""
+    critical instant, and the others meet it at worst there too, so its wait only adds. Each
+    computes its largest draw: the analysis bounds every job by its C, so the worst case is
+    every varying job at its maximum."""
     ranked = sorted(mine, key=lambda p: -p.priority)
-    tasks = [(math.ceil(frames.compute_us(p, d) * 1000), p.period_us * 1000) for p in ranked]
+    tasks = [(math.ceil(frames.worst_us(p, d) * 1000), p.period_us * 1000) for p in ranked]
     # Periodic processes all released at the run's start: their starts are the ideal schedule's.
-    # A data wait or an event moves releases off the grid it simulates.
-    periodic = not any(p.id in ready or p.sync == "event" for p in ranked)
+    # A data wait or an event moves releases off the grid it simulates, and a varying compute
+    # moves every start after it from one hyperperiod to the next.
+    periodic = not any(p.id in ready or p.sync == "event" or p.varying for p in ranked)
     starts = start_ranges(tasks) if periodic else None
     out = {}
     for i, (p, (c, _), r) in enumerate(zip(ranked, tasks, response_times(tasks), strict=True)):
@@ -686,7 +699,7 @@ def _chains(system: System, by_name: dict[str, ProcessPrediction], rates: dict[i
                 wait = max(wait, at.start_max_us)
             worst += math.inf if p.sync == "event" and p.id in unknown else wait
             if i < len(steps) - 1:
-                best += at.compute_us
+                best += frames.best_us(p, system.dpu(p.dpu))
                 worst += (at.response_us or math.inf) - at.start_max_us
         out.append(ChainPrediction(c.name, tuple(s.name for s in steps), best,
                                    worst if math.isfinite(worst) else None))
@@ -753,12 +766,25 @@ def _warnings(system: System, pred: Prediction, waits: dict[int, list[tuple[int,
         elif frames_said:
             out.append(f"DPU {d.id}: frames overflow the {d.minor_cycle_us / 1000:g} ms minor cycle: "
                        f"{frames_said}")
+        if d.may_overflow and d.lockout_ms is None:
+            # Not a certainty: their draws are independent, so it is as rare as long draws together.
+            out.append(f"DPU {d.id}: frames may overflow the {d.minor_cycle_us / 1000:g} ms minor cycle "
+                       "when their varying computations draw long: " + "; ".join(
+                           f"minor cycle {f.first} ({f.count} of every {d.hyperperiod}) demands "
+                           f"{(f.demand_us + f.wait_us) / 1000:g} ms on average, up to "
+                           f"{(f.worst_demand_us + f.worst_wait_us) / 1000:g} ms at their largest draws "
+                           f"({', '.join(f.processes)})" for f in d.may_overflow[:3])
+                       + ("; ..." if len(d.may_overflow) > 3 else ""))
         for p in pred.processes:
             if p.dpu == d.id and d.executive == "threads" and not p.schedulable:
                 resp = f"{p.response_us / 1000:g} ms" if p.response_us is not None else "unbounded"
                 waited = _waits_said(system, pred, waits, {p.name})
-                out.append(f"DPU {d.id}: {p.name} (priority {p.priority}) misses its deadline: worst "
-                           f"response {resp} > period {p.period_us / 1000:g} ms"
+                # its response is the worst over the draws: long ones of its own or a higher priority's
+                drawn = any(q.varying for q in system.processes_on(d.id) if q.priority >= p.priority)
+                out.append(f"DPU {d.id}: {p.name} (priority {p.priority}) "
+                           + ("may miss its deadline when varying computations draw long: worst "
+                              if drawn else "misses its deadline: worst ")
+                           + f"response {resp} > period {p.period_us / 1000:g} ms"
                            + (f" ({waited})" if waited else ""))
     for p in pred.processes:
         if p.paced_by is None:

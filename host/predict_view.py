@@ -40,6 +40,10 @@ def print_prediction(console: Console, pred: Prediction) -> None:
     for d in pred.dpus:
         over = ", ".join(f"{f.first} ({_ms(f.demand_us + f.wait_us, 4)} of {f.minor_cycle_us / 1000:g} ms)"
                          for f in d.overflowing[:3]) + (" ..." if len(d.overflowing) > 3 else "")
+        # only at long draws: said apart from the certain ones, with its worst
+        maybe = ", ".join(f"{f.first} may ({_ms(f.worst_demand_us + f.worst_wait_us, 4)} of "
+                          f"{f.minor_cycle_us / 1000:g} ms)" for f in d.may_overflow[:3])
+        over = ", ".join(x for x in (over, maybe) if x)
         load = f"[red]{d.load_pct:.1f}[/]" if not d.schedulable else f"{d.load_pct:.1f}"
         dpus.add_row(str(d.id), "tasking" if d.executive == "threads" else "cyclic", load,
                      _known(d.compute_pct, ".1f"), over or "-",

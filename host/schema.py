@@ -472,6 +472,10 @@ class Process:
     def worst_compute_us(self) -> float:
         return self.varying.max_us if self.varying else self.compute_us
 
+    @property
+    def best_compute_us(self) -> float:
+        return self.varying.min_us if self.varying else self.compute_us
+
 
 @dataclass(frozen=True)
 class Event:

@@ -447,3 +447,59 @@ def test_predicted_lockout_when_a_cycle_first_ends_past_its_window(compute_us: i
     """The lockout definition, cycle k not completed by r_k + lockout_cycles x period, on the
     cyclic executive running an overloaded DPU back to back (a run measured 100 and 540 ms)."""
     assert predict(_one_process(10_000, compute_us, 10)).dpu(1).lockout_ms == pytest.approx(lockout_ms)
+
+
+VARYING_CYCLIC = """\
+system: varying_cyclic
+dpus: [{id: 1}]
+buffers: [{id: 1, name: a, bytes: 64}, {id: 2, name: b, bytes: 64}]
+processes:
+  - {id: 1, name: uni, dpu: 1, period_us: 10000, compute_us: {dist: uniform, min: 1000, max: 3000},
+     outputs: [a]}
+  - {id: 2, name: expo, dpu: 1, period_us: 10000, compute_us: {dist: exponential, mean: 1000, max: 4000},
+     outputs: [b]}
+"""
+
+VARYING_TASKING = """\
+system: varying_tasking
+dpus: [{id: 1, executive: threads}]
+buffers: [{id: 1, name: a, bytes: 64}, {id: 2, name: b, bytes: 64}]
+processes:
+  - {id: 1, name: hi, dpu: 1, period_us: 10000, compute_us: {dist: uniform, min: 1000, max: 5000},
+     outputs: [a]}
+  - {id: 2, name: lo, dpu: 1, period_us: 20000, compute_us: 6000, outputs: [b]}
+"""
+
+
+def test_cyclic_worst_figures_take_the_largest_draw_and_averages_the_mean() -> None:
+    # Cyclic: expo runs after uni in the frame, so it starts when uni's draw ends (1 to 3 ms)
+    # and at worst ends 3 + 4 ms after the release; the mean put both at 2 and 2.925 ms.
+    pred = predict(loads(VARYING_CYCLIC, Path("s.yaml")))
+    uni, expo = pred.process("uni"), pred.process("expo")
+    assert (uni.start_min_us, uni.start_max_us, uni.response_us) == (0, 0, pytest.approx(3000))
+    assert (expo.start_min_us, expo.start_max_us) == (pytest.approx(1000), pytest.approx(3000))
+    assert expo.response_us == pytest.approx(7000)
+    assert pred.dpu(1).compute_pct == pytest.approx(29.25)  # 2000 + 925 (the cut exponential's mean)
+    assert pred.schedulable and not pred.warnings
+
+
+def test_tasking_worst_responses_take_the_largest_draw() -> None:
+    # lo's exact RTA with hi at its 5 ms: R = 6 + 2 x 5 = 16 ms (the mean gave 9 ms).
+    pred = predict(loads(VARYING_TASKING, Path("s.yaml")))
+    assert pred.process("hi").response_us == pytest.approx(5000)
+    assert pred.process("lo").response_us == pytest.approx(16000)
+    # a varying compute moves the schedule: the bound R - C, not one hyperperiod's starts
+    assert (pred.process("lo").start_min_us, pred.process("lo").start_max_us) == (0, pytest.approx(10000))
+    assert pred.dpu(1).compute_pct == pytest.approx(60) and pred.dpu(1).load_pct == pytest.approx(60)
+
+
+def test_a_frame_that_overflows_only_at_the_largest_draws_may_overflow() -> None:
+    # 4.5 + 0.84 ms on average, 8 + 3 ms at the largest draws: a risk, not a certainty
+    text = VARYING_CYCLIC.replace("max: 3000", "max: 8000").replace("max: 4000", "max: 3000")
+    pred = predict(loads(text, Path("s.yaml")))
+    d = pred.dpu(1)
+    assert not d.overflowing and [f.first for f in d.may_overflow] == [0] and not d.schedulable
+    assert d.frames[0].worst_demand_us == pytest.approx(11000) and d.lockout_ms is None
+    # every draw at its maximum forever falls ever further behind: no bound
+    assert pred.process("expo").response_us is None and d.compute_pct == pytest.approx(53.43)
+    assert [w for w in pred.warnings if "may overflow the 10 ms minor cycle" in w and "up to 11 ms" in w]
