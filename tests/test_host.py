@@ -98,6 +98,27 @@ def test_dpu_killed_mid_run_is_reported_and_the_others_are_analysed(dpus: DpuFar
     assert status[1]["generation"] == report["generation"], status
 
 
+def test_dpu_killed_shortly_before_the_runs_end_is_in_the_report(dpus: DpuFarm, url: str,
+                                                                   tmp_path: Path) -> None:
+    """Killed 1.5 s before the end, a DPU was silent for less than the log's 2 s within the
+    run: `skel run` said dpu_lost live and exited 1, while report.json had no fault (and its
+    prediction blamed the platform for the missing data). It sent no report_t and was not
+    heard after the run, while the other heartbeat on: lost."""
+    dpus.start(1, 2)
+    out = tmp_path / "run"
+    run = skel_background("run", _lab(tmp_path), "--url", url, "--duration", "5", "--out", str(out))
+    # 10 ms minor cycles: 350 of them is 3.5 s into the 5 s run, whatever the start took
+    _wait_running(url, 1, min_cycles=350, timeout_s=30)
+    dpus.kill(1)
+    assert run.wait(90) == 1, run.output
+    report = json.loads((out / "report.json").read_text())
+    lost = [f for f in report["faults"] if f["kind"] == "dpu_lost"]
+    assert [f["dpu"] for f in lost] == [1], report["faults"]
+    assert "to its end and after, with no end-of-run report" in lost[0]["detail"], lost
+    assert 3.0 < lost[0]["at_s"] < 4.9, lost  # its last heartbeat, before the kill
+    assert report == _report(out)  # the log alone gives the same
+
+
 def _logger_pids(log: Path) -> list[int]:
     """lcm-logger processes writing `log` (found by command line: the host tool that started them is dead)."""
     return [pid for pid, argv in spawn.running("lcm-logger").items() if str(log).encode() in argv]

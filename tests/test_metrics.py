@@ -335,8 +335,9 @@ def test_dpu_lost_when_its_heartbeats_stop_not_when_its_timing_does() -> None:
     beats = (_beats(1, 0, 4) + _beats(2, 0, 1.4) + _beats(3, 0, 4) + _beats(4, 0, 1)
              + _beats(4, 1.2, 4, pid=101, run_id=0, state=skelmsg.status_t.STATE_READY)
              + _beats(1, 4.2, 5, state=skelmsg.status_t.STATE_READY))
-    # In the order a log gives them: each DPU's batch of statuses, not by time.
-    faults = dpu_lost_faults(config, records, heartbeats_from_status(beats), RUN_ID)
+    # In the order a log gives them: each DPU's batch of statuses, not by time. DPUs 1 and 3
+    # ran to the end and sent their report_t.
+    faults = dpu_lost_faults(config, records, heartbeats_from_status(beats), RUN_ID, reported={1, 3})
     assert [(f.kind, f.dpu) for f in faults] == [("dpu_lost", 2), ("dpu_lost", 4)], faults
     assert "not heard for 2.60 s from 1.40 s into the run" in faults[0].detail
     assert "restarted during the run (pid 100, then 101)" in faults[1].detail
@@ -345,15 +346,39 @@ def test_dpu_lost_when_its_heartbeats_stop_not_when_its_timing_does() -> None:
     # heartbeat heard (ARMED: here half a second before that release).
     for heard_us, s in beats:
         s.mono_ns = heard_us * 1000 - 500 * MS
-    faults = dpu_lost_faults(config, records, heartbeats_from_status(beats), RUN_ID)
+    faults = dpu_lost_faults(config, records, heartbeats_from_status(beats), RUN_ID, reported={1, 3})
     assert "not heard for 2.60 s from 0.90 s into the run" in faults[0].detail, faults[0]
     assert faults[0].at_s == pytest.approx(0.9)
-    # The logger stalled from 1 s to 3.5 s: it heard nobody then, so nobody is lost for it.
+    # The logger stalled from 1 s to 3.5 s: it heard nobody then, so nobody who reported the
+    # run is lost for it.
     stalled = [(t, s) for t, s in beats if not 1_000_000 < t < 3_500_000 and s.dpu != 4]
-    assert dpu_lost_faults(config, records, heartbeats_from_status(stalled), RUN_ID) == []
+    assert dpu_lost_faults(config, records, heartbeats_from_status(stalled), RUN_ID, reported={1, 2, 3}) == []
     # Heartbeats of another run, or none at all: only a DPU with no timing record is lost.
     no_times = heartbeats_from_status([(None, _status(1, state=3)), (None, _status(3, state=3))])
     assert [f.dpu for f in dpu_lost_faults(config, _spans({1: [0, 9]}), no_times, RUN_ID)] == [2, 4]
+
+
+
+def test_dpu_lost_shortly_before_the_runs_end_when_it_sent_no_report() -> None:
+    """A DPU killed 1.4 s before the run's end was silent for less than LOST_GAP_US within
+    the run, which the report took for no fault. But a DPU that finished the run sends its
+    report_t and heartbeats on while idle: silent past the end, with no report, it is lost."""
+    config = SimpleNamespace(processes=[SimpleNamespace(id=i, dpu=i, period_us=5000) for i in (1, 2, 3)])
+    records = _spans({1: [0, 4000], 2: [0, 2600], 3: [0, 4000]})
+    ready = skelmsg.status_t.STATE_READY
+    # DPU 2 dies at 2.6 s; DPU 3 is restarted after the run (a new pid, no report for it)
+    beats = (_beats(1, 0, 4) + _beats(2, 0, 2.6) + _beats(3, 0, 4)
+             + _beats(1, 4.2, 9, state=ready) + _beats(3, 4.8, 9, pid=101, state=ready))
+    faults = dpu_lost_faults(config, records, heartbeats_from_status(beats), RUN_ID, reported={1})
+    assert [f.dpu for f in faults] == [2, 3], faults
+    assert faults[0].detail.startswith("not heard for 1.40 s from 2.60 s into the run, to its end and after")
+    assert "restarted at the run's end with no end-of-run report (pid 100, then 101)" in faults[1].detail
+    # Its report_t: it finished the run, whatever came after (stopped, restarted)
+    assert dpu_lost_faults(config, records, heartbeats_from_status(beats), RUN_ID, reported={1, 2, 3}) == []
+    # A DPU that reported nothing but heartbeats on after the run (its report_t lost) is not lost
+    alive = beats + _beats(2, 2.7, 9, state=ready)
+    assert [f.dpu for f in dpu_lost_faults(config, records, heartbeats_from_status(alive), RUN_ID,
+                                           reported={1, 3})] == []
 
 
 def _cycles(dpu: int, process: int, period_ms: int, late_ms: list[float], stall_ms: dict[int, float],

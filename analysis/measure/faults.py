@@ -12,7 +12,7 @@ links between locked-out processes."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -384,7 +384,7 @@ _IN_RUN = (skelmsg.status_t.STATE_ARMED, skelmsg.status_t.STATE_RUNNING)
 
 
 def dpu_lost_faults(config: Any, records: np.ndarray, beats: Heartbeats, run_id: int,
-                    origin: Mapping[int, int] | None = None) -> list[Fault]:
+                    origin: Mapping[int, int] | None = None, reported: Collection[int] = ()) -> list[Fault]:
     """A DPU is lost when its heartbeats stopped during the run: a silence of more than
     LOST_GAP_US while the log heard other DPUs, or a new daemon (pid) answering for it,
     between the run's first heartbeat and the last one of a DPU still running it (one
@@ -392,6 +392,9 @@ def dpu_lost_faults(config: Any, records: np.ndarray, beats: Heartbeats, run_id:
     timing records show (a process waiting for data that never comes stops its timing,
     not its DPU). Without heartbeat times (a live view) or heartbeats of this run (a log
     that does not record them), only a DPU with no timing record and no heartbeat is lost.
+    A DPU that sent no end-of-run report (`reported`: the DPUs whose report_t for the run
+    the log holds) is silent up to its next heartbeat after the run, or the log's last
+    one: a DPU that died shortly before the run's end is lost too.
     `origin`: first_release_ns(records), when the caller has it."""
     dpus = sorted({int(p.dpu) for p in config.processes})
     origin = first_release_ns(records) if origin is None else origin
@@ -409,29 +412,56 @@ def dpu_lost_faults(config: Any, records: np.ndarray, beats: Heartbeats, run_id:
     gaps = np.flatnonzero(np.diff(all_heard) > LOG_SILENT_US)
     silences = (all_heard[gaps], all_heard[gaps + 1])
     during = heard & (beats.heard_us >= start) & (beats.heard_us <= end)
+    after = heard & (beats.heard_us > end)
     faults = []
     for dpu in dpus:
         mine = during & (beats.dpu == dpu)
         pids = beats.pid[mine]
         pids = pids[np.sort(np.unique(pids, return_index=True)[1])]  # in the order first heard
         times = np.r_[start, beats.heard_us[mine], end]
+        # The run ends at the last heartbeat of a DPU still running it: one killed 1.5 s
+        # before that end was silent for less than LOST_GAP_US within it. But a DPU that
+        # finished the run sent its report_t (which the log repair asks again for when
+        # the logger missed it) and heartbeats on while idle (5 Hz); the log ends soon
+        # after the others' reports. One that did neither is silent past the end, up to
+        # where it was heard again (a new pid: restarted) or the log's end, and the
+        # missing report leaves no doubt a dropped message would: the live rule's
+        # LOST_AFTER_S of that silence makes it lost, however close to the end it died.
+        next_pid = None
+        tail_extended = bool(mine.any()) and dpu not in reported
+        if tail_extended:
+            later = after & (beats.dpu == dpu)
+            if later.any():
+                first_later = int(np.flatnonzero(later)[0])  # in time order: the first heard
+                times[-1], next_pid = int(beats.heard_us[first_later]), int(beats.pid[first_later])
+            else:
+                times[-1] = max(end, int(all_heard[-1]))
         unheard = _unheard(times, silences)
         # the longest unheard stretch; on a tie, the later one (as max over (unheard, a, b - a))
         k = int(np.lexsort((np.diff(times), times[:-1], unheard))[-1])
+        if tail_extended and unheard[k] <= LOST_GAP_US and unheard[-1] > LOST_AFTER_S * 1e6:
+            k = len(unheard) - 1  # no silence within the run is long enough: the one at its end is
         silent, since, gap = int(unheard[k]), int(times[k]), int(times[k + 1] - times[k])
+        tail_lost = tail_extended and k == len(unheard) - 1 and silent > LOST_AFTER_S * 1e6
         at_s = None
         if len(pids) > 1:
             detail = f"restarted during the run (pid {pids[0]}, then {pids[-1]})"
+        elif next_pid is not None and next_pid != pids[-1]:
+            detail = f"restarted at the run's end with no end-of-run report (pid {pids[-1]}, then {next_pid})"
         elif silent > LOST_GAP_US and not mine.any():
             detail = "no heartbeat during the run"
-        elif silent > LOST_GAP_US:
+        elif silent > LOST_GAP_US or tail_lost:
             # From the run's first release, as every fault's at_s: its last heartbeat before the
             # silence, on its own clock, when it has records (the first heartbeat heard is
             # the ARMED one, half a second and more before the first release).
             sent = int(beats.mono_ns[mine][k - 1]) if k > 0 else 0
             at_s = (sent - origin[dpu]) / 1e9 if dpu in origin and sent > 0 else None
             since_s = at_s if at_s is not None else (since - start) / 1e6
-            detail = f"not heard for {gap / 1e6:.2f} s from {since_s:.2f} s into the run"
+            if tail_lost:  # a silence past the run's end: its length within the run
+                detail = (f"not heard for {(end - since) / 1e6:.2f} s from {since_s:.2f} s into the run, "
+                          "to its end and after, with no end-of-run report")
+            else:
+                detail = f"not heard for {gap / 1e6:.2f} s from {since_s:.2f} s into the run"
         elif not mine.any() and dpu not in timed:
             detail = "no timing records and no heartbeat in this run"
         else:

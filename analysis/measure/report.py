@@ -161,7 +161,7 @@ def build_report(
         heartbeats = heartbeats_from_status((None, s) for s in statuses)
     # Every window's faults say when, from the run's first release: not from their window's.
     origin = first_release_ns(run.records)
-    lost = dpu_lost_faults(config, run.records, heartbeats, run.run_id, origin)
+    lost = dpu_lost_faults(config, run.records, heartbeats, run.run_id, origin, {r.dpu for r in mine})
     last_i = len(generations) - 1
     # Each window's measured records: its tables' and the cross-check's.
     masks = [measured_once(records, by_generation[g])
