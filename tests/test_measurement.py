@@ -17,6 +17,8 @@ from randsys import random_system
 from steal import longest_dpu_stall_ms
 
 import skeleton
+from skeleton.analysis.read.messages import open_run_log
+from skeleton.analysis.read.records import load_records
 
 pytestmark = pytest.mark.timing  # judges the DPUs' timing: tests/steal.py
 
@@ -214,11 +216,18 @@ def test_the_lateness_a_stall_explains_is_not_the_designs(tmp_path: Path, url: s
     _wait_started(dpus, (1,), run)
     time.sleep(1.5)  # past the warm-up
     pid = dpus.daemons[1].process.pid
+    stopped_ns = time.monotonic_ns()  # CLOCK_MONOTONIC, the records' clock on this host
     os.kill(pid, signal.SIGSTOP)
     time.sleep(0.2)
     os.kill(pid, signal.SIGCONT)
     assert run.wait(60) == 0, run.output
     report = _report(out)
+    # The stall is dated where it was: 90 % of the time the stop falls in a computation, which
+    # the report had dated 200 ms early (at its cycle's start less the stall).
+    records = load_records(open_run_log(out / "run.lcm"), report["run_id"]).records
+    stopped_s = (stopped_ns - int(records["release_ns"].min())) / 1e9
+    (stall,) = [f for f in report["faults"] if f["kind"] == "stall" and f["duration_ms"] > 150]
+    assert stopped_s - 0.05 < stall["at_s"] < stopped_s + 0.05, (stopped_s, stall)
     for proc in report["processes"]:
         assert proc["lateness_us"]["max"] > 150_000, proc  # the stop shows in the lateness ...
         assert proc["late"] > 100, proc  # ... for the 200 cycles of catching up

@@ -409,9 +409,39 @@ def test_one_stall_of_a_host_is_one_fault_wherever_in_their_cycles_its_dpus_saw_
     dpu1 = _cycles(1, 0, 10, late, {2: 80.0})
     dpu2 = _cycles(2, 2, 20, [0.0] * 10, {1: 80.0}, blocked_ms={1: 90.0})
     dpu2["start_ns"][1] = dpu1["start_ns"][2]
+    # a wake-up's stall is also the executive's debt when its frame starts
+    dpu1["debt_ns"][2] = dpu2["debt_ns"][1] = 80 * MS
     stalls = stall_faults(np.concatenate([dpu1, dpu2]), small_config())
     assert [(f.dpus, round(f.duration_ms)) for f in stalls] == [([1, 2], 80)]
     assert stalls[0].at_s == pytest.approx(0.020)
+
+
+def test_a_stall_is_dated_where_its_record_shows_it_was() -> None:
+    """A stall inside a computation is in the cycle, from its start: the report had taken
+    every stall to end at its cycle's start, and dated a 300 ms stop in a 1 ms computation
+    300 ms early. A late wake-up is before the start, by as much as the cycle started late."""
+    # The host's machine stopped from 52 to 352 ms: DPU 1 was computing cycle 5 (released at
+    # 50 ms), DPU 2 asleep until its release at 60 ms, and woke then 292 ms late.
+    dpu1 = _cycles(1, 0, 10, [0.0] * 40, {5: 300.0})
+    dpu1["preempted_ns"][5] = 300 * MS  # a computation's stall is also its preempted time
+    dpu2 = _cycles(2, 2, 20, [0.0, 0.0, 0.0, 292.0] + [0.0] * 16, {3: 292.0})
+    dpu2["debt_ns"][3] = 292 * MS  # a wake-up's stall: the frame's debt starts from it
+    (stall,) = stall_faults(np.concatenate([dpu1, dpu2]), small_config())
+    assert (stall.dpus, stall.at_s, stall.duration_ms) == ([1, 2], pytest.approx(0.050), 300.0), stall
+    (alone,) = stall_faults(dpu1, small_config())
+    assert alone.at_s == pytest.approx(0.050), alone
+    (woke,) = stall_faults(dpu2, small_config())
+    assert woke.at_s == pytest.approx(0.060), woke
+    # The tasking executive keeps no debt: what preempted_ns does not hold, as far as the
+    # job started late, was before its start.
+    tasking = small_config()
+    for d in tasking.dpus:
+        d.executive = skelmsg.dpu_t.EXECUTIVE_THREADS
+    dpu2["debt_ns"][3] = 0
+    (woke,) = stall_faults(dpu2, tasking)
+    assert woke.at_s == pytest.approx(0.060), woke
+    (alone,) = stall_faults(dpu1, tasking)
+    assert alone.at_s == pytest.approx(0.050), alone
 
 
 def test_a_dpu_behind_from_a_stall_in_its_warm_up_is_the_platform_not_the_design() -> None:

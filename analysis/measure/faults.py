@@ -24,7 +24,16 @@ from skelmsg.contract import RECV_SLACK_BYTES
 from ..read.messages import int_columns
 from ..read.records import FLAG_LOCKOUT
 from .latency import NO_OFFSETS, ClockOffsets
-from .metrics import ProcessMetrics, completed, frames, per_id, smallest_per_dpu, static_load_pct, window_mask
+from .metrics import (
+    ProcessMetrics,
+    completed,
+    first_of_frame_at,
+    frames,
+    per_id,
+    smallest_per_dpu,
+    static_load_pct,
+    window_mask,
+)
 
 # Every kind of fault, and those that say the architecture does not work (exit 3);
 # `behind` only when the platform does not explain it (Fault.fatal).
@@ -522,17 +531,21 @@ def stall_faults(records: np.ndarray, config: Any, origin: Mapping[int, int] | N
     `origin`: first_release_ns of the whole run, when `records` are one generation's window."""
     hosts = {d.id: d.host for d in config.dpus}
     t0 = min((origin if origin is not None else first_release_ns(records)).values(), default=0)
-    # A record says how long its thread could not run, not where in the cycle: the stall
-    # ended between the cycle's start and its end. Host -> (earliest start, latest end,
-    # duration, DPU), on the run's clock.
+    # Host -> (where the stall may have begun, where its cycle's work ended, duration, DPU),
+    # on the run's clock.
     events: dict[str, list[tuple[int, int, int, int]]] = {}
     limit = per_id(records["dpu"], {d.id: stall_threshold_ns(config, d.id) for d in config.dpus})
-    hit = records[(records["stall_ns"] > 0) & (records["stall_ns"] >= limit)] if len(records) else records
-    fields = ("dpu", "stall_ns", "start_ns", "comm_in_ns", "blocked_ns", "compute_ns")
-    for dpu, stall, start, comm_in, blocked, compute in zip(*(hit[f].tolist() for f in fields), strict=True):
-        start -= t0
-        end = start + comm_in + blocked + compute
-        events.setdefault(hosts.get(dpu, "?"), []).append((start - stall, end, stall, dpu))
+    stall = records["stall_ns"]
+    rows = np.flatnonzero((stall > 0) & (stall >= limit))
+    hit = records[rows]
+    # the record's parts add up to where its work ended, its stalls' wall time included
+    parts = ("start_ns", "comm_in_ns", "blocked_ns", "compute_ns", "comm_out_ns", "preempted_ns")
+    ends = sum(hit[f].astype(np.int64) for f in parts)
+    before = _stall_before_start(hit, first_of_frame_at(records, rows), config)
+    begins = hit["start_ns"].astype(np.int64) - before
+    columns = (hit["dpu"].tolist(), hit["stall_ns"].tolist(), begins.tolist(), ends.tolist())
+    for dpu, ns, begin, end in zip(*columns, strict=True):
+        events.setdefault(hosts.get(dpu, "?"), []).append((begin - t0, end - t0, ns, dpu))
     faults = []
     for host, evs in sorted(events.items()):
         evs.sort()
@@ -572,6 +585,25 @@ def stall_faults(records: np.ndarray, config: Any, origin: Mapping[int, int] | N
                 detail=f"host {host}: {len(short)} shorter stall{'s' if len(short) > 1 else ''} of its "
                        f"DPUs ({span}, under a minor cycle; the platform, not the design)"))
     return faults
+
+
+def _stall_before_start(hit: np.ndarray, first: np.ndarray, config: Any) -> np.ndarray:
+    """How much of each record's stall came before its start: a late wake-up makes the
+    cycle start late by it, a stall in its computation or its publishing (kept in
+    preempted_ns too) or its data wait does not, and is placed from the cycle's start. The
+    record says which by its parts: what preempted_ns does not hold, as far as the cycle
+    started late (start - sched). On the cyclic executive only the first record of a
+    frame carries a wake-up's stall, and no more than the stalls it had not caught up on
+    when it started (debt_ns, which restarts from that stall after each sleep): a record
+    started late behind a stalled predecessor stalled in its own cycle. (The report had
+    taken every stall to end at the start: one inside a 2 ms computation was dated its
+    300 ms early.)"""
+    stall = hit["stall_ns"].astype(np.int64)
+    late = np.maximum(hit["start_ns"].astype(np.int64) - hit["sched_ns"].astype(np.int64), 0)
+    before = np.clip(stall - hit["preempted_ns"].astype(np.int64), 0, late)
+    cyclic = per_id(hit["dpu"], {d.id: d.executive == skelmsg.dpu_t.EXECUTIVE_CYCLIC for d in config.dpus})
+    cyclic_before = np.where(first, np.minimum(before, hit["debt_ns"].astype(np.int64)), 0)
+    return np.where(cyclic == 1, cyclic_before, before)
 
 
 def behind_faults(records: np.ndarray, config: Any, in_window: np.ndarray | None = None,
