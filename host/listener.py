@@ -174,6 +174,8 @@ class Listener:
         # repeats its DPU's, so they are counted once each.
         self._lockouts: set[tuple[int, int, int]] = set()
         self._locks_seen = 0
+        # heard_lockouts' last answer, and what it was for: (run, lockouts heard, generation)
+        self._heard: tuple[tuple[Any, ...], list[Fault]] = ((), [])
         self._faults_due = 0.0
         self._handlers: dict[str, Callable[[bytes, int], None]] = {
             STATUS_CHANNEL: self._status, REPORT_CHANNEL: self._report, CONFIG_CHANNEL: self._config,
@@ -406,13 +408,18 @@ class Listener:
         300 ms cycle's record came). When its window passed is the records' to say."""
         config = self.newest_config()
         with self.lock:
-            if not self._lockouts:  # the statuses are read only when one names a lockout
-                return []
+            # the statuses are read only when one named a lockout not read before
+            key = (self.run_id, len(self._lockouts), None if config is None else config.generation)
+            if not self._lockouts or key == self._heard[0]:
+                return list(self._heard[1]) if self._lockouts else []
             statuses, run_id = list(self.statuses), self.run_id
         if config is None or run_id is None:
             return []
         locks = lockouts_from_status(statuses, run_id)
-        return lockout_faults(locks, config) + jam_faults(locks, config)
+        found = lockout_faults(locks, config) + jam_faults(locks, config)
+        with self.lock:
+            self._heard = (key, found)
+        return list(found)
 
     def faults_due(self) -> bool:
         """Whether to search the records for faults again: FAULTS_COST_FACTOR times the last

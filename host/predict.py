@@ -600,9 +600,10 @@ def _tasking(d: Dpu, mine: list[Process], ready: dict[int, tuple[float, float]])
     ranked = sorted(mine, key=lambda p: -p.priority)
     tasks = [(math.ceil(frames.worst_us(p, d) * 1000), p.period_us * 1000) for p in ranked]
     # Periodic processes all released at the run's start: their starts are the ideal schedule's.
-    # A data wait or an event moves releases off the grid it simulates, and a varying compute
-    # moves every start after it from one hyperperiod to the next.
-    periodic = not any(p.id in ready or p.sync == "event" or p.varying for p in ranked)
+    # A data reader (waiting, paced by a slower writer or of unknown rate) or an event moves
+    # releases off the grid it simulates, and a varying compute moves every start after it
+    # from one hyperperiod to the next.
+    periodic = all(p.sync == "periodic" and not p.varying for p in ranked)
     starts = start_ranges(tasks) if periodic else None
     out = {}
     for i, (p, (c, _), r) in enumerate(zip(ranked, tasks, response_times(tasks), strict=True)):

@@ -401,6 +401,12 @@ def test_a_paced_reader_waits_for_its_writer_in_its_start_and_response(tmp_path:
     tasking = predict(_system(tmp_path, PACED_SYSTEM.replace("EXECUTIVE", "threads")))
     rd5 = tasking.process("rd5")
     assert (rd5.start_min_us, rd5.start_max_us, rd5.response_us) == pytest.approx((2000, 2000, 2500))
+    # Below it, a process whose start its skipped releases move: not the ideal schedule's grid
+    # (that said exactly 500, as if rd5 ran at every release), but 0 up to rd5's compute.
+    lower = PACED_SYSTEM.replace("EXECUTIVE", "threads").replace(
+        "chains:", "  - {id: 3, name: lo, dpu: 2, period_us: 5000, compute_us: 500}\nchains:")
+    lo = predict(_system(tmp_path, lower)).process("lo")
+    assert (lo.start_min_us, lo.start_max_us) == pytest.approx((0, 500))
     # the same-cycle wait of a reader of its own period is unchanged: 2 ms, 2.5 ms
     same = predict(_system(tmp_path, PACED_SYSTEM.replace("EXECUTIVE", "cyclic").replace("5000", "10000")))
     assert same.process("rd5").paced_by is None

@@ -386,11 +386,11 @@ def test_only_a_command_the_dpus_obey_before_the_planned_end_stops_a_run() -> No
     foreign = (0, _command(stop, 8, seq=at_ns + 2 * second))
     assert stopped_early([start, foreign], 42) is None
     # Heard (replayed) an hour after it was sent: dated by its seq.
-    forced = (at_ns // 1000 + 3600 * 10**6, _command(shutdown, 8, seq=at_ns + 3_500_000_000, force=1))
+    forced = (at_ns // 1000 + 3600 * 10**6, _command(shutdown, 8, seq=at_ns + 3_500_000_000, force=1, dpu=3))
     assert stopped_early([start, foreign, forced], 42) == Stopped(
-        at_s=3.5, planned_s=10.0, command="SHUTDOWN", sender="HOST pid 8")
+        at_s=3.5, planned_s=10.0, command="SHUTDOWN", sender="HOST pid 8", dpu=3)
     # Another tool's counter is no time: dated when heard.
-    counted = (at_ns // 1000 + 4_250_000, _command(stop, 9, seq=3, force=1))
+    counted = (at_ns // 1000 + 4_250_000, _command(stop, 9, seq=3, force=1, dpu=-1))
     dated = stopped_early([start, counted], 42)
     assert dated is not None and dated.at_s == 4.25, dated
     # A STOP before START is another run's end; a run until STOP (duration 0) has no planned end.

@@ -154,6 +154,7 @@ def writer_stall(records: np.ndarray, config: Any, clock: ClockOffsets, reader: 
     starve it all the same."""
     writers = {b.id: b.writer for b in config.buffers}
     procs = {p.id: p for p in config.processes}
+    threads = {d.id for d in config.dpus if d.executive == skelmsg.dpu_t.EXECUTIVE_THREADS}
     low, high = clock.to_host(reader.dpu, np.array([low_ns, high_ns], dtype=np.int64)).tolist()
     best = None
     for b in buffers:
@@ -162,7 +163,12 @@ def writer_stall(records: np.ndarray, config: Any, clock: ClockOffsets, reader: 
             continue
         mine = records["dpu"] == w.dpu
         at = clock.to_host(w.dpu, records["release_ns"][mine])
-        stalled = int(records["stall_ns"][mine][(at >= low) & (at <= high)].sum())
+        due = (at >= low) & (at <= high)
+        stall, process = records["stall_ns"][mine][due], records["process"][mine][due]
+        # The cyclic executive's one thread records each stall once; the threads executive's
+        # every thread records the same stop of its DPU: its longest-stalled thread's count.
+        stalled = (max((int(stall[process == q].sum()) for q in np.unique(process).tolist()), default=0)
+                   if w.dpu in threads else int(stall.sum()))
         if best is None or stalled > best[1]:
             best = (w, stalled)
     return best

@@ -35,6 +35,7 @@ class Stopped:
     planned_s: float  # how long the run was to last
     command: str  # STOP or SHUTDOWN
     sender: str  # who sent it ("HOST pid N")
+    dpu: int = -1  # the one DPU it stopped (the others ran on); -1: every DPU
 
 
 def stopped_early(commands: Iterable[tuple[int, Any]], run_id: int) -> Stopped | None:
@@ -55,6 +56,6 @@ def stopped_early(commands: Iterable[tuple[int, Any]], run_id: int) -> Stopped |
         at_ns = (command.seq if clocked else utime_us * 1000) - start.at_utc_ns
         if at_ns < start.duration_ns:
             return Stopped(at_s=max(0, at_ns) / 1e9, planned_s=start.duration_ns / 1e9,
-                           command=_NAMES[command.kind], sender=command.sender)
+                           command=_NAMES[command.kind], sender=command.sender, dpu=max(-1, command.dpu))
         return None  # the first one after the planned end: the host ending a run that ran its course
     return None

@@ -344,7 +344,8 @@ def stopped_lines(report: RunReport) -> list[str]:
     stop = report.stopped
     if stop is None:
         return []
-    return [f"the run was stopped at {stop.at_s:.2f} s of its planned {stop.planned_s:g} s "
+    what = "the run was" if stop.dpu < 0 else f"DPU {stop.dpu} of the run was"
+    return [f"{what} stopped at {stop.at_s:.2f} s of its planned {stop.planned_s:g} s "
             f"({stop.command} from {stop.sender}): the tables cover what ran"]
 
 
