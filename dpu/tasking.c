@@ -199,8 +199,6 @@ static void tasking_complete(skel_exec_t *x, skel_process_t *p)
      * it, so that the record's parts add up to where its work ended. */
     if (t_out > p->slice_mono_ns) p->rec.preempted_ns += t_out - p->slice_mono_ns;
     const int measured = p->k_base + p->next_k >= p->measure_from_k;
-    /* locked out while it ran (tasking_lockout): its own record says so */
-    if (p->k_base + p->next_k == p->lockout_k) p->rec.flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
     process_write_outputs(x, p, p->k_base + p->next_k);
     process_finish(x, p, &p->rec, p->job_release, t_out, measured);
     p->job = TASK_NONE;

@@ -299,8 +299,6 @@ static void threads_job(threads_worker_t *w)
     plan = t->plan;
     if (p == NULL) return; /* removed: its job is lost, as at a run's end */
     const int measured = k >= p->measure_from_k;
-    /* locked out while it computed (the executive thread's tasking_lockout): its record says so */
-    if (k == p->lockout_k) rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
     process_write_outputs(&w->x, p, k);
     threads_kick(t, w); /* a local output may be what a data wait waits for */
     process_finish(&w->x, p, rec, p->job_release, t_out, measured);

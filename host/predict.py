@@ -177,12 +177,34 @@ def _rounded(value: Any) -> Any:
     return value
 
 
-def predict(system: System) -> Prediction:
+@dataclass(frozen=True)
+class _Schedule:
+    """What a system's data waits and schedules come to: the prediction's first steps, shared
+    by predict() and planned_data_us()."""
+
+    errors: tuple[Problem, ...]
+    stuck: set[int]  # processes that never start
+    rates: dict[int, float]
+    paced: dict[int, str]  # data readers paced by a slower writer: reader -> writer's name
+    unknown: set[int]  # processes of a rate host-sent events decide
+    waits: dict[int, list[tuple[int, Process]]]  # same_cycle_waits
+    timing: dict[int, Timing]
+    frames: dict[int, tuple[Frame, ...]]  # per cyclic DPU
+    ready: dict[int, tuple[float, float]]  # per waiting reader: when its data comes
+
+
+def _schedule_of(system: System) -> _Schedule:
     errors, stuck = deadlocks(system)
     rates, paced = _rates(system, stuck)
     unknown = unknown_rates(system, stuck)
     waits = same_cycle_waits(system, stuck | unknown | set(paced))
-    timing, found, _ = _timings(system, waits)
+    return _Schedule(errors, stuck, rates, paced, unknown, waits, *_timings(system, waits))
+
+
+def predict(system: System) -> Prediction:
+    plan = _schedule_of(system)
+    errors, rates, paced, unknown, waits = plan.errors, plan.rates, plan.paced, plan.unknown, plan.waits
+    timing, found = plan.timing, plan.frames
     dpus = []
     for d in system.dpus:
         mine = system.processes_on(d.id)
@@ -234,13 +256,13 @@ def _paced_timings(system: System, timing: dict[int, Timing], rates: dict[int, f
         came: list[float] = []
         starts: list[float] = []
         ends: list[float] = []
+        fits = sum(frames.compute_us(q, d) / q.period_us for q in system.processes_on(d.id)) <= 1
         for data in sorted(set(_data_at(system, timing, w))):
             if not math.isfinite(data):
                 break
             if d.executive == "threads":
                 c, s, e = _paced_tasking(p.period_us, w.period_us, data, at)
             else:
-                fits = sum(frames.compute_us(q, d) / q.period_us for q in system.processes_on(d.id)) <= 1
                 c, s, e = _paced_cyclic(p.period_us, w.period_us, data, at.start_max_us,
                                      at.response_us - at.start_max_us - compute, compute, fits)
             came, starts, ends = came + c, starts + s, ends + e
@@ -314,11 +336,7 @@ def planned_data_us(system: System) -> dict[int, float]:
     has it (0 and left out: none planned, or never in time). The host sends it to the DPU
     (process_t.ready_us), whose schedule starts the processes after the reader from there: a
     wait the design plans is on schedule, only a longer one is lateness."""
-    _, stuck = deadlocks(system)
-    _, paced = _rates(system, stuck)
-    waits = same_cycle_waits(system, stuck | unknown_rates(system, stuck) | set(paced))
-    _, _, ready = _timings(system, waits)
-    return {r: late for r, (_, late) in ready.items()
+    return {r: late for r, (_, late) in _schedule_of(system).ready.items()
             if system.dpu(system.process(r).dpu).executive != "threads" and math.isfinite(late) and late > 0}
 
 
@@ -604,9 +622,10 @@ def _tasking(d: Dpu, mine: list[Process], ready: dict[int, tuple[float, float]])
     # releases off the grid it simulates, and a varying compute moves every start after it
     # from one hyperperiod to the next.
     periodic = all(p.sync == "periodic" and not p.varying for p in ranked)
-    starts = start_ranges(tasks) if periodic else None
+    responses = response_times(tasks)
+    starts = start_ranges(tasks, responses) if periodic else None
     out = {}
-    for i, (p, (c, _), r) in enumerate(zip(ranked, tasks, response_times(tasks), strict=True)):
+    for i, (p, (c, _), r) in enumerate(zip(ranked, tasks, responses, strict=True)):
         early, late = ready.get(p.id, (0.0, 0.0))
         if starts is not None and r is not None:
             out[p.id] = Timing(starts[i][0] / 1000, starts[i][1] / 1000, r / 1000)

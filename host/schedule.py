@@ -110,15 +110,15 @@ def ideal_schedule(tasks: Sequence[Task], horizon: int) -> dict[tuple[int, int],
             running = -1
 
 
-def start_ranges(tasks: Sequence[Task]) -> list[tuple[int, int]] | None:
+def start_ranges(tasks: Sequence[Task], responses: Sequence[int | None]) -> list[tuple[int, int]] | None:
     """Each task's earliest and latest start after its release (when a job first holds the
     processor), over one hyperperiod of the ideal schedule. Exact when every task meets its
     period: then every job of a hyperperiod is done by its end, where all release together
     again, so the schedule repeats. None when one does not, or when the hyperperiod holds more
     than MAX_JOBS jobs (coprime periods): response-time analysis then bounds the start by the
     response less the compute, which a task later in a busy period may never come near (a 20
-    ms task behind 1 and 2 ms ones always starts at 3 ms, bounded by 7)."""
-    responses = response_times(tasks)
+    ms task behind 1 and 2 ms ones always starts at 3 ms, bounded by 7). `responses`: the
+    tasks' response_times."""
     if any(r is None or r > t for r, (_, t) in zip(responses, tasks, strict=True)):
         return None
     hyper = math.lcm(*(t for _, t in tasks))

@@ -27,6 +27,7 @@ from .latency import NO_OFFSETS, ClockOffsets
 from .metrics import (
     ProcessMetrics,
     completed,
+    cycle_end_ns,
     first_of_frame_at,
     frames,
     per_id,
@@ -59,11 +60,11 @@ class Fault:
     at_s: float | None = None  # behind, stall, dpu_lost, lockout, jam: when, s from the run's first release
     duration_ms: float | None = None  # behind: how long; stall: how long the thread could not run
     behind_ms: float | None = None  # behind: the largest lateness of the DPU's minor cycles
-    fatal: bool = False  # the design's flaw (exit 3), not the platform's
+    fatal: bool | None = None  # the design's flaw (exit 3), not the platform's; None: by its kind
 
     def __post_init__(self) -> None:
-        if self.kind in ("lockout", "jam", "skipping"):
-            self.fatal = True
+        if self.fatal is None:
+            self.fatal = self.kind in ("lockout", "jam", "skipping")
 
 
 @dataclass(frozen=True)
@@ -226,9 +227,7 @@ def lockout_faults(lockouts: dict[int, Lockout], config: Any, origin: Mapping[in
         if proc in explained:
             detail += f"; {explained[proc]}"
         where = _where(proc, lock, names, dpus, buffers)
-        fault = Fault(kind="lockout", detail=detail, at_s=at_s, **where)
-        fault.fatal = proc not in explained
-        faults.append(fault)
+        faults.append(Fault(kind="lockout", detail=detail, at_s=at_s, fatal=proc not in explained, **where))
     return faults
 
 
@@ -340,9 +339,9 @@ def jam_faults(lockouts: dict[int, Lockout], config: Any, origin: Mapping[int, i
                 static_load_pct=load,
                 root_dpu=dpus.get(root),
                 at_s=lockout_at_s(lockouts[head], config, dpus.get(head), origin or {}),
+                fatal=not (w is not None and w not in chain and root in explained),
             )
         )
-        faults[-1].fatal = not (w is not None and w not in chain and root in explained)
     return faults
 
 
@@ -545,8 +544,7 @@ def stall_faults(records: np.ndarray, config: Any, origin: Mapping[int, int] | N
     rows = np.flatnonzero((stall > 0) & (stall >= limit))
     hit = records[rows]
     # the record's parts add up to where its work ended, its stalls' wall time included
-    parts = ("start_ns", "comm_in_ns", "blocked_ns", "compute_ns", "comm_out_ns", "preempted_ns")
-    ends = sum(hit[f].astype(np.int64) for f in parts)
+    ends = cycle_end_ns(hit)
     before = _stall_before_start(hit, first_of_frame_at(records, rows), config)
     begins = hit["start_ns"].astype(np.int64) - before
     columns = (hit["dpu"].tolist(), hit["stall_ns"].tolist(), begins.tolist(), ends.tolist())
