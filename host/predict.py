@@ -183,7 +183,6 @@ class _Schedule:
     by predict() and planned_data_us()."""
 
     errors: tuple[Problem, ...]
-    stuck: set[int]  # processes that never start
     rates: dict[int, float]
     paced: dict[int, str]  # data readers paced by a slower writer: reader -> writer's name
     unknown: set[int]  # processes of a rate host-sent events decide
@@ -198,7 +197,7 @@ def _schedule_of(system: System) -> _Schedule:
     rates, paced = _rates(system, stuck)
     unknown = unknown_rates(system, stuck)
     waits = same_cycle_waits(system, stuck | unknown | set(paced))
-    return _Schedule(errors, stuck, rates, paced, unknown, waits, *_timings(system, waits))
+    return _Schedule(errors, rates, paced, unknown, waits, *_timings(system, waits))
 
 
 def predict(system: System) -> Prediction:
