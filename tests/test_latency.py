@@ -7,6 +7,7 @@ import io
 import json
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -24,14 +25,35 @@ from analysis_synth import (
 from conftest import skel
 from rich.console import Console
 
-from skeleton.analysis.measure.chains import chain_metrics
-from skeleton.analysis.measure.latency import ClockOffsets, buffer_metrics
+from skeleton.analysis.measure.chains import ChainMetrics, ChainRecords, chain_metrics
+from skeleton.analysis.measure.latency import (
+    NO_OFFSETS,
+    BufferMetrics,
+    ClockOffsets,
+    buffer_metrics,
+    buffer_parts,
+    release_skips,
+)
+from skeleton.analysis.measure.metrics import measured
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.read.records import FLAG_RELEASE_SKIPPED, decode_run
 from skeleton.analysis.views.tables import print_report
 from skelmsg.contract import CLOCK_CHANNEL, CONFIG_CHANNEL, TIMING_CHANNEL
 
+
+def _buffers(records: Any, inputs: Any, config: Any, run_records: Any = None) -> list[BufferMetrics]:
+    """The buffer table of a window of `records`, its skipped releases looked up in `run_records`."""
+    everything = records if run_records is None else run_records
+    return buffer_metrics(buffer_parts(records, inputs, config), config, release_skips(everything))
+
+
+def _chains(records: Any, inputs: Any, config: Any, clock: ClockOffsets = NO_OFFSETS) -> list[ChainMetrics]:
+    """The chain table of a window of `records`."""
+    return chain_metrics(ChainRecords.of(records, inputs, config, measured(records, config)), config, clock)
+
+
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
 T0 = 1_000 * MS  # host clock
 TRUE_US = [100, 200, 300, 400]  # b_out's true transport latency, B (DPU 1) -> C (DPU 2), per cycle
 
@@ -101,7 +123,7 @@ def test_loss_separates_superseded_from_lost() -> None:
     recs = [Rec(2, k, k, k * 20 * MS, k * 20 * MS, inputs=[(1, *s)]) for k, s in enumerate(seen)]
     writer = [Rec(1, k, k, k * 10 * MS, k * 10 * MS) for k in range(10)]
     run = decode_run([t.encode() for t in batches(1, writer, 4) + batches(2, recs, 4)], RUN_ID)
-    b_out = next(b for b in buffer_metrics(run.records, run.inputs, config) if b.buffer == "b_out")
+    b_out = next(b for b in _buffers(run.records, run.inputs, config) if b.buffer == "b_out")
     (c,) = b_out.readers
     # Measured cycles 1..5: new 3, dropped 1 + 2 + 3 = 6, received 2 + 1 + 4 = 7:
     # superseded = 7 - 3 = 4 (seq 1; 6, 7, 8), lost = 6 - 4 = 2 (seqs 3 and 4 never came).
@@ -119,7 +141,7 @@ def test_a_sequence_its_writer_never_sent_is_not_lost() -> None:
     writer = [Rec(1, k, k, k * 10 * MS, k * 10 * MS, flags=FLAG_RELEASE_SKIPPED if k in (3, 7) else 0)
               for k in range(10)]
     run = decode_run([t.encode() for t in batches(1, writer, 4) + batches(2, recs, 4)], RUN_ID)
-    b_out = next(b for b in buffer_metrics(run.records, run.inputs, config) if b.buffer == "b_out")
+    b_out = next(b for b in _buffers(run.records, run.inputs, config) if b.buffer == "b_out")
     (c,) = b_out.readers
     # Measured cycles 1..3 dropped 1 + 2 + 3 = 6 (seqs 1; 3, 4; 6, 7, 8): 3 and 7 were never
     # sent, 1, 6 and 8 were received and superseded (6 received, 3 new), and 4 was lost.
@@ -128,9 +150,9 @@ def test_a_sequence_its_writer_never_sent_is_not_lost() -> None:
     # A window after a live switch holds no record of releases skipped before it: the run's do.
     window = run.records.copy()
     window["flags"] &= ~FLAG_RELEASE_SKIPPED
-    alone = next(b for b in buffer_metrics(window, run.inputs, config) if b.buffer == "b_out")
+    alone = next(b for b in _buffers(window, run.inputs, config) if b.buffer == "b_out")
     assert (alone.readers[0].unpublished, alone.lost) == (0, 3)
-    whole = buffer_metrics(window, run.inputs, config, run_records=run.records)
+    whole = _buffers(window, run.inputs, config, run_records=run.records)
     assert next(b for b in whole if b.buffer == "b_out").lost == 1
 
 
@@ -161,7 +183,7 @@ def test_chain_latency_follows_the_lineage_back_to_the_head() -> None:
     config.nchains, config.chains = 1, [chain("A-B-C", [0, 1, 2])]
     dpu1, dpu2 = _lineage_run(c_ahead_ns=5 * MS)
     run = decode_run([t.encode() for t in batches(1, dpu1, 5) + batches(2, dpu2, 5)], RUN_ID)
-    (m,) = chain_metrics(run.records, run.inputs, config, ClockOffsets([(2, 0, 5 * MS)]))
+    (m,) = _chains(run.records, run.inputs, config, ClockOffsets([(2, 0, 5 * MS)]))
     assert (m.name, m.processes, m.buffers) == ("A-B-C", ["A", "B", "C"], ["a_out", "b_out"])
     # C0 carries A0; C1 A0 again (not a first arrival); C2 A3; C3 is stale; C4 A4;
     # C5's B cycle 9 is not in the log: broken.
@@ -174,7 +196,7 @@ def test_chain_latency_follows_the_lineage_back_to_the_head() -> None:
     assert m.latency_us.p50 == pytest.approx(21_300.0) and m.latency_us.max == pytest.approx(51_100.0)
     assert m.latency_us.p99 == pytest.approx(21_300 + 0.98 * 29_800)
     # Without the offset estimate C's clock is 5 ms ahead and so is every sample.
-    (raw,) = chain_metrics(run.records, run.inputs, config)
+    (raw,) = _chains(run.records, run.inputs, config)
     assert raw.series is not None
     assert (raw.series.latency_ns / 1000).tolist() == [x + 5000 for x in expected_us]
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from fractions import Fraction
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -11,12 +12,16 @@ from analysis_synth import MS, RUN_ID, US, Rec, batches, small_config, small_run
 
 import skelmsg
 from skeleton.analysis.measure.faults import (
+    Fault,
     behind_faults,
+    behind_runs,
     dpu_lost_faults,
+    first_release_ns,
     heartbeats_from_status,
     jam_faults,
     lockout_faults,
     lockouts_from_status,
+    stall_events,
     stall_faults,
 )
 from skeleton.analysis.measure.metrics import (
@@ -29,7 +34,23 @@ from skeleton.analysis.measure.metrics import (
     unstalled_ns,
 )
 from skeleton.analysis.measure.tally import GenerationTally
+from skeleton.analysis.measure.windows import run_stalls
 from skeleton.analysis.read.records import RECORD_DTYPE, RunRecords, decode_run, lost_batches
+
+
+def _lost(config: Any, records: np.ndarray, *args: Any, **kwargs: Any) -> list[Fault]:
+    """dpu_lost_faults of a run whose records are `records`."""
+    return dpu_lost_faults(config, args[0], args[1], first_release_ns(records), *args[2:], **kwargs)
+
+
+def _stalls(records: np.ndarray, config: Any) -> list[Fault]:
+    """The stall faults of a run whose records are `records`."""
+    return stall_faults(stall_events(records, config), config, first_release_ns(records))
+
+
+def _behind(records: np.ndarray, config: Any) -> list[Fault]:
+    """The behind faults of a run whose records are `records`."""
+    return behind_faults(behind_runs(records, config), config, run_stalls(records))
 
 
 def _run(dpu1: list[Rec], dpu2: list[Rec], size: int = 4) -> RunRecords:
@@ -337,7 +358,7 @@ def test_dpu_lost_when_its_heartbeats_stop_not_when_its_timing_does() -> None:
              + _beats(1, 4.2, 5, state=skelmsg.status_t.STATE_READY))
     # In the order a log gives them: each DPU's batch of statuses, not by time. DPUs 1 and 3
     # ran to the end and sent their report_t.
-    faults = dpu_lost_faults(config, records, heartbeats_from_status(beats), RUN_ID, reported={1, 3})
+    faults = _lost(config, records, heartbeats_from_status(beats), RUN_ID, reported={1, 3})
     assert [(f.kind, f.dpu) for f in faults] == [("dpu_lost", 2), ("dpu_lost", 4)], faults
     assert "not heard for 2.60 s from 1.40 s into the run" in faults[0].detail
     assert "restarted during the run (pid 100, then 101)" in faults[1].detail
@@ -346,16 +367,16 @@ def test_dpu_lost_when_its_heartbeats_stop_not_when_its_timing_does() -> None:
     # heartbeat heard (ARMED: here half a second before that release).
     for heard_us, s in beats:
         s.mono_ns = heard_us * 1000 - 500 * MS
-    faults = dpu_lost_faults(config, records, heartbeats_from_status(beats), RUN_ID, reported={1, 3})
+    faults = _lost(config, records, heartbeats_from_status(beats), RUN_ID, reported={1, 3})
     assert "not heard for 2.60 s from 0.90 s into the run" in faults[0].detail, faults[0]
     assert faults[0].at_s == pytest.approx(0.9)
     # The logger stalled from 1 s to 3.5 s: it heard nobody then, so nobody who reported the
     # run is lost for it.
     stalled = [(t, s) for t, s in beats if not 1_000_000 < t < 3_500_000 and s.dpu != 4]
-    assert dpu_lost_faults(config, records, heartbeats_from_status(stalled), RUN_ID, reported={1, 2, 3}) == []
+    assert _lost(config, records, heartbeats_from_status(stalled), RUN_ID, reported={1, 2, 3}) == []
     # Heartbeats of another run, or none at all: only a DPU with no timing record is lost.
     no_times = heartbeats_from_status([(None, _status(1, state=3)), (None, _status(3, state=3))])
-    assert [f.dpu for f in dpu_lost_faults(config, _spans({1: [0, 9]}), no_times, RUN_ID)] == [2, 4]
+    assert [f.dpu for f in _lost(config, _spans({1: [0, 9]}), no_times, RUN_ID)] == [2, 4]
 
 
 
@@ -369,15 +390,15 @@ def test_dpu_lost_shortly_before_the_runs_end_when_it_sent_no_report() -> None:
     # DPU 2 dies at 2.6 s; DPU 3 is restarted after the run (a new pid, no report for it)
     beats = (_beats(1, 0, 4) + _beats(2, 0, 2.6) + _beats(3, 0, 4)
              + _beats(1, 4.2, 9, state=ready) + _beats(3, 4.8, 9, pid=101, state=ready))
-    faults = dpu_lost_faults(config, records, heartbeats_from_status(beats), RUN_ID, reported={1})
+    faults = _lost(config, records, heartbeats_from_status(beats), RUN_ID, reported={1})
     assert [f.dpu for f in faults] == [2, 3], faults
     assert faults[0].detail.startswith("not heard for 1.40 s from 2.60 s into the run, to its end and after")
     assert "restarted at the run's end with no end-of-run report (pid 100, then 101)" in faults[1].detail
     # Its report_t: it finished the run, whatever came after (stopped, restarted)
-    assert dpu_lost_faults(config, records, heartbeats_from_status(beats), RUN_ID, reported={1, 2, 3}) == []
+    assert _lost(config, records, heartbeats_from_status(beats), RUN_ID, reported={1, 2, 3}) == []
     # A DPU that reported nothing but heartbeats on after the run (its report_t lost) is not lost
     alive = beats + _beats(2, 2.7, 9, state=ready)
-    assert [f.dpu for f in dpu_lost_faults(config, records, heartbeats_from_status(alive), RUN_ID,
+    assert [f.dpu for f in _lost(config, records, heartbeats_from_status(alive), RUN_ID,
                                            reported={1, 3})] == []
 
 
@@ -411,7 +432,7 @@ def test_one_stall_of_a_host_is_one_fault_wherever_in_their_cycles_its_dpus_saw_
     dpu2["start_ns"][1] = dpu1["start_ns"][2]
     # a wake-up's stall is also the executive's debt when its frame starts
     dpu1["debt_ns"][2] = dpu2["debt_ns"][1] = 80 * MS
-    stalls = stall_faults(np.concatenate([dpu1, dpu2]), small_config())
+    stalls = _stalls(np.concatenate([dpu1, dpu2]), small_config())
     assert [(f.dpus, round(f.duration_ms)) for f in stalls] == [([1, 2], 80)]
     assert stalls[0].at_s == pytest.approx(0.020)
 
@@ -426,11 +447,11 @@ def test_a_stall_is_dated_where_its_record_shows_it_was() -> None:
     dpu1["preempted_ns"][5] = 300 * MS  # a computation's stall is also its preempted time
     dpu2 = _cycles(2, 2, 20, [0.0, 0.0, 0.0, 292.0] + [0.0] * 16, {3: 292.0})
     dpu2["debt_ns"][3] = 292 * MS  # a wake-up's stall: the frame's debt starts from it
-    (stall,) = stall_faults(np.concatenate([dpu1, dpu2]), small_config())
+    (stall,) = _stalls(np.concatenate([dpu1, dpu2]), small_config())
     assert (stall.dpus, stall.at_s, stall.duration_ms) == ([1, 2], pytest.approx(0.050), 300.0), stall
-    (alone,) = stall_faults(dpu1, small_config())
+    (alone,) = _stalls(dpu1, small_config())
     assert alone.at_s == pytest.approx(0.050), alone
-    (woke,) = stall_faults(dpu2, small_config())
+    (woke,) = _stalls(dpu2, small_config())
     assert woke.at_s == pytest.approx(0.060), woke
     # The tasking executive keeps no debt: what preempted_ns does not hold, as far as the
     # job started late, was before its start.
@@ -438,9 +459,9 @@ def test_a_stall_is_dated_where_its_record_shows_it_was() -> None:
     for d in tasking.dpus:
         d.executive = skelmsg.dpu_t.EXECUTIVE_THREADS
     dpu2["debt_ns"][3] = 0
-    (woke,) = stall_faults(dpu2, tasking)
+    (woke,) = _stalls(dpu2, tasking)
     assert woke.at_s == pytest.approx(0.060), woke
-    (alone,) = stall_faults(dpu1, tasking)
+    (alone,) = _stalls(dpu1, tasking)
     assert alone.at_s == pytest.approx(0.050), alone
 
 
@@ -452,7 +473,7 @@ def test_a_dpu_behind_from_a_stall_in_its_warm_up_is_the_platform_not_the_design
     config = small_config(warmup_cycles=20)
     config.processes = [p for p in config.processes if p.dpu == 1][:1]
     config.nprocesses = 1
-    faults = behind_faults(_cycles(1, 0, 10, late, {1: 80.0}), config)
+    faults = _behind(_cycles(1, 0, 10, late, {1: 80.0}), config)
     assert len(faults) == 1 and not faults[0].fatal, faults
     assert faults[0].at_s == pytest.approx(0.010) and "kept from running for 80.0 ms" in faults[0].detail
 
@@ -462,7 +483,7 @@ def test_a_dpu_behind_only_in_its_warm_up_is_no_fault() -> None:
     config = small_config(warmup_cycles=20)
     config.processes = [p for p in config.processes if p.dpu == 1][:1]
     config.nprocesses = 1
-    assert behind_faults(_cycles(1, 0, 10, late, {1: 80.0}), config) == []
+    assert _behind(_cycles(1, 0, 10, late, {1: 80.0}), config) == []
 
 
 @pytest.mark.parametrize("seed", range(5))

@@ -26,10 +26,11 @@ from conftest import short_servo_run
 from rich.console import Console
 
 import skelmsg
-from skeleton.analysis.measure.run import IMPOSSIBLE, load_run
+from skeleton.analysis.measure.run import IMPOSSIBLE, RunAnalysis, analyze_log, load_run
 from skeleton.analysis.measure.stopped import Stopped, stopped_early
 from skeleton.analysis.measure.tally import RunTally
 from skeleton.analysis.read import parallel
+from skeleton.analysis.read.messages import open_run_log
 from skeleton.analysis.views import plots
 from skeleton.analysis.views.parquet import write_parquet
 from skeleton.analysis.views.report import report_command
@@ -363,6 +364,43 @@ def test_a_window_built_side_by_side_reports_what_one_built_alone_does(
     side_by_side = load_run(tmp_path / "run.lcm").report.to_json()
     assert sum(p["cycles"] for p in alone["processes"]) > 1000
     assert side_by_side == alone
+
+
+def _by_parts(path: Path) -> tuple[RunAnalysis, RunAnalysis]:
+    """The analysis of the log at `path` with its report made whole, and made a DPU at a time
+    (run.PART_RECORDS of 1)."""
+    whole = analyze_log(open_run_log(path), part_records=1 << 62)
+    parts = analyze_log(open_run_log(path), part_records=1)
+    assert whole.held is not None and parts.held is None  # a part's records were let go
+    return whole, parts
+
+
+def test_a_long_run_reported_a_dpu_at_a_time_reports_what_it_does_whole(tmp_path: Path) -> None:
+    """A long run's report is made a few DPUs at a time (report.run_part), each part's records
+    let go before the next are read, what crosses DPUs (buffers, chains, lockouts and jams,
+    a host's stalls, delivery) found once all parts are in: it must say what the report of
+    every record at once says, in a real SERVO run (four DPUs, chains across three of them)
+    and in runs with lockouts and a jam, a lost batch, a live switch and a stray batch."""
+    short_servo_run(tmp_path)
+    whole, parts = _by_parts(tmp_path / "run.lcm")
+    assert parts.report.to_json() == whole.report.to_json()
+    assert sum(p.cycles for p in whole.report.processes) > 1000 and whole.report.chains[0].samples > 100
+    # The views that need every record read them again.
+    assert whole.held is not None and len(parts.recorded.records) == len(whole.held.records)
+    assert parts.timing.to_pandas().equals(whole.timing.to_pandas())
+    dpu1, dpu2 = small_run()
+    b8 = next(r for r in dpu1 if r.process == 1 and r.cycle == 8)
+    b8.stall_ns = 10 * MS
+    logs = [_log(tmp_path / "jam.lcm", lockouts=True, drop_batch=1),
+            _two_generation_log(tmp_path / "switch.lcm", (dpu1, dpu2))]
+    stray = batches(1, dpu1[:2], 2, generation=2**63 - 1, first_seq=900)
+    stray_log = write_log(tmp_path / "s.lcm", [(TIMING_CHANNEL, t) for t in stray])
+    (tmp_path / "stray.lcm").write_bytes(logs[0].read_bytes() + stray_log.read_bytes())
+    for path in [*logs, tmp_path / "stray.lcm"]:
+        whole, parts = _by_parts(path)
+        assert parts.report.to_json() == whole.report.to_json(), path.name
+    kinds = {f.kind for f in _by_parts(logs[0])[1].report.faults}
+    assert {"lockout", "jam"} <= kinds, kinds
 
 
 def _command(kind: int, session: int, **fields: int | str) -> skelmsg.command_t:

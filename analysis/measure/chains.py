@@ -28,13 +28,16 @@ timing batch, or no data yet) is counted as `broken`, not as a sample.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
 
+from ..read.coltable import ColumnTable
+from ..read.records import INPUT_DTYPE, RECORD_DTYPE
 from .latency import NO_OFFSETS, ClockOffsets
-from .metrics import completed, window_mask
+from .metrics import completed
 from .stats import Histogram, LatencyUs, histogram, latency_us
 
 _CYCLE_BITS = 40  # (process, cycle) -> one int64 key; cycles stay far below 2**40
@@ -180,23 +183,69 @@ def _chain_series(
     return ChainSeries(rec["cycle"].astype(np.int64), head_cycle[keep], use, use - birth), broken
 
 
-def chain_metrics(
-    records: np.ndarray, inputs: np.ndarray, config: Any, clock: ClockOffsets = NO_OFFSETS,
-    in_window: np.ndarray | None = None,
-) -> list[ChainMetrics]:
-    """Per chain of the config, in config order (`in_window`: measured(records, config), when
-    the caller has it)."""
+# What the chains read of a record and of an input record: a window's part is kept with
+# these alone (chain_records), its other columns let go with the part.
+CHAIN_RECORD = ("process", "cycle", "start_ns", "comm_in_ns", "blocked_ns", "flags")
+CHAIN_INPUT = ("record", "process", "buffer", "seq", "sent_ns", "new")
+
+
+class ChainRecords(NamedTuple):
+    """The records of a window's chain processes and their input records on the chain buffers
+    ("record" indexes the former), with each record's measured(records, config): all that
+    chain_metrics reads. The parts of a window (some DPUs each) join into the window's."""
+
+    records: ColumnTable
+    inputs: ColumnTable
+    in_window: np.ndarray
+
+    @classmethod
+    def of(cls, records: np.ndarray, inputs: np.ndarray, config: Any, in_window: np.ndarray) -> ChainRecords:
+        processes = sorted({int(p) for chain in config.chains for p in chain.processes})
+        buffers = sorted({b for chain in config.chains for b in chain_buffers(chain, config) or []})
+        rows = np.flatnonzero(np.isin(records["process"], processes))
+        keep = np.zeros(len(records), dtype=bool)
+        keep[rows] = True
+        on = np.flatnonzero(np.isin(inputs["buffer"], buffers)) if len(rows) else np.zeros(0, np.int64)
+        on = on[keep[inputs["record"][on]]]
+        mine = inputs[on]
+        ins = {name: mine[name] for name in CHAIN_INPUT if name != "record"}
+        ins["record"] = np.searchsorted(rows, mine["record"])
+        return cls(_table(records[rows], CHAIN_RECORD), _table(ins, CHAIN_INPUT), in_window[rows])
+
+    @classmethod
+    def join(cls, parts: Sequence[ChainRecords]) -> ChainRecords:
+        if len(parts) == 1:
+            return parts[0]
+        offsets = np.cumsum([0] + [len(p.records) for p in parts[:-1]])
+        records = {name: np.concatenate([p.records[name] for p in parts]) for name in CHAIN_RECORD}
+        inputs = {name: np.concatenate([p.inputs[name] + (o if name == "record" else 0)
+                                        for p, o in zip(parts, offsets, strict=True)])
+                  for name in CHAIN_INPUT}
+        return cls(_table(records, CHAIN_RECORD), _table(inputs, CHAIN_INPUT),
+                   np.concatenate([p.in_window for p in parts]))
+
+
+def _table(columns: Any, names: Sequence[str]) -> ColumnTable:
+    """A table of `names` alone, their values held (not views of a larger table's)."""
+    dtype = np.dtype([(name, (RECORD_DTYPE if name in RECORD_DTYPE.names else INPUT_DTYPE)[name])
+                      for name in names])  # fmt: skip
+    return ColumnTable.of({name: np.ascontiguousarray(columns[name]) for name in names}, dtype)
+
+
+def chain_metrics(run: ChainRecords, config: Any, clock: ClockOffsets = NO_OFFSETS) -> list[ChainMetrics]:
+    """Per chain of the config, in config order, from a window's ChainRecords."""
     names = {p.id: p.name for p in config.processes}
     buffers = {b.id: b.name for b in config.buffers}
+    records, inputs = run.records, run.inputs
     out = []
-    run = None
+    look = None
     if config.chains and len(inputs):
-        run = _Run.of(records, inputs, config, window_mask(records, config, in_window))
+        look = _Run.of(records, inputs, config, run.in_window)
     for chain in config.chains:
-        if run is None:
+        if look is None:
             series, broken = _empty_series(), 0
         else:
-            series, broken = _chain_series(records, inputs, config, chain, clock, run)
+            series, broken = _chain_series(records, inputs, config, chain, clock, look)
         lat_us = series.latency_ns.astype(np.float64) / 1000.0
         steps = chain_buffers(chain, config) or []
         out.append(

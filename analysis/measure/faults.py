@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -397,8 +397,8 @@ LOG_SILENT_US = 400_000
 _IN_RUN = (skelmsg.status_t.STATE_ARMED, skelmsg.status_t.STATE_RUNNING)
 
 
-def dpu_lost_faults(config: Any, records: np.ndarray, beats: Heartbeats, run_id: int,
-                    origin: Mapping[int, int] | None = None, reported: Collection[int] = ()) -> list[Fault]:
+def dpu_lost_faults(config: Any, beats: Heartbeats, run_id: int, origin: Mapping[int, int],
+                    reported: Collection[int] = ()) -> list[Fault]:
     """A DPU is lost when its heartbeats stopped during the run: a silence of more than
     LOST_GAP_US while the log heard other DPUs, or a new daemon (pid) answering for it,
     between the run's first heartbeat and the last one of a DPU still running it (one
@@ -409,10 +409,9 @@ def dpu_lost_faults(config: Any, records: np.ndarray, beats: Heartbeats, run_id:
     A DPU that sent no end-of-run report (`reported`: the DPUs whose report_t for the run
     the log holds) is silent up to its next heartbeat after the run, or the log's last
     one: a DPU that died shortly before the run's end is lost too.
-    `origin`: first_release_ns(records), when the caller has it."""
+    `origin`: first_release_ns of the run's records (the DPUs with records)."""
     dpus = sorted({int(p.dpu) for p in config.processes})
-    origin = first_release_ns(records) if origin is None else origin
-    timed = set(origin)  # the DPUs with records
+    timed = set(origin)
     heard = beats.known
     run = heard & (beats.run_id == run_id)
     if not run.any():
@@ -529,29 +528,43 @@ def stall_threshold_ns(config: Any, dpu: int) -> int:
     return max(1_000_000, minor_us * 1000 * config.late_pct // 100)
 
 
-def stall_faults(records: np.ndarray, config: Any, origin: Mapping[int, int] | None = None) -> list[Fault]:
-    """Stalls: cycles whose DPU thread was kept from running (late wake-ups, gaps, preemption:
-    timing_t.stall_ns) beyond stall_threshold_ns. The stalls of one host's DPUs that overlap
-    in time are one fault naming the host, when and how long: the platform, not the design.
-    `origin`: first_release_ns of the whole run, when `records` are one generation's window."""
-    hosts = {d.id: d.host for d in config.dpus}
-    t0 = min((origin if origin is not None else first_release_ns(records)).values(), default=0)
-    # Host -> (where the stall may have begun, where its cycle's work ended, duration, DPU),
-    # on the run's clock.
-    events: dict[str, list[tuple[int, int, int, int]]] = {}
+# A stall fault's cycle: (DPU, where the stall may have begun, where its cycle's work ended,
+# the stall), on its DPU's clock. Found per part of a run (stall_events), grouped per host
+# over all of them (stall_faults): the stalls of one host's DPUs are one fault.
+STALL_EVENT = np.dtype([("dpu", "i8"), ("begin_ns", "i8"), ("end_ns", "i8"), ("stall_ns", "i8")])
+
+
+def stall_events(records: np.ndarray, config: Any) -> np.ndarray:
+    """The cycles of `records` whose DPU thread was kept from running (late wake-ups, gaps,
+    preemption: timing_t.stall_ns) beyond stall_threshold_ns, as STALL_EVENT rows."""
     limit = per_id(records["dpu"], {d.id: stall_threshold_ns(config, d.id) for d in config.dpus})
     stall = records["stall_ns"]
     rows = np.flatnonzero((stall > 0) & (stall >= limit))
     hit = records[rows]
+    out = np.zeros(len(rows), dtype=STALL_EVENT)
+    out["dpu"], out["stall_ns"] = hit["dpu"], hit["stall_ns"]
     # the record's parts add up to where its work ended, its stalls' wall time included
-    ends = cycle_end_ns(hit)
+    out["end_ns"] = cycle_end_ns(hit)
     before = _stall_before_start(hit, first_of_frame_at(records, rows), config)
-    begins = hit["start_ns"].astype(np.int64) - before
-    columns = (hit["dpu"].tolist(), hit["stall_ns"].tolist(), begins.tolist(), ends.tolist())
+    out["begin_ns"] = hit["start_ns"].astype(np.int64) - before
+    return out
+
+
+def stall_faults(events: np.ndarray, config: Any, origin: Mapping[int, int]) -> list[Fault]:
+    """Stall faults from the stall_events of a window (of all its parts). The stalls of one
+    host's DPUs that overlap in time are one fault naming the host, when and how long: the
+    platform, not the design. `origin`: first_release_ns of the whole run."""
+    hosts = {d.id: d.host for d in config.dpus}
+    t0 = min(origin.values(), default=0)
+    # Host -> (where the stall may have begun, where its cycle's work ended, duration, DPU),
+    # on the run's clock.
+    events_of: dict[str, list[tuple[int, int, int, int]]] = {}
+    columns = (events["dpu"].tolist(), events["stall_ns"].tolist(), events["begin_ns"].tolist(),
+               events["end_ns"].tolist())
     for dpu, ns, begin, end in zip(*columns, strict=True):
-        events.setdefault(hosts.get(dpu, "?"), []).append((begin - t0, end - t0, ns, dpu))
+        events_of.setdefault(hosts.get(dpu, "?"), []).append((begin - t0, end - t0, ns, dpu))
     faults = []
-    for host, evs in sorted(events.items()):
+    for host, evs in sorted(events_of.items()):
         evs.sort()
         groups: list[list[tuple[int, int, int, int]]] = []
         group_end = 0
@@ -610,14 +623,29 @@ def _stall_before_start(hit: np.ndarray, first: np.ndarray, config: Any) -> np.n
     return np.where(cyclic == 1, cyclic_before, before)
 
 
-def behind_faults(records: np.ndarray, config: Any, in_window: np.ndarray | None = None,
-                  origin: Mapping[int, int] | None = None, clock: ClockOffsets = NO_OFFSETS) -> list[Fault]:
+class Behind(NamedTuple):
+    """A DPU behind its schedule (behind_runs): a fault once behind_faults has asked whether a
+    writer's stalls explain the data wait it is behind on (`wait`: the longest on the way, as
+    (reader, from, to) on the reader's clock; None for none)."""
+
+    dpu: int
+    at_s: float
+    duration_s: float
+    worst_ns: int
+    minor_ns: int
+    cause: str
+    fatal: bool
+    wait: tuple[int, int, int] | None
+
+
+def behind_runs(records: np.ndarray, config: Any, in_window: np.ndarray | None = None,
+                origin: Mapping[int, int] | None = None) -> list[Behind]:
     """A DPU whose minor cycles start more than a minor cycle late, BEHIND_MIN_FRAMES in a
     row or more: how far behind, since when, for how long, and why (a stall of the
     platform, an overload, a data wait or an overrun). `in_window`: measured(records, config),
-    when the caller has it; `origin`: as stall_faults'; `clock`: the DPUs' clocks, to find a
-    data wait's writer stalled on another DPU."""
-    faults = []
+    when the caller has it; `origin`: as stall_faults'. Each DPU's from its own records: a
+    part of a run holding some DPUs finds theirs."""
+    out = []
     t0 = origin if origin is not None else first_release_ns(records)
     in_window = window_mask(records, config, in_window)
     for dpu in sorted(config.dpus, key=lambda d: d.id):
@@ -642,32 +670,42 @@ def behind_faults(records: np.ndarray, config: Any, in_window: np.ndarray | None
             worst_minor = minors[first + int(np.argmax(late[first : last + 1]))]
             t_worst = int(span["release_ns"][span["minor"] == worst_minor].min())
             cause, fatal = _why_behind(mine, config, dpu.id, start, t_worst, worst)
-            if fatal and (late_data := _starved(records, config, clock, mine, start, t_worst, worst)):
-                cause, fatal = f"{cause}: {late_data}", False
-            at_s, duration_s = (start - t0[dpu.id]) / 1e9, (end - start) / 1e9
-            faults.append(Fault(
-                kind="behind", dpu=dpu.id, at_s=at_s, duration_ms=duration_s * 1e3, behind_ms=worst / 1e6,
-                fatal=fatal,
-                detail=f"DPU {dpu.id} ran up to {worst / 1e6:.1f} ms ({worst / minor_ns:.1f} minor cycles) "
-                       f"behind its schedule for {duration_s:.2f} s from {at_s:.2f} s: {cause}"))
+            out.append(Behind(dpu.id, (start - t0[dpu.id]) / 1e9, (end - start) / 1e9, worst, minor_ns, cause,
+                              fatal, _longest_wait(mine, start - worst, t_worst) if fatal else None))
+    return out
+
+
+def behind_faults(runs: Iterable[Behind], config: Any, stalls: np.ndarray,
+                  clock: ClockOffsets = NO_OFFSETS) -> list[Fault]:
+    """The behind_runs of a window as faults. One behind on a data wait is the platform's doing
+    when the writer of that wait was on a DPU kept from running for half the lateness or more
+    meanwhile (writer_stall over `stalls`: the window's records with a stall, of every DPU;
+    `clock`: the DPUs' clocks)."""
+    procs = {p.id: p for p in config.processes}
+    faults = []
+    for b in runs:
+        cause, fatal = b.cause, b.fatal
+        reader = procs.get(b.wait[0]) if b.wait is not None else None
+        if b.wait is not None and reader is not None:
+            required = [x for x, needed in zip(reader.inputs, reader.required, strict=True) if needed]
+            found = writer_stall(stalls, config, clock, reader, required, b.wait[1], b.wait[2])
+            if found is not None and 2 * found[1] >= b.worst_ns:
+                cause, fatal = f"{cause}: {_stall_words(*found)}", False
+        faults.append(Fault(
+            kind="behind", dpu=b.dpu, at_s=b.at_s, duration_ms=b.duration_s * 1e3, behind_ms=b.worst_ns / 1e6,
+            fatal=fatal,
+            detail=f"DPU {b.dpu} ran up to {b.worst_ns / 1e6:.1f} ms "
+                   f"({b.worst_ns / b.minor_ns:.1f} minor cycles) behind its schedule "
+                   f"for {b.duration_s:.2f} s from {b.at_s:.2f} s: {cause}"))
     return faults
 
 
-def _starved(records: np.ndarray, config: Any, clock: ClockOffsets, mine: np.ndarray, start: int,
-             t_worst: int, worst: int) -> str | None:
-    """Why a DPU behind waiting for data is the platform's doing, when it is: the writer of
-    the longest wait on the way (from `start` - `worst` to `t_worst`) was on a DPU kept from
-    running for half the lateness or more meanwhile (writer_stall)."""
-    way = mine[(mine["release_ns"] >= start - worst) & (mine["release_ns"] <= t_worst)]
-    procs = {p.id: p for p in config.processes}
+def _longest_wait(mine: np.ndarray, low: int, high: int) -> tuple[int, int, int] | None:
+    """(the process, low, high) of the longest data wait of `mine` released from `low` to `high`."""
+    way = mine[(mine["release_ns"] >= low) & (mine["release_ns"] <= high)]
     if not len(way) or int(way["blocked_ns"].max()) <= 0:
         return None
-    reader = procs.get(int(way["process"][np.argmax(way["blocked_ns"])]))
-    if reader is None:
-        return None
-    required = [b for b, needed in zip(reader.inputs, reader.required, strict=True) if needed]
-    found = writer_stall(records, config, clock, reader, required, start - worst, t_worst)
-    return _stall_words(*found) if found is not None and 2 * found[1] >= worst else None
+    return int(way["process"][np.argmax(way["blocked_ns"])]), low, high
 
 
 def _runs(flags: np.ndarray, min_len: int) -> list[tuple[int, int]]:
@@ -719,7 +757,45 @@ def recv_buf_needed(payload_bytes: int) -> int:
     return payload_bytes + BUFFER_HEADER_BYTES + RECV_SLACK_BYTES
 
 
-def delivery_faults(config: Any, records: np.ndarray, inputs: np.ndarray,
+@dataclass
+class Deliveries:
+    """What delivery_faults judges of a window: per process, its completed cycles (the messages
+    it published) and whether it ran; per (reader, buffer), its new inputs and the messages it
+    received. The parts of a window read DPU by DPU add up (join)."""
+
+    published: dict[int, int] = field(default_factory=dict)
+    ran: set[int] = field(default_factory=set)
+    got: dict[tuple[int, int], tuple[int, int]] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, records: np.ndarray, inputs: np.ndarray, config: Any) -> Deliveries:
+        done = records["process"][completed(records)]
+        ran = set(np.unique(records["process"]).tolist())
+        got = {}
+        for reader in config.processes:
+            if reader.id not in ran:
+                continue  # no cycle, no input record
+            mine = inputs["process"] == reader.id
+            for buffer_id in reader.inputs:
+                rows = inputs[mine & (inputs["buffer"] == buffer_id)]
+                got[(reader.id, buffer_id)] = (int(np.count_nonzero(rows["new"])),
+                                               int(rows["received"].sum()))
+        return cls(dict(zip(*np.unique(done, return_counts=True), strict=True)), ran, got)
+
+    @classmethod
+    def join(cls, parts: Iterable[Deliveries]) -> Deliveries:
+        out = cls()
+        for part in parts:
+            for proc, n in part.published.items():
+                out.published[proc] = out.published.get(proc, 0) + n
+            out.ran |= part.ran
+            for key, (new, received) in part.got.items():
+                had = out.got.get(key, (0, 0))
+                out.got[key] = (had[0] + new, had[1] + received)
+        return out
+
+
+def delivery_faults(config: Any, seen: Deliveries,
                     lockouts: dict[int, Lockout]) -> tuple[list[Fault], dict[int, Lockout]]:
     """Buffers whose writer kept publishing but that never reached a reader: not one message
     arrived. That is the machine or the network failing (a datagram larger than the reader's
@@ -727,9 +803,6 @@ def delivery_faults(config: Any, records: np.ndarray, inputs: np.ndarray,
     (buffer, writer, reader, the likely fix), and the reader's lockout waiting on that buffer is
     taken out of the lockouts. Returns the faults and the lockouts that remain."""
     names, dpus, buffers = _index(config)
-    done = records[completed(records)]
-    published = dict(zip(*np.unique(done["process"], return_counts=True), strict=True))
-    ran = set(np.unique(records["process"]).tolist())
     faults: list[Fault] = []
     kept = dict(lockouts)
     for reader in sorted(config.processes, key=lambda p: p.id):
@@ -737,13 +810,13 @@ def delivery_faults(config: Any, records: np.ndarray, inputs: np.ndarray,
             desc = buffers.get(buffer_id)
             if desc is None or desc.writer == reader.id:
                 continue
-            sent = int(published.get(desc.writer, 0))
+            sent = int(seen.published.get(desc.writer, 0))
             lock = lockouts.get(reader.id)
             waits_here = lock is not None and lock.buffer == buffer_id
-            if sent < DELIVERY_MIN_SENT or not (reader.id in ran or waits_here):
+            if sent < DELIVERY_MIN_SENT or not (reader.id in seen.ran or waits_here):
                 continue
-            rows = inputs[(inputs["process"] == reader.id) & (inputs["buffer"] == buffer_id)]
-            if np.count_nonzero(rows["new"]) or int(rows["received"].sum()):
+            new, received = seen.got.get((reader.id, buffer_id), (0, 0))
+            if new or received:
                 continue
             if waits_here:
                 del kept[reader.id]

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -145,55 +145,115 @@ def transport_latency_ns(
     return recv - sent
 
 
-def unpublished_in_gaps(rows: np.ndarray, skipped: np.ndarray) -> int:
-    """How many of the sequences the input `rows` dropped (each row's `dropped` ones just
-    before its `seq`) are among `skipped`, the sorted cycles whose release the writer skipped."""
-    gaps = rows[(rows["dropped"] > 0) & (rows["seq"] >= 0)]
+def unpublished_in_gaps(gaps: np.ndarray, skipped: np.ndarray) -> int:
+    """How many of the sequences input records dropped (each of `gaps`' rows, GAP: the `dropped`
+    ones just before its `seq`) are among `skipped`, the sorted cycles whose release the writer
+    skipped."""
     if len(gaps) == 0 or len(skipped) == 0:
         return 0
-    seq = gaps["seq"].astype(np.int64)
-    first = seq - gaps["dropped"].astype(np.int64)
+    seq = gaps["seq"]
+    first = seq - gaps["dropped"]
     return int((np.searchsorted(skipped, seq) - np.searchsorted(skipped, first)).sum())
 
 
-def buffer_metrics(
+# An input record that dropped sequences: what unpublished_in_gaps needs of it.
+GAP = np.dtype([("seq", "i8"), ("dropped", "i8")])
+# A record of a skipped release (FLAG_RELEASE_SKIPPED): its process's sequence `cycle` never sent.
+SKIP = np.dtype([("process", "i8"), ("cycle", "i8")])
+
+
+def release_skips(records: np.ndarray) -> np.ndarray:
+    """The skipped releases (SKIP rows) among `records`."""
+    hit = records[(records["flags"] & FLAG_RELEASE_SKIPPED) != 0]
+    out = np.zeros(len(hit), dtype=SKIP)
+    out["process"], out["cycle"] = hit["process"], hit["cycle"]
+    return out
+
+
+class ReaderPart(NamedTuple):
+    """One reader's inputs of one buffer, in one part of a window: what its ReaderMetrics add up."""
+
+    latency_us: np.ndarray
+    new: int
+    dropped: int
+    received: int
+    gaps: np.ndarray  # GAP rows
+
+
+@dataclass
+class BufferParts:
+    """What buffer_metrics needs of a window, from one part of it (buffer_parts) or all (join):
+    per (buffer, reader), its inputs; per process, its completed measured cycles (what a
+    writer published)."""
+
+    readers: dict[tuple[int, int], list[ReaderPart]] = field(default_factory=dict)
+    published: dict[int, int] = field(default_factory=dict)
+
+    @classmethod
+    def join(cls, parts: Iterable[BufferParts]) -> BufferParts:
+        out = cls()
+        for part in parts:
+            for key, mine in part.readers.items():
+                out.readers.setdefault(key, []).extend(mine)
+            for proc, n in part.published.items():
+                out.published[proc] = out.published.get(proc, 0) + n
+        return out
+
+
+def buffer_parts(
     records: np.ndarray, inputs: np.ndarray, config: Any, clock: ClockOffsets = NO_OFFSETS,
-    run_records: np.ndarray | None = None, in_window: np.ndarray | None = None,
-    starts: np.ndarray | None = None,
-) -> list[BufferMetrics]:
-    """Per buffer (config order by id) that has a reader, over the measured window; `inputs` in
-    their records' order, as RunRecords holds them.
-    `run_records`: the whole run's (default: `records`), where the writers' skipped releases
-    are looked up: a gap after a live switch may hold sequences skipped before it.
-    `in_window`: measured(records, config), and `starts`: the inputs' input_starts, when the
-    caller has them."""
+    in_window: np.ndarray | None = None, starts: np.ndarray | None = None,
+) -> BufferParts:
+    """The BufferParts of `records` (a window, or the part of it a few DPUs ran) and their
+    `inputs`, in their records' order, as RunRecords holds them. `in_window`: measured(records,
+    config), and `starts`: the inputs' input_starts, when the caller has them."""
     procs = {p.id: p for p in config.processes}
     # The inputs that count: those of the window's completed cycles, taken a reader at a time
     # from its cycle records, not from a sort of every input of the run by buffer and reader.
     done, by_process = rows_by_process(records, window_mask(records, config, in_window) & completed(records))
     starts = input_starts(inputs, len(records)) if starts is None else starts
     readers_inputs = _ReadersInputs(inputs, starts, done, by_process, config)
-    everything = records if run_records is None else run_records
-    skips = everything[(everything["flags"] & FLAG_RELEASE_SKIPPED) != 0]
+    out = BufferParts(published={proc: _count(rows) for proc, rows in by_process.items()})
+    for buf in sorted(config.buffers, key=lambda b: b.id):
+        writer = procs.get(buf.writer)
+        writer_dpu = writer.dpu if writer is not None else -1
+        for reader in sorted((p for p in config.processes if buf.id in p.inputs), key=lambda p: p.id):
+            if reader.id not in by_process:
+                continue  # not a cycle of it here: another part has its inputs
+            rows = readers_inputs.of(reader.id, buf.id)
+            lat_us = transport_latency_ns(rows, reader.dpu, writer_dpu, clock).astype(np.float64) / 1000.0
+            gap = rows[(rows["dropped"] > 0) & (rows["seq"] >= 0)]
+            gaps = np.zeros(len(gap), dtype=GAP)
+            gaps["seq"], gaps["dropped"] = gap["seq"], gap["dropped"]
+            new = int(np.count_nonzero(rows["new"]))
+            out.readers[(buf.id, reader.id)] = [ReaderPart(lat_us, new, int(rows["dropped"].sum()),
+                                                           int(rows["received"].sum()), gaps)]
+    return out
+
+
+def buffer_metrics(parts: BufferParts, config: Any, skips: np.ndarray) -> list[BufferMetrics]:
+    """Per buffer (config order by id) that has a reader, over the measured window whose
+    BufferParts are `parts`. `skips`: the skipped releases (release_skips) of the whole run,
+    not the window's: a gap after a live switch may hold sequences skipped before it."""
+    procs = {p.id: p for p in config.processes}
     out = []
     for buf in sorted(config.buffers, key=lambda b: b.id):
         readers = sorted((p for p in config.processes if buf.id in p.inputs), key=lambda p: p.id)
         if not readers:
             continue
         writer = procs.get(buf.writer)
-        writer_dpu = writer.dpu if writer is not None else -1
+        skipped = np.sort(skips["cycle"][skips["process"] == buf.writer])
         pooled: list[np.ndarray] = []
         reader_metrics = []
         for reader in readers:
-            rows = readers_inputs.of(reader.id, buf.id)
-            lat_us = transport_latency_ns(rows, reader.dpu, writer_dpu, clock).astype(np.float64) / 1000.0
+            mine = parts.readers.get((buf.id, reader.id), [])
+            lat_us = np.concatenate([m.latency_us for m in mine]) if mine else np.zeros(0)
             pooled.append(lat_us)
-            new = int(np.count_nonzero(rows["new"]))
-            dropped = int(rows["dropped"].sum())
-            received = int(rows["received"].sum())
+            new = sum(m.new for m in mine)
+            dropped = sum(m.dropped for m in mine)
+            received = sum(m.received for m in mine)
             superseded = max(0, received - new)
-            skipped = np.sort(skips["cycle"][skips["process"] == buf.writer])
-            unpublished = unpublished_in_gaps(rows, skipped)
+            unpublished = sum(unpublished_in_gaps(m.gaps, skipped) for m in mine)
             reader_metrics.append(
                 ReaderMetrics(
                     process=reader.name,
@@ -214,7 +274,7 @@ def buffer_metrics(
                 buffer=buf.name,
                 buffer_id=int(buf.id),
                 writer=writer.name if writer is not None else f"process {buf.writer}",
-                published=_count(by_process.get(int(buf.writer), slice(0, 0))),
+                published=parts.published.get(int(buf.writer), 0),
                 latency_us=latency_us(everything),
                 dropped=sum(r.dropped for r in reader_metrics),
                 lost=sum(r.lost for r in reader_metrics),
@@ -226,7 +286,7 @@ def buffer_metrics(
 
 class _ReadersInputs:
     """The counted inputs of one reader at a time, each buffer's picked from them. Asked for in
-    buffer id order (buffer_metrics' loop), a reader's are let go after its last buffer."""
+    buffer id order (buffer_parts' loop), a reader's are let go after its last buffer."""
 
     def __init__(self, inputs: np.ndarray, starts: np.ndarray, done: np.ndarray, by_process: dict[int, slice],
                  config: Any) -> None:  # fmt: skip

@@ -4,7 +4,7 @@ messages and timing records by `build_report`, for a log (run.py) and live views
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -12,8 +12,9 @@ import numpy as np
 
 import skelmsg
 
+from ..read.coltable import ColumnTable
 from ..read.logreader import Integrity
-from ..read.records import RunRecords
+from ..read.records import INPUT_DTYPE, RECORD_DTYPE, RunRecords
 from .chains import ChainMetrics
 from .faults import (
     Fault,
@@ -23,16 +24,19 @@ from .faults import (
     heartbeats_from_status,
     lockouts_from_status,
 )
-from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets
+from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets, release_skips
 from .metrics import DpuMetrics, ProcessMetrics
 from .predicted import Predicted
 from .stopped import Stopped, stopped_early
 from .windows import (
+    WindowPart,
     WindowReport,
-    build_window,
     earlier_ends_ns,
+    finish_window,
     measured_once,
+    run_stalls,
     split_lockouts,
+    window_part,
     window_records,
 )
 
@@ -129,6 +133,45 @@ def _window_json(window: WindowReport, extras: dict[str, dict[int, Any]]) -> dic
     return out
 
 
+@dataclass
+class RunPart:
+    """One run as the records of some of its DPUs (`dpus`) show it: their batches' counts, a
+    WindowPart per window, and what the report looks up across DPUs (their first releases,
+    stalls and skipped releases)."""
+
+    counts: RunRecords  # the part's RunRecords less its records and inputs, let go with the part
+    dpus: set[int]
+    windows: list[WindowPart]
+    origin: dict[int, int]  # faults.first_release_ns
+    stalls: np.ndarray  # windows.run_stalls
+    skips: np.ndarray  # latency.release_skips
+
+
+def run_part(run: RunRecords, configs: Sequence[Any], dpus: set[int],
+             clock: ClockOffsets = NO_OFFSETS) -> RunPart:
+    """The RunPart of `run` (the records of the DPUs `dpus`) for the windows of `configs`
+    (report_configs)."""
+    origin = first_release_ns(run.records)
+    windows: list[WindowPart] = []
+    for config in configs:
+        records, inputs = window_records(run, config.generation)
+        earlier = earlier_ends_ns([w.ends_ns for w in windows] + [{}])[-1]
+        win = measured_once(records, config)
+        windows.append(window_part(config, records, inputs, dpus, clock, win, earlier, origin))
+    # not a slice of the records: it would hold their columns
+    counts = dataclasses.replace(run, records=ColumnTable.empty(RECORD_DTYPE),
+                                 inputs=ColumnTable.empty(INPUT_DTYPE))
+    return RunPart(counts, dpus, windows, origin, run_stalls(run.records), release_skips(run.records))
+
+
+def report_configs(config: Any, generations: Collection[int], configs: Mapping[int, Any] | None) -> list[Any]:
+    """The config_t of every window of a report whose last generation is `config`'s: each earlier
+    one of `configs` (generation -> config_t) with timing records (in `generations`), in order."""
+    by_generation = {g: c for g, c in (configs or {}).items() if g in generations and g < config.generation}
+    by_generation[config.generation] = config
+    return [by_generation[g] for g in sorted(by_generation)]
+
+
 def build_report(
     config: Any,
     run: RunRecords,
@@ -149,47 +192,66 @@ def build_report(
     statuses with when they were heard (none: `statuses`, times unknown); `commands` the
     command_t with when they were heard (stopped.py)."""
     clock = clock or NO_OFFSETS
-    earlier = (configs or {}).items()
-    by_generation = {g: c for g, c in earlier if g in run.generations and g < config.generation}
-    by_generation[config.generation] = config
-    generations = sorted(by_generation)
-    parts = [window_records(run, g) for g in generations]
+    windows = report_configs(config, run.generations, configs)
+    # one part: every DPU's rows come from it
+    parts = [run_part(run, windows, {int(d.id) for c in windows for d in c.dpus}, clock)]
+    return finish_report(windows, parts, statuses, reports, integrity, malformed, clock, heartbeats, commands)
+
+
+def finish_report(
+    configs: Sequence[Any],
+    parts: Sequence[RunPart],
+    statuses: Sequence[Any] = (),
+    reports: Sequence[Any] = (),
+    integrity: Integrity | None = None,
+    malformed: dict[str, int] | None = None,
+    clock: ClockOffsets | None = None,
+    heartbeats: Heartbeats | None = None,
+    commands: Sequence[tuple[int, Any]] = (),
+) -> RunReport:
+    """The report of one run from its parts (run_part of each few DPUs, for the windows of
+    `configs`: report_configs), as build_report's arguments say."""
+    clock = clock or NO_OFFSETS
+    config = configs[-1]
+    run_id = parts[0].counts.run_id
+    generations = sorted({g for part in parts for g in part.counts.generations})
+    # A generation of the batches' headers whose records no part could decode has no window.
+    kept = [i for i, c in enumerate(configs) if c.generation in generations or c is config]
+    window_parts = [[part.windows[i] for part in parts] for i in kept]
     # A report the logger missed may have been re-sent (host/repair.py): one per DPU.
-    mine = list({r.dpu: r for r in reports if r.run_id == run.run_id}.values())
-    locks = split_lockouts(lockouts_from_status(statuses, run.run_id), [p[0] for p in parts])
+    mine = list({r.dpu: r for r in reports if r.run_id == run_id}.values())
+    firsts = [_smallest([p.first_cycles for p in wp]) for wp in window_parts]
+    locks = split_lockouts(lockouts_from_status(statuses, run_id), firsts)
     if heartbeats is None:
         heartbeats = heartbeats_from_status((None, s) for s in statuses)
     # Every window's faults say when, from the run's first release: not from their window's.
-    origin = first_release_ns(run.records)
-    lost = dpu_lost_faults(config, run.records, heartbeats, run.run_id, origin, {r.dpu for r in mine})
-    last_i = len(generations) - 1
-    # Each window's measured records: its tables' and the cross-check's.
-    masks = [measured_once(records, by_generation[g])
-             for g, (records, _) in zip(generations, parts, strict=True)]
-    ends_before = earlier_ends_ns([p[0] for p in parts])
+    origin = _smallest([part.origin for part in parts])
+    lost = dpu_lost_faults(config, heartbeats, run_id, origin, {r.dpu for r in mine})
+    stalls = np.concatenate([part.stalls for part in parts])
+    skips = np.concatenate([part.skips for part in parts])
+    last_i = len(kept) - 1
     windows = [
-        build_window(by_generation[g], records, inputs, locks[i], lost if i == last_i else (), clock,
-                     run.records, masks[i], ends_before[i], origin)
-        for i, (g, (records, inputs)) in enumerate(zip(generations, parts, strict=True))
+        finish_window(configs[k], wp, locks[i], lost if i == last_i else (), clock, stalls, skips, origin)
+        for i, (k, wp) in enumerate(zip(kept, window_parts, strict=True))
     ]
     last = windows[-1]
     modes = {d.id: COMPUTE_MODES.get(d.compute, str(d.compute)) for d in config.dpus}
     modes.update({r.dpu: COMPUTE_MODES.get(r.compute, str(r.compute)) for r in mine})
     integ = integrity or Integrity(events=0)
     return RunReport(
-        run_id=run.run_id,
+        run_id=run_id,
         system=config.system,
         generation=config.generation,
-        generations=run.generations,
+        generations=generations,
         warmup_cycles=config.warmup_cycles,
         integrity=IntegrityReport(
             events=integ.events,
             corrupt_ranges=list(integ.corrupt_ranges),
             corrupt_bytes=integ.corrupt_bytes,
             truncated_tail=integ.truncated_tail,
-            lost_batches=run.lost_batches,
+            lost_batches=sorted((b for p in parts for b in p.counts.lost_batches), key=lambda b: b["dpu"]),
             malformed={k: v for k, v in sorted((malformed or {}).items()) if v},
-            duplicate_batches=run.duplicates,
+            duplicate_batches=sum(part.counts.duplicates for part in parts),
             signed=integ.signed,
             checked=integ.checked,
             unauthenticated=integ.unauthenticated,
@@ -199,38 +261,41 @@ def build_report(
         faults=last.faults,
         compute_modes=modes,
         work_drift_pct={r.dpu: r.work_drift_pct for r in mine if r.compute == skelmsg.dpu_t.COMPUTE_WORK},
-        cross_check=_cross_check([p[0] for p in parts], masks, mine),
+        cross_check=_cross_check(window_parts, mine),
         not_faithful=sorted(r.dpu for r in mine if r.faults & skelmsg.status_t.FAULT_NOT_FAITHFUL),
         buffers=last.buffers,
         chains=last.chains,
         windows=windows,
         clock_offsets=clock.latest(),
-        stopped=stopped_early(commands, run.run_id),
+        stopped=stopped_early(commands, run_id),
     )
 
 
-def _cross_check(windows: Sequence[np.ndarray], measured: Sequence[np.ndarray],
-                 reports: Sequence[Any]) -> list[dict[str, Any]]:
+def _smallest(values: Iterable[Mapping[int, int]]) -> dict[int, int]:
+    """Per key of any of `values`, the smallest value it has in them."""
+    out: dict[int, int] = {}
+    for mapping in values:
+        for key, value in mapping.items():
+            out[key] = min(value, out.get(key, value))
+    return out
+
+
+def _cross_check(windows: Sequence[Sequence[WindowPart]], reports: Sequence[Any]) -> list[dict[str, Any]]:
     """The DPU's own running sums (report_t) beside ours over the measured records of every
-    window (`measured`: each one's mask): they should agree. A DPU sums from its run's window
+    window (its parts' sums_ns): they should agree. A DPU sums from its run's window
     on, across live switches (its warm-up is once a run), so ours add up every generation's.
     They differ when a push changed warmup_cycles or a DPU's longest period during the run: a
     window opens by its own config (metrics.window_start_ns), the DPU's by its first one."""
     out = []
     for rep in sorted(reports, key=lambda r: r.dpu):
-        mine = [(records, mask & (records["dpu"] == rep.dpu)) for records, mask in zip(windows, measured,
-                                                                                        strict=True)]
+        sums = [part.sums_ns.get(rep.dpu, (0, 0, 0)) for parts in windows for part in parts]
+        ours = [sum(s[k] for s in sums) / 1e6 for k in range(3)]
         out.append(
             {
                 "dpu": rep.dpu,
-                "compute_ms": [rep.compute_ns / 1e6, _sum_ms(mine, "compute_ns")],
-                "communicate_ms": [rep.communicate_ns / 1e6, _sum_ms(mine, "comm_in_ns", "comm_out_ns")],
-                "wait_ms": [rep.wait_ns / 1e6, _sum_ms(mine, "blocked_ns", "idle_ns")],
+                "compute_ms": [rep.compute_ns / 1e6, ours[0]],
+                "communicate_ms": [rep.communicate_ns / 1e6, ours[1]],
+                "wait_ms": [rep.wait_ns / 1e6, ours[2]],
             }
         )
     return out
-
-
-def _sum_ms(rows: Sequence[tuple[np.ndarray, np.ndarray]], *fields: str) -> float:
-    """The sum of `fields` over the (records, mask) pairs, in ms."""
-    return sum(int(records[f].sum(where=mask)) for records, mask in rows for f in fields) / 1e6

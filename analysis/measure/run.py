@@ -16,7 +16,7 @@ min(logged utime - latest start) bounds the offset from above (by the batching d
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -34,7 +34,7 @@ from .columns import Table, faults_table, process_names, receptions_table, repor
 from .faults import heartbeats_from_status
 from .latency import ClockOffsets
 from .predicted import Predictor, beside
-from .report import RunReport, build_report
+from .report import RunReport, finish_report, report_configs, run_part
 from .windows import window_records
 
 NO_CONFIG = f"{TIMING_CHANNEL} (no config for its generation)"
@@ -45,17 +45,28 @@ class RunAnalysis:
     """A run as read from its log: see the module comment."""
 
     log: Log
-    recorded: RunRecords  # every generation of the run
     heads: Heads  # the header of every timing batch in the log (records.timing_heads)
     messages: Messages
     report: RunReport
     clock: ClockOffsets  # DPU clock -> host clock (SKEL_CLOCK estimates), as the report uses
     utc_offset_ns: dict[int, int] = field(default_factory=dict)  # dpu -> utc_ns - mono_ns
+    # every generation of the run (`recorded`); None when the report was made a few DPUs at a time
+    held: RunRecords | None = field(default=None, repr=False)
     _windows: dict[int, tuple[Any, Any]] = field(default_factory=dict, init=False, repr=False)
 
     @property
     def path(self) -> str:
         return self.log.path
+
+    @property
+    def recorded(self) -> RunRecords:
+        """Every timing record of the run (every generation). A long run's report is made a few
+        DPUs at a time (PART_RECORDS), holding no more than theirs: its records are read again
+        here, for the views that need every one of them (export, the timing table, plots)."""
+        if self.held is None:
+            run_id = self.report.run_id
+            self.held = load_records(self.log, run_id, published_batches(self.log, run_id), self.heads)
+        return self.held
 
     @property
     def config(self) -> Any:
@@ -165,7 +176,13 @@ def load_run(path: str | os.PathLike[str], run_id: int | None = None,
     return analyze_log(open_run_log(path), run_id, key)
 
 
-def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None) -> RunAnalysis:
+# A run of more records than this is reported a few DPUs at a time, each part's records let go
+# before the next's are read (report.run_part): 10^7 records held at once took 4 GB.
+PART_RECORDS = 1 << 22
+
+
+def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None,
+                part_records: int = PART_RECORDS) -> RunAnalysis:
     if log.size == 0:
         raise LogError("empty file")
     if len(log) == 0:
@@ -184,44 +201,73 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None) -
         raise LogError(f"no timing records for run {run_id} (runs in this log: {', '.join(map(str, runs))})")
     # The generations are known from the batches' headers, before any record is decoded.
     ok, head = heads
-    generations = set(head["generation"][ok & (head["run_id"] == run_id)].tolist())
+    in_run = ok & (head["run_id"] == run_id)
+    generations = set(head["generation"][in_run].tolist())
+    expected = published_batches(log, run_id)
+    groups = dpu_groups(head["dpu"][in_run], head["n"][in_run], expected, part_records)
     # The statuses decode one by one in Python, the records in numpy calls that release the
     # GIL: side by side, the one hides behind the other on a run of millions of records.
     with ThreadPoolExecutor(1) as pool:
         pending = pool.submit(read_messages, log, generations)
-        recorded = load_records(log, run_id, expected_batches=published_batches(log, run_id), heads=heads)
+        first = load_records(log, run_id, expected, heads, None if len(groups) == 1 else groups[0])
         messages = pending.result()
-    log.release()  # every message needed is decoded: the log's pages are given back (Log.release)
-    malformed = {TIMING_CHANNEL: recorded.malformed, IMPOSSIBLE: recorded.impossible, **messages.malformed}
-    configs = {g: c for g, c in messages.configs.items() if g in recorded.generations}
-    for g in recorded.generations:
-        if g not in configs:
-            # A window without its config cannot be named (a stray batch, or the config was
-            # never logged): only the others are reported, and the stray ones are counted.
-            unnamed = int((recorded.records["generation"] == g).sum())
-            malformed[NO_CONFIG] = malformed.get(NO_CONFIG, 0) + unnamed
-    if not configs:
-        raise LogError(f"no config_t (channel {CONFIG_CHANNEL}) for generation {max(recorded.generations)}: "
+    candidates = sorted(g for g in generations if g in messages.configs)
+    if not candidates:
+        raise LogError(f"no config_t (channel {CONFIG_CHANNEL}) for generation {max(generations)}: "
                        "cannot name anything")
-    last = max(configs)
+    configs = {g: messages.configs[g] for g in candidates}
+    windows = report_configs(configs[candidates[-1]], candidates, configs)
     clock = ClockOffsets.from_messages(messages.clock_offsets)
     statuses = [s for _, s in messages.statuses]
-    report = build_report(configs[last], recorded, statuses, messages.reports, log.integrity, malformed,
-                          {g: c for g, c in configs.items() if g != last}, clock,
-                          heartbeats_from_status(messages.statuses), messages.commands)
-    return RunAnalysis(log=log, recorded=recorded, heads=heads, messages=messages, report=report, clock=clock,
-                       utc_offset_ns=utc_offsets(log, recorded, statuses, heads))
+    offsets = status_offsets(statuses)
+    parts, unnamed = [], 0
+    for i, dpus in enumerate(groups):
+        run = first if i == 0 else load_records(log, run_id, expected, heads, dpus)
+        parts.append(run_part(run, windows, set(dpus), clock))
+        if generations - set(candidates):
+            unnamed += int(np.count_nonzero(~np.isin(run.records["generation"], candidates)))
+        timed = set(np.unique(run.records["dpu"]).tolist())
+        offsets.update(_offsets_from_batches(log, run, timed - set(offsets), heads))
+        if len(groups) > 1:
+            first = run = None  # a part's records are let go before the next one's are read
+    log.release()  # every message needed is decoded: the log's pages are given back (Log.release)
+    # a part does not count the batches whose header could not be read: whose DPU is unknown
+    headless = 0 if len(groups) == 1 else int(np.count_nonzero(~ok))
+    malformed = {TIMING_CHANNEL: sum(p.counts.malformed for p in parts) + headless,
+                 IMPOSSIBLE: sum(p.counts.impossible for p in parts), **messages.malformed}
+    if unnamed:
+        # A window without its config cannot be named (a stray batch, or the config was
+        # never logged): only the others are reported, and the stray ones are counted.
+        malformed[NO_CONFIG] = unnamed
+    report = finish_report(windows, parts, statuses, messages.reports, log.integrity, malformed, clock,
+                           heartbeats_from_status(messages.statuses), messages.commands)
+    return RunAnalysis(log=log, heads=heads, messages=messages, report=report, clock=clock,
+                       utc_offset_ns=offsets, held=first)
 
 
-def utc_offsets(log: Log, run: RunRecords, statuses: list[Any], heads: Heads) -> dict[int, int]:
-    """dpu -> utc_ns - mono_ns, for every DPU with records (see the module comment)."""
+def dpu_groups(dpu: np.ndarray, count: np.ndarray, expected: Mapping[int, int], most: int) -> list[list[int]]:
+    """The run's DPUs (`dpu`, `count`: each batch's DPU and record count; `expected`: the DPUs of
+    its reports) in groups of consecutive ids of at most `most` records each, as far as one
+    DPU's records allow: the parts a run's report is made of, one at a time. One group for a run
+    of `most` records or fewer."""
+    ids = sorted(set(np.unique(dpu).tolist()) | set(expected))
+    totals = np.bincount(np.searchsorted(ids, dpu), weights=count, minlength=len(ids)) if len(ids) else []
+    groups: list[list[int]] = [[]]
+    held = 0
+    for d, n in zip(ids, np.asarray(totals, dtype=np.int64).tolist(), strict=True):
+        if groups[-1] and held + n > most:
+            groups.append([])
+            held = 0
+        groups[-1].append(d)
+        held += n
+    return groups
+
+
+def status_offsets(statuses: list[Any]) -> dict[int, int]:
+    """dpu -> utc_ns - mono_ns from the statuses (see the module comment)."""
     dpu, mono, utc = int_columns(statuses, "dpu", "mono_ns", "utc_ns")
     both = (mono > 0) & (utc > 0)
-    offsets = {d: int(np.median((utc - mono)[both & (dpu == d)])) for d in np.unique(dpu[both]).tolist()}
-    missing = set(np.unique(run.records["dpu"]).tolist()) - set(offsets)
-    if missing:
-        offsets.update(_offsets_from_batches(log, run, missing, heads))
-    return offsets
+    return {d: int(np.median((utc - mono)[both & (dpu == d)])) for d in np.unique(dpu[both]).tolist()}
 
 
 def _offsets_from_batches(log: Log, run: RunRecords, dpus: set[int], heads: Heads) -> dict[int, int]:

@@ -4,6 +4,13 @@ When the config changes mid-run (a live `skel push`), every timing record carrie
 the generation its cycle ran under, and the log holds every generation's config_t:
 each window is measured with its own config (its own processes, periods,
 allocation), so a table never mixes two systems.
+
+A window is measured in parts, each from the records of some of its DPUs (window_part),
+then finished from all of them (finish_window): a long run's log is read a few DPUs at a
+time, so that no more than their records are held at once. A DPU's rows, and each
+process's, come whole from the part of its DPU; what crosses DPUs (a buffer's writer and
+readers, a chain, a lockout's writer, a host's stalls) is kept by each part in what it
+needs alone, and found once all parts are in.
 """
 
 from __future__ import annotations
@@ -16,31 +23,36 @@ import numpy as np
 
 from ..read.parallel import map_threads
 from ..read.records import RunRecords, input_starts, select
-from .chains import ChainMetrics, chain_metrics
+from .chains import ChainMetrics, ChainRecords, chain_metrics
 from .faults import (
+    Behind,
+    Deliveries,
     Fault,
     Lockout,
     behind_faults,
+    behind_runs,
     delivery_faults,
-    first_release_ns,
     jam_faults,
     lockout_faults,
     lockouts_from_records,
     overrun_faults,
     skipping_faults,
+    stall_events,
     stall_faults,
     stalled_writers,
 )
-from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets, buffer_metrics
+from .latency import NO_OFFSETS, SKIP, BufferMetrics, BufferParts, ClockOffsets, buffer_metrics, buffer_parts
 from .metrics import (
     DpuMetrics,
     ProcessMetrics,
     dpu_metrics,
     measured,
     process_metrics,
+    smallest_per_dpu,
     warmup_end_ns,
     work_end_ns,
 )
+from .stats import group_slices
 
 
 @dataclass
@@ -70,39 +82,63 @@ def window_records(run: RunRecords, generation: int) -> tuple[np.ndarray, np.nda
     return select(run.records, run.inputs, run.records["generation"] == generation)
 
 
-def _span(records: np.ndarray, in_window: np.ndarray, clock: ClockOffsets) -> tuple[int | None, int | None]:
+# A window's span on the host clock, (first release, last end): over its measured records, and
+# over all of them for a window with none measured (None, None for no record).
+Span = tuple[int | None, int | None]
+
+
+def _spans(records: np.ndarray, in_window: np.ndarray, clock: ClockOffsets) -> tuple[Span, Span]:
+    """(the span of the measured records, the span of all records)."""
     if len(records) == 0:
-        return None, None
-    mine = in_window if in_window.any() else np.ones(len(records), dtype=bool)
+        return (None, None), (None, None)
     # Over the whole columns, the measured ones picked in the reductions: gathering the
     # measured records first copied every column it read (a second of 2 at 10^7 records).
     start = clock.to_host_many(records["dpu"], records["release_ns"])
     end = clock.to_host_many(records["dpu"], work_end_ns(records))
     top = np.iinfo(np.int64)
-    return int(start.min(where=mine, initial=top.max)), int(end.max(where=mine, initial=top.min))
+
+    def span(mine: np.ndarray) -> Span:
+        if not mine.any():
+            return None, None
+        return int(start.min(where=mine, initial=top.max)), int(end.max(where=mine, initial=top.min))
+
+    return span(in_window), span(np.ones(len(records), dtype=bool))
 
 
-def build_window(
+@dataclass
+class WindowPart:
+    """One window as the records of some of its DPUs (`dpus`) show it: their rows of the DPU and
+    process tables, and what the tables across DPUs need of them (see the module comment)."""
+
+    dpus: set[int]
+    dpu_rows: list[DpuMetrics]
+    processes: list[ProcessMetrics]
+    spans: tuple[Span, Span]
+    buffers: BufferParts
+    chains: ChainRecords
+    deliveries: Deliveries
+    behind: list[Behind]
+    stalls: np.ndarray  # faults.STALL_EVENT rows
+    flagged: dict[int, Lockout]  # lockouts_from_records: what the timing records flagged
+    first_cycles: dict[int, int]  # process -> its first cycle in the window (split_lockouts)
+    sums_ns: dict[int, tuple[int, int, int]]  # DPU -> measured (compute, communicate, wait): _cross_check
+    ends_ns: dict[int, int]  # warmup_end_ns of the window's records: earlier_ends_ns
+
+
+def window_part(
     config: Any,
     records: np.ndarray,
     inputs: np.ndarray,
-    lockouts: dict[int, Lockout] | None = None,
-    lost: Sequence[Fault] = (),
+    dpus: set[int],
     clock: ClockOffsets = NO_OFFSETS,
-    run_records: np.ndarray | None = None,
     in_window: np.ndarray | None = None,
     earlier: Mapping[int, int] | None = None,
     origin: Mapping[int, int] | None = None,
-) -> WindowReport:
-    """Every table of one generation window. `lockouts`: the ones status_t reported in
-    this window; `lost`: the run's lost DPUs (a fact of the whole run: last window only);
-    `run_records`: every window's records (what a buffer's loss looks up across a switch);
-    `in_window`: measured(records, config), read-only, when the caller has it; `earlier`:
-    earlier_ends_ns of this window; `origin`: the run's first release per DPU (a fault's
-    at_s counts from it), default the window's own."""
-    def delivery() -> tuple[list[Fault], dict[int, Lockout]]:
-        return delivery_faults(config, records, inputs, lockouts_from_records(records, lockouts or {}))
-
+) -> WindowPart:
+    """The WindowPart of `records` (the window's records of the DPUs `dpus`) and their input
+    records. `in_window`: measured(records, config), read-only, when the caller has it;
+    `earlier`: earlier_ends_ns of this window; `origin`: the run's first release per DPU (a
+    fault's at_s counts from it), default the window's own."""
     # The tables and searches below read the same records and write nothing shared: numpy's
     # sorts, gathers and sums release the GIL, so on a run of millions of records they go
     # side by side on the machine's cores (largest first, so neither core waits at the end).
@@ -114,55 +150,143 @@ def build_window(
     starts.flags.writeable = False
     tasks: dict[str, Callable[[], Any]] = {
         "processes": lambda: process_metrics(records, inputs, config, win, starts),
-        "buffers": lambda: buffer_metrics(records, inputs, config, clock, run_records, win, starts),
-        "chains": lambda: chain_metrics(records, inputs, config, clock, win),
-        "behind": lambda: behind_faults(records, config, win, origin, clock),
+        "buffers": lambda: buffer_parts(records, inputs, config, clock, win, starts),
+        "chains": lambda: ChainRecords.of(records, inputs, config, win),
+        "behind": lambda: behind_runs(records, config, win, origin),
         "dpus": lambda: dpu_metrics(records, config, win, earlier),
-        "span": lambda: _span(records, win, clock),
-        "delivery": delivery,
-        "stalls": lambda: stall_faults(records, config, origin),
+        "spans": lambda: _spans(records, win, clock),
+        "deliveries": lambda: Deliveries.of(records, inputs, config),
+        "stalls": lambda: stall_events(records, config),
+        "sums": lambda: _sums_ns(records, win),
+        "ends": lambda: warmup_end_ns(records),
     }
     done = dict(zip(tasks, map_threads(lambda task: task(), tasks.values(), _work_bytes(records, inputs)),
                     strict=True))  # fmt: skip
-    processes = done["processes"]
-    delivered, locks = done["delivery"]
-    # a lockout's at_s counts from the run's first release, as the other faults' do
-    first = first_release_ns(records) if origin is None else origin
+    return WindowPart(
+        dpus=dpus, dpu_rows=done["dpus"], processes=done["processes"], spans=done["spans"],
+        buffers=done["buffers"], chains=done["chains"], deliveries=done["deliveries"], behind=done["behind"],
+        stalls=done["stalls"],
+        flagged=lockouts_from_records(records, {}),
+        first_cycles=smallest_per_dpu(records["process"], records["cycle"]) if len(records) else {},
+        sums_ns=done["sums"], ends_ns=done["ends"],
+    )
+
+
+def finish_window(
+    config: Any,
+    parts: Sequence[WindowPart],
+    lockouts: dict[int, Lockout] | None = None,
+    lost: Sequence[Fault] = (),
+    clock: ClockOffsets = NO_OFFSETS,
+    stalls: np.ndarray | None = None,
+    skips: np.ndarray | None = None,
+    origin: Mapping[int, int] | None = None,
+) -> WindowReport:
+    """Every table of one generation window from its parts (window_part). `lockouts`: the ones
+    status_t reported in this window; `lost`: the run's lost DPUs (a fact of the whole run: last
+    window only); `stalls`: the run's records with a stall (run_stalls: what a lockout's writer
+    and a data wait behind are looked up in); `skips`: the run's skipped releases
+    (latency.release_skips: what a buffer's loss looks up across a switch); `origin`: the run's
+    first release per DPU."""
+    stalls = np.zeros(0, dtype=STALLED) if stalls is None else stalls
+    skips = np.zeros(0, dtype=SKIP) if skips is None else skips
+    origin = origin or {}
+    processes = _rows(parts, config.processes, lambda p: p.dpu, lambda part: part.processes)
+    known = lockouts or {}
+    flagged: dict[int, Lockout] = {}
+    for part in parts:
+        for proc, lock in part.flagged.items():
+            flagged.setdefault(proc, lock)
+    # What the timing records flagged and no status_t said (lockouts_from_records' rule).
+    locks = {**known, **{proc: lock for proc, lock in sorted(flagged.items()) if proc not in known}}
+    delivered, locks = delivery_faults(config, Deliveries.join(p.deliveries for p in parts), locks)
     # what the writers' stalls explain: the whole run's records hold a writer's DPU's cycles
-    platform = stalled_writers(locks, records if run_records is None else run_records, config, clock)
-    start, end = done["span"]
+    platform = stalled_writers(locks, stalls, config, clock)
+    mine = stalls[stalls["generation"] == config.generation]
+    behind = sorted((b for part in parts for b in part.behind), key=lambda b: b.dpu)
+    spans = [part.spans for part in parts]
+    measured_any = any(s[0][0] is not None for s in spans)
+    span = [s[0] if measured_any else s[1] for s in spans]
+    starts, ends = [s[0] for s in span if s[0] is not None], [s[1] for s in span if s[1] is not None]
     return WindowReport(
         generation=int(config.generation),
-        start_ns=start,
-        end_ns=end,
-        dpus=done["dpus"],
+        start_ns=min(starts, default=None),
+        end_ns=max(ends, default=None),
+        dpus=_rows(parts, config.dpus, lambda d: d.id, lambda part: part.dpu_rows),
         processes=processes,
-        buffers=done["buffers"],
-        chains=done["chains"],
+        buffers=buffer_metrics(BufferParts.join(p.buffers for p in parts), config, skips),
+        chains=chain_metrics(ChainRecords.join([p.chains for p in parts]), config, clock),
         faults=(
             delivered
-            + lockout_faults(locks, config, first, platform)
-            + jam_faults(locks, config, first, platform)
-            + done["behind"]
+            + lockout_faults(locks, config, origin, platform)
+            + jam_faults(locks, config, origin, platform)
+            + behind_faults(behind, config, mine, clock)
             + skipping_faults(processes, config)
-            + done["stalls"]
+            + stall_faults(np.concatenate([p.stalls for p in parts]), config, origin)
             + overrun_faults(processes)
             + list(lost)
         ),
     )
 
 
-def earlier_ends_ns(windows: Sequence[np.ndarray]) -> list[dict[int, int]]:
-    """Per window (records per window, in generation order): when each DPU's work of the
+def _rows(parts: Sequence[WindowPart], described: Sequence[Any], dpu_of: Callable[[Any], int],
+          rows_of: Callable[[WindowPart], list[Any]]) -> list[Any]:
+    """A table's rows (one per `described` DPU or process, in the order the parts give them) each
+    from the part of its DPU: the first part for a DPU no part holds (its row has no record)."""
+    order = sorted(range(len(described)), key=lambda i: _id(described[i]))
+    out = list(rows_of(parts[0]))
+    for part in parts[1:]:
+        rows = rows_of(part)
+        for at, i in enumerate(order):
+            if dpu_of(described[i]) in part.dpus:
+                out[at] = rows[at]
+    return out
+
+
+def _id(desc: Any) -> int:
+    return int(desc.id)
+
+
+# A record with a stall, of any window: what a lockout's writer and a data wait behind are
+# looked up in (faults.writer_stall). Only these: a record without a stall adds nothing there.
+STALLED = np.dtype([("dpu", "i8"), ("process", "i8"), ("generation", "i8"), ("release_ns", "i8"),
+                    ("stall_ns", "i8")])
+
+
+def run_stalls(records: np.ndarray) -> np.ndarray:
+    """The records with a stall among `records` (every window's), as STALLED rows."""
+    hit = records[records["stall_ns"] > 0]
+    out = np.zeros(len(hit), dtype=STALLED)
+    for name in STALLED.names or ():
+        out[name] = hit[name]
+    return out
+
+
+def _sums_ns(records: np.ndarray, in_window: np.ndarray) -> dict[int, tuple[int, int, int]]:
+    """Per DPU with measured records, the sums of their compute, communicate and wait times
+    (what its report_t sums too: _cross_check)."""
+    rows = np.flatnonzero(in_window)
+    order, groups = group_slices(records["dpu"][rows])
+    rows = rows[order]
+    sums = {}
+    for name in ("compute_ns", "comm_in_ns", "comm_out_ns", "blocked_ns", "idle_ns"):
+        values = records[name][rows]
+        sums[name] = {dpu: int(values[at].sum()) for dpu, at in groups.items()}
+    return {dpu: (sums["compute_ns"][dpu], sums["comm_in_ns"][dpu] + sums["comm_out_ns"][dpu],
+                  sums["blocked_ns"][dpu] + sums["idle_ns"][dpu]) for dpu in groups}
+
+
+def earlier_ends_ns(ends: Sequence[Mapping[int, int]]) -> list[dict[int, int]]:
+    """Per window (each window's warmup_end_ns, in generation order): when each DPU's work of the
     windows before it ended (metrics.warmup_end_ns). A DPU behind its schedule at a live
     switch is still working on the old generation's cycles at the new one's first release:
     to the new window, that work is what warm-up work is to a run's first."""
     out: list[dict[int, int]] = [{}]
-    for records in windows[:-1]:
-        ends = dict(out[-1])
-        for dpu, end in warmup_end_ns(records).items():
-            ends[dpu] = max(end, ends.get(dpu, end))
-        out.append(ends)
+    for window in ends[:-1]:
+        before = dict(out[-1])
+        for dpu, end in window.items():
+            before[dpu] = max(end, before.get(dpu, end))
+        out.append(before)
     return out
 
 
@@ -178,15 +302,17 @@ def _work_bytes(records: np.ndarray, inputs: np.ndarray) -> int:
     return len(records) * records.dtype.itemsize + len(inputs) * inputs.dtype.itemsize
 
 
-def split_lockouts(lockouts: dict[int, Lockout], windows: Sequence[np.ndarray]) -> list[dict[int, Lockout]]:
-    """Each lockout goes to the last window (records per window, in order) in which its
-    process had run a cycle at or before the locked cycle; the last window otherwise."""
-    out: list[dict[int, Lockout]] = [{} for _ in windows]
+def split_lockouts(lockouts: dict[int, Lockout],
+                   first_cycles: Sequence[Mapping[int, int]]) -> list[dict[int, Lockout]]:
+    """Each lockout goes to the last window (each window's first cycle per process, in order)
+    in which its process had run a cycle at or before the locked cycle; the last window
+    otherwise."""
+    out: list[dict[int, Lockout]] = [{} for _ in first_cycles]
     for proc, lock in lockouts.items():
-        chosen = len(windows) - 1
-        for i in range(len(windows) - 1, -1, -1):
-            cycles = windows[i]["cycle"][windows[i]["process"] == proc]
-            if len(cycles) and int(cycles.min()) <= lock.cycle:
+        chosen = len(first_cycles) - 1
+        for i in range(len(first_cycles) - 1, -1, -1):
+            first = first_cycles[i].get(proc)
+            if first is not None and first <= lock.cycle:
                 chosen = i
                 break
         if chosen >= 0:

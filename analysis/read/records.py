@@ -7,7 +7,7 @@ Works on raw message bytes, so a log, a replay and a live subscription all use i
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass, field, replace
 from functools import partial
 
@@ -104,16 +104,16 @@ def run_ids(log: Log, heads: Heads | None = None) -> list[int]:
 
 def load_records(
     log: Log, run_id: int | None = None, expected_batches: dict[int, int] | None = None,
-    heads: Heads | None = None,
+    heads: Heads | None = None, dpus: Collection[int] | None = None,
 ) -> RunRecords:
     """The records of one run (default: the last run with timing records), straight
-    from the log's memory map."""
+    from the log's memory map; with `dpus`, those of these DPUs alone (see decode_timing)."""
     heads = heads or timing_heads(log)
     if run_id is None:
         runs = run_ids(log, heads)
         run_id = runs[-1] if runs else 0
     run = decode_timing(log.buf, *_timing_events(log), run_id=run_id, expected_batches=expected_batches,
-                        heads=heads, release=log.release)
+                        heads=heads, release=log.release, dpus=dpus)
     return without_impossible(run, robust_span(log.utime_us[log.indices(TIMING_CHANNEL)]) * 1000)
 
 
@@ -141,14 +141,23 @@ def decode_timing(
     expected_batches: dict[int, int] | None = None,
     heads: Heads | None = None,
     release: Callable[[int, int], None] | None = None,
+    dpus: Collection[int] | None = None,
 ) -> RunRecords:
     """The timing_t messages at buf[starts[i]:+lengths[i]] that belong to `run_id`.
     `expected_batches` (dpu -> batches the DPU says it published, from report_t)
     reveals batches lost at the end of a run; `heads`, when known, are those messages';
-    `release`: see flatdecode.decode_many."""
+    `release`: see flatdecode.decode_many. With `dpus`, only their batches (a part of the
+    run): the messages whose header could not be decoded, whose DPU is unknown, are not
+    counted as malformed, nor the DPUs' of expected_batches not among them as lost."""
     ok, heads = heads or decode_heads(TIMING, buf, starts, lengths, release)
-    malformed = int(np.count_nonzero(~ok))
-    chosen = np.flatnonzero(ok & (heads["run_id"] == run_id))
+    mine = ok & (heads["run_id"] == run_id)
+    if dpus is None:
+        malformed = int(np.count_nonzero(~ok))
+    else:
+        malformed = 0
+        mine &= np.isin(heads["dpu"], list(dpus))
+        expected_batches = {d: n for d, n in (expected_batches or {}).items() if d in dpus}
+    chosen = np.flatnonzero(mine)
     dec = decode_many(TIMING, buf, np.asarray(starts)[chosen], np.asarray(lengths)[chosen], release)
     malformed += int(np.count_nonzero(~dec.ok))
     good = np.flatnonzero(dec.ok)
