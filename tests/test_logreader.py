@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import mmap
 from pathlib import Path
 
 import lcm
@@ -16,7 +17,7 @@ from skeleton.analysis.measure.run import analyze_log
 from skeleton.analysis.read import flatdecode, logreader, parallel
 from skeleton.analysis.read.coltable import ColumnTable
 from skeleton.analysis.read.flatdecode import FlatLayout
-from skeleton.analysis.read.logreader import SYNC_BYTES, encode_events, read_bytes, read_log
+from skeleton.analysis.read.logreader import HEADER_BYTES, SYNC_BYTES, encode_events, read_bytes, read_log
 from skeleton.analysis.read.records import (
     DURATIONS,
     INPUT_DTYPE,
@@ -37,7 +38,9 @@ from skelmsg.contract import CONFIG_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 def walk_mode(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
     """Every reader test runs twice: walking event by event, and with the sync-word scan
     (which only big logs of small events use by default) in many small chunks, and the
-    columns decoded, on threads as big logs are (parallel.py)."""
+    columns decoded, on threads as big logs are (parallel.py). Both read the file in
+    chunks of a few pages, so that events and damage lie across chunks' ends as in a big log."""
+    monkeypatch.setattr(logreader, "GIVE_BACK_BYTES", 4099)
     if request.param == "scan":
         monkeypatch.setattr(logreader, "SCAN_MIN_FILE_BYTES", 0)
         monkeypatch.setattr(logreader, "SCAN_BELOW_MEAN_BYTES", 1 << 30)
@@ -362,8 +365,35 @@ def test_sync_word_scan_finds_every_one_across_chunk_ends(walk_mode: str) -> Non
     where = [0, 59, 120, 182, 244, 1000, 4996]  # cut by the ends of 61-byte chunks ("scan" mode)
     for at in where:
         buf[at : at + 4] = np.frombuffer(SYNC_BYTES, dtype=np.uint8)
-    expected = [i for i in range(len(buf) - 3) if bytes(buf[i : i + 4]) == SYNC_BYTES]
-    assert logreader._sync_words(buf).tolist() == expected and len(expected) >= 6
+    expected = [i for i in range(len(buf) - HEADER_BYTES + 1) if bytes(buf[i : i + 4]) == SYNC_BYTES]
+    found, _ = logreader._sync_words(buf, len(buf), logreader._Channels(), lambda start, end: None)
+    assert found.tolist() == expected and len(expected) >= 6
+
+
+def test_opening_a_log_holds_about_a_chunk_of_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The walk gives each chunk's pages back before reading on: opening a log of 10^7
+    records (2.3 GB) held all of it at the end of the walk."""
+    monkeypatch.setattr(logreader, "GIVE_BACK_BYTES", 1 << 20)
+    monkeypatch.setattr(logreader, "SYNC_CHUNK_BYTES", 1 << 20)
+    # The probe of the first events reads pages ahead of the walk (up to _PROBE_EVENTS
+    # headers, a few MB of a big log but here all of the few events).
+    monkeypatch.setattr(logreader, "_PROBE_EVENTS", 4)
+    dpu1, dpu2 = small_run(cycles=20000)
+    events = [(CONFIG_CHANNEL, small_config())] + [(TIMING_CHANNEL, t) for t in
+                                                    batches(1, dpu1, 20) + batches(2, dpu2, 20)]  # fmt: skip
+    path = write_log(tmp_path / "run.lcm", events)
+    size_kib = path.stat().st_size // 1024
+    held: list[int] = []
+    give_back = logreader._give_back
+
+    def watched(mapping: mmap.mmap | None, size: int, start: int, end: int | None) -> None:
+        held.append(mapped_kib(path))
+        give_back(mapping, size, start, end)
+
+    monkeypatch.setattr(logreader, "_give_back", watched)
+    log = read_log(path)
+    assert len(log) == len(events) and size_kib > 8 * 1024
+    assert len(held) > 8 and max(held) <= size_kib // 4
 
 
 def test_the_analysis_gives_back_the_pages_of_the_log_it_read(

@@ -8,7 +8,11 @@ sync word and reports every byte range it could not read.
 
 Speed: the only per-event Python work is one header unpack while walking the
 chain of lengths; everything else (sync check, fields, channel names) is numpy
-over the whole event table.
+over many events at once.
+
+Memory: the file is read a chunk at a time (headers and channel names together), each
+chunk's pages given back before the next is read (Log.release): a pass over a mapped
+log would otherwise leave all of it counted in the process (2.3 GB for 10^7 records).
 """
 
 from __future__ import annotations
@@ -16,8 +20,9 @@ from __future__ import annotations
 import mmap
 import os
 import struct
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
+from functools import partial
 from typing import NamedTuple
 
 import numpy as np
@@ -33,6 +38,12 @@ MAX_DATA = 2**31 - 1
 
 _LENGTHS = struct.Struct(">II")  # unsigned, so a garbage length never moves the walk backwards
 _HEADER = struct.Struct(">Iqqii")
+
+# What the walk reads of the file before giving those pages back: what opening a log holds
+# of it (a bigger chunk gains no speed: each page is faulted in once either way).
+GIVE_BACK_BYTES = 64 << 20
+
+Release = Callable[[int, int], None]
 
 
 class Event(NamedTuple):
@@ -83,19 +94,8 @@ class Log:
     mapping: mmap.mmap | None = field(default=None, repr=False)  # buf's memory map, if it is one
 
     def release(self, start: int = 0, end: int | None = None) -> None:
-        """Give back the pages of buf[start:end] this process holds. A pass over a mapped
-        log leaves every page it read counted in the process's memory (2.3 GB for 10^7
-        records); given back, they stay in the page cache and cost a minor fault each if
-        read again. Nothing to do for a log held in memory."""
-        if self.mapping is None or self.size == 0:
-            return
-        page = mmap.PAGESIZE
-        first = max(0, start) // page * page
-        # The page `end` falls in is kept: the next chunk read starts there, and faulting it
-        # back would map the pages around it again (the kernel's fault-around).
-        last = self.size if end is None or end >= self.size else end // page * page
-        if last > first:
-            self.mapping.madvise(mmap.MADV_DONTNEED, first, last - first)
+        """Give back the pages of buf[start:end] this process holds (_give_back)."""
+        _give_back(self.mapping, self.size, start, end)
 
     def __len__(self) -> int:
         return len(self.offset)
@@ -163,13 +163,30 @@ def encode_events(events: Iterable[tuple[int, str, bytes]]) -> bytes:
     return b"".join(parts)
 
 
+def _give_back(mapping: mmap.mmap | None, size: int, start: int, end: int | None) -> None:
+    """Give back the pages of the mapped file's [start:end] this process holds. A pass over
+    a mapped log leaves every page it read counted in the process's memory (2.3 GB for
+    10^7 records); given back, they stay in the page cache and cost a minor fault each if
+    read again. Nothing to do for a log held in memory."""
+    if mapping is None or size == 0:
+        return
+    page = mmap.PAGESIZE
+    first = max(0, start) // page * page
+    # The page `end` falls in is kept: the next chunk read starts there, and faulting it
+    # back would map the pages around it again (the kernel's fault-around).
+    last = size if end is None or end >= size else end // page * page
+    if last > first:
+        mapping.madvise(mmap.MADV_DONTNEED, first, last - first)
+
+
 def _read(path: str, raw: mmap.mmap | bytes, size: int) -> Log:
     buf = np.frombuffer(raw, dtype=np.uint8)
-    offsets, head, corrupt, truncated = _walk(raw, buf, size)
-    log = _table(path, buf, size, offsets, head, corrupt, truncated)
-    if isinstance(raw, mmap.mmap):
-        log.mapping = raw
-        log.release()  # the walk read every page
+    mapping = raw if isinstance(raw, mmap.mmap) else None
+    channels = _Channels()
+    offsets, head, corrupt, truncated = _walk(raw, buf, size, channels, partial(_give_back, mapping, size))
+    log = _table(path, buf, size, offsets, head, corrupt, truncated, channels)
+    log.mapping = mapping
+    log.release()  # what the walk still holds: its last chunk, the probe (_many_small_events)
     return log
 
 
@@ -177,32 +194,33 @@ def _read(path: str, raw: mmap.mmap | bytes, size: int) -> Log:
 
 
 def _walk(
-    raw: mmap.mmap | bytes, buf: np.ndarray, size: int
+    raw: mmap.mmap | bytes, buf: np.ndarray, size: int, channels: _Channels, release: Release
 ) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int]], bool]:
-    """Follow the chain of lengths; on damage, resynchronise. Returns event offsets."""
+    """Follow the chain of lengths; on damage, resynchronise. Returns event offsets and
+    their events (EVENT_DTYPE)."""
     mem = memoryview(raw)
     chunks: list[np.ndarray] = []
     heads: list[np.ndarray] = []
     corrupt: list[tuple[int, int]] = []
     truncated = False
-    runs = _Runs.of(buf, size) if _many_small_events(mem, size) else None
+    runs = _Runs.of(buf, size, channels, release) if _many_small_events(mem, size) else None
     pos = 0
     while pos < size:
-        found, found_head = _follow(mem, buf, pos, size, runs)
+        found, found_head = _follow(mem, buf, pos, size, runs, channels, release)
         good, head, bad_at = _verify(buf, found, found_head, size)
         if bad_at is not None and len(good):
             # The damage may be the last good event's own length (a flipped bit), which then
             # pointed into the middle of the next event: when a real event starts inside its
             # span, that length lied, and the event it swallowed is recovered (Hypothesis found
             # a bit flip that lost an untouched event this way).
-            inside = _resync(raw, mem, int(good[-1]) + 1, size)
+            inside = _resync(raw, mem, int(good[-1]) + 1, size, release)
             if inside is not None and inside < bad_at:
                 good, head, bad_at = good[:-1], head[:-1], int(good[-1])
         chunks.append(good)
         heads.append(head)
         if bad_at is None:
             break
-        nxt = _resync(raw, mem, bad_at + 1, size)
+        nxt = _resync(raw, mem, bad_at + 1, size, release)
         end = size if nxt is None else nxt
         corrupt.append((bad_at, end))
         if nxt is None:
@@ -212,7 +230,7 @@ def _walk(
             break
         pos = nxt
     if not chunks:
-        return np.zeros(0, dtype=np.int64), _headers(buf, np.zeros(0, dtype=np.int64)), corrupt, truncated
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=EVENT_DTYPE), corrupt, truncated
     return np.concatenate(chunks), np.concatenate(heads), corrupt, truncated
 
 
@@ -249,10 +267,8 @@ class _Runs:
     breaks: np.ndarray  # indices that are not links
 
     @classmethod
-    def of(cls, buf: np.ndarray, size: int) -> _Runs:
-        pos = _sync_words(buf)
-        pos = pos[pos + HEADER_BYTES <= size]
-        head = _headers(buf, pos)
+    def of(cls, buf: np.ndarray, size: int, channels: _Channels, release: Release) -> _Runs:
+        pos, head = _sync_words(buf, size, channels, release)
         cl = head["channel_len"].astype(np.int64)
         dl = head["data_len"].astype(np.int64)
         nxt = pos + HEADER_BYTES + cl + dl
@@ -274,61 +290,77 @@ class _Runs:
 SYNC_CHUNK_BYTES = 1 << 24
 
 
-def _sync_words(buf: np.ndarray) -> np.ndarray:
-    """Offsets of every sync word, in bulk: its first byte, then the three others at
-    those few places. Chunked, so the temporary masks stay small (and the chunks are
-    scanned side by side, parallel.py)."""
+def _sync_words(
+    buf: np.ndarray, size: int, channels: _Channels, release: Release
+) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets of every sync word whose header fits, and their events (_events), in bulk:
+    a sync word's first byte, then the three others at those few places. Chunked, so the
+    temporary masks stay small, a chunk's pages are given back once its events are read
+    (and the chunks are scanned side by side, parallel.py)."""
     last = len(buf) - len(SYNC_BYTES)
     chunk = SYNC_CHUNK_BYTES
 
-    def scan(start: int) -> np.ndarray:
+    def scan(start: int) -> tuple[np.ndarray, np.ndarray, list[bytes]]:
         seg = buf[start : min(last, start + chunk - 1) + len(SYNC_BYTES)]
         hit = np.flatnonzero(seg[: len(seg) - 3] == SYNC_BYTES[0])
         for k in (1, 2, 3):
             hit = hit[seg[hit + k] == SYNC_BYTES[k]]
-        return hit.astype(np.int64) + start
+        hit = hit.astype(np.int64) + start
+        hit = hit[hit + HEADER_BYTES <= size]
+        head, names = _events(buf, hit, size)
+        release(start, start + chunk)
+        return hit, head, names
 
-    hits = map_threads(scan, range(0, last + 1, chunk), len(buf))
-    return np.concatenate([np.zeros(0, dtype=np.int64), *hits])
+    found = map_threads(scan, range(0, last + 1, chunk), len(buf))
+    # The names are numbered here, on one thread: the scans found them side by side.
+    heads = [channels.take(head, names) for _, head, names in found]
+    return (np.concatenate([np.zeros(0, dtype=np.int64), *(hit for hit, _, _ in found)]),
+            np.concatenate([np.zeros(0, dtype=EVENT_DTYPE), *heads]))  # fmt: skip
 
 
 def _follow(
-    mem: memoryview, buf: np.ndarray, pos: int, size: int, runs: _Runs | None
+    mem: memoryview, buf: np.ndarray, pos: int, size: int, runs: _Runs | None, channels: _Channels,
+    release: Release,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Positions (and headers) reached by trusting every length from `pos` (checked
+    """Positions (and events) reached by trusting every length from `pos` (checked
     afterwards, in bulk).
 
     The last position returned may be one whose header is incomplete or bad: the
     caller verifies. Without `runs`, this loop is the only per-event Python work in
     the reader; with them, it steps once per run of good events.
     """
-    pieces: list[tuple[np.ndarray, np.ndarray | None]] = []
-    out: list[int] = []
-    append = out.append
+    pieces: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def read(at: list[int]) -> None:
+        where = np.asarray(at, dtype=np.int64)
+        pieces.append((where, channels.take(*_events(buf, where, size))))
+
     unpack = _LENGTHS.unpack_from
     limit = size - HEADER_BYTES
     while pos <= limit:
-        run = runs.run_from(pos) if runs is not None else None
+        # A chunk at a time: its events are read while its pages are mapped, then the pages
+        # are given back, before the walk reads on.
+        start, out = pos, []
+        append = out.append
+        stop = min(limit + 1, pos + GIVE_BACK_BYTES)
+        run = None
+        while pos < stop:
+            if runs is not None and (run := runs.run_from(pos)) is not None:
+                break
+            cl, dl = unpack(mem, pos + 20)
+            append(pos)
+            pos += HEADER_BYTES + cl + dl
+        if out:
+            read(out)
+        release(start, pos)
         if run is not None:
-            if out:
-                pieces.append((np.asarray(out, dtype=np.int64), None))
-                out = []
-                append = out.append
             pieces.append((run[0], run[1]))
             pos = run[2]
-            continue
-        cl, dl = unpack(mem, pos + 20)
-        append(pos)
-        pos += HEADER_BYTES + cl + dl
     if pos < size:
-        append(pos)  # a header that does not fit: verified (and rejected) below
-    if out:
-        pieces.append((np.asarray(out, dtype=np.int64), None))
+        read([pos])  # a header that does not fit: verified (and rejected) by the caller
     if not pieces:
-        empty = np.zeros(0, dtype=np.int64)
-        return empty, _headers(buf, empty)
-    heads = [_headers(buf, np.where(p + HEADER_BYTES <= size, p, 0)) if h is None else h for p, h in pieces]
-    return np.concatenate([p for p, _ in pieces]), np.concatenate(heads)
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=EVENT_DTYPE)
+    return np.concatenate([p for p, _ in pieces]), np.concatenate([h for _, h in pieces])
 
 
 def _verify(
@@ -354,21 +386,27 @@ def _verify(
 SYNC_DAMAGE_BITS = 8
 
 
-def _resync(raw: mmap.mmap | bytes, mem: memoryview, start: int, size: int) -> int | None:
+def _resync(raw: mmap.mmap | bytes, mem: memoryview, start: int, size: int, release: Release) -> int | None:
     """The next sync word after damage whose header is plausible and whose event is
     followed by another sync word (whole or a little damaged), the end of the file, or a
-    cut event."""
+    cut event. Searched a chunk at a time, each given back once passed (damage may span
+    most of the file)."""
     find = raw.find
-    pos = find(SYNC_BYTES, start)
-    while pos >= 0:
-        if pos + HEADER_BYTES <= size:
-            _, _, _, cl, dl = _HEADER.unpack_from(mem, pos)
-            end = pos + HEADER_BYTES + cl + dl
-            if 0 < cl < MAX_CHANNEL and dl >= 0 and end <= size and _plausible_channel(mem, pos, cl):
-                following = bytes(mem[end : min(size, end + 4)])
-                if end == size or SYNC_BYTES.startswith(following) or _near_sync(following):
-                    return pos
-        pos = find(SYNC_BYTES, pos + 1)
+    while start < size:
+        stop = min(size, start + GIVE_BACK_BYTES)
+        reach = stop + len(SYNC_BYTES) - 1  # a sync word that starts in the chunk
+        pos = find(SYNC_BYTES, start, reach)
+        while pos >= 0:
+            if pos + HEADER_BYTES <= size:
+                _, _, _, cl, dl = _HEADER.unpack_from(mem, pos)
+                end = pos + HEADER_BYTES + cl + dl
+                if 0 < cl < MAX_CHANNEL and dl >= 0 and end <= size and _plausible_channel(mem, pos, cl):
+                    following = bytes(mem[end : min(size, end + 4)])
+                    if end == size or SYNC_BYTES.startswith(following) or _near_sync(following):
+                        return pos
+            pos = find(SYNC_BYTES, pos + 1, reach)
+        release(start, stop)
+        start = stop
     return None
 
 
@@ -388,6 +426,54 @@ def _plausible_channel(mem: memoryview, pos: int, cl: int) -> bool:
 HEADER_DTYPE = np.dtype(
     [("sync", ">u4"), ("eventnum", ">i8"), ("utime", ">i8"), ("channel_len", ">i4"), ("data_len", ">i4")]
 )
+
+
+# An event as the walk reads it: its header (native byte order) and its channel, an index
+# into the names read with it (_events) or, once taken, into _Channels.
+EVENT_DTYPE = np.dtype(
+    [("sync", "u4"), ("eventnum", "i8"), ("utime", "i8"), ("channel_len", "i4"), ("data_len", "i4"),
+     ("channel", "i4")]
+)  # fmt: skip
+
+
+def _events(buf: np.ndarray, at: np.ndarray, size: int) -> tuple[np.ndarray, list[bytes]]:
+    """The event (EVENT_DTYPE) at each offset, and the channel names they index: header and
+    name read together, while their pages are mapped. A header that does not fit reads as
+    zeros, a channel that cannot be a name as -1 (_verify rejects both)."""
+    fits = at + HEADER_BYTES <= size
+    head = _headers(buf, at[fits])
+    out = np.zeros(len(at), dtype=EVENT_DTYPE)
+    for name in HEADER_DTYPE.names or ():
+        out[name][fits] = head[name]
+    cl = out["channel_len"].astype(np.int64)
+    named = fits & (out["sync"] == SYNC) & (cl > 0) & (cl < MAX_CHANNEL) & (at + HEADER_BYTES + cl <= size)
+    names, ids = _channels(buf, at[named] + HEADER_BYTES, cl[named])
+    out["channel"] = -1
+    out["channel"][named] = ids
+    return out, names
+
+
+class _Channels:
+    """The channel names the walk has read, by their bytes on disk. Garbage followed after
+    damage may be named too: the table keeps only the names its events use (`of`)."""
+
+    def __init__(self) -> None:
+        self.index: dict[bytes, int] = {}
+
+    def take(self, head: np.ndarray, names: list[bytes]) -> np.ndarray:
+        """`head` (from _events) with its channels numbered among all the names read."""
+        # -1 (no name) stays -1: the lookup's last entry.
+        lookup = np.array([self.index.setdefault(n, len(self.index)) for n in names] + [-1], dtype=np.int32)
+        head["channel"] = lookup[head["channel"]]
+        return head
+
+    def of(self, channel: np.ndarray) -> tuple[list[str], np.ndarray]:
+        """The names the events' channels use, and each event's index among them."""
+        used = np.bincount(channel, minlength=len(self.index)) > 0
+        renumber = (np.cumsum(used) - 1).astype(np.int32)
+        names = [raw.decode("utf-8", errors="replace")
+                 for raw, u in zip(self.index, used.tolist(), strict=True) if u]  # fmt: skip
+        return names, renumber[channel]
 
 
 def _headers(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
@@ -425,12 +511,13 @@ def _table(
     head: np.ndarray,
     corrupt: list[tuple[int, int]],
     truncated: bool,
+    channels: _Channels,
 ) -> Log:
     eventnum = head["eventnum"].astype(np.int64)
     utime = head["utime"].astype(np.int64)
     cl = head["channel_len"].astype(np.int64)
     dl = head["data_len"].astype(np.int64)
-    channels, channel_id = _channels(buf, offsets + HEADER_BYTES, cl)
+    names, channel_id = channels.of(head["channel"])
     return Log(
         path=path,
         size=size,
@@ -439,21 +526,21 @@ def _table(
         eventnum=eventnum,
         utime_us=utime,
         channel_id=channel_id,
-        channels=channels,
+        channels=names,
         data_offset=offsets + HEADER_BYTES + cl,
         data_len=dl,
         integrity=Integrity(events=len(offsets), corrupt_ranges=corrupt, truncated_tail=truncated),
     )
 
 
-def _channels(buf: np.ndarray, at: np.ndarray, cl: np.ndarray) -> tuple[list[str], np.ndarray]:
-    """Channel name of every event, as (names, index per event).
+def _channels(buf: np.ndarray, at: np.ndarray, cl: np.ndarray) -> tuple[list[bytes], np.ndarray]:
+    """Channel name of every event, as (names as on disk, index per event).
 
     Logs hold few channels but many events; sorting every name is the slow way. We
     key each event by its length and its last 8 channel bytes (names usually differ
     at the end: SKEL_BUF_3 / SKEL_BUF_4), then confirm each group byte for byte.
     """
-    names: list[str] = []
+    names: list[bytes] = []
     index: dict[bytes, int] = {}
     channel_id = np.zeros(len(at), dtype=np.int32)
     for length in np.unique(cl).tolist():
@@ -474,6 +561,6 @@ def _channels(buf: np.ndarray, at: np.ndarray, cl: np.ndarray) -> tuple[list[str
             raw = bytes(view[start[i]]).ljust(length, b"\0")
             if raw not in index:
                 index[raw] = len(names)
-                names.append(raw.decode("utf-8", errors="replace"))
+                names.append(raw)
             channel_id[members[inverse == group]] = index[raw]
     return names, channel_id
