@@ -178,15 +178,18 @@ def _chain_series(
     broken = int(np.count_nonzero(in_window & ~ok & (inputs["new"][tail_rows] != 0)))
     keep = first & in_window & (inputs["new"][tail_rows] != 0)  # a stale input brings nothing
     rec = records[tail_rec[keep]]
-    use = clock.to_host(procs[tail].dpu, rec["start_ns"] + rec["comm_in_ns"] + rec["blocked_ns"])
+    use = clock.to_host(procs[tail].dpu, rec["use_ns"])
     birth = clock.to_host(procs[pids[0]].dpu, born[keep])
     return ChainSeries(rec["cycle"].astype(np.int64), head_cycle[keep], use, use - birth), broken
 
 
 # What the chains read of a record and of an input record: a window's part is kept with
-# these alone (chain_records), its other columns let go with the part.
-CHAIN_RECORD = ("process", "cycle", "start_ns", "comm_in_ns", "blocked_ns", "flags")
-CHAIN_INPUT = ("record", "process", "buffer", "seq", "sent_ns", "new")
+# these alone (ChainRecords), its other columns let go with the part. A record's use_ns is
+# when its computation had its inputs in hand: start + comm_in + blocked.
+CHAIN_RECORD = np.dtype([("process", RECORD_DTYPE["process"]), ("cycle", RECORD_DTYPE["cycle"]),
+                         ("flags", RECORD_DTYPE["flags"]), ("use_ns", np.int64)])
+CHAIN_INPUT = np.dtype([(name, INPUT_DTYPE[name])
+                        for name in ("record", "process", "buffer", "seq", "sent_ns", "new")])
 
 
 class ChainRecords(NamedTuple):
@@ -208,28 +211,30 @@ class ChainRecords(NamedTuple):
         on = np.flatnonzero(np.isin(inputs["buffer"], buffers)) if len(rows) else np.zeros(0, np.int64)
         on = on[keep[inputs["record"][on]]]
         mine = inputs[on]
-        ins = {name: mine[name] for name in CHAIN_INPUT if name != "record"}
+        ins = {name: mine[name] for name in CHAIN_INPUT.names or () if name != "record"}
         ins["record"] = np.searchsorted(rows, mine["record"])
-        return cls(_table(records[rows], CHAIN_RECORD), _table(ins, CHAIN_INPUT), in_window[rows])
+        theirs = records[rows]
+        recs = {name: theirs[name] for name in ("process", "cycle", "flags")}
+        recs["use_ns"] = theirs["start_ns"] + theirs["comm_in_ns"] + theirs["blocked_ns"]
+        return cls(_table(recs, CHAIN_RECORD), _table(ins, CHAIN_INPUT), in_window[rows])
 
     @classmethod
     def join(cls, parts: Sequence[ChainRecords]) -> ChainRecords:
         if len(parts) == 1:
             return parts[0]
         offsets = np.cumsum([0] + [len(p.records) for p in parts[:-1]])
-        records = {name: np.concatenate([p.records[name] for p in parts]) for name in CHAIN_RECORD}
+        records = {name: np.concatenate([p.records[name] for p in parts])
+                   for name in CHAIN_RECORD.names or ()}
         inputs = {name: np.concatenate([p.inputs[name] + (o if name == "record" else 0)
                                         for p, o in zip(parts, offsets, strict=True)])
-                  for name in CHAIN_INPUT}
+                  for name in CHAIN_INPUT.names or ()}
         return cls(_table(records, CHAIN_RECORD), _table(inputs, CHAIN_INPUT),
                    np.concatenate([p.in_window for p in parts]))
 
 
-def _table(columns: Any, names: Sequence[str]) -> ColumnTable:
-    """A table of `names` alone, their values held (not views of a larger table's)."""
-    dtype = np.dtype([(name, (RECORD_DTYPE if name in RECORD_DTYPE.names else INPUT_DTYPE)[name])
-                      for name in names])  # fmt: skip
-    return ColumnTable.of({name: np.ascontiguousarray(columns[name]) for name in names}, dtype)
+def _table(columns: Any, dtype: np.dtype[Any]) -> ColumnTable:
+    """A table of `dtype`'s fields from `columns`, their values held (not views of a larger table's)."""
+    return ColumnTable.of({name: np.ascontiguousarray(columns[name]) for name in dtype.names or ()}, dtype)
 
 
 def chain_metrics(run: ChainRecords, config: Any, clock: ClockOffsets = NO_OFFSETS) -> list[ChainMetrics]:

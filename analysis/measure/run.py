@@ -31,7 +31,7 @@ from ..read.messages import LogError, Messages, int_columns, open_run_log, publi
 from ..read.records import IMPOSSIBLE, Heads, RunRecords, load_records, run_ids, timing_heads
 from ..read.seal import KeyFileError, authenticate
 from .columns import Table, faults_table, process_names, receptions_table, report_tables, timing_table
-from .faults import heartbeats_from_status
+from .faults import Heartbeats, heartbeats_from_status
 from .latency import ClockOffsets
 from .predicted import Predictor, beside
 from .report import RunReport, finish_report, report_configs, run_part
@@ -178,7 +178,7 @@ def load_run(path: str | os.PathLike[str], run_id: int | None = None,
 
 # A run of more records than this is reported a few DPUs at a time, each part's records let go
 # before the next's are read (report.run_part): 10^7 records held at once took 4 GB.
-PART_RECORDS = 1 << 22
+PART_RECORDS = 1 << 21
 
 
 def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None,
@@ -208,9 +208,9 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None,
     # The statuses decode one by one in Python, the records in numpy calls that release the
     # GIL: side by side, the one hides behind the other on a run of millions of records.
     with ThreadPoolExecutor(1) as pool:
-        pending = pool.submit(read_messages, log, generations)
+        pending = pool.submit(_control, log, generations)
         first = load_records(log, run_id, expected, heads, None if len(groups) == 1 else groups[0])
-        messages = pending.result()
+        messages, beats, offsets, locking = pending.result()
     candidates = sorted(g for g in generations if g in messages.configs)
     if not candidates:
         raise LogError(f"no config_t (channel {CONFIG_CHANNEL}) for generation {max(generations)}: "
@@ -218,8 +218,6 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None,
     configs = {g: messages.configs[g] for g in candidates}
     windows = report_configs(configs[candidates[-1]], candidates, configs)
     clock = ClockOffsets.from_messages(messages.clock_offsets)
-    statuses = [s for _, s in messages.statuses]
-    offsets = status_offsets(statuses)
     parts, unnamed = [], 0
     for i, dpus in enumerate(groups):
         run = first if i == 0 else load_records(log, run_id, expected, heads, dpus)
@@ -239,10 +237,22 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None,
         # A window without its config cannot be named (a stray batch, or the config was
         # never logged): only the others are reported, and the stray ones are counted.
         malformed[NO_CONFIG] = unnamed
-    report = finish_report(windows, parts, statuses, messages.reports, log.integrity, malformed, clock,
-                           heartbeats_from_status(messages.statuses), messages.commands)
+    report = finish_report(windows, parts, locking, messages.reports, log.integrity, malformed, clock, beats,
+                           messages.commands)
     return RunAnalysis(log=log, heads=heads, messages=messages, report=report, clock=clock,
                        utc_offset_ns=offsets, held=first)
+
+
+def _control(log: Log, generations: set[int]) -> tuple[Messages, Heartbeats, dict[int, int], list[Any]]:
+    """The log's control-plane messages, and what the report needs of their statuses: the
+    heartbeats, each DPU's clock offset to UTC, and the statuses that name lockouts. The
+    statuses themselves are let go (Messages.read_statuses): the views that show them decode
+    them again."""
+    messages = read_messages(log, generations)
+    timed = messages.read_statuses()
+    statuses = [s for _, s in timed]
+    locking = [s for s in statuses if s.lockouts]
+    return messages, heartbeats_from_status(timed), status_offsets(statuses), locking
 
 
 def dpu_groups(dpu: np.ndarray, count: np.ndarray, expected: Mapping[int, int], most: int) -> list[list[int]]:

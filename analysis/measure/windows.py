@@ -141,7 +141,8 @@ def window_part(
     fault's at_s counts from it), default the window's own."""
     # The tables and searches below read the same records and write nothing shared: numpy's
     # sorts, gathers and sums release the GIL, so on a run of millions of records they go
-    # side by side on the machine's cores (largest first, so neither core waits at the end).
+    # side by side on the machine's cores: the process table, the largest, first, the buffers'
+    # (the next in time and memory) last, so that the two seldom hold their temporaries at once.
     # Which records are in the measurement window: found once, read by every table (read-only:
     # the tables run side by side).
     win = measured_once(records, config) if in_window is None else in_window
@@ -150,7 +151,6 @@ def window_part(
     starts.flags.writeable = False
     tasks: dict[str, Callable[[], Any]] = {
         "processes": lambda: process_metrics(records, inputs, config, win, starts),
-        "buffers": lambda: buffer_parts(records, inputs, config, clock, win, starts),
         "chains": lambda: ChainRecords.of(records, inputs, config, win),
         "behind": lambda: behind_runs(records, config, win, origin),
         "dpus": lambda: dpu_metrics(records, config, win, earlier),
@@ -159,6 +159,7 @@ def window_part(
         "stalls": lambda: stall_events(records, config),
         "sums": lambda: _sums_ns(records, win),
         "ends": lambda: warmup_end_ns(records),
+        "buffers": lambda: buffer_parts(records, inputs, config, clock, win, starts),
     }
     done = dict(zip(tasks, map_threads(lambda task: task(), tasks.values(), _work_bytes(records, inputs)),
                     strict=True))  # fmt: skip

@@ -6,7 +6,9 @@ keeps the structured-array idiom it had: `t["field"]`, `t[mask]`, `t[indices]`,
 `t[a:b]`, `len(t)`, `t.dtype.names`, `np.asarray(t)` (the structured array itself).
 
 Indexing with a mask or indices returns a table whose columns are gathered on first
-use, so `records[mask]["start_ns"]` costs one column, not all of them. Like numpy's
+use, so `records[mask]["start_ns"]` costs one column, not all of them; a mask of one run
+of rows, a slice (views of the columns: no gather at all); a mask of every row, the table
+itself. Like numpy's
 fancy indexing, the result behaves as a copy, as long as the parent's columns are not
 modified in place while it lives (nothing here does: copy() before writing).
 
@@ -96,7 +98,15 @@ class ColumnTable:
                            for name in self._derive if name not in self._base}  # fmt: skip
                 return ColumnTable({k: v[key] for k, v in self._base.items()}, self.dtype, derive=pending)
             return self._view(self._index[key])
-        return self._view(self._rows(np.asarray(key)))
+        key = np.asarray(key)
+        if key.dtype == bool and key.shape == (self._len,) and key.all():
+            return self  # every row (a process's cycles, none skipped): the columns it has already
+        rows = self._rows(key)
+        one_run = len(rows) and int(rows[-1]) - int(rows[0]) + 1 == len(rows)
+        if self._index is None and key.dtype == bool and one_run:
+            # One run of rows (a DPU's measured records: all but its warm-up): views, no gather.
+            return self[int(rows[0]) : int(rows[-1]) + 1]
+        return self._view(rows)
 
     def _column(self, name: str) -> np.ndarray:
         """A whole base column, made first if it is derived. Tables side by side in threads

@@ -53,19 +53,38 @@ def open_run_log(path: str | os.PathLike[str]) -> Log:
 class Messages:
     """The decoded control-plane messages of a log."""
 
+    log: Log = field(repr=False)  # where the statuses are decoded from
     configs: dict[int, Any]  # generation -> its last config_t (only the generations asked for)
-    statuses: list[tuple[int, Any]]  # (utime_us heard, status_t), in log order
     reports: list[Any]  # report_t, in log order
     clock_offsets: list[Any]  # clock_offset_t, in log order
     commands: list[tuple[int, Any]] = field(default_factory=list)  # (utime_us heard, command_t), in log order
     malformed: dict[str, int] = field(default_factory=dict)  # channel -> undecodable messages
+    _statuses: list[tuple[int, Any]] | None = field(default=None, repr=False)
+
+    @property
+    def statuses(self) -> list[tuple[int, Any]]:
+        """(utime_us heard, status_t) of every decodable status, in log order: decoded on first
+        use and held."""
+        if self._statuses is None:
+            self._statuses = self.read_statuses()
+        return self._statuses
+
+    def read_statuses(self) -> list[tuple[int, Any]]:
+        """The statuses as `statuses`, decoded now and not held: a long run logs hundreds of
+        thousands (213 MB as objects at 10^7 records), which its report reads once and lets go
+        before its records are read."""
+        damaged: dict[str, int] = {}  # counted once, however often they are read
+        out = decode_timed(self.log, STATUS_CHANNEL, skelmsg.status_t.decode, damaged)
+        self.malformed.update(damaged)
+        return out
 
 
 def read_messages(log: Log, generations: Iterable[int]) -> Messages:
+    """Every message but the statuses (Messages.statuses), decoded."""
     malformed: dict[str, int] = {}
     return Messages(
+        log=log,
         configs=configs_of(log, generations, malformed),
-        statuses=decode_timed(log, STATUS_CHANNEL, skelmsg.status_t.decode, malformed),
         reports=[m for _, m in decode_timed(log, REPORT_CHANNEL, skelmsg.report_t.decode, malformed)],
         clock_offsets=[m for _, m in decode_timed(log, CLOCK_CHANNEL, skelmsg.clock_offset_t.decode,
                                                   malformed)],
@@ -88,15 +107,27 @@ def published_batches(log: Log, run_id: int) -> dict[int, int]:
     return {r.dpu: r.timing_batches for _, r in reports if r.run_id == run_id}
 
 
+# A channel's messages are decoded in file order, the log's pages behind them given back every
+# this many bytes: a run's heartbeats lie all through its log, and read they left 1.7 GB of a
+# 2.3 GB log resident (Log.release).
+_RELEASE_BYTES = 64 << 20
+
+
 def decode_timed(log: Log, channel: str, decode: Callable[[bytes], T],
                  malformed: dict[str, int]) -> list[tuple[int, T]]:
     """(utime_us, message) of every message on a channel; malformed ones are counted and skipped."""
     out = []
-    for utime, data in log.messages(channel):
+    idx = log.indices(channel)
+    ends = (log.data_offset[idx] + log.data_len[idx]).tolist()
+    released = 0
+    for (utime, data), end in zip(log.messages(channel), ends, strict=True):
         try:
             out.append((utime, decode(bytes(data))))
         except Exception:  # any decoder failure means "malformed", never a crash
             malformed[channel] = malformed.get(channel, 0) + 1
+        if end - released > _RELEASE_BYTES:
+            log.release(released, end)
+            released = end
     return out
 
 
