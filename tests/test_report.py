@@ -369,7 +369,7 @@ def test_a_window_built_side_by_side_reports_what_one_built_alone_does(
 def _by_parts(path: Path) -> tuple[RunAnalysis, RunAnalysis]:
     """The analysis of the log at `path` with its report made whole, and made a DPU at a time
     (run.PART_RECORDS of 1)."""
-    whole = analyze_log(open_run_log(path), part_records=1 << 62)
+    whole = analyze_log(open_run_log(path), part_records=None)
     parts = analyze_log(open_run_log(path), part_records=1)
     assert whole.held is not None and parts.held is None  # a part's records were let go
     return whole, parts

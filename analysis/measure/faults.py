@@ -31,7 +31,7 @@ from .metrics import (
     first_of_frame_at,
     frames,
     per_id,
-    smallest_per_dpu,
+    smallest_per_id,
     static_load_pct,
     window_mask,
 )
@@ -518,7 +518,7 @@ BEHIND_MIN_FRAMES = 20
 
 def first_release_ns(records: np.ndarray) -> dict[int, int]:
     """Per DPU, its first release: the origin of a fault's `at_s`."""
-    return smallest_per_dpu(records["dpu"], records["release_ns"])
+    return smallest_per_id(records["dpu"], records["release_ns"])
 
 
 def stall_threshold_ns(config: Any, dpu: int) -> int:

@@ -161,12 +161,13 @@ def window_start_ns(records: np.ndarray, config: Any) -> dict[int, int]:
                      records["cycle"])  # fmt: skip
     t0 = records["release_ns"] - count * step
     return {dpu: first + config.warmup_cycles * longest.get(dpu, 0)
-            for dpu, first in smallest_per_dpu(records["dpu"], t0).items()}
+            for dpu, first in smallest_per_id(records["dpu"], t0).items()}
 
 
-def smallest_per_dpu(dpu: np.ndarray, values: np.ndarray) -> dict[int, int]:
-    """dpu -> the smallest of its `values`: one sort of the 16-bit ids, not a mask per DPU."""
-    order, groups = group_slices(dpu)
+def smallest_per_id(ids: np.ndarray, values: np.ndarray) -> dict[int, int]:
+    """id (a DPU's, a process's) -> the smallest of its `values`: one sort of the 16-bit ids,
+    not a mask per id."""
+    order, groups = group_slices(ids)
     ordered = values[order]
     return {d: int(ordered[rows].min()) for d, rows in groups.items()}
 

@@ -33,7 +33,6 @@ from .windows import (
     WindowReport,
     earlier_ends_ns,
     finish_window,
-    measured_once,
     run_stalls,
     split_lockouts,
     window_part,
@@ -135,12 +134,11 @@ def _window_json(window: WindowReport, extras: dict[str, dict[int, Any]]) -> dic
 
 @dataclass
 class RunPart:
-    """One run as the records of some of its DPUs (`dpus`) show it: their batches' counts, a
+    """One run as the records of some of its DPUs show it: their batches' counts, a
     WindowPart per window, and what the report looks up across DPUs (their first releases,
     stalls and skipped releases)."""
 
     counts: RunRecords  # the part's RunRecords less its records and inputs, let go with the part
-    dpus: set[int]
     windows: list[WindowPart]
     origin: dict[int, int]  # faults.first_release_ns
     stalls: np.ndarray  # windows.run_stalls
@@ -156,12 +154,11 @@ def run_part(run: RunRecords, configs: Sequence[Any], dpus: set[int],
     for config in configs:
         records, inputs = window_records(run, config.generation)
         earlier = earlier_ends_ns([w.ends_ns for w in windows] + [{}])[-1]
-        win = measured_once(records, config)
-        windows.append(window_part(config, records, inputs, dpus, clock, win, earlier, origin))
+        windows.append(window_part(config, records, inputs, dpus, clock, earlier, origin))
     # not a slice of the records: it would hold their columns
     counts = dataclasses.replace(run, records=ColumnTable.empty(RECORD_DTYPE),
                                  inputs=ColumnTable.empty(INPUT_DTYPE))
-    return RunPart(counts, dpus, windows, origin, run_stalls(run.records), release_skips(run.records))
+    return RunPart(counts, windows, origin, run_stalls(run.records), release_skips(run.records))
 
 
 def report_configs(config: Any, generations: Collection[int], configs: Mapping[int, Any] | None) -> list[Any]:

@@ -168,12 +168,13 @@ class RunAnalysis:
 
 
 def load_run(path: str | os.PathLike[str], run_id: int | None = None,
-             key: bytes | None = None) -> RunAnalysis:
+             key: bytes | None = None, every_record: bool = False) -> RunAnalysis:
     """A run (default: the last with timing records) of an .lcm log, a run directory (its
     run.lcm) or an MCAP from `skel export`. Raises LogError (one line for the user) when
     the file cannot be analysed. With the `key` of a signed run, only its genuine messages
-    are analysed (analysis/read/seal.py)."""
-    return analyze_log(open_run_log(path), run_id, key)
+    are analysed (analysis/read/seal.py). `every_record`: the caller will read every record
+    (an export, plots): the run is read whole, its records decoded once, not in parts."""
+    return analyze_log(open_run_log(path), run_id, key, None if every_record else PART_RECORDS)
 
 
 # A run of more records than this is reported a few DPUs at a time, each part's records let go
@@ -182,7 +183,7 @@ PART_RECORDS = 1 << 21
 
 
 def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None,
-                part_records: int = PART_RECORDS) -> RunAnalysis:
+                part_records: int | None = PART_RECORDS) -> RunAnalysis:
     if log.size == 0:
         raise LogError("empty file")
     if len(log) == 0:
@@ -208,7 +209,7 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None,
     # The statuses decode one by one in Python, the records in numpy calls that release the
     # GIL: side by side, the one hides behind the other on a run of millions of records.
     with ThreadPoolExecutor(1) as pool:
-        pending = pool.submit(_control, log, generations)
+        pending = pool.submit(_control, log, generations, len(groups) == 1)
         first = load_records(log, run_id, expected, heads, None if len(groups) == 1 else groups[0])
         messages, beats, offsets, locking = pending.result()
     candidates = sorted(g for g in generations if g in messages.configs)
@@ -243,29 +244,31 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None,
                        utc_offset_ns=offsets, held=first)
 
 
-def _control(log: Log, generations: set[int]) -> tuple[Messages, Heartbeats, dict[int, int], list[Any]]:
+def _control(log: Log, generations: set[int],
+             keep: bool) -> tuple[Messages, Heartbeats, dict[int, int], list[Any]]:
     """The log's control-plane messages, and what the report needs of their statuses: the
     heartbeats, each DPU's clock offset to UTC, and the statuses that name lockouts. The
-    statuses themselves are let go (Messages.read_statuses): the views that show them decode
-    them again."""
+    statuses themselves are held when `keep` (a run read whole), else let go
+    (Messages.read_statuses): the views that show them decode them again."""
     messages = read_messages(log, generations)
-    timed = messages.read_statuses()
+    timed = messages.statuses if keep else messages.read_statuses()
     statuses = [s for _, s in timed]
     locking = [s for s in statuses if s.lockouts]
     return messages, heartbeats_from_status(timed), status_offsets(statuses), locking
 
 
-def dpu_groups(dpu: np.ndarray, count: np.ndarray, expected: Mapping[int, int], most: int) -> list[list[int]]:
+def dpu_groups(dpu: np.ndarray, count: np.ndarray, expected: Mapping[int, int],
+               most: int | None) -> list[list[int]]:
     """The run's DPUs (`dpu`, `count`: each batch's DPU and record count; `expected`: the DPUs of
     its reports) in groups of consecutive ids of at most `most` records each, as far as one
     DPU's records allow: the parts a run's report is made of, one at a time. One group for a run
-    of `most` records or fewer."""
+    of `most` records or fewer, or when `most` is None."""
     ids = sorted(set(np.unique(dpu).tolist()) | set(expected))
     totals = np.bincount(np.searchsorted(ids, dpu), weights=count, minlength=len(ids)) if len(ids) else []
     groups: list[list[int]] = [[]]
     held = 0
     for d, n in zip(ids, np.asarray(totals, dtype=np.int64).tolist(), strict=True):
-        if groups[-1] and held + n > most:
+        if groups[-1] and most is not None and held + n > most:
             groups.append([])
             held = 0
         groups[-1].append(d)

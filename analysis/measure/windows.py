@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -41,14 +41,14 @@ from .faults import (
     stall_faults,
     stalled_writers,
 )
-from .latency import NO_OFFSETS, SKIP, BufferMetrics, BufferParts, ClockOffsets, buffer_metrics, buffer_parts
+from .latency import NO_OFFSETS, BufferMetrics, BufferParts, ClockOffsets, buffer_metrics, buffer_parts
 from .metrics import (
     DpuMetrics,
     ProcessMetrics,
     dpu_metrics,
     measured,
     process_metrics,
-    smallest_per_dpu,
+    smallest_per_id,
     warmup_end_ns,
     work_end_ns,
 )
@@ -82,27 +82,28 @@ def window_records(run: RunRecords, generation: int) -> tuple[np.ndarray, np.nda
     return select(run.records, run.inputs, run.records["generation"] == generation)
 
 
-# A window's span on the host clock, (first release, last end): over its measured records, and
-# over all of them for a window with none measured (None, None for no record).
-Span = tuple[int | None, int | None]
+class Span(NamedTuple):
+    """A window's span on the host clock, (first release, last end), as a part of it shows it:
+    over its measured records (`measured`), or over all of them when it has none measured; a
+    window with a measured record anywhere spans its measured records alone."""
+
+    start_ns: int | None
+    end_ns: int | None
+    measured: bool
 
 
-def _spans(records: np.ndarray, in_window: np.ndarray, clock: ClockOffsets) -> tuple[Span, Span]:
-    """(the span of the measured records, the span of all records)."""
+def _span(records: np.ndarray, in_window: np.ndarray, clock: ClockOffsets) -> Span:
     if len(records) == 0:
-        return (None, None), (None, None)
+        return Span(None, None, False)
+    measured_any = bool(in_window.any())
+    mine = in_window if measured_any else np.ones(len(records), dtype=bool)
     # Over the whole columns, the measured ones picked in the reductions: gathering the
     # measured records first copied every column it read (a second of 2 at 10^7 records).
     start = clock.to_host_many(records["dpu"], records["release_ns"])
     end = clock.to_host_many(records["dpu"], work_end_ns(records))
     top = np.iinfo(np.int64)
-
-    def span(mine: np.ndarray) -> Span:
-        if not mine.any():
-            return None, None
-        return int(start.min(where=mine, initial=top.max)), int(end.max(where=mine, initial=top.min))
-
-    return span(in_window), span(np.ones(len(records), dtype=bool))
+    return Span(int(start.min(where=mine, initial=top.max)), int(end.max(where=mine, initial=top.min)),
+                measured_any)
 
 
 @dataclass
@@ -113,7 +114,7 @@ class WindowPart:
     dpus: set[int]
     dpu_rows: list[DpuMetrics]
     processes: list[ProcessMetrics]
-    spans: tuple[Span, Span]
+    span: Span
     buffers: BufferParts
     chains: ChainRecords
     deliveries: Deliveries
@@ -131,21 +132,20 @@ def window_part(
     inputs: np.ndarray,
     dpus: set[int],
     clock: ClockOffsets = NO_OFFSETS,
-    in_window: np.ndarray | None = None,
     earlier: Mapping[int, int] | None = None,
     origin: Mapping[int, int] | None = None,
 ) -> WindowPart:
     """The WindowPart of `records` (the window's records of the DPUs `dpus`) and their input
-    records. `in_window`: measured(records, config), read-only, when the caller has it;
-    `earlier`: earlier_ends_ns of this window; `origin`: the run's first release per DPU (a
-    fault's at_s counts from it), default the window's own."""
+    records. `earlier`: earlier_ends_ns of this window; `origin`: the run's first release per
+    DPU (a fault's at_s counts from it), default the window's own."""
     # The tables and searches below read the same records and write nothing shared: numpy's
     # sorts, gathers and sums release the GIL, so on a run of millions of records they go
     # side by side on the machine's cores: the process table, the largest, first, the buffers'
     # (the next in time and memory) last, so that the two seldom hold their temporaries at once.
     # Which records are in the measurement window: found once, read by every table (read-only:
     # the tables run side by side).
-    win = measured_once(records, config) if in_window is None else in_window
+    win = measured(records, config)
+    win.flags.writeable = False
     # Where each record's inputs start: read by two tables, made once (80 MB at 10^7 records).
     starts = input_starts(inputs, len(records))
     starts.flags.writeable = False
@@ -154,7 +154,7 @@ def window_part(
         "chains": lambda: ChainRecords.of(records, inputs, config, win),
         "behind": lambda: behind_runs(records, config, win, origin),
         "dpus": lambda: dpu_metrics(records, config, win, earlier),
-        "spans": lambda: _spans(records, win, clock),
+        "span": lambda: _span(records, win, clock),
         "deliveries": lambda: Deliveries.of(records, inputs, config),
         "stalls": lambda: stall_events(records, config),
         "sums": lambda: _sums_ns(records, win),
@@ -164,11 +164,11 @@ def window_part(
     done = dict(zip(tasks, map_threads(lambda task: task(), tasks.values(), _work_bytes(records, inputs)),
                     strict=True))  # fmt: skip
     return WindowPart(
-        dpus=dpus, dpu_rows=done["dpus"], processes=done["processes"], spans=done["spans"],
+        dpus=dpus, dpu_rows=done["dpus"], processes=done["processes"], span=done["span"],
         buffers=done["buffers"], chains=done["chains"], deliveries=done["deliveries"], behind=done["behind"],
         stalls=done["stalls"],
         flagged=lockouts_from_records(records, {}),
-        first_cycles=smallest_per_dpu(records["process"], records["cycle"]) if len(records) else {},
+        first_cycles=smallest_per_id(records["process"], records["cycle"]) if len(records) else {},
         sums_ns=done["sums"], ends_ns=done["ends"],
     )
 
@@ -176,12 +176,12 @@ def window_part(
 def finish_window(
     config: Any,
     parts: Sequence[WindowPart],
-    lockouts: dict[int, Lockout] | None = None,
-    lost: Sequence[Fault] = (),
-    clock: ClockOffsets = NO_OFFSETS,
-    stalls: np.ndarray | None = None,
-    skips: np.ndarray | None = None,
-    origin: Mapping[int, int] | None = None,
+    lockouts: dict[int, Lockout],
+    lost: Sequence[Fault],
+    clock: ClockOffsets,
+    stalls: np.ndarray,
+    skips: np.ndarray,
+    origin: Mapping[int, int],
 ) -> WindowReport:
     """Every table of one generation window from its parts (window_part). `lockouts`: the ones
     status_t reported in this window; `lost`: the run's lost DPUs (a fact of the whole run: last
@@ -189,30 +189,25 @@ def finish_window(
     and a data wait behind are looked up in); `skips`: the run's skipped releases
     (latency.release_skips: what a buffer's loss looks up across a switch); `origin`: the run's
     first release per DPU."""
-    stalls = np.zeros(0, dtype=STALLED) if stalls is None else stalls
-    skips = np.zeros(0, dtype=SKIP) if skips is None else skips
-    origin = origin or {}
     processes = _rows(parts, config.processes, lambda p: p.dpu, lambda part: part.processes)
-    known = lockouts or {}
     flagged: dict[int, Lockout] = {}
     for part in parts:
         for proc, lock in part.flagged.items():
             flagged.setdefault(proc, lock)
     # What the timing records flagged and no status_t said (lockouts_from_records' rule).
-    locks = {**known, **{proc: lock for proc, lock in sorted(flagged.items()) if proc not in known}}
+    locks = {**lockouts, **{proc: lock for proc, lock in sorted(flagged.items()) if proc not in lockouts}}
     delivered, locks = delivery_faults(config, Deliveries.join(p.deliveries for p in parts), locks)
     # what the writers' stalls explain: the whole run's records hold a writer's DPU's cycles
     platform = stalled_writers(locks, stalls, config, clock)
     mine = stalls[stalls["generation"] == config.generation]
     behind = sorted((b for part in parts for b in part.behind), key=lambda b: b.dpu)
-    spans = [part.spans for part in parts]
-    measured_any = any(s[0][0] is not None for s in spans)
-    span = [s[0] if measured_any else s[1] for s in spans]
-    starts, ends = [s[0] for s in span if s[0] is not None], [s[1] for s in span if s[1] is not None]
+    spans = [part.span for part in parts if part.span.start_ns is not None]
+    if any(s.measured for s in spans):
+        spans = [s for s in spans if s.measured]
     return WindowReport(
         generation=int(config.generation),
-        start_ns=min(starts, default=None),
-        end_ns=max(ends, default=None),
+        start_ns=min((s.start_ns for s in spans), default=None),
+        end_ns=max((s.end_ns for s in spans), default=None),
         dpus=_rows(parts, config.dpus, lambda d: d.id, lambda part: part.dpu_rows),
         processes=processes,
         buffers=buffer_metrics(BufferParts.join(p.buffers for p in parts), config, skips),
@@ -234,7 +229,7 @@ def _rows(parts: Sequence[WindowPart], described: Sequence[Any], dpu_of: Callabl
           rows_of: Callable[[WindowPart], list[Any]]) -> list[Any]:
     """A table's rows (one per `described` DPU or process, in the order the parts give them) each
     from the part of its DPU: the first part for a DPU no part holds (its row has no record)."""
-    order = sorted(range(len(described)), key=lambda i: _id(described[i]))
+    order = sorted(range(len(described)), key=lambda i: int(described[i].id))
     out = list(rows_of(parts[0]))
     for part in parts[1:]:
         rows = rows_of(part)
@@ -242,10 +237,6 @@ def _rows(parts: Sequence[WindowPart], described: Sequence[Any], dpu_of: Callabl
             if dpu_of(described[i]) in part.dpus:
                 out[at] = rows[at]
     return out
-
-
-def _id(desc: Any) -> int:
-    return int(desc.id)
 
 
 # A record with a stall, of any window: what a lockout's writer and a data wait behind are
@@ -289,13 +280,6 @@ def earlier_ends_ns(ends: Sequence[Mapping[int, int]]) -> list[dict[int, int]]:
             before[dpu] = max(end, before.get(dpu, end))
         out.append(before)
     return out
-
-
-def measured_once(records: np.ndarray, config: Any) -> np.ndarray:
-    """measured(records, config), read-only: the window's tables share it side by side."""
-    win = measured(records, config)
-    win.flags.writeable = False
-    return win
 
 
 def _work_bytes(records: np.ndarray, inputs: np.ndarray) -> int:
