@@ -160,7 +160,7 @@ def writer_stall(records: np.ndarray, config: Any, clock: ClockOffsets, reader: 
     best = None
     for b in buffers:
         w = procs.get(writers.get(b, -1))
-        if w is None or w.dpu == reader.dpu or not len(records):
+        if w is None or w.dpu == reader.dpu:
             continue
         mine = records["dpu"] == w.dpu
         at = clock.to_host(w.dpu, records["release_ns"][mine])
@@ -759,11 +759,11 @@ def recv_buf_needed(payload_bytes: int) -> int:
 
 @dataclass
 class Deliveries:
-    """What delivery_faults judges of a window: per process, its completed cycles (the messages
-    it published) and whether it ran; per (reader, buffer), its new inputs and the messages it
-    received. The parts of a window read DPU by DPU add up (join)."""
+    """What delivery_faults judges of a window: per process, its completed cycles (each
+    published its messages, measured or not) and whether it ran; per (reader, buffer), its new
+    inputs and the messages it received. The parts of a window read DPU by DPU add up (join)."""
 
-    published: dict[int, int] = field(default_factory=dict)
+    completed: dict[int, int] = field(default_factory=dict)
     ran: set[int] = field(default_factory=set)
     got: dict[tuple[int, int], tuple[int, int]] = field(default_factory=dict)
 
@@ -786,8 +786,8 @@ class Deliveries:
     def join(cls, parts: Iterable[Deliveries]) -> Deliveries:
         out = cls()
         for part in parts:
-            for proc, n in part.published.items():
-                out.published[proc] = out.published.get(proc, 0) + n
+            for proc, n in part.completed.items():
+                out.completed[proc] = out.completed.get(proc, 0) + n
             out.ran |= part.ran
             for key, (new, received) in part.got.items():
                 had = out.got.get(key, (0, 0))
@@ -810,7 +810,7 @@ def delivery_faults(config: Any, seen: Deliveries,
             desc = buffers.get(buffer_id)
             if desc is None or desc.writer == reader.id:
                 continue
-            sent = int(seen.published.get(desc.writer, 0))
+            sent = int(seen.completed.get(desc.writer, 0))
             lock = lockouts.get(reader.id)
             waits_here = lock is not None and lock.buffer == buffer_id
             if sent < DELIVERY_MIN_SENT or not (reader.id in seen.ran or waits_here):

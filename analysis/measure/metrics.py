@@ -181,7 +181,7 @@ def measured(records: np.ndarray, config: Any, starts: dict[int, int] | None = N
 
 
 def window_mask(records: np.ndarray, config: Any, in_window: np.ndarray | None) -> np.ndarray:
-    """`in_window` when the caller has it (build_window finds it once for every table of a
+    """`in_window` when the caller has it (window_part finds it once for every table of a
     window), else measured(records, config): a table called alone finds it itself."""
     return measured(records, config) if in_window is None else in_window
 

@@ -151,10 +151,11 @@ def run_part(run: RunRecords, configs: Sequence[Any], dpus: set[int],
     (report_configs)."""
     origin = first_release_ns(run.records)
     windows: list[WindowPart] = []
+    earlier: dict[int, int] = {}  # when each DPU's work of the windows before ended
     for config in configs:
         records, inputs = window_records(run, config.generation)
-        earlier = earlier_ends_ns([w.ends_ns for w in windows] + [{}])[-1]
         windows.append(window_part(config, records, inputs, dpus, clock, earlier, origin))
+        earlier = earlier_ends_ns(earlier, windows[-1].ends_ns)
     # not a slice of the records: it would hold their columns
     counts = dataclasses.replace(run, records=ColumnTable.empty(RECORD_DTYPE),
                                  inputs=ColumnTable.empty(INPUT_DTYPE))
@@ -192,35 +193,38 @@ def build_report(
     windows = report_configs(config, run.generations, configs)
     # one part: every DPU's rows come from it
     parts = [run_part(run, windows, {int(d.id) for c in windows for d in c.dpus}, clock)]
-    return finish_report(windows, parts, statuses, reports, integrity, malformed, clock, heartbeats, commands)
+    if heartbeats is None:
+        heartbeats = heartbeats_from_status((None, s) for s in statuses)
+    return finish_report(windows, parts, heartbeats, statuses, reports, integrity, malformed, clock, commands)
 
 
 def finish_report(
     configs: Sequence[Any],
     parts: Sequence[RunPart],
+    heartbeats: Heartbeats,
     statuses: Sequence[Any] = (),
     reports: Sequence[Any] = (),
     integrity: Integrity | None = None,
     malformed: dict[str, int] | None = None,
     clock: ClockOffsets | None = None,
-    heartbeats: Heartbeats | None = None,
     commands: Sequence[tuple[int, Any]] = (),
+    last_always: bool = True,
 ) -> RunReport:
     """The report of one run from its parts (run_part of each few DPUs, for the windows of
-    `configs`: report_configs), as build_report's arguments say."""
+    `configs`: report_configs), as build_report's arguments say; `statuses`: those that name
+    lockouts suffice. A window of no decoded record is left out, but for the last of `configs`
+    when `last_always` (a live view's config, before its first records come)."""
     clock = clock or NO_OFFSETS
-    config = configs[-1]
     run_id = parts[0].counts.run_id
     generations = sorted({g for part in parts for g in part.counts.generations})
-    # A generation of the batches' headers whose records no part could decode has no window.
-    kept = [i for i, c in enumerate(configs) if c.generation in generations or c is config]
+    kept = [i for i, c in enumerate(configs)
+            if c.generation in generations or (last_always and i == len(configs) - 1)]
+    config = configs[kept[-1]]
     window_parts = [[part.windows[i] for part in parts] for i in kept]
     # A report the logger missed may have been re-sent (host/repair.py): one per DPU.
     mine = list({r.dpu: r for r in reports if r.run_id == run_id}.values())
     firsts = [_smallest([p.first_cycles for p in wp]) for wp in window_parts]
     locks = split_lockouts(lockouts_from_status(statuses, run_id), firsts)
-    if heartbeats is None:
-        heartbeats = heartbeats_from_status((None, s) for s in statuses)
     # Every window's faults say when, from the run's first release: not from their window's.
     origin = _smallest([part.origin for part in parts])
     lost = dpu_lost_faults(config, heartbeats, run_id, origin, {r.dpu for r in mine})
@@ -266,6 +270,19 @@ def finish_report(
         clock_offsets=clock.latest(),
         stopped=stopped_early(commands, run_id),
     )
+
+
+def holds_its_processes(parts: Sequence[RunPart], configs: Sequence[Any]) -> bool:
+    """Whether every process's records of each window (of `configs`) are in the part of its
+    DPU: a process's row is made from that part alone (windows.finish_window), so a process
+    with records in another DPU's batches needs the run read as one part."""
+    for i, config in enumerate(configs):
+        dpu_of = {int(p.id): int(p.dpu) for p in config.processes}
+        for part in parts:
+            window = part.windows[i]
+            if any(dpu_of.get(proc) not in window.dpus for proc in window.deliveries.ran):
+                return False
+    return True
 
 
 def _smallest(values: Iterable[Mapping[int, int]]) -> dict[int, int]:

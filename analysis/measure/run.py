@@ -28,13 +28,13 @@ from skelmsg.contract import CONFIG_CHANNEL, TIMING_CHANNEL
 
 from ..read.logreader import Log
 from ..read.messages import LogError, Messages, int_columns, open_run_log, published_batches, read_messages
-from ..read.records import IMPOSSIBLE, Heads, RunRecords, load_records, run_ids, timing_heads
+from ..read.records import IMPOSSIBLE, Heads, RunRecords, load_records, run_ids, run_usual_sizes, timing_heads
 from ..read.seal import KeyFileError, authenticate
 from .columns import Table, faults_table, process_names, receptions_table, report_tables, timing_table
 from .faults import Heartbeats, heartbeats_from_status
 from .latency import ClockOffsets
 from .predicted import Predictor, beside
-from .report import RunReport, finish_report, report_configs, run_part
+from .report import RunPart, RunReport, finish_report, holds_its_processes, report_configs, run_part
 from .windows import window_records
 
 NO_CONFIG = f"{TIMING_CHANNEL} (no config for its generation)"
@@ -52,6 +52,8 @@ class RunAnalysis:
     utc_offset_ns: dict[int, int] = field(default_factory=dict)  # dpu -> utc_ns - mono_ns
     # every generation of the run (`recorded`); None when the report was made a few DPUs at a time
     held: RunRecords | None = field(default=None, repr=False)
+    usual: dict[str, float] | None = None  # the bounds of impossible records the parts used
+
     _windows: dict[int, tuple[Any, Any]] = field(default_factory=dict, init=False, repr=False)
 
     @property
@@ -65,7 +67,8 @@ class RunAnalysis:
         here, for the views that need every one of them (export, the timing table, plots)."""
         if self.held is None:
             run_id = self.report.run_id
-            self.held = load_records(self.log, run_id, published_batches(self.log, run_id), self.heads)
+            self.held = load_records(self.log, run_id, published_batches(self.log, run_id), self.heads,
+                                     usual=self.usual)
         return self.held
 
     @property
@@ -210,7 +213,9 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None,
     # GIL: side by side, the one hides behind the other on a run of millions of records.
     with ThreadPoolExecutor(1) as pool:
         pending = pool.submit(_control, log, generations, len(groups) == 1)
-        first = load_records(log, run_id, expected, heads, None if len(groups) == 1 else groups[0])
+        # a run read in parts: one bound for every part (a run read whole: its records' own)
+        usual = run_usual_sizes(log, run_id, heads) if len(groups) > 1 else None
+        read_first = [load_records(log, run_id, expected, heads, groups[0], usual)]
         messages, beats, offsets, locking = pending.result()
     candidates = sorted(g for g in generations if g in messages.configs)
     if not candidates:
@@ -219,29 +224,43 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None,
     configs = {g: messages.configs[g] for g in candidates}
     windows = report_configs(configs[candidates[-1]], candidates, configs)
     clock = ClockOffsets.from_messages(messages.clock_offsets)
-    parts, unnamed = [], 0
-    for i, dpus in enumerate(groups):
-        run = first if i == 0 else load_records(log, run_id, expected, heads, dpus)
-        parts.append(run_part(run, windows, set(dpus), clock))
-        if generations - set(candidates):
-            unnamed += int(np.count_nonzero(~np.isin(run.records["generation"], candidates)))
-        timed = set(np.unique(run.records["dpu"]).tolist())
-        offsets.update(_offsets_from_batches(log, run, timed - set(offsets), heads))
-        if len(groups) > 1:
-            first = run = None  # a part's records are let go before the next one's are read
+
+    def read(groups: list[list[int]],
+             ready: list[RunRecords]) -> tuple[list[RunPart], int, RunRecords | None]:
+        """The parts of `groups` (`ready`: the first one's records when read already, taken out of
+        it, so that nothing else holds them), the records of no config's generation, and the
+        run's records when it is one part."""
+        parts, unnamed, run = [], 0, None
+        for dpus in groups:
+            run = ready.pop() if ready else load_records(log, run_id, expected, heads, dpus, usual)
+            parts.append(run_part(run, windows, set(dpus), clock))
+            if generations - set(candidates):
+                unnamed += int(np.count_nonzero(~np.isin(run.records["generation"], candidates)))
+            timed = set(np.unique(run.records["dpu"]).tolist())
+            offsets.update(_offsets_from_batches(log, run, timed - set(offsets), heads))
+            if len(groups) > 1:
+                run = None  # a part's records are let go before the next one's are read
+        return parts, unnamed, run
+
+    parts, unnamed, held = read(groups, read_first)
+    if not holds_its_processes(parts, windows):
+        # A process's records in another DPU's batches (a stray DPU, one that took over its
+        # processes): its rows are made from every part of it at once, as one part.
+        parts, unnamed, held = read([[d for group in groups for d in group]], [])
     log.release()  # every message needed is decoded: the log's pages are given back (Log.release)
-    # a part does not count the batches whose header could not be read: whose DPU is unknown
-    headless = 0 if len(groups) == 1 else int(np.count_nonzero(~ok))
-    malformed = {TIMING_CHANNEL: sum(p.counts.malformed for p in parts) + headless,
+    # the batches whose header could not be read, whose DPU is unknown, are in no part
+    malformed = {TIMING_CHANNEL: sum(p.counts.malformed for p in parts) + int(np.count_nonzero(~ok)),
                  IMPOSSIBLE: sum(p.counts.impossible for p in parts), **messages.malformed}
     if unnamed:
         # A window without its config cannot be named (a stray batch, or the config was
         # never logged): only the others are reported, and the stray ones are counted.
         malformed[NO_CONFIG] = unnamed
-    report = finish_report(windows, parts, locking, messages.reports, log.integrity, malformed, clock, beats,
-                           messages.commands)
+    if not any(part.counts.generations for part in parts):
+        raise LogError(f"no timing record of run {run_id} could be decoded")
+    report = finish_report(windows, parts, beats, locking, messages.reports, log.integrity, malformed, clock,
+                           messages.commands, last_always=False)
     return RunAnalysis(log=log, heads=heads, messages=messages, report=report, clock=clock,
-                       utc_offset_ns=offsets, held=first)
+                       utc_offset_ns=offsets, held=held, usual=usual)
 
 
 def _control(log: Log, generations: set[int],

@@ -168,7 +168,7 @@ def window_part(
         buffers=done["buffers"], chains=done["chains"], deliveries=done["deliveries"], behind=done["behind"],
         stalls=done["stalls"],
         flagged=lockouts_from_records(records, {}),
-        first_cycles=smallest_per_id(records["process"], records["cycle"]) if len(records) else {},
+        first_cycles=smallest_per_id(records["process"], records["cycle"]),
         sums_ns=done["sums"], ends_ns=done["ends"],
     )
 
@@ -268,17 +268,14 @@ def _sums_ns(records: np.ndarray, in_window: np.ndarray) -> dict[int, tuple[int,
                   sums["blocked_ns"][dpu] + sums["idle_ns"][dpu]) for dpu in groups}
 
 
-def earlier_ends_ns(ends: Sequence[Mapping[int, int]]) -> list[dict[int, int]]:
-    """Per window (each window's warmup_end_ns, in generation order): when each DPU's work of the
-    windows before it ended (metrics.warmup_end_ns). A DPU behind its schedule at a live
-    switch is still working on the old generation's cycles at the new one's first release:
-    to the new window, that work is what warm-up work is to a run's first."""
-    out: list[dict[int, int]] = [{}]
-    for window in ends[:-1]:
-        before = dict(out[-1])
-        for dpu, end in window.items():
-            before[dpu] = max(end, before.get(dpu, end))
-        out.append(before)
+def earlier_ends_ns(before: Mapping[int, int], window: Mapping[int, int]) -> dict[int, int]:
+    """When each DPU's work of the windows before the next one ended (metrics.warmup_end_ns),
+    from when it ended before a window (`before`) and in it (its warmup_end_ns). A DPU behind
+    its schedule at a live switch is still working on the old generation's cycles at the new
+    one's first release: to the new window, that work is what warm-up work is to a run's first."""
+    out = dict(before)
+    for dpu, end in window.items():
+        out[dpu] = max(end, out.get(dpu, end))
     return out
 
 

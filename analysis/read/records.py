@@ -104,17 +104,33 @@ def run_ids(log: Log, heads: Heads | None = None) -> list[int]:
 
 def load_records(
     log: Log, run_id: int | None = None, expected_batches: dict[int, int] | None = None,
-    heads: Heads | None = None, dpus: Collection[int] | None = None,
+    heads: Heads | None = None, dpus: Collection[int] | None = None, usual: dict[str, float] | None = None,
 ) -> RunRecords:
     """The records of one run (default: the last run with timing records), straight
-    from the log's memory map; with `dpus`, those of these DPUs alone (see decode_timing)."""
+    from the log's memory map; with `dpus`, those of these DPUs alone (see decode_timing).
+    Impossible records are left out against the `usual` sizes of the run's records (default:
+    of those read: run_usual_sizes gives a run's to each of its parts)."""
     heads = heads or timing_heads(log)
     if run_id is None:
         runs = run_ids(log, heads)
         run_id = runs[-1] if runs else 0
     run = decode_timing(log.buf, *_timing_events(log), run_id=run_id, expected_batches=expected_batches,
                         heads=heads, release=log.release, dpus=dpus)
-    return without_impossible(run, robust_span(log.utime_us[log.indices(TIMING_CHANNEL)]) * 1000)
+    span_ns = robust_span(log.utime_us[log.indices(TIMING_CHANNEL)]) * 1000
+    return without_impossible(run, span_ns, usual_sizes(run.records) if usual is None else usual)
+
+
+def run_usual_sizes(log: Log, run_id: int, heads: Heads) -> dict[str, float]:
+    """usual_sizes of a run's records, read from about _SAMPLE of them in batches spread over
+    the whole run: the same bounds for every part of it read alone (load_records' `dpus`) as
+    for the whole."""
+    ok, head = heads
+    mine = np.flatnonzero(ok & (head["run_id"] == run_id))
+    per_batch = max(1, int(head["n"][mine].sum()) // max(1, len(mine)))
+    chosen = mine[:: max(1, len(mine) * per_batch // _SAMPLE)]
+    starts, lengths = _timing_events(log)
+    sample = decode_timing(log.buf, starts[chosen], lengths[chosen], run_id, release=log.release)
+    return usual_sizes(sample.records)
 
 
 def decode_run(
@@ -147,8 +163,8 @@ def decode_timing(
     `expected_batches` (dpu -> batches the DPU says it published, from report_t)
     reveals batches lost at the end of a run; `heads`, when known, are those messages';
     `release`: see flatdecode.decode_many. With `dpus`, only their batches (a part of the
-    run): the messages whose header could not be decoded, whose DPU is unknown, are not
-    counted as malformed, nor the DPUs' of expected_batches not among them as lost."""
+    run): a message whose header could not be decoded, whose DPU is unknown, is not counted as
+    malformed (the caller counts it once), and only these DPUs' expected batches are looked for."""
     ok, heads = heads or decode_heads(TIMING, buf, starts, lengths, release)
     mine = ok & (heads["run_id"] == run_id)
     if dpus is None:
@@ -268,9 +284,10 @@ def impossible(records: ColumnTable, span_ns: int, usual: dict[str, float] | Non
     return out
 
 
-def without_impossible(run: RunRecords, span_ns: int) -> RunRecords:
-    """`run` less its impossible records (and their inputs), counted in run.impossible."""
-    bad = impossible(run.records, span_ns)
+def without_impossible(run: RunRecords, span_ns: int, usual: dict[str, float]) -> RunRecords:
+    """`run` less its impossible records (and their inputs) against the `usual` sizes, counted in
+    run.impossible."""
+    bad = impossible(run.records, span_ns, usual)
     if not bad.any():
         return run
     records, inputs = select(run.records, run.inputs, ~bad)
