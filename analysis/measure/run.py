@@ -243,7 +243,7 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None,
         return parts, unnamed, run
 
     parts, unnamed, held = read(groups, read_first)
-    if not holds_its_processes(parts, windows):
+    if len(parts) > 1 and not holds_its_processes(parts, windows):
         # A process's records in another DPU's batches (a stray DPU, one that took over its
         # processes): its rows are made from every part of it at once, as one part.
         parts, unnamed, held = read([[d for group in groups for d in group]], [])
