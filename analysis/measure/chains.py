@@ -205,11 +205,10 @@ class ChainRecords(NamedTuple):
     def of(cls, records: np.ndarray, inputs: np.ndarray, config: Any, in_window: np.ndarray) -> ChainRecords:
         processes = sorted({int(p) for chain in config.chains for p in chain.processes})
         buffers = sorted({b for chain in config.chains for b in chain_buffers(chain, config) or []})
-        rows = np.flatnonzero(np.isin(records["process"], processes))
-        keep = np.zeros(len(records), dtype=bool)
-        keep[rows] = True
+        chosen = np.isin(records["process"], processes)
+        rows = np.flatnonzero(chosen)
         on = np.flatnonzero(np.isin(inputs["buffer"], buffers)) if len(rows) else np.zeros(0, np.int64)
-        on = on[keep[inputs["record"][on]]]
+        on = on[chosen[inputs["record"][on]]]
         mine = inputs[on]
         ins = {name: mine[name] for name in CHAIN_INPUT.names or () if name != "record"}
         ins["record"] = np.searchsorted(rows, mine["record"])

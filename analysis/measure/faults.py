@@ -768,9 +768,9 @@ class Deliveries:
     got: dict[tuple[int, int], tuple[int, int]] = field(default_factory=dict)
 
     @classmethod
-    def of(cls, records: np.ndarray, inputs: np.ndarray, config: Any) -> Deliveries:
+    def of(cls, records: np.ndarray, inputs: np.ndarray, config: Any, ran: set[int]) -> Deliveries:
+        """The Deliveries of `records` and their `inputs`, `ran` the processes they hold."""
         done = records["process"][completed(records)]
-        ran = set(np.unique(records["process"]).tolist())
         got = {}
         for reader in config.processes:
             if reader.id not in ran:
