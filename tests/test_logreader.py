@@ -18,6 +18,7 @@ from skeleton.analysis.read import flatdecode, logreader, parallel
 from skeleton.analysis.read.coltable import ColumnTable
 from skeleton.analysis.read.flatdecode import FlatLayout
 from skeleton.analysis.read.logreader import HEADER_BYTES, SYNC_BYTES, encode_events, read_bytes, read_log
+from skeleton.analysis.read.messages import int_columns, read_messages
 from skeleton.analysis.read.records import (
     DURATIONS,
     INPUT_DTYPE,
@@ -146,6 +147,8 @@ def test_flat_layout_is_derived_from_the_generated_class() -> None:
     }
     with pytest.raises(TypeError):
         FlatLayout.of(skelmsg.config_t)  # nested structs and strings are not flat
+    with pytest.raises(TypeError):
+        FlatLayout.of(skelmsg.config_t, skipping=True)  # its links hold strings: no fixed size to pass over
 
 
 def test_fast_timing_decode_equals_generated_decoder() -> None:
@@ -181,6 +184,37 @@ def test_fast_timing_decode_equals_generated_decoder() -> None:
     assert run.inputs["record"].tolist() == [row[0] for row in want]
     for column, ours in enumerate(pairs, start=1):
         assert run.inputs[ours].tolist() == [row[column] for row in want], ours
+
+
+def test_statuses_bulk_decoded_give_what_the_generated_decoder_does(tmp_path: Path) -> None:
+    """status_t's integers read in numpy, its strings and lockouts passed over: the columns,
+    the statuses naming lockouts and the malformed count all as from an object a status."""
+    rng = np.random.default_rng(5)
+    sent = []
+    for k in range(40):
+        s = status(k % 3, [(k, -1, k)] * int(k % 7 == 0))
+        s.host = "h" * int(rng.integers(0, 30)) + "é" * (k % 2)  # the strings vary the fields' places
+        s.reject_reason, s.run_owner = "x" * int(rng.integers(0, 90)), f"HOST pid {k}"
+        s.pid, s.mono_ns, s.utc_ns, s.run_id = 100 + k, 10**9 + k, 2 * 10**18 + k, int(rng.integers(1, 4))
+        sent.append(s.encode())
+    negative = bytearray(status(1, []).encode())  # nlockouts < 0: the generated decoder reads none
+    at = 8 + 2 + (4 + 2) + 29 + (4 + 1) + 133  # fingerprint, dpu, host "h", 29 bytes, reason "", 133 bytes
+    negative[at : at + 2] = (-2).to_bytes(2, "big", signed=True)
+    damaged = [sent[5][:-1], sent[6][:30], b"\x00" * 12, bytes(negative)]
+    path = write_log(tmp_path / "s.lcm", [(STATUS_CHANNEL, m) for m in sent + damaged])
+    fields = ("dpu", "pid", "run_id", "state", "mono_ns", "utc_ns", "nlockouts")
+
+    messages = read_messages(read_log(path), set())
+    bulk = messages.status_columns(*fields)
+    whole = read_messages(read_log(path), set())
+    assert len(whole.statuses) == len(bulk.heard_us) == len(sent) + 1  # 1 of the 4 damaged decodes
+    assert bulk.heard_us.tolist() == [t for t, _ in whole.statuses]
+    for name, column in zip(fields, int_columns([s for _, s in whole.statuses], *fields), strict=True):
+        assert bulk.fields[name].tolist() == column.tolist(), name
+    assert bulk.fields["nlockouts"].tolist()[-1] == -2
+    assert [s.encode() for s in bulk.locking] == [s.encode() for _, s in whole.statuses if s.lockouts]
+    assert len(bulk.locking) == 6
+    assert messages.malformed == whole.malformed == {STATUS_CHANNEL: 3}
 
 
 def test_malformed_timing_messages_are_counted_not_fatal() -> None:

@@ -93,16 +93,24 @@ class Heartbeats:
     mono_ns: np.ndarray  # when its DPU sent it, on the clock of its timing records
 
 
+# status_t's fields Heartbeats keeps
+HEARTBEAT_FIELDS = ("dpu", "pid", "run_id", "state", "mono_ns")
+
+
+def heartbeats(known: np.ndarray, heard_us: np.ndarray, fields: Mapping[str, np.ndarray]) -> Heartbeats:
+    """Statuses as columns (`fields`: at least HEARTBEAT_FIELDS) to Heartbeats."""
+    order = np.argsort(np.where(known, heard_us, np.iinfo(np.int64).min), kind="stable")
+    return Heartbeats(known=known[order], heard_us=heard_us[order],
+                      **{name: fields[name][order] for name in HEARTBEAT_FIELDS})  # fmt: skip
+
+
 def heartbeats_from_status(timed: Iterable[tuple[int | None, Any]]) -> Heartbeats:
-    """(heard_us or None, status_t) pairs, as a log gives them, to Heartbeats."""
+    """(heard_us or None, status_t) pairs, as a live view holds them, to Heartbeats."""
     pairs = list(timed)
     known = np.fromiter((t is not None for t, _ in pairs), dtype=bool, count=len(pairs))
     heard = np.fromiter((t or 0 for t, _ in pairs), dtype=np.int64, count=len(pairs))
-    order = np.argsort(np.where(known, heard, np.iinfo(np.int64).min), kind="stable")
-    dpu, pid, run_id, state, mono = int_columns([s for _, s in pairs], "dpu", "pid", "run_id", "state",
-                                                "mono_ns")
-    return Heartbeats(known=known[order], heard_us=heard[order], dpu=dpu[order], pid=pid[order],
-                      run_id=run_id[order], state=state[order], mono_ns=mono[order])
+    columns = int_columns([s for _, s in pairs], *HEARTBEAT_FIELDS)
+    return heartbeats(known, heard, dict(zip(HEARTBEAT_FIELDS, columns, strict=True)))
 
 
 def lockouts_from_status(statuses: Iterable[Any], run_id: int) -> dict[int, Lockout]:

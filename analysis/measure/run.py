@@ -27,11 +27,11 @@ import numpy as np
 from skelmsg.contract import CONFIG_CHANNEL, TIMING_CHANNEL
 
 from ..read.logreader import Log
-from ..read.messages import LogError, Messages, int_columns, open_run_log, published_batches, read_messages
+from ..read.messages import LogError, Messages, open_run_log, published_batches, read_messages
 from ..read.records import IMPOSSIBLE, Heads, RunRecords, load_records, run_ids, run_usual_sizes, timing_heads
 from ..read.seal import KeyFileError, authenticate
 from .columns import Table, faults_table, process_names, receptions_table, report_tables, timing_table
-from .faults import Heartbeats, heartbeats_from_status
+from .faults import HEARTBEAT_FIELDS, Heartbeats, heartbeats
 from .latency import ClockOffsets
 from .predicted import Predictor, beside
 from .report import RunPart, RunReport, finish_report, holds_its_processes, report_configs, run_part
@@ -209,10 +209,10 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None,
     generations = set(head["generation"][in_run].tolist())
     expected = published_batches(log, run_id)
     groups = dpu_groups(head["dpu"][in_run], head["n"][in_run], expected, part_records)
-    # The statuses decode one by one in Python, the records in numpy calls that release the
-    # GIL: side by side, the one hides behind the other on a run of millions of records.
+    # The control messages decode beside the first part's records (0.3 s of 10^7 records' log,
+    # most of it the statuses' pages read in).
     with ThreadPoolExecutor(1) as pool:
-        pending = pool.submit(_control, log, generations, len(groups) == 1)
+        pending = pool.submit(_control, log, generations)
         # a run read in parts: one bound for every part (a run read whole: its records' own)
         usual = run_usual_sizes(log, run_id, heads) if len(groups) > 1 else None
         read_first = [load_records(log, run_id, expected, heads, groups[0], usual)]
@@ -263,17 +263,16 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None,
                        utc_offset_ns=offsets, held=held, usual=usual)
 
 
-def _control(log: Log, generations: set[int],
-             keep: bool) -> tuple[Messages, Heartbeats, dict[int, int], list[Any]]:
+def _control(log: Log, generations: set[int]) -> tuple[Messages, Heartbeats, dict[int, int], list[Any]]:
     """The log's control-plane messages, and what the report needs of their statuses: the
     heartbeats, each DPU's clock offset to UTC, and the statuses that name lockouts. The
-    statuses themselves are held when `keep` (a run read whole), else let go
-    (Messages.read_statuses): the views that show them decode them again."""
+    statuses as objects are decoded only for the views that show them (Messages.statuses)."""
     messages = read_messages(log, generations)
-    timed = messages.statuses if keep else messages.read_statuses()
-    statuses = [s for _, s in timed]
-    locking = [s for s in statuses if s.lockouts]
-    return messages, heartbeats_from_status(timed), status_offsets(statuses), locking
+    statuses = messages.status_columns(*HEARTBEAT_FIELDS, "utc_ns")
+    known = np.ones(len(statuses.heard_us), dtype=bool)
+    beats = heartbeats(known, statuses.heard_us, statuses.fields)
+    offsets = status_offsets(*(statuses.fields[name] for name in ("dpu", "mono_ns", "utc_ns")))
+    return messages, beats, offsets, statuses.locking
 
 
 def dpu_groups(dpu: np.ndarray, count: np.ndarray, expected: Mapping[int, int],
@@ -295,11 +294,10 @@ def dpu_groups(dpu: np.ndarray, count: np.ndarray, expected: Mapping[int, int],
     return groups
 
 
-def status_offsets(statuses: list[Any]) -> dict[int, int]:
-    """dpu -> utc_ns - mono_ns from the statuses (see the module comment)."""
-    dpu, mono, utc = int_columns(statuses, "dpu", "mono_ns", "utc_ns")
-    both = (mono > 0) & (utc > 0)
-    return {d: int(np.median((utc - mono)[both & (dpu == d)])) for d in np.unique(dpu[both]).tolist()}
+def status_offsets(dpu: np.ndarray, mono_ns: np.ndarray, utc_ns: np.ndarray) -> dict[int, int]:
+    """dpu -> utc_ns - mono_ns from the statuses' columns (see the module comment)."""
+    both = (mono_ns > 0) & (utc_ns > 0)
+    return {d: int(np.median((utc_ns - mono_ns)[both & (dpu == d)])) for d in np.unique(dpu[both]).tolist()}
 
 
 def _offsets_from_batches(log: Log, run: RunRecords, dpus: set[int], heads: Heads) -> dict[int, int]:

@@ -1,5 +1,8 @@
 """Bulk decoding of "flat" LCM messages (scalars and 1-D primitive arrays) into numpy.
 
+A message with strings, or with arrays of fixed-size structs, can have its scalars decoded
+so too (FlatLayout.of(..., skipping=True)): those fields are passed over, their values not read.
+
 The wire contract is lcmtypes/ only: the layout here is derived at import time from
 the lcm-gen Python class (its __slots__, __typenames__, __dimensions__ and packed
 fingerprint), never written by hand. Every message of a kind is decoded at
@@ -9,6 +12,7 @@ field, not per message, and never one Python object per value.
 
 from __future__ import annotations
 
+import importlib
 import itertools
 import struct
 from collections.abc import Callable
@@ -47,12 +51,25 @@ class _Arrays:
 
 
 @dataclass(frozen=True)
+class _Skipped:
+    """A field passed over: a string (its byte count, a uint32, in front of it: `length`
+    None), or `length` structs of `size` bytes each."""
+
+    name: str
+    length: str | None
+    size: int
+
+
+_Step = _Scalars | _Arrays | _Skipped
+
+
+@dataclass(frozen=True)
 class FlatLayout:
     """The decoding plan of one lcm-gen class: runs of scalars and runs of arrays."""
 
     name: str
     fingerprint: bytes
-    steps: tuple[_Scalars | _Arrays, ...]
+    steps: tuple[_Step, ...]
     arrays: tuple[str, ...]
 
     @property
@@ -64,13 +81,19 @@ class FlatLayout:
         return first.names, first.fmt
 
     @classmethod
-    def of(cls, msg_class: type) -> FlatLayout:
-        steps: list[_Scalars | _Arrays] = []
+    def of(cls, msg_class: type, skipping: bool = False) -> FlatLayout:
+        """`skipping`: strings and arrays of fixed-size structs are passed over (_Skipped),
+        not refused."""
+        steps: list[_Step] = []
         for slot, typename, dims in zip(
             msg_class.__slots__, msg_class.__typenames__, msg_class.__dimensions__, strict=True
         ):
             if typename not in _PRIMITIVES:
-                raise TypeError(f"{msg_class.__name__}.{slot}: {typename} is not a flat field")
+                skipped = _skipped(slot, typename, dims) if skipping else None
+                if skipped is None:
+                    raise TypeError(f"{msg_class.__name__}.{slot}: {typename} is not a flat field")
+                steps.append(skipped)
+                continue
             dtype_name, code = _PRIMITIVES[typename]
             dtype = np.dtype(dtype_name)
             if dims is None:
@@ -89,6 +112,20 @@ class FlatLayout:
                 steps.append(_Arrays((slot,), dtype, dims[0]))
         arrays = tuple(n for s in steps if isinstance(s, _Arrays) for n in s.names)
         return cls(msg_class.__name__, msg_class._get_packed_fingerprint(), tuple(steps), arrays)
+
+
+def _skipped(slot: str, typename: str, dims: list[Any] | None) -> _Skipped | None:
+    """How to pass over field `slot`, if it can be passed over without decoding it."""
+    if typename == "string" and dims is None:
+        return _Skipped(slot, None, 0)
+    if dims is None or len(dims) != 1 or not isinstance(dims[0], str):
+        return None
+    package, _, name = typename.rpartition(".")  # lcm-gen names a struct package.name
+    nested = getattr(importlib.import_module(package), name, None) if package else None
+    if nested is None or any(t not in _PRIMITIVES or d is not None
+                             for t, d in zip(nested.__typenames__, nested.__dimensions__, strict=True)):
+        return None
+    return _Skipped(slot, dims[0], sum(np.dtype(_PRIMITIVES[t][0]).itemsize for t in nested.__typenames__))
 
 
 @dataclass
@@ -160,7 +197,7 @@ class _Placed(NamedTuple):
 
 
 def _place_chunks(
-    steps: tuple[_Scalars | _Arrays, ...], layout: FlatLayout, buf: np.ndarray, starts: np.ndarray,
+    steps: tuple[_Step, ...], layout: FlatLayout, buf: np.ndarray, starts: np.ndarray,
     end: np.ndarray, release: Callable[[int, int], None] | None,
 ) -> _Placed:
     """_place, a chunk of the file at a time: the messages' heads lie on most pages of a
@@ -170,7 +207,7 @@ def _place_chunks(
 
 
 def _place(
-    steps: tuple[_Scalars | _Arrays, ...], layout: FlatLayout, buf: np.ndarray, starts: np.ndarray,
+    steps: tuple[_Step, ...], layout: FlatLayout, buf: np.ndarray, starts: np.ndarray,
     end: np.ndarray, release: Callable[[int, int], None] | None,
 ) -> _Placed:
     """Where the values of the messages from `starts` to `end` lie, read as far as `steps`
@@ -188,6 +225,15 @@ def _place(
             for name in step.names:
                 scalars[name] = np.where(ok, values[name], 0)
             pos = pos + step.fmt.size
+        elif isinstance(step, _Skipped):
+            if step.length is None:  # a string: its byte count, then its bytes
+                ok &= pos + 4 <= end
+                pos = pos + 4 + _gather(buf, np.where(ok, pos, 0), np.dtype(">u4")).astype(np.int64)
+            else:
+                n = scalars[step.length]
+                ok &= n >= 0
+                pos = pos + np.where(ok, n, 0).astype(np.int64) * step.size
+            ok &= pos <= end
         else:
             n = scalars[step.length]
             ok &= n >= 0
