@@ -151,12 +151,16 @@ def test_flat_layout_is_derived_from_the_generated_class() -> None:
         FlatLayout.of(skelmsg.config_t, skipping=True)  # its links hold strings: no fixed size to pass over
 
 
-def test_fast_timing_decode_equals_generated_decoder() -> None:
+@pytest.mark.parametrize("equal", [False, True])  # True: every batch as long, its arrays read as rows
+@pytest.mark.parametrize("gather_bytes", [flatdecode._GATHER_BYTES, 1])  # 1: a row gathered at a time
+def test_fast_timing_decode_equals_generated_decoder(gather_bytes: int, equal: bool,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(flatdecode, "_GATHER_BYTES", gather_bytes)
     rng = np.random.default_rng(3)
     msgs = []
     for seq in range(4):
         t = skelmsg.timing_t()
-        n, m = int(rng.integers(0, 9)), int(rng.integers(0, 20))
+        n, m = (5, 7) if equal else (int(rng.integers(0, 9)), int(rng.integers(0, 20)))
         t.dpu, t.run_id, t.generation, t.batch_seq, t.n, t.ninputs = 5, RUN_ID, 2, seq, n, m if n else 0
         for name, kind, dims in zip(t.__slots__, t.__typenames__, t.__dimensions__, strict=True):
             if dims is None:

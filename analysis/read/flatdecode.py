@@ -362,6 +362,9 @@ def _concat_into(
         out.byteswap(inplace=True)
 
 
+_GATHER_BYTES = 1 << 20
+
+
 def _rows_into(dest: np.ndarray, buf: np.ndarray, at: np.ndarray, width: int) -> None:
     """dest[i] = the `width` bytes from at[i]. A row may run past the end of the
     buffer (padding after a short last message): those few come from a zero-padded
@@ -369,7 +372,12 @@ def _rows_into(dest: np.ndarray, buf: np.ndarray, at: np.ndarray, width: int) ->
     items = _items(buf, width)
     inside = at <= len(buf) - width
     if bool(inside.all()):
-        dest[...] = items[at]  # (np.take would copy the whole overlapping view first)
+        # A few rows at a time: a fancy index gathers into a new array before the copy into
+        # `dest`, which, the size of the column, was fresh memory to back (np.take into `dest`
+        # would copy the whole overlapping view first).
+        step = max(1, _GATHER_BYTES // width)
+        for lo in range(0, len(at), step):
+            dest[lo : lo + step] = items[at[lo : lo + step]]
         return
     if inside.any():
         dest[inside] = items[at[inside]]
