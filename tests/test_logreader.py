@@ -13,6 +13,7 @@ from analysis_synth import RUN_ID, batches, small_config, small_run, status, wri
 from conftest import mapped_kib
 
 import skelmsg
+from skeleton.analysis.measure.faults import lockouts_from_status
 from skeleton.analysis.measure.run import analyze_log
 from skeleton.analysis.read import flatdecode, logreader, parallel
 from skeleton.analysis.read.coltable import ColumnTable
@@ -192,33 +193,47 @@ def test_fast_timing_decode_equals_generated_decoder(gather_bytes: int, equal: b
 
 def test_statuses_bulk_decoded_give_what_the_generated_decoder_does(tmp_path: Path) -> None:
     """status_t's integers read in numpy, its strings and lockouts passed over: the columns,
-    the statuses naming lockouts and the malformed count all as from an object a status."""
+    the lockouts and the malformed count all as from an object a status."""
     rng = np.random.default_rng(5)
     sent = []
+    named: dict[int, list[tuple[int, ...]]] = {0: [], 1: [], 2: []}
     for k in range(40):
-        s = status(k % 3, [(k, -1, k)] * int(k % 7 == 0))
+        dpu = k % 3
+        if k % 7 == 0:
+            named[dpu].append((k, -1, k))  # named again in each of the DPU's heartbeats after
+        s = status(dpu, named[dpu], run_id=1 + (k >= 30))  # run 2: the same lockouts, in another run
         s.host = "h" * int(rng.integers(0, 30)) + "é" * (k % 2)  # the strings vary the fields' places
         s.reject_reason, s.run_owner = "x" * int(rng.integers(0, 90)), f"HOST pid {k}"
-        s.pid, s.mono_ns, s.utc_ns, s.run_id = 100 + k, 10**9 + k, 2 * 10**18 + k, int(rng.integers(1, 4))
+        s.pid, s.mono_ns, s.utc_ns = 100 + k, 10**9 + k, 2 * 10**18 + k
+        s.ping_seq, s.run_end_utc_ns = 7 * k, 3 * 10**18 + k  # after the lockouts and a string
         sent.append(s.encode())
     negative = bytearray(status(1, []).encode())  # nlockouts < 0: the generated decoder reads none
     at = 8 + 2 + (4 + 2) + 29 + (4 + 1) + 133  # fingerprint, dpu, host "h", 29 bytes, reason "", 133 bytes
     negative[at : at + 2] = (-2).to_bytes(2, "big", signed=True)
-    damaged = [sent[5][:-1], sent[6][:30], b"\x00" * 12, bytes(negative)]
+    endless = bytearray(sent[8])
+    endless[10:14] = b"\xff" * 4  # the host's byte count: 2^32 - 1
+    trailing = sent[9] + b"\x01\x02"  # bytes after the message: read by neither decoder
+    damaged = [sent[5][:-1], sent[6][:30], b"\x00" * 12, bytes(endless), bytes(negative), trailing]
     path = write_log(tmp_path / "s.lcm", [(STATUS_CHANNEL, m) for m in sent + damaged])
-    fields = ("dpu", "pid", "run_id", "state", "mono_ns", "utc_ns", "nlockouts")
+    fields = ("dpu", "pid", "run_id", "state", "mono_ns", "utc_ns", "nlockouts", "ping_seq", "run_end_utc_ns")
 
     messages = read_messages(read_log(path), set())
     bulk = messages.status_columns(*fields)
     whole = read_messages(read_log(path), set())
-    assert len(whole.statuses) == len(bulk.heard_us) == len(sent) + 1  # 1 of the 4 damaged decodes
+    statuses = [s for _, s in whole.statuses]
+    assert len(statuses) == len(bulk.heard_us) == len(sent) + 2  # 2 of the 6 damaged decode
     assert bulk.heard_us.tolist() == [t for t, _ in whole.statuses]
-    for name, column in zip(fields, int_columns([s for _, s in whole.statuses], *fields), strict=True):
+    for name, column in zip(fields, int_columns(statuses, *fields), strict=True):
         assert bulk.fields[name].tolist() == column.tolist(), name
-    assert bulk.fields["nlockouts"].tolist()[-1] == -2
-    assert [s.encode() for s in bulk.locking] == [s.encode() for _, s in whole.statuses if s.lockouts]
-    assert len(bulk.locking) == 6
-    assert messages.malformed == whole.malformed == {STATUS_CHANNEL: 3}
+    assert bulk.fields["nlockouts"].tolist()[-2:] == [-2, 1]
+    assert messages.malformed == whole.malformed == {STATUS_CHANNEL: 4}
+    # A heartbeat repeating its DPU's last lockouts (in the same run) is not decoded whole.
+    first_named = [(s.dpu, s.run_id, len(s.lockouts)) for s in bulk.locking]
+    assert first_named == [(0, 1, 1), (1, 1, 1), (2, 1, 1), (0, 1, 2), (1, 1, 2),  # run 1
+                           (0, 2, 2), (1, 2, 2), (2, 2, 1), (2, 2, 2),  # run 2
+                           (0, 1, 1)]  # not the last DPU 0 named: sent[9] again
+    for run_id in (1, 2):
+        assert lockouts_from_status(bulk.locking, run_id) == lockouts_from_status(statuses, run_id)
 
 
 def test_malformed_timing_messages_are_counted_not_fatal() -> None:

@@ -3,7 +3,9 @@
 A RunAnalysis holds the log's events, the run's timing records (every generation),
 the decoded control-plane messages (configs by generation, statuses, DPU reports,
 clock estimates), the report (report.json) and a map from each DPU's clock to wall
-clock, all from one read of the file and one decode of each message.
+clock, all from one read of the file and one decode of each message (the statuses', the
+many, integers read in bulk for the report, and each decoded whole only for the views that
+show them).
 
 Wall clock: timing records are stamped with the DPU's CLOCK_MONOTONIC, which means
 nothing outside the DPU. Each status_t carries a (mono_ns, utc_ns) pair read at one

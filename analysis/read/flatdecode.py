@@ -65,7 +65,8 @@ _Step = _Scalars | _Arrays | _Skipped
 
 @dataclass(frozen=True)
 class FlatLayout:
-    """The decoding plan of one lcm-gen class: runs of scalars and runs of arrays."""
+    """The decoding plan of one lcm-gen class: runs of scalars, runs of arrays, and the fields
+    passed over (skipping)."""
 
     name: str
     fingerprint: bytes
@@ -77,7 +78,7 @@ class FlatLayout:
         """The scalars in front of the first array (readable without decoding arrays)."""
         first = self.steps[0]
         if not isinstance(first, _Scalars):
-            raise TypeError(f"{self.name} starts with an array")
+            raise TypeError(f"{self.name} does not start with a scalar")
         return first.names, first.fmt
 
     @classmethod
@@ -136,6 +137,8 @@ class Decoded:
     scalars: dict[str, np.ndarray]  # int64/float64 per message (0 where not ok)
     counts: dict[str, np.ndarray]  # length field -> elements per *ok* message
     columns: dict[str, np.ndarray]  # array field -> native-endian values of the ok messages
+    passed: dict[str, tuple[np.ndarray, np.ndarray]]  # field passed over -> the bytes it spans
+    # per message, [start, end) of the log (a string: its byte count too); 0 where not ok
 
 
 def decode_many(
@@ -155,7 +158,7 @@ def decode_many(
     """
     starts = np.asarray(starts, dtype=np.int64)
     end = starts + np.asarray(lengths, dtype=np.int64)
-    ok, scalars, placed = _place_chunks(layout.steps, layout, buf, starts, end, release)
+    ok, scalars, placed, passed = _place_chunks(layout.steps, layout, buf, starts, end, release)
     arrays = [step for step in layout.steps if isinstance(step, _Arrays)]
     good = np.flatnonzero(ok)
     counts = {step.length: scalars[step.length][good].astype(np.int64) for step in arrays}
@@ -177,7 +180,8 @@ def decode_many(
         if release is not None:
             release(int(starts[good[lo]]), int(end[good[hi - 1]]))
     columns = {c.name: out.view(c.dtype.newbyteorder("=")) for c, out in zip(plan, outs, strict=True)}
-    return Decoded(ok=ok, scalars=scalars, counts=counts, columns=columns)
+    passed = {name: (np.where(ok, lo, 0), np.where(ok, hi, 0)) for name, (lo, hi) in passed.items()}
+    return Decoded(ok=ok, scalars=scalars, counts=counts, columns=columns, passed=passed)
 
 
 class _Placed(NamedTuple):
@@ -186,6 +190,7 @@ class _Placed(NamedTuple):
     ok: np.ndarray  # per message, as Decoded.ok
     scalars: dict[str, np.ndarray]  # per message, as Decoded.scalars
     arrays: list[np.ndarray]  # per run of arrays (layout order), per message: the byte it starts at
+    passed: dict[str, tuple[np.ndarray, np.ndarray]]  # per field passed over, as Decoded.passed
 
     @classmethod
     def concat(cls, parts: list[_Placed]) -> _Placed:
@@ -193,7 +198,10 @@ class _Placed(NamedTuple):
         ok = np.concatenate([p.ok for p in parts])
         scalars = {name: np.concatenate([p.scalars[name] for p in parts]) for name in parts[0].scalars}
         arrays = [np.concatenate(runs) for runs in zip(*(p.arrays for p in parts), strict=True)]
-        return cls(ok, scalars, arrays)
+        passed = {name: (np.concatenate([p.passed[name][0] for p in parts]),
+                         np.concatenate([p.passed[name][1] for p in parts]))
+                  for name in parts[0].passed}  # fmt: skip
+        return cls(ok, scalars, arrays, passed)
 
 
 def _place_chunks(
@@ -218,6 +226,7 @@ def _place(
     pos = starts + 8
     scalars: dict[str, np.ndarray] = {}
     placed: list[np.ndarray] = []
+    passed: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for step in steps:
         if isinstance(step, _Scalars):
             ok &= pos + step.fmt.size <= end
@@ -226,6 +235,7 @@ def _place(
                 scalars[name] = np.where(ok, values[name], 0)
             pos = pos + step.fmt.size
         elif isinstance(step, _Skipped):
+            first = pos
             if step.length is None:  # a string: its byte count, then its bytes
                 ok &= pos + 4 <= end
                 pos = pos + 4 + _gather(buf, np.where(ok, pos, 0), np.dtype(">u4")).astype(np.int64)
@@ -234,6 +244,7 @@ def _place(
                 ok &= n >= 0
                 pos = pos + np.where(ok, n, 0).astype(np.int64) * step.size
             ok &= pos <= end
+            passed[step.name] = (first, pos)
         else:
             n = scalars[step.length]
             ok &= n >= 0
@@ -245,7 +256,7 @@ def _place(
             ok &= pos <= end
     if release is not None and len(starts):
         release(int(starts[0]), int(end.max()))
-    return _Placed(ok, scalars, placed)
+    return _Placed(ok, scalars, placed, passed)
 
 
 @dataclass(frozen=True)
@@ -418,7 +429,7 @@ def decode_heads(
     if not isinstance(layout.steps[0], _Scalars):
         raise TypeError(f"{layout.name} starts with an array")
     starts = np.asarray(starts, dtype=np.int64)
-    ok, scalars, _ = _place_chunks(layout.steps[:1], layout, buf, starts,
+    ok, scalars, _, _ = _place_chunks(layout.steps[:1], layout, buf, starts,
                                    starts + np.asarray(lengths, dtype=np.int64), release)
     return ok, scalars
 

@@ -3,8 +3,10 @@
 `open_run_log(path)` reads an LCM log, or an MCAP written by `skel export` served as
 one (mcapsource.py). `read_messages(log, generations)` decodes, in one pass per
 channel, what the analysis needs besides the timing records: the config_t of each
-generation, every status_t and command_t with when it was heard, the DPUs' report_t and
-the clock offset estimates. A message that does not decode is counted by channel, never fatal.
+generation, every command_t with when it was heard, the DPUs' report_t and the clock
+offset estimates; the statuses, the many, when asked (`Messages.statuses`), or only their
+integers (`Messages.status_columns`). A message that does not decode is counted by channel,
+never fatal.
 """
 
 from __future__ import annotations
@@ -75,17 +77,27 @@ class Messages:
     def status_columns(self, *names: str) -> StatusColumns:
         """The integer fields `names` of every decodable status, without an object each: a long
         run logs hundreds of thousands, which decoded one by one in Python took 1.9 s, and held
-        the GIL from the records' decode beside them. The few the bulk decode refuses are decoded
-        one by one, so that the generated decoder alone says which are malformed (as for
-        `statuses`), and so are those that name lockouts, which are kept whole."""
+        the GIL from the records' decode beside them. Decoded one by one: those the bulk decode
+        refuses, so that the generated decoder alone says which are malformed (as for
+        `statuses`), and those that name lockouts, kept whole, but for a DPU's heartbeats that
+        repeat the lockouts of its last one (a DPU names its run's lockouts in every heartbeat
+        after them): what lockouts_from_status reads of each status is the same."""
         log = self.log
         idx = log.indices(STATUS_CHANNEL)
         bulk = decode_many(_STATUS, log.buf, log.data_offset[idx], log.data_len[idx], log.release)
         decoded = bulk.ok.copy()
         columns = {name: bulk.scalars[name].astype(np.int64) for name in names}
+        dpu, run_id = bulk.scalars["dpu"].tolist(), bulk.scalars["run_id"].tolist()
+        first, end = (a.tolist() for a in bulk.passed["lockouts"])
+        named: dict[int, tuple[int, bytes]] = {}  # dpu -> the run and lockouts of its last status kept
         locking = []
         damaged = 0
         for i in np.flatnonzero(~bulk.ok | (bulk.scalars["nlockouts"] != 0)).tolist():
+            if bulk.ok[i]:
+                lockouts = (run_id[i], log.buf[first[i] : end[i]].tobytes())
+                if named.get(dpu[i]) == lockouts:
+                    continue
+                named[dpu[i]] = lockouts
             try:
                 status = skelmsg.status_t.decode(bytes(log.data(int(idx[i]))))
             except Exception:  # any decoder failure means "malformed", never a crash
@@ -108,7 +120,8 @@ _STATUS = FlatLayout.of(skelmsg.status_t, skipping=True)
 @dataclass(frozen=True)
 class StatusColumns:
     """Messages.status_columns: of the decodable statuses, in log order, when each was logged
-    and the fields asked for, a column each; and the statuses that name lockouts, whole."""
+    and the fields asked for, a column each; and the statuses that name lockouts, whole (a
+    DPU's repeats of its last one's left out)."""
 
     heard_us: np.ndarray
     fields: dict[str, np.ndarray]

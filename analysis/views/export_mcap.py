@@ -143,7 +143,7 @@ class _JsonMessages:
 
     def add_control(self, data: RunAnalysis) -> None:
         """The control-plane messages that decode (the attached log keeps the rest); the
-        statuses, the many, as the analysis decoded them."""
+        statuses, the many, decoded whole here (the report read only their integers)."""
         for channel, (cls, pattern) in MESSAGE_CHANNELS.items():
             schema = schema_of(cls)
             meta = {"lcm_channel": channel, "lcm_type": type_name(cls)}
