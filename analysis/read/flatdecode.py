@@ -427,7 +427,7 @@ def decode_heads(
     choose messages (a run, a DPU) before decoding their arrays. `release`: as decode_many's
     (called with what it no longer needs, not a promise never to read it again)."""
     if not isinstance(layout.steps[0], _Scalars):
-        raise TypeError(f"{layout.name} starts with an array")
+        raise TypeError(f"{layout.name} does not start with a scalar")
     starts = np.asarray(starts, dtype=np.int64)
     ok, scalars, _, _ = _place_chunks(layout.steps[:1], layout, buf, starts,
                                    starts + np.asarray(lengths, dtype=np.int64), release)
