@@ -49,6 +49,11 @@ class _Arrays:
     dtype: np.dtype[Any]
     length: str
 
+    @property
+    def size(self) -> int:
+        """Bytes per count of `length`: an element of each array."""
+        return self.dtype.itemsize * len(self.names)
+
 
 @dataclass(frozen=True)
 class _Skipped:
@@ -234,26 +239,22 @@ def _place(
             for name in step.names:
                 scalars[name] = np.where(ok, values[name], 0)
             pos = pos + step.fmt.size
-        elif isinstance(step, _Skipped):
-            first = pos
-            if step.length is None:  # a string: its byte count, then its bytes
-                ok &= pos + 4 <= end
-                pos = pos + 4 + _gather(buf, np.where(ok, pos, 0), np.dtype(">u4")).astype(np.int64)
-            else:
-                n = scalars[step.length]
-                ok &= n >= 0
-                pos = pos + np.where(ok, n, 0).astype(np.int64) * step.size
-            ok &= pos <= end
-            passed[step.name] = (first, pos)
-        else:
+            continue
+        first = pos
+        if step.length is None:  # a string passed over: its byte count, then its bytes
+            ok &= pos + 4 <= end
+            pos = pos + 4 + _gather(buf, np.where(ok, pos, 0), np.dtype(">u4")).astype(np.int64)
+        else:  # `length` elements of `size` bytes: arrays, or structs passed over
             n = scalars[step.length]
             ok &= n >= 0
             # int64 before multiplying: an int32 length of 2**30 times 8 bytes wrapped negative,
             # passed the size check and asked for a 39 GiB column (a flipped bit, Hypothesis)
-            n = np.where(ok, n, 0).astype(np.int64)
-            placed.append(pos)
-            pos = pos + n * step.dtype.itemsize * len(step.names)
-            ok &= pos <= end
+            pos = pos + np.where(ok, n, 0).astype(np.int64) * step.size
+        ok &= pos <= end
+        if isinstance(step, _Arrays):
+            placed.append(first)
+        else:
+            passed[step.name] = (first, pos)
     if release is not None and len(starts):
         release(int(starts[0]), int(end.max()))
     return _Placed(ok, scalars, placed, passed)
