@@ -18,15 +18,19 @@ Each takes `run(text, name, seconds) -> (records, report)`: one real `skel run`.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from skeleton.analysis.measure.metrics import cycle_end_ns, first_of_frame
+from skeleton.analysis.read.records import FLAG_OVERRUN
 from skelmsg import contract
 
 Run = Callable[[str, str, float], tuple[np.ndarray, dict[str, Any]]]
+# bench/run.py's with_cyclictest: (work, seconds, priority, period_us) -> (work(), its histogram)
+Beside = Callable[[Callable[[], Any], float, int, int], tuple[Any, tuple[np.ndarray, float] | None]]
 
 BOOK_PROCESSES = 64
 BOOK_PERIOD_US = 1000
@@ -37,9 +41,11 @@ RATE_PROBES_US = (80, 67, 50, 40, 33, 25, 20)  # past a clean 10 kHz
 RATE_FALLBACKS_US = (125, 167, 200, 250, 333, 500, 1000)  # short of it: where this machine is clean
 
 
-def system(name: str, url: str, processes: int, period_us: int, compute_us: int) -> str:
-    lines = [f"system: {name}", f'links: [{{name: bus, url: "{url}"}}]', "dpus: [{id: 1, compute: sleep}]",
-             "processes:"]
+def system(name: str, url: str, processes: int, period_us: int, compute_us: int,
+           cpu: int | None = None) -> str:  # fmt: skip
+    pin = "" if cpu is None else f", cpu: {cpu}"
+    lines = [f"system: {name}", f'links: [{{name: bus, url: "{url}"}}]',
+             f"dpus: [{{id: 1, compute: sleep{pin}}}]", "processes:"]  # fmt: skip
     lines += [f"  - {{id: {i}, name: p{i}, dpu: 1, period_us: {period_us}, compute_us: {compute_us}}}"
               for i in range(1, processes + 1)]
     lines.append("run: {warmup_cycles: 200, lockout_cycles: 1000, stop_on: []}")
@@ -106,21 +112,61 @@ def _clean(records: np.ndarray, report: dict[str, Any]) -> tuple[bool, str]:
     return overruns == stalled and lost == 0, said
 
 
-def part_rate(run: Run, url: str) -> list[str]:
+def _frames(records: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per minor cycle of one DPU: its work (the first start to the last end, ns) and whether
+    any of its process-cycles overran."""
+    recs = records[np.lexsort((records["start_ns"], records["minor"]))]
+    first = np.flatnonzero(first_of_frame(recs))
+    if not len(first):
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool)
+    end = cycle_end_ns(recs).astype(np.int64)
+    work = np.maximum.reduceat(end, first) - recs["start_ns"][first].astype(np.int64)
+    return work, np.logical_or.reduceat((recs["flags"] & FLAG_OVERRUN) != 0, first)
+
+
+def _machine_floor(records: np.ndarray, histogram: tuple[np.ndarray, float] | None,
+                   minor_us: int) -> tuple[str, str]:  # fmt: skip
+    """What the machine's own wake-ups allow a frame: the share of cyclictest's wake-ups, at the
+    same period beside the DPU, later than the frame's slack (the minor cycle less the frame's
+    work), against the share of the DPU's frames that overran. (headline, line)"""
+    work, overran = _frames(records)
+    if histogram is None or not len(work):
+        return "", "cyclictest beside it: skipped (no cyclictest)" if histogram is None else ""
+    counts, worst = histogram
+    slack_us = minor_us - float(np.percentile(work, 50)) / 1000.0
+    late = int(counts[max(0, math.ceil(slack_us)) :].sum())
+    theirs, ours = late / counts.sum(), float(overran.mean())
+    cumulative = np.cumsum(counts) / counts.sum()
+    return (f" (this machine's own wake-ups: cyclictest beside it woke later than the frame's slack in "
+            f"{theirs:.2%} of its cycles; the DPU's frames overran in {ours:.2%})",
+            f"cyclictest beside it (the other CPU, the same period and class): p50 "
+            f"{np.searchsorted(cumulative, 0.5)} us, p99 {np.searchsorted(cumulative, 0.99)} us, max "
+            f"{worst:.0f} us; {late} of {counts.sum()} wake-ups ({theirs:.2%}) later than the frame's slack "
+            f"of {slack_us:.0f} us (the minor cycle less the frame's work, p50 {minor_us - slack_us:.0f} "
+            f"us): woken that late, any executive overruns. The DPU's frames that overran: "
+            f"{int(overran.sum())} of {len(work)} ({ours:.2%})")  # fmt: skip
+
+
+def part_rate(run: Run, url: str, beside: Beside, cpu: int, priority: int) -> list[str]:
+    """`beside(work, seconds, priority, period_us)`: work() with cyclictest at that period
+    beside it on another CPU than `cpu` (bench/run.py's with_cyclictest)."""
     hz = 1e6 / RATE_MINOR_US
     seconds = RATE_CYCLES * RATE_MINOR_US / 1e6
-    text = system("rate", url, RATE_PROCESSES, RATE_MINOR_US, RATE_COMPUTE_US)
-    ok, said = _clean(*run(text, "rate", seconds))
-    lines = [f"# {RATE_PROCESSES} processes of {RATE_COMPUTE_US} us in one minor cycle, one DPU (sleep mode: "
-             f"SCHED_FIFO when permitted); {RATE_MINOR_US} us for {seconds:g} s, then "
+    text = system("rate", url, RATE_PROCESSES, RATE_MINOR_US, RATE_COMPUTE_US, cpu)
+    (records, report), histogram = beside(lambda: run(text, "rate", seconds), seconds, priority,
+                                          RATE_MINOR_US)  # fmt: skip
+    ok, said = _clean(records, report)
+    floor, machine = _machine_floor(records, histogram, RATE_MINOR_US)
+    lines = [f"# {RATE_PROCESSES} processes of {RATE_COMPUTE_US} us in one minor cycle, one DPU on CPU {cpu} "
+             f"(sleep mode: SCHED_FIFO when permitted); {RATE_MINOR_US} us for {seconds:g} s, then "
              f"{RATE_PROBE_S:g} s each: shorter down to the floor ({contract.MIN_PERIOD_US} us) when it was "
              f"clean, longer up to {RATE_FALLBACKS_US[-1]} us until one is when it was not",
-             f"{RATE_MINOR_US} us ({hz / 1000:g} kHz): {said}"]
+             f"{RATE_MINOR_US} us ({hz / 1000:g} kHz): {said}", machine]
     best = RATE_MINOR_US if ok else None
     # 2 s each is weaker evidence than the 10 s at 10 kHz: shorter ones until one is not clean,
     # or longer ones until one is
     for minor_us in (m for m in (RATE_PROBES_US if ok else RATE_FALLBACKS_US) if m >= contract.MIN_PERIOD_US):
-        clean, said = _clean(*run(system("rate", url, RATE_PROCESSES, minor_us, RATE_COMPUTE_US),
+        clean, said = _clean(*run(system("rate", url, RATE_PROCESSES, minor_us, RATE_COMPUTE_US, cpu),
                                   f"rate-{minor_us}", RATE_PROBE_S))
         lines.append(f"{minor_us} us ({1e3 / minor_us:.1f} kHz): {said}")
         if clean:
@@ -129,4 +175,4 @@ def part_rate(run: Run, url: str) -> list[str]:
             break
     top = f"{1e3 / best:.1f} kHz ({best} us)" if best else "none"
     return [f"cycle rate: {hz / 1000:g} kHz for {RATE_CYCLES} cycles {'clean' if ok else 'NOT clean'}; "
-            f"highest clean rate {top}: {'PASS' if ok else 'FAIL'}", *lines]
+            f"highest clean rate {top}: {'PASS' if ok else 'FAIL'}{floor}", *lines]

@@ -51,7 +51,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import cost  # bench/cost.py, beside this file
 import lcm
@@ -65,6 +65,7 @@ from skeleton.analysis.read.records import load_records
 from skeleton.host.schedule import ideal_schedule, response_times, utilization
 from skeleton.host.system import loads
 
+T = TypeVar("T")
 BENCH = Path(__file__).resolve().parent
 REPO = BENCH.parent
 RESULTS = BENCH / "results"
@@ -153,13 +154,14 @@ def _timer_slack_1ns() -> Iterator[None]:
         libc.prctl(pr_set_timerslack, 0, 0, 0, 0)  # 0: back to our default
 
 
-def cyclictest_start(binary: str, seconds: float, priority: int, cpu: int) -> subprocess.Popen[str]:
+def cyclictest_start(binary: str, seconds: float, priority: int, cpu: int,
+                     period_us: int = PERIOD_US) -> subprocess.Popen[str]:  # fmt: skip
     """cyclictest for SECONDS on CPU, in the background: clock_nanosleep on an absolute time
     (as skel-dpu waits; cyclictest 2.x has no -n, it is the default), -m (locked memory),
     --default-system (no /dev/cpu_dma_latency tuning: skel-dpu does none), the same period,
     a histogram for the percentiles."""
-    loops = int(seconds * 1e6 / PERIOD_US)
-    argv = [binary, "-m", "-q", "--default-system", "-i", str(PERIOD_US), "-l", str(loops), "-h", "5000",
+    loops = int(seconds * 1e6 / period_us)
+    argv = [binary, "-m", "-q", "--default-system", "-i", str(period_us), "-l", str(loops), "-h", "5000",
             "-a", str(cpu)]
     if priority:
         argv += ["-p", str(priority)]
@@ -167,8 +169,20 @@ def cyclictest_start(binary: str, seconds: float, priority: int, cpu: int) -> su
         return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def cyclictest_result(proc: subprocess.Popen[str], seconds: float) -> dict[str, float]:
-    """p50/p99/max wake-up latency in µs of a cyclictest_start."""
+def cyclictest_result(counts: np.ndarray, worst: float) -> dict[str, float]:
+    """p50/p99/max wake-up latency in µs of a cyclictest_histogram."""
+    cumulative = np.cumsum(counts) / counts.sum()
+    return {
+        "p50": float(np.searchsorted(cumulative, 0.50)),
+        "p99": float(np.searchsorted(cumulative, 0.99)),
+        "max": worst,
+        "samples": float(counts.sum()),
+    }
+
+
+def cyclictest_histogram(proc: subprocess.Popen[str], seconds: float) -> tuple[np.ndarray, float]:
+    """The wake-ups of a cyclictest_start per whole µs of latency (the last bucket: 5000 µs or
+    more), and the largest in µs."""
     out, err = proc.communicate(timeout=seconds + 30)
     if proc.returncode != 0:
         raise SystemExit(f"bench: cyclictest failed: {err.strip()}")
@@ -182,13 +196,7 @@ def cyclictest_result(proc: subprocess.Popen[str], seconds: float) -> dict[str, 
     worst = re.search(r"# Max Latencies:\s*(\d+)", out)
     if counts.sum() == 0:
         raise SystemExit(f"bench: no histogram from cyclictest:\n{out}{err}")
-    cumulative = np.cumsum(counts) / counts.sum()
-    return {
-        "p50": float(np.searchsorted(cumulative, 0.50)),
-        "p99": float(np.searchsorted(cumulative, 0.99)),
-        "max": float(worst.group(1)) if worst else float("nan"),
-        "samples": float(counts.sum()),
-    }
+    return counts, float(worst.group(1)) if worst else float("nan")
 
 
 def _fifo_priority(tmp: Path, mode: str) -> int:
@@ -202,34 +210,47 @@ def _fifo_priority(tmp: Path, mode: str) -> int:
 # hypervisor's spells (milliseconds, many a second) come and go, and two runs one after the
 # other meet different ones. cyclictest runs a little longer: the DPU's run starts ~2 s late.
 DPU_CPU, CYCLICTEST_CPU, CYCLICTEST_LEAD_S = 0, 1, 3.0
+DPU_FIFO = 10  # skel-dpu's SCHED_FIFO priority for `sleep` cycles, where permitted
+
+
+def with_cyclictest(work: Callable[[], T], seconds: float, priority: int,
+                    period_us: int = PERIOD_US) -> tuple[T, tuple[np.ndarray, float] | None]:  # fmt: skip
+    """work(), a DPU's run of SECONDS on DPU_CPU, with cyclictest at the same period and
+    PRIORITY (0: SCHED_OTHER) on CYCLICTEST_CPU at the same time; cyclictest's histogram
+    (cyclictest_histogram), None without cyclictest."""
+    binary, _ = cyclictest_binary()
+    lead = seconds + CYCLICTEST_LEAD_S
+    ref = cyclictest_start(binary, lead, priority, CYCLICTEST_CPU, period_us) if binary else None
+    try:
+        done = work()
+    except BaseException:
+        if ref is not None:
+            ref.kill()
+        raise
+    return done, None if ref is None else cyclictest_histogram(ref, lead)
 
 
 def part_wakeup(tmp: Path, seconds: float) -> list[str]:
     """Each mode against cyclictest in the same scheduling class, side by side: by default
     skel-dpu runs `sleep` cycles under SCHED_FIFO 10 where permitted, `wall` ones SCHED_OTHER."""
-    binary, why = cyclictest_binary()
+    why = cyclictest_binary()[1]
     lines = [f"# {seconds:.0f} s at {PERIOD_US} us per minor cycle, one DPU on CPU {DPU_CPU}, first "
              f"{WARMUP_CYCLES} cycles excluded; cyclictest -m -i {PERIOD_US} in the same class at the same "
              f"time on CPU {CYCLICTEST_CPU}"]
     heads, ratios = [], {}
     for mode in ("sleep", "wall"):
-        priority = 10 if mode == "sleep" and os.geteuid() == 0 else 0
-        lead = seconds + CYCLICTEST_LEAD_S
-        ref = cyclictest_start(binary, lead, priority, CYCLICTEST_CPU) if binary else None
-        try:
-            ns = first_of_minor(skel_run(tmp, mode, seconds, more=(f"dpu.1.cpu={DPU_CPU}",)))
-        except BaseException:
-            if ref is not None:
-                ref.kill()
-            raise
+        priority = DPU_FIFO if mode == "sleep" and os.geteuid() == 0 else 0
+        ns, histogram = with_cyclictest(
+            lambda mode=mode: first_of_minor(skel_run(tmp, mode, seconds, more=(f"dpu.1.cpu={DPU_CPU}",))),
+            seconds, priority)  # fmt: skip
         got = _fifo_priority(tmp, mode)
         klass = f"SCHED_FIFO {got}" if got else "SCHED_OTHER"
         lines.append(f"skel-dpu {mode} ({klass}): p50 {us_at(ns, 50):.1f} us, p99 {us_at(ns, 99):.1f} us, "
                      f"max {ns.max() / 1000:.1f} us ({len(ns)} minor cycles)")
-        if ref is None:
+        if histogram is None:
             heads.append(f"{mode} {us_at(ns, 99):.1f} us, cyclictest skipped: {why}")
             continue
-        theirs = cyclictest_result(ref, lead)
+        theirs = cyclictest_result(*histogram)
         note = "" if got == priority else f" (NOT the DPU's class: it got {klass})"
         same = f"SCHED_FIFO {priority}" if priority else "SCHED_OTHER, timer slack 1 ns"
         lines.append(f"cyclictest ({same}{note}): p50 {theirs['p50']:.0f} us, p99 {theirs['p99']:.0f} us, "
@@ -466,7 +487,8 @@ def main() -> int:
         if "bookkeeping" in wanted:
             parts["bookkeeping"] = cost.part_bookkeeping(cost_run(tmp), URL, args.seconds)
         if "rate" in wanted:
-            parts["rate"] = cost.part_rate(cost_run(tmp), URL)
+            parts["rate"] = cost.part_rate(cost_run(tmp), URL, with_cyclictest, DPU_CPU,
+                                           DPU_FIFO if os.geteuid() == 0 else 0)  # fmt: skip
         if "scale" in wanted:
             from scale import part_scale  # bench/scale.py, beside this file
 
