@@ -21,6 +21,7 @@ from skelmsg.contract import DEFAULT_URL, KEY_ENV
 
 from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_BROKEN_PIPE, EXIT_FAILED, EXIT_INTERRUPTED
 from ..analysis.read.messages import run_log_path
+from ..analysis.read.parallel import one_heap
 from ..analysis.read.seal import KeyFileError, key_path, load_key, write_key
 from ..analysis.views.console import reader_gone, stdout_to_devnull
 from . import spawn
@@ -165,6 +166,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         try:
             args = build_parser().parse_args(argv)
+            one_heap()  # the analysis's threads share one heap (a run's report, an export)
             signal.signal(signal.SIGTERM, _interrupted)
             if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not when started ignoring it
                 signal.signal(signal.SIGINT, _interrupted)
