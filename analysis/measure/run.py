@@ -173,13 +173,14 @@ class RunAnalysis:
 
 
 def load_run(path: str | os.PathLike[str], run_id: int | None = None,
-             key: bytes | None = None, every_record: bool = False) -> RunAnalysis:
+             key: bytes | None = None) -> RunAnalysis:
     """A run (default: the last with timing records) of an .lcm log, a run directory (its
     run.lcm) or an MCAP from `skel export`. Raises LogError (one line for the user) when
     the file cannot be analysed. With the `key` of a signed run, only its genuine messages
-    are analysed (analysis/read/seal.py). `every_record`: the caller will read every record
-    (an export, plots): the run is read whole, its records decoded once, not in parts."""
-    return analyze_log(open_run_log(path), run_id, key, None if every_record else PART_RECORDS)
+    are analysed (analysis/read/seal.py). A view that needs every record (an export, plots)
+    reads them again (`RunAnalysis.recorded`): the report in parts and that second read
+    took less time and memory than the analysis of a long run whole."""
+    return analyze_log(open_run_log(path), run_id, key)
 
 
 # A run of more records than this is reported a few DPUs at a time, each part's records let go

@@ -25,7 +25,7 @@ def export_command(log: Path, mcap: Path | None, run_id: int | None, parquet: Pa
         print(f"{log}: already an MCAP file; the MCAP export reads an LCM log (run.lcm)", file=sys.stderr)
         return EXIT_BAD_INPUT
     try:
-        run = load_run(log, run_id, key, every_record=True)
+        run = load_run(log, run_id, key)
     except LogError as e:
         print(f"{log}: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -21,7 +21,7 @@ def report_command(path: str | os.PathLike[str], as_json: bool, run_id: int | No
                    key: bytes | None = None) -> int:
     """0, 3 on a fatal flaw, 2 with one line when the log cannot be read or a plot written."""
     try:
-        run = load_run(path, run_id, key, every_record=plots is not None)
+        run = load_run(path, run_id, key)
     except LogError as e:
         print(f"{path}: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
