@@ -12,6 +12,8 @@
     no lost timing batch; then shorter minor
     cycles down to the floor the system file allows, each for 2 s, or, when 10 kHz was not
     clean, longer ones up to 1 ms, each for 2 s: the highest rate run clean is printed.
+    Beside the 10 kHz run (its executive pinned to one CPU), cyclictest at the same period
+    on another: how often this machine's timer alone wakes later than the frame's slack.
 
 Each takes `run(text, name, seconds) -> (records, report)`: one real `skel run`.
 """
@@ -124,6 +126,18 @@ def _frames(records: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return work, np.logical_or.reduceat((recs["flags"] & FLAG_OVERRUN) != 0, first)
 
 
+def cyclictest_result(counts: np.ndarray, worst: float) -> dict[str, float]:
+    """p50/p99/max wake-up latency in µs of a cyclictest histogram (bench/run.py's
+    cyclictest_histogram: wake-ups per whole µs)."""
+    cumulative = np.cumsum(counts) / counts.sum()
+    return {
+        "p50": float(np.searchsorted(cumulative, 0.50)),
+        "p99": float(np.searchsorted(cumulative, 0.99)),
+        "max": worst,
+        "samples": float(counts.sum()),
+    }
+
+
 def _machine_floor(records: np.ndarray, histogram: tuple[np.ndarray, float] | None,
                    minor_us: int) -> tuple[str, str]:  # fmt: skip
     """What the machine's own wake-ups allow a frame: the share of cyclictest's wake-ups, at the
@@ -132,16 +146,16 @@ def _machine_floor(records: np.ndarray, histogram: tuple[np.ndarray, float] | No
     work, overran = _frames(records)
     if histogram is None or not len(work):
         return "", "cyclictest beside it: skipped (no cyclictest)" if histogram is None else ""
-    counts, worst = histogram
+    counts = histogram[0]
     slack_us = minor_us - float(np.percentile(work, 50)) / 1000.0
     late = int(counts[max(0, math.ceil(slack_us)) :].sum())
     theirs, ours = late / counts.sum(), float(overran.mean())
-    cumulative = np.cumsum(counts) / counts.sum()
+    at = cyclictest_result(*histogram)
     return (f" (this machine's own wake-ups: cyclictest beside it woke later than the frame's slack in "
             f"{theirs:.2%} of its cycles; the DPU's frames overran in {ours:.2%})",
-            f"cyclictest beside it (the other CPU, the same period and class): p50 "
-            f"{np.searchsorted(cumulative, 0.5)} us, p99 {np.searchsorted(cumulative, 0.99)} us, max "
-            f"{worst:.0f} us; {late} of {counts.sum()} wake-ups ({theirs:.2%}) later than the frame's slack "
+            f"cyclictest beside it (the other CPU, the same period and class): p50 {at['p50']:.0f} us, p99 "
+            f"{at['p99']:.0f} us, max {at['max']:.0f} us; {late} of {counts.sum()} wake-ups ({theirs:.2%}) "
+            f"later than the frame's slack "
             f"of {slack_us:.0f} us (the minor cycle less the frame's work, p50 {minor_us - slack_us:.0f} "
             f"us): woken that late, any executive overruns. The DPU's frames that overran: "
             f"{int(overran.sum())} of {len(work)} ({ours:.2%})")  # fmt: skip

@@ -169,17 +169,6 @@ def cyclictest_start(binary: str, seconds: float, priority: int, cpu: int,
         return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def cyclictest_result(counts: np.ndarray, worst: float) -> dict[str, float]:
-    """p50/p99/max wake-up latency in µs of a cyclictest_histogram."""
-    cumulative = np.cumsum(counts) / counts.sum()
-    return {
-        "p50": float(np.searchsorted(cumulative, 0.50)),
-        "p99": float(np.searchsorted(cumulative, 0.99)),
-        "max": worst,
-        "samples": float(counts.sum()),
-    }
-
-
 def cyclictest_histogram(proc: subprocess.Popen[str], seconds: float) -> tuple[np.ndarray, float]:
     """The wake-ups of a cyclictest_start per whole µs of latency (the last bucket: 5000 µs or
     more), and the largest in µs."""
@@ -250,7 +239,7 @@ def part_wakeup(tmp: Path, seconds: float) -> list[str]:
         if histogram is None:
             heads.append(f"{mode} {us_at(ns, 99):.1f} us, cyclictest skipped: {why}")
             continue
-        theirs = cyclictest_result(*histogram)
+        theirs = cost.cyclictest_result(*histogram)
         note = "" if got == priority else f" (NOT the DPU's class: it got {klass})"
         same = f"SCHED_FIFO {priority}" if priority else "SCHED_OTHER, timer slack 1 ns"
         lines.append(f"cyclictest ({same}{note}): p50 {theirs['p50']:.0f} us, p99 {theirs['p99']:.0f} us, "
