@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from skeleton.analysis.measure.metrics import cycle_end_ns, first_of_frame
+from skeleton.analysis.measure.metrics import cycle_end_ns
 from skeleton.analysis.read.records import FLAG_OVERRUN
 from skelmsg import contract
 
@@ -54,16 +54,22 @@ def system(name: str, url: str, processes: int, period_us: int, compute_us: int,
     return "\n".join(lines) + "\n"
 
 
+def by_frame(records: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One DPU's records in frame order (minor cycle, then start), whether each is its frame's
+    first, and each one's start and end (ns)."""
+    if len(np.unique(records["dpu"])) > 1:
+        raise ValueError("by_frame: the records of one DPU")
+    recs = records[np.lexsort((records["start_ns"], records["minor"]))]
+    first = np.r_[True, recs["minor"][1:] != recs["minor"][:-1]][: len(recs)]
+    return recs, first, recs["start_ns"].astype(np.int64), cycle_end_ns(recs).astype(np.int64)
+
+
 def frame_costs_ns(records: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per minor cycle of one DPU's processes of no compute and no buffers: its wake-up (the first start
     less its release, or less the previous frame's end when that came later: a DPU behind runs
     on at once), the gaps from each process's start to the next one's (what a process-cycle
     costs, all of it) and the last process's own length."""
-    order = np.lexsort((records["start_ns"], records["minor"]))
-    recs = records[order]
-    start = recs["start_ns"].astype(np.int64)
-    end = cycle_end_ns(recs).astype(np.int64)
-    first = first_of_frame(recs)
+    recs, first, start, end = by_frame(records)
     last = np.r_[first[1:], True]
     gaps = (start[1:] - start[:-1])[~first[1:]]
     prev_end = np.r_[np.iinfo(np.int64).min, end[last][:-1]]
@@ -117,13 +123,12 @@ def _clean(records: np.ndarray, report: dict[str, Any]) -> tuple[bool, str]:
 def _frames(records: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per minor cycle of one DPU: its work (the first start to the last end, ns) and whether
     any of its process-cycles overran."""
-    recs = records[np.lexsort((records["start_ns"], records["minor"]))]
-    first = np.flatnonzero(first_of_frame(recs))
-    if not len(first):
+    recs, first, start, end = by_frame(records)
+    at = np.flatnonzero(first)
+    if not len(at):
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool)
-    end = cycle_end_ns(recs).astype(np.int64)
-    work = np.maximum.reduceat(end, first) - recs["start_ns"][first].astype(np.int64)
-    return work, np.logical_or.reduceat((recs["flags"] & FLAG_OVERRUN) != 0, first)
+    work = np.maximum.reduceat(end, at) - start[at]
+    return work, np.logical_or.reduceat((recs["flags"] & FLAG_OVERRUN) != 0, at)
 
 
 def cyclictest_result(counts: np.ndarray, worst: float) -> dict[str, float]:
@@ -138,44 +143,48 @@ def cyclictest_result(counts: np.ndarray, worst: float) -> dict[str, float]:
     }
 
 
-def _machine_floor(records: np.ndarray, histogram: tuple[np.ndarray, float] | None,
-                   minor_us: int) -> tuple[str, str]:  # fmt: skip
-    """What the machine's own wake-ups allow a frame: the share of cyclictest's wake-ups, at the
-    same period beside the DPU, later than the frame's slack (the minor cycle less the frame's
-    work), against the share of the DPU's frames that overran. (headline, line)"""
+def _machine_floor(records: np.ndarray, histogram: tuple[np.ndarray, float] | None, minor_us: int,
+                   priority: int) -> tuple[str, list[str]]:  # fmt: skip
+    """What the machine's own wake-ups leave a frame: the share of cyclictest's wake-ups (at the
+    same period beside the DPU, at `priority`) at least the frame's slack late (the minor
+    cycle less the frame's work, rounded up to cyclictest's whole µs), against the share of
+    the DPU's frames that overran. (headline, lines)"""
+    if histogram is None:
+        return "", ["cyclictest beside it: skipped (no cyclictest: Debian's rt-tests)"]
     work, overran = _frames(records)
-    if histogram is None or not len(work):
-        return "", "cyclictest beside it: skipped (no cyclictest)" if histogram is None else ""
+    if not len(work):
+        return "", []
     counts = histogram[0]
     slack_us = minor_us - float(np.percentile(work, 50)) / 1000.0
     late = int(counts[max(0, math.ceil(slack_us)) :].sum())
     theirs, ours = late / counts.sum(), float(overran.mean())
     at = cyclictest_result(*histogram)
+    klass = f"SCHED_FIFO {priority}" if priority else "SCHED_OTHER"
     return (f" (this machine's own wake-ups: cyclictest beside it woke later than the frame's slack in "
             f"{theirs:.2%} of its cycles; the DPU's frames overran in {ours:.2%})",
-            f"cyclictest beside it (the other CPU, the same period and class): p50 {at['p50']:.0f} us, p99 "
-            f"{at['p99']:.0f} us, max {at['max']:.0f} us; {late} of {counts.sum()} wake-ups ({theirs:.2%}) "
-            f"later than the frame's slack "
-            f"of {slack_us:.0f} us (the minor cycle less the frame's work, p50 {minor_us - slack_us:.0f} "
-            f"us): woken that late, any executive overruns. The DPU's frames that overran: "
-            f"{int(overran.sum())} of {len(work)} ({ours:.2%})")  # fmt: skip
+            [f"cyclictest beside it (the other CPU, the same period, {klass}): p50 {at['p50']:.0f} us, p99 "
+             f"{at['p99']:.0f} us, max {at['max']:.0f} us; {late} of {counts.sum()} wake-ups ({theirs:.2%}) "
+             f"later than the frame's slack of {slack_us:.0f} us (the minor cycle less the frame's work, "
+             f"{minor_us - slack_us:.0f} us at the median): woken that late, any executive overruns. The "
+             f"DPU's frames that overran: {int(overran.sum())} of {len(work)} ({ours:.2%})"])  # fmt: skip
 
 
 def part_rate(run: Run, url: str, beside: Beside, cpu: int, priority: int) -> list[str]:
-    """`beside(work, seconds, priority, period_us)`: work() with cyclictest at that period
-    beside it on another CPU than `cpu` (bench/run.py's with_cyclictest)."""
+    """`beside(work, seconds, priority, period_us)`: work() with cyclictest at that period and
+    priority beside it (bench/run.py's with_cyclictest: the DPU on DPU_CPU, passed here as
+    `cpu`, and cyclictest on the other CPU)."""
     hz = 1e6 / RATE_MINOR_US
     seconds = RATE_CYCLES * RATE_MINOR_US / 1e6
     text = system("rate", url, RATE_PROCESSES, RATE_MINOR_US, RATE_COMPUTE_US, cpu)
     (records, report), histogram = beside(lambda: run(text, "rate", seconds), seconds, priority,
                                           RATE_MINOR_US)  # fmt: skip
     ok, said = _clean(records, report)
-    floor, machine = _machine_floor(records, histogram, RATE_MINOR_US)
+    floor, machine = _machine_floor(records, histogram, RATE_MINOR_US, priority)
     lines = [f"# {RATE_PROCESSES} processes of {RATE_COMPUTE_US} us in one minor cycle, one DPU on CPU {cpu} "
              f"(sleep mode: SCHED_FIFO when permitted); {RATE_MINOR_US} us for {seconds:g} s, then "
              f"{RATE_PROBE_S:g} s each: shorter down to the floor ({contract.MIN_PERIOD_US} us) when it was "
              f"clean, longer up to {RATE_FALLBACKS_US[-1]} us until one is when it was not",
-             f"{RATE_MINOR_US} us ({hz / 1000:g} kHz): {said}", machine]
+             f"{RATE_MINOR_US} us ({hz / 1000:g} kHz): {said}", *machine]
     best = RATE_MINOR_US if ok else None
     # 2 s each is weaker evidence than the 10 s at 10 kHz: shorter ones until one is not clean,
     # or longer ones until one is

@@ -41,6 +41,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import ctypes
+import functools
 import json
 import os
 import re
@@ -61,6 +62,7 @@ from cost import us_at
 import skelmsg
 from skeleton.analysis.measure.metrics import first_of_frame
 from skeleton.analysis.read.logreader import read_log
+from skeleton.analysis.read.parallel import one_heap
 from skeleton.analysis.read.records import load_records
 from skeleton.host.schedule import ideal_schedule, response_times, utilization
 from skeleton.host.system import loads
@@ -124,6 +126,7 @@ def first_of_minor(records: np.ndarray) -> np.ndarray:
     return (records["start_ns"][first] - records["release_ns"][first]).astype(np.int64)
 
 
+@functools.cache  # one install attempt per bench
 def cyclictest_binary() -> tuple[str | None, str]:
     """cyclictest, installed from Debian's rt-tests when we are root; else why not."""
     found = shutil.which("cyclictest")
@@ -212,11 +215,12 @@ def with_cyclictest(work: Callable[[], T], seconds: float, priority: int,
     ref = cyclictest_start(binary, lead, priority, CYCLICTEST_CPU, period_us) if binary else None
     try:
         done = work()
-    except BaseException:
-        if ref is not None:
+        return done, None if ref is None else cyclictest_histogram(ref, lead)
+    finally:
+        # The run failed or cyclictest hung: no SCHED_FIFO process left behind.
+        if ref is not None and ref.poll() is None:
             ref.kill()
-        raise
-    return done, None if ref is None else cyclictest_histogram(ref, lead)
+            ref.wait()
 
 
 def part_wakeup(tmp: Path, seconds: float) -> list[str]:
@@ -451,6 +455,7 @@ def main() -> int:
     if unknown := [p for p in wanted if p not in PARTS]:
         parser.error(f"unknown part(s) {', '.join(unknown)}: choose from {', '.join(PARTS)}")
     RESULTS.mkdir(parents=True, exist_ok=True)
+    one_heap()  # what it times in this process (the log reader, the MCAP writing) as `skel` runs it
     summary = [f"# make bench, {time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} CPUs, "
                f"load average {os.getloadavg()[0]:.1f} at start (the machine may be shared)"]
     parts: dict[str, list[str]] = {}

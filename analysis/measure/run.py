@@ -78,11 +78,6 @@ class RunAnalysis:
         """The config_t of the report's generation (the run's last)."""
         return self.messages.configs[self.report.generation]
 
-    @property
-    def statuses(self) -> list[Any]:
-        """Every decodable status_t in the log, in log order."""
-        return [s for _, s in self.messages.statuses]
-
     def window(self, generation: int) -> tuple[Any, Any]:
         """The process-cycle records of one generation window (a ColumnTable of RECORD_DTYPE:
         three counters are narrower than int64, as on the wire; `timing` gives every field

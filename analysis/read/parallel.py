@@ -23,12 +23,14 @@ M_ARENA_MAX = -8  # glibc's malloc.h
 
 
 def one_heap() -> None:
-    """Have every thread of the process allocate from glibc's one main arena, before any
-    thread starts. A worker's numpy arrays otherwise come from an arena of its own, whose
-    freed memory the other threads do not reuse: they ask the kernel for fresh pages, which a
-    virtual machine's host may back only when first written. The report of 10^7 records
-    faulted 460-490 k pages instead of 550-620 k, in 10.3-11.2 s instead of 11.4-12.6 s (seven
-    runs each, taken in turn). A C library without mallopt: nothing to do."""
+    """Have the threads started from now on allocate from glibc's one main arena (call it
+    before the analysis starts its workers). A worker's numpy arrays otherwise come from an
+    arena of its own, whose freed memory the other threads do not reuse: they ask the kernel
+    for fresh pages, which a virtual machine's host may back only when first written. The
+    report of 10^7 records faulted 460-490 k pages instead of 550-620 k, in 10.3-11.2 s
+    instead of 11.4-12.6 s (seven runs each, taken in turn). Python's threads allocate under
+    the GIL anyway, so one arena's lock makes them wait for nothing. A C library without
+    mallopt: nothing to do."""
     mallopt = getattr(ctypes.CDLL(None), "mallopt", None)
     if mallopt is not None:
         mallopt(M_ARENA_MAX, 1)  # 0 (refused) leaves the arenas as they were: only slower
