@@ -202,7 +202,9 @@ def _fifo_priority(tmp: Path, mode: str) -> int:
 # hypervisor's spells (milliseconds, many a second) come and go, and two runs one after the
 # other meet different ones. cyclictest runs a little longer: the DPU's run starts ~2 s late.
 DPU_CPU, CYCLICTEST_CPU, CYCLICTEST_LEAD_S = 0, 1, 3.0
-DPU_FIFO = 10  # skel-dpu's SCHED_FIFO priority for `sleep` cycles, where permitted
+# skel-dpu's class for `sleep` cycles: SCHED_FIFO 10 where permitted (root), else SCHED_OTHER (0);
+# cyclictest beside it runs in the same one
+SLEEP_PRIORITY = 10 if os.geteuid() == 0 else 0
 
 
 def with_cyclictest(work: Callable[[], T], seconds: float, priority: int,
@@ -232,7 +234,7 @@ def part_wakeup(tmp: Path, seconds: float) -> list[str]:
              f"time on CPU {CYCLICTEST_CPU}"]
     heads, ratios = [], {}
     for mode in ("sleep", "wall"):
-        priority = DPU_FIFO if mode == "sleep" and os.geteuid() == 0 else 0
+        priority = SLEEP_PRIORITY if mode == "sleep" else 0
         ns, histogram = with_cyclictest(
             lambda mode=mode: first_of_minor(skel_run(tmp, mode, seconds, more=(f"dpu.1.cpu={DPU_CPU}",))),
             seconds, priority)  # fmt: skip
@@ -481,8 +483,7 @@ def main() -> int:
         if "bookkeeping" in wanted:
             parts["bookkeeping"] = cost.part_bookkeeping(cost_run(tmp), URL, args.seconds)
         if "rate" in wanted:
-            parts["rate"] = cost.part_rate(cost_run(tmp), URL, with_cyclictest, DPU_CPU,
-                                           DPU_FIFO if os.geteuid() == 0 else 0)  # fmt: skip
+            parts["rate"] = cost.part_rate(cost_run(tmp), URL, with_cyclictest, DPU_CPU, SLEEP_PRIORITY)
         if "scale" in wanted:
             from scale import part_scale  # bench/scale.py, beside this file
 
