@@ -207,8 +207,8 @@ def finish_window(
     spans = [part.span for part in parts if part.span.start_ns is not None]
     if any(s.measured for s in spans):
         spans = [s for s in spans if s.measured]
-    # The two largest steps, of a long run's every part joined: their sorts, searches and
-    # percentiles release the GIL, so they go side by side on the machine's cores.
+    # The buffers' and the chains' tables, the largest steps once every part is joined: their
+    # sorts, searches and percentiles release the GIL, so they go side by side on the cores.
     chain_rows = ChainRecords.join([p.chains for p in parts])
     buffers, chains = map_threads(lambda table: table(), [
         lambda: buffer_metrics(BufferParts.join(p.buffers for p in parts), config, skips),
