@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import struct
+import subprocess
 from collections import defaultdict
 from collections.abc import Iterator
 from pathlib import Path
@@ -27,7 +28,7 @@ from skeleton.analysis.read.lcmjson import schema_of, to_json
 from skeleton.analysis.read.logreader import encode_events, read_bytes, read_log
 from skeleton.analysis.read.mcapsource import read_as_log
 from skeleton.analysis.read.records import load_records
-from skeleton.analysis.views import mcapbulk
+from skeleton.analysis.views import mcapbulk, outfile
 from skeleton.analysis.views.export_mcap import _pairs, export
 from skelmsg.contract import COMMAND_CHANNEL, CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
@@ -183,13 +184,19 @@ def test_schemas_are_json_schema_or_ros2msg_and_every_message_decodes(servo_run:
 def test_many_chunks_are_indexed_and_read_back_in_time_order(servo_run: Path, tmp_path: Path,
                                                              monkeypatch: pytest.MonkeyPatch) -> None:
     """Small chunks: the chunk and message indexes the readers seek by are right. The log
-    attached a little at a time arrives whole, and its pages are not held after it."""
+    attached a little at a time arrives whole, and its pages are not held after it; nor
+    are the MCAP's own pages once on disk (outfile.py), written in small steps here."""
     monkeypatch.setattr(mcapbulk, "CHUNK_BYTES", 8192)
     monkeypatch.setattr(mcapbulk, "ATTACH_BYTES", 100_000)
+    monkeypatch.setattr(outfile, "STEP", 16 << 10)
     run = load_run(servo_run / "run.lcm")
     run.log.buf.sum()  # every page read, as by a pass over it
     counts = export(run, tmp_path / "small.mcap")
     assert mapped_kib(servo_run / "run.lcm") <= run.log.size // 1024 // 8
+    size = (tmp_path / "small.mcap").stat().st_size
+    assert size > 20 * outfile.STEP
+    if _file_system(tmp_path) != "tmpfs":  # whose pages are the file itself
+        assert _cached_bytes(tmp_path / "small.mcap") <= 3 * outfile.STEP + 4096
     assert read_as_log(tmp_path / "small.mcap").buf.tobytes() == (servo_run / "run.lcm").read_bytes()
     with open(tmp_path / "small.mcap", "rb") as f:
         reader = make_reader(f)
@@ -209,6 +216,18 @@ def test_many_chunks_are_indexed_and_read_back_in_time_order(servo_run: Path, tm
     assert sorted(streamed) == times
     assert _indexed_messages(tmp_path / "small.mcap", summary) == len(times)
     assert load_run(tmp_path / "small.mcap").report.to_json() == run.report.to_json()
+
+
+def _cached_bytes(path: Path) -> int:
+    """How much of the file the page cache holds (util-linux fincore)."""
+    out = subprocess.run(["fincore", "--bytes", "--noheadings", "--output", "RES", str(path)],
+                         capture_output=True, text=True, check=True)  # fmt: skip
+    return int(out.stdout)
+
+
+def _file_system(path: Path) -> str:
+    return subprocess.run(["stat", "-f", "-c", "%T", str(path)], capture_output=True, text=True,
+                          check=True).stdout.strip()  # fmt: skip
 
 
 def _indexed_messages(path: Path, summary: Any) -> int:

@@ -44,6 +44,7 @@ from ..read.mcapformat import FAULTS_TOPIC, METADATA, SOURCE_LOG, TIMING_PREFIX
 from ..read.messages import decode_timed
 from ..read.records import CYCLE_FIELDS, FLAG_LOCKOUT, FLAG_OVERRUN, FLAG_SKIPPED, concat_ranges, input_starts
 from .mcapbulk import BulkWriter, MessageSource, scatter
+from .outfile import DropBehindFile
 
 # LCM channel -> (type, topic prefix); the DPU id completes per-DPU topics.
 MESSAGE_CHANNELS: dict[str, tuple[type, str]] = {
@@ -108,7 +109,7 @@ FAULT_SCHEMA: dict[str, Any] = {
 def export(data: RunAnalysis, mcap: str | os.PathLike[str]) -> dict[str, int]:
     """Write the MCAP; returns counts of what was written."""
     tmp = Path(f"{os.fspath(mcap)}.part")
-    with open(tmp, "wb") as stream:
+    with DropBehindFile(tmp) as stream:
         out = BulkWriter(stream, library="skeleton skel export")
         timing = _timing_source(data, out)
         json_messages = _JsonMessages(out)
