@@ -41,8 +41,7 @@ class DropBehindFile(io.FileIO):
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         super().__init__(path, "wb")
-        self._written = 0  # bytes written from the start (the writer only appends)
-        self._dropped = 0  # bytes forgotten: a multiple of STEP
+        self._dropped = 0  # bytes from the start forgotten (a multiple of STEP): the writer only appends
         self._dropping = _sync_file_range is not None and hasattr(os, "posix_fadvise")
 
     def write(self, data: Any) -> int:  # any buffer, as FileIO's
@@ -51,8 +50,7 @@ class DropBehindFile(io.FileIO):
         while done < len(view):
             # A write to a regular file is whole unless interrupted: carry on from where it stopped.
             done += super().write(view[done : done + STEP]) or 0
-            self._written = self.tell()
-            while self._dropping and self._written - self._dropped >= 2 * STEP:
+            while self._dropping and self.tell() - self._dropped >= 2 * STEP:
                 self._drop_step()
         return done
 
