@@ -27,7 +27,6 @@ import json
 import os
 from collections.abc import Iterator
 from dataclasses import asdict
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -44,7 +43,7 @@ from ..read.mcapformat import FAULTS_TOPIC, METADATA, SOURCE_LOG, TIMING_PREFIX
 from ..read.messages import decode_timed
 from ..read.records import CYCLE_FIELDS, FLAG_LOCKOUT, FLAG_OVERRUN, FLAG_SKIPPED, concat_ranges, input_starts
 from .mcapbulk import BulkWriter, MessageSource, scatter
-from .outfile import DropBehindFile
+from .outfile import DropBehindFile, replaced
 
 # LCM channel -> (type, topic prefix); the DPU id completes per-DPU topics.
 MESSAGE_CHANNELS: dict[str, tuple[type, str]] = {
@@ -108,8 +107,7 @@ FAULT_SCHEMA: dict[str, Any] = {
 
 def export(data: RunAnalysis, mcap: str | os.PathLike[str]) -> dict[str, int]:
     """Write the MCAP; returns counts of what was written."""
-    tmp = Path(f"{os.fspath(mcap)}.part")
-    with DropBehindFile(tmp) as stream:
+    with replaced(mcap) as part, DropBehindFile(part) as stream:
         out = BulkWriter(stream, library="skeleton skel export")
         timing = _timing_source(data, out)
         json_messages = _JsonMessages(out)
@@ -118,7 +116,6 @@ def export(data: RunAnalysis, mcap: str | os.PathLike[str]) -> dict[str, int]:
         out.messages([timing, json_messages.source()])
         _attach(out, data)
         out.finish()
-    tmp.replace(mcap)  # never leave a half-written file under the final name
     return {"messages": out.messages_written, "timing": len(timing.size), "topics": len(out.channels)}
 
 

@@ -1,4 +1,5 @@
-"""A large output file written without keeping it in the page cache.
+"""The files the views write: whole or not at all (`replaced`), and a large one without
+keeping it in the page cache (`DropBehindFile`).
 
 `skel export` writes gigabytes (an MCAP holds its source log whole). Written plainly,
 every page of it first lands in the page cache, and on a virtual machine whose host
@@ -19,6 +20,9 @@ import ctypes
 import errno
 import io
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 STEP = 64 << 20
@@ -32,6 +36,20 @@ _libc = ctypes.CDLL(None, use_errno=True)
 _sync_file_range = getattr(_libc, "sync_file_range", None)  # Linux only
 if _sync_file_range is not None:
     _sync_file_range.argtypes = [ctypes.c_int, ctypes.c_int64, ctypes.c_int64, ctypes.c_uint]
+
+
+@contextmanager
+def replaced(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """The path to write `path` through: PATH.part, renamed to PATH once written whole (a
+    reader never sees half a file under its name), removed if the writing fails (a full
+    disk is not left full of it)."""
+    part = Path(f"{os.fspath(path)}.part")
+    try:
+        yield part
+        part.replace(path)
+    except BaseException:
+        part.unlink(missing_ok=True)
+        raise
 
 
 class DropBehindFile(io.FileIO):

@@ -10,6 +10,7 @@ from pathlib import Path
 import pyarrow.parquet as pq
 
 from ..measure.run import RunAnalysis
+from .outfile import replaced
 
 
 def write_parquet(run: RunAnalysis, out_dir: Path) -> dict[str, int]:
@@ -21,8 +22,7 @@ def write_parquet(run: RunAnalysis, out_dir: Path) -> dict[str, int]:
     for name, table in run.tables().items():
         arrow = table.to_arrow()
         arrow = arrow.replace_schema_metadata({**(arrow.schema.metadata or {}), b"skeleton": about})
-        tmp = out_dir / f"{name}.parquet.part"
-        pq.write_table(arrow, tmp)
-        tmp.replace(out_dir / f"{name}.parquet")
+        with replaced(out_dir / f"{name}.parquet") as part:
+            pq.write_table(arrow, part)
         rows[name] = len(table)
     return rows

@@ -17,7 +17,6 @@ import json
 import os
 from collections.abc import Iterator
 from dataclasses import asdict
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -25,6 +24,7 @@ import numpy as np
 from ..measure.faults import first_release_ns
 from ..measure.run import RunAnalysis
 from ..read.records import FLAG_OVERRUN, FLAG_RELEASE_SKIPPED, FLAG_SKIPPED
+from .outfile import replaced
 
 # (event name, the record's duration field), in the order a cycle runs them.
 PHASES = (("comm in", "comm_in_ns"), ("blocked", "blocked_ns"), ("compute", "compute_ns"),
@@ -39,9 +39,8 @@ def write_trace(run: RunAnalysis, path: str | os.PathLike[str]) -> int:
              "otherData": {"system": run.report.system, "run_id": run.report.run_id,
                            "generation": run.report.generation,
                            "generations": run.report.generations}}  # fmt: skip
-    tmp = Path(f"{os.fspath(path)}.part")
-    tmp.write_text(json.dumps(trace, separators=(",", ":")), encoding="utf-8")
-    tmp.replace(path)
+    with replaced(path) as part:
+        part.write_text(json.dumps(trace, separators=(",", ":")), encoding="utf-8")
     return len(events)
 
 
