@@ -11,6 +11,7 @@ import itertools
 import os
 import random
 import re
+import resource
 import signal
 import subprocess
 import sys
@@ -190,11 +191,19 @@ def threads_cpus(pid: int) -> dict[int, set[int]]:
     return out
 
 
-def skel(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    """Run the real `skel` command line, as a user would."""
+def skel(*args: str, timeout: float = 120, file_limit: int | None = None) -> subprocess.CompletedProcess[str]:
+    """Run the real `skel` command line, as a user would; with `file_limit`, as a user whose
+    files may not grow past that many bytes (RLIMIT_FSIZE: a write past it fails as on a full
+    disk, Python ignoring the SIGXFSZ that comes with it)."""
     assert ASAN_DPU.exists(), f"{ASAN_DPU} missing: run `make test` (it builds it)"
+
+    def limited() -> None:
+        _, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (file_limit, hard))
+
     return subprocess.run([sys.executable, "-m", "skeleton.host.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, cwd=REPO, env={**os.environ, "COLUMNS": "160"})
+                          timeout=timeout, cwd=REPO, env={**os.environ, "COLUMNS": "160"},
+                          preexec_fn=limited if file_limit is not None else None)  # fmt: skip
 
 
 class Background:

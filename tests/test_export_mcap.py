@@ -5,10 +5,8 @@ decoder, mcap-ros2-support) and compared with the LCM log record by record."""
 from __future__ import annotations
 
 import json
-import resource
 import struct
 import subprocess
-import sys
 from collections import defaultdict
 from collections.abc import Iterator
 from pathlib import Path
@@ -221,17 +219,6 @@ def test_many_chunks_are_indexed_and_read_back_in_time_order(servo_run: Path, tm
     assert load_run(tmp_path / "small.mcap").report.to_json() == run.report.to_json()
 
 
-def _skel_with_file_limit(limit: int, *args: str) -> subprocess.CompletedProcess[str]:
-    """`skel` run as by a user whose files may not grow past `limit` bytes (RLIMIT_FSIZE): a
-    write past it fails as on a full disk (Python ignores the SIGXFSZ that comes with it)."""
-
-    def limited() -> None:
-        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, resource.getrlimit(resource.RLIMIT_FSIZE)[1]))
-
-    return subprocess.run([sys.executable, "-m", "skeleton.host.cli", *args], capture_output=True, text=True,
-                          timeout=120, preexec_fn=limited)  # fmt: skip
-
-
 def _cached_bytes(path: Path) -> int:
     """How much of the file the page cache holds (util-linux fincore)."""
     out = subprocess.run(["fincore", "--bytes", "--noheadings", "--output", "RES", str(path)],
@@ -394,13 +381,12 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, servo_run: Path) -> No
     assert result.returncode == 2 and "already an MCAP" in result.stderr
     result = skel("export", str(servo_run / "run.lcm"), str(tmp_path / "no" / "such" / "dir.mcap"))
     assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
-    full = _skel_with_file_limit(100_000, "export", str(servo_run / "run.lcm"), str(tmp_path / "full.mcap"),
-                                 "--trace", str(tmp_path / "full.json"))  # fmt: skip
+    full = skel("export", str(servo_run / "run.lcm"), str(tmp_path / "full.mcap"), file_limit=100_000)
     assert full.returncode == 2 and "File too large" in full.stderr, full.stderr
     assert len(full.stderr.strip().splitlines()) == 1
     assert not list(tmp_path.glob("full.*")), "a file written in part is left behind"
     for view in (["--trace", str(tmp_path / "full.json")], ["--parquet", str(tmp_path / "tables")]):
-        full = _skel_with_file_limit(20_000, "export", str(servo_run / "run.lcm"), *view)
+        full = skel("export", str(servo_run / "run.lcm"), *view, file_limit=20_000)
         assert full.returncode == 2 and "File too large" in full.stderr, full.stderr
     assert not (tmp_path / "full.json").exists() and not list(tmp_path.rglob("*.part"))
     for whole in (tmp_path / "tables").glob("*.parquet"):  # the tables written before the failure
