@@ -25,7 +25,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 import skelmsg
 from skeleton.analysis.measure.run import analyze_log, load_run
-from skeleton.analysis.read.lcmjson import schema_of, to_json
+from skeleton.analysis.read.lcmjson import schema_of, to_json, to_json_many
 from skeleton.analysis.read.logreader import encode_events, read_bytes, read_log
 from skeleton.analysis.read.mcapsource import read_as_log
 from skeleton.analysis.read.records import load_records
@@ -369,6 +369,64 @@ def test_lcm_json_of_every_message_type_validates_against_its_schema(servo_run: 
     buf.payload, buf.nbytes = bytes(range(7)), 7
     assert to_json(buf)["payload"] == "AAECAwQFBg=="
     assert schema_of(skelmsg.buffer_t)["properties"]["payload"]["contentEncoding"] == "base64"
+
+
+def _status(host: str = "lab-1", lockouts: int = 0) -> bytes:
+    status = skelmsg.status_t()
+    status.dpu, status.host, status.run_id, status.utc_ns, status.reject_reason = 3, host, 7, 10**18, ""
+    for k in range(lockouts):
+        lock = skelmsg.lockout_t()
+        lock.process, lock.buffer, lock.cycle = k, -1, 40 + k
+        status.lockouts.append(lock)
+    status.nlockouts = lockouts
+    return bytes(status.encode())
+
+
+def _each_decoded(cls: type, messages: list[bytes]) -> list[dict[str, Any] | None]:
+    """What to_json_many must give: to_json of each message the generated decoder takes."""
+    out: list[dict[str, Any] | None] = []
+    for data in messages:
+        try:
+            out.append(to_json(cls.decode(data)))  # type: ignore[attr-defined]
+        except Exception:
+            out.append(None)
+    return out
+
+
+def _many(cls: type, messages: list[bytes]) -> list[dict[str, Any] | None]:
+    """to_json_many of `messages` laid end to end, with the ranges it says it is done with."""
+    lengths = np.array([len(m) for m in messages], dtype=np.int64)
+    starts = np.cumsum(lengths) - lengths
+    released: list[tuple[int, int]] = []
+    buf = np.frombuffer(b"".join(messages) or b"\0", dtype=np.uint8)
+    rows = list(to_json_many(cls, buf, starts, lengths, lambda a, b: released.append((a, b))))
+    assert all(a < b for a, b in released) and (not messages or released[-1][1] == int(lengths.sum()))
+    return rows
+
+
+def test_messages_read_in_bulk_are_as_each_decoded_alone(servo_run: Path) -> None:
+    """The export's bulk JSON of the control messages (lcmjson.to_json_many) is, message by
+    message, to_json of the generated decoder's object, or None where that refuses it: the
+    plain ones (bulk), those with array elements (one by one), strings of every kind, and
+    damaged ones."""
+    log = read_log(servo_run / "run.lcm")
+    plain = [bytes(d) for _, d in log.messages(STATUS_CHANNEL)]
+    invalid = _status("abc").replace(b"abc", b"\xff\xfeA")  # not UTF-8: replaced as the decoder does
+    odd = [_status(lockouts=2), _status("läb-ü"), _status(""), invalid, b"not a status", _status()[:30],
+           _status()[:8] + b"\xff" * 60]
+    statuses = plain + odd + plain[:3]
+    rows = _many(skelmsg.status_t, statuses)
+    assert rows == _each_decoded(skelmsg.status_t, statuses)
+    assert len(rows[len(plain)]["lockouts"]) == 2 and rows[len(plain) + 1]["host"] == "läb-ü"
+    assert rows[len(plain) + 3]["host"] == "\ufffd\ufffdA" and rows[len(plain) + 4] is None
+    # a type that is not flat (config_t) decodes one by one; a byte array is base64 either way
+    configs = [bytes(d) for _, d in log.messages(CONFIG_CHANNEL)][:2] + [b"\0" * 12]
+    assert _many(skelmsg.config_t, configs) == _each_decoded(skelmsg.config_t, configs)
+    empty, full = skelmsg.buffer_t(), skelmsg.buffer_t()
+    full.payload, full.nbytes = bytes(range(7)), 7
+    buffers = [bytes(empty.encode()), bytes(full.encode())]
+    assert _many(skelmsg.buffer_t, buffers) == _each_decoded(skelmsg.buffer_t, buffers)
+    assert _many(skelmsg.status_t, []) == []
 
 
 def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, servo_run: Path) -> None:

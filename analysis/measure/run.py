@@ -4,8 +4,7 @@ A RunAnalysis holds the log's events, the run's timing records (every generation
 the decoded control-plane messages (configs by generation, statuses, DPU reports,
 clock estimates), the report (report.json) and a map from each DPU's clock to wall
 clock, all from one read of the file and one decode of each message (the statuses', the
-many, integers read in bulk for the report, and each decoded whole only for the views that
-show them).
+many, integers read in bulk for the report, and read whole only by the export).
 
 Wall clock: timing records are stamped with the DPU's CLOCK_MONOTONIC, which means
 nothing outside the DPU. Each status_t carries a (mono_ns, utc_ns) pair read at one
@@ -264,7 +263,7 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None,
 def _control(log: Log, generations: set[int]) -> tuple[Messages, Heartbeats, dict[int, int], list[Any]]:
     """The log's control-plane messages, and what the report needs of their statuses: the
     heartbeats, each DPU's clock offset to UTC, and the statuses that name lockouts. The
-    statuses as objects are decoded only for the views that show them (Messages.statuses)."""
+    statuses are decoded whole only by the export (lcmjson.to_json_many)."""
     messages = read_messages(log, generations)
     statuses = messages.status_columns(*HEARTBEAT_FIELDS, "utc_ns")
     known = np.ones(len(statuses.heard_us), dtype=bool)

@@ -180,7 +180,7 @@ def decode_many(
     outs = [out.view(c.dtype) for c, out in zip(plan, np.split(arena, np.cumsum(sizes)[:-1]), strict=True)] \
         if plan else []  # fmt: skip
     firsts = {length: np.cumsum(n) - n for length, n in counts.items()}
-    for lo, hi in _chunks(starts[good], end[good]):
+    for lo, hi in file_chunks(starts[good], end[good]):
         _fill(plan, outs, buf, counts, firsts, lo, hi)
         if release is not None:
             release(int(starts[good[lo]]), int(end[good[hi - 1]]))
@@ -216,7 +216,7 @@ def _place_chunks(
     """_place, a chunk of the file at a time: the messages' heads lie on most pages of a
     timing log."""
     return _Placed.concat([_place(steps, layout, buf, starts[lo:hi], end[lo:hi], release)
-                           for lo, hi in _chunks(starts, end) or [(0, 0)]])  # fmt: skip
+                           for lo, hi in file_chunks(starts, end) or [(0, 0)]])  # fmt: skip
 
 
 def _place(
@@ -271,7 +271,7 @@ class _Column:
 CHUNK_BYTES = 256 << 20  # of the file read at once: what a decode holds of a mapped log
 
 
-def _chunks(starts: np.ndarray, ends: np.ndarray) -> list[tuple[int, int]]:
+def file_chunks(starts: np.ndarray, ends: np.ndarray) -> list[tuple[int, int]]:
     """Consecutive runs [lo, hi) of the messages, each spanning about CHUNK_BYTES of the file."""
     if len(starts) == 0:
         return []

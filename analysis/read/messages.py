@@ -4,9 +4,9 @@
 one (mcapsource.py). `read_messages(log, generations)` decodes, in one pass per
 channel, what the analysis needs besides the timing records: the config_t of each
 generation, every command_t with when it was heard, the DPUs' report_t and the clock
-offset estimates; the statuses, the many, when asked (`Messages.statuses`), or only their
-integers (`Messages.status_columns`). A message that does not decode is counted by channel,
-never fatal.
+offset estimates; of the statuses, the many, only their integers (`Messages.status_columns`:
+the export reads them whole in bulk, lcmjson.to_json_many). A message that does not decode
+is counted by channel, never fatal.
 """
 
 from __future__ import annotations
@@ -62,18 +62,6 @@ class Messages:
     clock_offsets: list[Any]  # clock_offset_t, in log order
     commands: list[tuple[int, Any]] = field(default_factory=list)  # (utime_us heard, command_t), in log order
     malformed: dict[str, int] = field(default_factory=dict)  # channel -> undecodable messages
-    _statuses: list[tuple[int, Any]] | None = field(default=None, repr=False)
-
-    @property
-    def statuses(self) -> list[tuple[int, Any]]:
-        """(utime_us heard, status_t) of every decodable status, in log order: decoded on first
-        use and held."""
-        if self._statuses is None:
-            damaged: dict[str, int] = {}  # counted once, however often they are read
-            self._statuses = decode_timed(self.log, STATUS_CHANNEL, skelmsg.status_t.decode, damaged)
-            self.malformed.update(damaged)
-        return self._statuses
-
     def status_columns(self, *names: str) -> StatusColumns:
         """The integer fields `names` of every decodable status, without an object each: a long
         run logs hundreds of thousands, which decoded one by one in Python took 1.9 s, and held
@@ -129,7 +117,7 @@ class StatusColumns:
 
 
 def read_messages(log: Log, generations: Iterable[int]) -> Messages:
-    """Every message but the statuses (Messages.statuses), decoded."""
+    """Every message but the statuses (Messages.status_columns), decoded."""
     malformed: dict[str, int] = {}
     return Messages(
         log=log,

@@ -13,11 +13,12 @@ attachments, metadata, the summary) are the `mcap` package's own record classes.
 
 from __future__ import annotations
 
+import collections
 import itertools
 import struct
 import zlib
 from collections.abc import Callable, Mapping
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import IO, Any
 
@@ -171,17 +172,24 @@ class BulkWriter:
                 mine = np.flatnonzero(which[a:b] == k)
                 if len(mine):
                     source.fill(chunk, local[a:b][mine], at[mine] + MESSAGE_HEAD.itemsize)
-            data = chunk.tobytes()
-            packed = zstandard.ZstdCompressor(level=1).compress(data) if self.compression == "zstd" else data
+            # zstd reads the array itself: no copy of the chunk as bytes first
+            packed = zstandard.ZstdCompressor(level=1).compress(chunk) if self.compression == "zstd" \
+                else chunk.tobytes()  # fmt: skip
             index, offsets = _message_index(channel[a:b], log_time[a:b], at)
-            return packed, len(data), index, offsets, int(log_time[a]), int(log_time[b - 1])
+            return packed, len(chunk), index, offsets, int(log_time[a]), int(log_time[b - 1])
 
-        # Chunks are built and compressed side by side (numpy and zstd release the GIL),
-        # written in order, a few at a time so memory stays bounded.
+        # Chunks are built and compressed side by side (numpy and zstd release the GIL) and
+        # written in order, each as soon as it and those before it are: at most 2 * WORKERS in
+        # hand, so memory stays bounded and the workers never wait for a batch's last one.
         with ThreadPoolExecutor(WORKERS) as pool:
-            for first in range(0, len(spans), 2 * WORKERS):
-                for built in pool.map(build, spans[first : first + 2 * WORKERS]):
-                    self._chunk(*built)
+            building: collections.deque[Future[tuple[bytes, int, bytes, dict[int, int], int, int]]] = \
+                collections.deque()  # fmt: skip
+            for span in spans:
+                building.append(pool.submit(build, span))
+                if len(building) == 2 * WORKERS:
+                    self._chunk(*building.popleft().result())
+            while building:
+                self._chunk(*building.popleft().result())
 
     def _chunk(self, packed: bytes, size: int, index: bytes, offsets: dict[int, int], start: int,
                end: int) -> None:  # fmt: skip
