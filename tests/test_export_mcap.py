@@ -420,7 +420,7 @@ def test_messages_read_in_bulk_are_as_each_decoded_alone(servo_run: Path) -> Non
     assert len(rows[len(plain)]["lockouts"]) == 2 and rows[len(plain) + 1]["host"] == "läb-ü"
     assert rows[len(plain) + 3]["host"] == "\ufffd\ufffdA" and rows[len(plain) + 4] is None
     # a type that is not flat (config_t) decodes one by one; a byte array is base64 either way
-    configs = [bytes(d) for _, d in log.messages(CONFIG_CHANNEL)][:2] + [b"\0" * 12]
+    configs = [*[bytes(d) for _, d in log.messages(CONFIG_CHANNEL)][:2], b"\0" * 12]
     assert _many(skelmsg.config_t, configs) == _each_decoded(skelmsg.config_t, configs)
     empty, full = skelmsg.buffer_t(), skelmsg.buffer_t()
     full.payload, full.nbytes = bytes(range(7)), 7
