@@ -57,6 +57,21 @@ def test_load_run_gives_the_report_and_tables(two_runs: tuple[Path, Path]) -> No
     assert len(run.faults) == len(want["faults"])
 
 
+def test_wall_clock_is_each_dpus_own_offset(two_runs: tuple[Path, Path]) -> None:
+    """to_utc_ns adds each DPU's offset (utc - mono of its heartbeats) to its times, and leaves
+    a DPU with no offset known as it is: for arrays of many DPUs and for one time."""
+    run = skeleton.load_run(two_runs[0])
+    assert sorted(run.utc_offset_ns) == [1, 2, 3, 4]  # the four DPUs' heartbeats
+    dpu = np.array([4, 1, 99, 3, 2, 1, -7], dtype=np.int16)
+    mono = np.arange(len(dpu), dtype=np.int64) * 1000
+    # on one host the DPUs' offsets are (nearly) one: distinct ones show each is its DPU's
+    for offsets in (dict(run.utc_offset_ns), {1: 10**18, 2: -5, 3: 7, 4: -(10**17)}):
+        run.utc_offset_ns = offsets
+        want = mono + np.array([offsets.get(int(d), 0) for d in dpu], dtype=np.int64)
+        assert run.to_utc_ns(dpu, mono).tolist() == want.tolist()
+        assert int(run.to_utc_ns(3, 5)) == 5 + offsets[3] and int(run.to_utc_ns(99, 5)) == 5
+
+
 def test_compare_is_skel_diff(two_runs: tuple[Path, Path]) -> None:
     a, b = two_runs
     cli = skel("diff", str(a), str(b), "--json")

@@ -107,15 +107,13 @@ class RunAnalysis:
         return self.window(self.report.generation)[1]
 
     def to_utc_ns(self, dpu: np.ndarray | int, mono_ns: np.ndarray | int) -> np.ndarray:
-        """Wall-clock ns (UTC) of DPU monotonic times."""
-        dpus = np.asarray(dpu, dtype=np.int64)
-        known = np.array(sorted(self.utc_offset_ns), dtype=np.int64)
-        offsets = np.zeros(dpus.shape, dtype=np.int64)
-        if len(known):
-            at = np.clip(np.searchsorted(known, dpus), 0, len(known) - 1)
-            values = np.array([self.utc_offset_ns[d] for d in known.tolist()], dtype=np.int64)
-            offsets = np.where(known[at] == dpus, values[at], 0)
-        return np.asarray(mono_ns, dtype=np.int64) + offsets
+        """Wall-clock ns (UTC) of DPU monotonic times (of a DPU with no offset known: unchanged)."""
+        # Looked up by DPU id, an int16 as every message holds it: 10^7 records' times took
+        # 0.44-0.82 s to map by searching the known ids, 0.09-0.10 s so (the export maps three).
+        offsets = np.zeros(1 << 16, dtype=np.int64)
+        for d, value in self.utc_offset_ns.items():
+            offsets[d + (1 << 15)] = value
+        return np.asarray(mono_ns, dtype=np.int64) + offsets[np.asarray(dpu, dtype=np.int32) + (1 << 15)]
 
     def add_prediction(self, predictor: Predictor) -> str | None:
         """Lays the prediction of the report generation's system file (the one its config_t
