@@ -114,6 +114,12 @@ def test_the_estimate_in_force_is_the_latest_at_or_before_the_time() -> None:
     # An estimate within half its round trip is indistinguishable from 0 (one machine).
     near = ClockOffsets([(1, 0, 40_000, 200_000), (2, 0, 5_000_000, 200_000), (3, 0, -100_000, 200_000)])
     assert near.latest() == {1: 0, 2: 5_000_000, 3: 0}
+    times = np.full(3, 10**9)
+    moved = near.to_host_many(np.array([1, 2, 3]), times)
+    assert moved.tolist() == [10**9, 10**9 - 5_000_000, 10**9] and times.tolist() == [10**9] * 3
+    assert near.to_host(1, times) is not times  # a DPU of no offset: its times, as a copy
+    # A clock that drifted past the error later in the run: its earlier times keep offset 0.
+    assert ClockOffsets([(1, 0, 0), (1, 1000, 9)]).to_host(1, np.array([500, 2000])).tolist() == [500, 1991]
 
 
 def test_loss_separates_superseded_from_lost() -> None:

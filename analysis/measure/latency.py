@@ -62,6 +62,9 @@ class ClockOffsets:
                 np.array([r[0] for r in rows], dtype=np.int64),
                 np.array([r[1] for r in rows], dtype=np.int64),
             )
+        # The DPUs with an estimate past its error: those on the host's own machine have none, and
+        # their times need no search among the estimates (2 s of 10^7 records' report, on two cores).
+        self._off = {dpu for dpu, (_, offset) in self._at.items() if offset.any()}
 
     @classmethod
     def from_messages(cls, messages: Iterable[Any]) -> ClockOffsets:
@@ -79,7 +82,7 @@ class ClockOffsets:
     def offset_ns(self, dpu: int, t_dpu_ns: np.ndarray) -> np.ndarray:
         """The offset in force at each time (on the DPU's clock)."""
         t = np.asarray(t_dpu_ns, dtype=np.int64)
-        if dpu not in self._at:
+        if dpu not in self._off:
             return np.zeros(t.shape, dtype=np.int64)
         when, offset = self._at[dpu]
         i = np.searchsorted(when, t, side="right") - 1
@@ -87,17 +90,18 @@ class ClockOffsets:
 
     def to_host(self, dpu: int, t_dpu_ns: np.ndarray) -> np.ndarray:
         t = np.asarray(t_dpu_ns, dtype=np.int64)
-        return t - self.offset_ns(dpu, t)
+        return t - self.offset_ns(dpu, t) if dpu in self._off else t.copy()
 
     def to_host_many(self, dpus: np.ndarray, t_dpu_ns: np.ndarray) -> np.ndarray:
         """Times of several DPUs (dpus[i] is the clock of t_dpu_ns[i])."""
         t = np.asarray(t_dpu_ns, dtype=np.int64)
-        if not self._at:
-            return t.copy()
         out = t.copy()
+        if not self._off:
+            return out
         for dpu in np.unique(dpus).tolist():
-            mask = dpus == dpu
-            out[mask] = self.to_host(dpu, t[mask])
+            if dpu in self._off:
+                mask = dpus == dpu
+                out[mask] = self.to_host(dpu, t[mask])
         return out
 
 
