@@ -70,6 +70,9 @@ def test_wall_clock_is_each_dpus_own_offset(two_runs: tuple[Path, Path]) -> None
         want = mono + np.array([offsets.get(int(d), 0) for d in dpu], dtype=np.int64)
         assert run.to_utc_ns(dpu, mono).tolist() == want.tolist()
         assert int(run.to_utc_ns(3, 5)) == 5 + offsets[3] and int(run.to_utc_ns(99, 5)) == 5
+        # ids no DPU can have (int16 on the wire) have no offset: not one of a DPU's by wrapping
+        far = np.array([-40_000, 40_000, 2**32 + 3, 3], dtype=np.int64)
+        assert run.to_utc_ns(far, np.zeros(4, np.int64)).tolist() == [0, 0, 0, offsets[3]]
 
 
 def test_compare_is_skel_diff(two_runs: tuple[Path, Path]) -> None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import struct
 import subprocess
+import tracemalloc
 from collections import defaultdict
 from collections.abc import Iterator
 from pathlib import Path
@@ -30,7 +31,7 @@ from skeleton.analysis.read.logreader import encode_events, read_bytes, read_log
 from skeleton.analysis.read.mcapsource import read_as_log
 from skeleton.analysis.read.records import load_records
 from skeleton.analysis.views import mcapbulk, outfile
-from skeleton.analysis.views.export_mcap import _pairs, export
+from skeleton.analysis.views.export_mcap import MESSAGE_CHANNELS, _pairs, export
 from skelmsg.contract import COMMAND_CHANNEL, CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 RECORD_FIELDS = ["dpu", "process", "generation", "batch_seq", "cycle", "minor", "release_ns",
@@ -382,33 +383,37 @@ def _status(host: str = "lab-1", lockouts: int = 0) -> bytes:
     return bytes(status.encode())
 
 
-def _each_decoded(cls: type, messages: list[bytes]) -> list[dict[str, Any] | None]:
-    """What to_json_many must give: to_json of each message the generated decoder takes."""
-    out: list[dict[str, Any] | None] = []
+def _each_decoded(cls: type, messages: list[bytes]) -> list[str | None]:
+    """What to_json_many must give: to_json of each message the generated decoder takes, as
+    JSON (where True and 1, or 1.0 and 1, differ)."""
+    out: list[str | None] = []
     for data in messages:
         try:
-            out.append(to_json(cls.decode(data)))  # type: ignore[attr-defined]
+            msg = cls.decode(data)  # type: ignore[attr-defined]
         except Exception:
             out.append(None)
+            continue
+        out.append(json.dumps(to_json(msg)))
     return out
 
 
-def _many(cls: type, messages: list[bytes]) -> list[dict[str, Any] | None]:
-    """to_json_many of `messages` laid end to end, with the ranges it says it is done with."""
+def _many(cls: type, messages: list[bytes]) -> list[str | None]:
+    """to_json_many of `messages` laid end to end, as JSON, with the ranges it says it is done with."""
     lengths = np.array([len(m) for m in messages], dtype=np.int64)
     starts = np.cumsum(lengths) - lengths
     released: list[tuple[int, int]] = []
     buf = np.frombuffer(b"".join(messages) or b"\0", dtype=np.uint8)
-    rows = list(to_json_many(cls, buf, starts, lengths, lambda a, b: released.append((a, b))))
+    rows = to_json_many(cls, buf, starts, lengths, lambda a, b: released.append((a, b)))
+    out = [None if r is None else json.dumps(r) for r in rows]
     assert all(a < b for a, b in released) and (not messages or released[-1][1] == int(lengths.sum()))
-    return rows
+    return out
 
 
 def test_messages_read_in_bulk_are_as_each_decoded_alone(servo_run: Path) -> None:
     """The export's bulk JSON of the control messages (lcmjson.to_json_many) is, message by
     message, to_json of the generated decoder's object, or None where that refuses it: the
-    plain ones (bulk), those with array elements (one by one), strings of every kind, and
-    damaged ones."""
+    plain ones (bulk), those with array elements (one by one), strings of every kind, damaged
+    ones, and every type the export writes."""
     log = read_log(servo_run / "run.lcm")
     plain = [bytes(d) for _, d in log.messages(STATUS_CHANNEL)]
     invalid = _status("abc").replace(b"abc", b"\xff\xfeA")  # not UTF-8: replaced as the decoder does
@@ -417,16 +422,34 @@ def test_messages_read_in_bulk_are_as_each_decoded_alone(servo_run: Path) -> Non
     statuses = plain + odd + plain[:3]
     rows = _many(skelmsg.status_t, statuses)
     assert rows == _each_decoded(skelmsg.status_t, statuses)
-    assert len(rows[len(plain)]["lockouts"]) == 2 and rows[len(plain) + 1]["host"] == "läb-ü"
-    assert rows[len(plain) + 3]["host"] == "\ufffd\ufffdA" and rows[len(plain) + 4] is None
-    # a type that is not flat (config_t) decodes one by one; a byte array is base64 either way
-    configs = [*[bytes(d) for _, d in log.messages(CONFIG_CHANNEL)][:2], b"\0" * 12]
-    assert _many(skelmsg.config_t, configs) == _each_decoded(skelmsg.config_t, configs)
+    lockouts, accented, _, replaced, refused = (json.loads(r) if r else r for r in rows[len(plain) :][:5])
+    assert len(lockouts["lockouts"]) == 2 and accented["host"] == "läb-ü"
+    assert replaced["host"] == "\ufffd\ufffdA" and refused is None
+    for channel, (cls, _) in MESSAGE_CHANNELS.items():  # floats (report_t), nested types (config_t)
+        messages = [*[bytes(d) for _, d in log.messages(channel)], b"\0" * 12]
+        assert len(messages) > 1, channel
+        assert _many(cls, messages) == _each_decoded(cls, messages), channel
     empty, full = skelmsg.buffer_t(), skelmsg.buffer_t()
     full.payload, full.nbytes = bytes(range(7)), 7
     buffers = [bytes(empty.encode()), bytes(full.encode())]
     assert _many(skelmsg.buffer_t, buffers) == _each_decoded(skelmsg.buffer_t, buffers)
     assert _many(skelmsg.status_t, []) == []
+
+
+def test_a_refused_message_does_not_read_the_log_as_its_strings() -> None:
+    """A message the bulk read refuses has no places for its strings: reading them anyway
+    took the whole buffer as each string (GBs of a long log)."""
+    refused, good = b"not a status" * 4, _status()
+    buf = np.frombuffer(refused + b"\0" * (64 << 20) + good, dtype=np.uint8)
+    starts, lengths = np.array([0, len(buf) - len(good)]), np.array([len(refused), len(good)])
+    tracemalloc.start()
+    try:
+        rows = list(to_json_many(skelmsg.status_t, buf, starts, lengths))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert rows == [None, to_json(skelmsg.status_t.decode(good))]
+    assert peak < 16 << 20, f"{peak >> 20} MiB traced for 2 statuses"
 
 
 def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, servo_run: Path) -> None:

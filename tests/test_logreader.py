@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import json
 import mmap
 from pathlib import Path
 
@@ -18,8 +19,9 @@ from skeleton.analysis.measure.run import analyze_log
 from skeleton.analysis.read import flatdecode, logreader, parallel
 from skeleton.analysis.read.coltable import ColumnTable
 from skeleton.analysis.read.flatdecode import FlatLayout
+from skeleton.analysis.read.lcmjson import to_json, to_json_many
 from skeleton.analysis.read.logreader import HEADER_BYTES, SYNC_BYTES, encode_events, read_bytes, read_log
-from skeleton.analysis.read.messages import int_columns, read_messages
+from skeleton.analysis.read.messages import decode_timed, int_columns, read_messages
 from skeleton.analysis.read.records import (
     DURATIONS,
     INPUT_DTYPE,
@@ -219,14 +221,20 @@ def test_statuses_bulk_decoded_give_what_the_generated_decoder_does(tmp_path: Pa
 
     messages = read_messages(read_log(path), set())
     bulk = messages.status_columns(*fields)
-    whole = read_messages(read_log(path), set())
-    statuses = [s for _, s in whole.statuses]
+    log, malformed = read_log(path), {}  # each decoded alone by the generated decoder
+    whole = decode_timed(log, STATUS_CHANNEL, skelmsg.status_t.decode, malformed)
+    statuses = [s for _, s in whole]
     assert len(statuses) == len(bulk.heard_us) == len(sent) + 2  # 2 of the 6 damaged decode
-    assert bulk.heard_us.tolist() == [t for t, _ in whole.statuses]
+    assert bulk.heard_us.tolist() == [t for t, _ in whole]
     for name, column in zip(fields, int_columns(statuses, *fields), strict=True):
         assert bulk.fields[name].tolist() == column.tolist(), name
     assert bulk.fields["nlockouts"].tolist()[-2:] == [-2, 1]
-    assert messages.malformed == whole.malformed == {STATUS_CHANNEL: 4}
+    assert messages.malformed == malformed == {STATUS_CHANNEL: 4}
+    # Their JSON (skel export) read in bulk too: as the generated decoder's object, as JSON.
+    idx = log.indices(STATUS_CHANNEL)
+    made = to_json_many(skelmsg.status_t, log.buf, log.data_offset[idx], log.data_len[idx], log.release)
+    rows = [json.dumps(r) for r in made if r is not None]
+    assert rows == [json.dumps(to_json(s)) for s in statuses]
     # A heartbeat repeating its DPU's last lockouts (in the same run) is not decoded whole.
     first_named = [(s.dpu, s.run_id, len(s.lockouts)) for s in bulk.locking]
     assert first_named == [(0, 1, 1), (1, 1, 1), (2, 1, 1), (0, 1, 2), (1, 1, 2),  # run 1

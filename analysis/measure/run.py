@@ -110,10 +110,14 @@ class RunAnalysis:
         """Wall-clock ns (UTC) of DPU monotonic times (of a DPU with no offset known: unchanged)."""
         # Looked up by DPU id, an int16 as every message holds it: 10^7 records' times took
         # 0.44-0.82 s to map by searching the known ids, 0.09-0.10 s so (the export maps three).
-        offsets = np.zeros(1 << 16, dtype=np.int64)
+        # The table's last entry, 0, is for an id no int16 holds (none from a log).
+        table = np.zeros((1 << 16) + 1, dtype=np.int64)
         for d, value in self.utc_offset_ns.items():
-            offsets[d + (1 << 15)] = value
-        return np.asarray(mono_ns, dtype=np.int64) + offsets[np.asarray(dpu, dtype=np.int32) + (1 << 15)]
+            table[d + (1 << 15)] = value
+        ids = np.asarray(dpu)
+        at = ids.astype(np.int32) + (1 << 15) if ids.dtype == np.int16 else \
+            np.where((ids >= -(1 << 15)) & (ids < 1 << 15), ids + (1 << 15), 1 << 16)  # fmt: skip
+        return np.asarray(mono_ns, dtype=np.int64) + table[at]
 
     def add_prediction(self, predictor: Predictor) -> str | None:
         """Lays the prediction of the report generation's system file (the one its config_t

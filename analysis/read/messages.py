@@ -62,14 +62,15 @@ class Messages:
     clock_offsets: list[Any]  # clock_offset_t, in log order
     commands: list[tuple[int, Any]] = field(default_factory=list)  # (utime_us heard, command_t), in log order
     malformed: dict[str, int] = field(default_factory=dict)  # channel -> undecodable messages
+
     def status_columns(self, *names: str) -> StatusColumns:
         """The integer fields `names` of every decodable status, without an object each: a long
         run logs hundreds of thousands, which decoded one by one in Python took 1.9 s, and held
         the GIL from the records' decode beside them. Decoded one by one: those the bulk decode
-        refuses, so that the generated decoder alone says which are malformed (as for
-        `statuses`), and those that name lockouts, kept whole, but for a DPU's heartbeats that
-        repeat the lockouts of its last one (a DPU names its run's lockouts in every heartbeat
-        after them): what lockouts_from_status reads of each status is the same."""
+        refuses, so that the generated decoder alone says which are malformed (as for the
+        export's, lcmjson.to_json_many), and those that name lockouts, kept whole, but for a
+        DPU's heartbeats that repeat the lockouts of its last one (a DPU names its run's lockouts
+        in every heartbeat after them): what lockouts_from_status reads of each status is the same."""
         log = self.log
         idx = log.indices(STATUS_CHANNEL)
         bulk = decode_many(_STATUS, log.buf, log.data_offset[idx], log.data_len[idx], log.release)

@@ -181,15 +181,20 @@ class BulkWriter:
         # Chunks are built and compressed side by side (numpy and zstd release the GIL) and
         # written in order, each as soon as it and those before it are: at most 2 * WORKERS in
         # hand, so memory stays bounded and the workers never wait for a batch's last one.
-        with ThreadPoolExecutor(WORKERS) as pool:
-            building: collections.deque[Future[tuple[bytes, int, bytes, dict[int, int], int, int]]] = \
-                collections.deque()  # fmt: skip
+        pool = ThreadPoolExecutor(WORKERS)
+        building: collections.deque[Future[tuple[bytes, int, bytes, dict[int, int], int, int]]] = \
+            collections.deque()  # fmt: skip
+        try:
             for span in spans:
                 building.append(pool.submit(build, span))
                 if len(building) == 2 * WORKERS:
                     self._chunk(*building.popleft().result())
             while building:
                 self._chunk(*building.popleft().result())
+        finally:
+            # After a failed write or Ctrl-C, the chunks not started are not built (a with-block
+            # would build them all first).
+            pool.shutdown(cancel_futures=True)
 
     def _chunk(self, packed: bytes, size: int, index: bytes, offsets: dict[int, int], start: int,
                end: int) -> None:  # fmt: skip
