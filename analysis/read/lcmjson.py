@@ -130,8 +130,8 @@ def to_json_many(cls: type, buf: np.ndarray, starts: np.ndarray, lengths: np.nda
     with array elements (a status naming lockouts: few) is decoded by the generated decoder, as
     is one the bulk read refuses, so that the generated decoder alone says which are malformed.
     Read a part of the file at a time (flatdecode.file_chunks), `release(start, end)` told after
-    each (as decode_many's): read at once, a map's pages of every part stayed in memory (2.5 GB
-    of a 2.3 GB log). One at a time: 2·10^5 statuses' rows made and held at once took 1.5 s."""
+    each (as decode_many's): read at once, the map's pages of the whole log stayed in memory
+    (2.3 GB). One at a time: 2·10^5 statuses' rows made and held at once took 1.5 s."""
     starts, lengths = np.asarray(starts, dtype=np.int64), np.asarray(lengths, dtype=np.int64)
     for lo, hi in file_chunks(starts, starts + lengths):
         yield from _json_rows(cls, buf, starts[lo:hi], lengths[lo:hi])
