@@ -73,6 +73,8 @@ def test_wall_clock_is_each_dpus_own_offset(two_runs: tuple[Path, Path]) -> None
         # ids no DPU can have (int16 on the wire) have no offset: not one of a DPU's by wrapping
         far = np.array([-40_000, 40_000, 2**32 + 3, 3], dtype=np.int64)
         assert run.to_utc_ns(far, np.zeros(4, np.int64)).tolist() == [0, 0, 0, offsets[3]]
+        for narrow in (np.int8, np.uint16, np.int32):  # ids of any integer type
+            assert run.to_utc_ns(np.array([3, 99], dtype=narrow), 5).tolist() == [5 + offsets[3], 5]
 
 
 def test_compare_is_skel_diff(two_runs: tuple[Path, Path]) -> None:

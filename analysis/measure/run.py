@@ -115,8 +115,11 @@ class RunAnalysis:
         for d, value in self.utc_offset_ns.items():
             table[d + (1 << 15)] = value
         ids = np.asarray(dpu)
-        at = ids.astype(np.int32) + (1 << 15) if ids.dtype == np.int16 else \
-            np.where((ids >= -(1 << 15)) & (ids < 1 << 15), ids + (1 << 15), 1 << 16)  # fmt: skip
+        if ids.dtype == np.int16:  # the records' ids: every one in the table
+            at = ids.astype(np.int32) + (1 << 15)
+        else:  # any other integers (one id, a list): widened first, so that the bias cannot wrap
+            wide = ids.astype(np.int64)
+            at = np.where((wide >= -(1 << 15)) & (wide < 1 << 15), wide + (1 << 15), 1 << 16)
         return np.asarray(mono_ns, dtype=np.int64) + table[at]
 
     def add_prediction(self, predictor: Predictor) -> str | None:
