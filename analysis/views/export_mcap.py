@@ -151,14 +151,12 @@ class _JsonMessages:
             meta = {"lcm_channel": channel, "lcm_type": type_name(cls)}
             idx = log.indices(channel)
             rows = to_json_many(cls, log.buf, log.data_offset[idx], log.data_len[idx], log.release)
-            seq = 0
-            for utime, row in zip(log.utime_us[idx].tolist(), rows, strict=True):
-                if row is None:
-                    continue
+            decoded = ((t, row) for t, row in zip(log.utime_us[idx].tolist(), rows, strict=True)
+                       if row is not None)  # fmt: skip
+            for seq, (utime, row) in enumerate(decoded):
                 topic = pattern.format(dpu=row.get("dpu", 0))
                 publish = row["utc_ns"] if cls is skelmsg.status_t else utime * 1000
                 self.add(topic, schema, meta, seq, utime * 1000, max(publish, 0), row)
-                seq += 1
 
     def add_faults(self, data: RunAnalysis) -> None:
         for when, fault in _faults(data):
