@@ -18,7 +18,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import zstandard
-from analysis_synth import GENERATION, batches, small_config, small_run, write_log
+from analysis_synth import GENERATION, batches, small_config, small_run, status, write_log
 from conftest import mapped_kib, short_servo_run, skel
 from mcap.reader import make_reader
 from mcap.writer import Writer
@@ -373,14 +373,10 @@ def test_lcm_json_of_every_message_type_validates_against_its_schema(servo_run: 
 
 
 def _status(host: str = "lab-1", lockouts: int = 0) -> bytes:
-    status = skelmsg.status_t()
-    status.dpu, status.host, status.run_id, status.utc_ns, status.reject_reason = 3, host, 7, 10**18, ""
-    for k in range(lockouts):
-        lock = skelmsg.lockout_t()
-        lock.process, lock.buffer, lock.cycle = k, -1, 40 + k
-        status.lockouts.append(lock)
-    status.nlockouts = lockouts
-    return bytes(status.encode())
+    """analysis_synth's heartbeat of DPU 3 from `host`, naming `lockouts` lockouts, encoded."""
+    heartbeat = status(3, [(k, -1, 40 + k) for k in range(lockouts)])
+    heartbeat.host = host
+    return bytes(heartbeat.encode())
 
 
 def _each_decoded(cls: type, messages: list[bytes]) -> list[str | None]:
