@@ -208,7 +208,7 @@ def test_the_lateness_a_stall_explains_is_not_the_designs(tmp_path: Path, url: s
     up at 0.5 ms a cycle. All of that lateness is the stall's (timing_t.debt_ns): the design's
     own, lateness_unstalled, stays under late_pct (20 %) of the period."""
     path = tmp_path / "busy.yaml"
-    path.write_text(ONE_DPU)
+    path.write_text(ONE_DPU.format(long_us=LONG_US))
     dpus.start(1)
     out = tmp_path / "run"
     run = skel_background("run", str(path), "--url", url, "-s", "run.duration_s=5", "-s", "run.late_pct=20",
@@ -305,30 +305,40 @@ def test_a_stall_during_a_data_wait_delays_its_lockout_and_ends_nothing_else(
 
 ONE_DPU = """\
 system: compute
-dpus: [{id: 1, compute: sleep}]
+dpus: [{{id: 1, compute: sleep}}]
 processes:
-  - {id: 1, name: short, dpu: 1, period_us: 5000, compute_us: 1200}
-  - {id: 2, name: long, dpu: 1, period_us: 5000, compute_us: 3315}
-run: {duration_s: 2, warmup_cycles: 20}
+  - {{id: 1, name: short, dpu: 1, period_us: 5000, compute_us: 1200}}
+  - {{id: 2, name: long, dpu: 1, period_us: 5000, compute_us: {long_us}}}
+run: {{duration_s: 2, warmup_cycles: 20}}
 """
+LONG_US = 3315  # with short's 1200 us, 90 % of the 5 ms period
 
 
-@pytest.mark.parametrize("mode", ["work", "cpu", "wall", "sleep"])
-def test_each_compute_mode_computes_what_is_asked(tmp_path: Path, url: str, mode: str) -> None:
+# WORK's DPU is 60 % loaded, the others 90 %: WORK runs at the CPU's speed of the moment, and
+# a CPU 10 % slower than at calibration overruns a 90 % design and locks it out (CI: 18 % slower
+# for three attempts in a row, with no time stolen). That is WORK showing the platform, which
+# this test does not judge; the others' computations are wall or CPU time and keep 90 %.
+@pytest.mark.parametrize(("mode", "long_us"),
+                         [("work", 1800), ("cpu", LONG_US), ("wall", LONG_US), ("sleep", LONG_US)])
+def test_each_compute_mode_computes_what_is_asked(tmp_path: Path, url: str, mode: str, long_us: int) -> None:
     """One DPU alone: each mode computes what was asked within 1 %. WORK runs at
     the CPU's speed of the moment: a machine busier than at the DPU's start-up makes it slower,
     and the DPU says by how much (work_drift_pct, the larger of the drifts it measured at the
-    run's start and end: CI once ran +2.4 % with 0.25 % at the start); beyond that within 1 %."""
+    run's start and end: CI once ran +2.4 % with 0.25 % at the start); beyond that within 1 %.
+    WORK is judged by its median computation, as the DPU measures its drift (the median of five
+    runs): a shared CPU also runs single computations 2-4 times slower, no stall (here: median
+    2.7 % above asked with a drift of 4.1 %, the mean 9.7 % above, p99 2.5 times the median)."""
     path = tmp_path / "compute.yaml"
-    path.write_text(ONE_DPU)
+    path.write_text(ONE_DPU.format(long_us=long_us))
     out = tmp_path / "run"
     run = skel("run", str(path), "--spawn", "--url", url, "-s", f"dpu.1.compute={mode}", "--out", str(out))
     assert run.returncode == 0, run.stdout + run.stderr
     report = _report(out)
     drift = report["dpus"][0]["work_drift_pct"]
     assert (drift is None) == (mode != "work"), report["dpus"][0]
-    for name, asked in (("short", 1200), ("long", 3315)):
-        measured = _process(report, name)["compute_mean_us"]
+    for name, asked in (("short", 1200), ("long", long_us)):
+        process = _process(report, name)
+        measured = process["compute_us"]["p50"] if mode == "work" else process["compute_mean_us"]
         tolerance = 0.01 + abs(drift or 0) / 100
         assert measured == pytest.approx(asked, rel=tolerance), (mode, name, measured, drift)
 
