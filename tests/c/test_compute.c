@@ -4,6 +4,8 @@
  * of its chunks of work less what a chunk took beyond its work, which another
  * process on the core does not stretch: those are held close to what was
  * asked. */
+#include <math.h>
+
 #include "check.h"
 #include "dpu.h"
 #include "skelmsg_dpu_t.h"
@@ -34,22 +36,28 @@ static void test_modes(void)
     int64_t wall_ns = median_of(&c, SKELMSG_DPU_T_COMPUTE_WALL, ns);
     int64_t cpu_ns = median_of(&c, SKELMSG_DPU_T_COMPUTE_CPU, ns);
     /* WORK's speed moves with the load on a shared VM: calibrate and measure side
-     * by side, five times, and judge the median. */
-    int64_t works[5];
+     * by side, five times, and judge the median, each taken back by the kernel's
+     * drift from its calibration measured just after it, as a run says it. Not
+     * taken back, 4 of 30 runs here came out 7-11 % long: the calibration (the
+     * fastest of three batches) against a speed whose p10 and p90 over runs of
+     * 130 us were 10-30 % apart; taken back, 0 of 30 were more than 3.4 % off. */
+    int64_t works[5], ran[5];
     for (int i = 0; i < 5; i++) {
         CHECK_EQ(compute_calibrate(&c), 0);
-        works[i] = median_of(&c, SKELMSG_DPU_T_COMPUTE_WORK, ns);
+        ran[i] = median_of(&c, SKELMSG_DPU_T_COMPUTE_WORK, ns);
+        works[i] = llround((double)ran[i] / (1.0 + compute_check_calibration(&c) / 100.0));
     }
     int64_t work_ns = median5(works);
-    printf("2 ms asked: sleep %.3f wall %.3f ms (wall time), cpu %.3f work %.3f ms (time run)\n",
-           sleep_ns / 1e6, wall_ns / 1e6, cpu_ns / 1e6, work_ns / 1e6);
+    printf("2 ms asked: sleep %.3f wall %.3f ms (wall time), cpu %.3f work %.3f ms (time run; "
+           "%.3f ms before its drift was taken back)\n",
+           sleep_ns / 1e6, wall_ns / 1e6, cpu_ns / 1e6, work_ns / 1e6, median5(ran) / 1e6);
     CHECK(sleep_ns >= ns && sleep_ns < ns + 5000000);
     CHECK(wall_ns >= ns && wall_ns < ns + 5000000);
     CHECK(cpu_ns >= ns && cpu_ns < ns + ns / 200); /* within 0.5 % */
-    /* WORK is calibrated as it runs (CPU time, median runs); its speed still
-     * moves with what shares the core (2.2 % in a CI run beside a build, up to
-     * 5 % beside other suites): this checks the calibration is the one used,
-     * and `make bench` measures how close it comes on a quiet machine. */
+    /* This checks the calibration is the one used (a computation that ran 10 %
+     * more work than it says fails here); how close the calibration comes to the
+     * speed of the moment is the drift checked below, and `make bench` measures
+     * it on a quiet machine. */
     CHECK(work_ns > ns - ns / 20 && work_ns < ns + ns / 20);
     /* SLEEP below the spin stretch is a pure spin; zero is free. */
     int64_t stall = 0;
