@@ -272,11 +272,15 @@ def frames(mine: np.ndarray) -> Frames:
     """The minor cycles of one DPU's records."""
     if len(mine) == 0:
         return Frames(*(np.zeros(0, dtype=np.int64) for _ in range(3)))
-    order = np.argsort(mine["minor"], kind="stable")
-    minor = mine["minor"][order]
+    minor, start, release = mine["minor"], mine["start_ns"], mine["release_ns"]
+    # A cyclic DPU's records come in minor order: seeing so takes one pass, and no sort or
+    # gather is needed (three calls per DPU; each, over 10^7 records, 0.20 s instead of 0.31 s,
+    # best of five). A tasking DPU's long job can end after a later minor cycle's.
+    if np.any(minor[1:] < minor[:-1]):
+        order = np.argsort(minor, kind="stable")
+        minor, start, release = minor[order], start[order], release[order]
     first = np.flatnonzero(np.r_[True, minor[1:] != minor[:-1]])
-    return Frames(minor[first], np.minimum.reduceat(mine["start_ns"][order], first),
-                  np.minimum.reduceat(mine["release_ns"][order], first))
+    return Frames(minor[first], np.minimum.reduceat(start, first), np.minimum.reduceat(release, first))
 
 
 def frame_release_latency_ns(mine: np.ndarray) -> np.ndarray:
