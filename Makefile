@@ -202,7 +202,7 @@ test-fuzz: $(FUZZ_BINS)
 fuzz: $(FUZZ_BINS) $(STAMP)
 	$(call fuzz_run,$(FUZZ_SECONDS),nice -n 19)
 	SKEL_HYPOTHESIS=fuzz nice -n 19 $(VENV)/bin/pytest -q -p no:cacheprovider \
-	  tests/test_system_properties.py tests/test_logreader_properties.py
+	  tests/test_system_properties.py tests/test_logreader_properties.py tests/test_stats_properties.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check skeleton host analysis tests lcmtypes bench examples

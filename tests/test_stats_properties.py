@@ -1,0 +1,50 @@
+"""The report's percentiles come from a sort and numpy's own interpolation steps, not from
+np.percentile: for any samples they must be np.percentile's, to the bit (report.json does not
+change with the speed-up)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import given
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from skeleton.analysis.measure.stats import latency_us
+
+# What the report holds: integer ns, in µs (ns / 1000), and integer samples as they are.
+NS = hnp.arrays(np.int64, st.integers(1, 400), elements=st.integers(-(2**53), 2**53))
+FLOATS = hnp.arrays(np.float64, st.integers(1, 400),
+                    elements=st.floats(-1e15, 1e15, allow_nan=False, allow_infinity=False))
+
+
+def _percentile(samples: np.ndarray) -> tuple[float, float, float]:
+    p50, p99 = np.percentile(samples, [50, 99])
+    return float(p50), float(p99), float(samples.max())
+
+
+@given(NS, st.booleans())
+def test_percentiles_of_integer_samples_are_numpys(ns: np.ndarray, in_us: bool) -> None:
+    samples = ns.astype(np.float64) / 1000.0 if in_us else ns
+    got = latency_us(samples)
+    assert repr((got.p50, got.p99, got.max)) == repr(_percentile(samples))
+
+
+@given(FLOATS)
+def test_percentiles_of_float_samples_are_numpys(samples: np.ndarray) -> None:
+    got = latency_us(samples + 0.0)  # no -0.0: sorted or selected, it ties with 0.0 either way
+    assert repr((got.p50, got.p99, got.max)) == repr(_percentile(samples + 0.0))
+
+
+@given(FLOATS)
+def test_a_nan_sample_makes_every_percentile_nan_as_numpy_does(samples: np.ndarray) -> None:
+    samples = np.append(samples, np.nan)
+    got = latency_us(samples)
+    assert all(math.isnan(v) for v in (got.p50, got.p99, got.max))
+    assert all(math.isnan(v) for v in _percentile(samples))
+
+
+def test_no_samples_no_percentiles() -> None:
+    got = latency_us(np.zeros(0))
+    assert (got.p50, got.p99, got.max) == (None, None, None)
