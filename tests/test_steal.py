@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from steal import work_speed_moved_pct
+from steal import WorkSpeed, work_speed
 
 DPU_SOURCE = Path(__file__).resolve().parent.parent / "dpu"
 
@@ -32,7 +32,8 @@ def _armed_line(run_id: int) -> str:
     return "skel-dpu[1]: " + _c_format("command.c", "armed") % (1, run_id, 499.5, 2.0)
 
 
-def test_the_work_speed_moved_is_each_runs_end_less_its_start(tmp_path: Path) -> None:
+def test_the_work_speed_is_as_far_off_as_logged_and_moved_each_runs_end_less_its_start(
+        tmp_path: Path) -> None:
     (tmp_path / "run").mkdir()
     log = tmp_path / "run" / "dpu1.log"
     log.write_text("\n".join([
@@ -40,12 +41,12 @@ def test_the_work_speed_moved_is_each_runs_end_less_its_start(tmp_path: Path) ->
         _armed_line(2), _drift_line("start", 2.5),                              # end within 2 %: 2.5
         _armed_line(3), _drift_line("end", -3.0),   # not paired with run 2's start: 3.0
     ]) + "\n")
-    assert work_speed_moved_pct(tmp_path) == 3.0
+    assert work_speed(tmp_path) == WorkSpeed(off=4.1, moved=3.0)
     with log.open("a") as f:
         f.write("\n".join([_armed_line(4), _drift_line("start", 97.5), _drift_line("end", -10.0)]) + "\n")
-    assert work_speed_moved_pct(tmp_path) == 107.5
+    assert work_speed(tmp_path) == WorkSpeed(off=97.5, moved=107.5)
 
 
 def test_a_run_without_drift_lines_moved_nothing(tmp_path: Path) -> None:
     (tmp_path / "dpu2.log").write_text(_armed_line(7) + "\n")
-    assert work_speed_moved_pct(tmp_path) == 0.0
+    assert work_speed(tmp_path) == WorkSpeed(off=0.0, moved=0.0)
