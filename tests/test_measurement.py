@@ -316,7 +316,7 @@ LONG_US = 3315  # with short's 1200 us, 90 % of the 5 ms period
 
 # WORK's DPU is 60 % loaded, the others 90 %: WORK runs at the CPU's speed of the moment, and
 # a CPU 10 % slower than at calibration overruns a 90 % design and locks it out (CI: 18 % slower
-# for three attempts in a row, with no time stolen). That is WORK showing the platform, which
+# in three attempts in a row, none stolen in the two retries). That is WORK showing the platform, which
 # this test does not judge; the others' computations are wall or CPU time and keep 90 %.
 @pytest.mark.parametrize(("mode", "long_us"),
                          [("work", 1800), ("cpu", LONG_US), ("wall", LONG_US), ("sleep", LONG_US)])
@@ -327,7 +327,7 @@ def test_each_compute_mode_computes_what_is_asked(tmp_path: Path, url: str, mode
     run's start and end: CI once ran +2.4 % with 0.25 % at the start); beyond that within 1 %.
     WORK is judged by its median computation, as the DPU measures its drift (the median of five
     runs): a shared CPU also runs single computations 2-4 times slower, no stall (here: median
-    2.7 % above asked with a drift of 4.1 %, the mean 9.7 % above, p99 2.5 times the median)."""
+    2.7 % above asked with a drift of 4.1 %, the mean 9.7 % above, p99 2.4 times the median)."""
     path = tmp_path / "compute.yaml"
     path.write_text(ONE_DPU.format(long_us=long_us))
     out = tmp_path / "run"
