@@ -82,11 +82,19 @@ def test_a_queue_keeps_the_newest_or_the_oldest_and_counts_what_it_drops(tmp_pat
     # platform's: a burst whose jobs recorded over 1 ms of them is not judged on time, and at
     # least 3 bursts are.
     stalled = set(got.burst[got.stall_ns > 1_000_000])
-    assert len(stalled - {9}) <= 6, got[got.stall_ns > 1_000_000][["process", "cycle", "stall_ns"]]
+    # The generator's thread held up past a burst's 2 ms (the platform: CI once 2.4 ms, no stall
+    # the DPU saw) delivers all of it before the first job runs, and each queue drops one more:
+    # such a burst's counts are not judged either (its first event reached the jobs that late).
+    arrived = got.groupby("burst").event_ns.min()
+    held_up = {int(b) for b, at in arrived.items() if b < len(starts) and at - starts[b] > 2 * MS}
+    assert len((stalled | held_up) - {9}) <= 6, (held_up, got[got.stall_ns > 1_000_000][
+        ["process", "cycle", "stall_ns"]])
     for name, handled, dropped in (("newest", 2, 3), ("oldest", 3, 2)):
         mine = got[(got.process_name == name) & (got.burst < 9)]  # the last burst may be cut off
         assert mine.burst.nunique() == 9, mine
         for b, burst in mine.groupby("burst"):
+            if b in held_up:
+                continue
             assert len(burst) == handled, (name, b, burst)
             assert burst.event_dropped.sum() == dropped, (name, b, burst)
             kept[name, b] = burst.event_ns.to_numpy()
@@ -101,7 +109,7 @@ def test_a_queue_keeps_the_newest_or_the_oldest_and_counts_what_it_drops(tmp_pat
             first_release_ms = burst.release_ns.to_numpy()[0] / MS
             assert latency[0] < 5, (name, b, latency)
             assert 49 < starts_ms[1] - first_release_ms < 55, (name, b, starts_ms - first_release_ms)
-    for b in range(9):
+    for b in sorted(set(range(9)) - held_up):
         newest, oldest = kept["newest", b], kept["oldest", b]
         assert newest[1] >= starts[b] + 2 * MS, (b, newest - starts[b])  # the newest: the burst's last
         assert (np.diff(oldest) >= 0).all() and oldest[-1] <= newest[1], (b, oldest, newest)  # the oldest,
