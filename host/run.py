@@ -375,6 +375,12 @@ def _follow(control: Control, follower: RunFollower, clocks: ClockKeeper, config
                 repair.poll()
             time.sleep(POLL_S)
     follower.poll(dpu_ids)
+    # A generation committed in the run's last second came after the last re-send: its system
+    # file still goes beside the run's, and its config into the log.
+    if not follower.taken_over:
+        adopted = _adopt_pushed(control, config, dpu_ids, follower.console, out)
+        if adopted is not config:
+            control.publish_config(adopted)
 
 
 def _finish(control: Control, run_id: int, dpu_ids: list[int], console: Console) -> None:
