@@ -17,7 +17,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import lcm
@@ -114,6 +114,9 @@ class DpuFarm:
 
     def log(self, dpu_id: int) -> str:
         return self.daemons[dpu_id].log_path.read_text(errors="replace")
+
+    def logs(self, *dpu_ids: int) -> list[Path]:
+        return [self.daemons[d].log_path for d in dpu_ids]
 
     def stop_all(self) -> dict[int, int | None]:
         return {i: spawn.stop(d) for i, d in self.daemons.items()}
@@ -228,6 +231,15 @@ class Background:
     @property
     def output(self) -> str:
         return "".join(line for _, line in self.lines)
+
+    def wait_started(self, logs: Callable[[], Iterable[Path]], count: int, timeout_s: float = 30) -> None:
+        """Until `count` of the DPU logs `logs()` say a run started, while this process runs: on a
+        loaded machine the spawn, the clock estimate and the START lead may take seconds."""
+        deadline = time.monotonic() + timeout_s
+        while sum(bool(re.search(r"run \d+ started", log.read_text(errors="replace")))
+                  for log in logs() if log.exists()) < count:
+            assert time.monotonic() < deadline and self.proc.poll() is None, self.output
+            time.sleep(0.05)
 
     def first(self, pattern: str) -> tuple[float, re.Match[str]] | None:
         """When the first line matching `pattern` arrived, and the match."""

@@ -10,7 +10,6 @@ import json
 import os
 import re
 import subprocess
-import time
 from pathlib import Path
 
 import pytest
@@ -271,10 +270,7 @@ def test_a_dpu_listens_only_on_the_ports_of_the_writers_it_reads(tmp_path: Path,
     assert port == {"a": control + 1, "b": control + 2}
     dpus.start(1, 2, 3)
     run = skel_background("run", str(system_path), "--url", url, "--out", str(tmp_path / "run"))
-    deadline = time.monotonic() + 30
-    while not all(re.search(r"run \d+ started", dpus.log(d)) for d in (1, 2, 3)):
-        assert time.monotonic() < deadline and run.proc.poll() is None, run.output
-        time.sleep(0.05)
+    run.wait_started(lambda: dpus.logs(1, 2, 3), 3)
     # (LCM's send sockets are bound too, to ephemeral ports: only the system's ports matter.)
     record = parse_url(record_url(url)).port
     assert record == control - 1

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import EXAMPLES, Background, DpuFarm, skel, skel_background
+from conftest import EXAMPLES, DpuFarm, skel, skel_background
 from randsys import random_system
 from steal import longest_dpu_stall_ms
 
@@ -29,14 +29,6 @@ def _report(out: Path) -> dict:
 
 def _process(report: dict, name: str) -> dict:
     return next(p for p in report["processes"] if p["name"] == name)
-
-
-def _wait_started(dpus: DpuFarm, ids: tuple[int, ...], run: Background) -> None:
-    """Until each of the DPUs IDS has started the run: a loaded machine may take seconds."""
-    deadline = time.monotonic() + 30
-    while not all(re.search(r"run \d+ started", dpus.log(d)) for d in ids):
-        assert time.monotonic() < deadline and run.proc.poll() is None, run.output
-        time.sleep(0.05)
 
 
 @pytest.mark.parametrize("seed", [11, 12, 13])
@@ -157,7 +149,7 @@ def test_a_stall_of_the_machine_is_not_a_lockout(tmp_path: Path, url: str, dpus:
     run = skel_background("run", str(EXAMPLES / "servo.yaml"), "--url", url, "--duration", "4",
                           "-s", "run.warmup_cycles=20", "--out", str(out))
     # In the run, past the warm-up: a loaded machine may take seconds to start it.
-    _wait_started(dpus, (1, 2, 3, 4), run)
+    run.wait_started(lambda: dpus.logs(1, 2, 3, 4), 4)
     time.sleep(1.5)
     pids = [d.process.pid for d in dpus.daemons.values()]
     for pid in pids:
@@ -188,7 +180,7 @@ def test_a_lockout_the_writers_stalled_dpu_explains_is_the_platforms(tmp_path: P
     out = tmp_path / "run"
     run = skel_background("run", str(system), "--url", url, "--out", str(out), "-s", "run.lockout_cycles=5",
                           "-s", "run.stop_on=[]")  # fmt: skip
-    _wait_started(dpus, (1, 2), run)
+    run.wait_started(lambda: dpus.logs(1, 2), 2)
     time.sleep(1.5)
     pid = dpus.daemons[1].process.pid
     os.kill(pid, signal.SIGSTOP)
@@ -213,7 +205,7 @@ def test_the_lateness_a_stall_explains_is_not_the_designs(tmp_path: Path, url: s
     out = tmp_path / "run"
     run = skel_background("run", str(path), "--url", url, "-s", "run.duration_s=5", "-s", "run.late_pct=20",
                           "-s", "run.lockout_cycles=100", "--out", str(out))
-    _wait_started(dpus, (1,), run)
+    run.wait_started(lambda: dpus.logs(1), 1)
     time.sleep(1.5)  # past the warm-up
     pid = dpus.daemons[1].process.pid
     stopped_ns = time.monotonic_ns()  # CLOCK_MONOTONIC, the records' clock on this host
@@ -285,7 +277,7 @@ def test_a_stall_during_a_data_wait_delays_its_lockout_and_ends_nothing_else(
     dpus.start(1, 2)
     out = tmp_path / "run"
     run = skel_background("run", str(path), "--url", url, "--out", str(out))
-    _wait_started(dpus, (1, 2), run)
+    run.wait_started(lambda: dpus.logs(1, 2), 2)
     time.sleep(1.0)
     dpus.kill(1)
     time.sleep(0.05)  # the reader waits for `state`, its lockout 200 ms after its release
@@ -367,7 +359,7 @@ def test_a_records_parts_add_up_to_where_its_work_ended(tmp_path: Path, url: str
     dpus.start(1)
     out = tmp_path / "run"
     run = skel_background("run", str(path), "--url", url, "--out", str(out))
-    _wait_started(dpus, (1,), run)
+    run.wait_started(lambda: dpus.logs(1), 1)
     pid = dpus.daemons[1].process.pid
     for _ in range(6):  # 62 % loaded: most stops land in a computation
         time.sleep(0.25)

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import signal
 import time
 from pathlib import Path
@@ -46,18 +45,6 @@ def _logger_pid(log: Path, timeout_s: float) -> int:
     raise AssertionError(f"no lcm-logger writing {log} within {timeout_s} s")
 
 
-def _wait_run_started(out: Path, run: Background) -> None:
-    """Until both DPUs of BUSY_SYSTEM log that the run started. On a loaded machine the spawn,
-    the clock estimate and the START lead may take longer than a fixed wait after the logger
-    appears (CI once: a logger stopped 2 s after it appeared missed nothing; a run not yet
-    begun sends it nothing to miss)."""
-    deadline = time.monotonic() + 30
-    while sum(bool(re.search(r"run \d+ started", f.read_text()))
-              for f in (out / "logs").glob("dpu*.log")) < 2:
-        assert time.monotonic() < deadline and run.proc.poll() is None, run.output
-        time.sleep(0.05)
-
-
 def _start_busy_run(tmp_path: Path, url: str, duration_s: int) -> tuple[Background, Path]:
     """A real `skel run --spawn` of BUSY_SYSTEM in the background, and its run directory."""
     system = tmp_path / "busy.yaml"
@@ -74,7 +61,9 @@ def test_run_refills_what_a_stalled_logger_missed(tmp_path: Path, url: str) -> N
     run, out = _start_busy_run(tmp_path, url, duration_s)
     try:
         pid = _logger_pid(out / "run.lcm", 30)
-        _wait_run_started(out, run)
+        # Not a fixed wait after the logger appeared: a logger stopped before the run began misses
+        # nothing (CI once, 2 s after it appeared).
+        run.wait_started(lambda: (out / "logs").glob("dpu*.log"), 2)
         time.sleep(1.0)  # a second of the run
         os.kill(pid, signal.SIGSTOP)
         time.sleep(stopped_s)
@@ -121,7 +110,7 @@ def _busy_run_killing_loggers(tmp_path: Path, url: str, duration_s: int, kills: 
     run, out = _start_busy_run(tmp_path, url, duration_s)
     try:
         _logger_pid(out / "run.lcm", 30)
-        _wait_run_started(out, run)
+        run.wait_started(lambda: (out / "logs").glob("dpu*.log"), 2)
         assert _kill_loggers(out / "run.lcm", kills, 1.0, until_s) == kills
         code = run.wait(60 + duration_s)
     finally:
