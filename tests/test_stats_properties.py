@@ -1,6 +1,6 @@
 """The report's percentiles come from a sort and numpy's own interpolation steps, not from
-np.percentile: for any samples they must be np.percentile's, to the bit (report.json does not
-change with the speed-up)."""
+np.percentile, and its histograms from binary searches in that sort, not np.histogram: for any
+samples they must be numpy's, to the bit (report.json does not change with the speed-up)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from skeleton.analysis.measure.stats import latency_us
+from skeleton.analysis.measure.stats import HISTOGRAM_BINS, distribution, latency_us
 
 # What the report holds: integer ns, in µs (ns / 1000), and integer samples as they are.
 NS = hnp.arrays(np.int64, st.integers(1, 400), elements=st.integers(-(2**53), 2**53))
@@ -48,3 +48,28 @@ def test_a_nan_sample_makes_every_percentile_nan_as_numpy_does(samples: np.ndarr
 def test_no_samples_no_percentiles() -> None:
     got = latency_us(np.zeros(0))
     assert (got.p50, got.p99, got.max) == (None, None, None)
+
+
+# Any float, infinities and NaN included (a damaged record), and ranges too narrow for 40 edges.
+ANY_FLOATS = hnp.arrays(np.float64, st.integers(0, 400), elements=st.floats(allow_subnormal=False))
+
+
+def _numpy_histogram(samples: np.ndarray) -> tuple[list[float], list[int]]:
+    """np.histogram over the finite samples, from the smallest to the largest (widened when
+    they are too close for distinct edges), as the report's histograms are defined."""
+    samples = samples[np.isfinite(samples)]
+    if len(samples) == 0:
+        return [], []
+    low, high = float(samples.min()), float(samples.max())
+    pad = max(0.5, abs(low) * 1e-12 * HISTOGRAM_BINS, abs(high) * 1e-12 * HISTOGRAM_BINS)
+    if high - low < pad:
+        low, high = low - pad, high + pad
+    counts, edges = np.histogram(samples, bins=HISTOGRAM_BINS, range=(low, high))
+    return [round(float(e), 3) for e in edges], [int(c) for c in counts]
+
+
+@given(st.one_of(ANY_FLOATS, FLOATS, NS.map(lambda ns: ns.astype(np.float64) / 1000.0)))
+def test_a_histogram_from_the_sorted_samples_is_numpys(samples: np.ndarray) -> None:
+    latency, histogram = distribution(samples)
+    assert (histogram.bins, histogram.counts) == _numpy_histogram(samples)
+    assert repr(latency) == repr(latency_us(samples))

@@ -38,7 +38,7 @@ from ..read.coltable import ColumnTable
 from ..read.records import INPUT_DTYPE, RECORD_DTYPE
 from .latency import NO_OFFSETS, ClockOffsets
 from .metrics import completed
-from .stats import Histogram, LatencyUs, histogram, latency_us
+from .stats import Histogram, LatencyUs, distribution
 
 _CYCLE_BITS = 40  # (process, cycle) -> one int64 key; cycles stay far below 2**40
 
@@ -251,16 +251,17 @@ def chain_metrics(run: ChainRecords, config: Any, clock: ClockOffsets = NO_OFFSE
         else:
             series, broken = _chain_series(records, inputs, config, chain, clock, look)
         lat_us = series.latency_ns.astype(np.float64) / 1000.0
+        latency, latency_histogram = distribution(lat_us)
         steps = chain_buffers(chain, config) or []
         out.append(
             ChainMetrics(
                 name=chain.name,
                 processes=[names.get(p, f"process {p}") for p in chain.processes],
                 buffers=[buffers.get(b, f"buffer {b}") for b in steps],
-                latency_us=latency_us(lat_us),
+                latency_us=latency,
                 samples=len(lat_us),
                 broken=broken,
-                histogram=histogram(lat_us),
+                histogram=latency_histogram,
                 series=series,
             )
         )

@@ -43,7 +43,7 @@ import numpy as np
 
 from ..read.records import FLAG_RELEASE_SKIPPED, input_starts, inputs_of
 from .metrics import completed, rows_by_process, window_mask
-from .stats import Histogram, LatencyUs, histogram, latency_us
+from .stats import Histogram, LatencyUs, distribution, latency_us
 
 
 class ClockOffsets:
@@ -259,10 +259,11 @@ def buffer_metrics(parts: BufferParts, config: Any, skips: np.ndarray) -> list[B
             received = sum(m.received for m in mine)
             superseded = max(0, received - new)
             unpublished = sum(unpublished_in_gaps(m.gaps, skipped) for m in mine)
+            latency, latency_histogram = distribution(lat_us)
             reader_metrics.append(
                 ReaderMetrics(
                     process=reader.name,
-                    latency_us=latency_us(lat_us),
+                    latency_us=latency,
                     samples=len(lat_us),
                     new=new,
                     dropped=dropped,
@@ -270,7 +271,7 @@ def buffer_metrics(parts: BufferParts, config: Any, skips: np.ndarray) -> list[B
                     unpublished=unpublished,
                     superseded=superseded,
                     lost=max(0, dropped - unpublished - superseded),
-                    histogram=histogram(lat_us),
+                    histogram=latency_histogram,
                 )
             )
         everything = np.concatenate(pooled) if pooled else np.zeros(0)

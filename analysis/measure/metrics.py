@@ -34,7 +34,7 @@ import numpy as np
 import skelmsg
 
 from ..read.records import FLAG_OVERRUN, FLAG_RELEASE_SKIPPED, FLAG_SKIPPED, input_starts, inputs_of
-from .stats import Histogram, LatencyUs, group_slices, histogram
+from .stats import Histogram, LatencyUs, distribution, group_slices
 from .stats import latency_us as _latency
 
 SYNC_EVENT = skelmsg.process_t.SYNC_EVENT
@@ -408,10 +408,12 @@ def process_metrics(
         # An input record counts when its cycle record is in the window and completed, so
         # new + stale == cycles for every input.
         my_inputs = inputs[inputs_of(starts, rows[ran])]
-        latency = release_latency_us(done)
+        latency, latency_histogram = distribution(release_latency_us(done))
         lateness = lateness_us(done)
         unstalled = unstalled_lateness_us(done, lateness)
-        response = (cycle_end_ns(done) - done["release_ns"]).astype(np.float64) / 1000.0
+        response_ns = cycle_end_ns(done) - done["release_ns"]
+        response, response_histogram = distribution(response_ns.astype(np.float64) / 1000.0)
+        events, event_histogram = _events(proc, mine, done)
         did_overrun = overran(done)
         late_us, too_late_us = late_limits_us(proc, config)
         out.append(
@@ -423,19 +425,19 @@ def process_metrics(
                 cycles=len(done),
                 skipped=int(np.count_nonzero(skipped)),
                 overruns=int(np.count_nonzero(did_overrun)),
-                latency_us=_latency(latency),
+                latency_us=latency,
                 compute_mean_us=float(done["compute_ns"].mean()) / 1000.0 if len(done) else None,
                 slack_min_us=float(done["slack_ns"].min()) / 1000.0 if len(done) else None,
                 late=int(np.count_nonzero(lateness > late_us)),
                 too_late=int(np.count_nonzero(lateness > too_late_us)),
                 first_overrun_cycle=int(done["cycle"][did_overrun].min()) if did_overrun.any() else None,
                 inputs=[_input(my_inputs, b, buffers) for b in proc.inputs],
-                response_us=_latency(response),
+                response_us=response,
                 slack_us=SlackUs(
                     float(done["slack_ns"].min()) / 1000.0 if len(done) else None,
                     float(done["slack_ns"].mean()) / 1000.0 if len(done) else None,
                 ),
-                histograms={"release_latency_us": histogram(latency), "response_us": histogram(response)},
+                histograms={"release_latency_us": latency_histogram, "response_us": response_histogram},
                 lateness_us=_latency(lateness),
                 lateness_unstalled_us=_latency(unstalled),
                 late_unstalled=int(np.count_nonzero(unstalled > late_us)),
@@ -446,12 +448,11 @@ def process_metrics(
                 asked_us=_latency(done["asked_ns"].astype(np.float64) / 1000.0),
                 asked_mean_us=float(done["asked_ns"].mean()) / 1000.0 if len(done) else None,
                 compute_us=_latency(done["compute_ns"].astype(np.float64) / 1000.0),
-                events=_events(proc, mine, done),
+                events=events,
             )
         )
-        if out[-1].events is not None:
-            got = done[done["event_ns"] >= 0]
-            out[-1].histograms["event_latency_us"] = histogram(event_latency_us(got))
+        if event_histogram is not None:
+            out[-1].histograms["event_latency_us"] = event_histogram
     return out
 
 
@@ -520,18 +521,20 @@ def event_response_us(records: np.ndarray) -> np.ndarray:
     return np.where(event >= 0, (cycle_end_ns(records) - event) / 1000.0, np.nan)
 
 
-def _events(proc: Any, mine: np.ndarray, done: np.ndarray) -> EventMetrics | None:
+def _events(proc: Any, mine: np.ndarray, done: np.ndarray) -> tuple[EventMetrics | None, Histogram | None]:
+    """An event process's events, and the histogram of their latency."""
     if proc.sync != SYNC_EVENT:
-        return None
+        return None, None
     got = done[done["event_ns"] >= 0]
+    latency, latency_histogram = distribution(event_latency_us(got))
     return EventMetrics(
         event=proc.event,
         handled=len(got),
         dropped=int(mine["event_dropped"].sum()),
         queued_max=int(got["event_queued"].max()) if len(got) else 0,
-        latency_us=_latency(event_latency_us(got)),
+        latency_us=latency,
         response_us=_latency(event_response_us(got)),
-    )
+    ), latency_histogram
 
 
 def _input(my_inputs: np.ndarray, buffer_id: int, buffers: dict[int, Any]) -> InputMetrics:

@@ -36,9 +36,19 @@ def latency_us(samples_us: np.ndarray) -> LatencyUs:
     then three reads took 31 ms of 3·10^6 samples against 51 ms for np.percentile (an
     introselect of six positions) and max (best of 7); a report of 10^7 records asks six
     of these per process."""
-    if len(samples_us) == 0:
-        return LatencyUs(None, None, None)
+    return _latency_of_sorted(np.sort(samples_us))
+
+
+def distribution(samples_us: np.ndarray, bins: int = HISTOGRAM_BINS) -> tuple[LatencyUs, Histogram]:
+    """latency_us and histogram of the same samples, from one sort: the histogram's range and
+    counts are then a few binary searches, not another pass (or three) over the samples."""
     ordered = np.sort(samples_us)
+    return _latency_of_sorted(ordered), _histogram_of_sorted(ordered, bins)
+
+
+def _latency_of_sorted(ordered: np.ndarray) -> LatencyUs:
+    if len(ordered) == 0:
+        return LatencyUs(None, None, None)
     top = ordered[-1]
     if ordered.dtype.kind == "f" and np.isnan(top):  # NaN sorts last; np.percentile gives NaN
         return LatencyUs(float("nan"), float("nan"), float("nan"))
@@ -59,20 +69,25 @@ def latency_us(samples_us: np.ndarray) -> LatencyUs:
     return LatencyUs(float(p[0]), float(p[1]), float(top))
 
 
-def histogram(samples: np.ndarray, bins: int = HISTOGRAM_BINS) -> Histogram:
-    """An equal-width histogram from the smallest to the largest sample (a 1-wide
-    range around the value when they are all equal)."""
-    samples = samples[np.isfinite(samples)]
-    if len(samples) == 0:
+def _histogram_of_sorted(ordered: np.ndarray, bins: int) -> Histogram:
+    # -inf sort first, +inf then NaN last: the finite samples are one run between them.
+    if ordered.dtype.kind == "f":
+        ordered = ordered[np.searchsorted(ordered, -np.inf, side="right"):
+                          np.searchsorted(ordered, np.inf, side="left")]
+    if len(ordered) == 0:
         return Histogram()
-    low, high = float(samples.min()), float(samples.max())
+    low, high = float(ordered[0]), float(ordered[-1])
     # Equal values, or values so large that their range holds no `bins` distinct edges (a
     # damaged record's 1e18 ns: Hypothesis found numpy refusing it): a range wide enough.
     pad = max(0.5, abs(low) * 1e-12 * bins, abs(high) * 1e-12 * bins)
     if high - low < pad:
         low, high = low - pad, high + pad
-    counts, edges = np.histogram(samples, bins=bins, range=(low, high))
-    return Histogram([round(float(e), 3) for e in edges], [int(c) for c in counts])
+    # np.histogram's edges; its bins are [edge, next edge), the last one closed: what lies
+    # below each edge, by binary search.
+    edges = np.linspace(low, high, bins + 1)
+    below = np.searchsorted(ordered, edges, side="left")
+    below[-1] = len(ordered)
+    return Histogram([round(float(e), 3) for e in edges], [int(c) for c in np.diff(below)])
 
 
 def group_slices(keys: np.ndarray) -> tuple[np.ndarray, dict[int, slice]]:
