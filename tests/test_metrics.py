@@ -11,6 +11,7 @@ import pytest
 from analysis_synth import MS, RUN_ID, US, Rec, batches, small_config, small_run, status
 
 import skelmsg
+from skeleton.analysis.measure import metrics
 from skeleton.analysis.measure.faults import (
     Fault,
     behind_faults,
@@ -163,7 +164,10 @@ def test_an_overrun_is_the_platforms_when_stalls_cover_its_overshoot(stall_us: i
     assert (c.overruns, c.overruns_stalled) == (1, explained)
 
 
-def test_process_metrics_counts_latency_and_inputs() -> None:
+@pytest.mark.parametrize("huge", [False, True])
+def test_process_metrics_counts_latency_and_inputs(huge: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    if huge:  # a system too large for the table of its (process, buffer) inputs: they are searched
+        monkeypatch.setattr(metrics, "_PAIR_TABLE_MAX", 0)
     config = small_config(warmup_cycles=2)
     run = _run(*small_run(warmup=2, cycles=10))
     a, b, c = process_metrics(run.records, run.inputs, config)
@@ -183,6 +187,12 @@ def test_process_metrics_counts_latency_and_inputs() -> None:
     assert (c.cycles, c.overruns, c.first_overrun_cycle) == (3, 1, 4)
     assert c.slack_min_us is not None and c.slack_min_us < 0
     assert [(i.buffer, i.new, i.dropped, i.received) for i in c.inputs] == [("b_out", 3, 3, 6)]
+    # An input record of a buffer its process does not read in this config counts nowhere: C's
+    # of b_out, when the config has C read a_out (B's input) instead.
+    config.processes[2].inputs = [0]
+    _, b2, c2 = process_metrics(run.records, run.inputs, config)
+    assert [(i.buffer, i.new, i.stale, i.dropped, i.received) for i in c2.inputs] == [("a_out", 0, 0, 0, 0)]
+    assert b2.inputs == b.inputs
 
 
 def test_warmup_cycles_are_excluded_from_every_measure() -> None:

@@ -149,11 +149,11 @@ def window_part(
     win.flags.writeable = False
     # Each process's first cycle here (split_lockouts), its keys the processes that ran (Deliveries).
     first_cycles = smallest_per_id(records["process"], records["cycle"])
-    # Where each record's inputs start: read by two tables, made once (80 MB at 10^7 records).
+    # Where each record's inputs start (80 MB at 10^7 records): made once for the buffers' table.
     starts = input_starts(inputs, len(records))
     starts.flags.writeable = False
     tasks: dict[str, Callable[[], Any]] = {
-        "processes": lambda: process_metrics(records, inputs, config, win, starts),
+        "processes": lambda: process_metrics(records, inputs, config, win),
         "behind": lambda: behind_runs(records, config, win, origin),
         "dpus": lambda: dpu_metrics(records, config, win, earlier),
         "span": lambda: _span(records, win, clock),
