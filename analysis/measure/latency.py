@@ -41,9 +41,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..read.records import FLAG_RELEASE_SKIPPED, input_starts, inputs_of
-from .metrics import completed, rows_by_process, window_mask
-from .stats import Histogram, LatencyUs, distribution, latency_us
+from ..read.records import FLAG_RELEASE_SKIPPED
+from .metrics import InputPairs, completed, input_pairs, rows_by_process, window_mask
+from .stats import Histogram, LatencyUs, distribution, group_slices, latency_us
 
 
 class ClockOffsets:
@@ -207,17 +207,18 @@ class BufferParts:
 
 def buffer_parts(
     records: np.ndarray, inputs: np.ndarray, config: Any, clock: ClockOffsets = NO_OFFSETS,
-    in_window: np.ndarray | None = None, starts: np.ndarray | None = None,
+    in_window: np.ndarray | None = None, pairs: InputPairs | None = None,
 ) -> BufferParts:
     """The BufferParts of `records` (a window, or the part of it a few DPUs ran) and their
-    `inputs`, in their records' order, as RunRecords holds them. `in_window`: measured(records,
-    config), and `starts`: the inputs' input_starts, when the caller has them."""
+    `inputs`. `in_window`: measured(records, config), and `pairs`: the inputs' input_pairs,
+    when the caller has them."""
     procs = {p.id: p for p in config.processes}
-    # The inputs that count: those of the window's completed cycles, taken a reader at a time
-    # from its cycle records, not from a sort of every input of the run by buffer and reader.
-    done, by_process = rows_by_process(records, window_mask(records, config, in_window) & completed(records))
-    starts = input_starts(inputs, len(records)) if starts is None else starts
-    readers_inputs = _ReadersInputs(inputs, starts, done, by_process, config)
+    in_window = window_mask(records, config, in_window)
+    _, by_process = rows_by_process(records, in_window & completed(records))
+    pairs = input_pairs(records, inputs, config, in_window) if pairs is None else pairs
+    # The inputs that count, grouped by reader and buffer: one sort of their pairs' indices.
+    order, by_pair = group_slices(pairs.at)
+    index = {pair: i for i, pair in enumerate(pairs.pairs)}
     out = BufferParts(published={proc: _count(rows) for proc, rows in by_process.items()})
     for buf in sorted(config.buffers, key=lambda b: b.id):
         writer = procs.get(buf.writer)
@@ -225,7 +226,7 @@ def buffer_parts(
         for reader in sorted((p for p in config.processes if buf.id in p.inputs), key=lambda p: p.id):
             if reader.id not in by_process:
                 continue  # not a cycle of it here: another part has its inputs
-            rows = readers_inputs.of(reader.id, buf.id)
+            rows = inputs[order[by_pair.get(index[(int(reader.id), int(buf.id))], slice(0, 0))]]
             lat_us = transport_latency_ns(rows, reader.dpu, writer_dpu, clock).astype(np.float64) / 1000.0
             gap = rows[(rows["dropped"] > 0) & (rows["seq"] >= 0)]
             gaps = np.zeros(len(gap), dtype=GAP)
@@ -288,28 +289,6 @@ def buffer_metrics(parts: BufferParts, config: Any, skips: np.ndarray) -> list[B
             )
         )
     return out
-
-
-class _ReadersInputs:
-    """The counted inputs of one reader at a time, each buffer's picked from them. Asked for in
-    buffer id order (buffer_parts' loop), a reader's are let go after its last buffer."""
-
-    def __init__(self, inputs: np.ndarray, starts: np.ndarray, done: np.ndarray, by_process: dict[int, slice],
-                 config: Any) -> None:  # fmt: skip
-        self.inputs, self.starts, self.done, self.by_process = inputs, starts, done, by_process
-        known = {b.id for b in config.buffers}
-        self.last = {p.id: max(b for b in p.inputs if b in known) for p in config.processes
-                     if any(b in known for b in p.inputs)}  # fmt: skip
-        self.held: dict[int, np.ndarray] = {}
-
-    def of(self, reader: int, buffer: int) -> np.ndarray:
-        rows = self.held.get(reader)
-        if rows is None:
-            rows = inputs_of(self.starts, self.done[self.by_process.get(int(reader), slice(0, 0))])
-            self.held[reader] = rows
-        if buffer >= self.last.get(reader, buffer):
-            del self.held[reader]
-        return self.inputs[rows[self.inputs["buffer"][rows] == buffer]]
 
 
 def _count(rows: slice) -> int:

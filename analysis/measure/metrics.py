@@ -384,14 +384,15 @@ def overran(records: np.ndarray) -> np.ndarray:
 
 def process_metrics(
     records: np.ndarray, inputs: np.ndarray, config: Any, in_window: np.ndarray | None = None,
+    pairs: InputPairs | None = None,
 ) -> list[ProcessMetrics]:
     """Per process (config order by id) over the measured window (`in_window`: measured(records,
-    config), when the caller has it) and `inputs`, the input records of `records`."""
+    config), when the caller has it) and `inputs`, the input records of `records` (`pairs`: their
+    input_pairs, when the caller has them)."""
     buffers = {b.id: b for b in config.buffers}
     in_window = window_mask(records, config, in_window)
-    # An input record counts when its cycle record is in the window and completed, so
-    # new + stale == cycles for every input.
-    input_sums = _input_sums(inputs, (in_window & completed(records))[inputs["record"]], config)
+    pairs = input_pairs(records, inputs, config, in_window) if pairs is None else pairs
+    input_sums = _input_sums(inputs, pairs)
     at, by_process = rows_by_process(records, in_window)  # indexed, not copied, until one process's are taken
     # Whether a cycle was its frame's first matters only for the overruns (what the stalls explain).
     over = np.flatnonzero(in_window & completed(records) & overran(records))
@@ -547,18 +548,34 @@ class _InputSums(NamedTuple):
 _NO_INPUTS = _InputSums(0, 0, 0, 0)
 
 
-def _input_sums(inputs: np.ndarray, counted: np.ndarray, config: Any) -> dict[tuple[int, int], _InputSums]:
-    """Per (process, buffer) input of `config`, the sums of its `counted` input records: bins
-    counted once over all of them, not a gather of each process's inputs and a mask per buffer
-    (0.7 s against 1.4-1.7 s over the 2·10^7 inputs of 10^7 records)."""
+class InputPairs(NamedTuple):
+    """The input records that count, by the (process, buffer) input of the config they are."""
+
+    pairs: list[tuple[int, int]]  # every (process, buffer) input of the config, sorted
+    at: np.ndarray  # per input record, its pair's index; len(pairs) when it does not count
+
+
+def input_pairs(records: np.ndarray, inputs: np.ndarray, config: Any,
+                in_window: np.ndarray | None = None) -> InputPairs:
+    """The InputPairs of `inputs`, the input records of `records`. An input record counts when
+    its cycle record is in the window (`in_window`, as window_mask) and completed, so new +
+    stale == cycles for every input; and when its process reads its buffer in `config`."""
     pairs = sorted({(int(p.id), int(b)) for p in config.processes for b in p.inputs})
     if not pairs or not len(inputs):
-        return {}
-    at = np.where(counted, _pair_index(inputs["process"], inputs["buffer"], pairs), len(pairs))
-    bins = len(pairs) + 1  # the last: the inputs not counted, or of no pair
+        return InputPairs(pairs, np.full(len(inputs), len(pairs), dtype=np.int32))
+    counted = (window_mask(records, config, in_window) & completed(records))[inputs["record"]]
+    return InputPairs(pairs, np.where(counted, _pair_index(inputs["process"], inputs["buffer"], pairs),
+                                      len(pairs)))  # fmt: skip
+
+
+def _input_sums(inputs: np.ndarray, pairs: InputPairs) -> dict[tuple[int, int], _InputSums]:
+    """Per (process, buffer) input, the sums of its counted input records: bins counted once
+    over all of them, not a gather of each process's inputs and a mask per buffer (0.7 s
+    against 1.4-1.7 s over the 2·10^7 inputs of 10^7 records)."""
+    bins = len(pairs.pairs) + 1  # the last: the inputs that do not count
     values = (inputs["new"] != 0, inputs["dropped"], inputs["received"])
-    sums = [np.bincount(at, minlength=bins)] + [_exact_sums(at, v, bins) for v in values]
-    return {pair: _InputSums(*(int(s[i]) for s in sums)) for i, pair in enumerate(pairs)}
+    sums = [np.bincount(pairs.at, minlength=bins)] + [_exact_sums(pairs.at, v, bins) for v in values]
+    return {pair: _InputSums(*(int(s[i]) for s in sums)) for i, pair in enumerate(pairs.pairs)}
 
 
 # A table of (process, buffer) this large, at most, to look pairs up in (4 bytes an entry).

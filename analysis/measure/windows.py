@@ -22,7 +22,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..read.parallel import map_threads
-from ..read.records import RECORD_DTYPE, RunRecords, input_starts, select
+from ..read.records import RECORD_DTYPE, RunRecords, select
 from .chains import ChainMetrics, ChainRecords, chain_metrics
 from .faults import (
     Behind,
@@ -46,6 +46,7 @@ from .metrics import (
     DpuMetrics,
     ProcessMetrics,
     dpu_metrics,
+    input_pairs,
     measured,
     process_metrics,
     smallest_per_id,
@@ -149,11 +150,11 @@ def window_part(
     win.flags.writeable = False
     # Each process's first cycle here (split_lockouts), its keys the processes that ran (Deliveries).
     first_cycles = smallest_per_id(records["process"], records["cycle"])
-    # Where each record's inputs start (80 MB at 10^7 records): made once for the buffers' table.
-    starts = input_starts(inputs, len(records))
-    starts.flags.writeable = False
+    # Which (process, buffer) input each input record counts for: read by two tables, made once.
+    pairs = input_pairs(records, inputs, config, win)
+    pairs.at.flags.writeable = False
     tasks: dict[str, Callable[[], Any]] = {
-        "processes": lambda: process_metrics(records, inputs, config, win),
+        "processes": lambda: process_metrics(records, inputs, config, win, pairs),
         "behind": lambda: behind_runs(records, config, win, origin),
         "dpus": lambda: dpu_metrics(records, config, win, earlier),
         "span": lambda: _span(records, win, clock),
@@ -161,7 +162,7 @@ def window_part(
         "stalls": lambda: stall_events(records, config),
         "sums": lambda: _sums_ns(records, win),
         "ends": lambda: warmup_end_ns(records),
-        "buffers": lambda: buffer_parts(records, inputs, config, clock, win, starts),
+        "buffers": lambda: buffer_parts(records, inputs, config, clock, win, pairs),
         "chains": lambda: ChainRecords.of(records, inputs, config, win),
     }
     done = dict(zip(tasks, map_threads(lambda task: task(), tasks.values(), _work_bytes(records, inputs)),
