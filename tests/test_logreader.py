@@ -30,7 +30,6 @@ from skeleton.analysis.read.records import (
     decode_run,
     impossible,
     input_starts,
-    inputs_of,
     load_records,
     robust_span,
     run_ids,
@@ -487,7 +486,6 @@ def test_a_records_inputs_are_one_run_of_rows_and_out_of_order_inputs_are_refuse
     inputs["record"] = [0, 0, 2, 3]
     starts = input_starts(inputs, 5)
     assert starts.tolist() == [0, 2, 2, 3, 4, 4]
-    assert inputs_of(starts, np.array([0, 3, 4])).tolist() == [0, 1, 3]
     inputs["record"] = [0, 2, 0, 3]
     with pytest.raises(ValueError, match="records' order"):
         input_starts(inputs, 5)

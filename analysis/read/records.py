@@ -331,11 +331,6 @@ def input_starts(inputs: ColumnTable, n_records: int) -> np.ndarray:
     return out
 
 
-def inputs_of(starts: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """The rows of the inputs of records `rows`, from their input_starts."""
-    return concat_ranges(starts[rows], starts[rows + 1] - starts[rows])
-
-
 def concat_ranges(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     """The concatenation of arange(start, start + length) for each pair, without a loop."""
     shift = np.repeat(starts - (np.cumsum(lengths) - lengths), lengths)
