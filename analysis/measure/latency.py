@@ -140,13 +140,18 @@ class BufferMetrics:
     readers: list[ReaderMetrics] = field(default_factory=list)
 
 
+def carries_latency(inputs: np.ndarray) -> np.ndarray:
+    """Mask of the input records with a transport latency: new data, with its send and receive
+    times."""
+    return (inputs["new"] != 0) & (inputs["seq"] >= 0) & (inputs["sent_ns"] != 0) & (inputs["recv_ns"] != 0)
+
+
 def transport_latency_ns(
-    rows: np.ndarray, reader_dpu: int, writer_dpu: int, clock: ClockOffsets
+    inputs: np.ndarray, rows: np.ndarray, reader_dpu: int, writer_dpu: int, clock: ClockOffsets
 ) -> np.ndarray:
-    """Receive minus send (host clock) of the new input records among `rows`."""
-    used = rows[(rows["new"] != 0) & (rows["seq"] >= 0) & (rows["sent_ns"] != 0) & (rows["recv_ns"] != 0)]
-    recv = clock.to_host(reader_dpu, used["recv_ns"])
-    sent = clock.to_host(writer_dpu, used["sent_ns"])
+    """Receive minus send (host clock) of the input records `rows` (carries_latency)."""
+    recv = clock.to_host(reader_dpu, inputs["recv_ns"][rows])
+    sent = clock.to_host(writer_dpu, inputs["sent_ns"][rows])
     return recv - sent
 
 
@@ -216,9 +221,12 @@ def buffer_parts(
     in_window = window_mask(records, config, in_window)
     _, by_process = rows_by_process(records, in_window & completed(records))
     pairs = input_pairs(records, inputs, config, in_window) if pairs is None else pairs
-    # The inputs that count, grouped by reader and buffer: one sort of their pairs' indices.
+    # The inputs that count, grouped by reader and buffer: one sort of their pairs' indices. What
+    # each group needs of them is found over all the inputs' columns at once, then gathered.
     order, by_pair = group_slices(pairs.at)
     index = {pair: i for i, pair in enumerate(pairs.pairs)}
+    timed = carries_latency(inputs)
+    dropping = (inputs["dropped"] > 0) & (inputs["seq"] >= 0)
     out = BufferParts(published={proc: _count(rows) for proc, rows in by_process.items()})
     for buf in sorted(config.buffers, key=lambda b: b.id):
         writer = procs.get(buf.writer)
@@ -226,14 +234,15 @@ def buffer_parts(
         for reader in sorted((p for p in config.processes if buf.id in p.inputs), key=lambda p: p.id):
             if reader.id not in by_process:
                 continue  # not a cycle of it here: another part has its inputs
-            rows = inputs[order[by_pair.get(index[(int(reader.id), int(buf.id))], slice(0, 0))]]
-            lat_us = transport_latency_ns(rows, reader.dpu, writer_dpu, clock).astype(np.float64) / 1000.0
-            gap = rows[(rows["dropped"] > 0) & (rows["seq"] >= 0)]
+            at = order[by_pair.get(index[(int(reader.id), int(buf.id))], slice(0, 0))]
+            lat_ns = transport_latency_ns(inputs, at[timed[at]], reader.dpu, writer_dpu, clock)
+            gap = at[dropping[at]]
             gaps = np.zeros(len(gap), dtype=GAP)
-            gaps["seq"], gaps["dropped"] = gap["seq"], gap["dropped"]
-            new = int(np.count_nonzero(rows["new"]))
-            out.readers[(buf.id, reader.id)] = [ReaderPart(lat_us, new, int(rows["dropped"].sum()),
-                                                           int(rows["received"].sum()), gaps)]
+            gaps["seq"], gaps["dropped"] = inputs["seq"][gap], inputs["dropped"][gap]
+            new = int(np.count_nonzero(inputs["new"][at]))
+            out.readers[(buf.id, reader.id)] = [ReaderPart(lat_ns.astype(np.float64) / 1000.0, new,
+                                                           int(inputs["dropped"][at].sum()),
+                                                           int(inputs["received"][at].sum()), gaps)]
     return out
 
 
