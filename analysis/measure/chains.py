@@ -35,6 +35,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..read.coltable import ColumnTable
+from ..read.parallel import map_threads, table_bytes
 from ..read.records import INPUT_DTYPE, RECORD_DTYPE
 from .latency import NO_OFFSETS, ClockOffsets
 from .metrics import completed
@@ -241,11 +242,11 @@ def chain_metrics(run: ChainRecords, config: Any, clock: ClockOffsets = NO_OFFSE
     names = {p.id: p.name for p in config.processes}
     buffers = {b.id: b.name for b in config.buffers}
     records, inputs = run.records, run.inputs
-    out = []
     look = None
     if config.chains and len(inputs):
         look = _Run.of(records, inputs, config, run.in_window)
-    for chain in config.chains:
+
+    def one(chain: Any) -> ChainMetrics:
         if look is None:
             series, broken = _empty_series(), 0
         else:
@@ -253,16 +254,17 @@ def chain_metrics(run: ChainRecords, config: Any, clock: ClockOffsets = NO_OFFSE
         lat_us = series.latency_ns.astype(np.float64) / 1000.0
         latency, latency_histogram = distribution(lat_us)
         steps = chain_buffers(chain, config) or []
-        out.append(
-            ChainMetrics(
-                name=chain.name,
-                processes=[names.get(p, f"process {p}") for p in chain.processes],
-                buffers=[buffers.get(b, f"buffer {b}") for b in steps],
-                latency_us=latency,
-                samples=len(lat_us),
-                broken=broken,
-                histogram=latency_histogram,
-                series=series,
-            )
+        return ChainMetrics(
+            name=chain.name,
+            processes=[names.get(p, f"process {p}") for p in chain.processes],
+            buffers=[buffers.get(b, f"buffer {b}") for b in steps],
+            latency_us=latency,
+            samples=len(lat_us),
+            broken=broken,
+            histogram=latency_histogram,
+            series=series,
         )
-    return out
+
+    # The chains read the lookup and write nothing shared: side by side on the cores (their
+    # searches and sorts release the GIL).
+    return map_threads(one, config.chains, table_bytes(records, inputs))

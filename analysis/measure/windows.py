@@ -21,7 +21,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..read.parallel import map_threads
+from ..read.parallel import map_threads, table_bytes
 from ..read.records import RECORD_DTYPE, RunRecords, select
 from .chains import ChainMetrics, ChainRecords, chain_metrics
 from .faults import (
@@ -165,7 +165,7 @@ def window_part(
         "buffers": lambda: buffer_parts(records, inputs, config, clock, win, pairs),
         "chains": lambda: ChainRecords.of(records, inputs, config, win),
     }
-    done = dict(zip(tasks, map_threads(lambda task: task(), tasks.values(), _work_bytes(records, inputs)),
+    done = dict(zip(tasks, map_threads(lambda task: task(), tasks.values(), table_bytes(records, inputs)),
                     strict=True))  # fmt: skip
     return WindowPart(
         dpus=dpus, dpu_rows=done["dpus"], processes=done["processes"], span=done["span"],
@@ -213,7 +213,7 @@ def finish_window(
     chain_rows = ChainRecords.join([p.chains for p in parts])
     buffers, chains = map_threads(lambda table: table(), [
         lambda: buffer_metrics(BufferParts.join(p.buffers for p in parts), config, skips),
-        lambda: chain_metrics(chain_rows, config, clock)], _work_bytes(chain_rows.records, chain_rows.inputs))
+        lambda: chain_metrics(chain_rows, config, clock)], table_bytes(chain_rows.records, chain_rows.inputs))
     return WindowReport(
         generation=int(config.generation),
         start_ns=min((s.start_ns for s in spans), default=None),
@@ -288,11 +288,6 @@ def earlier_ends_ns(before: Mapping[int, int], window: Mapping[int, int]) -> dic
     for dpu, end in window.items():
         out[dpu] = max(end, out.get(dpu, end))
     return out
-
-
-def _work_bytes(records: np.ndarray, inputs: np.ndarray) -> int:
-    """About how many bytes of columns the window's tables read (map_threads' threshold)."""
-    return len(records) * records.dtype.itemsize + len(inputs) * inputs.dtype.itemsize
 
 
 def split_lockouts(lockouts: dict[int, Lockout],

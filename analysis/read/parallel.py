@@ -12,7 +12,7 @@ import ctypes
 import os
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
-from typing import TypeVar
+from typing import Any, TypeVar
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -20,6 +20,12 @@ R = TypeVar("R")
 WORKERS = min(4, os.cpu_count() or 1)
 WORTH_BYTES = 4 << 20  # below this much work a thread costs more than it saves
 M_ARENA_MAX = -8  # glibc's malloc.h
+
+
+def table_bytes(*tables: Any) -> int:
+    """About how many bytes of columns some tables (numpy or ColumnTable) hold: map_threads'
+    `work_bytes` for work that reads them."""
+    return sum(len(t) * t.dtype.itemsize for t in tables)
 
 
 def one_heap() -> None:
