@@ -74,6 +74,7 @@ def _numpy_histogram(samples: np.ndarray) -> tuple[list[float], list[int]]:
 
 @given(st.one_of(ANY_FLOATS, FLOATS, NS.map(lambda ns: ns.astype(np.float64) / 1000.0)))
 def test_a_histogram_from_the_sorted_samples_is_numpys(samples: np.ndarray) -> None:
-    latency, histogram = distribution(samples)
+    with np.errstate(invalid="ignore"):  # inf - inf between two percentiles' samples: NaN, as numpy's
+        latency, histogram = distribution(samples)
+        assert repr(latency) == repr(latency_us(samples))
     assert (histogram.bins, histogram.counts) == _numpy_histogram(samples)
-    assert repr(latency) == repr(latency_us(samples))
