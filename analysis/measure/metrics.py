@@ -595,6 +595,7 @@ def _pair_index(process: np.ndarray, buffer: np.ndarray, pairs: list[tuple[int, 
         return np.where(known[at] == key, at, len(pairs))
     p_of = _dense(procs)  # id -> 0..len(procs)-1, len(procs) for any other id
     b_of = _dense(bufs)
+    process, buffer = process.astype(np.int16, copy=False), buffer.astype(np.int16, copy=False)
     table = np.full((len(procs) + 1) * (len(bufs) + 1), len(pairs), dtype=np.int32)
     table[p_of[np.array([p for p, _ in pairs], dtype=np.int16).view(np.uint16)] * (len(bufs) + 1)
           + b_of[np.array([b for _, b in pairs], dtype=np.int16).view(np.uint16)]] = np.arange(len(pairs))
