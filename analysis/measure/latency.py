@@ -35,14 +35,14 @@ Like metrics.py, everything here takes record arrays and a config_t, never a fil
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from ..read.records import FLAG_RELEASE_SKIPPED
-from .metrics import InputPairs, completed, input_pairs, rows_by_process, window_mask
+from .metrics import InputMetrics, InputPairs, completed, input_pairs, rows_by_process, window_mask
 from .stats import Histogram, LatencyUs, distribution, group_slices, latency_us
 
 
@@ -181,12 +181,10 @@ def release_skips(records: np.ndarray) -> np.ndarray:
 
 
 class ReaderPart(NamedTuple):
-    """One reader's inputs of one buffer, in one part of a window: what its ReaderMetrics add up."""
+    """One reader's inputs of one buffer, in one part of a window: the samples and gaps its
+    ReaderMetrics are made from (its counts are the process table's: metrics.InputMetrics)."""
 
     latency_us: np.ndarray
-    new: int
-    dropped: int
-    received: int
     gaps: np.ndarray  # GAP rows
 
 
@@ -239,17 +237,17 @@ def buffer_parts(
             gap = at[dropping[at]]
             gaps = np.zeros(len(gap), dtype=GAP)
             gaps["seq"], gaps["dropped"] = inputs["seq"][gap], inputs["dropped"][gap]
-            new = int(np.count_nonzero(inputs["new"][at]))
-            out.readers[(buf.id, reader.id)] = [ReaderPart(lat_ns.astype(np.float64) / 1000.0, new,
-                                                           int(inputs["dropped"][at].sum()),
-                                                           int(inputs["received"][at].sum()), gaps)]
+            out.readers[(buf.id, reader.id)] = [ReaderPart(lat_ns.astype(np.float64) / 1000.0, gaps)]
     return out
 
 
-def buffer_metrics(parts: BufferParts, config: Any, skips: np.ndarray) -> list[BufferMetrics]:
+def buffer_metrics(parts: BufferParts, config: Any, skips: np.ndarray,
+                   counted: Mapping[tuple[int, int], InputMetrics]) -> list[BufferMetrics]:
     """Per buffer (config order by id) that has a reader, over the measured window whose
     BufferParts are `parts`. `skips`: the skipped releases (release_skips) of the whole run,
-    not the window's: a gap after a live switch may hold sequences skipped before it."""
+    not the window's: a gap after a live switch may hold sequences skipped before it.
+    `counted`: the process table's counts of each (reader id, buffer id) input, the same
+    input records (counted once, there)."""
     procs = {p.id: p for p in config.processes}
     out = []
     for buf in sorted(config.buffers, key=lambda b: b.id):
@@ -264,9 +262,8 @@ def buffer_metrics(parts: BufferParts, config: Any, skips: np.ndarray) -> list[B
             mine = parts.readers.get((buf.id, reader.id), [])
             lat_us = np.concatenate([m.latency_us for m in mine]) if mine else np.zeros(0)
             pooled.append(lat_us)
-            new = sum(m.new for m in mine)
-            dropped = sum(m.dropped for m in mine)
-            received = sum(m.received for m in mine)
+            counts = counted.get((int(reader.id), int(buf.id)))
+            new, dropped, received = (counts.new, counts.dropped, counts.received) if counts else (0, 0, 0)
             superseded = max(0, received - new)
             unpublished = sum(unpublished_in_gaps(m.gaps, skipped) for m in mine)
             latency, latency_histogram = distribution(lat_us)
