@@ -34,7 +34,7 @@ from skeleton.analysis.measure.latency import (
     buffer_parts,
     release_skips,
 )
-from skeleton.analysis.measure.metrics import measured, process_metrics
+from skeleton.analysis.measure.metrics import input_counts, measured, process_metrics
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.read.records import FLAG_RELEASE_SKIPPED, decode_run
 from skeleton.analysis.views.tables import print_report
@@ -44,7 +44,7 @@ from skelmsg.contract import CLOCK_CHANNEL, CONFIG_CHANNEL, TIMING_CHANNEL
 def _buffers(records: Any, inputs: Any, config: Any, run_records: Any = None) -> list[BufferMetrics]:
     """The buffer table of a window of `records`, its skipped releases looked up in `run_records`."""
     everything = records if run_records is None else run_records
-    counted = {(p.id, i.buffer_id): i for p in process_metrics(records, inputs, config) for i in p.inputs}
+    counted = input_counts(process_metrics(records, inputs, config))
     return buffer_metrics(buffer_parts(records, inputs, config), config, release_skips(everything), counted)
 
 

@@ -536,6 +536,12 @@ def _events(proc: Any, mine: np.ndarray, done: np.ndarray) -> tuple[EventMetrics
     ), latency_histogram
 
 
+def input_counts(processes: list[ProcessMetrics]) -> dict[tuple[int, int], InputMetrics]:
+    """The process table's counts of each input, by (process id, buffer id): what the buffer
+    table says of its readers (latency.buffer_metrics)."""
+    return {(int(p.id), int(i.buffer_id)): i for p in processes for i in p.inputs}
+
+
 class _InputSums(NamedTuple):
     """What the counted input records of one process and buffer add up to."""
 

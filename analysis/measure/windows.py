@@ -46,6 +46,7 @@ from .metrics import (
     DpuMetrics,
     ProcessMetrics,
     dpu_metrics,
+    input_counts,
     input_pairs,
     measured,
     process_metrics,
@@ -211,7 +212,7 @@ def finish_window(
     # The buffers' and the chains' tables, the largest steps once every part is joined: their
     # sorts, searches and percentiles release the GIL, so they go side by side on the cores.
     chain_rows = ChainRecords.join([p.chains for p in parts])
-    counted = {(int(p.id), int(i.buffer_id)): i for p in processes for i in p.inputs}
+    counted = input_counts(processes)
     buffers, chains = map_threads(lambda table: table(), [
         lambda: buffer_metrics(BufferParts.join(p.buffers for p in parts), config, skips, counted),
         lambda: chain_metrics(chain_rows, config, clock)], table_bytes(chain_rows.records, chain_rows.inputs))
