@@ -125,7 +125,9 @@ def test_the_live_view_keeps_off_the_cpus_its_hosts_dpus_are_pinned_to(tmp_path:
     out = tmp_path / "pinned"
     run = skel("run", str(EXAMPLES / "pair-10ms-5ms.yaml"), "--spawn", "--url", url, "--duration", "1.5",
                "-s", f"dpu.1.cpu={pinned}", "--out", str(out))
-    assert run.returncode == 0, run.stdout + run.stderr
+    # Only the log matters here (its config names the pinned CPU): a run the platform stalled
+    # into a lockout (exit 3; CI once: 236.8 ms at 0.13 s) is as good a log to replay.
+    assert run.returncode in (0, 3) and (out / "run.lcm").is_file(), run.stdout + run.stderr
     replay_url = fresh_url()
     watch = _watch("--url", replay_url, "--duration", "60")
     player: subprocess.Popen[bytes] | None = None
