@@ -110,20 +110,21 @@ def part_bookkeeping(run: Run, url: str, seconds: float) -> list[str]:
     ]
 
 
-def frame_hiccups_ns(records: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One DPU's records in frame order (by_frame) and, for each, the longest single stretch its
-    frame lost at once: the frame's wake-up (first start less release), a process-cycle's length
-    beyond what it was asked to compute, or a gap between two process-cycles."""
+def frame_hiccups_ns(records: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One DPU's records in frame order, whether each is its frame's first (by_frame) and, for
+    each, the longest single stretch its frame lost at once: the frame's wake-up (first start
+    less release), a process-cycle's length beyond what it was asked to compute, or a gap
+    between two process-cycles."""
     recs, first, start, end = by_frame(records)
     if not len(recs):
-        return recs, np.zeros(0, dtype=np.int64)
+        return recs, first, np.zeros(0, dtype=np.int64)
     frame = np.cumsum(first) - 1
     at = np.flatnonzero(first)
     wake = start[at] - recs["release_ns"][at].astype(np.int64)
     longer = end - start - recs["asked_ns"].astype(np.int64)
     gap = np.where(np.r_[first[1:], True], 0, np.r_[start[1:] - end[:-1], 0])
     worst = np.maximum(wake, np.maximum.reduceat(np.maximum(longer, gap), at))
-    return recs, worst[frame]
+    return recs, first, worst[frame]
 
 
 def _clean(records: np.ndarray, report: dict[str, Any]) -> tuple[bool, str]:
@@ -138,9 +139,8 @@ def _clean(records: np.ndarray, report: dict[str, Any]) -> tuple[bool, str]:
     # What the others lost: the stall threshold (SKEL_STALL_NS, dpu/dpu.h) is 50 us, and a
     # 10 kHz frame of 45 us has 55 us of slack, so a stretch of 40-50 us lost at once in a
     # frame is an overrun no stall explains, where a frame's usual stretches are a few us.
-    recs, hiccup = frame_hiccups_ns(records)
-    if overruns > stalled and len(recs):
-        first = np.r_[True, recs["minor"][1:] != recs["minor"][:-1]]
+    if overruns > stalled:
+        recs, first, hiccup = frame_hiccups_ns(records)
         bare = ((recs["flags"] & FLAG_OVERRUN) != 0) & ~stall_explains(recs, first)
         if bare.any():
             worst, usual = hiccup[bare] / 1000, np.percentile(hiccup, 50) / 1000

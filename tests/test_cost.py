@@ -39,6 +39,7 @@ def test_a_frame_s_hiccup_is_its_longest_stretch_lost_at_once() -> None:
     recs["asked_ns"] = [r[3] for r in rows]
     recs["compute_ns"] = [r[2] - r[1] for r in rows]  # the end: the start and the compute (cycle_end_ns)
     shuffled = recs[np.random.default_rng(1).permutation(len(recs))]
-    ordered, hiccup = frame_hiccups_ns(shuffled)
+    ordered, first, hiccup = frame_hiccups_ns(shuffled)
     assert np.array_equal(ordered["minor"], np.repeat([0, 1, 2, 3], 3))
+    assert first.tolist() == [True, False, False] * 4
     assert (hiccup // US).tolist() == [4] * 3 + [44] * 3 + [37] * 3 + [38] * 3
