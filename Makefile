@@ -125,8 +125,9 @@ $(BUILD)/flood: tests/flood/flood.c $(GEN_C) | $(STAMP)
 	$(CC) $(WARN) -O2 $(INC) -o $@ $< $(filter-out $(GEN)/c/skelmsg_check.c,$(GEN_C)) $(LIBS)
 
 # --- what users run ----------------------------------------------------------------
+# DEMO_ARGS: e.g. a private --url and --out, as the test of the demo gives.
 demo: $(BUILD)/skel-dpu $(STAMP)
-	$(VENV)/bin/skel run examples/servo.yaml --spawn --compare-paper
+	@$(VENV)/bin/skel run examples/servo.yaml --spawn --compare-paper $(DEMO_ARGS)
 
 test: test-c test-fuzz test-py
 

@@ -81,6 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
     length.add_argument("--duration", type=float, metavar="S", help="run length in seconds")
     p.add_argument("--out", type=Path, help="run directory (default runs/<system>-<time>/)")
     p.add_argument("--json", action="store_true", help="print report.json instead of tables")
+    p.add_argument("--all", action="store_true", dest="all_tables",
+                   help="print every table, not one screen (the verdict, per DPU, faults and deltas counted)")
     p.add_argument("--compare-paper", action="store_true",
                    help="print the system file's reference values (the paper's Table 1) beside ours")
     p.add_argument("--wait-dpus", type=float, default=5.0, metavar="S",
@@ -110,6 +112,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("log", type=Path, help="run.lcm, run.mcap, or a run directory")
     p.add_argument("--json", action="store_true")
     p.add_argument("--run-id", type=int, help="which run, when the log holds several (default the last)")
+    p.add_argument("--all", action="store_true", dest="all_tables",
+                   help="print every table, not one screen (the verdict, per DPU, faults and deltas counted)")
     p.add_argument("--plots", type=Path, metavar="DIR", help="also write PNG plots and report.html to DIR")
 
     p = sub.add_parser("diff", help="two runs' tables side by side, with deltas")
@@ -295,7 +299,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"skel run: --wait-dpus {args.wait_dpus:g}: must be >= 0", file=sys.stderr)
         return EXIT_BAD_INPUT
     options = RunOptions(spawn=args.spawn, cycles=args.cycles, duration_s=args.duration, out=args.out,
-                         as_json=args.json, compare_paper=args.compare_paper,
+                         as_json=args.json, compare_paper=args.compare_paper, all_tables=args.all_tables,
                          pushed_generation=pushed_generation, wait_dpus_s=args.wait_dpus,
                          logger=args.logger, force=args.force, key=args.key, key_file=args.key_file)
     return run(system, options, console=output_console())
@@ -418,7 +422,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     log = run_log_path(args.log)
     # a run directory's system.yaml is the file its configuration came from
     return report_command(log, as_json=args.json, run_id=args.run_id, plots=args.plots,
-                          predictor=predictor(log.parent / "system.yaml"), key=args.key)
+                          predictor=predictor(log.parent / "system.yaml"), key=args.key,
+                          all_tables=args.all_tables)
 
 
 def cmd_diff(args: argparse.Namespace) -> int:

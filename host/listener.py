@@ -1,4 +1,5 @@
-"""What is heard on the control URL, decoded once and kept: the one live listener.
+"""What the DPUs send on the record URL (link.record_url), decoded once and kept: the one
+live listener.
 
 `skel status`, `skel run` (through Control, which adds the sending) and `skel watch`
 each hear the DPUs through a Listener: every DPU's latest heartbeat (and every daemon's,
@@ -41,6 +42,7 @@ from ..analysis.measure.faults import LOST_AFTER_S, Fault, jam_faults, lockout_f
 from ..analysis.measure.report import RunReport, build_report
 from ..analysis.read.records import IMPOSSIBLE, RunRecords
 from ..analysis.read.seal import Verdict, Verifier
+from ..analysis.views.summary import fault_line
 from .recordstore import RecordStore
 
 KEY_PROBLEMS = {  # what a refused status says about its DPU's key
@@ -100,27 +102,6 @@ class DpuView:
     @property
     def state(self) -> str:
         return STATE_NAMES.get(self.status.state, f"state {self.status.state}")
-
-
-def fault_line(fault: Fault) -> str:
-    """One fault in one line, as `skel run` prints it and `skel watch` lists it."""
-    where = f"{fault.process} (DPU {fault.dpu})" if fault.process else f"DPU {fault.dpu}"
-    if fault.kind == "lockout":
-        waits = fault.detail
-        if fault.buffer and fault.writer:
-            waits = f"waiting on {fault.buffer} from {fault.writer}"
-        if fault.buffer and fault.writer and fault.at_s is not None:
-            waits += f"; not completed by {fault.at_s:.3f} s"
-        return f"lockout: {where} at cycle {fault.cycle}, {waits}"
-    if fault.kind == "jam":
-        return f"jam: {' -> '.join(fault.chain)}: {fault.detail}"
-    if fault.kind == "dpu_lost":
-        return f"dpu_lost: DPU {fault.dpu} {fault.detail}"
-    if fault.kind in ("stall", "behind"):
-        return f"{fault.kind}: {fault.detail}"   # the detail names the host or DPU
-    if fault.kind == "overrun":
-        return f"overrun: {where} from cycle {fault.cycle}"
-    return f"{fault.kind}: {where}: {fault.detail}"
 
 
 def fault_key(fault: Fault) -> tuple[Any, ...]:

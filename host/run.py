@@ -41,12 +41,13 @@ from ..analysis.measure.metrics import utilization_pct
 from ..analysis.measure.run import load_run
 from ..analysis.read.messages import LogError
 from ..analysis.views.console import OutputConsole
+from ..analysis.views.summary import FAILED_KINDS, fault_line, print_summary, rest_line
 from ..analysis.views.tables import print_report
 from . import owner, spawn
 from .check import delivery_warnings, warmup_warnings
 from .clock import ClockKeeper
 from .control import Control, PushResult
-from .listener import DpuView, fault_line
+from .listener import DpuView
 from .predict_view import predictor
 from .repair import LoggerKeeper, LogRepair, RepairResult
 from .system import System
@@ -63,9 +64,11 @@ LOGGER_MARGIN_S = 5.0       # an orphaned logger ends this long after the report
 LOGGER_READY_S = 2.0        # heartbeats come at 5 Hz: the logger has one well within this
 REPAIR_STUCK_S = 3.0        # after the reports, the repair of the log gives up this long without progress
 REPAIR_LIMIT_S = 10.0       # ... or after this long in all
-FAILED_KINDS = ("dpu_lost", "delivery")    # the machine or network failed the run, not the design
 # The faults said while a run goes on: those run.stop_on may name, and a buffer never delivered.
 LIVE_KINDS = ("lockout", "jam", "behind", "stall", "dpu_lost", "delivery")
+# The platform's faults (stall, behind) said live before they are only counted: a noisy
+# machine makes dozens, and the summary counts them all.
+LIVE_PLATFORM_LINES = 3
 FAULT_WINDOW_MAX_S = 1.0    # a run stopped early (run.stop_on) goes on at most this long
 
 
@@ -77,6 +80,7 @@ class RunOptions:
     out: Path | None = None
     as_json: bool = False
     compare_paper: bool = False
+    all_tables: bool = False  # every table, not one screen
     # Run the generation `skel push` already applied, when every DPU still has it.
     pushed_generation: int | None = None
     dpu_args: list[str] = field(default_factory=list)
@@ -265,20 +269,29 @@ class RunFollower:
         self.back: set[int] = set()
         self.stop_reason: str | None = None
         self.taken_over: str | None = None  # another host tool ended our run (--force)
+        self.platform_lines = 0          # stalls and platform lateness heard (LIVE_PLATFORM_LINES said)
 
     def poll(self, dpu_ids: list[int], running: bool = True) -> None:
         for fault in self.control.new_faults(running):
             if fault.kind not in LIVE_KINDS:
                 continue
+            if fault.kind in self.system.run.stop_on:
+                self.stop_reason = self.stop_reason or _stop_reason(fault)
+            if fault.kind == "dpu_lost" and fault.dpu is not None:
+                self.lost.add(fault.dpu)
+            platform = fault.kind in ("stall", "behind") and not fault.fatal
+            if platform:
+                self.platform_lines += 1
+                if self.platform_lines == LIVE_PLATFORM_LINES + 1:
+                    self.console.print("[yellow]STALL[/] more of the platform's stalls: counted at the end",
+                                       highlight=False, soft_wrap=True)
+                if self.platform_lines > LIVE_PLATFORM_LINES:
+                    continue
             style = "bold red" if fault.fatal or fault.kind in FAILED_KINDS else "yellow"
             tail = "; the run goes on without it" if fault.kind == "dpu_lost" and running else ""
             # A stall is the platform's, not the design's: said as such (its detail names the host).
-            label, text = ("STALL", fault.detail) if fault.kind == "stall" else ("FAULT", fault_line(fault))
+            label, text = ("STALL", fault.detail) if fault.kind == "stall" else ("FAULT", _live_line(fault))
             self.console.print(f"[{style}]{label}[/] {text}{tail}", highlight=False, soft_wrap=True)
-            if fault.kind == "dpu_lost" and fault.dpu is not None:
-                self.lost.add(fault.dpu)
-            if fault.kind in self.system.run.stop_on:
-                self.stop_reason = self.stop_reason or _stop_reason(fault)
         views = self.control.snapshot()
         for dpu_id in sorted(self.lost - set(self.control.lost(dpu_ids)) - self.back):
             # Restarted: it takes the re-sent config and joins the next run, not this one.
@@ -293,6 +306,14 @@ class RunFollower:
         recorded too."""
         slowest_us = max(p.period_us for p in self.system.processes)
         return min(FAULT_WINDOW_MAX_S, self.system.run.lockout_cycles * slowest_us / 1e6)
+
+
+def _live_line(fault: Fault) -> str:
+    """A fault as it is heard, in one short line; the report's tables give the whole detail."""
+    if fault.kind == "behind" and not fault.fatal and fault.behind_ms is not None and fault.at_s is not None:
+        return (f"behind: DPU {fault.dpu} ran up to {fault.behind_ms:.1f} ms behind its schedule from "
+                f"{fault.at_s:.2f} s, kept from running by the platform")
+    return fault_line(fault)
 
 
 def _stop_reason(fault: Fault) -> str:
@@ -437,7 +458,10 @@ def _report(console: Console, system: System, options: RunOptions, out: Path, ru
         paper = None
         if options.compare_paper and system.reference is not None:
             paper = {i: row.model_dump() for i, row in system.reference.dpus.items()}
-        print_report(report, console=console, paper=paper)
+        if options.all_tables:
+            print_report(report, console=console, paper=paper)
+        else:
+            print_summary(report, console=console, paper=paper)
         if missing:
             console.print(missing, style="yellow", markup=False, highlight=False)
         if restarts:
@@ -446,6 +470,8 @@ def _report(console: Console, system: System, options: RunOptions, out: Path, ru
             console.print(f"the logger missed {repaired.asked} messages; the DPUs sent them again"
                           + (f", {repaired.missing} still missing" if repaired.missing else ": all logged"))
         console.print(f"run written to {out}/ (system.yaml, run.lcm, report.json)")
+        if not options.all_tables:
+            console.print(rest_line(str(out)), highlight=False, soft_wrap=True)
     kinds = {f["kind"] for f in report.to_json()["faults"]}
     if "delivery" in kinds:
         return EXIT_FAILED  # what did not arrive locks its readers out: not the design's flaw

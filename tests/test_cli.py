@@ -103,7 +103,7 @@ def _wait_running(url: str, timeout_s: float = 30.0) -> None:
 def test_run_interrupted_by_ctrl_c_writes_its_report_and_exits_130(url: str, tmp_path: Path) -> None:
     out = tmp_path / "cut"
     run = _skel_popen("run", str(PAIR), "--spawn", "--url", url, "--duration", "30",
-                      "-s", "run.warmup_cycles=5", "--out", str(out))
+                      "-s", "run.warmup_cycles=5", "--out", str(out), "--all")
     _wait_running(url)
     time.sleep(1.5)
     run.send_signal(signal.SIGINT)
@@ -163,7 +163,8 @@ def _wide_log(path: Path) -> Path:
 def test_tables_through_a_pipe_keep_every_column(tmp_path: Path) -> None:
     log = _wide_log(tmp_path / "run.lcm")
     env = {k: v for k, v in os.environ.items() if k not in ("COLUMNS", "LINES")}
-    done = subprocess.run([sys.executable, "-m", "skeleton.host.cli", "report", str(log)], cwd=REPO,
+    done = subprocess.run([sys.executable, "-m", "skeleton.host.cli", "report", str(log), "--all"],
+                          cwd=REPO,
                           capture_output=True, text=True, env=env, timeout=60)
     assert done.returncode == 0, done.stderr
     rep = load_run(str(log), None).report

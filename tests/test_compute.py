@@ -97,7 +97,7 @@ def test_one_seed_gives_the_same_draws_run_after_run(tmp_path: Path, url: str) -
     assert jittery["compute_mean_us"] == pytest.approx(jittery["asked_mean_us"], rel=0.01)
     assert jittery["asked_us"]["max"] <= 3000 and jittery["compute_us"]["p99"] > 2000
     assert steady["asked_us"]["max"] == pytest.approx(500)
-    printed = skel("report", str(outs["first"]))
+    printed = skel("report", str(outs["first"]), "--all")
     assert "per process whose compute varies" in printed.stdout and "jittery" in printed.stdout
 
 

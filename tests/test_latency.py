@@ -251,7 +251,7 @@ def test_real_run_has_small_buffer_latencies_and_chain_samples(tmp_path: Path, u
     system = tmp_path / "light.yaml"
     system.write_text(LIGHT_SERVO)
     out = tmp_path / "run"
-    run = skel("run", str(system), "--spawn", "--url", url, "--out", str(out))
+    run = skel("run", str(system), "--spawn", "--url", url, "--out", str(out), "--all")
     assert run.returncode == 0, run.stdout + run.stderr
     report = json.loads((out / "report.json").read_text())
     buffers = {b["buffer"]: b for b in report["buffers"]}

@@ -57,7 +57,7 @@ def test_late_is_judged_against_the_schedule_not_the_frame(tmp_path: Path, url: 
     place in the schedule, not lateness (it used to be late in every cycle)."""
     out = tmp_path / "servo"
     run = skel("run", str(EXAMPLES / "servo.yaml"), "--spawn", "--url", url, "--cycles", "600",
-               "-s", "run.warmup_cycles=20", "-s", "run.lockout_cycles=20", "--out", str(out))
+               "-s", "run.warmup_cycles=20", "-s", "run.lockout_cycles=20", "--out", str(out), "--all")
     assert run.returncode == 0, run.stdout + run.stderr
     report = _report(out)
     for name in ("forward_kinematics", "force_control", "gravity_comp", "jacobian_update"):
@@ -125,7 +125,7 @@ def test_a_dpu_that_runs_behind_is_a_fault_of_its_own(tmp_path: Path, url: str) 
     path = tmp_path / "overloaded.yaml"
     path.write_text(OVERLOADED_SYSTEM)
     out = tmp_path / "run"
-    run = skel("run", str(path), "--spawn", "--url", url, "--out", str(out))
+    run = skel("run", str(path), "--spawn", "--url", url, "--out", str(out), "--all")
     assert run.returncode == 3, run.stdout + run.stderr
     behind = [f for f in _report(out)["faults"] if f["kind"] == "behind"]
     assert len(behind) == 1, _report(out)["faults"]

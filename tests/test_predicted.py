@@ -143,7 +143,7 @@ def test_a_run_whose_system_file_cannot_be_predicted_says_why(
 
 def _run(tmp_path: Path, url: str, path: Path, *args: str) -> tuple[dict, str]:
     out = tmp_path / f"run-{path.stem}"
-    run = skel("run", str(path), "--spawn", "--url", url, "--out", str(out), *args)
+    run = skel("run", str(path), "--spawn", "--url", url, "--out", str(out), "--all", *args)
     assert run.returncode in (0, 1, 3), run.stdout + run.stderr
     report = json.loads((out / "report.json").read_text())
     again = skel("report", str(out), "--json")

@@ -1,6 +1,6 @@
-"""`skel report RUN [--json] [--run N] [--plots DIR]`: the run read once, its prediction laid
-beside it when the host tool gives a predictor, then its tables (or report.json on stdout)
-and, when asked, its plots and report.html."""
+"""`skel report RUN [--all] [--json] [--run N] [--plots DIR]`: the run read once, its prediction
+laid beside it when the host tool gives a predictor, then one screen of it (every table with
+--all, or report.json on stdout) and, when asked, its plots and report.html."""
 
 from __future__ import annotations
 
@@ -13,12 +13,13 @@ from ..exitcodes import EXIT_BAD_INPUT, EXIT_FATAL_FLAW, EXIT_OK
 from ..measure.predicted import Predictor
 from ..measure.run import RunAnalysis, load_run
 from ..read.messages import LogError
+from .summary import print_summary
 from .tables import print_report
 
 
 def report_command(path: str | os.PathLike[str], as_json: bool, run_id: int | None,
                    plots: Path | None = None, predictor: Predictor | None = None,
-                   key: bytes | None = None) -> int:
+                   key: bytes | None = None, all_tables: bool = False) -> int:
     """0, 3 on a fatal flaw, 2 with one line when the log cannot be read or a plot written."""
     try:
         run = load_run(path, run_id, key)
@@ -31,8 +32,10 @@ def report_command(path: str | os.PathLike[str], as_json: bool, run_id: int | No
     if as_json:
         json.dump(run.report.to_json(), sys.stdout, indent=2)
         sys.stdout.write("\n")
-    else:
+    elif all_tables:
         print_report(run.report)
+    else:
+        print_summary(run.report, where=os.fspath(path))
     if plots is not None:
         try:
             write_plot_dir(run, plots, source=os.fspath(path))

@@ -20,14 +20,14 @@ from ..measure.windows import WindowReport
 from .console import output_console
 
 
-def _signed(value: float | None, digits: int = 1) -> str:
+def signed(value: float | None, digits: int = 1) -> str:
     """A difference with its sign: +0.0, never -0.0, for one that rounds to nothing."""
     if value is None:
         return "-"
     return f"{round(value, digits) + 0.0:+.{digits}f}"
 
 
-def _num(value: float | None, digits: int = 1) -> str:
+def num(value: float | None, digits: int = 1) -> str:
     if value is None:
         return "-"
     if abs(value) >= 1000:
@@ -35,7 +35,7 @@ def _num(value: float | None, digits: int = 1) -> str:
     return f"{value:.{digits}f}"
 
 
-def _table(title: str, columns: list[tuple[str, bool]], rows: list[list[str]]) -> Table:
+def make_table(title: str, columns: list[tuple[str, bool]], rows: list[list[str]]) -> Table:
     """A table that never cuts a figure or a word: a number column (flag True) is as
     wide as its widest cell, a text column as its longest word (wrapped between words)."""
     table = Table(title=title)
@@ -63,16 +63,16 @@ def dpu_table(report: RunReport, window: WindowReport | None = None) -> Table:
     rows = [
         [
             str(d.id),
-            _num(d.configured_cycle_ms, 2),
-            _num(d.measured_cycle_ms, 2),
+            num(d.configured_cycle_ms, 2),
+            num(d.measured_cycle_ms, 2),
             ", ".join(d.processes),
-            _num(d.compute_pct),
-            _num(d.communicate_pct),
-            _num(d.wait_pct),
-            _num(d.overhead_pct),
-            _num(d.static_load_pct),
-            _num(d.release_latency_us.p99, 0),
-            _num(d.stall_ms),
+            num(d.compute_pct),
+            num(d.communicate_pct),
+            num(d.wait_pct),
+            num(d.overhead_pct),
+            num(d.static_load_pct),
+            num(d.release_latency_us.p99, 0),
+            num(d.stall_ms),
         ]
         for d in part.dpus
     ]
@@ -82,7 +82,7 @@ def dpu_table(report: RunReport, window: WindowReport | None = None) -> Table:
         ("wake\np99 µs", True), ("stall\nms", True),
     ]  # fmt: skip
     title = f"{report.system}: run {report.run_id}, generation {part.generation}: per DPU (load = configured)"
-    table = _table(title, columns, rows)
+    table = make_table(title, columns, rows)
     # A row of dashes says nothing by itself: a short run, or a window opened by a live switch
     # late in the run, may end before a slow DPU's warm-up does.
     unmeasured = [str(d.id) for d in part.dpus if d.records == 0]
@@ -99,20 +99,20 @@ def paper_table(report: RunReport, paper: dict[Any, Any], window: WindowReport |
         ref = _paper(paper, d.id) or {}
 
         def theirs(key: str, digits: int = 1, ref: dict[str, Any] = ref) -> str:
-            return _num(ref.get(key), digits)
+            return num(ref.get(key), digits)
 
         delta = None if ref.get("compute_pct") is None else d.compute_pct - ref["compute_pct"]
         rows.append([
-            str(d.id), theirs("cycle_ms", 2), _num(d.measured_cycle_ms, 2),
-            theirs("compute_pct"), _num(d.compute_pct), _signed(delta),
-            theirs("communicate_pct"), _num(d.communicate_pct), theirs("wait_pct"), _num(d.wait_pct),
+            str(d.id), theirs("cycle_ms", 2), num(d.measured_cycle_ms, 2),
+            theirs("compute_pct"), num(d.compute_pct), signed(delta),
+            theirs("communicate_pct"), num(d.communicate_pct), theirs("wait_pct"), num(d.wait_pct),
         ])  # fmt: skip
     columns = [
         ("DPU", True), ("cycle\npaper", True), ("ms\nours", True), ("comp\npaper", True),
         ("%\nours", True), ("Δ", True), ("comm\npaper", True), ("%\nours", True),
         ("wait\npaper", True), ("%\nours", True),
     ]  # fmt: skip
-    return _table("the paper's Table 1 beside this run", columns, rows)
+    return make_table("the paper's Table 1 beside this run", columns, rows)
 
 
 def process_table(report: RunReport, window: WindowReport | None = None) -> Table:
@@ -125,11 +125,11 @@ def process_table(report: RunReport, window: WindowReport | None = None) -> Tabl
                 str(p.dpu),
                 str(p.cycles),
                 str(p.overruns),
-                _num(lat.p50),
-                _num(lat.p99),
-                _num(lat.max),
-                _num(p.compute_mean_us),
-                _num(p.lateness_us.p99),
+                num(lat.p50),
+                num(lat.p99),
+                num(lat.max),
+                num(p.compute_mean_us),
+                num(p.lateness_us.p99),
                 f"{p.late}/{p.too_late}",
                 str(p.releases_skipped),
             ]
@@ -144,28 +144,28 @@ def process_table(report: RunReport, window: WindowReport | None = None) -> Tabl
         f"schedule's start) in µs; the warm-up ({report.warmup_cycles} cycles of each DPU's slowest "
         "process) excluded"
     )
-    return _table(title, columns, rows)
+    return make_table(title, columns, rows)
 
 
 def compute_table(report: RunReport, window: WindowReport | None = None) -> Table:
     """Per process whose compute varies: the draws it was asked to emulate beside what it took."""
     rows = [
-        [p.name, _num(p.asked_mean_us), _num(p.compute_mean_us), _num(p.asked_us.p99), _num(p.compute_us.p99),
-         _num(p.asked_us.max), _num(p.compute_us.max)]
+        [p.name, num(p.asked_mean_us), num(p.compute_mean_us), num(p.asked_us.p99), num(p.compute_us.p99),
+         num(p.asked_us.max), num(p.compute_us.max)]
         for p in (window or report).processes if p.varying
     ]  # fmt: skip
     columns = [("process", False), ("mean\nasked", True), ("mean\ntook", True), ("p99\nasked", True),
                ("p99\ntook", True), ("max\nasked", True), ("max\ntook", True)]  # fmt: skip
     title = "per process whose compute varies: compute asked (the draws) and taken, in µs"
-    return _table(title, columns, rows)
+    return make_table(title, columns, rows)
 
 
 def event_table(report: RunReport, window: WindowReport | None = None) -> Table:
     """Per `sync: event` process: its events handled, dropped and queued, and how long they waited."""
     rows = [
-        [p.name, e.event, str(e.handled), str(e.dropped), str(e.queued_max), _num(e.latency_us.p50),
-         _num(e.latency_us.p99), _num(e.latency_us.max), _num(e.response_us.p50), _num(e.response_us.p99),
-         _num(e.response_us.max)]
+        [p.name, e.event, str(e.handled), str(e.dropped), str(e.queued_max), num(e.latency_us.p50),
+         num(e.latency_us.p99), num(e.latency_us.max), num(e.response_us.p50), num(e.response_us.p99),
+         num(e.response_us.max)]
         for p in (window or report).processes if (e := p.events) is not None
     ]  # fmt: skip
     columns = [("process", False), ("event", False), ("handled", True), ("dropped", True),
@@ -173,7 +173,7 @@ def event_table(report: RunReport, window: WindowReport | None = None) -> Table:
                ("resp.\np50", True), ("resp.\np99", True), ("resp.\nmax", True)]  # fmt: skip
     title = ("per process awaiting an event: events handled, dropped (queue full) and the most waiting; "
              "latency (event -> start) and response (event -> end) in µs")
-    return _table(title, columns, rows)
+    return make_table(title, columns, rows)
 
 
 def input_table(report: RunReport, window: WindowReport | None = None) -> Table:
@@ -184,19 +184,20 @@ def input_table(report: RunReport, window: WindowReport | None = None) -> Table:
     ]
     columns = [("process", False), ("input buffer", False), ("new", True), ("stale", True),
                ("dropped", True), ("received", True)]  # fmt: skip
-    return _table("per input buffer: cycles with new / stale data, sequences dropped", columns, rows)
+    return make_table("per input buffer: cycles with new / stale data, sequences dropped", columns, rows)
 
 
 def response_table(report: RunReport, window: WindowReport | None = None) -> Table:
     """Per process: response time (end of work - release) and slack (next release - end)."""
     rows = [
-        [p.name, _num(p.response_us.p50), _num(p.response_us.p99), _num(p.response_us.max),
-         _num(p.slack_us.min), _num(p.slack_us.mean)]
+        [p.name, num(p.response_us.p50), num(p.response_us.p99), num(p.response_us.max),
+         num(p.slack_us.min), num(p.slack_us.mean)]
         for p in (window or report).processes
     ]  # fmt: skip
     columns = [("process", False), ("resp.\np50", True), ("resp.\np99", True), ("resp.\nmax", True),
                ("slack\nmin", True), ("slack\nmean", True)]  # fmt: skip
-    return _table("per process: response (end - release) and slack (next release - end) in µs", columns, rows)
+    return make_table("per process: response (end - release) and slack (next release - end) in µs", columns,
+                      rows)
 
 
 def buffer_table(report: RunReport, window: WindowReport | None = None) -> Table:
@@ -205,7 +206,7 @@ def buffer_table(report: RunReport, window: WindowReport | None = None) -> Table
     for b in (window or report).buffers:
         for r in b.readers:
             lat = r.latency_us
-            rows.append([b.buffer, f"{b.writer} -> {r.process}", _num(lat.p50), _num(lat.p99), _num(lat.max),
+            rows.append([b.buffer, f"{b.writer} -> {r.process}", num(lat.p50), num(lat.p99), num(lat.max),
                          str(r.unpublished), str(r.superseded), str(r.lost)])  # fmt: skip
     columns = [("buffer", False), ("writer -> reader", False), ("p50", True), ("p99", True), ("max", True),
                ("unpub-\nlished", True), ("super-\nseded", True), ("lost", True)]  # fmt: skip
@@ -214,7 +215,7 @@ def buffer_table(report: RunReport, window: WindowReport | None = None) -> Table
         "of the dropped sequences, unpublished ones their writer skipped, superseded ones were received, "
         "lost ones never"
     )
-    return _table(title, columns, rows)
+    return make_table(title, columns, rows)
 
 
 def chain_table(report: RunReport, window: WindowReport | None = None) -> Table:
@@ -223,12 +224,12 @@ def chain_table(report: RunReport, window: WindowReport | None = None) -> Table:
     for c in (window or report).chains:
         lat = c.latency_us
         rows.append(
-            [c.name, " -> ".join(c.processes), str(c.samples), _num(lat.p50), _num(lat.p99), _num(lat.max),
+            [c.name, " -> ".join(c.processes), str(c.samples), num(lat.p50), num(lat.p99), num(lat.max),
              str(c.broken)]
         )  # fmt: skip
     columns = [("chain", False), ("processes", False), ("samples", True), ("p50", True), ("p99", True),
                ("max", True), ("broken", True)]  # fmt: skip
-    return _table("per chain: end-to-end latency in µs (head's send -> tail's first use)", columns, rows)
+    return make_table("per chain: end-to-end latency in µs (head's send -> tail's first use)", columns, rows)
 
 
 def fault_table(report: RunReport, window: WindowReport | None = None) -> Table:
@@ -248,14 +249,14 @@ def fault_table(report: RunReport, window: WindowReport | None = None) -> Table:
         )
     columns = [("kind", False), ("process", False), ("DPU", True), ("buffer", False), ("writer", False),
                ("cycle", True), ("chain / detail", False)]  # fmt: skip
-    return _table("faults", columns, rows)
+    return make_table("faults", columns, rows)
 
 
 def _beside(b: Beside, digits: int = 1, none: str = "unknown") -> list[str]:
     """predicted, measured, Δ; NONE says why there is no prediction: a worst that bounds
     nothing is unbounded, a figure that follows from how often the host sends an event unknown."""
-    return [_num(b.predicted, digits) if b.predicted is not None else none, _num(b.measured, digits),
-            _signed(b.delta, digits)]
+    return [num(b.predicted, digits) if b.predicted is not None else none, num(b.measured, digits),
+            signed(b.delta, digits)]
 
 
 OUTSIDE = ("out-\nside", False)
@@ -271,11 +272,11 @@ def predicted_tables(p: Predicted) -> list[Table]:
     title = (f"predicted (from the system file alone) beside measured, generation {p.generation}: per DPU "
              f"(! beyond ±{p.compute_points:g} points)")
     columns = [("DPU", True), ("% comp\npred.", True), ("% comp\nmeas.", True), ("Δ", True), OUTSIDE]
-    tables = [_table(title, columns, [[str(d.id), *_beside(d.compute_pct), _flag(d.compute_pct)]
+    tables = [make_table(title, columns, [[str(d.id), *_beside(d.compute_pct), _flag(d.compute_pct)]
                                       for d in p.dpus])]
-    rows = [[r.name, str(r.dpu), *_beside(r.response_us, 0, "unbounded"), _num(r.response_max_us, 0),
+    rows = [[r.name, str(r.dpu), *_beside(r.response_us, 0, "unbounded"), num(r.response_max_us, 0),
              f"paced by {r.paced_by}" if r.paced_by else _flag(r.response_us)] for r in p.processes]
-    tables.append(_table(
+    tables.append(make_table(
         f"per process: worst response predicted, p99 measured, µs (! more than late_pct, {p.late_pct} % of "
         "the period, above)",
         [("process", False), ("DPU", True), ("worst\npred.", True), ("p99\nmeas.", True), ("Δ", True),
@@ -283,16 +284,16 @@ def predicted_tables(p: Predicted) -> list[Table]:
     if p.inputs:
         rows = [[f"{i.reader} <- {i.buffer} ({i.writer})", *_beside(i.new, 2), *_beside(i.dropped, 2),
                  "!" if i.new.outside or i.stale.outside or i.dropped.outside else "-"] for i in p.inputs]
-        tables.append(_table(
+        tables.append(make_table(
             f"per input: share of the reader's cycles with new data, sequences dropped per cycle "
             f"(! beyond ±{p.share:g})",
             [("reader <- buffer (writer)", False), ("new\npred.", True), ("new\nmeas.", True), ("Δ", True),
              ("dropped\npred.", True), ("dropped\nmeas.", True), ("Δ", True), OUTSIDE], rows))
     if p.chains:
-        rows = [[c.name, _num(c.best_us, 0), *_beside(c.latency_us, 0, "unbounded"),
-                 _num(c.latency_max_us, 0),
+        rows = [[c.name, num(c.best_us, 0), *_beside(c.latency_us, 0, "unbounded"),
+                 num(c.latency_max_us, 0),
                  _flag(c.latency_us)] for c in p.chains]
-        tables.append(_table(
+        tables.append(make_table(
             f"per chain: latency predicted best and worst, measured p99, µs (! more than late_pct, "
             f"{p.late_pct} % of the tail's period, above)",
             [("chain", False), ("best\npred.", True), ("worst\npred.", True), ("p99\nmeas.", True),

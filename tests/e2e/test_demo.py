@@ -1,0 +1,25 @@
+"""`make demo`, as a new user runs it: one screen, led by the verdict, with the paper's Table 1."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+from conftest import REPO
+
+SCREEN_LINES, SCREEN_COLUMNS = 60, 120
+
+
+def test_make_demo_prints_one_screen_with_table_1_beside_ours(tmp_path: Path, url: str) -> None:
+    out = tmp_path / "demo"
+    done = subprocess.run(["make", "--no-print-directory", "demo", f"DEMO_ARGS=--url {url} --out {out}"],
+                          cwd=REPO, capture_output=True, text=True, timeout=300)
+    lines = done.stdout.replace(str(out), "runs/servo-20261202-101010").splitlines()  # a user's run path
+    assert done.returncode in (0, 1, 3), done.stdout + done.stderr   # the verdict is the run's, judged below
+    assert len(lines) <= SCREEN_LINES, done.stdout
+    assert max(map(len, lines)) <= SCREEN_COLUMNS, done.stdout
+    verdict = next(line for line in lines if line.startswith("servo, run "))
+    assert "FATAL FLAW" not in verdict or done.returncode == 3, done.stdout
+    table_1 = next(i for i, line in enumerate(lines) if "the paper's Table 1 beside this run" in line)
+    assert table_1 < SCREEN_LINES // 2, done.stdout   # on the first screen
+    assert (out / "report.json").is_file() and f"skel report {out} --all" in done.stdout
