@@ -20,6 +20,12 @@ CONTRACT := lcmtypes/contract.txt
 GEN_C    := $(patsubst lcmtypes/%.lcm,$(GEN)/c/skelmsg_%.c,$(LCMTYPES)) $(GEN)/c/skelmsg_check.c
 GEN_H    := $(GEN)/c/skelmsg_contract.h
 
+# V=1 prints every command; by default each build step is one short line, so that `make demo`
+# on a fresh clone stays one screen.
+V   ?= 0
+Q   := $(if $(filter 1,$(V)),,@)
+say  = $(if $(Q),@echo "  $(1)",@:)
+
 CC      ?= gcc
 CFLAGS  ?= -O2 -g
 WARN    := -std=c11 -D_GNU_SOURCE -Wall -Wextra -Werror
@@ -55,37 +61,44 @@ endef
 $(STAMP): pyproject.toml $(GEN)/python/skelmsg/__init__.py
 	@ldconfig -p | grep -q 'libglib-2.0.so.0' || { $(call need_deb,libglib2.0-0); }
 	@[ -x $(PY) ] || $(PYTHON3) -m venv $(VENV) 2>/dev/null || { rm -rf $(VENV); $(call need_deb,python3-venv); $(PYTHON3) -m venv $(VENV); }
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[dev]'
+	$(call say,PIP   $(VENV))
+	$(Q)$(PY) -m pip install -q --upgrade pip
+	$(Q)$(PY) -m pip install -q -e '.[dev]'
 	@touch $@
 
 # lcm-gen comes from the wheel, so the wheel is installed before the package itself.
 $(VENV)/.lcm:
 	@ldconfig -p | grep -q 'libglib-2.0.so.0' || { $(call need_deb,libglib2.0-0); }
 	@[ -x $(PY) ] || $(PYTHON3) -m venv $(VENV) 2>/dev/null || { rm -rf $(VENV); $(call need_deb,python3-venv); $(PYTHON3) -m venv $(VENV); }
-	$(PY) -m pip install -q "$$(grep -o 'lcm==[0-9.]*' pyproject.toml)"
+	$(call say,PIP   $(VENV))
+	$(Q)$(PY) -m pip install -q "$$(grep -o 'lcm==[0-9.]*' pyproject.toml)"
 	@touch $@
 
 # --- generated types (never committed, never edited) -----------------------------
 # skelmsg.contract first: __init__.py, the target, is written last, so a failure leaves no target.
 $(GEN)/python/skelmsg/__init__.py: $(LCMTYPES) $(CONTRACT) lcmtypes/contractgen.py | $(VENV)/.lcm
 	@rm -rf $(GEN)/python $(GEN)/java && mkdir -p $(GEN)/python $(GEN)/java
-	$(PY) lcmtypes/contractgen.py --python $(GEN)/python/skelmsg $(CONTRACT)
-	$(LCMGEN) -p --ppath $(GEN)/python -j --jpath $(GEN)/java $(LCMTYPES)
+	$(call say,GEN   $(GEN)/python)
+	$(Q)$(PY) lcmtypes/contractgen.py --python $(GEN)/python/skelmsg $(CONTRACT)
+	$(call say,LCMGEN $(GEN)/python $(GEN)/java)
+	$(Q)$(LCMGEN) -p --ppath $(GEN)/python -j --jpath $(GEN)/java $(LCMTYPES)
 
 $(GEN)/c/skelmsg_%.c: lcmtypes/%.lcm | $(VENV)/.lcm
 	@mkdir -p $(GEN)/c
-	$(LCMGEN) -c --c-cpath $(GEN)/c --c-hpath $(GEN)/c $<
+	$(call say,LCMGEN $@)
+	$(Q)$(LCMGEN) -c --c-cpath $(GEN)/c --c-hpath $(GEN)/c $<
 
 # Length checks run before lcm-gen's decoders, which trust array lengths.
 $(GEN)/c/skelmsg_check.c: lcmtypes/checkgen.py $(LCMTYPES) | $(VENV)/.lcm
 	@mkdir -p $(GEN)/c
-	$(PY) lcmtypes/checkgen.py --out $(GEN)/c $(LCMTYPES)
+	$(call say,GEN   $@)
+	$(Q)$(PY) lcmtypes/checkgen.py --out $(GEN)/c $(LCMTYPES)
 
 # Channel names, the default URL and the limits (lcmtypes/contract.txt), for C.
 $(GEN_H): lcmtypes/contractgen.py $(CONTRACT) | $(VENV)/.lcm
 	@mkdir -p $(GEN)/c
-	$(PY) lcmtypes/contractgen.py --c $(GEN)/c $(CONTRACT)
+	$(call say,GEN   $@)
+	$(Q)$(PY) lcmtypes/contractgen.py --c $(GEN)/c $(CONTRACT)
 
 # --- the DPU daemon ------------------------------------------------------------------
 # libsodium computes the HMACs of signed control (dpu/seal.c).
@@ -95,7 +108,8 @@ $(SODIUM):
 	@mkdir -p $(BUILD) && touch $@
 
 $(BUILD)/skel-dpu: $(DPU_SRC) $(DPU_HDR) $(GEN_C) $(GEN_H) | $(STAMP) $(SODIUM)
-	$(CC) $(WARN) $(CFLAGS) $(INC) -o $@ $(DPU_SRC) $(GEN_C) $(LIBS)
+	$(call say,CC    $@)
+	$(Q)$(CC) $(WARN) $(CFLAGS) $(INC) -o $@ $(DPU_SRC) $(GEN_C) $(LIBS)
 
 # The same daemon under AddressSanitizer and UBSan, for the tests. dpu/ and the generated
 # code are compiled once (build/asan/obj) and linked into the daemon and every C unit test:
@@ -108,21 +122,26 @@ ASAN_OBJS  = $(patsubst %.c,$(ASAN_OBJ)/%.o,$(DPU_LIB))
 
 $(ASAN_OBJ)/%.o: dpu/%.c $(DPU_HDR) $(GEN_H) $(GEN_C) | $(STAMP) $(SODIUM)
 	@mkdir -p $(@D)
-	$(CC) $(WARN) -O1 -g $(SAN) $(INC) -c -o $@ $<
+	$(call say,CC    $@)
+	$(Q)$(CC) $(WARN) -O1 -g $(SAN) $(INC) -c -o $@ $<
 
 $(ASAN_OBJ)/%.o: $(GEN)/c/%.c $(GEN_C) | $(STAMP)
 	@mkdir -p $(@D)
-	$(CC) $(WARN) -O1 -g $(SAN) $(INC) -c -o $@ $<
+	$(call say,CC    $@)
+	$(Q)$(CC) $(WARN) -O1 -g $(SAN) $(INC) -c -o $@ $<
 
 $(BUILD)/asan/skel-dpu: $(ASAN_OBJ)/main.o $(ASAN_OBJS)
-	$(CC) $(SAN) -o $@ $^ $(LIBS)
+	$(call say,CC    $@)
+	$(Q)$(CC) $(SAN) -o $@ $^ $(LIBS)
 
 $(BUILD)/asan/test_%: tests/c/test_%.c tests/c/check.h $(ASAN_OBJS)
-	$(CC) $(WARN) -O1 -g $(SAN) $(INC) -Itests/c -o $@ $< $(ASAN_OBJS) $(LIBS)
+	$(call say,CC    $@)
+	$(Q)$(CC) $(WARN) -O1 -g $(SAN) $(INC) -Itests/c -o $@ $< $(ASAN_OBJS) $(LIBS)
 
 # Hostile traffic for the flood test and `make bench` (tests/flood/flood.c).
 $(BUILD)/flood: tests/flood/flood.c $(GEN_C) | $(STAMP)
-	$(CC) $(WARN) -O2 $(INC) -o $@ $< $(filter-out $(GEN)/c/skelmsg_check.c,$(GEN_C)) $(LIBS)
+	$(call say,CC    $@)
+	$(Q)$(CC) $(WARN) -O2 $(INC) -o $@ $< $(filter-out $(GEN)/c/skelmsg_check.c,$(GEN_C)) $(LIBS)
 
 # --- what users run ----------------------------------------------------------------
 # DEMO_ARGS: e.g. a private --url and --out, as the test of the demo gives.
@@ -167,14 +186,17 @@ fuzz-tools:
 
 $(FUZZ_DIR)/obj/%.o: dpu/%.c $(DPU_HDR) $(GEN_H) $(GEN_C) | fuzz-tools $(STAMP)
 	@mkdir -p $(@D)
-	$(FUZZ_CC) $(WARN) -O1 -g -fsanitize=fuzzer-no-link $(FUZZ_SAN) $(INC) -c -o $@ $<
+	$(call say,CLANG $@)
+	$(Q)$(FUZZ_CC) $(WARN) -O1 -g -fsanitize=fuzzer-no-link $(FUZZ_SAN) $(INC) -c -o $@ $<
 
 $(FUZZ_DIR)/obj/%.o: $(GEN)/c/%.c $(GEN_C) | fuzz-tools $(STAMP)
 	@mkdir -p $(@D)
-	$(FUZZ_CC) $(WARN) -O1 -g -fsanitize=fuzzer-no-link $(FUZZ_SAN) $(INC) -c -o $@ $<
+	$(call say,CLANG $@)
+	$(Q)$(FUZZ_CC) $(WARN) -O1 -g -fsanitize=fuzzer-no-link $(FUZZ_SAN) $(INC) -c -o $@ $<
 
 $(FUZZ_DIR)/fuzz_%: tests/fuzz/fuzz_%.c tests/fuzz/fuzz.c tests/fuzz/fuzz.h tests/c/fixture.h $(FUZZ_OBJS) | fuzz-tools
-	$(FUZZ_CC) $(WARN) -O1 -g -fsanitize=fuzzer $(FUZZ_SAN) $(INC) -Itests/fuzz -Itests/c -o $@ \
+	$(call say,CLANG $@)
+	$(Q)$(FUZZ_CC) $(WARN) -O1 -g -fsanitize=fuzzer $(FUZZ_SAN) $(INC) -Itests/fuzz -Itests/c -o $@ \
 	  $< tests/fuzz/fuzz.c $(FUZZ_OBJS) $(LIBS)
 
 # Each harness: the regressions replayed once (a file that crashes fails at once), then
