@@ -63,7 +63,7 @@ $(STAMP): pyproject.toml $(GEN)/python/skelmsg/__init__.py
 	@[ -x $(PY) ] || $(PYTHON3) -m venv $(VENV) 2>/dev/null || { rm -rf $(VENV); $(call need_deb,python3-venv); $(PYTHON3) -m venv $(VENV); }
 	$(call say,PIP   $(VENV))
 	$(Q)$(PY) -m pip install -q --upgrade pip
-	$(Q)$(PY) -m pip install -q -e '.[dev]'
+	$(Q)$(PY) -m pip install $(if $(Q),-qq,-q) -e '.[dev]'
 	@touch $@
 
 # lcm-gen comes from the wheel, so the wheel is installed before the package itself.
@@ -85,13 +85,12 @@ $(GEN)/python/skelmsg/__init__.py: $(LCMTYPES) $(CONTRACT) lcmtypes/contractgen.
 
 $(GEN)/c/skelmsg_%.c: lcmtypes/%.lcm | $(VENV)/.lcm
 	@mkdir -p $(GEN)/c
-	$(call say,LCMGEN $@)
 	$(Q)$(LCMGEN) -c --c-cpath $(GEN)/c --c-hpath $(GEN)/c $<
 
 # Length checks run before lcm-gen's decoders, which trust array lengths.
 $(GEN)/c/skelmsg_check.c: lcmtypes/checkgen.py $(LCMTYPES) | $(VENV)/.lcm
 	@mkdir -p $(GEN)/c
-	$(call say,GEN   $@)
+	$(call say,GEN   $(GEN)/c)
 	$(Q)$(PY) lcmtypes/checkgen.py --out $(GEN)/c $(LCMTYPES)
 
 # Channel names, the default URL and the limits (lcmtypes/contract.txt), for C.
