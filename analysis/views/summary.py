@@ -103,7 +103,8 @@ def dpu_summary_table(report: RunReport) -> Any:
 
 def fault_lines(faults: Sequence[Fault]) -> list[str]:
     """The faults: fatal and failing ones named (FAULT_LINES at most, first), the platform's counted."""
-    named = [f for f in faults if f.fatal or f.kind in FAILED_KINDS]
+    # A jam names the chain back to its root cause: it leads, before the lockouts it explains.
+    named = sorted((f for f in faults if f.fatal or f.kind in FAILED_KINDS), key=lambda f: f.kind != "jam")
     lines = [fault_line(f) for f in named[:FAULT_LINES]]
     if len(named) > FAULT_LINES:
         lines.append(f"... and {len(named) - FAULT_LINES} more such faults")

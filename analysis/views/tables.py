@@ -101,7 +101,9 @@ def paper_table(report: RunReport, paper: dict[Any, Any], window: WindowReport |
         def theirs(key: str, digits: int = 1, ref: dict[str, Any] = ref) -> str:
             return num(ref.get(key), digits)
 
-        delta = None if ref.get("compute_pct") is None else d.compute_pct - ref["compute_pct"]
+        # a DPU with no measured cycle (its warm-up outlasted the run) has no figure to compare
+        delta = None if ref.get("compute_pct") is None or d.compute_pct is None \
+            else d.compute_pct - ref["compute_pct"]
         rows.append([
             str(d.id), theirs("cycle_ms", 2), num(d.measured_cycle_ms, 2),
             theirs("compute_pct"), num(d.compute_pct), signed(delta),

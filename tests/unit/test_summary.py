@@ -66,6 +66,24 @@ def test_a_fatal_fault_leads_the_verdict_and_is_named(tmp_path: Path) -> None:
     assert "lockout: p1 (DPU 1) at cycle 7, waiting on b from p2; not completed by 0.500 s" in _printed(rep)
 
 
+def test_a_jam_leads_the_lockouts_it_explains() -> None:
+    lockouts = [Fault(kind="lockout", process=f"p{i}", dpu=1, cycle=i, detail="x") for i in range(6)]
+    jam = Fault(kind="jam", chain=["p5", "p0"], detail="DPU 1 overloaded")
+    lines = fault_lines([*lockouts, jam])
+    assert lines[0] == "jam: p5 -> p0: DPU 1 overloaded"
+    assert lines[1:] == ["lockout: p0 (DPU 1) at cycle 0, x", "lockout: p1 (DPU 1) at cycle 1, x",
+                         "lockout: p2 (DPU 1) at cycle 2, x", "... and 3 more such faults"]
+
+
+def test_the_paper_table_takes_a_dpu_with_no_measured_cycle(tmp_path: Path) -> None:
+    """DPU 4's warm-up can outlast a short run: no % compute measured, no delta, no crash."""
+    rep = _report(tmp_path)
+    rep = dataclasses.replace(rep, dpus=[dataclasses.replace(rep.dpus[0], compute_pct=None), *rep.dpus[1:]])
+    paper = {d.id: {"cycle_ms": 5.0, "compute_pct": 50.0, "communicate_pct": 9.0, "wait_pct": 1.0}
+             for d in rep.dpus}
+    assert any("the paper's Table 1 beside this run" in line for line in _printed(rep, paper=paper))
+
+
 def test_the_platforms_faults_are_counted_not_listed() -> None:
     stalls = [Fault(kind="stall", dpus=[1], duration_ms=ms) for ms in (6.0, 9.5)]
     stalls.append(Fault(kind="stall", dpus=[1, 2], duration_ms=4.0, count=12))  # the short ones
