@@ -34,8 +34,11 @@ def _sources() -> types.SimpleNamespace:
     from skeleton.analysis.measure import columns, report
     from skeleton.host import schema
     from skeleton.host.cli import build_parser
+    from skeleton.host.predict import predict
+    from skeleton.host.system import load
     return types.SimpleNamespace(system_spec=schema.SystemSpec, build_parser=build_parser,
-                                 columns=columns, run_report=report.RunReport, exitcodes=exitcodes)
+                                 columns=columns, run_report=report.RunReport, exitcodes=exitcodes,
+                                 load_system=load, predict=predict)
 
 
 def _cell(text: str) -> str:
@@ -210,9 +213,28 @@ def columns(src: types.SimpleNamespace) -> str:
     return "\n".join(out)
 
 
+# --- the reference experiment: the paper's figures beside the prediction -------------------------
+
+def servo_table(src: types.SimpleNamespace) -> str:
+    """examples/servo.yaml's DPUs: the paper's Table 1 (the file's `reference:`) beside what the
+    prediction says a run will measure, both from the file, so no figure is typed here."""
+    system = src.load_system(REPO / "examples" / "servo.yaml")
+    prediction = src.predict(system)
+    paper = system.reference.dpus
+    out = [f"From `examples/servo.yaml` ({system.reference.source}) and its prediction:", "",
+           "| DPU | cycle ms | processes | % compute (paper) | % communicate (paper) | % compute predicted |",
+           "|---|---|---|---|---|---|"]
+    for dpu in prediction.dpus:
+        names = ", ".join(p.name for p in system.processes_on(dpu.id))
+        row = paper[dpu.id]
+        out.append(f"| {dpu.id} | {dpu.minor_cycle_us / 1000:g} | {names} | {row.compute_pct:.1f} | "
+                   f"{row.communicate_pct:.1f} | {dpu.compute_pct:.1f} |")
+    return "\n".join(out) + "\n"
+
+
 GENERATORS: dict[str, Callable[[types.SimpleNamespace], str]] = {
     "system-file": system_file, "cli": cli, "exit-codes": exit_codes,
-    "report-json": report_json, "columns": columns,
+    "report-json": report_json, "columns": columns, "servo-table": servo_table,
 }
 
 
