@@ -4,7 +4,9 @@ A fenced block tagged `sh` is commands to run, each of which must succeed; one t
 `console` is `$ command` lines, each followed by lines of what it prints: of those, the lines
 without a digit (headers, verdict words) must appear in its output, whatever its exit status;
 lines with figures (times, percentages) are what one run printed and are not compared. A block
-whose title starts with `several machines` needs a lab and is listed, not run.
+whose title starts with `several machines` needs a lab and is listed, not run; one whose
+title is `on MACHINE[, MACHINE and MACHINE]` or `on every machine` is a step of the lab
+tutorial, run on namespaces standing for those machines (test_lab_tutorial.py).
 """
 
 from __future__ import annotations
@@ -16,6 +18,8 @@ from pathlib import Path
 FENCE = re.compile(r"^```(sh|console)([^\n]*)\n(.*?)^```[ \t]*$", re.MULTILINE | re.DOTALL)
 TITLE = re.compile(r'title="([^"]*)"')
 NOT_HERE = "several machines"
+MACHINE = re.compile(r"\brt-[a-z]\b")
+EVERY_MACHINE = "on every machine"
 
 
 @dataclass
@@ -34,7 +38,19 @@ class Block:
 
     @property
     def runs_here(self) -> bool:
-        return not self.title.startswith(NOT_HERE)
+        """Run on this machine, in one namespace (not a lab's step, not a lab's set-up)."""
+        return not self.title.startswith((NOT_HERE, "on "))
+
+    @property
+    def not_run(self) -> bool:
+        """Shown, never run: it needs real machines (installing, systemd, copying a key)."""
+        return self.title.startswith(NOT_HERE)
+
+    def machines(self, every: list[str]) -> list[str]:
+        """The lab machines a step runs on ([] for a block that is not a lab step)."""
+        if self.title == EVERY_MACHINE:
+            return every
+        return MACHINE.findall(self.title) if self.title.startswith("on ") else []
 
     def commands(self) -> list[Command]:
         if self.kind == "sh":
