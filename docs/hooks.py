@@ -232,9 +232,15 @@ def servo_table(src: types.SimpleNamespace) -> str:
     return "\n".join(out) + "\n"
 
 
+def bench_summary(src: types.SimpleNamespace) -> str:
+    """The summary of the `make bench` run committed to bench/results/, as it wrote it."""
+    return "```text\n" + (REPO / "bench" / "results" / "summary.txt").read_text().rstrip() + "\n```\n"
+
+
 GENERATORS: dict[str, Callable[[types.SimpleNamespace], str]] = {
     "system-file": system_file, "cli": cli, "exit-codes": exit_codes,
     "report-json": report_json, "columns": columns, "servo-table": servo_table,
+    "bench-summary": bench_summary,
 }
 
 
