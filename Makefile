@@ -38,7 +38,7 @@ SAN     := -fsanitize=address,undefined -fno-sanitize=nonnull-attribute -fno-omi
 
 C_TESTS := $(patsubst tests/c/%.c,$(BUILD)/asan/%,$(wildcard tests/c/test_*.c))
 
-.PHONY: all demo test test-c test-py test-tools test-fuzz fuzz fuzz-tools lint bench soak spy clean distclean
+.PHONY: all demo test test-c test-py test-tools test-fuzz fuzz fuzz-tools lint docs bench soak spy clean distclean
 
 all: $(BUILD)/skel-dpu
 
@@ -227,7 +227,13 @@ fuzz: $(FUZZ_BINS) $(STAMP)
 	  tests/test_system_properties.py tests/test_logreader_properties.py tests/test_stats_properties.py
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check skeleton host analysis tests lcmtypes bench examples
+	$(VENV)/bin/ruff check skeleton host analysis tests lcmtypes bench examples docs
+
+# The documentation site (MkDocs, Material): warnings are errors, and the reference pages are
+# generated from the code as it builds (docs/hooks.py). `make test` builds it too
+# (tests/docs/test_site.py) and runs the shell blocks of the tutorial and how-to pages.
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --site-dir $(BUILD)/site
 
 # cyclictest is the wake-up baseline (Debian rt-tests).
 bench: $(BUILD)/skel-dpu $(BUILD)/flood $(STAMP)

@@ -41,12 +41,14 @@ DEFAULT_RUN_CYCLES = 2000               # when the file gives neither cycles nor
 # --- field types ---------------------------------------------------------------------------
 
 def _id(v: int) -> int:
+    """from 1 to 32767 (ids travel as int16)"""
     if not 1 <= v <= MAX_ID:
         raise ValueError(f"must be an id from 1 to {MAX_ID}, got {v}")
     return v
 
 
 def _micros(v: int) -> int:
+    """positive, at most 2^31 - 1 us"""
     if v <= 0:
         raise ValueError(f"must be a positive number of microseconds, got {v}")
     if v > MAX_INT32:
@@ -55,6 +57,7 @@ def _micros(v: int) -> int:
 
 
 def _compute_us(v: int) -> int:
+    """0 (a relay) or positive, at most 2^31 - 1 us"""
     # 0 models a process that only communicates (a relay), and measures the executive's own cost.
     if v < 0:
         raise ValueError(f"must be 0 or more microseconds, got {v}")
@@ -62,6 +65,7 @@ def _compute_us(v: int) -> int:
 
 
 def _period(v: int) -> int:
+    """positive, at most the contract's MAX_PERIOD_US"""
     # The DPU refuses a longer period (config.c): said here, before anything runs.
     v = _micros(v)
     if v > contract.MAX_PERIOD_US:
@@ -71,6 +75,7 @@ def _period(v: int) -> int:
 
 
 def _bytes(v: int) -> int:
+    """positive, at most the contract's MAX_BUFFER_BYTES (4 MiB)"""
     if v <= 0:
         raise ValueError(f"must be a positive number of bytes, got {v}")
     if v > contract.MAX_BUFFER_BYTES:  # beyond this a "buffer" is a file transfer
@@ -94,6 +99,7 @@ def name_problem(v: str) -> str:
 
 
 def _name(v: str) -> str:
+    """letters, digits and _, not starting with a digit; at most the contract's MAX_NAME characters"""
     problem = name_problem(v)
     if problem:
         raise ValueError(problem)
@@ -101,6 +107,7 @@ def _name(v: str) -> str:
 
 
 def _ref(v: Any) -> int | str:
+    """a buffer id or name"""
     if isinstance(v, bool) or not isinstance(v, int | str):
         raise ValueError(f"must be a buffer id or name, got {show(v)}")
     return v
@@ -114,6 +121,7 @@ def _between(low: int, high: int, unit: str = "") -> Any:
         if v > high:
             raise ValueError(f"must be at most {high}{unit}, got {v}")
         return v
+    check.__doc__ = f"from {low} to {high}{unit}"
     return AfterValidator(check)
 
 
@@ -122,6 +130,7 @@ def _at_least_items(n: int) -> Any:
         if len(v) < n:
             raise ValueError(f"needs at least {n} item(s)")
         return v
+    check.__doc__ = f"at least {n} item(s)"
     return AfterValidator(check)
 
 
@@ -130,16 +139,19 @@ def _at_most_items(n: int) -> Any:
         if len(v) > n:
             raise ValueError(f"takes at most {n} item(s), got {len(v)}")
         return v
+    check.__doc__ = f"at most {n} item(s)"
     return AfterValidator(check)
 
 
 def _nonempty(v: str) -> str:
+    """not empty"""
     if not v.strip():
         raise ValueError("must not be empty")
     return v
 
 
 def _positive(v: float) -> float:
+    """a positive finite number"""
     if not (math.isfinite(v) and v > 0):
         raise ValueError(f"must be a positive number, got {show(v)}")
     return v
@@ -151,6 +163,7 @@ def _within(low: float, high: float) -> Any:
         if not low <= v <= high:
             raise ValueError(f"must be from {low:g} to {high:g}, got {show(v)}")
         return v
+    check.__doc__ = f"from {low:g} to {high:g}"
     return AfterValidator(check)
 
 
@@ -166,15 +179,22 @@ NonEmpty = Annotated[str, AfterValidator(_nonempty)]
 
 class _Spec(BaseModel):
     # strict: a quoted "5000" or a `yes` is a mistake to report, not to coerce.
-    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+    # use_attribute_docstrings: the string under a field is its description, which the
+    # documentation's system-file reference prints (docs/hooks.py).
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True, use_attribute_docstrings=True)
 
 
 # --- the schema ----------------------------------------------------------------------------
 
 class LinkSpec(_Spec):
     name: Name
+    """The link's name, which buffers and DPUs refer to."""
     url: str
-    bandwidth_mbps: Positive | None = None   # what the link carries, for `skel check`'s traffic warning
+    """`local` (in-process memory: writer and readers on one DPU) or an `udpm://` URL. The first link's URL
+    is the control URL; each process writing to the link gets the next multicast group and port after
+    it. `ttl=0` never leaves the machine, `ttl=1` for a lab."""
+    bandwidth_mbps: Positive | None = None
+    """What the link carries, in Mbit/s: `skel check` warns when its buffers need more."""
 
     @field_validator("url")
     @classmethod
@@ -197,23 +217,41 @@ class LinkSpec(_Spec):
 
 class DpuSpec(_Spec):
     id: Id
+    """The DPU's id, unique in the system."""
     host: NonEmpty = "localhost"
+    """The machine it runs on: `skel-dpu --id auto` on a host picks the DPU with its host name; `skel up`
+    and `--spawn` start the DPUs whose host is `localhost` or this machine's name."""
     cpu: Annotated[int, _between(0, MAX_ID)] | None = None
+    """Pin the executive thread to this CPU (a DPU refuses one its host lacks; `skel run` on that host
+    keeps its own work off it)."""
     compute: Literal["sleep", "wall", "cpu", "work"] = "sleep"
+    """How a computation is emulated: `sleep` (the DPU sleeps for it; a processor of its own), `wall`
+    (spins on the wall clock), `cpu` (spins on the thread's CPU clock), `work` (a calibrated number of
+    iterations)."""
     executive: Literal["cyclic", "threads"] = "cyclic"
+    """`cyclic` (the paper's procedural model: processes in order in each minor cycle) or `threads` (the
+    tasking executive: fixed-priority preemptive)."""
     speed: Annotated[Positive, _within(contract.MIN_SPEED, contract.MAX_SPEED)] = 1.0
+    """Speed factor: every compute time on this DPU is divided by it."""
     minor_cycle_us: Micros | None = None
+    """The DPU's minor cycle; default: the gcd of its processes' periods. At least 100 us."""
     links: list[Name] | None = None
+    """The links this DPU can reach; default: every link."""
 
 
 class BufferSpec(_Spec):
     id: Id
+    """The buffer's id, unique in the system."""
     name: Name
+    """The buffer's name (it names an LCM channel)."""
     bytes: Bytes
+    """The dummy buffer's size."""
     link: Name | None = None
+    """The link it travels on; default: the first udpm link."""
 
 
 def _not_negative(v: float) -> float:
+    """0 or more us"""
     if not (math.isfinite(v) and v >= 0):
         raise ValueError(f"must be a number of microseconds, at least 0, got {show(v)}")
     return v
@@ -222,11 +260,18 @@ def _not_negative(v: float) -> float:
 class ComputeSpec(_Spec):
     """A compute time that varies, in us: a distribution within [min, max], or measured samples."""
     dist: Literal["uniform", "normal", "lognormal", "exponential"] | None = None
-    samples: NonEmpty | None = None          # a CSV of compute times in us, beside the system file
+    """The distribution the compute time is drawn from (give `dist` or `samples`)."""
+    samples: NonEmpty | None = None
+    """A CSV of compute times measured on real code, in us, one per line (a header line is allowed), beside
+    the system file."""
     mean: Positive | None = None
+    """The mean of the time itself (normal, lognormal, exponential)."""
     sd: Positive | None = None
+    """The standard deviation of the time itself (normal, lognormal)."""
     min: Annotated[float, AfterValidator(_not_negative)] | None = None
+    """The smallest time drawn (default 0)."""
     max: Positive | None = None
+    """The largest time drawn: the worst case, which the prediction uses."""
 
     @model_validator(mode="after")
     def _parameters(self) -> ComputeSpec:
@@ -269,31 +314,59 @@ Compute = Annotated[
 
 class ProcessSpec(_Spec):
     id: Id
+    """The process's id, unique in the system."""
     name: Name
+    """The process's name."""
     dpu: Id
-    period_us: Period       # sync: event: the least time between two of its cycles
+    """The DPU it runs on."""
+    period_us: Period
+    """Its period, a multiple of its DPU's minor cycle (`sync: event`: the least time between two of its
+    cycles)."""
     compute_us: Compute
+    """The emulated computation per cycle, in us (0: a relay that only communicates), or how it varies: a
+    distribution or measured samples."""
     sync: Literal["periodic", "data", "event"] = "periodic"
+    """What starts a cycle: `periodic` (every period), `data` (released every period, then waits for new
+    data on its `required` inputs), `event` (one cycle per event it awaits)."""
     inputs: list[Ref] = []
+    """The buffers it reads, by name or id."""
     required: list[Ref] | None = None
+    """`sync: data` only: the inputs it waits for; default: all inputs."""
     outputs: list[Ref] = []
+    """The buffers it writes; each buffer has exactly one writer."""
     order: Annotated[int, _between(1, MAX_ID)] | None = None
-    priority: Annotated[int, _between(1, contract.MAX_PRIORITY)] | None = None  # tasking executive
-    event: Name | None = None                                                 # sync: event
-    queue: Annotated[int, _between(1, contract.MAX_QUEUE)] | None = None      # sync: event
+    """Its position in its DPU's minor cycle; default: file order."""
+    priority: Annotated[int, _between(1, contract.MAX_PRIORITY)] | None = None
+    """`executive: threads` only: 1..99, higher first; default rate-monotonic. Either every process of a
+    tasking DPU gives one or none does."""
+    event: Name | None = None
+    """`sync: event` only: the event it awaits."""
+    queue: Annotated[int, _between(1, contract.MAX_QUEUE)] | None = None
+    """`sync: event` only: how many waiting events it keeps (1: only the newest; N: up to N, oldest first);
+    default 1."""
     emits: Annotated[list[Name], _at_most_items(contract.MAX_EMITS)] = []
+    """Events it fires at the end of each of its cycles, after its outputs."""
 
 
 class EventSpec(_Spec):
     """A named event's source: the host (`skel event NAME`) or a generator a DPU runs."""
     name: Name
+    """The event's name (it names an LCM channel)."""
     kind: Literal["host", "periodic", "poisson", "bursts"]
-    dpu: Id | None = None                       # the generating DPU
-    period_us: Micros | None = None             # periodic; bursts: between burst starts
-    jitter_us: Annotated[int, _between(0, MAX_INT32, " us")] | None = None   # periodic
-    rate_hz: Annotated[Positive, _within(contract.MIN_RATE_HZ, contract.MAX_RATE_HZ)] | None = None  # poisson
-    count: Annotated[int, _between(1, MAX_INT32)] | None = None              # bursts
-    spacing_us: Micros | None = None            # bursts
+    """Its source: `host` (sent by `skel event NAME`) or a generator the DPU `dpu` runs: `periodic`,
+    `poisson` or `bursts`."""
+    dpu: Id | None = None
+    """The DPU that generates it (every kind but `host`)."""
+    period_us: Micros | None = None
+    """`periodic`: between events; `bursts`: between burst starts."""
+    jitter_us: Annotated[int, _between(0, MAX_INT32, " us")] | None = None
+    """`periodic`: each event moved by a uniform draw in +-jitter_us (below half the period)."""
+    rate_hz: Annotated[Positive, _within(contract.MIN_RATE_HZ, contract.MAX_RATE_HZ)] | None = None
+    """`poisson`: the mean rate (exponential gaps)."""
+    count: Annotated[int, _between(1, MAX_INT32)] | None = None
+    """`bursts`: events in a burst."""
+    spacing_us: Micros | None = None
+    """`bursts`: between the events of a burst."""
 
     @model_validator(mode="after")
     def _parameters(self) -> EventSpec:
@@ -322,14 +395,23 @@ class EventSpec(_Spec):
 
 class Run(_Spec):
     """The run: its length, warm-up, lockout rule and when to stop early."""
-    cycles: Annotated[int, _between(1, MAX_INT32, " cycle")] | None = None   # of the critical period
+    cycles: Annotated[int, _between(1, MAX_INT32, " cycle")] | None = None
+    """Run length, in cycles of the shortest period (or give `duration_s`; neither: 2000 cycles)."""
     duration_s: Positive | None = None
+    """Run length in seconds (or give `cycles`)."""
     warmup_cycles: Annotated[int, _between(0, MAX_INT32)] = 50
+    """Cycles of each DPU's slowest process excluded from every measure."""
     lockout_cycles: Annotated[int, _between(1, MAX_INT32, " cycle")] = 10
+    """A cycle not completed this many periods after its release is a lockout."""
     stop_on: list[Literal["lockout", "jam", "behind", "stall", "dpu_lost"]] = ["lockout"]
+    """Faults that end the run early, one lockout window (lockout_cycles x the longest period, at most 1 s)
+    after the first."""
     late_pct: Annotated[int, _between(1, MAX_INT32, " %")] = 20
+    """Lateness (start - the schedule's start) above this % of the period is late."""
     too_late_pct: Annotated[int, _between(1, MAX_INT32, " %")] = 100
-    seed: Annotated[int, _between(0, 2**63 - 1)] = 1   # every random draw of a run (varying compute)
+    """... and above this % is too late (at least `late_pct`)."""
+    seed: Annotated[int, _between(0, 2**63 - 1)] = 1
+    """Every random draw of a run (varying compute, generated events): same seed, same draws."""
 
     @model_validator(mode="after")
     def _consistent(self) -> Run:
@@ -343,7 +425,10 @@ class Run(_Spec):
 
 class ChainSpec(_Spec):
     name: NonEmpty | None = None
+    """The chain's name; default: its processes joined."""
     processes: list[Name]
+    """The end-to-end path, head first: each step reads a buffer the step before writes. A plain list is
+    accepted."""
 
     @model_validator(mode="before")
     @classmethod
@@ -354,28 +439,44 @@ class ChainSpec(_Spec):
 class ReferenceDpu(_Spec):
     """One DPU's row of a published measurement (e.g. the paper's Table 1)."""
     compute_pct: float
+    """Published % compute."""
     communicate_pct: float
+    """Published % communicate."""
     wait_pct: float
-    cycle_ms: float | None = None            # measured cycle
+    """Published % wait."""
+    cycle_ms: float | None = None
+    """Published measured cycle."""
     modeled_cycle_ms: float | None = None
+    """Published modelled cycle."""
 
 
 class Reference(_Spec):
     """Published results to compare a run with (`skel run --compare-paper`); not sent to DPUs."""
     source: str
+    """Where the numbers come from (e.g. `Wheatley & Michaloski 1990, Table 1`)."""
     dpus: dict[int, ReferenceDpu] = {}
+    """Per DPU id, its published row."""
 
 
 class SystemSpec(_Spec):
     system: NonEmpty
+    """The system's name: it names the run directories."""
     links: list[LinkSpec] | None = None
+    """The links; default: one link `bus` on the contract's default URL."""
     dpus: Annotated[list[DpuSpec], _at_least_items(1)]
+    """The processing units."""
     buffers: list[BufferSpec] = []
+    """The dummy buffers between processes."""
     processes: Annotated[list[ProcessSpec], _at_least_items(1)]
+    """The processes (the paper's GCCPs)."""
     run: Run = Run()
+    """How a run goes: its length, warm-up, lockout rule and when to stop early."""
     chains: list[ChainSpec] = []
+    """End-to-end paths whose latency the report measures."""
     events: list[EventSpec] = []
+    """Sources of events besides emitting processes."""
     reference: Reference | None = None
+    """Published numbers to print beside ours (`skel run --compare-paper`); not sent to the DPUs."""
 
     @field_validator("buffers", "chains", "events", "run", mode="before")
     @classmethod

@@ -2,7 +2,7 @@
 and `skel export --parquet` writes, one table per file.
 
 Every column is documented once, in COLUMNS below; the Parquet files carry the same
-text as field metadata and the README's table of columns is this list. Names end in
+text as field metadata, and the documentation's reference is generated from this list. Names end in
 their unit (_ns, _us, _ms, _s, _pct). Times named *_ns are the DPU's CLOCK_MONOTONIC
 unless named *_utc_ns (wall clock, from the DPU's status messages).
 """
@@ -96,7 +96,7 @@ COLUMNS: dict[str, dict[str, str]] = {
     },
 }  # fmt: skip
 # dpus, processes, buffers, chains: the rows of report.json, nested fields joined with "_"
-# (release_latency_us_p99); their columns are documented with report.json in the README.
+# (release_latency_us_p99); their columns are report.json's (the documentation's reference).
 REPORT_TABLES = ("dpus", "processes", "buffers", "chains")
 # A list of rows inside a report row is a table of its own, keyed by its parent's name:
 # table -> (field, the child table's name, parent column, its name in the child).

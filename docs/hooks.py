@@ -1,0 +1,272 @@
+"""MkDocs hook: the reference pages generated from the code that defines them, at build time.
+
+A page under docs/ marks where generated text goes with a line `<!-- generated: NAME -->`;
+NAME is a key of GENERATORS. Nothing generated is committed, so the reference cannot drift
+from the schema, the argument parser or the report's columns. Every import of the project is
+in `_sources()`, the one place to update when a module moves.
+
+The hook also adds to the site what lives outside docs/: bench/README.md (the benchmark
+figures, night by night) and examples/report/*.png (the example plots).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import inspect
+import re
+import types
+import typing
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parent.parent
+MARKER = re.compile(r"^<!-- generated: ([a-z-]+) -->$", re.MULTILINE)
+# Files outside docs/ the site carries: repository path -> path in the site.
+OUTSIDE = {"bench/README.md": "explanation/benchmark-figures.md"} | {
+    f"examples/report/{p.name}": f"img/{p.name}" for p in sorted((REPO / "examples/report").glob("*.png"))}
+
+
+def _sources() -> types.SimpleNamespace:
+    """Every project module the reference is generated from (update here when one moves)."""
+    from skeleton.analysis import exitcodes
+    from skeleton.analysis.measure import columns, report
+    from skeleton.host import schema
+    from skeleton.host.cli import build_parser
+    from skeleton.host.predict import predict
+    from skeleton.host.system import load
+    return types.SimpleNamespace(system_spec=schema.SystemSpec, build_parser=build_parser,
+                                 columns=columns, run_report=report.RunReport, exitcodes=exitcodes,
+                                 load_system=load, predict=predict)
+
+
+def _cell(text: str) -> str:
+    return " ".join(text.split()).replace("|", "\\|")
+
+
+# --- the system file: the pydantic schema ------------------------------------------------------
+
+def _constraints(annotation: Any) -> list[str]:
+    """What the validators in an annotation allow, in their own words (their docstrings)."""
+    found: list[str] = []
+    for arg in typing.get_args(annotation):
+        found += _constraints(arg)
+    for meta in getattr(annotation, "__metadata__", ()):
+        doc = getattr(getattr(meta, "func", None), "__doc__", None)
+        if doc:
+            found.append(doc.strip())
+    return found
+
+
+def _models(annotation: Any) -> Iterator[type]:
+    from pydantic import BaseModel
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        yield annotation
+    for arg in typing.get_args(annotation):
+        yield from _models(arg)
+
+
+def _type(annotation: Any) -> str:
+    """A type as a reader names it: a schema model links to its section, a report row by name."""
+    from pydantic import BaseModel
+    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
+    if origin is typing.Annotated:
+        return _type(args[0])
+    if origin is typing.Literal:
+        return " \\| ".join(f"`{a}`" for a in args)
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_type(a) for a in args if a is not type(None)) + (
+            " or null" if type(None) in args else "")
+    if origin is list:
+        return f"list of {_type(args[0])}"
+    if origin is dict:
+        return f"mapping {_type(args[0])} → {_type(args[1])}"
+    if origin is tuple:
+        return "list"
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return f"[{annotation.__name__}](#{annotation.__name__.lower()})"
+    return getattr(annotation, "__name__", str(annotation))
+
+
+def _annotation(model: type, name: str) -> Any:
+    return typing.get_type_hints(model, include_extras=True)[name]
+
+
+def system_file(src: types.SimpleNamespace) -> str:
+    from pydantic import BaseModel
+    from pydantic_core import PydanticUndefined
+    out, seen, todo = [], set(), [src.system_spec]
+    while todo:
+        model = todo.pop(0)
+        if model in seen:
+            continue
+        seen.add(model)
+        doc = inspect.cleandoc(model.__doc__ or "")
+        out += [f"### {model.__name__}", ""]
+        out += [doc, ""] if doc and not doc.startswith("Usage docs") else []
+        out += ["| field | type | default | constraints | description |", "|---|---|---|---|---|"]
+        for name, info in model.model_fields.items():
+            annotation = _annotation(model, name)
+            if info.default is PydanticUndefined:
+                default = "required"
+            elif isinstance(info.default, BaseModel):
+                default = "its own defaults"
+            else:
+                default = f"`{info.default!r}`"
+            out.append(f"| `{name}` | {_type(annotation)} | {default} | "
+                       f"{_cell('; '.join(_constraints(annotation)))} | {_cell(info.description or '')} |")
+            todo += [m for m in _models(annotation) if m not in seen]
+        out.append("")
+    return "\n".join(out)
+
+
+# --- the command line: argparse ----------------------------------------------------------------
+
+def _subparsers(parser: argparse.ArgumentParser) -> Iterator[tuple[str, str, argparse.ArgumentParser]]:
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            helps = {a.dest: a.help or "" for a in action._choices_actions}
+            for name, sub in action.choices.items():
+                yield name, helps.get(name, ""), sub
+
+
+def _option(action: argparse.Action) -> tuple[str, str]:
+    names = ", ".join(f"`{s}`" for s in action.option_strings) or f"`{action.metavar or action.dest}`"
+    if action.option_strings and action.nargs != 0:
+        names += f" `{action.metavar or action.dest.upper()}`"
+    detail = action.help or ""
+    if action.choices and not isinstance(action, argparse._SubParsersAction):
+        detail += f" (one of {', '.join(map(str, action.choices))})"
+    if action.default not in (None, False, [], argparse.SUPPRESS) and "default" not in detail:
+        detail += f" (default {action.default})"
+    return names, detail
+
+
+def cli(src: types.SimpleNamespace) -> str:
+    parser = src.build_parser()
+    out = [parser.description or "", ""]
+    for name, help_, sub in _subparsers(parser):
+        out += [f"### skel {name}", "", help_, "", "```text", sub.format_usage().strip(), "```", "",
+                "| argument | what it does |", "|---|---|"]
+        for action in sub._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            names, detail = _option(action)
+            out.append(f"| {names} | {_cell(detail)} |")
+        out.append("")
+    return "\n".join(out)
+
+
+def exit_codes(src: types.SimpleNamespace) -> str:
+    """The exit codes, from analysis/exitcodes.py: its names and the comment beside each."""
+    text = Path(src.exitcodes.__file__).read_text()
+    rows = re.findall(r"^(EXIT_\w+) = (\d+)[ \t]*(?:#[ \t]*(.*))?$", text, re.MULTILINE)
+    return "\n".join(["| code | name | meaning |", "|---|---|---|"]
+                     + [f"| {code} | `{name}` | {_cell(why)} |" for name, code, why in rows]) + "\n"
+
+
+# --- report.json and the Python API's tables --------------------------------------------------
+
+def _comments(cls: type) -> dict[str, str]:
+    """The comment beside each field in the class's source: the field's description."""
+    return dict(re.findall(r"^    (\w+): [^#\n]*#\s*(.*)$", inspect.getsource(cls), re.MULTILINE))
+
+
+def _report_rows(cls: type, prefix: str, seen: set[type]) -> Iterator[str]:
+    hints, comments = typing.get_type_hints(cls), _comments(cls)
+    for f in dataclasses.fields(cls):
+        hint = hints[f.name]
+        yield f"| `{prefix}{f.name}` | {_cell(_type(hint))} | {_cell(comments.get(f.name, ''))} |"
+        for inner in _dataclasses(hint):
+            if inner not in seen:
+                seen.add(inner)
+                mark = "[]" if typing.get_origin(hint) is list else ""
+                yield from _report_rows(inner, f"{prefix}{f.name}{mark}.", seen)
+
+
+def _dataclasses(hint: Any) -> Iterator[type]:
+    if dataclasses.is_dataclass(hint) and isinstance(hint, type):
+        yield hint
+    for arg in typing.get_args(hint):
+        yield from _dataclasses(arg)
+
+
+def report_json(src: types.SimpleNamespace) -> str:
+    cls = src.run_report
+    out = [inspect.cleandoc(cls.__doc__ or ""), "", "| field | type | note |", "|---|---|---|"]
+    out += list(_report_rows(cls, "", {cls}))
+    return "\n".join(out) + "\n"
+
+
+def columns(src: types.SimpleNamespace) -> str:
+    out: list[str] = []
+    for table, cols in src.columns.COLUMNS.items():
+        out += [f"### {table}", "", "| column | meaning |", "|---|---|"]
+        out += [f"| `{name}` | {_cell(text)} |" for name, text in cols.items()]
+        out.append("")
+    children = ", ".join(f"`{child}` (the `{field}` of each row of `{parent}`)"
+                         for parent, (field, child, _, _) in src.columns.CHILD_TABLES.items())
+    out += ["### " + ", ".join(src.columns.REPORT_TABLES), "",
+            "report.json's rows of the same names (above), nested fields joined with `_` "
+            f"(`release_latency_us_p99`), histograms left out; and {children}.", ""]
+    return "\n".join(out)
+
+
+# --- the reference experiment: the paper's figures beside the prediction -------------------------
+
+def servo_table(src: types.SimpleNamespace) -> str:
+    """examples/servo.yaml's DPUs: the paper's Table 1 (the file's `reference:`) beside what the
+    prediction says a run will measure, both from the file, so no figure is typed here."""
+    system = src.load_system(REPO / "examples" / "servo.yaml")
+    prediction = src.predict(system)
+    paper = system.reference.dpus
+    out = [f"From `examples/servo.yaml` ({system.reference.source}) and its prediction:", "",
+           "| DPU | cycle ms | processes | % compute (paper) | % communicate (paper) | % compute predicted |",
+           "|---|---|---|---|---|---|"]
+    for dpu in prediction.dpus:
+        names = ", ".join(p.name for p in system.processes_on(dpu.id))
+        row = paper[dpu.id]
+        out.append(f"| {dpu.id} | {dpu.minor_cycle_us / 1000:g} | {names} | {row.compute_pct:.1f} | "
+                   f"{row.communicate_pct:.1f} | {dpu.compute_pct:.1f} |")
+    return "\n".join(out) + "\n"
+
+
+def bench_summary(src: types.SimpleNamespace) -> str:
+    """The summary of the `make bench` run committed to bench/results/, as it wrote it."""
+    return "```text\n" + (REPO / "bench" / "results" / "summary.txt").read_text().rstrip() + "\n```\n"
+
+
+GENERATORS: dict[str, Callable[[types.SimpleNamespace], str]] = {
+    "system-file": system_file, "cli": cli, "exit-codes": exit_codes,
+    "report-json": report_json, "columns": columns, "servo-table": servo_table,
+    "bench-summary": bench_summary,
+}
+
+
+def generate(markdown: str) -> str:
+    """The page with each marker replaced by its generated text (an unknown marker is an error)."""
+    src = _sources()
+
+    def one(m: re.Match[str]) -> str:
+        if m.group(1) not in GENERATORS:
+            raise ValueError(f"unknown generated section {m.group(1)!r}; known: {sorted(GENERATORS)}")
+        return GENERATORS[m.group(1)](src)
+    return MARKER.sub(one, markdown)
+
+
+# --- MkDocs events -------------------------------------------------------------------------------
+
+def on_files(files: Any, config: Any) -> Any:
+    from mkdocs.structure.files import File
+    for source, dest in OUTSIDE.items():
+        path = REPO / source
+        if dest.endswith(".md"):
+            files.append(File.generated(config, dest, content=path.read_text()))
+        else:
+            files.append(File.generated(config, dest, abs_src_path=str(path)))
+    return files
+
+
+def on_page_markdown(markdown: str, page: Any, config: Any, files: Any) -> str:
+    return generate(markdown)
