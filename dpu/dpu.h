@@ -629,7 +629,8 @@ int64_t event_oldest_ns(const skel_process_t *p); /* of the events waiting, INT6
 void event_settle(skel_plan_t *plan, skel_process_t *p, int64_t upto);
 void event_release(skel_plan_t *plan, skel_process_t *p, int64_t release);
 void event_emit(skel_plan_t *plan, const skel_process_t *p, int64_t now_ns);
-void event_carry(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw);
+void event_carry_process(skel_process_t *p, const skel_process_t *o);
+void event_carry_sources(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw);
 void event_generators_begin(skel_plan_t *plan, int64_t t0);
 int event_generators_start(skel_plan_t *plan, int64_t end);
 void event_generators_stop(skel_plan_t *plan);
@@ -640,6 +641,7 @@ int64_t swap_instant(const skel_plan_t *plan, int64_t j_sw);
 void swap_carry(skel_plan_t *next, const skel_plan_t *old, int64_t j_sw);
 int swap_tasking_ready(const skel_plan_t *old, int64_t t_sw);
 void swap_carry_tasking(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw);
+void swap_carry_events(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw);
 
 /* ---- tasking (tasking.c): the tasking executive's one-processor schedule -------- */
 enum { TASK_NONE = 0, TASK_WAITING, TASK_READY, TASK_STARTED };

@@ -210,10 +210,7 @@ static void event_clear(skel_process_t *p)
 
 void event_reset_run(skel_plan_t *plan)
 {
-    for (int i = 0; i < plan->nprocesses; i++) {
-        event_clear(&plan->processes[i]);
-        plan->processes[i].job_release = INT64_MIN / 4; /* the first event is released when it comes */
-    }
+    for (int i = 0; i < plan->nprocesses; i++) event_clear(&plan->processes[i]);
     for (int i = 0; i < plan->nevents; i++) plan->events[i].seq = 0;
     for (int i = 0; i < plan->nsources; i++)
         draw_seed_state(plan->sources[i].state, plan->seed, 0x8000u | (uint64_t)i);
@@ -325,38 +322,37 @@ static void event_source_begin(skel_source_t *g, int64_t t0, int64_t from)
     g->next_ns = event_source_next(g, t0, from);
 }
 
-/* A live switch at T_SW, after the executive's carry (swap.c): NEXT's event processes
- * keep the events waiting for the same process in OLD (and a tasking job it released for
- * one) and count on from its cycles; a generator of the same event, kind and parameters
- * goes on with its draws, another starts at T_SW. Only read from OLD. */
-void event_carry(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
+/* A live switch, after the executive's carry (swap.c, swap_carry_events): event process
+ * P of the next plan keeps the events waiting for the same process O of the old one (NULL:
+ * new here) and counts on from its cycles. Only read from O. */
+void event_carry_process(skel_process_t *p, const skel_process_t *o)
 {
-    for (int i = 0; i < next->nprocesses; i++) {
-        skel_process_t *p = &next->processes[i];
-        event_clear(p);
-        if (p->event < 0) continue; /* the executive's own carry counts its releases */
-        p->next_k = 0;
-        p->job_release = INT64_MIN / 4;
-        int at = plan_process_index(old, p->id);
-        if (at < 0 || old->processes[at].event < 0) { /* a new event process: counts from here */
-            p->k_base = 0;
-            p->measure_from_k = INT64_MAX;
-            continue;
-        }
-        const skel_process_t *o = &old->processes[at];
-        p->k_base = o->k_base + o->next_k;
-        p->measure_from_k = o->measure_from_k;
-        p->job_release = o->job_release;
-        /* a tasking job released for an event and carried over keeps it */
-        p->taken_ns = o->taken_ns;
-        p->taken_left = o->taken_left;
-        p->taken_dropped = o->taken_dropped;
-        for (int n = 0; n < o->q_count && p->q_count < p->queue_cap; n++)
-            p->queue_ns[p->q_count++] = o->queue_ns[(o->q_head + n) % SKEL_MAX_QUEUE];
-        p->q_dropped = o->q_dropped;
-        for (int n = 0; n < o->a_count; n++)
-            p->arrived_ns[p->a_count++] = o->arrived_ns[(o->a_head + n) % SKEL_MAX_QUEUE];
+    event_clear(p);
+    if (p->event < 0) return; /* the executive's own carry counts its releases */
+    p->next_k = 0;
+    if (o == NULL || o->event < 0) { /* a new event process: counts from here */
+        p->k_base = 0;
+        p->measure_from_k = INT64_MAX;
+        return;
     }
+    p->k_base = o->k_base + o->next_k;
+    p->measure_from_k = o->measure_from_k;
+    /* a tasking job released for an event and carried over keeps it */
+    p->taken_ns = o->taken_ns;
+    p->taken_left = o->taken_left;
+    p->taken_dropped = o->taken_dropped;
+    for (int n = 0; n < o->q_count && p->q_count < p->queue_cap; n++)
+        p->queue_ns[p->q_count++] = o->queue_ns[(o->q_head + n) % SKEL_MAX_QUEUE];
+    p->q_dropped = o->q_dropped;
+    for (int n = 0; n < o->a_count; n++)
+        p->arrived_ns[p->a_count++] = o->arrived_ns[(o->a_head + n) % SKEL_MAX_QUEUE];
+}
+
+/* A live switch at T_SW: NEXT's events count their seq afresh; a generator of the same
+ * event, kind and parameters as one of OLD goes on with its draws, another starts at T_SW.
+ * Only read from OLD. */
+void event_carry_sources(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
+{
     for (int i = 0; i < next->nevents; i++) next->events[i].seq = 0;
     for (int i = 0; i < next->nsources; i++) {
         skel_source_t *g = &next->sources[i];

@@ -306,7 +306,7 @@ int executive_switch(skel_exec_t *x, int64_t j_sw, int ran)
     (void)link_drain(old->links, old->nlinks); /* the old slots are complete ... */
     swap_carry(next, old, j_sw);
     if (next->tasking) swap_carry_tasking(next, old, swap_instant(old, j_sw)); /* its jobs */
-    event_carry(next, old, swap_instant(old, j_sw)); /* event processes count their events */
+    swap_carry_events(next, old, swap_instant(old, j_sw)); /* event processes count their events */
     if (!ran) executive_open_window(next, next->run_t0_ns);
     next->running = 1;
     old->running = 0;

@@ -240,6 +240,7 @@ void plan_reset_run(skel_plan_t *plan, int64_t run_id)
         p->locked_out = 0;
         p->lockout_k = -1;
         p->job = TASK_NONE;
+        p->job_release = INT64_MIN / 4; /* an event process's first event is released when it comes */
         p->next_k = 0;
         p->sums = (skel_process_sums_t){ 0 };
         draw_seed(&p->draw, plan->seed, p->id);

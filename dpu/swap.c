@@ -195,6 +195,7 @@ void swap_carry_tasking(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
         if (j < 0) { /* swap_carry put k_base on its period's grid since the run's start */
             p->next_k = 0;
             p->anchor_ns = next->run_t0_ns + p->k_base * p->period_ns;
+            if (p->event >= 0) p->job_release = INT64_MIN / 4; /* its first event is released when it comes */
             continue;
         }
         const skel_process_t *o = &old->processes[j];
@@ -213,5 +214,19 @@ void swap_carry_tasking(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
         p->slice_mono_ns = o->slice_mono_ns;
         p->rec = o->rec;
         if (p->job == TASK_WAITING && p->sync != SKELMSG_PROCESS_T_SYNC_DATA) p->job = TASK_READY;
+        /* an event process's next release counts from its last event's (tasking_event_release) */
+        if (p->event >= 0 && o->event < 0) p->job_release = INT64_MIN / 4;
     }
+}
+
+/* After swap_carry (and swap_carry_tasking) at the boundary T_SW of OLD: each event
+ * process's queue and cycle count, by process id, and the event generators (event.c). */
+void swap_carry_events(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
+{
+    for (int i = 0; i < next->nprocesses; i++) {
+        skel_process_t *p = &next->processes[i];
+        int at = plan_process_index(old, p->id);
+        event_carry_process(p, at >= 0 ? &old->processes[at] : NULL);
+    }
+    event_carry_sources(next, old, t_sw);
 }
