@@ -635,6 +635,14 @@ void event_generators_begin(skel_plan_t *plan, int64_t t0);
 int event_generators_start(skel_plan_t *plan, int64_t end);
 void event_generators_stop(skel_plan_t *plan);
 
+/* ---- job (job.c): a process's one job on the tasking executive (tasking.c, threads.c) */
+enum { TASK_NONE = 0, TASK_WAITING, TASK_READY, TASK_STARTED };
+int64_t job_release(const skel_process_t *p, int64_t k);
+int64_t job_event_release(const skel_process_t *p);
+int64_t job_next_release(const skel_process_t *p);
+int64_t job_minor(const skel_plan_t *plan, const skel_process_t *p);
+int64_t job_lockout(skel_exec_t *x, skel_process_t *p, int64_t now, int64_t next);
+
 /* ---- swap (swap.c): a live switch of plans at one cycle boundary ---------------- */
 int64_t swap_index(const skel_plan_t *plan, int64_t j_prev, int64_t at_mono_ns);
 int64_t swap_instant(const skel_plan_t *plan, int64_t j_sw);
@@ -644,11 +652,6 @@ void swap_carry_tasking(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
 void swap_carry_events(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw);
 
 /* ---- tasking (tasking.c): the tasking executive's one-processor schedule -------- */
-enum { TASK_NONE = 0, TASK_WAITING, TASK_READY, TASK_STARTED };
-int64_t tasking_release(const skel_process_t *p, int64_t k);
-int64_t tasking_event_release(const skel_process_t *p);
-int64_t tasking_minor(const skel_plan_t *plan, const skel_process_t *p);
-int64_t tasking_lockout(skel_exec_t *x, skel_process_t *p, int64_t now, int64_t next);
 void tasking_run(skel_exec_t *x);
 
 /* ---- threads (threads.c): the tasking executive in CPU, WALL and WORK: a SCHED_FIFO

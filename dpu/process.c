@@ -359,7 +359,7 @@ void process_finish(skel_exec_t *x, skel_process_t *p, skel_rec_t *rec, int64_t 
     p->taken_ns = -1; /* its event is handled */
     rec->comm_out_ns = end - t_out;
     rec->slack_ns = release + p->period_ns - end;
-    /* a tasking job locked out while it ran (tasking_lockout names its cycle): its record says so */
+    /* a tasking job locked out while it ran (job_lockout names its cycle): its record says so */
     if (rec->cycle == p->lockout_k) rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
     /* A cycle that completes after its lockout instant was locked out, whatever held it
      * (a computation the check between its parts did not see past, outputs, a tasking

@@ -201,7 +201,7 @@ void swap_carry_tasking(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
         const skel_process_t *o = &old->processes[j];
         int64_t n = swap_first_release(o, t_sw);
         p->k_base = o->k_base + n;
-        p->anchor_ns = tasking_release(o, n);
+        p->anchor_ns = job_release(o, n);
         p->back_period_ns = n > 0 ? o->period_ns : o->back_period_ns;
         p->back_generation = n > 0 ? old->generation : o->back_generation;
         p->next_k = o->next_k - n;
@@ -214,7 +214,7 @@ void swap_carry_tasking(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
         p->slice_mono_ns = o->slice_mono_ns;
         p->rec = o->rec;
         if (p->job == TASK_WAITING && p->sync != SKELMSG_PROCESS_T_SYNC_DATA) p->job = TASK_READY;
-        /* an event process's next release counts from its last event's (tasking_event_release) */
+        /* an event process's next release counts from its last event's (job_event_release) */
         if (p->event >= 0 && o->event < 0) p->job_release = INT64_MIN / 4;
     }
 }

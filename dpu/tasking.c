@@ -49,30 +49,9 @@ static int tasking_wait(skel_exec_t *x, int64_t until, int watch, int64_t *stall
     return 0;
 }
 
-/* P's release K of this plan (K < 0: of the plan before a switch, swap.c). */
-int64_t tasking_release(const skel_process_t *p, int64_t k)
-{
-    return p->anchor_ns + k * (k >= 0 ? p->period_ns : p->back_period_ns);
-}
-
 static int64_t tasking_floor_div(int64_t a, int64_t b)
 {
     return a >= 0 ? a / b : -((-a + b - 1) / b);
-}
-
-/* An event process's next release: its oldest waiting event, or a period after its
- * last release when events come faster (INT64_MAX: none waits). */
-int64_t tasking_event_release(const skel_process_t *p)
-{
-    int64_t at = event_oldest_ns(p), earliest = p->job_release + p->period_ns;
-    if (at == INT64_MAX) return INT64_MAX;
-    return at > earliest ? at : earliest;
-}
-
-/* The run's minor cycle P's job was released in (the records' frame). */
-int64_t tasking_minor(const skel_plan_t *plan, const skel_process_t *p)
-{
-    return plan->minor_base + tasking_floor_div(p->job_release - plan->epoch_t0_ns, plan->minor_ns);
 }
 
 /* A data job becomes ready once its required inputs are new. Looked at in a
@@ -89,7 +68,7 @@ static void tasking_check_data(skel_exec_t *x, skel_process_t *p, int64_t vt)
     if (p->job_missing >= 0) return;
     p->job = TASK_READY;
     if (!executive_skips(plan, p, p->job_release, vt)) return;
-    executive_skip_record(x, p, p->k_base + p->next_k, tasking_minor(plan, p), p->job_release,
+    executive_skip_record(x, p, p->k_base + p->next_k, job_minor(plan, p), p->job_release,
                           p->job_release, vt, &look);
     look.generation = p->job_generation;
     executive_record(x->s, &look);
@@ -105,7 +84,7 @@ static void tasking_release_due(skel_exec_t *x, int64_t vt)
     for (int i = 0; i < plan->nprocesses; i++) {
         skel_process_t *p = &plan->processes[i];
         if (p->event >= 0) {
-            int64_t release = tasking_event_release(p);
+            int64_t release = job_event_release(p);
             if (p->job == TASK_NONE && release <= vt && release < x->end_mono_ns) {
                 p->job_release = release;
                 p->job_generation = plan->generation;
@@ -115,7 +94,7 @@ static void tasking_release_due(skel_exec_t *x, int64_t vt)
             continue;
         }
         while (p->job == TASK_NONE) { /* again after a skipped release */
-            int64_t release = tasking_release(p, p->next_k);
+            int64_t release = job_release(p, p->next_k);
             if (release > vt || release >= x->end_mono_ns) break;
             p->job_release = release;
             p->job_generation = p->next_k < 0 ? p->back_generation : plan->generation;
@@ -125,40 +104,11 @@ static void tasking_release_due(skel_exec_t *x, int64_t vt)
     }
 }
 
-/* P's oldest release not completed yet, and its cycle *K: its job's while it has one
- * (waiting for data or the processor, or started: a job that computes past its lockout
- * instant is locked out there, and the releases behind it are younger); else its next.
- * INT64_MAX: none (an event process no event waits for). Both tasking executives lock
- * out by it. */
-static int64_t tasking_pending(const skel_process_t *p, int64_t *k)
-{
-    *k = p->k_base + p->next_k;
-    if (p->job != TASK_NONE) return p->job_release;
-    return p->event >= 0 ? tasking_event_release(p) : tasking_release(p, p->next_k);
-}
-
-/* P's release not completed by its lockout instant, by NOW, is locked out, as on the
- * cyclic executive: waiting for data (naming the buffer), kept from the processor by
- * higher-priority work or by its own late jobs, or still computing. Returns NEXT, or
- * the instant P's lockout would be when sooner. */
-int64_t tasking_lockout(skel_exec_t *x, skel_process_t *p, int64_t now, int64_t next)
-{
-    int64_t k, release = tasking_pending(p, &k);
-    if (p->locked_out || release >= x->end_mono_ns) return next;
-    int64_t at = process_lockout_at(x->plan, p, release);
-    if (now < at) return at < next ? at : next;
-    int missing = p->job == TASK_WAITING ? p->job_missing : -1;
-    process_lockout(x, p, missing >= 0 ? p->inputs[missing].buffer : -1, k, release,
-                    p->job == TASK_STARTED ? "still computing" : "not run: kept from the processor");
-    p->lockout_k = k;
-    return next;
-}
-
 /* Lockouts due by VT; returns the next instant one would be. */
 static int64_t tasking_lockouts(skel_exec_t *x, int64_t vt)
 {
     int64_t next = INT64_MAX;
-    for (int i = 0; i < x->plan->nprocesses; i++) next = tasking_lockout(x, &x->plan->processes[i], vt, next);
+    for (int i = 0; i < x->plan->nprocesses; i++) next = job_lockout(x, &x->plan->processes[i], vt, next);
     return next;
 }
 
@@ -166,7 +116,7 @@ static int64_t tasking_lockouts(skel_exec_t *x, int64_t vt)
 static void tasking_start(skel_exec_t *x, skel_process_t *p, int64_t vt, int64_t now)
 {
     skel_plan_t *plan = x->plan;
-    process_record_begin(x, p, p->k_base + p->next_k, tasking_minor(plan, p), p->job_release, vt, now,
+    process_record_begin(x, p, p->k_base + p->next_k, job_minor(plan, p), p->job_release, vt, now,
                          &p->rec);
     if (p->k_base + p->next_k == p->lockout_k) p->rec.flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
     p->rec.generation = p->job_generation;
@@ -318,7 +268,7 @@ void tasking_run(skel_exec_t *x)
             skel_process_t *p = &plan->processes[i];
             /* an idle event process waits for its event: an arrival wakes the schedule */
             watch |= p->job == TASK_WAITING || (p->event >= 0 && p->job == TASK_NONE);
-            int64_t r = p->event >= 0 ? tasking_event_release(p) : tasking_release(p, p->next_k);
+            int64_t r = job_next_release(p);
             if (p->job == TASK_NONE && r < next) next = r;
         }
         if (h != NULL && h->slice_mono_ns + h->remaining_ns < next) next = h->slice_mono_ns + h->remaining_ns;

@@ -218,12 +218,6 @@ static int64_t threads_compute(const skel_compute_t *c, int mode, int64_t ns, in
     return compute_held(c, ns, stall);
 }
 
-/* P's next release (INT64_MAX: an event process none of whose events waits). */
-static int64_t threads_next_release(const skel_process_t *p)
-{
-    return p->event >= 0 ? tasking_event_release(p) : tasking_release(p, p->next_k);
-}
-
 /* Its release RELEASE is due: P has a job (under lock). */
 static void threads_release(threads_t *t, skel_process_t *p, int64_t release)
 {
@@ -246,7 +240,7 @@ static int threads_check_data(threads_worker_t *w)
     w->ready_ns = clock_mono_ns();
     p->job = TASK_READY;
     if (!executive_skips(t->plan, p, p->job_release, w->ready_ns)) return 0;
-    executive_skip_record(&w->x, p, p->k_base + p->next_k, tasking_minor(t->plan, p), p->job_release,
+    executive_skip_record(&w->x, p, p->k_base + p->next_k, job_minor(t->plan, p), p->job_release,
                           p->job_release, w->ready_ns, &look);
     look.generation = p->job_generation;
     executive_record(t->s, &look);
@@ -272,7 +266,7 @@ static void threads_job(threads_worker_t *w)
     int64_t sched = t->active > 0 || t->last_end_ns < ready ? ready : t->last_end_ns;
     threads_flush_idle(t, start);
     t->active++;
-    process_record_begin(&w->x, p, k, tasking_minor(plan, p), p->job_release, sched, start, rec);
+    process_record_begin(&w->x, p, k, job_minor(plan, p), p->job_release, sched, start, rec);
     /* Woken later than the processor was its by more than the stall threshold:
      * the kernel or the machine kept it, as a late wake-up is a stall on the
      * other executives (waiting for the lock after is the bus, not counted). */
@@ -330,7 +324,7 @@ static int threads_step(threads_worker_t *w)
         return threads_wait(w, INT64_MAX, 0);
     if (p->job == TASK_NONE) {
         if (p->event >= 0) threads_drain(w); /* its events come on the links */
-        int64_t release = threads_next_release(p), now = clock_mono_ns();
+        int64_t release = job_next_release(p), now = clock_mono_ns();
         if (release >= w->x.end_mono_ns) /* none in this run: the run's end, an event, a switch */
             return threads_wait(w, INT64_MAX, p->event >= 0);
         if (release >= t->switch_at) /* the switch first: the watcher kicks after it */
@@ -484,7 +478,7 @@ threads_t *threads_start(skel_exec_t *x, char *klass, size_t len)
         threads_free(t);
         return NULL;
     }
-    for (int i = 0; i < plan->nprocesses; i++) { /* every release from the run's start (tasking_release) */
+    for (int i = 0; i < plan->nprocesses; i++) { /* every release from the run's start (job_release) */
         skel_process_t *p = &plan->processes[i];
         p->anchor_ns = plan->epoch_t0_ns;
         p->back_period_ns = p->period_ns;
@@ -593,12 +587,12 @@ static void threads_switch(threads_t *t, skel_exec_t *x)
     threads_kick_all(t);
 }
 
-/* Lockouts due by NOW (under lock, tasking_lockout); the next instant one would be. */
+/* Lockouts due by NOW (under lock, job_lockout); the next instant one would be. */
 static int64_t threads_lockouts(threads_t *t, skel_exec_t *x, int64_t now)
 {
     int64_t next = INT64_MAX;
     for (int i = 0; i < t->nworkers; i++)
-        if (t->w[i].live && t->w[i].p != NULL) next = tasking_lockout(x, t->w[i].p, now, next);
+        if (t->w[i].live && t->w[i].p != NULL) next = job_lockout(x, t->w[i].p, now, next);
     return next;
 }
 

@@ -253,7 +253,7 @@ static void test_carry_tasking(void)
     CHECK_EQ(p1->k_base, 21);                /* k 20 carried: k 21 is its next release, ... */
     CHECK_EQ(p1->next_k, -1);
     CHECK_EQ(p1->anchor_ns, T0 + 210 * MS);  /* ... at its old grid's next point, then every 5 ms */
-    CHECK_EQ(tasking_release(p1, 1), T0 + 215 * MS);
+    CHECK_EQ(job_release(p1, 1), T0 + 215 * MS);
     CHECK_EQ(p1->job, TASK_STARTED);
     CHECK_EQ(p1->job_release, T0 + 200 * MS);
     CHECK_EQ(p1->job_generation, 7);
@@ -263,8 +263,8 @@ static void test_carry_tasking(void)
     CHECK_EQ(p4->k_base + p4->next_k, 19);   /* its waiting job, then k 20 owed at T0 + 200 ms */
     CHECK_EQ(p4->job, TASK_READY);
     CHECK_EQ(p4->back_generation, 7);        /* k 20 is generation 7's release */
-    CHECK_EQ(tasking_release(p4, p4->next_k + 1), T0 + 200 * MS);
-    CHECK_EQ(tasking_release(p4, 0), T0 + 210 * MS);
+    CHECK_EQ(job_release(p4, p4->next_k + 1), T0 + 200 * MS);
+    CHECK_EQ(job_release(p4, 0), T0 + 210 * MS);
     CHECK_EQ(p6->k_base, 11);                /* on its 20 ms grid since the run's start */
     CHECK_EQ(p6->anchor_ns, T0 + 220 * MS);
     CHECK_EQ(p6->next_k, 0);
@@ -277,8 +277,8 @@ static void test_carry_tasking(void)
     swap_carry_tasking(third, next, T0 + 207 * MS);
     skel_process_t *q4 = proc(third, 4);
     CHECK_EQ(q4->k_base + q4->next_k, 19);
-    CHECK_EQ(tasking_release(q4, q4->next_k + 1), T0 + 200 * MS);
-    CHECK_EQ(tasking_release(q4, q4->next_k + 2), T0 + 210 * MS);
+    CHECK_EQ(job_release(q4, q4->next_k + 1), T0 + 200 * MS);
+    CHECK_EQ(job_release(q4, q4->next_k + 2), T0 + 210 * MS);
     plan_free(old);
     plan_free(next);
     plan_free(third);
