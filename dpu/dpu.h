@@ -592,11 +592,6 @@ typedef struct {
     skel_mark_t mark;
     int64_t mark_charged_ns;
     int mark_stale;
-    /* The cyclic executive's last record of the last minor that ran anything: its idle
-     * ends where the next one runs (a sync: event process may leave minors empty). */
-    skel_rec_t held;
-    skel_process_t *held_p;    /* NULL: none held */
-    int64_t held_release, held_end;
 } skel_exec_t;
 
 enum { PROCESS_DONE = 0, PROCESS_STOPPED = 1 };
@@ -651,6 +646,27 @@ int swap_tasking_ready(const skel_plan_t *old, int64_t t_sw);
 void swap_carry_tasking(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw);
 void swap_carry_events(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw);
 
+/* ---- cycle (cycle.c): what every executive shares, calling none of them ---------- */
+void cycle_pin(const skel_plan_t *plan);
+int cycle_rt_priority(const skel_server_t *s, const skel_plan_t *plan); /* 0: SCHED_OTHER */
+int cycle_schedule(skel_server_t *s, const skel_plan_t *plan, int running); /* the FIFO priority, 0 */
+void cycle_open_window(skel_plan_t *plan, int64_t t0);
+void cycle_account(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec, int64_t release,
+                   int64_t end);
+void cycle_record(skel_server_t *s, const skel_rec_t *rec);
+int cycle_skips(const skel_plan_t *plan, const skel_process_t *p, int64_t release, int64_t now);
+void cycle_skip_record(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, int64_t release,
+                       int64_t sched, int64_t now, skel_rec_t *rec);
+void cycle_poll_switch(skel_exec_t *x);
+int cycle_wait(skel_exec_t *x, int64_t until); /* 0 reached, 1 stop, 2 the pending switch changed */
+skel_plan_t *cycle_take(skel_exec_t *x);
+int cycle_switch(skel_exec_t *x, skel_plan_t *next, int64_t j_sw, int ran);
+void cycle_announce(skel_exec_t *x);
+
+/* ---- cyclic (cyclic.c): the cyclic executive's loop ------------------------------ */
+int64_t cyclic_next_release(const skel_plan_t *plan, int64_t j);
+void cyclic_run(skel_exec_t *x, const skel_run_t *run);
+
 /* ---- tasking (tasking.c): the tasking executive's one-processor schedule -------- */
 void tasking_run(skel_exec_t *x);
 
@@ -661,20 +677,10 @@ threads_t *threads_start(skel_exec_t *x, char *klass, size_t len); /* before t0;
 void threads_run(threads_t *t, skel_exec_t *x); /* watches lockouts until the end or STOP, ends T */
 void threads_end(threads_t *t);                 /* stops and joins every thread, frees T */
 
-/* ---- executive (executive.c): the cyclic loop and its thread -------------------- */
-void executive_account(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec, int64_t release,
-                       int64_t end);
-void executive_record(skel_server_t *s, const skel_rec_t *rec);
-int executive_skips(const skel_plan_t *plan, const skel_process_t *p, int64_t release, int64_t now);
-void executive_skip_record(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, int64_t release,
-                           int64_t sched, int64_t now, skel_rec_t *rec);
-void executive_poll_switch(skel_exec_t *x);
-int executive_switch(skel_exec_t *x, int64_t j_sw, int ran);
-void executive_announce(skel_exec_t *x);
+/* ---- executive (executive.c): the executive thread; a START chooses and starts the
+ * DPU's executive ----------------------------------------------------------------- */
 void *executive_main(void *arg);
-int64_t executive_next_release(const skel_plan_t *plan, int64_t j);
 void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run);
-int executive_rt_priority(const skel_server_t *s, const skel_plan_t *plan); /* 0: SCHED_OTHER */
 
 /* ---- control (control.c): the control thread ------------------------------------ */
 typedef struct {

@@ -129,7 +129,7 @@ static int plan_add_processes(skel_plan_t *plan, const skelmsg_config_t *cfg, in
     return 0;
 }
 
-/* Whether the configured load fits the DPU (Σ compute / period <= 1): executive.c
+/* Whether the configured load fits the DPU (Σ compute / period <= 1): cycle.c
  * skips a data-synchronised process's late releases only then. */
 static int plan_fits(const skel_plan_t *plan)
 {

@@ -76,7 +76,7 @@ void process_lockout(skel_exec_t *x, skel_process_t *p, int16_t buffer, int64_t 
  * is due in J itself; one before it already ran in J and is next due after it.
  * Each that is past its lockout threshold is locked out, held up behind P (its
  * lockout names P, and no buffer: it is not waiting for data). Returns the next
- * instant one would be (INT64_MAX: none in this run). Releases as executive_minor
+ * instant one would be (INT64_MAX: none in this run). Releases as cyclic_minor
  * computes them: epoch_t0 + k * period. */
 static int64_t process_held_up(skel_exec_t *x, const skel_process_t *p, int64_t j, int64_t now)
 {

@@ -57,7 +57,7 @@ static int64_t tasking_floor_div(int64_t a, int64_t b)
 /* A data job becomes ready once its required inputs are new. Looked at in a
  * scratch record: P's own may still hold its last cycle, waiting for its idle.
  * A job whose data comes a whole period after its release skips that release
- * (cycle skipping, as on the cyclic executive: executive_skips), so that the
+ * (cycle skipping, as on the cyclic executive: cycle_skips), so that the
  * next job runs on this data rather than the process staying a period behind. */
 static void tasking_check_data(skel_exec_t *x, skel_process_t *p, int64_t vt)
 {
@@ -67,11 +67,11 @@ static void tasking_check_data(skel_exec_t *x, skel_process_t *p, int64_t vt)
     p->job_missing = (int8_t)process_missing(p, &look);
     if (p->job_missing >= 0) return;
     p->job = TASK_READY;
-    if (!executive_skips(plan, p, p->job_release, vt)) return;
-    executive_skip_record(x, p, p->k_base + p->next_k, job_minor(plan, p), p->job_release,
+    if (!cycle_skips(plan, p, p->job_release, vt)) return;
+    cycle_skip_record(x, p, p->k_base + p->next_k, job_minor(plan, p), p->job_release,
                           p->job_release, vt, &look);
     look.generation = p->job_generation;
-    executive_record(x->s, &look);
+    cycle_record(x->s, &look);
     p->job = TASK_NONE;
     p->next_k++;
 }
@@ -167,8 +167,8 @@ static void tasking_flush(skel_exec_t *x, skel_process_t **idle, int64_t now)
     int64_t release = p->rec.release_ns - x->s->clock_offset_ns;
     int64_t end = release + p->period_ns - p->rec.slack_ns;
     p->rec.idle_ns = now > end ? now - end : 0;
-    executive_account(x->plan, p, &p->rec, release, end);
-    executive_record(x->s, &p->rec);
+    cycle_account(x->plan, p, &p->rec, release, end);
+    cycle_record(x->s, &p->rec);
     *idle = NULL;
 }
 
@@ -184,7 +184,7 @@ static skel_process_t *tasking_highest(skel_plan_t *plan)
  * and its minor index J_SW; INT64_MAX when none is pending. */
 static int64_t tasking_switch_at(skel_exec_t *x, int64_t vt, int done, int64_t *j_sw)
 {
-    executive_poll_switch(x);
+    cycle_poll_switch(x);
     if (!x->switch_pending) return INT64_MAX;
     const skel_plan_t *plan = x->plan;
     int64_t j_prev = tasking_floor_div(vt - plan->epoch_t0_ns - !done, plan->minor_ns);
@@ -199,11 +199,12 @@ static void tasking_switch(skel_exec_t *x, skel_process_t **cur, skel_process_t 
 {
     tasking_flush(x, idle, clock_mono_ns());
     int16_t running = *cur != NULL ? (*cur)->id : -1;
-    if (!executive_switch(x, j_sw, vt > x->plan->run_t0_ns)) return;
+    skel_plan_t *next = cycle_take(x);
+    if (next == NULL || !cycle_switch(x, next, j_sw, vt > x->plan->run_t0_ns)) return;
     skel_plan_t *plan = x->plan;
     int i = running >= 0 ? plan_process_index(plan, running) : -1;
     *cur = i >= 0 && plan->processes[i].job == TASK_STARTED ? &plan->processes[i] : NULL;
-    executive_announce(x);
+    cycle_announce(x);
     for (i = 0; i < plan->nprocesses; i++) /* its inputs may have changed */
         if (plan->processes[i].job == TASK_WAITING) tasking_check_data(x, &plan->processes[i], vt);
 }

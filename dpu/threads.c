@@ -50,7 +50,7 @@
  * other executives. The watcher learns of it, publishes its instant, and from
  * then on a thread whose next release is at or after it waits for it; at the
  * instant the watcher takes the lock, carries the run into the next plan
- * (executive_switch) and hands each thread its process there by id: a job in
+ * (cycle_switch) and hands each thread its process there by id: a job in
  * progress completes under its new priority and writes to the next plan's
  * buffers; a removed process's thread drops its job and ends (demoted to
  * SCHED_IDLE meanwhile, so its computation takes the processor from nobody);
@@ -142,8 +142,8 @@ static void threads_flush_idle(threads_t *t, int64_t now)
     int64_t release = rec->release_ns - t->s->clock_offset_ns;
     int64_t end = release + p->period_ns - rec->slack_ns;
     rec->idle_ns = now > end ? now - end : 0;
-    executive_account(t->plan, p, rec, release, end);
-    executive_record(t->s, rec);
+    cycle_account(t->plan, p, rec, release, end);
+    cycle_record(t->s, rec);
     t->idle_pending = 0;
 }
 
@@ -229,7 +229,7 @@ static void threads_release(threads_t *t, skel_process_t *p, int64_t release)
 }
 
 /* A data job whose data is all new is ready; one whose data came a whole period
- * late skips its release (executive_skips). 1 when it still waits (under lock). */
+ * late skips its release (cycle_skips). 1 when it still waits (under lock). */
 static int threads_check_data(threads_worker_t *w)
 {
     threads_t *t = w->t;
@@ -239,11 +239,11 @@ static int threads_check_data(threads_worker_t *w)
     if (p->job_missing >= 0) return 1;
     w->ready_ns = clock_mono_ns();
     p->job = TASK_READY;
-    if (!executive_skips(t->plan, p, p->job_release, w->ready_ns)) return 0;
-    executive_skip_record(&w->x, p, p->k_base + p->next_k, job_minor(t->plan, p), p->job_release,
+    if (!cycle_skips(t->plan, p, p->job_release, w->ready_ns)) return 0;
+    cycle_skip_record(&w->x, p, p->k_base + p->next_k, job_minor(t->plan, p), p->job_release,
                           p->job_release, w->ready_ns, &look);
     look.generation = p->job_generation;
-    executive_record(t->s, &look);
+    cycle_record(t->s, &look);
     p->job = TASK_NONE;
     p->next_k++;
     return 0;
@@ -309,8 +309,8 @@ static void threads_job(threads_worker_t *w)
         t->idle_p = p;
         t->idle_pending = 1;
     } else { /* preempted work goes on at once: no idle follows this job */
-        executive_account(plan, p, rec, p->job_release, p->job_release + p->period_ns - rec->slack_ns);
-        executive_record(t->s, rec);
+        cycle_account(plan, p, rec, p->job_release, p->job_release + p->period_ns - rec->slack_ns);
+        cycle_record(t->s, rec);
     }
 }
 
@@ -546,7 +546,7 @@ static void threads_hand_over(threads_t *t, skel_exec_t *x, int cpu_moved)
  * begun by NOW (under lock); kicks the threads waiting for an earlier one. */
 static void threads_plan_switch(threads_t *t, skel_exec_t *x, int64_t now)
 {
-    executive_poll_switch(x);
+    cycle_poll_switch(x);
     if (!x->switch_pending) {
         t->switch_at = INT64_MAX;
         return;
@@ -572,17 +572,17 @@ static void threads_switch(threads_t *t, skel_exec_t *x)
         return;
     }
     threads_flush_idle(t, clock_mono_ns()); /* its process is the old plan's */
-    int switched = executive_switch(x, t->switch_j, 1);
+    skel_plan_t *next = cycle_take(x);
+    int switched = next != NULL && cycle_switch(x, next, t->switch_j, 1);
     t->switch_at = INT64_MAX;
     t->switch_seq = x->switch_seq;
     if (switched) {
-        skel_plan_t *next = x->plan;
         int cpu = next->cpu >= 0 ? next->cpu : t->cpu, moved = cpu != t->cpu;
         t->plan = next;
         t->cpu = cpu;
         threads_hand_over(t, x, moved);
-        if (next->cpu != old->cpu) threads_move_watcher(t); /* executive_switch pinned it there */
-        executive_announce(x);
+        if (next->cpu != old->cpu) threads_move_watcher(t); /* cycle_switch pinned it there */
+        cycle_announce(x);
     }
     threads_kick_all(t);
 }

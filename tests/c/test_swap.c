@@ -181,7 +181,7 @@ static void test_carry(void)
     buffers_input_peek(j2, b2, &rec);
     CHECK_EQ(rec.dropped, 3); /* from now on, gaps count */
     /* The new grid starts at the boundary with every process due. */
-    CHECK_EQ(executive_next_release(next, 0), 0);
+    CHECK_EQ(cyclic_next_release(next, 0), 0);
     plan_free(old);
     plan_free(next);
 }

@@ -34,7 +34,7 @@ static int fuzz_plan(const skelmsg_config_t *cfg, int dpu_index, skel_plan_t *pl
     if (plan->tasking) return 0; /* its switch carries jobs a run has made: not here */
     int64_t j = -1;
     for (int n = 0; n < 4; n++) {
-        int64_t next = executive_next_release(plan, j + 1);
+        int64_t next = cyclic_next_release(plan, j + 1);
         FUZZ_ASSERT(next > j);
         if (next == INT64_MAX) break;
         j = next;
