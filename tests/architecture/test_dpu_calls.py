@@ -13,6 +13,7 @@ import re
 from itertools import pairwise
 from pathlib import Path
 
+import graphs
 from conftest import REPO
 
 DPU = REPO / "dpu"
@@ -48,25 +49,7 @@ def call_graph(folder: Path) -> dict[str, dict[str, set[str]]]:
 
 def find_cycle(graph: dict[str, dict[str, set[str]]]) -> list[str]:
     """A circle of files, first file repeated at its end ([] when there is none)."""
-    state: dict[str, int] = {}  # 1: on the current path, 2: done
-    path: list[str] = []
-
-    def visit(node: str) -> list[str]:
-        state[node] = 1
-        path.append(node)
-        for nxt in sorted(graph.get(node, {})):
-            if state.get(nxt) == 1:
-                return [*path[path.index(nxt):], nxt]
-            if nxt not in state and (found := visit(nxt)):
-                return found
-        path.pop()
-        state[node] = 2
-        return []
-
-    for node in sorted(graph):
-        if node not in state and (found := visit(node)):
-            return found
-    return []
+    return graphs.find_cycle({source: sorted(targets) for source, targets in graph.items()})
 
 
 def describe(graph: dict[str, dict[str, set[str]]], cycle: list[str]) -> str:
