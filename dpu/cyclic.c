@@ -35,7 +35,7 @@ int64_t cyclic_next_release(const skel_plan_t *plan, int64_t j)
  * event (cyclic_take_events). */
 static int cyclic_runs(const skel_process_t *p, int64_t j)
 {
-    return j % p->ratio == 0 && (p->event < 0 || p->taken_ns >= 0);
+    return j % p->ratio == 0 && (p->event < 0 || p->queue.taken_ns >= 0);
 }
 
 /* A sync: event process due in minor J takes the oldest event waiting when the

@@ -328,9 +328,40 @@ typedef struct {
     int enc_cap;
 } skel_source_t;
 
+/* The events waiting for a sync: event process (event.c), oldest first, as arrival
+ * instants, and the one its coming cycle handles. */
+typedef struct {
+    int16_t cap;               /* queue: N */
+    int64_t queued_ns[SKEL_MAX_QUEUE];
+    int head, count;
+    int64_t arrived_ns[SKEL_MAX_QUEUE]; /* drained, not yet in the queue (event_settle) */
+    int a_head, a_count;
+    int32_t dropped;           /* since its last cycle */
+    int64_t taken_ns;          /* arrival of the event the coming cycle handles, -1: none */
+    int16_t taken_left;
+    int32_t taken_dropped;
+} skel_queue_t;
+
+/* A process's one job on the tasking executive (job.c; tasking.c, threads.c). */
+enum { JOB_NONE = 0, JOB_WAITING, JOB_READY, JOB_STARTED };
+typedef struct {
+    int8_t state;              /* JOB_* */
+    int64_t lockout_k;         /* the cycle its lockout was recorded for (its record's flag), -1 */
+    int8_t missing;            /* a waiting data job: its first required input without new data */
+    int64_t anchor_ns;         /* release next_k = 0: the run's start, or the first at or after a switch */
+    int64_t back_period_ns;    /* the period of releases next_k < 0 (the plan before a switch) ... */
+    int64_t back_generation;   /* ... and that plan's generation */
+    int64_t generation;        /* of the plan that released the job: its record's */
+    int64_t release;
+    int64_t remaining_ns;      /* of the job's computation */
+    int64_t slice_mono_ns;     /* where its computation was last counted up to (tasking_ran) */
+    skel_rec_t rec;            /* the job's record, sent at its completion */
+} skel_job_t;
+
 typedef struct {
     int16_t id;
     int16_t order;
+    int16_t priority;          /* the tasking executive's, higher first: plan->processes are sorted by it there */
     int8_t sync;
     int64_t period_ns;
     int64_t compute_ns;        /* the constant, or the mean of the draws */
@@ -341,38 +372,18 @@ typedef struct {
     int ninputs, noutputs;
     skel_input_t inputs[SKEL_MAX_IO];
     skel_output_t outputs[SKEL_MAX_IO];
+    int16_t event;             /* sync: event: index into plan->events, -1: not an event process */
+    int nemits;
+    int16_t emits[SKEL_MAX_EMITS];   /* indexes into plan->events */
     /* run state and measured-window sums */
     int64_t k_base;            /* cycle index of this plan's first cycle (live switch: carried) */
+    int64_t next_k;            /* the next cycle from k_base not released yet (tasking: < 0, one of
+                                * the plan before a switch); an event process's: its events so far */
     int64_t measure_from_k;    /* cycles >= this count in the sums (warm-up applied once) */
     int8_t locked_out;
     skel_process_sums_t sums;
-    /* the tasking executive (tasking.c): priority and the process's one job */
-    int16_t priority;          /* higher first; plan->processes are sorted by it there */
-    int8_t job;                /* TASK_* */
-    int64_t lockout_k;         /* the cycle its lockout was recorded for (its record's flag), -1 */
-    int8_t job_missing;        /* a waiting data job: its first required input without new data */
-    int64_t next_k;            /* the next release that is not a job yet (< 0: one of the plan before) */
-    int64_t anchor_ns;         /* release next_k = 0: the run's start, or the first at or after a switch */
-    int64_t back_period_ns;    /* the period of releases next_k < 0 (the plan before a switch) ... */
-    int64_t back_generation;   /* ... and that plan's generation */
-    int64_t job_generation;    /* of the plan that released the job: its record's */
-    int64_t job_release;
-    int64_t remaining_ns;      /* of the job's computation */
-    int64_t slice_mono_ns;     /* where its computation was last counted up to (tasking_ran) */
-    skel_rec_t rec;            /* the job's record, sent at its completion */
-    /* sync: event (event.c): the events waiting, oldest first, as arrival instants */
-    int16_t event;             /* index into plan->events, -1: not an event process */
-    int16_t queue_cap;
-    int nemits;
-    int16_t emits[SKEL_MAX_EMITS];   /* indexes into plan->events */
-    int64_t queue_ns[SKEL_MAX_QUEUE];
-    int q_head, q_count;
-    int64_t arrived_ns[SKEL_MAX_QUEUE]; /* drained, not yet in the queue (event_settle) */
-    int a_head, a_count;
-    int32_t q_dropped;         /* since its last cycle */
-    int64_t taken_ns;          /* arrival of the event the coming cycle handles, -1: none */
-    int16_t taken_left;
-    int32_t taken_dropped;
+    skel_job_t job;            /* the tasking executive's */
+    skel_queue_t queue;        /* an event process's */
 } skel_process_t;
 
 typedef struct {
@@ -631,7 +642,6 @@ int event_generators_start(skel_plan_t *plan, int64_t end);
 void event_generators_stop(skel_plan_t *plan);
 
 /* ---- job (job.c): a process's one job on the tasking executive (tasking.c, threads.c) */
-enum { TASK_NONE = 0, TASK_WAITING, TASK_READY, TASK_STARTED };
 int64_t job_release(const skel_process_t *p, int64_t k);
 int64_t job_event_release(const skel_process_t *p);
 int64_t job_next_release(const skel_process_t *p);

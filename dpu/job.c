@@ -7,7 +7,7 @@
 /* P's release K of this plan (K < 0: of the plan before a switch, swap.c). */
 int64_t job_release(const skel_process_t *p, int64_t k)
 {
-    return p->anchor_ns + k * (k >= 0 ? p->period_ns : p->back_period_ns);
+    return p->job.anchor_ns + k * (k >= 0 ? p->period_ns : p->job.back_period_ns);
 }
 
 static int64_t job_floor_div(int64_t a, int64_t b)
@@ -19,7 +19,7 @@ static int64_t job_floor_div(int64_t a, int64_t b)
  * last release when events come faster (INT64_MAX: none waits). */
 int64_t job_event_release(const skel_process_t *p)
 {
-    int64_t at = event_oldest_ns(p), earliest = p->job_release + p->period_ns;
+    int64_t at = event_oldest_ns(p), earliest = p->job.release + p->period_ns;
     if (at == INT64_MAX) return INT64_MAX;
     return at > earliest ? at : earliest;
 }
@@ -27,7 +27,7 @@ int64_t job_event_release(const skel_process_t *p)
 /* The run's minor cycle P's job was released in (the records' frame). */
 int64_t job_minor(const skel_plan_t *plan, const skel_process_t *p)
 {
-    return plan->minor_base + job_floor_div(p->job_release - plan->epoch_t0_ns, plan->minor_ns);
+    return plan->minor_base + job_floor_div(p->job.release - plan->epoch_t0_ns, plan->minor_ns);
 }
 
 /* P's next release that is not a job yet (INT64_MAX: an event process none of whose
@@ -45,7 +45,7 @@ int64_t job_next_release(const skel_process_t *p)
 static int64_t job_pending(const skel_process_t *p, int64_t *k)
 {
     *k = p->k_base + p->next_k;
-    return p->job != TASK_NONE ? p->job_release : job_next_release(p);
+    return p->job.state != JOB_NONE ? p->job.release : job_next_release(p);
 }
 
 /* P's release not completed by its lockout instant, by NOW, is locked out, as on the
@@ -58,9 +58,9 @@ int64_t job_lockout(skel_exec_t *x, skel_process_t *p, int64_t now, int64_t next
     if (p->locked_out || release >= x->end_mono_ns) return next;
     int64_t at = process_lockout_at(x->plan, p, release);
     if (now < at) return at < next ? at : next;
-    int missing = p->job == TASK_WAITING ? p->job_missing : -1;
+    int missing = p->job.state == JOB_WAITING ? p->job.missing : -1;
     process_lockout(x, p, missing >= 0 ? p->inputs[missing].buffer : -1, k, release,
-                    p->job == TASK_STARTED ? "still computing" : "not run: kept from the processor");
-    p->lockout_k = k;
+                    p->job.state == JOB_STARTED ? "still computing" : "not run: kept from the processor");
+    p->job.lockout_k = k;
     return next;
 }
