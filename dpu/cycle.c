@@ -10,6 +10,7 @@
 
 #include "dpu.h"
 
+/* A run's cycles on the DPU's own CPU, when its config names one. */
 void cycle_pin(const skel_plan_t *plan)
 {
     if (plan->cpu < 0) return;
@@ -75,7 +76,7 @@ void cycle_open_window(skel_plan_t *plan, int64_t t0)
  * executives sum a job when it completes, not in release order: the window's span is the
  * earliest release and the latest end summed, whichever came first. */
 void cycle_account(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec, int64_t release,
-                       int64_t end)
+                   int64_t end)
 {
     skel_dpu_sums_t *d = &plan->sums;
     if (rec->cycle >= p->measure_from_k) p->sums.wait_ns += rec->idle_ns;
@@ -122,7 +123,7 @@ int cycle_skips(const skel_plan_t *plan, const skel_process_t *p, int64_t releas
 }
 
 void cycle_skip_record(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, int64_t release,
-                           int64_t sched, int64_t now, skel_rec_t *rec)
+                       int64_t sched, int64_t now, skel_rec_t *rec)
 {
     process_record_begin(x, p, k, minor, release, sched, now, rec);
     rec->slack_ns = release + p->period_ns - now;
