@@ -14,7 +14,7 @@ buffer of the same pair on the DPU with the same place on the next host, so ever
 crosses hosts. Readers are data-synchronised: a reader waits for the next sequence, so a
 late writer shows as blocked time, not as a stale read; `dropped` counts the sequences a
 reader never used: lost datagrams, and those superseded when the reader's DPU, a whole
-period behind, skipped a release (cycle skipping, dpu/executive.c). The wait also holds the
+period behind, skipped a release (cycle skipping, dpu/cycle.c). The wait also holds the
 reader's DPU back, so a stalled DPU slows its writers' readers instead of being overrun by
 them (flow control);
 with a fifth of the period computed per DPU, the ring catches up within a few cycles.

@@ -5,7 +5,7 @@
  * config and is READY for the next START, without joining a run in progress).
  * During a run, a COMMIT offers the built plan to the executive as
  * s->next_plan, and the executive switches at one cycle boundary (swap.c,
- * executive.c); a committed re-send during our own run waits for its end,
+ * cycle.c); a committed re-send during our own run waits for its end,
  * because only a COMMIT names the instant at which every DPU switches. */
 
 #include "dpu.h"
@@ -28,7 +28,7 @@ static skel_plan_t *apply_build(skel_control_t *c)
      * machine: they take the executive's own SCHED_FIFO priority. (One below, they queued
      * behind every other DPU's runnable executive on a shared machine: the namespace lab's
      * 64 DPUs dropped 32-70 % of their buffers, against 0-0.4 % at the same priority.) */
-    int prio = plan != NULL ? executive_rt_priority(s, plan) : 0;
+    int prio = plan != NULL ? cycle_rt_priority(s, plan) : 0;
     struct sched_param fifo = { .sched_priority = prio }, other = { .sched_priority = 0 };
     int raised = prio > 0 && pthread_setschedparam(pthread_self(), SCHED_FIFO, &fifo) == 0;
     (void)pthread_setname_np(pthread_self(), "lcm-link"); /* for LCM's threads, as in control.c */

@@ -328,9 +328,40 @@ typedef struct {
     int enc_cap;
 } skel_source_t;
 
+/* The events waiting for a sync: event process (event.c), oldest first, as arrival
+ * instants, and the one its coming cycle handles. */
+typedef struct {
+    int16_t cap;               /* queue: N */
+    int64_t queued_ns[SKEL_MAX_QUEUE];
+    int head, count;
+    int64_t arrived_ns[SKEL_MAX_QUEUE]; /* drained, not yet in the queue (event_settle) */
+    int a_head, a_count;
+    int32_t dropped;           /* since its last cycle */
+    int64_t taken_ns;          /* arrival of the event the coming cycle handles, -1: none */
+    int16_t taken_left;
+    int32_t taken_dropped;
+} skel_queue_t;
+
+/* A process's one job on the tasking executive (job.c; tasking.c, threads.c). */
+enum { JOB_NONE = 0, JOB_WAITING, JOB_READY, JOB_STARTED };
+typedef struct {
+    int8_t state;              /* JOB_* */
+    int64_t lockout_k;         /* the cycle its lockout was recorded for (its record's flag), -1 */
+    int8_t missing;            /* a waiting data job: its first required input without new data */
+    int64_t anchor_ns;         /* release next_k = 0: the run's start, or the first at or after a switch */
+    int64_t back_period_ns;    /* the period of releases next_k < 0 (the plan before a switch) ... */
+    int64_t back_generation;   /* ... and that plan's generation */
+    int64_t generation;        /* of the plan that released the job: its record's */
+    int64_t release;
+    int64_t remaining_ns;      /* of the job's computation */
+    int64_t slice_mono_ns;     /* where its computation was last counted up to (tasking_ran) */
+    skel_rec_t rec;            /* the job's record, sent at its completion */
+} skel_job_t;
+
 typedef struct {
     int16_t id;
     int16_t order;
+    int16_t priority;          /* the tasking executive's, higher first: plan->processes are sorted by it there */
     int8_t sync;
     int64_t period_ns;
     int64_t compute_ns;        /* the constant, or the mean of the draws */
@@ -341,38 +372,18 @@ typedef struct {
     int ninputs, noutputs;
     skel_input_t inputs[SKEL_MAX_IO];
     skel_output_t outputs[SKEL_MAX_IO];
+    int16_t event;             /* sync: event: index into plan->events, -1: not an event process */
+    int nemits;
+    int16_t emits[SKEL_MAX_EMITS];   /* indexes into plan->events */
     /* run state and measured-window sums */
     int64_t k_base;            /* cycle index of this plan's first cycle (live switch: carried) */
+    int64_t next_k;            /* the next cycle from k_base not released yet (tasking: < 0, one of
+                                * the plan before a switch); an event process's: its events so far */
     int64_t measure_from_k;    /* cycles >= this count in the sums (warm-up applied once) */
     int8_t locked_out;
     skel_process_sums_t sums;
-    /* the tasking executive (tasking.c): priority and the process's one job */
-    int16_t priority;          /* higher first; plan->processes are sorted by it there */
-    int8_t job;                /* TASK_* */
-    int64_t lockout_k;         /* the cycle its lockout was recorded for (its record's flag), -1 */
-    int8_t job_missing;        /* a waiting data job: its first required input without new data */
-    int64_t next_k;            /* the next release that is not a job yet (< 0: one of the plan before) */
-    int64_t anchor_ns;         /* release next_k = 0: the run's start, or the first at or after a switch */
-    int64_t back_period_ns;    /* the period of releases next_k < 0 (the plan before a switch) ... */
-    int64_t back_generation;   /* ... and that plan's generation */
-    int64_t job_generation;    /* of the plan that released the job: its record's */
-    int64_t job_release;
-    int64_t remaining_ns;      /* of the job's computation */
-    int64_t slice_mono_ns;     /* where its computation was last counted up to (tasking_ran) */
-    skel_rec_t rec;            /* the job's record, sent at its completion */
-    /* sync: event (event.c): the events waiting, oldest first, as arrival instants */
-    int16_t event;             /* index into plan->events, -1: not an event process */
-    int16_t queue_cap;
-    int nemits;
-    int16_t emits[SKEL_MAX_EMITS];   /* indexes into plan->events */
-    int64_t queue_ns[SKEL_MAX_QUEUE];
-    int q_head, q_count;
-    int64_t arrived_ns[SKEL_MAX_QUEUE]; /* drained, not yet in the queue (event_settle) */
-    int a_head, a_count;
-    int32_t q_dropped;         /* since its last cycle */
-    int64_t taken_ns;          /* arrival of the event the coming cycle handles, -1: none */
-    int16_t taken_left;
-    int32_t taken_dropped;
+    skel_job_t job;            /* the tasking executive's */
+    skel_queue_t queue;        /* an event process's */
 } skel_process_t;
 
 typedef struct {
@@ -592,11 +603,6 @@ typedef struct {
     skel_mark_t mark;
     int64_t mark_charged_ns;
     int mark_stale;
-    /* The cyclic executive's last record of the last minor that ran anything: its idle
-     * ends where the next one runs (a sync: event process may leave minors empty). */
-    skel_rec_t held;
-    skel_process_t *held_p;    /* NULL: none held */
-    int64_t held_release, held_end;
 } skel_exec_t;
 
 enum { PROCESS_DONE = 0, PROCESS_STOPPED = 1 };
@@ -629,10 +635,18 @@ int64_t event_oldest_ns(const skel_process_t *p); /* of the events waiting, INT6
 void event_settle(skel_plan_t *plan, skel_process_t *p, int64_t upto);
 void event_release(skel_plan_t *plan, skel_process_t *p, int64_t release);
 void event_emit(skel_plan_t *plan, const skel_process_t *p, int64_t now_ns);
-void event_carry(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw);
+void event_carry_process(skel_process_t *p, const skel_process_t *o);
+void event_carry_sources(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw);
 void event_generators_begin(skel_plan_t *plan, int64_t t0);
 int event_generators_start(skel_plan_t *plan, int64_t end);
 void event_generators_stop(skel_plan_t *plan);
+
+/* ---- job (job.c): a process's one job on the tasking executive (tasking.c, threads.c) */
+int64_t job_release(const skel_process_t *p, int64_t k);
+int64_t job_event_release(const skel_process_t *p);
+int64_t job_next_release(const skel_process_t *p);
+int64_t job_minor(const skel_plan_t *plan, const skel_process_t *p);
+int64_t job_lockout(skel_exec_t *x, skel_process_t *p, int64_t now, int64_t next);
 
 /* ---- swap (swap.c): a live switch of plans at one cycle boundary ---------------- */
 int64_t swap_index(const skel_plan_t *plan, int64_t j_prev, int64_t at_mono_ns);
@@ -640,13 +654,30 @@ int64_t swap_instant(const skel_plan_t *plan, int64_t j_sw);
 void swap_carry(skel_plan_t *next, const skel_plan_t *old, int64_t j_sw);
 int swap_tasking_ready(const skel_plan_t *old, int64_t t_sw);
 void swap_carry_tasking(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw);
+void swap_carry_events(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw);
+
+/* ---- cycle (cycle.c): what every executive shares, calling none of them ---------- */
+void cycle_pin(const skel_plan_t *plan);
+int cycle_rt_priority(const skel_server_t *s, const skel_plan_t *plan); /* 0: SCHED_OTHER */
+int cycle_schedule(skel_server_t *s, const skel_plan_t *plan, int running); /* the FIFO priority, 0 */
+void cycle_open_window(skel_plan_t *plan, int64_t t0);
+void cycle_account(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec, int64_t release,
+                   int64_t end);
+void cycle_record(skel_server_t *s, const skel_rec_t *rec);
+int cycle_skips(const skel_plan_t *plan, const skel_process_t *p, int64_t release, int64_t now);
+void cycle_skip_record(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, int64_t release,
+                       int64_t sched, int64_t now, skel_rec_t *rec);
+void cycle_poll_switch(skel_exec_t *x);
+int cycle_wait(skel_exec_t *x, int64_t until); /* 0 reached, 1 stop, 2 the pending switch changed */
+skel_plan_t *cycle_take(skel_exec_t *x);
+int cycle_switch(skel_exec_t *x, skel_plan_t *next, int64_t j_sw, int ran);
+void cycle_announce(skel_exec_t *x);
+
+/* ---- cyclic (cyclic.c): the cyclic executive's loop ------------------------------ */
+int64_t cyclic_next_release(const skel_plan_t *plan, int64_t j);
+void cyclic_run(skel_exec_t *x, const skel_run_t *run);
 
 /* ---- tasking (tasking.c): the tasking executive's one-processor schedule -------- */
-enum { TASK_NONE = 0, TASK_WAITING, TASK_READY, TASK_STARTED };
-int64_t tasking_release(const skel_process_t *p, int64_t k);
-int64_t tasking_event_release(const skel_process_t *p);
-int64_t tasking_minor(const skel_plan_t *plan, const skel_process_t *p);
-int64_t tasking_lockout(skel_exec_t *x, skel_process_t *p, int64_t now, int64_t next);
 void tasking_run(skel_exec_t *x);
 
 /* ---- threads (threads.c): the tasking executive in CPU, WALL and WORK: a SCHED_FIFO
@@ -656,20 +687,10 @@ threads_t *threads_start(skel_exec_t *x, char *klass, size_t len); /* before t0;
 void threads_run(threads_t *t, skel_exec_t *x); /* watches lockouts until the end or STOP, ends T */
 void threads_end(threads_t *t);                 /* stops and joins every thread, frees T */
 
-/* ---- executive (executive.c): the cyclic loop and its thread -------------------- */
-void executive_account(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec, int64_t release,
-                       int64_t end);
-void executive_record(skel_server_t *s, const skel_rec_t *rec);
-int executive_skips(const skel_plan_t *plan, const skel_process_t *p, int64_t release, int64_t now);
-void executive_skip_record(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, int64_t release,
-                           int64_t sched, int64_t now, skel_rec_t *rec);
-void executive_poll_switch(skel_exec_t *x);
-int executive_switch(skel_exec_t *x, int64_t j_sw, int ran);
-void executive_announce(skel_exec_t *x);
+/* ---- executive (executive.c): the executive thread; a START chooses and starts the
+ * DPU's executive ----------------------------------------------------------------- */
 void *executive_main(void *arg);
-int64_t executive_next_release(const skel_plan_t *plan, int64_t j);
 void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run);
-int executive_rt_priority(const skel_server_t *s, const skel_plan_t *plan); /* 0: SCHED_OTHER */
 
 /* ---- control (control.c): the control thread ------------------------------------ */
 typedef struct {

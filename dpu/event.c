@@ -61,7 +61,7 @@ int event_add_process(skel_plan_t *plan, skel_process_t *p, const skelmsg_proces
         if (p->event < 0) return -1;
         plan->events[p->event].awaited = 1;
         plan->awaits_events = 1;
-        p->queue_cap = src->queue;
+        p->queue.cap = src->queue;
     }
     p->nemits = src->nemits;
     for (int e = 0; e < src->nemits; e++)
@@ -94,28 +94,30 @@ int event_add_sources(skel_plan_t *plan, const skelmsg_config_t *cfg, int16_t dp
 /* The event that arrived AT joins P's queue by its rule. */
 static void event_queue(skel_plan_t *plan, skel_process_t *p, int64_t at)
 {
-    int full = p->q_count >= p->queue_cap;
-    if (full && p->queue_cap > 1) { /* N pending: the newcomer is dropped */
-        p->q_dropped++;
+    skel_queue_t *q = &p->queue;
+    int full = q->count >= q->cap;
+    if (full && q->cap > 1) { /* N pending: the newcomer is dropped */
+        q->dropped++;
         if (at >= plan->measure_from_ns) p->sums.events_dropped++;
         return;
     }
     if (full) { /* only the newest counts: it replaces the one waiting */
-        p->q_dropped++;
-        if (p->queue_ns[p->q_head] >= plan->measure_from_ns) p->sums.events_dropped++;
-        p->queue_ns[p->q_head] = at;
+        q->dropped++;
+        if (q->queued_ns[q->head] >= plan->measure_from_ns) p->sums.events_dropped++;
+        q->queued_ns[q->head] = at;
         return;
     }
-    p->queue_ns[(p->q_head + p->q_count) % SKEL_MAX_QUEUE] = at;
-    p->q_count++;
+    q->queued_ns[(q->head + q->count) % SKEL_MAX_QUEUE] = at;
+    q->count++;
 }
 
 void event_settle(skel_plan_t *plan, skel_process_t *p, int64_t upto)
 {
-    while (p->a_count > 0 && p->arrived_ns[p->a_head] <= upto) {
-        event_queue(plan, p, p->arrived_ns[p->a_head]);
-        p->a_head = (p->a_head + 1) % SKEL_MAX_QUEUE;
-        p->a_count--;
+    skel_queue_t *q = &p->queue;
+    while (q->a_count > 0 && q->arrived_ns[q->a_head] <= upto) {
+        event_queue(plan, p, q->arrived_ns[q->a_head]);
+        q->a_head = (q->a_head + 1) % SKEL_MAX_QUEUE;
+        q->a_count--;
     }
 }
 
@@ -137,9 +139,10 @@ void event_receive(skel_event_t *e, const lcm_recv_buf_t *rbuf)
     for (int i = 0; i < plan->nprocesses; i++) {
         skel_process_t *p = &plan->processes[i];
         if (p->event != index) continue;
-        if (p->a_count == SKEL_MAX_QUEUE) event_settle(plan, p, p->arrived_ns[p->a_head]); /* bounded */
-        p->arrived_ns[(p->a_head + p->a_count) % SKEL_MAX_QUEUE] = at;
-        p->a_count++;
+        skel_queue_t *q = &p->queue;
+        if (q->a_count == SKEL_MAX_QUEUE) event_settle(plan, p, q->arrived_ns[q->a_head]); /* bounded */
+        q->arrived_ns[(q->a_head + q->a_count) % SKEL_MAX_QUEUE] = at;
+        q->a_count++;
     }
 }
 
@@ -202,18 +205,16 @@ void event_free(skel_plan_t *plan)
 /* P holds no event, none waits. */
 static void event_clear(skel_process_t *p)
 {
-    p->q_head = p->q_count = 0;
-    p->a_head = p->a_count = 0;
-    p->q_dropped = 0;
-    p->taken_ns = -1;
+    skel_queue_t *q = &p->queue;
+    q->head = q->count = 0;
+    q->a_head = q->a_count = 0;
+    q->dropped = 0;
+    q->taken_ns = -1;
 }
 
 void event_reset_run(skel_plan_t *plan)
 {
-    for (int i = 0; i < plan->nprocesses; i++) {
-        event_clear(&plan->processes[i]);
-        plan->processes[i].job_release = INT64_MIN / 4; /* the first event is released when it comes */
-    }
+    for (int i = 0; i < plan->nprocesses; i++) event_clear(&plan->processes[i]);
     for (int i = 0; i < plan->nevents; i++) plan->events[i].seq = 0;
     for (int i = 0; i < plan->nsources; i++)
         draw_seed_state(plan->sources[i].state, plan->seed, 0x8000u | (uint64_t)i);
@@ -221,12 +222,14 @@ void event_reset_run(skel_plan_t *plan)
 
 int event_pending(const skel_process_t *p)
 {
-    return p->q_count + p->a_count > 0;
+    const skel_queue_t *q = &p->queue;
+    return q->count + q->a_count > 0;
 }
 
 int64_t event_oldest_ns(const skel_process_t *p)
 {
-    return p->q_count > 0 ? p->queue_ns[p->q_head] : p->a_count > 0 ? p->arrived_ns[p->a_head] : INT64_MAX;
+    const skel_queue_t *q = &p->queue;
+    return q->count > 0 ? q->queued_ns[q->head] : q->a_count > 0 ? q->arrived_ns[q->a_head] : INT64_MAX;
 }
 
 /* The oldest waiting event becomes the next cycle's (P's next_k-th): its record
@@ -235,12 +238,13 @@ int64_t event_oldest_ns(const skel_process_t *p)
  * starts at its first cycle released inside the DPU's. */
 static void event_take(skel_process_t *p)
 {
-    p->taken_ns = p->queue_ns[p->q_head];
-    p->q_head = (p->q_head + 1) % SKEL_MAX_QUEUE;
-    p->q_count--;
-    p->taken_left = (int16_t)p->q_count;
-    p->taken_dropped = p->q_dropped;
-    p->q_dropped = 0;
+    skel_queue_t *q = &p->queue;
+    q->taken_ns = q->queued_ns[q->head];
+    q->head = (q->head + 1) % SKEL_MAX_QUEUE;
+    q->count--;
+    q->taken_left = (int16_t)q->count;
+    q->taken_dropped = q->dropped;
+    q->dropped = 0;
 }
 
 /* The first measured cycle of event process P (its cycle index, as the executives
@@ -325,38 +329,39 @@ static void event_source_begin(skel_source_t *g, int64_t t0, int64_t from)
     g->next_ns = event_source_next(g, t0, from);
 }
 
-/* A live switch at T_SW, after the executive's carry (swap.c): NEXT's event processes
- * keep the events waiting for the same process in OLD (and a tasking job it released for
- * one) and count on from its cycles; a generator of the same event, kind and parameters
- * goes on with its draws, another starts at T_SW. Only read from OLD. */
-void event_carry(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
+/* A live switch, after the executive's carry (swap.c, swap_carry_events): event process
+ * P of the next plan keeps the events waiting for the same process O of the old one (NULL:
+ * new here) and counts on from its cycles. Only read from O. */
+void event_carry_process(skel_process_t *p, const skel_process_t *o)
 {
-    for (int i = 0; i < next->nprocesses; i++) {
-        skel_process_t *p = &next->processes[i];
-        event_clear(p);
-        if (p->event < 0) continue; /* the executive's own carry counts its releases */
-        p->next_k = 0;
-        p->job_release = INT64_MIN / 4;
-        int at = plan_process_index(old, p->id);
-        if (at < 0 || old->processes[at].event < 0) { /* a new event process: counts from here */
-            p->k_base = 0;
-            p->measure_from_k = INT64_MAX;
-            continue;
-        }
-        const skel_process_t *o = &old->processes[at];
-        p->k_base = o->k_base + o->next_k;
-        p->measure_from_k = o->measure_from_k;
-        p->job_release = o->job_release;
-        /* a tasking job released for an event and carried over keeps it */
-        p->taken_ns = o->taken_ns;
-        p->taken_left = o->taken_left;
-        p->taken_dropped = o->taken_dropped;
-        for (int n = 0; n < o->q_count && p->q_count < p->queue_cap; n++)
-            p->queue_ns[p->q_count++] = o->queue_ns[(o->q_head + n) % SKEL_MAX_QUEUE];
-        p->q_dropped = o->q_dropped;
-        for (int n = 0; n < o->a_count; n++)
-            p->arrived_ns[p->a_count++] = o->arrived_ns[(o->a_head + n) % SKEL_MAX_QUEUE];
+    event_clear(p);
+    if (p->event < 0) return; /* the executive's own carry counts its releases */
+    p->next_k = 0;
+    if (o == NULL || o->event < 0) { /* a new event process: counts from here */
+        p->k_base = 0;
+        p->measure_from_k = INT64_MAX;
+        return;
     }
+    p->k_base = o->k_base + o->next_k;
+    p->measure_from_k = o->measure_from_k;
+    /* a tasking job released for an event and carried over keeps it */
+    skel_queue_t *q = &p->queue;
+    const skel_queue_t *oq = &o->queue;
+    q->taken_ns = oq->taken_ns;
+    q->taken_left = oq->taken_left;
+    q->taken_dropped = oq->taken_dropped;
+    for (int n = 0; n < oq->count && q->count < q->cap; n++)
+        q->queued_ns[q->count++] = oq->queued_ns[(oq->head + n) % SKEL_MAX_QUEUE];
+    q->dropped = oq->dropped;
+    for (int n = 0; n < oq->a_count; n++)
+        q->arrived_ns[q->a_count++] = oq->arrived_ns[(oq->a_head + n) % SKEL_MAX_QUEUE];
+}
+
+/* A live switch at T_SW: NEXT's events count their seq afresh; a generator of the same
+ * event, kind and parameters as one of OLD goes on with its draws, another starts at T_SW.
+ * Only read from OLD. */
+void event_carry_sources(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
+{
     for (int i = 0; i < next->nevents; i++) next->events[i].seq = 0;
     for (int i = 0; i < next->nsources; i++) {
         skel_source_t *g = &next->sources[i];

@@ -129,7 +129,7 @@ static int plan_add_processes(skel_plan_t *plan, const skelmsg_config_t *cfg, in
     return 0;
 }
 
-/* Whether the configured load fits the DPU (Σ compute / period <= 1): executive.c
+/* Whether the configured load fits the DPU (Σ compute / period <= 1): cycle.c
  * skips a data-synchronised process's late releases only then. */
 static int plan_fits(const skel_plan_t *plan)
 {
@@ -238,8 +238,9 @@ void plan_reset_run(skel_plan_t *plan, int64_t run_id)
         p->k_base = 0;
         p->measure_from_k = plan->warmup_cycles;
         p->locked_out = 0;
-        p->lockout_k = -1;
-        p->job = TASK_NONE;
+        p->job.lockout_k = -1;
+        p->job.state = JOB_NONE;
+        p->job.release = INT64_MIN / 4; /* an event process's first event is released when it comes */
         p->next_k = 0;
         p->sums = (skel_process_sums_t){ 0 };
         draw_seed(&p->draw, plan->seed, p->id);

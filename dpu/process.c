@@ -76,7 +76,7 @@ void process_lockout(skel_exec_t *x, skel_process_t *p, int16_t buffer, int64_t 
  * is due in J itself; one before it already ran in J and is next due after it.
  * Each that is past its lockout threshold is locked out, held up behind P (its
  * lockout names P, and no buffer: it is not waiting for data). Returns the next
- * instant one would be (INT64_MAX: none in this run). Releases as executive_minor
+ * instant one would be (INT64_MAX: none in this run). Releases as cyclic_minor
  * computes them: epoch_t0 + k * period. */
 static int64_t process_held_up(skel_exec_t *x, const skel_process_t *p, int64_t j, int64_t now)
 {
@@ -343,9 +343,9 @@ void process_record_begin(skel_exec_t *x, const skel_process_t *p, int64_t k, in
     rec->stall_ns = x->wake_stall_ns;
     x->wake_stall_ns = 0;
     rec->debt_ns = x->stall_debt_ns; /* the cyclic executive's; 0 on the others */
-    rec->event_ns = p->taken_ns >= 0 ? p->taken_ns + off : -1;
-    rec->event_queued = p->taken_left;
-    rec->event_dropped = p->taken_dropped;
+    rec->event_ns = p->queue.taken_ns >= 0 ? p->queue.taken_ns + off : -1;
+    rec->event_queued = p->queue.taken_left;
+    rec->event_dropped = p->queue.taken_dropped;
 }
 
 /* The end of cycle K's work: outputs written since T_OUT. Slack, overrun and the
@@ -356,11 +356,11 @@ void process_finish(skel_exec_t *x, skel_process_t *p, skel_rec_t *rec, int64_t 
     const int64_t off = x->s->clock_offset_ns;
     int64_t end = clock_mono_ns();
     int64_t start = rec->start_ns - off;
-    p->taken_ns = -1; /* its event is handled */
+    p->queue.taken_ns = -1; /* its event is handled */
     rec->comm_out_ns = end - t_out;
     rec->slack_ns = release + p->period_ns - end;
-    /* a tasking job locked out while it ran (tasking_lockout names its cycle): its record says so */
-    if (rec->cycle == p->lockout_k) rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
+    /* a tasking job locked out while it ran (job_lockout names its cycle): its record says so */
+    if (rec->cycle == p->job.lockout_k) rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
     /* A cycle that completes after its lockout instant was locked out, whatever held it
      * (a computation the check between its parts did not see past, outputs, a tasking
      * job preempted): named now at the latest, not when its next cycle starts. Only a

@@ -166,8 +166,8 @@ void swap_carry(skel_plan_t *next, const skel_plan_t *old, int64_t j_sw)
  * after T (negative: on the grid of the plan before P's last switch). */
 static int64_t swap_first_release(const skel_process_t *p, int64_t t)
 {
-    if (t <= p->anchor_ns) return -((p->anchor_ns - t) / p->back_period_ns);
-    return swap_ceil_div(t - p->anchor_ns, p->period_ns);
+    if (t <= p->job.anchor_ns) return -((p->job.anchor_ns - t) / p->job.back_period_ns);
+    return swap_ceil_div(t - p->job.anchor_ns, p->period_ns);
 }
 
 /* 0 when some process of OLD still owes, before T_SW, a release of the plan
@@ -176,7 +176,7 @@ int swap_tasking_ready(const skel_plan_t *old, int64_t t_sw)
 {
     for (int i = 0; i < old->nprocesses; i++) {
         const skel_process_t *o = &old->processes[i];
-        int64_t owed = o->next_k + (o->job != TASK_NONE); /* the first release not yet a job */
+        int64_t owed = o->next_k + (o->job.state != JOB_NONE); /* the first release not yet a job */
         if (owed < 0 && swap_first_release(o, t_sw) > 0) return 0;
     }
     return 1;
@@ -188,30 +188,45 @@ void swap_carry_tasking(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
     for (int i = 0; i < next->nprocesses; i++) {
         skel_process_t *p = &next->processes[i];
         int j = plan_process_index(old, p->id);
-        p->job = TASK_NONE;
-        p->lockout_k = -1;
-        p->back_period_ns = p->period_ns;
-        p->back_generation = next->generation;
+        p->job.state = JOB_NONE;
+        p->job.lockout_k = -1;
+        p->job.back_period_ns = p->period_ns;
+        p->job.back_generation = next->generation;
         if (j < 0) { /* swap_carry put k_base on its period's grid since the run's start */
             p->next_k = 0;
-            p->anchor_ns = next->run_t0_ns + p->k_base * p->period_ns;
+            p->job.anchor_ns = next->run_t0_ns + p->k_base * p->period_ns;
+            if (p->event >= 0) p->job.release = INT64_MIN / 4; /* its first event is released when it comes */
             continue;
         }
         const skel_process_t *o = &old->processes[j];
         int64_t n = swap_first_release(o, t_sw);
         p->k_base = o->k_base + n;
-        p->anchor_ns = tasking_release(o, n);
-        p->back_period_ns = n > 0 ? o->period_ns : o->back_period_ns;
-        p->back_generation = n > 0 ? old->generation : o->back_generation;
+        p->job.anchor_ns = job_release(o, n);
+        p->job.back_period_ns = n > 0 ? o->period_ns : o->job.back_period_ns;
+        p->job.back_generation = n > 0 ? old->generation : o->job.back_generation;
         p->next_k = o->next_k - n;
-        p->job = o->job;
-        p->lockout_k = o->lockout_k;
-        p->job_missing = -1;
-        p->job_generation = o->job_generation;
-        p->job_release = o->job_release;
-        p->remaining_ns = o->remaining_ns;
-        p->slice_mono_ns = o->slice_mono_ns;
-        p->rec = o->rec;
-        if (p->job == TASK_WAITING && p->sync != SKELMSG_PROCESS_T_SYNC_DATA) p->job = TASK_READY;
+        p->job.state = o->job.state;
+        p->job.lockout_k = o->job.lockout_k;
+        p->job.missing = -1;
+        p->job.generation = o->job.generation;
+        p->job.release = o->job.release;
+        p->job.remaining_ns = o->job.remaining_ns;
+        p->job.slice_mono_ns = o->job.slice_mono_ns;
+        p->job.rec = o->job.rec;
+        if (p->job.state == JOB_WAITING && p->sync != SKELMSG_PROCESS_T_SYNC_DATA) p->job.state = JOB_READY;
+        /* an event process's next release counts from its last event's (job_event_release) */
+        if (p->event >= 0 && o->event < 0) p->job.release = INT64_MIN / 4;
     }
+}
+
+/* After swap_carry (and swap_carry_tasking) at the boundary T_SW of OLD: each event
+ * process's queue and cycle count, by process id, and the event generators (event.c). */
+void swap_carry_events(skel_plan_t *next, const skel_plan_t *old, int64_t t_sw)
+{
+    for (int i = 0; i < next->nprocesses; i++) {
+        skel_process_t *p = &next->processes[i];
+        int at = plan_process_index(old, p->id);
+        event_carry_process(p, at >= 0 ? &old->processes[at] : NULL);
+    }
+    event_carry_sources(next, old, t_sw);
 }

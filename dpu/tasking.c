@@ -49,51 +49,30 @@ static int tasking_wait(skel_exec_t *x, int64_t until, int watch, int64_t *stall
     return 0;
 }
 
-/* P's release K of this plan (K < 0: of the plan before a switch, swap.c). */
-int64_t tasking_release(const skel_process_t *p, int64_t k)
-{
-    return p->anchor_ns + k * (k >= 0 ? p->period_ns : p->back_period_ns);
-}
-
 static int64_t tasking_floor_div(int64_t a, int64_t b)
 {
     return a >= 0 ? a / b : -((-a + b - 1) / b);
 }
 
-/* An event process's next release: its oldest waiting event, or a period after its
- * last release when events come faster (INT64_MAX: none waits). */
-int64_t tasking_event_release(const skel_process_t *p)
-{
-    int64_t at = event_oldest_ns(p), earliest = p->job_release + p->period_ns;
-    if (at == INT64_MAX) return INT64_MAX;
-    return at > earliest ? at : earliest;
-}
-
-/* The run's minor cycle P's job was released in (the records' frame). */
-int64_t tasking_minor(const skel_plan_t *plan, const skel_process_t *p)
-{
-    return plan->minor_base + tasking_floor_div(p->job_release - plan->epoch_t0_ns, plan->minor_ns);
-}
-
 /* A data job becomes ready once its required inputs are new. Looked at in a
  * scratch record: P's own may still hold its last cycle, waiting for its idle.
  * A job whose data comes a whole period after its release skips that release
- * (cycle skipping, as on the cyclic executive: executive_skips), so that the
+ * (cycle skipping, as on the cyclic executive: cycle_skips), so that the
  * next job runs on this data rather than the process staying a period behind. */
 static void tasking_check_data(skel_exec_t *x, skel_process_t *p, int64_t vt)
 {
     skel_plan_t *plan = x->plan;
     skel_rec_t look;
     process_peek_inputs(plan, p, &look);
-    p->job_missing = (int8_t)process_missing(p, &look);
-    if (p->job_missing >= 0) return;
-    p->job = TASK_READY;
-    if (!executive_skips(plan, p, p->job_release, vt)) return;
-    executive_skip_record(x, p, p->k_base + p->next_k, tasking_minor(plan, p), p->job_release,
-                          p->job_release, vt, &look);
-    look.generation = p->job_generation;
-    executive_record(x->s, &look);
-    p->job = TASK_NONE;
+    p->job.missing = (int8_t)process_missing(p, &look);
+    if (p->job.missing >= 0) return;
+    p->job.state = JOB_READY;
+    if (!cycle_skips(plan, p, p->job.release, vt)) return;
+    cycle_skip_record(x, p, p->k_base + p->next_k, job_minor(plan, p), p->job.release,
+                          p->job.release, vt, &look);
+    look.generation = p->job.generation;
+    cycle_record(x->s, &look);
+    p->job.state = JOB_NONE;
     p->next_k++;
 }
 
@@ -105,60 +84,31 @@ static void tasking_release_due(skel_exec_t *x, int64_t vt)
     for (int i = 0; i < plan->nprocesses; i++) {
         skel_process_t *p = &plan->processes[i];
         if (p->event >= 0) {
-            int64_t release = tasking_event_release(p);
-            if (p->job == TASK_NONE && release <= vt && release < x->end_mono_ns) {
-                p->job_release = release;
-                p->job_generation = plan->generation;
-                p->job = TASK_READY;
+            int64_t release = job_event_release(p);
+            if (p->job.state == JOB_NONE && release <= vt && release < x->end_mono_ns) {
+                p->job.release = release;
+                p->job.generation = plan->generation;
+                p->job.state = JOB_READY;
                 event_release(plan, p, release);
             }
             continue;
         }
-        while (p->job == TASK_NONE) { /* again after a skipped release */
-            int64_t release = tasking_release(p, p->next_k);
+        while (p->job.state == JOB_NONE) { /* again after a skipped release */
+            int64_t release = job_release(p, p->next_k);
             if (release > vt || release >= x->end_mono_ns) break;
-            p->job_release = release;
-            p->job_generation = p->next_k < 0 ? p->back_generation : plan->generation;
-            p->job = p->sync == SKELMSG_PROCESS_T_SYNC_DATA ? TASK_WAITING : TASK_READY;
-            if (p->job == TASK_WAITING) tasking_check_data(x, p, vt);
+            p->job.release = release;
+            p->job.generation = p->next_k < 0 ? p->job.back_generation : plan->generation;
+            p->job.state = p->sync == SKELMSG_PROCESS_T_SYNC_DATA ? JOB_WAITING : JOB_READY;
+            if (p->job.state == JOB_WAITING) tasking_check_data(x, p, vt);
         }
     }
-}
-
-/* P's oldest release not completed yet, and its cycle *K: its job's while it has one
- * (waiting for data or the processor, or started: a job that computes past its lockout
- * instant is locked out there, and the releases behind it are younger); else its next.
- * INT64_MAX: none (an event process no event waits for). Both tasking executives lock
- * out by it. */
-static int64_t tasking_pending(const skel_process_t *p, int64_t *k)
-{
-    *k = p->k_base + p->next_k;
-    if (p->job != TASK_NONE) return p->job_release;
-    return p->event >= 0 ? tasking_event_release(p) : tasking_release(p, p->next_k);
-}
-
-/* P's release not completed by its lockout instant, by NOW, is locked out, as on the
- * cyclic executive: waiting for data (naming the buffer), kept from the processor by
- * higher-priority work or by its own late jobs, or still computing. Returns NEXT, or
- * the instant P's lockout would be when sooner. */
-int64_t tasking_lockout(skel_exec_t *x, skel_process_t *p, int64_t now, int64_t next)
-{
-    int64_t k, release = tasking_pending(p, &k);
-    if (p->locked_out || release >= x->end_mono_ns) return next;
-    int64_t at = process_lockout_at(x->plan, p, release);
-    if (now < at) return at < next ? at : next;
-    int missing = p->job == TASK_WAITING ? p->job_missing : -1;
-    process_lockout(x, p, missing >= 0 ? p->inputs[missing].buffer : -1, k, release,
-                    p->job == TASK_STARTED ? "still computing" : "not run: kept from the processor");
-    p->lockout_k = k;
-    return next;
 }
 
 /* Lockouts due by VT; returns the next instant one would be. */
 static int64_t tasking_lockouts(skel_exec_t *x, int64_t vt)
 {
     int64_t next = INT64_MAX;
-    for (int i = 0; i < x->plan->nprocesses; i++) next = tasking_lockout(x, &x->plan->processes[i], vt, next);
+    for (int i = 0; i < x->plan->nprocesses; i++) next = job_lockout(x, &x->plan->processes[i], vt, next);
     return next;
 }
 
@@ -166,28 +116,28 @@ static int64_t tasking_lockouts(skel_exec_t *x, int64_t vt)
 static void tasking_start(skel_exec_t *x, skel_process_t *p, int64_t vt, int64_t now)
 {
     skel_plan_t *plan = x->plan;
-    process_record_begin(x, p, p->k_base + p->next_k, tasking_minor(plan, p), p->job_release, vt, now,
-                         &p->rec);
-    if (p->k_base + p->next_k == p->lockout_k) p->rec.flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
-    p->rec.generation = p->job_generation;
+    process_record_begin(x, p, p->k_base + p->next_k, job_minor(plan, p), p->job.release, vt, now,
+                         &p->job.rec);
+    if (p->k_base + p->next_k == p->job.lockout_k) p->job.rec.flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
+    p->job.rec.generation = p->job.generation;
     (void)link_drain(plan->links, plan->nlinks); /* an lcm error shows as stale inputs */
-    process_peek_inputs(plan, p, &p->rec);
-    process_commit(plan, p, &p->rec, p->k_base + p->next_k >= p->measure_from_k);
-    p->rec.asked_ns = draw_ns(&p->draw, p->compute_ns);
-    p->remaining_ns = p->rec.asked_ns;
-    p->slice_mono_ns = clock_mono_ns();
-    p->rec.comm_in_ns = p->slice_mono_ns - now;
-    p->job = TASK_STARTED;
+    process_peek_inputs(plan, p, &p->job.rec);
+    process_commit(plan, p, &p->job.rec, p->k_base + p->next_k >= p->measure_from_k);
+    p->job.rec.asked_ns = draw_ns(&p->draw, p->compute_ns);
+    p->job.remaining_ns = p->job.rec.asked_ns;
+    p->job.slice_mono_ns = clock_mono_ns();
+    p->job.rec.comm_in_ns = p->job.slice_mono_ns - now;
+    p->job.state = JOB_STARTED;
 }
 
 /* P held the processor from its slice's start until T. */
 static void tasking_ran(skel_process_t *p, int64_t t)
 {
-    int64_t d = t - p->slice_mono_ns;
+    int64_t d = t - p->job.slice_mono_ns;
     if (d <= 0) return;
-    p->remaining_ns -= d;
-    p->rec.compute_ns += d;
-    p->slice_mono_ns = t;
+    p->job.remaining_ns -= d;
+    p->job.rec.compute_ns += d;
+    p->job.slice_mono_ns = t;
 }
 
 /* P's computation is done: outputs, the record, the sums. */
@@ -197,11 +147,11 @@ static void tasking_complete(skel_exec_t *x, skel_process_t *p)
     int64_t t_out = clock_mono_ns();
     /* Its computation ended at its slice's end: a later wake-up (its stall) kept
      * it, so that the record's parts add up to where its work ended. */
-    if (t_out > p->slice_mono_ns) p->rec.preempted_ns += t_out - p->slice_mono_ns;
+    if (t_out > p->job.slice_mono_ns) p->job.rec.preempted_ns += t_out - p->job.slice_mono_ns;
     const int measured = p->k_base + p->next_k >= p->measure_from_k;
     process_write_outputs(x, p, p->k_base + p->next_k);
-    process_finish(x, p, &p->rec, p->job_release, t_out, measured);
-    p->job = TASK_NONE;
+    process_finish(x, p, &p->job.rec, p->job.release, t_out, measured);
+    p->job.state = JOB_NONE;
     p->next_k++;
     atomic_fetch_add(&x->s->minor_cycles, 1);
     if (measured) plan->sums.minor_cycles++;
@@ -214,18 +164,18 @@ static void tasking_flush(skel_exec_t *x, skel_process_t **idle, int64_t now)
 {
     skel_process_t *p = *idle;
     if (p == NULL) return;
-    int64_t release = p->rec.release_ns - x->s->clock_offset_ns;
-    int64_t end = release + p->period_ns - p->rec.slack_ns;
-    p->rec.idle_ns = now > end ? now - end : 0;
-    executive_account(x->plan, p, &p->rec, release, end);
-    executive_record(x->s, &p->rec);
+    int64_t release = p->job.rec.release_ns - x->s->clock_offset_ns;
+    int64_t end = release + p->period_ns - p->job.rec.slack_ns;
+    p->job.rec.idle_ns = now > end ? now - end : 0;
+    cycle_account(x->plan, p, &p->job.rec, release, end);
+    cycle_record(x->s, &p->job.rec);
     *idle = NULL;
 }
 
 static skel_process_t *tasking_highest(skel_plan_t *plan)
 {
     for (int i = 0; i < plan->nprocesses; i++) /* sorted by priority, highest first */
-        if (plan->processes[i].job >= TASK_READY) return &plan->processes[i];
+        if (plan->processes[i].job.state >= JOB_READY) return &plan->processes[i];
     return NULL;
 }
 
@@ -234,7 +184,7 @@ static skel_process_t *tasking_highest(skel_plan_t *plan)
  * and its minor index J_SW; INT64_MAX when none is pending. */
 static int64_t tasking_switch_at(skel_exec_t *x, int64_t vt, int done, int64_t *j_sw)
 {
-    executive_poll_switch(x);
+    cycle_poll_switch(x);
     if (!x->switch_pending) return INT64_MAX;
     const skel_plan_t *plan = x->plan;
     int64_t j_prev = tasking_floor_div(vt - plan->epoch_t0_ns - !done, plan->minor_ns);
@@ -249,13 +199,14 @@ static void tasking_switch(skel_exec_t *x, skel_process_t **cur, skel_process_t 
 {
     tasking_flush(x, idle, clock_mono_ns());
     int16_t running = *cur != NULL ? (*cur)->id : -1;
-    if (!executive_switch(x, j_sw, vt > x->plan->run_t0_ns)) return;
+    skel_plan_t *next = cycle_take(x);
+    if (next == NULL || !cycle_switch(x, next, j_sw, vt > x->plan->run_t0_ns)) return;
     skel_plan_t *plan = x->plan;
     int i = running >= 0 ? plan_process_index(plan, running) : -1;
-    *cur = i >= 0 && plan->processes[i].job == TASK_STARTED ? &plan->processes[i] : NULL;
-    executive_announce(x);
+    *cur = i >= 0 && plan->processes[i].job.state == JOB_STARTED ? &plan->processes[i] : NULL;
+    cycle_announce(x);
     for (i = 0; i < plan->nprocesses; i++) /* its inputs may have changed */
-        if (plan->processes[i].job == TASK_WAITING) tasking_check_data(x, &plan->processes[i], vt);
+        if (plan->processes[i].job.state == JOB_WAITING) tasking_check_data(x, &plan->processes[i], vt);
 }
 
 void tasking_run(skel_exec_t *x)
@@ -264,9 +215,9 @@ void tasking_run(skel_exec_t *x)
     int64_t vt = plan->epoch_t0_ns, released = -1;
     skel_process_t *cur = NULL, *idle = NULL;
     for (int i = 0; i < plan->nprocesses; i++) {
-        plan->processes[i].anchor_ns = plan->epoch_t0_ns;
-        plan->processes[i].back_period_ns = plan->processes[i].period_ns;
-        plan->processes[i].back_generation = plan->generation;
+        plan->processes[i].job.anchor_ns = plan->epoch_t0_ns;
+        plan->processes[i].job.back_period_ns = plan->processes[i].period_ns;
+        plan->processes[i].job.back_generation = plan->generation;
     }
     int64_t woke_mono = clock_mono_ns(), woke_cpu = clock_thread_cpu_ns();
     for (;;) {
@@ -295,20 +246,20 @@ void tasking_run(skel_exec_t *x)
         int64_t next = tasking_lockouts(x, vt);
         skel_process_t *h = tasking_highest(plan);
         int64_t now = clock_mono_ns();
-        if (h != cur && cur != NULL && cur->job == TASK_STARTED) /* preempted at the last event */
-            cur->rec.preemptions++;
+        if (h != cur && cur != NULL && cur->job.state == JOB_STARTED) /* preempted at the last event */
+            cur->job.rec.preemptions++;
         if (h != NULL) tasking_flush(x, &idle, now);
         if (h != cur && h != NULL) {
-            if (h->job == TASK_READY) {
+            if (h->job.state == JOB_READY) {
                 tasking_start(x, h, vt, now); /* takes x->wake_stall_ns; its slice starts */
             } else {
                 int64_t resumed = clock_mono_ns();
-                h->rec.preempted_ns += resumed - h->slice_mono_ns;
-                h->slice_mono_ns = resumed;
+                h->job.rec.preempted_ns += resumed - h->job.slice_mono_ns;
+                h->job.slice_mono_ns = resumed;
             }
         }
         if (h != NULL) { /* a late wake-up delayed the job that runs after it */
-            h->rec.stall_ns += x->wake_stall_ns;
+            h->job.rec.stall_ns += x->wake_stall_ns;
             x->wake_stall_ns = 0;
         }
         cur = h;
@@ -317,11 +268,11 @@ void tasking_run(skel_exec_t *x)
         for (int i = 0; i < plan->nprocesses; i++) {
             skel_process_t *p = &plan->processes[i];
             /* an idle event process waits for its event: an arrival wakes the schedule */
-            watch |= p->job == TASK_WAITING || (p->event >= 0 && p->job == TASK_NONE);
-            int64_t r = p->event >= 0 ? tasking_event_release(p) : tasking_release(p, p->next_k);
-            if (p->job == TASK_NONE && r < next) next = r;
+            watch |= p->job.state == JOB_WAITING || (p->event >= 0 && p->job.state == JOB_NONE);
+            int64_t r = job_next_release(p);
+            if (p->job.state == JOB_NONE && r < next) next = r;
         }
-        if (h != NULL && h->slice_mono_ns + h->remaining_ns < next) next = h->slice_mono_ns + h->remaining_ns;
+        if (h != NULL && h->job.slice_mono_ns + h->job.remaining_ns < next) next = h->job.slice_mono_ns + h->job.remaining_ns;
         if (t_sw < next) next = t_sw;
         if (x->end_mono_ns < next) next = x->end_mono_ns;
         /* Between two waits the thread works (inputs, outputs): time it did not run
@@ -329,12 +280,12 @@ void tasking_run(skel_exec_t *x)
          * start or its inputs), or, with none, the job that runs next. */
         int64_t off = clock_mono_ns() - woke_mono - (clock_thread_cpu_ns() - woke_cpu);
         if (off > x->s->compute.stall_ns) {
-            if (h != NULL) h->rec.stall_ns += off;
+            if (h != NULL) h->job.rec.stall_ns += off;
             else x->wake_stall_ns += off;
         }
         int64_t stall = 0;
         int rc = tasking_wait(x, next, watch, &stall);
-        if (h != NULL) h->rec.stall_ns += stall; /* the running job's end came that late */
+        if (h != NULL) h->job.rec.stall_ns += stall; /* the running job's end came that late */
         else x->wake_stall_ns += stall;           /* it delays the job that runs next */
         woke_mono = clock_mono_ns();
         woke_cpu = clock_thread_cpu_ns();
@@ -345,7 +296,7 @@ void tasking_run(skel_exec_t *x)
         if (h != NULL) tasking_ran(h, t);
         if (t > vt) vt = t;
         if (vt >= x->end_mono_ns) break;
-        if (h != NULL && h->remaining_ns <= 0) {
+        if (h != NULL && h->job.remaining_ns <= 0) {
             tasking_complete(x, h);
             tasking_flush(x, &idle, clock_mono_ns());
             idle = h;
@@ -354,7 +305,7 @@ void tasking_run(skel_exec_t *x)
         if (watch) { /* data for a waiting job, or an event */
             (void)link_drain(plan->links, plan->nlinks);
             for (int i = 0; i < plan->nprocesses; i++)
-                if (plan->processes[i].job == TASK_WAITING) tasking_check_data(x, &plan->processes[i], vt);
+                if (plan->processes[i].job.state == JOB_WAITING) tasking_check_data(x, &plan->processes[i], vt);
         }
     }
     tasking_flush(x, &idle, clock_mono_ns());

@@ -8,9 +8,9 @@
  * `sync: event` process: for its oldest event, at most one per period), a
  * `sync: data` wait for new data on its required inputs, inputs, the
  * computation in the DPU's mode (compute.c), outputs, its record. The state of
- * a process's one job lives in its skel_process_t as on the schedule tasking.c
- * runs in SLEEP (job, next_k, anchor_ns, job_release): so a live switch
- * carries it over by the same rules (swap.c).
+ * a process's one job lives in its skel_process_t (job, next_k: job.c) as on the
+ * schedule tasking.c runs in SLEEP: so a live switch carries it over by the
+ * same rules (swap.c).
  *
  * The executive thread becomes the watcher: moved off that CPU, it wakes at
  * the lockout instants (a job not completed lockout_cycles periods after its
@@ -50,7 +50,7 @@
  * other executives. The watcher learns of it, publishes its instant, and from
  * then on a thread whose next release is at or after it waits for it; at the
  * instant the watcher takes the lock, carries the run into the next plan
- * (executive_switch) and hands each thread its process there by id: a job in
+ * (cycle_switch) and hands each thread its process there by id: a job in
  * progress completes under its new priority and writes to the next plan's
  * buffers; a removed process's thread drops its job and ends (demoted to
  * SCHED_IDLE meanwhile, so its computation takes the processor from nobody);
@@ -142,8 +142,8 @@ static void threads_flush_idle(threads_t *t, int64_t now)
     int64_t release = rec->release_ns - t->s->clock_offset_ns;
     int64_t end = release + p->period_ns - rec->slack_ns;
     rec->idle_ns = now > end ? now - end : 0;
-    executive_account(t->plan, p, rec, release, end);
-    executive_record(t->s, rec);
+    cycle_account(t->plan, p, rec, release, end);
+    cycle_record(t->s, rec);
     t->idle_pending = 0;
 }
 
@@ -218,39 +218,33 @@ static int64_t threads_compute(const skel_compute_t *c, int mode, int64_t ns, in
     return compute_held(c, ns, stall);
 }
 
-/* P's next release (INT64_MAX: an event process none of whose events waits). */
-static int64_t threads_next_release(const skel_process_t *p)
-{
-    return p->event >= 0 ? tasking_event_release(p) : tasking_release(p, p->next_k);
-}
-
 /* Its release RELEASE is due: P has a job (under lock). */
 static void threads_release(threads_t *t, skel_process_t *p, int64_t release)
 {
-    p->job_release = release;
-    p->job_generation = p->event < 0 && p->next_k < 0 ? p->back_generation : t->plan->generation;
-    p->job_missing = -1;
-    p->job = p->sync == SKELMSG_PROCESS_T_SYNC_DATA ? TASK_WAITING : TASK_READY;
+    p->job.release = release;
+    p->job.generation = p->event < 0 && p->next_k < 0 ? p->job.back_generation : t->plan->generation;
+    p->job.missing = -1;
+    p->job.state = p->sync == SKELMSG_PROCESS_T_SYNC_DATA ? JOB_WAITING : JOB_READY;
     if (p->event >= 0) event_release(t->plan, p, release);
 }
 
 /* A data job whose data is all new is ready; one whose data came a whole period
- * late skips its release (executive_skips). 1 when it still waits (under lock). */
+ * late skips its release (cycle_skips). 1 when it still waits (under lock). */
 static int threads_check_data(threads_worker_t *w)
 {
     threads_t *t = w->t;
     skel_process_t *p = w->p;
     skel_rec_t look;
-    p->job_missing = (int8_t)threads_look(w, &look);
-    if (p->job_missing >= 0) return 1;
+    p->job.missing = (int8_t)threads_look(w, &look);
+    if (p->job.missing >= 0) return 1;
     w->ready_ns = clock_mono_ns();
-    p->job = TASK_READY;
-    if (!executive_skips(t->plan, p, p->job_release, w->ready_ns)) return 0;
-    executive_skip_record(&w->x, p, p->k_base + p->next_k, tasking_minor(t->plan, p), p->job_release,
-                          p->job_release, w->ready_ns, &look);
-    look.generation = p->job_generation;
-    executive_record(t->s, &look);
-    p->job = TASK_NONE;
+    p->job.state = JOB_READY;
+    if (!cycle_skips(t->plan, p, p->job.release, w->ready_ns)) return 0;
+    cycle_skip_record(&w->x, p, p->k_base + p->next_k, job_minor(t->plan, p), p->job.release,
+                          p->job.release, w->ready_ns, &look);
+    look.generation = p->job.generation;
+    cycle_record(t->s, &look);
+    p->job.state = JOB_NONE;
     p->next_k++;
     return 0;
 }
@@ -268,20 +262,20 @@ static void threads_job(threads_worker_t *w)
     int64_t start = clock_mono_ns();
     /* The processor was this job's at its release (or data), or at the completion
      * that freed it: what is left to the start is the kernel's latency. */
-    int64_t ready = p->sync == SKELMSG_PROCESS_T_SYNC_DATA ? w->ready_ns : p->job_release;
+    int64_t ready = p->sync == SKELMSG_PROCESS_T_SYNC_DATA ? w->ready_ns : p->job.release;
     int64_t sched = t->active > 0 || t->last_end_ns < ready ? ready : t->last_end_ns;
     threads_flush_idle(t, start);
     t->active++;
-    process_record_begin(&w->x, p, k, tasking_minor(plan, p), p->job_release, sched, start, rec);
+    process_record_begin(&w->x, p, k, job_minor(plan, p), p->job.release, sched, start, rec);
     /* Woken later than the processor was its by more than the stall threshold:
      * the kernel or the machine kept it, as a late wake-up is a stall on the
      * other executives (waiting for the lock after is the bus, not counted). */
     if (w->woke_ns - sched > t->s->compute.stall_ns) rec->stall_ns += w->woke_ns - sched;
-    if (k == p->lockout_k) rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
-    rec->generation = p->job_generation;
+    if (k == p->job.lockout_k) rec->flags |= SKELMSG_TIMING_T_FLAG_LOCKOUT;
+    rec->generation = p->job.generation;
     (void)threads_look(w, rec); /* a data job's data is still new: only its own commit uses it */
     process_commit(plan, p, rec, k >= p->measure_from_k);
-    p->job = TASK_STARTED;
+    p->job.state = JOB_STARTED;
     rec->asked_ns = draw_ns(&p->draw, p->compute_ns);
     const int mode = plan->compute;
     threads_unlock(t);
@@ -301,10 +295,10 @@ static void threads_job(threads_worker_t *w)
     const int measured = k >= p->measure_from_k;
     process_write_outputs(&w->x, p, k);
     threads_kick(t, w); /* a local output may be what a data wait waits for */
-    process_finish(&w->x, p, rec, p->job_release, t_out, measured);
+    process_finish(&w->x, p, rec, p->job.release, t_out, measured);
     int64_t csw = clock_thread_preemptions() - csw0;
     rec->preemptions = csw > INT32_MAX ? INT32_MAX : (int32_t)csw;
-    p->job = TASK_NONE;
+    p->job.state = JOB_NONE;
     p->next_k++;
     int64_t end = clock_mono_ns();
     t->last_end_ns = end;
@@ -315,8 +309,8 @@ static void threads_job(threads_worker_t *w)
         t->idle_p = p;
         t->idle_pending = 1;
     } else { /* preempted work goes on at once: no idle follows this job */
-        executive_account(plan, p, rec, p->job_release, p->job_release + p->period_ns - rec->slack_ns);
-        executive_record(t->s, rec);
+        cycle_account(plan, p, rec, p->job.release, p->job.release + p->period_ns - rec->slack_ns);
+        cycle_record(t->s, rec);
     }
 }
 
@@ -328,9 +322,9 @@ static int threads_step(threads_worker_t *w)
     if (p == NULL || atomic_load(&t->done)) return 1;
     if (clock_mono_ns() >= t->switch_at) /* past the switch's instant nothing starts before it */
         return threads_wait(w, INT64_MAX, 0);
-    if (p->job == TASK_NONE) {
+    if (p->job.state == JOB_NONE) {
         if (p->event >= 0) threads_drain(w); /* its events come on the links */
-        int64_t release = threads_next_release(p), now = clock_mono_ns();
+        int64_t release = job_next_release(p), now = clock_mono_ns();
         if (release >= w->x.end_mono_ns) /* none in this run: the run's end, an event, a switch */
             return threads_wait(w, INT64_MAX, p->event >= 0);
         if (release >= t->switch_at) /* the switch first: the watcher kicks after it */
@@ -344,8 +338,8 @@ static int threads_step(threads_worker_t *w)
         }
         threads_release(t, p, release);
     }
-    if (p->job == TASK_WAITING && threads_check_data(w)) return threads_wait(w, INT64_MAX, 1);
-    if (p->job == TASK_READY) threads_job(w);
+    if (p->job.state == JOB_WAITING && threads_check_data(w)) return threads_wait(w, INT64_MAX, 1);
+    if (p->job.state == JOB_READY) threads_job(w);
     return 0;
 }
 
@@ -484,11 +478,11 @@ threads_t *threads_start(skel_exec_t *x, char *klass, size_t len)
         threads_free(t);
         return NULL;
     }
-    for (int i = 0; i < plan->nprocesses; i++) { /* every release from the run's start (tasking_release) */
+    for (int i = 0; i < plan->nprocesses; i++) { /* every release from the run's start (job_release) */
         skel_process_t *p = &plan->processes[i];
-        p->anchor_ns = plan->epoch_t0_ns;
-        p->back_period_ns = p->period_ns;
-        p->back_generation = plan->generation;
+        p->job.anchor_ns = plan->epoch_t0_ns;
+        p->job.back_period_ns = p->period_ns;
+        p->job.back_generation = plan->generation;
     }
     int here = sched_getcpu();
     t->cpu = plan->cpu >= 0 ? plan->cpu : here >= 0 ? here : 0;
@@ -552,7 +546,7 @@ static void threads_hand_over(threads_t *t, skel_exec_t *x, int cpu_moved)
  * begun by NOW (under lock); kicks the threads waiting for an earlier one. */
 static void threads_plan_switch(threads_t *t, skel_exec_t *x, int64_t now)
 {
-    executive_poll_switch(x);
+    cycle_poll_switch(x);
     if (!x->switch_pending) {
         t->switch_at = INT64_MAX;
         return;
@@ -578,27 +572,27 @@ static void threads_switch(threads_t *t, skel_exec_t *x)
         return;
     }
     threads_flush_idle(t, clock_mono_ns()); /* its process is the old plan's */
-    int switched = executive_switch(x, t->switch_j, 1);
+    skel_plan_t *next = cycle_take(x);
+    int switched = next != NULL && cycle_switch(x, next, t->switch_j, 1);
     t->switch_at = INT64_MAX;
     t->switch_seq = x->switch_seq;
     if (switched) {
-        skel_plan_t *next = x->plan;
         int cpu = next->cpu >= 0 ? next->cpu : t->cpu, moved = cpu != t->cpu;
         t->plan = next;
         t->cpu = cpu;
         threads_hand_over(t, x, moved);
-        if (next->cpu != old->cpu) threads_move_watcher(t); /* executive_switch pinned it there */
-        executive_announce(x);
+        if (next->cpu != old->cpu) threads_move_watcher(t); /* cycle_switch pinned it there */
+        cycle_announce(x);
     }
     threads_kick_all(t);
 }
 
-/* Lockouts due by NOW (under lock, tasking_lockout); the next instant one would be. */
+/* Lockouts due by NOW (under lock, job_lockout); the next instant one would be. */
 static int64_t threads_lockouts(threads_t *t, skel_exec_t *x, int64_t now)
 {
     int64_t next = INT64_MAX;
     for (int i = 0; i < t->nworkers; i++)
-        if (t->w[i].live && t->w[i].p != NULL) next = tasking_lockout(x, t->w[i].p, now, next);
+        if (t->w[i].live && t->w[i].p != NULL) next = job_lockout(x, t->w[i].p, now, next);
     return next;
 }
 

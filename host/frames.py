@@ -1,7 +1,7 @@
 """The cyclic executive's schedule on paper: which processes are due in which minor cycle,
 what each frame demands, and when each process starts and ends relative to its release.
 
-It mirrors dpu/executive.c: minor cycle j runs, in their order, the processes whose period
+It mirrors dpu/cyclic.c: minor cycle j runs, in their order, the processes whose period
 is a multiple r of the minor cycle with r | j (so frame 0 holds every process and is the
 heaviest); a frame that ends late delays the next one, which then starts at once; releases
 are on the absolute grid. A `sync: data` process waits in its turn, holding the DPU, until its

@@ -278,7 +278,7 @@ def _pacing_releases(reader_us: int, writer_us: int) -> int:
 
 def _paced_cyclic(period: int, writer: int, data: float, turn: float, after: float, compute: float,
                   fits: bool) -> tuple[list[float], list[float], list[float]]:
-    """A paced reader on the cyclic executive (dpu/executive.c) whose writer's value m comes at
+    """A paced reader on the cyclic executive (dpu/cyclic.c) whose writer's value m comes at
     m * WRITER + DATA: when the value each cycle takes came, its computation's start and end,
     after their release, in the second half of the releases simulated. TURN: what comes before
     it in its frame; AFTER: after it."""

@@ -16,6 +16,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
+import graphs
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
@@ -98,25 +99,7 @@ def find_cycle(edges: list[Edge]) -> list[str] | None:
     graph: dict[str, list[str]] = {}
     for e in edges:
         graph.setdefault(e.source, []).append(e.target)
-    state: dict[str, int] = {}   # 1: on the current path, 2: done
-    path: list[str] = []
-
-    def visit(node: str) -> list[str] | None:
-        state[node] = 1
-        path.append(node)
-        for nxt in graph.get(node, []):
-            if state.get(nxt) == 1:
-                return [*path[path.index(nxt):], nxt]
-            if nxt not in state and (cycle := visit(nxt)):
-                return cycle
-        path.pop()
-        state[node] = 2
-        return None
-
-    for start in sorted(graph):
-        if start not in state and (cycle := visit(start)):
-            return cycle
-    return None
+    return graphs.find_cycle(graph) or None
 
 
 def _analysis_layer(module: str) -> int | None:

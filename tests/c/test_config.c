@@ -268,9 +268,9 @@ static void test_plan(void)
     CHECK_EQ(plan->slots[p4->inputs[0].slot].link, 1);
     CHECK_EQ(plan->processes[0].outputs[0].enc_len, wire_buffer_encoded_size(1000));
     /* Minor cycles with work: 0 (p1 p5 p4), 2 (p1 p4), 4 (all), ... never 1 or 3. */
-    CHECK_EQ(executive_next_release(plan, 0), 0);
-    CHECK_EQ(executive_next_release(plan, 1), 2);
-    CHECK_EQ(executive_next_release(plan, 3), 4);
+    CHECK_EQ(cyclic_next_release(plan, 0), 0);
+    CHECK_EQ(cyclic_next_release(plan, 1), 2);
+    CHECK_EQ(cyclic_next_release(plan, 3), 4);
     plan_reset_run(plan, 9);
     CHECK_EQ(plan->run_id, 9);
     CHECK_EQ(plan->slots[0].newest_seq, -1);

@@ -142,8 +142,8 @@ static void test_a_computation_past_its_window_locks_out_while_it_runs(void)
         p[i].sync = SKELMSG_PROCESS_T_SYNC_PERIODIC;
         p[i].period_ns = 1000000;
         p[i].event = -1;
-        p[i].taken_ns = -1;
-        p[i].lockout_k = -1;
+        p[i].queue.taken_ns = -1;
+        p[i].job.lockout_k = -1;
     }
     p[0].compute_ns = 12000000;
     p[1].compute_ns = 2000000;

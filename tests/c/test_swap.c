@@ -181,7 +181,7 @@ static void test_carry(void)
     buffers_input_peek(j2, b2, &rec);
     CHECK_EQ(rec.dropped, 3); /* from now on, gaps count */
     /* The new grid starts at the boundary with every process due. */
-    CHECK_EQ(executive_next_release(next, 0), 0);
+    CHECK_EQ(cyclic_next_release(next, 0), 0);
     plan_free(old);
     plan_free(next);
 }
@@ -229,20 +229,20 @@ static void test_carry_tasking(void)
     skel_plan_t *old = old_plan(), *next = next_plan(), *third = next_plan();
     if (old == NULL || next == NULL || third == NULL) return;
     for (int i = 0; i < old->nprocesses; i++) {
-        old->processes[i].anchor_ns = T0;
-        old->processes[i].back_period_ns = old->processes[i].period_ns;
+        old->processes[i].job.anchor_ns = T0;
+        old->processes[i].job.back_period_ns = old->processes[i].period_ns;
     }
     skel_process_t *o1 = proc(old, 1), *o4 = proc(old, 4), *o5 = proc(old, 5);
     o1->next_k = 20;
-    o1->job = TASK_STARTED;
-    o1->job_generation = 7;
-    o1->job_release = T0 + 200 * MS;
-    o1->remaining_ns = MS;
-    o1->rec.cycle = 20;
-    o1->rec.compute_ns = MS;
+    o1->job.state = JOB_STARTED;
+    o1->job.generation = 7;
+    o1->job.release = T0 + 200 * MS;
+    o1->job.remaining_ns = MS;
+    o1->job.rec.cycle = 20;
+    o1->job.rec.compute_ns = MS;
     o4->next_k = 19;
-    o4->job = TASK_READY;
-    o4->job_release = T0 + 190 * MS;
+    o4->job.state = JOB_READY;
+    o4->job.release = T0 + 190 * MS;
     o5->next_k = 11;
     const int64_t t_sw = swap_instant(old, 41);
     CHECK_EQ(t_sw, T0 + 205 * MS);
@@ -252,23 +252,23 @@ static void test_carry_tasking(void)
     skel_process_t *p1 = proc(next, 1), *p4 = proc(next, 4), *p6 = proc(next, 6);
     CHECK_EQ(p1->k_base, 21);                /* k 20 carried: k 21 is its next release, ... */
     CHECK_EQ(p1->next_k, -1);
-    CHECK_EQ(p1->anchor_ns, T0 + 210 * MS);  /* ... at its old grid's next point, then every 5 ms */
-    CHECK_EQ(tasking_release(p1, 1), T0 + 215 * MS);
-    CHECK_EQ(p1->job, TASK_STARTED);
-    CHECK_EQ(p1->job_release, T0 + 200 * MS);
-    CHECK_EQ(p1->job_generation, 7);
-    CHECK_EQ(p1->remaining_ns, MS);
-    CHECK_EQ(p1->rec.cycle, 20);
-    CHECK_EQ(p1->rec.compute_ns, MS);
+    CHECK_EQ(p1->job.anchor_ns, T0 + 210 * MS);  /* ... at its old grid's next point, then every 5 ms */
+    CHECK_EQ(job_release(p1, 1), T0 + 215 * MS);
+    CHECK_EQ(p1->job.state, JOB_STARTED);
+    CHECK_EQ(p1->job.release, T0 + 200 * MS);
+    CHECK_EQ(p1->job.generation, 7);
+    CHECK_EQ(p1->job.remaining_ns, MS);
+    CHECK_EQ(p1->job.rec.cycle, 20);
+    CHECK_EQ(p1->job.rec.compute_ns, MS);
     CHECK_EQ(p4->k_base + p4->next_k, 19);   /* its waiting job, then k 20 owed at T0 + 200 ms */
-    CHECK_EQ(p4->job, TASK_READY);
-    CHECK_EQ(p4->back_generation, 7);        /* k 20 is generation 7's release */
-    CHECK_EQ(tasking_release(p4, p4->next_k + 1), T0 + 200 * MS);
-    CHECK_EQ(tasking_release(p4, 0), T0 + 210 * MS);
+    CHECK_EQ(p4->job.state, JOB_READY);
+    CHECK_EQ(p4->job.back_generation, 7);        /* k 20 is generation 7's release */
+    CHECK_EQ(job_release(p4, p4->next_k + 1), T0 + 200 * MS);
+    CHECK_EQ(job_release(p4, 0), T0 + 210 * MS);
     CHECK_EQ(p6->k_base, 11);                /* on its 20 ms grid since the run's start */
-    CHECK_EQ(p6->anchor_ns, T0 + 220 * MS);
+    CHECK_EQ(p6->job.anchor_ns, T0 + 220 * MS);
     CHECK_EQ(p6->next_k, 0);
-    CHECK_EQ(p6->job, TASK_NONE);
+    CHECK_EQ(p6->job.state, JOB_NONE);
     /* Switching again before p4 has caught up: its owed k 20 and the next plan's own
      * releases do not fit one grid, so only a switch before T0 + 210 ms may happen. */
     CHECK_EQ(swap_tasking_ready(next, T0 + 207 * MS), 1);
@@ -277,8 +277,8 @@ static void test_carry_tasking(void)
     swap_carry_tasking(third, next, T0 + 207 * MS);
     skel_process_t *q4 = proc(third, 4);
     CHECK_EQ(q4->k_base + q4->next_k, 19);
-    CHECK_EQ(tasking_release(q4, q4->next_k + 1), T0 + 200 * MS);
-    CHECK_EQ(tasking_release(q4, q4->next_k + 2), T0 + 210 * MS);
+    CHECK_EQ(job_release(q4, q4->next_k + 1), T0 + 200 * MS);
+    CHECK_EQ(job_release(q4, q4->next_k + 2), T0 + 210 * MS);
     plan_free(old);
     plan_free(next);
     plan_free(third);

@@ -5,7 +5,7 @@
  * applying it does short of opening links (plan.c, event.c): the plan, a run's reset,
  * the event generators' first instants, the URLs the links would open, the cyclic
  * executive's next releases, and a live switch into a second plan of the same config
- * (swap.c, event_carry). */
+ * (swap.c, swap_carry_events). */
 #include <limits.h>
 #include <string.h>
 
@@ -34,7 +34,7 @@ static int fuzz_plan(const skelmsg_config_t *cfg, int dpu_index, skel_plan_t *pl
     if (plan->tasking) return 0; /* its switch carries jobs a run has made: not here */
     int64_t j = -1;
     for (int n = 0; n < 4; n++) {
-        int64_t next = executive_next_release(plan, j + 1);
+        int64_t next = cyclic_next_release(plan, j + 1);
         FUZZ_ASSERT(next > j);
         if (next == INT64_MAX) break;
         j = next;
@@ -46,7 +46,7 @@ static int fuzz_plan(const skelmsg_config_t *cfg, int dpu_index, skel_plan_t *pl
     int64_t j_sw = swap_index(plan, j, t0 + SKEL_NS_PER_S);
     FUZZ_ASSERT(j_sw > j);
     swap_carry(next, plan, j_sw);
-    event_carry(next, plan, swap_instant(plan, j_sw));
+    swap_carry_events(next, plan, swap_instant(plan, j_sw));
     plan_free(next);
     return 1;
 }

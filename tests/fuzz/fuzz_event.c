@@ -35,13 +35,13 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     for (int i = 0; i < plan->nprocesses; i++) {
         skel_process_t *p = &plan->processes[i];
         if (p->event < 0) continue;
-        FUZZ_ASSERT(p->a_count >= 0 && p->a_count <= 3);
+        FUZZ_ASSERT(p->queue.a_count >= 0 && p->queue.a_count <= 3);
         event_settle(plan, p, INT64_MAX);
-        FUZZ_ASSERT(p->q_count >= 0 && p->q_count <= p->queue_cap);
+        FUZZ_ASSERT(p->queue.count >= 0 && p->queue.count <= p->queue.cap);
         if (!event_pending(p)) continue;
         event_release(plan, p, now);
-        FUZZ_ASSERT(p->taken_ns >= 0 && p->taken_ns <= now && p->taken_left >= 0 &&
-                    p->taken_left < p->queue_cap && p->taken_dropped >= 0);
+        FUZZ_ASSERT(p->queue.taken_ns >= 0 && p->queue.taken_ns <= now && p->queue.taken_left >= 0 &&
+                    p->queue.taken_left < p->queue.cap && p->queue.taken_dropped >= 0);
     }
     return 0;
 }

@@ -1,4 +1,4 @@
-/* test_executive.c: the DPU's own window sums (executive_account), which report_t
+/* test_cycle.c: the DPU's own window sums (cycle_account), which report_t
  * sends beside the analysis's figures (analysis/measure/metrics.py elapsed_ns). The
  * tasking executives sum jobs as they complete, so the sums must not depend on
  * that order. Plans are built from the fixture without opening links. */
@@ -25,7 +25,7 @@ static skel_rec_t cycle(int64_t release, int64_t start, int64_t end, int64_t idl
 
 static void account(skel_plan_t *plan, skel_rec_t rec)
 {
-    executive_account(plan, &plan->processes[0], &rec, rec.release_ns, rec.start_ns + rec.compute_ns);
+    cycle_account(plan, &plan->processes[0], &rec, rec.release_ns, rec.start_ns + rec.compute_ns);
 }
 
 static void test_sums_span_the_earliest_release_to_the_latest_end_in_any_order(void)
