@@ -15,7 +15,7 @@ from skeleton.host.system import System, SystemFileError, load
 from skeleton.host.wire import config_message, dump_yaml
 from skelmsg.contract import DEFAULT_URL
 
-EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 SERVO = EXAMPLES / "servo.yaml"
 
 Doc = dict[str, Any]

@@ -53,7 +53,7 @@ def _chains(records: Any, inputs: Any, config: Any, clock: ClockOffsets = NO_OFF
     return chain_metrics(ChainRecords.of(records, inputs, config, measured(records, config)), config, clock)
 
 
-EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 T0 = 1_000 * MS  # host clock
 TRUE_US = [100, 200, 300, 400]  # b_out's true transport latency, B (DPU 1) -> C (DPU 2), per cycle

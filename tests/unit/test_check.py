@@ -14,7 +14,7 @@ import pytest
 from skeleton.host import check as check_module
 from skeleton.host.check import check
 
-EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 SERVO = EXAMPLES / "servo.yaml"
 
 

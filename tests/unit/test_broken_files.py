@@ -1,4 +1,4 @@
-"""51 broken system files (tests/broken/, one problem each; tests/broken/expected.txt holds each
+"""51 broken system files (tests/unit/broken/, one problem each; tests/unit/broken/expected.txt holds each
 one's line): `skel check` gives exactly that one line `FILE: field.path: problem` on stderr and
 exit 2, within 2 s, never a traceback. A 20 MB file is made here rather than kept."""
 
@@ -14,7 +14,7 @@ from conftest import REPO
 
 from skeleton.host.cli import main
 
-BROKEN = REPO / "tests" / "broken"
+BROKEN = REPO / "tests" / "unit" / "broken"
 EXPECTED = {line.split(": ", 1)[0]: line for line in (BROKEN / "expected.txt").read_text().splitlines()}
 LIMIT_S = 2.0
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from steal import WorkSpeed, work_speed
 
-DPU_SOURCE = Path(__file__).resolve().parent.parent / "dpu"
+DPU_SOURCE = Path(__file__).resolve().parents[2] / "dpu"
 
 
 def _c_format(file: str, containing: str) -> str:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 PACKAGES = {"skeleton.host": REPO / "host", "skeleton.analysis": REPO / "analysis"}
 ANALYSIS_LAYERS = {"read": 0, "measure": 1, "views": 2}   # imports run only from a higher to a lower one
 HOST_ORDER = ["schema", "link", "rules", "system", "wire"]  # the system file: each imports only earlier ones
