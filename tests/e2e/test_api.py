@@ -200,10 +200,3 @@ def test_report_with_plots_reads_and_decodes_the_log_once(two_runs: tuple[Path, 
     assert (tmp_path / "plots" / "report.html").exists()
     assert json.loads(capsys.readouterr().out)["system"] == "servo"
     assert calls == {"read": 1, "decode timing": 1, "decode heads": 1}
-
-
-def test_the_readme_documents_every_column() -> None:
-    readme = (REPO / "README.md").read_text()
-    for table, columns in COLUMNS.items():
-        for column, text in columns.items():
-            assert f"`{column}` {text}" in readme, (table, column)

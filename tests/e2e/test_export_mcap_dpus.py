@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import struct
 import subprocess
-import tracemalloc
 from collections import defaultdict
 from collections.abc import Iterator
 from pathlib import Path
@@ -18,11 +17,11 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import zstandard
-from analysis_synth import GENERATION, batches, small_config, small_run, status, write_log
 from conftest import mapped_kib, short_servo_run, skel
 from mcap.reader import make_reader
 from mcap.writer import Writer
 from mcap_ros2.decoder import DecoderFactory
+from unit.test_export_mcap import _status, _timing
 
 import skelmsg
 from skeleton.analysis.measure.run import analyze_log, load_run
@@ -31,7 +30,7 @@ from skeleton.analysis.read.logreader import encode_events, read_bytes, read_log
 from skeleton.analysis.read.mcapsource import read_as_log
 from skeleton.analysis.read.records import load_records
 from skeleton.analysis.views import mcapbulk, outfile
-from skeleton.analysis.views.export_mcap import MESSAGE_CHANNELS, _pairs, export
+from skeleton.analysis.views.export_mcap import MESSAGE_CHANNELS, export
 from skelmsg.contract import COMMAND_CHANNEL, CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 RECORD_FIELDS = ["dpu", "process", "generation", "batch_seq", "cycle", "minor", "release_ns",
@@ -58,16 +57,6 @@ def _messages(path: Path) -> dict[str, list[tuple[Any, Any]]]:
         for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
             out[channel.topic].append((channel, message))
     return out
-
-
-def _timing(path: Path) -> list[tuple[Any, Any, Any]]:
-    """(channel, message, decoded) of every /timing message, decoded as Foxglove would."""
-    with open(path, "rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        summary = reader.get_summary()
-        assert summary is not None
-        topics = [c.topic for c in summary.channels.values() if c.topic.startswith("/timing/")]
-        return [(c, m, d) for _, c, m, d in reader.iter_decoded_messages(topics, log_time_order=False)]
 
 
 def test_every_timing_record_and_input_matches_the_log(servo_run: Path) -> None:
@@ -116,22 +105,6 @@ def _reversed_inputs(data: bytes) -> bytes:
                  "in_recv_ns"):  # fmt: skip
         setattr(t, name, list(getattr(t, name))[::-1])
     return t.encode()
-
-
-def test_a_process_of_an_earlier_generation_only_keeps_its_name(tmp_path: Path) -> None:
-    """A push that removed C: C's records, of the first window, are still C's topic, not
-    'process 2' for want of a name in the last config."""
-    dpu1, dpu2 = small_run()
-    old, new = small_config(), small_config(generation=GENERATION + 1)
-    new.processes = [p for p in new.processes if p.name != "C"]
-    new.nprocesses = len(new.processes)
-    events: list[tuple[str, object]] = [(CONFIG_CHANNEL, old)]
-    events += [(TIMING_CHANNEL, t) for t in batches(1, dpu1[:12], 4) + batches(2, dpu2, 2)]
-    events += [(CONFIG_CHANNEL, new)]
-    events += [(TIMING_CHANNEL, t) for t in batches(1, dpu1[12:], 4, generation=new.generation, first_seq=3)]
-    out = tmp_path / "run.mcap"
-    export(load_run(write_log(tmp_path / "run.lcm", events)), out)
-    assert {channel.topic for channel, _, _ in _timing(out)} == {"/timing/1/A", "/timing/1/B", "/timing/2/C"}
 
 
 def test_inputs_a_batch_lists_out_of_order_go_with_their_own_records(servo_run: Path, tmp_path: Path) -> None:
@@ -372,13 +345,6 @@ def test_lcm_json_of_every_message_type_validates_against_its_schema(servo_run: 
     assert schema_of(skelmsg.buffer_t)["properties"]["payload"]["contentEncoding"] == "base64"
 
 
-def _status(host: str = "lab-1", lockouts: int = 0) -> bytes:
-    """analysis_synth's heartbeat of DPU 3 from `host`, naming `lockouts` lockouts, encoded."""
-    heartbeat = status(3, [(k, -1, 40 + k) for k in range(lockouts)])
-    heartbeat.host = host
-    return bytes(heartbeat.encode())
-
-
 def _each_decoded(cls: type, messages: list[bytes]) -> list[str | None]:
     """What to_json_many must give: to_json of each message the generated decoder takes, as
     JSON (where True and 1, or 1.0 and 1, differ)."""
@@ -432,22 +398,6 @@ def test_messages_read_in_bulk_are_as_each_decoded_alone(servo_run: Path) -> Non
     assert _many(skelmsg.status_t, []) == []
 
 
-def test_a_refused_message_does_not_read_the_log_as_its_strings() -> None:
-    """A message the bulk read refuses has no places for its strings: reading them anyway
-    took the whole buffer as each string (GBs of a long log)."""
-    refused, good = b"not a status" * 4, _status()
-    buf = np.frombuffer(refused + b"\0" * (64 << 20) + good, dtype=np.uint8)
-    starts, lengths = np.array([0, len(buf) - len(good)]), np.array([len(refused), len(good)])
-    tracemalloc.start()
-    try:
-        rows = list(to_json_many(skelmsg.status_t, buf, starts, lengths))
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-    assert rows == [None, to_json(skelmsg.status_t.decode(good))]
-    assert peak < 16 << 20, f"{peak >> 20} MiB traced for 2 statuses"
-
-
 def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, servo_run: Path) -> None:
     junk = tmp_path / "junk.lcm"
     junk.write_bytes(b"not a log" * 20)
@@ -486,18 +436,3 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, servo_run: Path) -> No
     with pytest.raises(OSError, match=r"no run\.lcm attached: exported by an older skel, export it again"):
         read_as_log(older)
     assert np.all(np.diff([m.log_time for _, m in _messages(servo_run / "run.mcap")["/dpu/1/status"]]) >= 0)
-
-
-@pytest.mark.parametrize("moved", [False, True])
-def test_a_records_topic_is_its_dpu_and_process_pair_whether_or_not_a_process_moved(moved: bool) -> None:
-    """_pairs looks processes up in a table when each ran on one DPU, and sorts the pairs
-    when one moved (a live switch): the same pairs and indices as sorting them every time."""
-    rng = np.random.default_rng(7)
-    process = rng.integers(-5, 40, 10_000).astype(np.int16)
-    dpu = (process % 7 - 3).astype(np.int16)
-    if moved:
-        dpu[:50] += 1
-    keys, index = _pairs(dpu, process)
-    expected = np.unique((dpu.astype(np.int64) + 32768) * 65536 + process.astype(np.int64) + 32768,
-                         return_inverse=True)  # fmt: skip
-    assert np.array_equal(keys, expected[0]) and np.array_equal(index, expected[1].reshape(-1))

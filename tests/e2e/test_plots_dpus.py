@@ -15,7 +15,7 @@ from conftest import ASAN_DPU, EXAMPLES, fresh_url, skel
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.views.export_mcap import export
 from skeleton.analysis.views.plots import default_window_ns, write_plots
-from skeleton.analysis.views.report import report_command, write_plot_dir
+from skeleton.analysis.views.report import write_plot_dir
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 ALL_PLOTS = ["utilization.png", "timeline.png", "schedule.png", "release_latency.png", "buffer_latency.png",
@@ -104,12 +104,3 @@ def test_plots_from_the_mcap_export_are_the_same(servo_log: Path, tmp_path: Path
     for name in ALL_PLOTS:
         mcap_png, lcm_png = (tmp_path / d / name for d in ("from-mcap", "from-lcm"))
         assert mcap_png.read_bytes() == lcm_png.read_bytes(), name
-
-
-def test_unreadable_log_is_one_line_and_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    junk = tmp_path / "junk.lcm"
-    junk.write_bytes(b"not a log" * 30)
-    code = report_command(junk, as_json=True, run_id=None, plots=tmp_path / "plots")
-    assert code == 2
-    err = capsys.readouterr().err
-    assert len(err.strip().splitlines()) == 1 and "junk.lcm" in err

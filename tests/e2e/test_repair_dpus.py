@@ -15,7 +15,7 @@ from pathlib import Path
 
 from conftest import Background, skel_background
 
-from skeleton.host.repair import RESTARTS_MAX, SeenBatches, seq_ranges
+from skeleton.host.repair import RESTARTS_MAX
 from skeleton.host.spawn import running
 
 # Two DPUs, 1000 records a second each: ~20 timing batches a second of ~4.5 kB (four
@@ -141,13 +141,3 @@ def test_a_log_that_cannot_be_made_whole_is_said_first_and_fails(tmp_path: Path,
     # Said before the tables, not under them.
     first_table = output.index("per DPU") if "per DPU" in output else len(output)
     assert -1 < output.find("INCOMPLETE") < first_table, output
-
-
-def test_holes_are_found_below_the_newest_batch_and_up_to_the_reported_count() -> None:
-    seen = SeenBatches()
-    for seq in (0, 1, 4, 2, 7):
-        seen.add(seq)
-    assert (seen.whole, seen.has(4), seen.has(5)) == (3, True, False)
-    assert seen.missing(None) == [3, 5, 6]  # the tail after 7 is unknown until the report
-    assert seen.missing(10) == [3, 5, 6, 8, 9]
-    assert seq_ranges([3, 5, 6, 8, 9]) == [(3, 3), (5, 6), (8, 9)]

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import threading
 import time
 from pathlib import Path
 
@@ -14,8 +13,7 @@ from conftest import EXAMPLES, LOCKOUT_SYSTEM, skel, skel_background, threads_cp
 
 import skelmsg
 from skeleton.host.predict import predict
-from skeleton.host.run import keep_off_dpu_cpus
-from skeleton.host.system import System, load
+from skeleton.host.system import load
 from skelmsg.contract import COMMAND_CHANNEL, STATUS_CHANNEL
 
 PAPER_COMPUTE_PCT = {1: 90.3, 2: 73.4, 3: 86.0, 4: 96.5}
@@ -227,7 +225,7 @@ def _deadlock(tmp_path: Path, url: str, right_dpu: int) -> tuple[str, list[dict]
     path = tmp_path / f"deadlock-{right_dpu}.yaml"
     path.write_text(DEADLOCK_SYSTEM.format(right_dpu=right_dpu))
     out = tmp_path / f"run-{right_dpu}"
-    # skel check refuses it (tests/test_predict.py); --no-check runs it to see the lockouts.
+    # skel check refuses it (tests/e2e/test_predict_dpus.py); --no-check runs it to see the lockouts.
     run = skel("run", str(path), "--spawn", "--url", url, "--out", str(out), "--no-check")
     assert run.returncode == 3, run.stdout + run.stderr
     assert "stopping early: jam of" in run.stdout, run.stdout
@@ -259,17 +257,6 @@ def test_a_deadlock_on_two_dpus_names_both_processes_and_the_circular_wait(tmp_p
     assert jams == [(["bystander", "right", "left", "right"],
                      "circular wait: right -> left -> right (right waits on ping from left; "
                      "left waits on pong from right)")], faults
-
-
-def test_bad_system_file_is_one_line_exit_2(tmp_path: Path) -> None:
-    path = tmp_path / "bad.yaml"
-    path.write_text(LOCKOUT_SYSTEM.replace("period_us: 5000", "period_us: -5000"))
-    for command in ("check", "run", "push"):
-        result = skel(command, str(path))
-        assert result.returncode == 2, (command, result.stdout, result.stderr)
-        lines = result.stderr.strip().splitlines()
-        assert len(lines) == 1 and "Traceback" not in result.stderr, result.stderr
-        assert lines[0].startswith(f"{path}: processes.hungry_reader.period_us:"), lines[0]
 
 
 def _executor_compute_us(out: Path) -> float:
@@ -317,32 +304,6 @@ def test_run_warns_when_a_process_would_stay_in_warm_up(tmp_path: Path, url: str
     for name in ("dynamics", "gravity_comp", "jacobian_update"):
         assert f"WARN process {name}: its warm-up" in run.stdout, run.stdout
     assert "WARN process executor" not in run.stdout
-
-
-def _affinity_after_keep_off(system: System) -> set[int]:
-    """keep_off_dpu_cpus in a thread of its own: the affinity it sets is the calling thread's."""
-    got: list[set[int]] = []
-    worker = threading.Thread(target=lambda: got.append(keep_off_dpu_cpus(system)))
-    worker.start()
-    worker.join()
-    return got[0]
-
-
-def test_the_host_tool_keeps_off_the_cpus_its_dpus_are_pinned_to() -> None:
-    """Under SCHED_OTHER a DPU waking on a CPU where `skel run`'s live analysis runs waits
-    out the scheduler's slice (`make bench` part wakeup): the tool moves off the CPUs this
-    host's DPUs are pinned to, when others are left; a DPU of another host pins nothing here."""
-    allowed = os.sched_getaffinity(0)
-    if len(allowed) < 2:
-        pytest.skip("one CPU: nowhere else to go")
-    first, last = min(allowed), max(allowed)
-    pair = EXAMPLES / "pair-10ms-5ms.yaml"
-    assert _affinity_after_keep_off(load(pair, [f"dpu.1.cpu={first}"])) == allowed - {first}
-    assert _affinity_after_keep_off(load(pair, [f"dpu.1.cpu={first}", "dpu.1.host=elsewhere"])) == allowed
-    assert _affinity_after_keep_off(load(pair)) == allowed
-    if len(allowed) == 2:  # every CPU taken: the tool stays where it may run
-        assert _affinity_after_keep_off(load(pair, [f"dpu.1.cpu={first}", f"dpu.2.cpu={last}"])) == allowed
-    assert os.sched_getaffinity(0) == allowed
 
 
 def test_a_run_moves_every_thread_of_the_tool_off_its_dpus_pinned_cpu(tmp_path: Path, url: str) -> None:

@@ -8,6 +8,7 @@ import sys
 import time
 
 from conftest import ASAN_DPU, REPO, SANITIZER_ERROR
+
 from netns import Hosts, hosts_fixture
 
 netns_hosts = hosts_fixture(3)

@@ -15,9 +15,9 @@ from typing import Any
 
 import pytest
 from conftest import EXAMPLES, Background
+
 from netns import Hosts, hosts_fixture
 from netns.test_netns_lab import URL, Lab, host_overrides, report_json, stop, wait_until
-
 from skeleton.host.spawn import argv_of
 
 netns_three_hosts = hosts_fixture(3)

@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import pytest
+
 from netns import Hosts, cleanup_stale, hosts_fixture, require_root
 from netns.hosts import BRIDGE_NETFILTER, _netns_list
 

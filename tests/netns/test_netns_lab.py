@@ -19,8 +19,8 @@ from typing import Any
 import lcm
 import pytest
 from conftest import ASAN_DPU, EXAMPLES, REPO, SANITIZER_ERROR
-from netns import Hosts, hosts_fixture
 
+from netns import Hosts, hosts_fixture
 from skeleton.host.link import record_url
 from skeleton.host.spawn import LOGGED_CHANNELS
 

@@ -16,9 +16,9 @@ import time
 from pathlib import Path
 
 from conftest import ASAN_DPU, REPO, SANITIZER_ERROR
-from netns import Hosts, hosts_fixture
 
 import skelmsg
+from netns import Hosts, hosts_fixture
 from skeleton.analysis.read.logreader import read_log
 from skeleton.analysis.read.records import load_records
 from skelmsg.contract import CLOCK_CHANNEL, COMMAND_CHANNEL, STATUS_CHANNEL

@@ -15,9 +15,9 @@ from pathlib import Path
 import pytest
 import yaml
 from conftest import EXAMPLES
+
 from netns import Hosts, hosts_fixture
 from netns.test_netns_lab import RELEASE_DPU, URL, Lab, design_flaws
-
 from skeleton.host.link import parse_url, record_url
 from skeleton.host.system import loads
 
