@@ -224,7 +224,7 @@ test-fuzz: $(FUZZ_BINS)
 fuzz: $(FUZZ_BINS) $(STAMP)
 	$(call fuzz_run,$(FUZZ_SECONDS),nice -n 19)
 	SKEL_HYPOTHESIS=fuzz nice -n 19 $(VENV)/bin/pytest -q -p no:cacheprovider \
-	  tests/test_system_properties.py tests/test_logreader_properties.py tests/test_stats_properties.py
+	  tests/unit/test_system_properties.py tests/unit/test_logreader_properties.py tests/unit/test_stats_properties.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check skeleton host analysis tests lcmtypes bench examples docs
@@ -243,7 +243,7 @@ bench: $(BUILD)/skel-dpu $(BUILD)/flood $(STAMP)
 # SERVO for 10 minutes (CI runs the same check for 20 s): no process a period behind,
 # no fault the platform does not explain.
 soak: $(BUILD)/skel-dpu $(BUILD)/asan/skel-dpu $(STAMP)
-	SKEL_SOAK_S=$${SKEL_SOAK_S:-600} $(VENV)/bin/pytest -q -s tests/test_soak.py
+	SKEL_SOAK_S=$${SKEL_SOAK_S:-600} $(VENV)/bin/pytest -q -s tests/e2e/test_soak.py
 
 # A jar of the generated types, so lcm-spy decodes every channel (one lcm-gen run writes
 # the Python and the Java types). lcm-spy's window needs a display and a full Java runtime.

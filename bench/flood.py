@@ -5,7 +5,7 @@
 for SECONDS to its control channels and every buffer channel (garbage, a foreign
 fingerprint, our fingerprints with lying lengths, well-formed unsigned commands). It returns
 what each DPU was sent, what it counted as refused, what the kernel dropped at its sockets
-before it could see them (/proc/net/udp), and both runs' reports. tests/test_flood.py runs
+before it could see them (/proc/net/udp), and both runs' reports. tests/e2e/test_flood.py runs
 it at a rate this 2-core machine delivers whole; `make bench` (bench/run.py, part flood) at
 100 000 a second.
 """

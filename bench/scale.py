@@ -1,7 +1,7 @@
 """How large a system runs cleanly here: H namespace hosts x D DPUs x P processes at R Hz.
 
 `system_yaml()` writes the scale system (examples/scale-16x2.yaml is its 16 x 2 x 2 x 100 Hz
-output; tests/test_netns_scale.py runs that file). `main()` runs one system on namespace
+output; tests/netns/test_netns_scale.py runs that file). `main()` runs one system on namespace
 hosts (tests/netns, root only) and prints the share of buffers dropped, for finding the
 largest clean system by hand:
 

@@ -3,6 +3,15 @@
 Every test gets its own LCM port with ttl=0, so multicast never leaves the host
 and tests never hear each other's DPUs. The sanitizer build is made (by make) when
 missing or older than dpu/, so `pytest` works after a plain `make`.
+
+The folders of tests/ (test_X.py in unit/ tests module X; no two test files share a name):
+  unit/          no DPU started: modules run on files and synthetic logs (broken/: bad system files)
+  e2e/           real skel-dpu daemons started (the timing harness, tests/steal.py, judges them)
+  netns/         multi-host tests on network-namespace hosts, beside their harness (root only)
+  architecture/  the code's structure: layers, layout, the wire contract, the Makefile
+  c/             unit tests of dpu/ in C (`make test-c`); fuzz/: libFuzzer harnesses; flood/: build/flood
+Here beside this file: the shared helpers (steal.py, randsys.py, analysis_synth.py), which
+tests import as `from conftest import REPO` does (pytest puts tests/ on sys.path).
 """
 
 from __future__ import annotations

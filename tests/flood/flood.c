@@ -1,4 +1,4 @@
-/* flood.c: hostile traffic for the flood test (tests/test_flood.py) and `make bench`.
+/* flood.c: hostile traffic for the flood test (tests/e2e/test_flood.py) and `make bench`.
  *
  *   flood URL RATE SECONDS CHANNEL[@URL]...
  *

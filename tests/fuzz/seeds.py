@@ -3,7 +3,7 @@ host/wire.py as the host tool sends them, one folder per harness (tests/fuzz/fuz
 
     .venv/bin/python tests/fuzz/seeds.py    # (re)writes tests/fuzz/corpus/<harness>/
 
-The files are committed; tests/test_fuzz_seeds.py checks they are what this script
+The files are committed; tests/unit/test_fuzz_seeds.py checks they are what this script
 makes, so a change to a message, an example or the host's encoding regenerates them
 instead of leaving libFuzzer to start from stale bytes.
 

@@ -1,0 +1,186 @@
+"""The package's import structure: every module imports alone, no import cycle, and the layers hold.
+
+The graph is built from the source with `ast`: every import statement of a module, at its
+top level or inside a function (a late import is still a dependency), relative ones resolved.
+Imports under `if TYPE_CHECKING:` are never executed, so they do not make a cycle; they still
+count for the layer order (an annotation naming an upper layer is a dependency on it).
+"""
+
+from __future__ import annotations
+
+import ast
+import os
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import graphs
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+PACKAGES = {"skeleton.host": REPO / "host", "skeleton.analysis": REPO / "analysis"}
+ANALYSIS_LAYERS = {"read": 0, "measure": 1, "views": 2}   # imports run only from a higher to a lower one
+HOST_ORDER = ["schema", "link", "rules", "system", "wire"]  # the system file: each imports only earlier ones
+
+
+@dataclass(frozen=True)
+class Edge:
+    source: str
+    target: str
+    line: int
+    typing_only: bool
+
+    def __str__(self) -> str:
+        typing = ", TYPE_CHECKING" if self.typing_only else ""
+        return f"{self.source} -> {self.target} (line {self.line}{typing})"
+
+
+def project_modules() -> dict[str, Path]:
+    """Every module of skeleton.host and skeleton.analysis (packages by their __init__)."""
+    found: dict[str, Path] = {}
+    for package, root in PACKAGES.items():
+        for path in sorted(root.rglob("*.py")):
+            parts = path.relative_to(root).with_suffix("").parts
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            found[".".join((package, *parts))] = path
+    return found
+
+
+def _is_type_checking(test: ast.expr) -> bool:
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
+
+
+def _imports(tree: ast.AST, typing_only: bool = False) -> list[tuple[ast.Import | ast.ImportFrom, bool]]:
+    """Every import statement under `tree`, wherever it is, and whether only a type checker runs it."""
+    out: list[tuple[ast.Import | ast.ImportFrom, bool]] = []
+    for node in ast.iter_child_nodes(tree):
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            out.append((node, typing_only))
+        elif isinstance(node, ast.If) and _is_type_checking(node.test):
+            for child in node.body:
+                out.extend(_imports(ast.Module(body=[child], type_ignores=[]), True))
+            for child in node.orelse:
+                out.extend(_imports(ast.Module(body=[child], type_ignores=[]), typing_only))
+        else:
+            out.extend(_imports(node, typing_only))
+    return out
+
+
+def import_graph(modules: dict[str, Path]) -> list[Edge]:
+    edges: list[Edge] = []
+    for name, path in modules.items():
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        for node, typing_only in _imports(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                targets = [alias.name for alias in node.names]
+            else:
+                if node.level:
+                    base = package.split(".")
+                    base = base[: len(base) - (node.level - 1)]
+                    stem = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    stem = node.module or ""
+                # `from PKG import mod` imports the module PKG.mod; `from mod import name` the module.
+                targets = [f"{stem}.{a.name}" if f"{stem}.{a.name}" in modules else stem for a in node.names]
+            for target in dict.fromkeys(targets):
+                while target and target not in modules and target.startswith("skeleton."):
+                    target = target.rpartition(".")[0]   # `import a.b.c` of a name inside a module
+                if target in modules and target != name:
+                    edges.append(Edge(name, target, node.lineno, typing_only))
+    return edges
+
+
+def find_cycle(edges: list[Edge]) -> list[str] | None:
+    """One import cycle among the edges, as the modules around it, or None."""
+    graph: dict[str, list[str]] = {}
+    for e in edges:
+        graph.setdefault(e.source, []).append(e.target)
+    return graphs.find_cycle(graph) or None
+
+
+def _analysis_layer(module: str) -> int | None:
+    parts = module.split(".")
+    return ANALYSIS_LAYERS.get(parts[2]) if len(parts) > 2 and parts[1] == "analysis" else None
+
+
+def _host_rank(module: str) -> int | None:
+    parts = module.split(".")
+    return HOST_ORDER.index(parts[2]) if len(parts) == 3 and parts[1] == "host" and parts[2] in HOST_ORDER \
+        else None
+
+
+def layer_violations(edges: list[Edge]) -> list[str]:
+    bad: list[str] = []
+    for e in edges:
+        low, high = _analysis_layer(e.target), _analysis_layer(e.source)
+        if low is not None and high is not None and low > high:
+            bad.append(f"analysis imports upward: {e}")
+        if e.source.startswith("skeleton.analysis") and e.target.startswith("skeleton.host"):
+            bad.append(f"analysis imports host: {e}")
+        low, high = _host_rank(e.target), _host_rank(e.source)
+        if low is not None and high is not None and low >= high:
+            bad.append(f"host imports against schema -> link -> rules -> system -> wire: {e}")
+    return bad
+
+
+def test_no_import_cycle() -> None:
+    edges = [e for e in import_graph(project_modules()) if not e.typing_only]
+    cycle = find_cycle(edges)
+    assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
+
+
+def test_layers_hold() -> None:
+    assert layer_violations(import_graph(project_modules())) == []
+
+
+def test_the_graph_sees_late_and_relative_imports(tmp_path: Path) -> None:
+    """The checks above would pass vacuously if the graph missed imports: it must see a late,
+    a relative and a package-relative import, and find the cycle they make."""
+    modules = {"skeleton.host": tmp_path / "__init__.py", "skeleton.host.system": tmp_path / "system.py",
+               "skeleton.host.rules": tmp_path / "rules.py", "skeleton.host.spawn": tmp_path / "spawn.py"}
+    modules["skeleton.host"].write_text("")
+    modules["skeleton.host.system"].write_text("def build():\n    from .rules import resolve\n")
+    modules["skeleton.host.rules"].write_text("from . import spawn\nfrom .system import Dpu\n")
+    modules["skeleton.host.spawn"].write_text("if TYPE_CHECKING:\n    from skeleton.host.rules import X\n")
+    edges = import_graph(modules)
+    assert {(e.source, e.target, e.typing_only) for e in edges} == {
+        ("skeleton.host.system", "skeleton.host.rules", False),
+        ("skeleton.host.rules", "skeleton.host.spawn", False),
+        ("skeleton.host.rules", "skeleton.host.system", False),
+        ("skeleton.host.spawn", "skeleton.host.rules", True)}
+    assert find_cycle(edges) is not None
+    assert any("rules -> skeleton.host.system" in v for v in layer_violations(edges))
+
+
+def _import_alone(module: str) -> tuple[str, subprocess.CompletedProcess[str]]:
+    env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
+    return module, subprocess.run([sys.executable, "-c", f"import {module}"], cwd=REPO, env=env,
+                                  capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.timeout(600)
+def test_every_module_imports_alone() -> None:
+    """Each module in a fresh interpreter: an import that works only after another module was
+    imported first (a cycle held apart by import order) fails here."""
+    with ThreadPoolExecutor(max_workers=2) as pool:   # a shared 2-core machine
+        done = list(pool.map(_import_alone, sorted(project_modules())))
+    failed = {m: p.stderr.strip().splitlines()[-1] for m, p in done if p.returncode != 0}
+    assert failed == {}
+
+
+def _absolute(node: ast.Import | ast.ImportFrom) -> bool:
+    if isinstance(node, ast.ImportFrom):
+        return not node.level and (node.module or "").startswith("skeleton")
+    return any(alias.name.startswith("skeleton") for alias in node.names)
+
+
+def test_host_imports_the_project_relatively() -> None:
+    """host/ names its siblings and analysis/ relatively (`from .system`, `from ..analysis`)."""
+    absolute = [f"{path.name}:{node.lineno}" for name, path in project_modules().items()
+                if name.startswith("skeleton.host")
+                for node, _ in _imports(ast.parse(path.read_text())) if _absolute(node)]
+    assert absolute == []
