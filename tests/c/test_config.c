@@ -318,7 +318,7 @@ static void test_link_recv_buf_size(void)
 }
 
 /* The record URL (contract RECORD_OFFSET): the control URL's group and port one lower,
- * LCM's defaults for what is left out, the options kept; tests/test_link.py holds the host's
+ * LCM's defaults for what is left out, the options kept; tests/unit/test_link.py holds the host's
  * record_url to the same cases. */
 static void test_record_url(void)
 {

@@ -2,7 +2,7 @@
  * replay; any flipped byte, another channel or another key is forged; unsealed input is
  * unsigned to a keyed DPU and fine to one without a key, which refuses sealed input; key
  * files must hold exactly the key and be private. Python's side (analysis/read/seal.py)
- * checks the DPUs' seals in tests/test_seal.py, and the DPUs check Python's. */
+ * checks the DPUs' seals in tests/unit/test_seal.py, and the DPUs check Python's. */
 #include <fcntl.h>
 #include <stdlib.h>
 #include <sys/stat.h>
