@@ -38,6 +38,7 @@ from skeleton.host import spawn
 from skeleton.host.link import record_url
 from skelmsg.contract import DEFAULT_URL, TIMING_CHANNEL
 
+SANITIZER_ERROR = re.compile(rb"ERROR: AddressSanitizer|runtime error:|ERROR: LeakSanitizer")
 # Timing tests get another attempt only when the hypervisor took the CPUs (tests/steal.py).
 pytest_plugins = ["steal"]
 
@@ -67,7 +68,6 @@ PORT_BLOCK = 600
 _EPHEMERAL_LOW = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
 _ports = itertools.count(
     10000 + random.SystemRandom().randrange((_EPHEMERAL_LOW - 10000) // PORT_BLOCK) * PORT_BLOCK)
-SANITIZER_ERROR = re.compile(rb"ERROR: AddressSanitizer|runtime error:|ERROR: LeakSanitizer")
 
 
 @pytest.fixture(scope="session", autouse=True)

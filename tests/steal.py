@@ -37,10 +37,17 @@ CPUs (well above the 1-4 % of a quiet hour here), or while a DPU's kernel speed 
 INCONCLUSIVE_MOVED_PCT points or more, has no valid evidence either way: it is reported skipped,
 as inconclusive, with what was stolen and how far the speed moved in each attempt. One attempt
 that failed with less of both is a failure.
+
+None of this hides a fault of ours. An attempt whose DPUs wrote a sanitizer report is never run
+again, whatever the platform did. Every run of pytest ends with one line counting the timing
+tests that needed another attempt and the inconclusive ones, and fails (exit 1) when more than
+MAX_REATTEMPTED tests needed another attempt, or when a test was inconclusive in this run and
+in the run before it (the counts are kept in EVIDENCE_FILE, which each run leaves behind).
 """
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import threading
@@ -52,7 +59,10 @@ from pathlib import Path
 from typing import NamedTuple
 
 import pytest
+from conftest import SANITIZER_ERROR
 
+MAX_REATTEMPTED = 6   # tests of one run that may need another attempt (CI: 0-1 a run, 2026-11)
+EVIDENCE_FILE = Path(__file__).resolve().parents[1] / "build" / "timing-evidence.json"
 STEAL_SHARE = 0.01
 STALL_MS = 1.0
 REATTEMPTS = 2
@@ -122,6 +132,11 @@ def wait_for_a_quiet_platform() -> None:
 _RUN_STALLS = re.compile(rb"run -?\d+ ended: .*, longest platform stall ([\d.]+) ms")
 
 
+def sanitizer_report(root: Path) -> bool:
+    """Did a DPU whose log is under ROOT write a sanitizer report?"""
+    return any(SANITIZER_ERROR.search(log.read_bytes()) for log in root.rglob("dpu*.log"))
+
+
 def longest_dpu_stall_ms(root: Path) -> float:
     """The longest platform stall any DPU whose log is under ROOT reported at the end of a run."""
     return max((float(m.group(1)) for log in root.rglob("dpu*.log")
@@ -172,6 +187,8 @@ class Attempt:
 
 _current: Attempt | None = None
 _reattempted: list[str] = []
+_reattempted_tests: set[str] = set()
+_verdict: list[str] = []   # the session's one line on its timing evidence, and why it failed, if it did
 # per test, the share of the CPUs stolen and the WORK speed moved in each failed attempt
 _failed_attempts: dict[str, list[tuple[float, float]]] = {}
 _inconclusive: list[str] = []
@@ -182,6 +199,8 @@ def platform_took_the_cpus(error: BaseException | None) -> bool:
     with the error of each failed phase, with None after one that passed."""
     if _current is None:
         return False
+    if _current.root is not None and sanitizer_report(_current.root):
+        return False   # a fault of ours, whatever the platform did
     ms, share = _current.stolen_share()
     stall_ms = longest_dpu_stall_ms(_current.root) if _current.root is not None else 0.0
     work = _current.work_speed()
@@ -189,6 +208,7 @@ def platform_took_the_cpus(error: BaseException | None) -> bool:
         return False
     if error is not None and not _current.reported:  # once per failed attempt
         _current.reported = True
+        _reattempted_tests.add(_current.nodeid)
         _reattempted.append(f"{_current.nodeid}: {ms:.0f} ms stolen ({100 * share:.1f} % of the CPUs' "
                             f"time), a DPU stalled {stall_ms:.1f} ms in one cycle, its WORK kernel "
                             f"{work.off:.1f} % off (moved {work.moved:.1f} points), "
@@ -261,3 +281,26 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
     if _waits:
         terminalreporter.write_line(f"tests/steal.py: {_waits} timing attempt(s) waited {_waited_s:.0f} s in "
                                     f"all for a spell of steal to pass")
+    for line in _verdict:
+        terminalreporter.write_line(line)
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    """The one line on this run's timing evidence; exit 1 when it could hide a regression."""
+    try:
+        before = json.loads(EVIDENCE_FILE.read_text())["inconclusive"]
+    except (OSError, ValueError, KeyError, TypeError):
+        before = 0
+    EVIDENCE_FILE.parent.mkdir(parents=True, exist_ok=True)
+    EVIDENCE_FILE.write_text(json.dumps({"inconclusive": len(_inconclusive),
+                                         "reattempted": len(_reattempted_tests)}) + "\n")
+    _verdict.append(f"timing evidence: {len(_reattempted_tests)} test(s) needed another attempt (at most "
+                    f"{MAX_REATTEMPTED}), {len(_inconclusive)} inconclusive (the run before: {before})")
+    failed = []
+    if len(_reattempted_tests) > MAX_REATTEMPTED:
+        failed.append(f"more than {MAX_REATTEMPTED} tests needed another attempt")
+    if _inconclusive and before:
+        failed.append("tests were inconclusive in two runs in a row")
+    if failed and session.exitstatus == 0:
+        _verdict.append("FAILED: " + "; ".join(failed) + f" ({EVIDENCE_FILE})")
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
