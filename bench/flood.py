@@ -25,8 +25,8 @@ from typing import Any
 import skelmsg
 from skeleton.analysis.read.logreader import read_log
 from skeleton.analysis.read.seal import Verdict, Verifier, load_key, write_key
-from skeleton.host.spawn import running
-from skeleton.host.system import load
+from skeleton.host.live.spawn import running
+from skeleton.host.sysfile.system import load
 from skelmsg import contract
 
 REPO = Path(__file__).resolve().parent.parent

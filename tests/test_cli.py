@@ -25,8 +25,8 @@ from skeleton.analysis import exitcodes
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.views.console import UNLIMITED_WIDTH
 from skeleton.analysis.views.tables import print_report, process_table
-from skeleton.host import spawn
-from skeleton.host.control import Control
+from skeleton.host.live import spawn
+from skeleton.host.live.control import Control
 from skelmsg.contract import CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 PAIR = EXAMPLES / "pair-10ms-5ms.yaml"

@@ -12,8 +12,8 @@ import pytest
 from conftest import EXAMPLES, skel
 
 from skeleton.analysis.measure.run import load_run
-from skeleton.host.compute import varying
-from skeleton.host.schema import ComputeSpec
+from skeleton.host.sysfile.compute import varying
+from skeleton.host.sysfile.schema import ComputeSpec
 from skelmsg import contract
 
 

@@ -15,7 +15,7 @@ import pytest
 from conftest import faults_but_stalls, fresh_url, skel
 
 from skeleton.analysis.measure.faults import recv_buf_needed
-from skeleton.host.link import rmem_max
+from skeleton.host.sysfile.link import rmem_max
 from skelmsg.contract import DEFAULT_URL
 
 BIG = 1_000_000
@@ -97,7 +97,7 @@ def test_a_buffer_that_never_arrives_is_a_delivery_failure_not_a_lockout(tmp_pat
 
 
 def test_doctor_check_of_a_buffer_names_the_sysctl() -> None:
-    from skeleton.host.doctor import check_buffer_socket
+    from skeleton.host.live.preflight import check_buffer_socket
 
     need = recv_buf_needed(BIG)
     assert check_buffer_socket("joint_state", BIG, need).ok

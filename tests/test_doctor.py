@@ -11,7 +11,7 @@ import sys
 import pytest
 from netns import Hosts, hosts_fixture, require_command
 
-from skeleton.host.doctor import (
+from skeleton.host.cli.doctor import (
     Check,
     check_route,
     check_rp_filter,
@@ -120,7 +120,7 @@ def test_check_level_names() -> None:
 
 # --- the whole doctor inside a host (root) --------------------------------------------------------
 def _doctor_in(hosts: Hosts, url: str = URL1) -> tuple[int, str]:
-    code = "import sys; from skeleton.host.doctor import doctor; sys.exit(doctor(sys.argv[1]))"
+    code = "import sys; from skeleton.host.cli.doctor import doctor; sys.exit(doctor(sys.argv[1]))"
     done = hosts.run("skelh1", [sys.executable, "-c", code, url], capture_output=True, text=True, timeout=30)
     return done.returncode, done.stdout
 
@@ -144,7 +144,8 @@ def test_netns_doctor_healthy_host_exits_0(netns_host: Hosts) -> None:
 
 
 def test_netns_doctor_json(netns_host: Hosts) -> None:
-    code = "import sys; from skeleton.host.doctor import doctor; sys.exit(doctor(sys.argv[1], as_json=True))"
+    code = ("import sys; from skeleton.host.cli.doctor import doctor; "
+            "sys.exit(doctor(sys.argv[1], as_json=True))")
     done = netns_host.run("skelh1", [sys.executable, "-c", code, URL1], capture_output=True, text=True)
     doc = json.loads(done.stdout)
     assert done.returncode == 0 and doc["ok"] is True

@@ -11,9 +11,9 @@ import lcm
 from conftest import EXAMPLES, DpuFarm
 
 import skelmsg
-from skeleton.host.control import Control
-from skeleton.host.system import load
-from skeleton.host.wire import config_message
+from skeleton.host.live.control import Control
+from skeleton.host.live.wire import config_message
+from skeleton.host.sysfile.system import load
 from skelmsg.contract import COMMAND_CHANNEL, CONFIG_CHANNEL
 
 
@@ -79,7 +79,7 @@ def test_dpu_ignores_undecodable_messages(dpus: DpuFarm, url: str) -> None:
         buffer_channels = [b.channel for b in system.buffers if b.id in (3, 5, 6, 7, 8)]
         hostile += [(ch, _negative_length_buffer()) for ch in buffer_channels]
         hostile += [(ch, b"garbage") for ch in buffer_channels]
-        # a buffer's channel is heard on its writer's port (host/link.py), not on the control URL
+        # a buffer's channel is heard on its writer's port (host/sysfile/link.py), not on the control URL
         on_port = {b.channel: lcm.LCM(system.buffer_url(b.id))
                    for b in system.buffers if b.channel in buffer_channels}
         generation = control.next_generation()

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 from conftest import EXAMPLES, DpuFarm, TimingTap
 
 import skelmsg
-from skeleton.host.control import Control
-from skeleton.host.system import System, load
-from skeleton.host.wire import config_message
+from skeleton.host.live.control import Control
+from skeleton.host.live.wire import config_message
+from skeleton.host.sysfile.system import System, load
 
 PAIR = EXAMPLES / "pair-10ms-5ms.yaml"
 MS = 1_000_000

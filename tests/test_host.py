@@ -19,8 +19,8 @@ from conftest import EXAMPLES, DpuFarm, dpu_log_problems, skel, skel_background
 
 from skeleton.analysis.read.messages import open_run_log
 from skeleton.analysis.read.records import FLAG_SKIPPED, load_records
-from skeleton.host import spawn
-from skeleton.host.control import Control
+from skeleton.host.live import spawn
+from skeleton.host.live.control import Control
 from skelmsg.contract import DEFAULT_URL
 
 PAIR = str(EXAMPLES / "pair-10ms-5ms.yaml")

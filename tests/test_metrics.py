@@ -242,7 +242,7 @@ def test_lost_batches_from_batch_seq_gaps() -> None:
 
 
 def test_resent_batches_rejoin_their_place() -> None:
-    """Batches the logger missed come back (host/repair.py) after later ones, some twice:
+    """Batches the logger missed come back (host/live/repair.py) after later ones, some twice:
     the records end up as if nothing had been missed."""
     dpu1, dpu2 = small_run()
     first = [m.encode() for m in batches(1, dpu1, 2) + batches(2, dpu2, 2)]

@@ -21,8 +21,8 @@ import pytest
 from conftest import ASAN_DPU, EXAMPLES, REPO, SANITIZER_ERROR
 from netns import Hosts, hosts_fixture
 
-from skeleton.host.link import record_url
-from skeleton.host.spawn import LOGGED_CHANNELS
+from skeleton.host.live.spawn import LOGGED_CHANNELS
+from skeleton.host.sysfile.link import record_url
 
 pytestmark = pytest.mark.timing  # judges the DPUs' timing: tests/steal.py
 
@@ -69,7 +69,7 @@ class Lab:
     def logger(self, host: str, path: Path) -> subprocess.Popen[bytes]:
         """lcm-logger on `host` writing `path`; returns once the file is open."""
         with open(path.with_suffix(".logger.txt"), "wb") as out:
-            # On the record URL, where a run's messages travel (host/link.py), as the README says.
+            # On the record URL, where a run's messages travel (host/sysfile/link.py), as the README says.
             argv = [str(LOGGER), "-f", "-q", "-l", record_url(URL), "-c", LOGGED_CHANNELS,
                     "--flush-interval=50", str(path)]
             proc = self.hosts.popen(host, argv, stdout=out, stderr=out)

@@ -18,9 +18,9 @@ import pytest
 from conftest import DpuFarm, faults_but_stalls, skel, skel_background
 
 import skelmsg
-from skeleton.host.control import Control
-from skeleton.host.system import load
-from skeleton.host.wire import config_message
+from skeleton.host.live.control import Control
+from skeleton.host.live.wire import config_message
+from skeleton.host.sysfile.system import load
 
 SYSTEM = """\
 system: shared

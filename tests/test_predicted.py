@@ -21,9 +21,9 @@ from skeleton.analysis.measure.predicted import PLATFORM, beside
 from skeleton.analysis.measure.stats import LatencyUs
 from skeleton.analysis.views.report import report_command
 from skeleton.analysis.views.tables import predicted_tables
-from skeleton.host.predict import predict
-from skeleton.host.predict_view import predictor
-from skeleton.host.system import load
+from skeleton.host.sysfile.system import load
+from skeleton.host.theory.predict import predict
+from skeleton.host.theory.predictor import predictor
 from skelmsg.contract import CONFIG_CHANNEL, TIMING_CHANNEL
 
 

@@ -28,8 +28,8 @@ from skeleton.analysis.read.seal import (
     split,
     write_key,
 )
-from skeleton.host import spawn
-from skeleton.host.control import Control
+from skeleton.host.live import spawn
+from skeleton.host.live.control import Control
 from skelmsg import contract
 
 PAIR = EXAMPLES / "pair-10ms-5ms.yaml"

@@ -11,8 +11,8 @@ import pytest
 import yaml
 
 import skelmsg
-from skeleton.host.system import System, SystemFileError, load
-from skeleton.host.wire import config_message, dump_yaml
+from skeleton.host.live.wire import config_message, dump_yaml
+from skeleton.host.sysfile.system import System, SystemFileError, load
 from skelmsg.contract import DEFAULT_URL
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"

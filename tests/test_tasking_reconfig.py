@@ -26,10 +26,10 @@ import skeleton
 import skelmsg
 from skeleton.analysis.read.logreader import read_log
 from skeleton.analysis.read.records import load_records
-from skeleton.host.control import Control
-from skeleton.host.schedule import ideal_schedule
-from skeleton.host.system import System, load
-from skeleton.host.wire import config_message
+from skeleton.host.live.control import Control
+from skeleton.host.live.wire import config_message
+from skeleton.host.sysfile.system import System, load
+from skeleton.host.theory.schedule import ideal_schedule
 
 pytestmark = pytest.mark.timing  # judges the DPUs' timing: tests/steal.py
 

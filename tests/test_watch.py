@@ -26,10 +26,10 @@ from skeleton.analysis.measure.report import RunReport, build_report
 from skeleton.analysis.measure.run import IMPOSSIBLE, load_run
 from skeleton.analysis.measure.tally import GenerationTally, RunTally
 from skeleton.analysis.read.records import decode_run, impossible
-from skeleton.host.link import record_url
-from skeleton.host.recordstore import RecordStore
-from skeleton.host.watch import Heard, _FaultFinder
-from skeleton.host.watch_view import BAR_WIDTH, MIN_BAR_WIDTH, render
+from skeleton.host.cli.watch import Heard, _FaultFinder
+from skeleton.host.cli.watch_view import BAR_WIDTH, MIN_BAR_WIDTH, render
+from skeleton.host.live.recordstore import RecordStore
+from skeleton.host.sysfile.link import record_url
 from skelmsg.contract import CONFIG_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 LOGPLAYER = Path(lcm.__file__).parent.parent / "bin" / "lcm-logplayer"
@@ -57,7 +57,7 @@ def _replay_once(log: Path, replay_url: str) -> tuple[subprocess.CompletedProces
     assert watch.stderr is not None
     ready = watch.stderr.readline()  # printed once subscribed: nothing of the replay is missed
     assert "waiting for a run" in ready, ready
-    # The watch hears the record URL of its --url, as the logger does (host/link.py).
+    # The watch hears the record URL of its --url, as the logger does (host/sysfile/link.py).
     player = subprocess.run([str(LOGPLAYER), "-s", "1", "-l", record_url(replay_url), str(log)],
                             capture_output=True, text=True, timeout=60)
     assert player.returncode == 0, player.stderr

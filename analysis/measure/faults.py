@@ -395,7 +395,7 @@ def overrun_faults(processes: list[ProcessMetrics]) -> list[Fault]:
 # logger starved of CPU drops messages (the newest, whoever sent them), so the log is
 # judged with more margin. A DPU restarted sooner is caught by its new pid.
 # A DPU is lost when its heartbeats (5 Hz) stop. Live: three missed beats (LOST_AFTER_S, the one
-# timeout of host/listener.py). In a log: a silence of LOST_GAP_US while other DPUs were heard,
+# timeout of host/live/listener.py). In a log: a silence of LOST_GAP_US while other DPUs were heard,
 # longer because a log's gaps also hold what the logger itself dropped on a busy machine.
 LOST_AFTER_S = 0.6
 LOST_GAP_US = 2_000_000

@@ -1,5 +1,5 @@
 """The prediction beside the measurement: THE definitions of the delta between what the
-system file predicts (host/predict.py, handed over as its JSON, `skel check --json`'s
+system file predicts (host/theory/predict.py, handed over as its JSON, `skel check --json`'s
 `prediction`) and what a run measured, and of a measured value outside its prediction.
 
 The prediction counts only the file's computations and schedule, so what a run measures

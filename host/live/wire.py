@@ -17,9 +17,9 @@ import yaml
 
 import skelmsg
 
-from .predict import planned_data_us
-from .schema import Event
-from .system import System
+from ..sysfile.schema import Event
+from ..sysfile.system import System
+from ..theory.predict import planned_data_us
 
 COMPUTE = {
     "sleep": skelmsg.dpu_t.COMPUTE_SLEEP,

@@ -1,19 +1,13 @@
-"""The prediction as tables (`skel check` prints one, `skel allocate` two side by side) and as
-the JSON `skel run` and `skel report` hand to the analysis, to lay beside a run's measurement."""
+"""The prediction as tables: `skel check` prints one, `skel allocate` two side by side."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from pathlib import Path
-from typing import Any
 
 from rich.console import Console
 from rich.table import Table
 
-from .predict import Prediction, predict
-from .system import loads
-from .yamlfile import SystemFileError
+from ..theory.predict import Prediction
 
 
 def _ms(us: float | None, digits: int = 3) -> str:
@@ -103,15 +97,3 @@ def print_beside(console: Console, old: Prediction, new: Prediction, traffic: tu
     worst.add_row("traffic between DPUs kB/s, at most", f"{traffic[0] / 1000:.3g}",
                   f"{traffic[1] / 1000:.3g}")
     console.print(worst)
-
-
-def predictor(path: Path) -> Callable[[str], dict[str, Any]]:
-    """What analysis/measure/predicted.py asks for: a run's system file (the text its config
-    carries, overrides applied) -> its prediction's JSON, validated as if it were the file at
-    PATH (a `samples:` file is looked for beside it); ValueError says why it cannot be."""
-    def prediction(text: str) -> dict[str, Any]:
-        try:
-            return predict(loads(text, path)).to_json()
-        except SystemFileError as e:
-            raise ValueError(str(e)) from None
-    return prediction

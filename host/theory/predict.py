@@ -26,11 +26,11 @@ from collections.abc import Collection
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from ..sysfile.schema import Dpu, Process
+from ..sysfile.system import System
 from . import frames
 from .frames import Frame, Timing
 from .schedule import response_times, start_ranges
-from .schema import Dpu, Process
-from .system import System
 
 # On the wire per buffer_t: the LCM fingerprint and the fields before the payload, LCM's
 # short-message header (magic, sequence, channel name and its NUL), UDP and IPv4 headers.

@@ -10,27 +10,22 @@ receive buffers. A system that can never run (a data-wait deadlock) is bad input
 from __future__ import annotations
 
 import json
-import os
-import socket
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
-from urllib.parse import parse_qs, urlsplit
 
 from rich.console import Console, JustifyMethod
 from rich.table import Table
 
-from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_OK
-from ..analysis.views.console import OutputConsole
-from .doctor import check_buffer_socket
-from .link import group_overlap, parse_url, rmem_max, writer_url
-from .predict import Prediction, event_rate, predict
-from .predict_view import print_prediction
-from .system import System, SystemFileError, load
+from skeleton.analysis.exitcodes import EXIT_BAD_INPUT, EXIT_OK
+from skeleton.analysis.views.console import OutputConsole
 
-# sleep mode models a dedicated processor by sleeping, so it needs no core of its own.
-CORE_HUNGRY = ("cpu", "wall", "work")
+from ..live.preflight import core_warnings, delivery_warnings, warmup_warnings
+from ..sysfile.link import group_overlap, parse_url, writer_url
+from ..sysfile.system import System, SystemFileError, load
+from ..theory.predict import Prediction, event_rate, predict
+from .predict_view import print_prediction
 
 
 def check(path: str | Path, overrides: Sequence[str] = (), as_json: bool = False,
@@ -84,7 +79,7 @@ def summarize(system: System, prediction: Prediction) -> dict[str, Any]:
 
 def _ports(system: System) -> list[dict[str, Any]]:
     """Per udpm link, the groups and UDP ports it uses: its own (control, for the default
-    link) and each writer's (host/link.py): what a lab's firewall and switches must pass."""
+    link) and each writer's (host/sysfile/link.py): what a lab's firewall and switches must pass."""
     by_port = sorted(system.writer_ports.items(), key=lambda item: item[1])
     out = []
     for link in system.links:
@@ -138,67 +133,10 @@ def warnings(system: System) -> list[str]:
                        "cycles with long draws will overrun")
     if (shared := group_overlap(system.links, system.writer_ports, system.default_link.url)) is not None:
         out.append(shared)
-    out += _core_warnings(system, load_by_dpu)
+    out += core_warnings(system, load_by_dpu)
     out += warmup_warnings(system)
     out += delivery_warnings(system)
     return out
-
-
-def delivery_warnings(system: System) -> list[str]:
-    """Buffers this machine's DPUs read that their sockets cannot receive whole (skel doctor's check)."""
-    limit = rmem_max()
-    out = []
-    for b in system.buffers:
-        link = system.link(b.link)
-        readers = [p.name for p in system.readers(b.id) if _is_this_machine(system.dpu(p.dpu).host)]
-        if link.local or not readers:
-            continue
-        asked = parse_qs(urlsplit(link.url).query).get("recv_buf_size", [None])[-1]
-        found = check_buffer_socket(b.name, b.bytes, limit, int(asked) if asked and asked.isdigit() else None)
-        if not found.ok:
-            out.append(f"{found.name} (link {link.name}, read here by {', '.join(readers)}): {found.detail}; "
-                       f"fix: {found.fix}")
-    return out
-
-
-def _core_warnings(system: System, load_by_dpu: dict[int, float]) -> list[str]:
-    """Busy DPUs that need a core each, on this machine (other hosts' cores are unknown here)."""
-    cores = os.cpu_count() or 1
-    busy = [d for d in system.dpus
-            if _is_this_machine(d.host) and d.compute in CORE_HUNGRY and load_by_dpu[d.id] > 0]
-    out: list[str] = []
-    for host in sorted({d.host for d in busy}):
-        mine = [d.id for d in busy if d.host == host]
-        if len(mine) > cores:
-            out.append(f"host {host}: {len(mine)} busy DPUs ({', '.join(map(str, mine))}) compute in "
-                       f"cpu/wall/work mode but this machine has {cores} cores: they will preempt each "
-                       "other; use compute: sleep or fewer DPUs")
-        pinned: dict[int, int] = {}
-        for d in (d for d in busy if d.host == host and d.cpu is not None):
-            if d.cpu >= cores:
-                out.append(f"DPU {d.id}: cpu {d.cpu} does not exist on this machine ({cores} cores)")
-            elif d.cpu in pinned:
-                out.append(f"DPU {d.id}: pinned to cpu {d.cpu} like DPU {pinned[d.cpu]}: they share one core")
-            pinned.setdefault(d.cpu, d.id)
-    return out
-
-
-def warmup_warnings(system: System, run_ns: int | None = None) -> list[str]:
-    """Processes whose warm-up fills the run (`run_ns`, default the file's run length)."""
-    run_ns = system.run_duration_ns() if run_ns is None else run_ns
-    out: list[str] = []
-    for p in system.processes:
-        warmup_ns = system.run.warmup_cycles * p.period_us * 1000
-        if warmup_ns >= run_ns:
-            out.append(f"process {p.name}: its warm-up ({system.run.warmup_cycles} cycles of "
-                       f"{p.period_us / 1000:g} ms = {warmup_ns / 1e9:g} s) is not shorter than the run "
-                       f"({run_ns / 1e9:g} s): none of its cycles would be measured")
-    return out
-
-
-def _is_this_machine(host: str) -> bool:
-    names = {"localhost", "127.0.0.1", "::1", socket.gethostname(), socket.gethostname().split(".")[0]}
-    return host in names
 
 
 def _print(system: System, summary: dict[str, Any], prediction: Prediction, out: TextIO) -> None:

@@ -83,7 +83,7 @@ class System:
 
     @functools.cached_property
     def writer_ports(self) -> dict[tuple[int, int], int]:
-        """(link id, writer process id) -> the port its buffers travel on (host/link.py)."""
+        """(link id, writer process id) -> the port its buffers travel on (host/sysfile/link.py)."""
         return writer_ports(self.links, ((b.link, b.writer) for b in self.buffers))
 
     def buffer_url(self, key: int | str) -> str:

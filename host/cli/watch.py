@@ -23,22 +23,28 @@ from typing import Any
 
 from rich.live import Live
 
+from skeleton.analysis.exitcodes import (
+    EXIT_BAD_INPUT,
+    EXIT_FAILED,
+    EXIT_FATAL_FLAW,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+)
+from skeleton.analysis.measure.report import RunReport
+from skeleton.analysis.measure.run import analyze_log
+from skeleton.analysis.measure.tally import GenerationTally, RunTally
+from skeleton.analysis.read.logreader import encode_events, read_bytes
+from skeleton.analysis.read.messages import LogError
+from skeleton.analysis.views.console import OutputConsole, reader_closed
+from skeleton.analysis.views.tables import print_report
 from skelmsg.contract import COMMAND_CHANNEL
 
-from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
-from ..analysis.measure.report import RunReport
-from ..analysis.measure.run import analyze_log
-from ..analysis.measure.tally import GenerationTally, RunTally
-from ..analysis.read.logreader import encode_events, read_bytes
-from ..analysis.read.messages import LogError
-from ..analysis.views.console import OutputConsole, reader_closed
-from ..analysis.views.tables import print_report
-from . import spawn
-from .control import subscribe
-from .link import record_listen_url, record_url, rmem_max
-from .listener import CHANNELS, LOST_AFTER_S, Listener
-from .predict_view import predictor
-from .recordstore import RecordStore
+from ..live import spawn
+from ..live.control import subscribe
+from ..live.listener import CHANNELS, LOST_AFTER_S, Listener
+from ..live.recordstore import RecordStore
+from ..sysfile.link import record_listen_url, record_url, rmem_max
+from ..theory.predictor import predictor
 from .watch_view import render
 
 REFRESH_S = 0.4  # redraw period: at least twice a second
@@ -154,7 +160,7 @@ class Heard:
 
 
 def _subscribe(url: str, heard: Heard) -> Any:
-    """Heard hears the record URL of the control URL `url`: what a run records (host/link.py)."""
+    """Heard hears the record URL of the control URL `url`: what a run records (host/sysfile/link.py)."""
     import lcm
 
     record = record_url(url)

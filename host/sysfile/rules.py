@@ -253,7 +253,7 @@ def _writers(spec: SystemSpec, ports: Ports) -> dict[int, str]:
 
 def _link_ports(spec: SystemSpec, links: tuple[Link, ...], buffer_links: dict[int, Link],
                 writers: dict[int, str]) -> dict[tuple[int, int], int]:
-    """Each writer's buffers get a port of their own next to their link's (host/link.py):
+    """Each writer's buffers get a port of their own next to their link's (host/sysfile/link.py):
     the ports must exist and no two links may share one."""
     control = control_link(links)
     for link in links:

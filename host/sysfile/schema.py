@@ -428,7 +428,7 @@ class Buffer:
 @dataclass(frozen=True)
 class Varying:
     """A compute time drawn each cycle from `quantiles_us`: its quantile function at evenly
-    spaced probabilities from 0 to 1, linear between points (host/compute.py makes it)."""
+    spaced probabilities from 0 to 1, linear between points (host/sysfile/compute.py makes it)."""
 
     kind: str                         # uniform | normal | lognormal | exponential | samples
     quantiles_us: tuple[float, ...]

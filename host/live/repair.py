@@ -27,10 +27,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import skelmsg
+from skeleton.analysis.read.logreader import read_bytes
+from skeleton.analysis.read.records import timing_heads
 from skelmsg.contract import REPORT_CHANNEL
 
-from ..analysis.read.logreader import read_bytes
-from ..analysis.read.records import timing_heads
 from . import spawn
 from .control import Control
 

@@ -26,6 +26,16 @@ from dataclasses import dataclass
 from typing import Any, TypeVar
 
 import skelmsg
+from skeleton.analysis.measure.faults import (
+    LOST_AFTER_S,
+    Fault,
+    jam_faults,
+    lockout_faults,
+    lockouts_from_status,
+)
+from skeleton.analysis.measure.report import RunReport, build_report
+from skeleton.analysis.read.records import IMPOSSIBLE, RunRecords
+from skeleton.analysis.read.seal import Verdict, Verifier
 from skelmsg import contract
 from skelmsg.contract import (
     CLOCK_CHANNEL,
@@ -37,10 +47,6 @@ from skelmsg.contract import (
     TIMING_CHANNEL,
 )
 
-from ..analysis.measure.faults import LOST_AFTER_S, Fault, jam_faults, lockout_faults, lockouts_from_status
-from ..analysis.measure.report import RunReport, build_report
-from ..analysis.read.records import IMPOSSIBLE, RunRecords
-from ..analysis.read.seal import Verdict, Verifier
 from .recordstore import RecordStore
 
 KEY_PROBLEMS = {  # what a refused status says about its DPU's key

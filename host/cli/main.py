@@ -17,19 +17,19 @@ from pathlib import Path
 
 from rich.table import Table
 
+from skeleton.analysis.exitcodes import EXIT_BAD_INPUT, EXIT_BROKEN_PIPE, EXIT_FAILED, EXIT_INTERRUPTED
+from skeleton.analysis.read.messages import run_log_path
+from skeleton.analysis.read.parallel import one_heap
+from skeleton.analysis.read.seal import KeyFileError, key_path, load_key, write_key
+from skeleton.analysis.views.console import reader_gone, stdout_to_devnull
 from skelmsg.contract import DEFAULT_URL, KEY_ENV
 
-from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_BROKEN_PIPE, EXIT_FAILED, EXIT_INTERRUPTED
-from ..analysis.read.messages import run_log_path
-from ..analysis.read.parallel import one_heap
-from ..analysis.read.seal import KeyFileError, key_path, load_key, write_key
-from ..analysis.views.console import reader_gone, stdout_to_devnull
-from . import spawn
-from .control import Control, ControlError
-from .listener import QUIET_S, is_run_id
-from .predict import deadlocks
-from .system import SystemFileError, load
-from .wire import config_message
+from ..live import spawn
+from ..live.control import Control, ControlError
+from ..live.listener import QUIET_S, is_run_id
+from ..live.wire import config_message
+from ..sysfile.system import SystemFileError, load
+from ..theory.predict import deadlocks
 
 UNKEYED = ("check", "keygen")  # commands that neither talk to DPUs nor read a run
 LISTEN_LIMIT_S = 5.0  # `skel status`/`skel clock` listen at most this long by default
@@ -211,7 +211,7 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_up(args: argparse.Namespace) -> int:
-    from .run import control_url
+    from ..live.run import control_url
 
     system = _load(args)
     url = control_url(system)
@@ -229,8 +229,8 @@ def cmd_down(args: argparse.Namespace) -> int:
 
 
 def cmd_push(args: argparse.Namespace) -> int:
-    from . import owner
-    from .run import HEAR_TIMEOUT_S, control_url
+    from ..live import owner
+    from ..live.run import HEAR_TIMEOUT_S, control_url
 
     if args.at_ms < 0:
         print(f"skel push: --at-ms {args.at_ms:g}: must be >= 0", file=sys.stderr)
@@ -274,8 +274,9 @@ def cmd_push(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from ..analysis.views.console import output_console
-    from .run import RunOptions, run
+    from skeleton.analysis.views.console import output_console
+
+    from ..live.run import RunOptions, run
 
     pushed_generation = None
     if args.file is None:
@@ -310,8 +311,9 @@ def _listen(control: Control, args: argparse.Namespace) -> float:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    from ..analysis.views.console import output_console
-    from . import owner
+    from skeleton.analysis.views.console import output_console
+
+    from ..live import owner
 
     if args.wait < 0:
         print(f"skel status: --wait {args.wait:g}: must be >= 0", file=sys.stderr)
@@ -375,8 +377,9 @@ def _json_or_nothing(rows: list[dict], as_json: bool, nothing: str) -> int | Non
 
 
 def cmd_clock(args: argparse.Namespace) -> int:
-    from ..analysis.views.console import output_console
-    from . import clock
+    from skeleton.analysis.views.console import output_console
+
+    from ..live import clock
 
     if args.samples < 1 or args.wait < 0:
         what = (f"--samples {args.samples}: must be >= 1" if args.samples < 1
@@ -412,8 +415,9 @@ def cmd_clock(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from ..analysis.views.report import report_command
-    from .predict_view import predictor
+    from skeleton.analysis.views.report import report_command
+
+    from ..theory.predictor import predictor
 
     log = run_log_path(args.log)
     # a run directory's system.yaml is the file its configuration came from
@@ -422,13 +426,13 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_diff(args: argparse.Namespace) -> int:
-    from ..analysis.views.diff import diff_command
+    from skeleton.analysis.views.diff import diff_command
 
     return diff_command(run_log_path(args.run_a), run_log_path(args.run_b), as_json=args.json, key=args.key)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from ..analysis.views.export import export_command
+    from skeleton.analysis.views.export import export_command
 
     return export_command(run_log_path(args.log), args.mcap, run_id=args.run_id, parquet=args.parquet,
                           trace=args.trace, key=args.key)
@@ -456,8 +460,8 @@ def cmd_doctor(args: argparse.Namespace) -> int:
 
 
 def cmd_event(args: argparse.Namespace) -> int:
-    from . import event
-    from .schema import name_problem  # an event's name is the system file's: its channel's suffix
+    from ..live import event
+    from ..sysfile.schema import name_problem  # an event's name is the system file's: its channel's suffix
 
     problem = (name_problem(args.name) if name_problem(args.name)
                else "--count must be >= 1" if args.count < 1
@@ -467,7 +471,7 @@ def cmd_event(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     try:
         sent = event.send(args.url, args.name, args.count, args.rate)  # not signed (README: Security)
-    except ValueError as error:  # a URL whose record URL is none (host/link.py)
+    except ValueError as error:  # a URL whose record URL is none (host/sysfile/link.py)
         print(f"skel event {args.name}: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
     print(f"sent {sent} event{'s' if sent != 1 else ''} {args.name} on {args.url}")
@@ -494,6 +498,3 @@ COMMANDS = {"check": cmd_check, "up": cmd_up, "down": cmd_down, "push": cmd_push
             "export": cmd_export, "watch": cmd_watch, "doctor": cmd_doctor, "event": cmd_event,
             "allocate": cmd_allocate, "keygen": cmd_keygen}
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -25,10 +25,10 @@ from itertools import combinations
 
 from ortools.sat.python import cp_model
 
-from . import yamledit
+from ..sysfile import yamledit
+from ..sysfile.schema import Dpu, Process
+from ..sysfile.system import System, loads
 from .predict import Prediction, held_up, predict, same_cycle_waits, wire_bytes
-from .schema import Dpu, Process
-from .system import System, loads
 
 PPM = 1_000_000
 MAX_CUTS = 200

@@ -11,9 +11,10 @@ from rich.measure import Measurement
 from rich.table import Table
 from rich.text import Text
 
-from ..analysis.measure.tally import GenerationTally
-from ..analysis.views.tables import malformed_line
-from .listener import STATE_NAMES, RecordStore
+from skeleton.analysis.measure.tally import GenerationTally
+from skeleton.analysis.views.tables import malformed_line
+
+from ..live.listener import STATE_NAMES, RecordStore
 
 
 class Heard(Protocol):

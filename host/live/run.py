@@ -33,23 +33,23 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 import skelmsg
+from skeleton.analysis.exitcodes import EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
+from skeleton.analysis.measure.faults import LOST_AFTER_S, Fault
+from skeleton.analysis.measure.metrics import utilization_pct
+from skeleton.analysis.measure.run import load_run
+from skeleton.analysis.read.messages import LogError
+from skeleton.analysis.views.console import OutputConsole
+from skeleton.analysis.views.tables import print_report
 from skelmsg.contract import KEY_ENV
 
-from ..analysis.exitcodes import EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
-from ..analysis.measure.faults import LOST_AFTER_S, Fault
-from ..analysis.measure.metrics import utilization_pct
-from ..analysis.measure.run import load_run
-from ..analysis.read.messages import LogError
-from ..analysis.views.console import OutputConsole
-from ..analysis.views.tables import print_report
+from ..sysfile.system import System
+from ..theory.predictor import predictor
 from . import owner, spawn
-from .check import delivery_warnings, warmup_warnings
 from .clock import ClockKeeper
 from .control import Control, PushResult
 from .listener import DpuView, fault_line
-from .predict_view import predictor
+from .preflight import delivery_warnings, warmup_warnings
 from .repair import LoggerKeeper, LogRepair, RepairResult
-from .system import System
 from .wire import config_message
 
 START_LEAD_S = 0.5          # time for START to reach every DPU before cycle 0
@@ -82,7 +82,7 @@ class RunOptions:
     dpu_args: list[str] = field(default_factory=list)
     wait_dpus_s: float = HEAR_TIMEOUT_S
     logger: str = "local"   # local: lcm-logger here; external: someone else records the run
-    force: bool = False     # take over another host tool's run on our DPUs (host/owner.py)
+    force: bool = False     # take over another host tool's run on our DPUs (host/live/owner.py)
     key: bytes | None = None        # signed control (analysis/read/seal.py): the key ...
     key_file: Path | None = None    # ... and its file, which spawned DPUs are given
 

@@ -19,36 +19,21 @@ import shutil
 import subprocess
 import sys
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from typing import Literal, TextIO
 
 from rich.text import Text
 
+from skeleton.analysis.exitcodes import EXIT_FAILED, EXIT_OK
+from skeleton.analysis.views.console import OutputConsole
 from skelmsg.contract import DEFAULT_URL, KEY_ENV
 
-from ..analysis.exitcodes import EXIT_FAILED, EXIT_OK
-from ..analysis.measure.faults import recv_buf_needed
-from ..analysis.views.console import OutputConsole
-from .link import LcmUrl, parse_url, record_url, rmem_max, sysctl
+from ..live.preflight import Check
+from ..sysfile.link import LcmUrl, parse_url, record_url, rmem_max, sysctl
 
 MIN_RMEM_BYTES = 2 * 1024 * 1024
 GOOD_RMEM_BYTES = 8 * 1024 * 1024
 SELF_TEST_S = 1.0
-
-
-@dataclass(frozen=True)
-class Check:
-    """One finding. `severity` says how bad it is when not ok: warn (works, with a risk) or fail."""
-
-    name: str
-    ok: bool
-    detail: str
-    fix: str = ""
-    severity: Literal["warn", "fail"] = "fail"
-
-    @property
-    def level(self) -> str:
-        return "OK" if self.ok else self.severity.upper()
 
 
 # --- small readers of the system's state ----------------------------------------------------
@@ -141,24 +126,6 @@ def check_socket_buffers(rmem_max: int | None, rmem_default: int | None,
                      "~65 kB fragment and the kernel drops fragments that do not fit",
                      f"sysctl -w net.core.rmem_max={good} net.core.rmem_default={good}", "warn")
     return Check("socket buffers", True, f"rmem_max={rmem_max}, rmem_default={rmem_default}")
-
-
-def check_buffer_socket(buffer: str, payload_bytes: int, rmem_max: int | None,
-                        recv_buf_size: int | None = None) -> Check:
-    """Can a reader's socket here hold one message of `buffer` whole? The DPU asks for
-    recv_buf_needed() (dpu/link.c); the kernel grants at most net.core.rmem_max, and a
-    recv_buf_size written in the link's URL is used as it is."""
-    need = recv_buf_needed(payload_bytes)
-    name = f"buffer {buffer}"
-    if recv_buf_size is not None and recv_buf_size < need:
-        return Check(name, False, f"{payload_bytes} bytes: the link's URL asks recv_buf_size="
-                     f"{recv_buf_size}, under the {need} bytes one message needs whole: it never arrives",
-                     f"recv_buf_size={need} in the link's url (or leave it out)")
-    if recv_buf_size is None and rmem_max is not None and rmem_max < need:
-        return Check(name, False, f"{payload_bytes} bytes: a reader's socket needs a {need}-byte receive "
-                     f"buffer but net.core.rmem_max is {rmem_max}: it would never arrive",
-                     f"sysctl -w net.core.rmem_max={need}")
-    return Check(name, True, f"{payload_bytes} bytes fit a reader's socket receive buffer")
 
 
 def _port_in(spec: str, port: int) -> bool:
@@ -313,7 +280,7 @@ def run_checks(url: str) -> list[Check]:
 
 
 def _record_checks(url: str, earlier_failed: bool) -> list[Check]:
-    """The record URL (host/link.py: record_url), where the DPUs send heartbeats, timing and
+    """The record URL (host/sysfile/link.py: record_url), where the DPUs send heartbeats, timing and
     reports: its port's firewall and a message of its own (its group, one below the control
     group, takes the same route in practice: one to 224.0.0.0/4 covers both)."""
     try:
@@ -357,7 +324,7 @@ def doctor(url: str, out: TextIO = sys.stdout, as_json: bool = False, keyed: boo
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """`python -m skeleton.host.doctor [--url URL] [--json]` (the same as `skel doctor`)."""
+    """`python -m skeleton.host.cli.doctor [--url URL] [--json]` (the same as `skel doctor`)."""
     parser = argparse.ArgumentParser(prog="skel doctor", description="Check what stops LCM multicast here.")
     parser.add_argument("--url", default=DEFAULT_URL, help=f"LCM URL to check (default {DEFAULT_URL})")
     parser.add_argument("--json", action="store_true")

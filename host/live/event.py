@@ -15,7 +15,7 @@ import lcm
 import skelmsg
 from skelmsg import contract
 
-from .link import record_url
+from ..sysfile.link import record_url
 
 
 def send(url: str, name: str, count: int = 1, rate_hz: float = 10.0) -> int:

@@ -1,7 +1,7 @@
 """Talking to the DPUs: config broadcast, commands and pings.
 
 One `Control` sends on the control URL, where the DPUs listen, and hears on the
-record URL (host/link.py: record_url), where they send heartbeats, timing and
+record URL (host/sysfile/link.py: record_url), where they send heartbeats, timing and
 reports; a thread drains that into the Listener it is (listener.py: what the
 heartbeats, reports and configs say, decoded once and kept). Everything it asks
 goes out as config_t and command_t, on both URLs: the DPUs act on the one, the
@@ -24,10 +24,10 @@ from dataclasses import dataclass, field
 import lcm
 
 import skelmsg
+from skeleton.analysis.read.seal import Signer
 from skelmsg import contract
 
-from ..analysis.read.seal import Signer
-from .link import record_listen_url, record_url, rmem_max
+from ..sysfile.link import record_listen_url, record_url, rmem_max
 from .listener import CHANNELS, Listener, is_generation
 
 COMMAND_REPEATS = 3

@@ -15,9 +15,9 @@ events) stays on the first link's GROUP:PORT, the control URL, and what a run re
 (heartbeats, timing, reports) travels on its record URL, GROUP - 1:PORT - 1, which only the
 host and the logger join: no DPU wakes for another's records (record_url).
 
-`buffer_desc_t.url` carries the result to the DPUs (host/wire.py); the rules refuse a
+`buffer_desc_t.url` carries the result to the DPUs (host/live/wire.py); the rules refuse a
 system whose links' ports would overlap or whose groups would leave the multicast range
-(host/rules.py).
+(host/sysfile/rules.py).
 """
 
 from __future__ import annotations

@@ -10,8 +10,8 @@ import time
 
 import numpy as np
 
-from ..analysis.read.coltable import ColumnTable
-from ..analysis.read.records import (
+from skeleton.analysis.read.coltable import ColumnTable
+from skeleton.analysis.read.records import (
     INPUT_DTYPE,
     RECORD_DTYPE,
     RunRecords,

@@ -12,12 +12,13 @@ from typing import TYPE_CHECKING
 
 from rich.console import Console
 
-from ..analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
-from .predict import predict
-from .system import System, SystemFileError, load
+from skeleton.analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
+
+from ..sysfile.system import System, SystemFileError, load
+from ..theory.predict import predict
 
 if TYPE_CHECKING:
-    from .allocate import Allocation
+    from ..theory.allocate import Allocation
 
 # allocate.py's goals; it is imported only to allocate (OR-Tools takes a while to load)
 OBJECTIVES = ("load", "latency", "traffic")
@@ -55,8 +56,9 @@ def _pins(system: System, given: list[str], dpus: list[int]) -> dict[str, int]:
 
 
 def allocate_command(args: argparse.Namespace) -> int:
-    from ..analysis.views.console import output_console
-    from .allocate import NoFit, allocate, targets
+    from skeleton.analysis.views.console import output_console
+
+    from ..theory.allocate import NoFit, allocate, targets
 
     system = load(args.file, args.overrides)  # --url is the verifying runs', not the new file's
     old = predict(system)
@@ -86,7 +88,7 @@ def allocate_command(args: argparse.Namespace) -> int:
 
 
 def _say(console: Console, system: System, found: Allocation, out: Path) -> None:
-    from .allocate import traffic_bytes_per_s
+    from ..theory.allocate import traffic_bytes_per_s
     from .predict_view import print_beside
 
     how = "proven optimal" if found.optimal else "the best found in the time limit"
@@ -98,10 +100,11 @@ def _say(console: Console, system: System, found: Allocation, out: Path) -> None
 
 def _verify(console: Console, system: System, new_path: Path, args: argparse.Namespace) -> int:
     """Both files, each on local DPUs in sleep mode, then `skel diff` of the two runs."""
-    from ..analysis.read.messages import run_log_path
-    from ..analysis.views.console import UNLIMITED_WIDTH
-    from ..analysis.views.diff import diff_command
-    from .run import RunOptions, run
+    from skeleton.analysis.read.messages import run_log_path
+    from skeleton.analysis.views.console import UNLIMITED_WIDTH
+    from skeleton.analysis.views.diff import diff_command
+
+    from ..live.run import RunOptions, run
 
     # beside the new file, so the runs are found with what they verify
     where = new_path.parent / f"{new_path.stem}-verify-{time.strftime('%Y%m%d-%H%M%S')}"
