@@ -33,7 +33,7 @@ from skelmsg.contract import DEFAULT_URL, TIMING_CHANNEL
 pytest_plugins = ["steal"]
 
 # A suite started in the background (`make test &`: the shell ignores SIGINT for it) would
-# hand that on to every skel it starts, which then rightly ignores Ctrl-C (host/cli/main.py): the
+# hand that on to every skel it starts, which then rightly ignores Ctrl-C (host/cli/commands.py): the
 # tests of Ctrl-C need it as a terminal gives it. A handler here is reset to the default in
 # the children.
 if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:

@@ -21,7 +21,7 @@ from analysis_synth import batches, report, small_config, small_run, status, wri
 from conftest import EXAMPLES, REPO, SANITIZER_ERROR, DpuFarm, skel
 from rich.console import Console
 
-from skeleton.analysis import exitcodes
+from skeleton.analysis import errors
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.views.console import UNLIMITED_WIDTH
 from skeleton.analysis.views.tables import print_report, process_table
@@ -79,7 +79,7 @@ def test_spawn_is_refused_beside_an_auto_dpu_that_would_take_one(url: str, tmp_p
         done = skel("run", str(system), "--spawn", "--url", url, "--out", str(tmp_path / "run"))
     finally:
         code = spawn.stop(daemon)
-    assert done.returncode == exitcodes.EXIT_FAILED, done.stdout + done.stderr
+    assert done.returncode == errors.EXIT_FAILED, done.stdout + done.stderr
     assert f"DPU 1 (pid {daemon.process.pid} on {socket.gethostname()}, started with --id auto) already up" \
         in done.stdout, done.stdout
     assert not (tmp_path / "run" / "logs").exists() and code == 0
@@ -87,7 +87,7 @@ def test_spawn_is_refused_beside_an_auto_dpu_that_would_take_one(url: str, tmp_p
 
 def test_status_with_nothing_up_says_how_long_it_listened(url: str) -> None:
     done = skel("status", "--url", url, "--wait", "3")
-    assert done.returncode == exitcodes.EXIT_FAILED, done.stdout + done.stderr
+    assert done.returncode == errors.EXIT_FAILED, done.stdout + done.stderr
     assert re.search(r"no DPU heard on \S+ \(its record URL \S+\) in 1\.\d s", done.stdout), done.stdout
 
 
@@ -108,7 +108,7 @@ def test_run_interrupted_by_ctrl_c_writes_its_report_and_exits_130(url: str, tmp
     time.sleep(1.5)
     run.send_signal(signal.SIGINT)
     stdout, stderr = run.communicate(timeout=60)
-    assert run.returncode == exitcodes.EXIT_INTERRUPTED == 130, stdout + stderr
+    assert run.returncode == errors.EXIT_INTERRUPTED == 130, stdout + stderr
     assert not DUMP.search(stderr), stderr
     assert "interrupted: stopping the run" in stdout, stdout
     assert "per process" in stdout and f"run written to {out}/" in stdout, stdout
@@ -138,7 +138,7 @@ def test_watch_ended_by_sigterm_ends_as_by_ctrl_c(dpus: DpuFarm, url: str, tmp_p
         for (mode, signum), watcher in watchers.items():
             _, stderr = watcher.communicate(timeout=30)
             what = f"watch {mode} ended by {signal.Signals(signum).name}: exit {watcher.returncode}\n{stderr}"
-            assert watcher.returncode == exitcodes.EXIT_INTERRUPTED, what
+            assert watcher.returncode == errors.EXIT_INTERRUPTED, what
             assert not DUMP.search(stderr), what
     finally:
         run.send_signal(signal.SIGTERM)
@@ -187,7 +187,7 @@ def test_a_reader_that_stops_early_ends_the_report_without_a_traceback(tmp_path:
     os.close(write_end)
     assert os.read(read_end, 1) == b"{"
     os.close(read_end)  # as `| head -c 1` does
-    assert report.wait(timeout=60) == exitcodes.EXIT_BROKEN_PIPE
+    assert report.wait(timeout=60) == errors.EXIT_BROKEN_PIPE
     assert report.stderr is not None and b"Traceback" not in report.stderr.read()
 
 
@@ -208,7 +208,7 @@ def test_a_reader_gone_before_a_short_output_ends_the_command_with_141(args: lis
     done = subprocess.run([sys.executable, "-m", "skeleton.host.cli", *args], cwd=REPO, stdout=write_end,
                           stderr=subprocess.PIPE, text=True, env=env, timeout=60)  # fmt: skip
     os.close(write_end)
-    assert done.returncode == exitcodes.EXIT_BROKEN_PIPE, done.stderr
+    assert done.returncode == errors.EXIT_BROKEN_PIPE, done.stderr
     assert not DUMP.search(done.stderr), done.stderr
 
 
@@ -219,7 +219,7 @@ def test_skel_watch_ends_when_its_reader_goes_away(url: str) -> None:
     argv = [sys.executable, "-m", "skeleton.host.cli", "watch", "--url", url, "--duration", "120"]
     watch = subprocess.Popen(argv, cwd=REPO, stdout=write_end, stderr=subprocess.PIPE)
     os.close(write_end)
-    assert watch.wait(timeout=60) == exitcodes.EXIT_BROKEN_PIPE
+    assert watch.wait(timeout=60) == errors.EXIT_BROKEN_PIPE
     assert watch.stderr is not None and not DUMP.search(watch.stderr.read().decode())
 
 
@@ -233,7 +233,7 @@ def test_a_run_whose_reader_goes_away_runs_to_its_report(url: str, tmp_path: Pat
     run = subprocess.run([sys.executable, "-m", "skeleton.host.cli", *args], cwd=REPO, stdout=write_end,
                          stderr=subprocess.PIPE, text=True, timeout=120)  # fmt: skip
     os.close(write_end)
-    assert run.returncode == exitcodes.EXIT_BROKEN_PIPE, run.stderr
+    assert run.returncode == errors.EXIT_BROKEN_PIPE, run.stderr
     assert not DUMP.search(run.stderr) and "warning:" not in run.stderr, run.stderr  # DPUs ended well
     cycles = {p["name"]: p["cycles"] for p in json.loads((out / "report.json").read_text())["processes"]}
     assert set(cycles) == {"slow_writer", "fast_writer", "fast_reader", "slow_reader"}, cycles
@@ -242,11 +242,11 @@ def test_a_run_whose_reader_goes_away_runs_to_its_report(url: str, tmp_path: Pat
 
 
 def test_exit_codes_are_defined_in_one_module() -> None:
-    """host/ and analysis/ return the codes of analysis/exitcodes.py, never their own."""
+    """host/ and analysis/ return the codes of analysis/errors.py, never their own."""
     definition = re.compile(r"^\s*(EXIT_\w+\s*(,\s*EXIT_\w+\s*)*=|return 13\d\b)", re.MULTILINE)
     found = {str(path.relative_to(REPO)): definition.findall(path.read_text())
-             for folder in ("host", "analysis") for path in sorted((REPO / folder).glob("*.py"))}
-    elsewhere = {path: hits for path, hits in found.items() if hits and path != "analysis/exitcodes.py"}
+             for folder in ("host", "analysis") for path in sorted((REPO / folder).rglob("*.py"))}
+    elsewhere = {path: hits for path, hits in found.items() if hits and path != "analysis/errors.py"}
     assert not elsewhere, elsewhere
-    assert (exitcodes.EXIT_OK, exitcodes.EXIT_FAILED, exitcodes.EXIT_BAD_INPUT, exitcodes.EXIT_FATAL_FLAW,
-            exitcodes.EXIT_INTERRUPTED) == (0, 1, 2, 3, 130)
+    assert (errors.EXIT_OK, errors.EXIT_FAILED, errors.EXIT_BAD_INPUT, errors.EXIT_FATAL_FLAW,
+            errors.EXIT_INTERRUPTED) == (0, 1, 2, 3, 130)

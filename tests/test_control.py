@@ -16,7 +16,7 @@ import pytest
 from conftest import EXAMPLES, DpuFarm, skel
 
 import skelmsg
-from skeleton.analysis.exitcodes import EXIT_FAILED
+from skeleton.analysis.errors import EXIT_FAILED
 from skeleton.host.live.control import Control
 from skeleton.host.live.listener import REPORTS_KEPT
 from skeleton.host.live.repair import SeenBatches

@@ -1,5 +1,5 @@
-"""The `skel` commands: main.py parses and dispatches, one module per command beside it."""
+"""The `skel` commands: commands.py parses and dispatches, one module per command beside it."""
 
-from .main import build_parser, main
+from .commands import build_parser, main
 
 __all__ = ["build_parser", "main"]

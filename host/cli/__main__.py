@@ -2,7 +2,7 @@
 
 import sys
 
-from .main import main
+from .commands import main
 
 if __name__ == "__main__":   # imported alone (tests/test_layers.py), it runs nothing
     sys.exit(main())

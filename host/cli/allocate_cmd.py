@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 from rich.console import Console
 
-from skeleton.analysis.exitcodes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
+from skeleton.analysis.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
 
 from ..sysfile.system import System, SystemFileError, load
 from ..theory.predict import predict

@@ -18,7 +18,7 @@ from typing import Any, TextIO
 from rich.console import Console, JustifyMethod
 from rich.table import Table
 
-from skeleton.analysis.exitcodes import EXIT_BAD_INPUT, EXIT_OK
+from skeleton.analysis.errors import EXIT_BAD_INPUT, EXIT_OK
 from skeleton.analysis.views.console import OutputConsole
 
 from ..live.preflight import core_warnings, delivery_warnings, warmup_warnings

@@ -24,7 +24,7 @@ from typing import Literal, TextIO
 
 from rich.text import Text
 
-from skeleton.analysis.exitcodes import EXIT_FAILED, EXIT_OK
+from skeleton.analysis.errors import EXIT_FAILED, EXIT_OK
 from skeleton.analysis.views.console import OutputConsole
 from skelmsg.contract import DEFAULT_URL, KEY_ENV
 

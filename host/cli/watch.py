@@ -23,7 +23,7 @@ from typing import Any
 
 from rich.live import Live
 
-from skeleton.analysis.exitcodes import (
+from skeleton.analysis.errors import (
     EXIT_BAD_INPUT,
     EXIT_FAILED,
     EXIT_FATAL_FLAW,

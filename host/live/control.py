@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import lcm
 
 import skelmsg
+from skeleton.analysis.errors import SkelError
 from skeleton.analysis.read.seal import Signer
 from skelmsg import contract
 
@@ -121,7 +122,7 @@ def _plausible(sample: PingSample, t1_sent: int | None) -> bool:
             and abs(sample.offset_ns) <= CLOCK_OFFSET_MAX_NS)
 
 
-class ControlError(Exception):
+class ControlError(SkelError):
     """The control URL cannot be used on this host: one line for the user."""
 
 

@@ -33,7 +33,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 import skelmsg
-from skeleton.analysis.exitcodes import EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
+from skeleton.analysis.errors import EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
 from skeleton.analysis.measure.faults import LOST_AFTER_S, Fault
 from skeleton.analysis.measure.metrics import utilization_pct
 from skeleton.analysis.measure.run import load_run

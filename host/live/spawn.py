@@ -26,6 +26,7 @@ from pathlib import Path
 
 import lcm
 
+from skeleton.analysis.errors import SkelError
 from skelmsg import contract
 
 REPO = Path(__file__).resolve().parent.parent
@@ -38,7 +39,7 @@ _CONTROL_CHANNELS = (contract.CONFIG_CHANNEL, contract.COMMAND_CHANNEL, contract
 LOGGED_CHANNELS = f"({'|'.join(_CONTROL_CHANNELS)})"
 
 
-class SpawnError(RuntimeError):
+class SpawnError(SkelError, RuntimeError):
     """A local daemon could not be started; the message says what to do."""
 
 

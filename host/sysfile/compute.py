@@ -18,6 +18,7 @@ from statistics import NormalDist
 
 import numpy as np
 
+from skeleton.analysis.errors import EXIT_BAD_INPUT, SkelError
 from skelmsg import contract
 
 from .schema import ComputeSpec, Varying
@@ -27,8 +28,10 @@ from .schema import ComputeSpec, Varying
 MIN_MASS = 1e-6
 
 
-class ComputeError(Exception):
+class ComputeError(SkelError):
     """A distribution or samples file that cannot be drawn from: (field path suffix, problem)."""
+
+    exit_code = EXIT_BAD_INPUT
 
     def __init__(self, key: str, problem: str) -> None:
         self.key, self.problem = key, problem

@@ -18,6 +18,8 @@ from typing import Any
 
 import yaml
 
+from skeleton.analysis.errors import EXIT_BAD_INPUT, SkelError
+
 from .yamlfile import did_you_mean, safe_load
 
 SECTIONS = {
@@ -34,8 +36,10 @@ _USAGE = ("use process.NAME.FIELD, dpu.ID.FIELD, buffer.NAME.FIELD, link.NAME.FI
 _EXCLUSIVE = {"cycles": "duration_s", "duration_s": "cycles"}
 
 
-class OverrideError(Exception):
+class OverrideError(SkelError):
     """One override that cannot be applied; str() is the reason."""
+
+    exit_code = EXIT_BAD_INPUT
 
     def __init__(self, override: str, problem: str) -> None:
         self.override = override

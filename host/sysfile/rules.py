@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from skeleton.analysis.errors import EXIT_BAD_INPUT, SkelError
 from skelmsg import contract
 
 from .compute import ComputeError, varying
@@ -38,7 +39,11 @@ from .schema import (
 from .yamlfile import did_you_mean, show
 
 
-class Invalid(Exception):
+class Invalid(SkelError):
+    """A rule across sections broken (system.py makes it a SystemFileError)."""
+
+    exit_code = EXIT_BAD_INPUT
+
     def __init__(self, path: str, problem: str) -> None:
         self.path, self.problem = path, problem
         super().__init__(f"{path}: {problem}")

@@ -23,6 +23,8 @@ from typing import Any
 import yaml
 from pydantic import BaseModel
 
+from skeleton.analysis.errors import EXIT_BAD_INPUT, SkelError
+
 # Lists whose items are named by a key instead of an index in error paths.
 NAMED_BY = {"dpus": "id", "processes": "name", "buffers": "name", "links": "name", "chains": "name",
             "events": "name"}
@@ -40,8 +42,10 @@ _FAST_LOADER: type = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 REWORD_BYTES = 32 * 1024  # up to this size PyYAML's parser words a syntax error (0.2 s at most)
 
 
-class SystemFileError(Exception):
+class SystemFileError(SkelError):
     """A system file (or an override of it) that cannot be used, as one line."""
+
+    exit_code = EXIT_BAD_INPUT
 
     def __init__(self, file: str | Path, where: str, problem: str) -> None:
         self.file = str(file)
@@ -49,6 +53,9 @@ class SystemFileError(Exception):
         # One line, always: the CLI prints it as is and tests compare it.
         self.problem = " ".join(str(problem).split())
         super().__init__(f"{self.file}: {where}: {self.problem}")
+
+    def line(self) -> str:
+        return str(self)  # it names its file: no "skel:" before it
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):

@@ -25,6 +25,8 @@ from itertools import combinations
 
 from ortools.sat.python import cp_model
 
+from skeleton.analysis.errors import SkelError
+
 from ..sysfile import yamledit
 from ..sysfile.schema import Dpu, Process
 from ..sysfile.system import System, loads
@@ -34,7 +36,7 @@ PPM = 1_000_000
 MAX_CUTS = 200
 
 
-class NoFit(Exception):
+class NoFit(SkelError):
     """No allocation fits; the message says what would."""
 
 

@@ -1,8 +1,7 @@
 """`skel`: the operator's command line (check, up, down, push, run, status, clock, report...).
 
-Exit codes (analysis/exitcodes.py): 0 fine, 1 an operation failed (a DPU did not
-answer...), 2 bad input (the one-line message names the file and field), 3 a fatal
-flaw (lockout or jam) was measured, 130 interrupted (Ctrl-C or SIGTERM).
+Exit codes: analysis/errors.py (EXIT_*); every error of skeleton's own is a SkelError that
+carries its code, and main() prints it as one line.
 """
 
 from __future__ import annotations
@@ -17,15 +16,21 @@ from pathlib import Path
 
 from rich.table import Table
 
-from skeleton.analysis.exitcodes import EXIT_BAD_INPUT, EXIT_BROKEN_PIPE, EXIT_FAILED, EXIT_INTERRUPTED
+from skeleton.analysis.errors import (
+    EXIT_BAD_INPUT,
+    EXIT_BROKEN_PIPE,
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    SkelError,
+)
 from skeleton.analysis.read.messages import run_log_path
 from skeleton.analysis.read.parallel import one_heap
-from skeleton.analysis.read.seal import KeyFileError, key_path, load_key, write_key
+from skeleton.analysis.read.seal import key_path, load_key, write_key
 from skeleton.analysis.views.console import reader_gone, stdout_to_devnull
 from skelmsg.contract import DEFAULT_URL, KEY_ENV
 
 from ..live import spawn
-from ..live.control import Control, ControlError
+from ..live.control import Control
 from ..live.listener import QUIET_S, is_run_id
 from ..live.wire import config_message
 from ..sysfile.system import SystemFileError, load
@@ -181,15 +186,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         # The reader stopped reading (`skel report | head`, `skel run | grep -m1 FAULT`):
         # the command finished quietly (console.py); it ends as a tool killed by SIGPIPE does.
         return EXIT_BROKEN_PIPE if reader_gone() else code
-    except KeyFileError as error:
-        print(f"skel: {error}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except SystemFileError as error:
-        print(error, file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except (spawn.SpawnError, ControlError) as error:
-        print(f"skel: {error}", file=sys.stderr)
-        return EXIT_FAILED
+    except SkelError as error:   # one line, the code it carries: never a traceback
+        print(error.line(), file=sys.stderr)
+        return error.exit_code
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
     except BrokenPipeError:  # a plain print (--json) to a reader gone: no traceback
