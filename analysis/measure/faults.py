@@ -19,7 +19,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 import skelmsg
-from skelmsg.contract import RECV_SLACK_BYTES
+from skelmsg.contract import BUFFER_HEADER_BYTES, RECV_SLACK_BYTES
 
 from ..read.messages import int_columns
 from ..read.records import FLAG_LOCKOUT
@@ -755,7 +755,6 @@ def _why_behind(mine: np.ndarray, config: Any, dpu: int, start: int, t_worst: in
 # (LCM's recv_buf_size; the kernel grants twice that, up to net.core.rmem_max). The DPU asks for
 # it (dpu/link.c, with the contract's RECV_SLACK_BYTES); `skel check` and `skel doctor` compare it
 # with this host.
-BUFFER_HEADER_BYTES = len(skelmsg.buffer_t().encode())
 FRAGMENT_BYTES = 65000        # larger messages go out as several UDP datagrams (LCM fragments)
 DELIVERY_MIN_SENT = 3         # a writer that published fewer gives a reader no fair chance
 

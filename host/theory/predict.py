@@ -26,15 +26,17 @@ from collections.abc import Collection
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from skelmsg.contract import BUFFER_HEADER_BYTES
+
 from ..sysfile.schema import Dpu, Process
 from ..sysfile.system import System
 from . import frames
 from .frames import Frame, Timing
 from .schedule import response_times, start_ranges
 
-# On the wire per buffer_t: the LCM fingerprint and the fields before the payload, LCM's
-# short-message header (magic, sequence, channel name and its NUL), UDP and IPv4 headers.
-BUFFER_T_FIELDS_BYTES = 8 + 8 + 2 + 2 + 8 + 8 + 4
+# On the wire per buffer_t: its encoding's bytes before the payload (the contract's
+# BUFFER_HEADER_BYTES), LCM's short-message header (magic, sequence, channel name and its
+# NUL), UDP and IPv4 headers.
 LCM_HEADER_BYTES = 8
 UDP_IP_BYTES = 8 + 20
 
@@ -727,7 +729,7 @@ def _chains(system: System, by_name: dict[str, ProcessPrediction], rates: dict[i
 
 def wire_bytes(system: System, buffer_id: int) -> int:
     b = system.buffer(buffer_id)
-    return BUFFER_T_FIELDS_BYTES + b.bytes + LCM_HEADER_BYTES + len(b.channel) + 1 + UDP_IP_BYTES
+    return BUFFER_HEADER_BYTES + b.bytes + LCM_HEADER_BYTES + len(b.channel) + 1 + UDP_IP_BYTES
 
 
 def _links(system: System, rates: dict[int, float], unknown: set[int]) -> tuple[LinkPrediction, ...]:
