@@ -11,7 +11,8 @@ import pytest
 from conftest import EXAMPLES, DpuFarm, skel
 from randsys import random_pipeline
 
-from skeleton.host.sysfile.system import System, load
+from skeleton.host.model import System
+from skeleton.host.sysfile.system import load
 from skeleton.host.theory.allocate import NoFit, allocate
 from skeleton.host.theory.predict import predict
 from skelmsg import contract

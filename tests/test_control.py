@@ -22,7 +22,7 @@ from skeleton.host.live.listener import REPORTS_KEPT
 from skeleton.host.live.repair import SeenBatches
 from skeleton.host.live.wire import config_message
 from skeleton.host.sysfile.link import RECORD_RECV_BYTES, parse_url, record_listen_url, record_url, rmem_max
-from skeleton.host.sysfile.system import load
+from skeleton.host.sysfile.system import load, with_url
 from skelmsg.contract import CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL
 
 INT64_MAX = 2**63 - 1
@@ -41,7 +41,7 @@ def _publish(url: str, channel: str, *messages: object, repeats: int = 3) -> Non
 
 def _stray_config(url: str, generation: int, committed: bool, valid: bool) -> skelmsg.config_t:
     """A well-formed config of the test's own system: every DPU refuses it unless `valid`."""
-    config = config_message(load(PAIR).with_url(url), generation, 0, committed=committed)
+    config = config_message(with_url(load(PAIR), url), generation, 0, committed=committed)
     if not valid:
         for process in config.processes:
             process.compute_us = -1
@@ -207,7 +207,7 @@ def test_a_system_one_port_above_does_not_configure_or_command_ours(dpus: DpuFar
     try:
         assert not ours.wait_heard([1, 2], 10.0)
         generation = theirs.next_generation()
-        theirs.publish_config(config_message(load(PAIR).with_url(above), generation, 0, committed=True))
+        theirs.publish_config(config_message(with_url(load(PAIR), above), generation, 0, committed=True))
         theirs.command(skelmsg.command_t.SHUTDOWN)
         time.sleep(1.0)
         statuses = {i: ours.dpus[i].status for i in (1, 2)}
@@ -216,7 +216,7 @@ def test_a_system_one_port_above_does_not_configure_or_command_ours(dpus: DpuFar
         assert all(dpus.daemons[i].alive() for i in (1, 2))
         # What is sent to our control URL still arrives: our host configures them.
         generation = ours.next_generation()
-        assert ours.push(config_message(load(PAIR).with_url(url), generation, 0, committed=False), [1, 2]).ok
+        assert ours.push(config_message(with_url(load(PAIR), url), generation, 0, committed=False), [1, 2]).ok
     finally:
         ours.close()
         theirs.close()

@@ -12,7 +12,8 @@ from conftest import EXAMPLES, HOST_EVENTS_SYSTEM, LOCKOUT_SYSTEM, skel
 from randsys import random_system
 
 from skeleton.host.cli.check import check
-from skeleton.host.sysfile.system import System, load, loads
+from skeleton.host.model import System
+from skeleton.host.sysfile.system import load, loads
 from skeleton.host.theory.predict import predict
 from skelmsg import contract
 

@@ -14,7 +14,8 @@ from conftest import EXAMPLES, LOCKOUT_SYSTEM, skel, skel_background, threads_cp
 
 import skelmsg
 from skeleton.host.live.run import keep_off_dpu_cpus
-from skeleton.host.sysfile.system import System, load
+from skeleton.host.model import System
+from skeleton.host.sysfile.system import load
 from skeleton.host.theory.predict import predict
 from skelmsg.contract import COMMAND_CHANNEL, STATUS_CHANNEL
 

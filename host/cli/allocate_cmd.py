@@ -14,7 +14,8 @@ from rich.console import Console
 
 from skeleton.analysis.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
 
-from ..sysfile.system import System, SystemFileError, load
+from ..model import System
+from ..sysfile.system import SystemFileError, load, with_url
 from ..theory.predict import predict
 
 if TYPE_CHECKING:
@@ -112,7 +113,7 @@ def _verify(console: Console, system: System, new_path: Path, args: argparse.Nam
     for tag, path, extra in (("before", args.file, args.overrides), ("after", new_path, [])):
         sleep = [f"dpu.{d.id}.compute=sleep" for d in load(path, extra).dpus]
         s = load(path, [*extra, *sleep])
-        s = s.with_url(args.url) if args.url else s
+        s = with_url(s, args.url) if args.url else s
         said = io.StringIO()
         codes[tag] = run(s, RunOptions(spawn=True, out=where / tag, key=args.key, key_file=args.key_file),
                          console=Console(file=said, width=UNLIMITED_WIDTH))

@@ -22,8 +22,9 @@ from skeleton.analysis.errors import EXIT_BAD_INPUT, EXIT_OK
 from skeleton.analysis.views.console import OutputConsole
 
 from ..live.preflight import core_warnings, delivery_warnings, warmup_warnings
+from ..model import System
 from ..sysfile.link import group_overlap, parse_url, writer_url
-from ..sysfile.system import System, SystemFileError, load
+from ..sysfile.system import SystemFileError, load
 from ..theory.predict import Prediction, event_rate, predict
 from .predict_view import print_prediction
 

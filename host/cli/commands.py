@@ -33,7 +33,7 @@ from ..live import spawn
 from ..live.control import Control
 from ..live.listener import QUIET_S, is_run_id
 from ..live.wire import config_message
-from ..sysfile.system import SystemFileError, load
+from ..sysfile.system import SystemFileError, load, with_url
 from ..theory.predict import deadlocks
 
 UNKEYED = ("check", "keygen")  # commands that neither talk to DPUs nor read a run
@@ -200,7 +200,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _load(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     system = load(args.file, args.overrides)
-    return system.with_url(args.url) if args.url else system
+    return with_url(system, args.url) if args.url else system
 
 
 def cmd_check(args: argparse.Namespace) -> int:

@@ -12,8 +12,8 @@ from urllib.parse import parse_qs, urlsplit
 
 from skeleton.analysis.measure.faults import recv_buf_needed
 
+from ..model import System
 from ..sysfile.link import rmem_max
-from ..sysfile.system import System
 
 # sleep mode models a dedicated processor by sleeping, so it needs no core of its own.
 CORE_HUNGRY = ("cpu", "wall", "work")

@@ -20,6 +20,7 @@ file is shared, so the push may come from another machine than the run.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import sys
@@ -42,7 +43,7 @@ from skeleton.analysis.views.console import OutputConsole
 from skeleton.analysis.views.tables import print_report
 from skelmsg.contract import KEY_ENV
 
-from ..sysfile.system import System
+from ..model import System
 from ..theory.predictor import predictor
 from . import owner, spawn
 from .clock import ClockKeeper
@@ -436,7 +437,7 @@ def _report(console: Console, system: System, options: RunOptions, out: Path, ru
     else:
         paper = None
         if options.compare_paper and system.reference is not None:
-            paper = {i: row.model_dump() for i, row in system.reference.dpus.items()}
+            paper = {i: dataclasses.asdict(row) for i, row in system.reference.dpus.items()}
         print_report(report, console=console, paper=paper)
         if missing:
             console.print(missing, style="yellow", markup=False, highlight=False)

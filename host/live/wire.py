@@ -17,8 +17,7 @@ import yaml
 
 import skelmsg
 
-from ..sysfile.schema import Event
-from ..sysfile.system import System
+from ..model import Event, System
 from ..theory.predict import planned_data_us
 
 COMPUTE = {
@@ -136,7 +135,7 @@ def dump_yaml(system: System) -> str:
                        **({"event": p.event, "queue": p.queue} if p.sync == "event" else {}),
                        **({"emits": list(p.emits)} if p.emits else {}),
                        "outputs": [names[b] for b in p.outputs]} for p in system.processes],
-        "run": system.run.model_dump(exclude_none=True),
+        "run": _given(system.run),
         "chains": [{"name": c.name, "processes": [system.process(i).name for i in c.processes]}
                    for c in system.chains],
     }
@@ -144,5 +143,14 @@ def dump_yaml(system: System) -> str:
         doc["events"] = [{k: v for k, v in dataclasses.asdict(e).items() if v or k in ("name", "kind")}
                          for e in system.events]
     if system.reference is not None:
-        doc["reference"] = system.reference.model_dump(exclude_none=True)
+        doc["reference"] = _given(system.reference)
     return yaml.safe_dump(doc, sort_keys=False)
+
+
+def _given(record: Any) -> Any:
+    """A model record as the file writes it: mappings and lists, fields without a value left out."""
+    if dataclasses.is_dataclass(record):
+        return {k: _given(v) for k, v in dataclasses.asdict(record).items() if v is not None}
+    if isinstance(record, dict):
+        return {k: _given(v) for k, v in record.items() if v is not None}
+    return list(record) if isinstance(record, tuple) else record

@@ -21,7 +21,8 @@ import numpy as np
 from skeleton.analysis.errors import EXIT_BAD_INPUT, SkelError
 from skelmsg import contract
 
-from .schema import ComputeSpec, Varying
+from ..model import Varying
+from .schema import ComputeSpec
 
 # Bounds holding less of a distribution than this are a mistake (e.g. a max far below
 # the mean): what is left is too thin to draw from faithfully.

@@ -32,7 +32,7 @@ from urllib.parse import parse_qs, urlsplit, urlunsplit
 
 from skelmsg.contract import DEFAULT_URL, RECORD_OFFSET
 
-from .schema import Link
+from ..model import Link, control_link
 
 MAX_PORT = 65535
 # What the host tool and the logger ask the kernel to buffer on the record URL (capped at
@@ -119,11 +119,6 @@ def sysctl(path: str) -> int | None:
 def rmem_max() -> int | None:
     """net.core.rmem_max: the most socket buffer LCM may ask for (None: unknown)."""
     return sysctl("net/core/rmem_max")
-
-
-def control_link(links: Sequence[Link]) -> Link | None:
-    """The first udpm link: its URL is the control URL (None: every link is local)."""
-    return next((link for link in links if not link.local), None)
 
 
 def _base(url: str) -> tuple[str, int]:

@@ -18,23 +18,17 @@ from typing import Any
 from skeleton.analysis.errors import EXIT_BAD_INPUT, SkelError
 from skelmsg import contract
 
+from ..model import Buffer, Chain, Dpu, Event, Link, Process, Varying, control_link
 from .compute import ComputeError, varying
-from .link import control_link, parse_url, port_clash, record_url, writer_ports
+from .link import parse_url, port_clash, record_url, writer_ports
 from .schema import (
     ABSURD_COMPUTE_PERIODS,
     DEFAULT_LINK,
-    Buffer,
     BufferSpec,
-    Chain,
     ComputeSpec,
-    Dpu,
-    Event,
-    Link,
     LinkSpec,
-    Process,
     ProcessSpec,
     SystemSpec,
-    Varying,
 )
 from .yamlfile import did_you_mean, show
 

@@ -1,5 +1,5 @@
 """The system file's schema: what each section may say (the pydantic models, the only
-place the file's schema lives) and the plain records rules.resolve() turns it into.
+place the file's schema lives); rules.resolve() turns it into host/model.py's records.
 
 Per-field checks (types, ranges, names, URLs) are here; checks across sections
 (references, writers, reachability, minor cycles) are rules.py's.
@@ -8,11 +8,9 @@ Per-field checks (types, ranges, names, URLs) are here; checks across sections
 from __future__ import annotations
 
 import ipaddress
-import itertools
 import math
 import re
 import urllib.parse
-from dataclasses import dataclass, field
 from typing import Annotated, Any, Literal
 
 from pydantic import (
@@ -384,121 +382,3 @@ class SystemSpec(_Spec):
         if v is None:
             return {} if info.field_name == "run" else []
         return v
-
-
-# --- the validated system ------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class Link:
-    id: int                 # position in the file, from 1
-    name: str
-    url: str                # "local" or an udpm:// URL
-    bandwidth_mbps: float | None = None
-
-    @property
-    def local(self) -> bool:
-        return self.url == "local"
-
-
-@dataclass(frozen=True)
-class Dpu:
-    id: int
-    host: str
-    cpu: int | None
-    compute: str            # sleep | wall | cpu | work
-    executive: str          # cyclic | threads
-    speed: float
-    minor_cycle_us: int     # resolved: given, or the gcd of its processes' periods
-    links: tuple[int, ...]  # link ids it can reach
-
-
-@dataclass(frozen=True)
-class Buffer:
-    id: int
-    name: str
-    bytes: int
-    link: int               # link id
-    writer: int             # process id
-
-    @property
-    def channel(self) -> str:
-        return f"SKEL_BUF_{self.name}"
-
-
-@dataclass(frozen=True)
-class Varying:
-    """A compute time drawn each cycle from `quantiles_us`: its quantile function at evenly
-    spaced probabilities from 0 to 1, linear between points (host/sysfile/compute.py makes it)."""
-
-    kind: str                         # uniform | normal | lognormal | exponential | samples
-    quantiles_us: tuple[float, ...]
-    # As the system file wrote it (for dump_yaml); the table alone says what is drawn, and a
-    # dict would make the frozen records unhashable.
-    given: dict[str, Any] = field(compare=False)
-
-    @property
-    def mean_us(self) -> float:
-        q = self.quantiles_us
-        return sum(a + b for a, b in itertools.pairwise(q)) / (2 * (len(q) - 1))
-
-    @property
-    def min_us(self) -> float:
-        return self.quantiles_us[0]
-
-    @property
-    def max_us(self) -> float:
-        return self.quantiles_us[-1]
-
-
-@dataclass(frozen=True)
-class Process:
-    id: int
-    name: str
-    dpu: int
-    order: int              # 1.. within its DPU's minor cycle
-    period_us: int
-    compute_us: int         # the constant, or the mean of `varying` (rounded): the schedule's figure
-    sync: str               # periodic | data | event
-    inputs: tuple[int, ...]     # buffer ids
-    required: tuple[int, ...]   # buffer ids a data-synchronised cycle waits for
-    outputs: tuple[int, ...]
-    varying: Varying | None = None  # how compute varies (None: compute_us every cycle)
-    priority: int = 0       # on the tasking executive: 1..MAX_PRIORITY, higher first; 0 on cyclic
-    event: str = ""         # sync: event: the event it awaits ...
-    queue: int = 0          # ... and how many may wait for it (1..MAX_QUEUE)
-    emits: tuple[str, ...] = ()  # events it fires at the end of each cycle
-
-    @property
-    def worst_compute_us(self) -> float:
-        return self.varying.max_us if self.varying else self.compute_us
-
-    @property
-    def best_compute_us(self) -> float:
-        return self.varying.min_us if self.varying else self.compute_us
-
-
-@dataclass(frozen=True)
-class Event:
-    """A source of a named event: the host, or a generator on DPU `dpu`."""
-    name: str
-    kind: str               # host | periodic | poisson | bursts
-    dpu: int = 0            # the generating DPU; 0: the host
-    period_us: int = 0
-    jitter_us: int = 0
-    rate_hz: float = 0.0
-    count: int = 0
-    spacing_us: int = 0
-
-    @property
-    def rate(self) -> float:
-        """Mean events per second (0: the host's, unknown)."""
-        if self.kind == "poisson":
-            return self.rate_hz
-        per_period = self.count if self.kind == "bursts" else 1
-        return per_period * 1e6 / self.period_us if self.period_us else 0.0
-
-
-@dataclass(frozen=True)
-class Chain:
-    name: str
-    processes: tuple[int, ...]  # process ids, head first

@@ -1,5 +1,5 @@
-"""The system file loaded: load() reads, overrides (`-s`) and validates one into a System,
-which the rest of the host uses.
+"""The system file loaded: load() reads, overrides (`-s`) and validates one into a System
+(host/model.py), which the rest of the host uses.
 
 The schema (what each field may be) is schema.py's, the checks across sections
 rules.py's; wire.py turns a System into the config_t every DPU configures itself from.
@@ -7,9 +7,7 @@ rules.py's; wire.py turns a System into the config_t every DPU configures itself
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -18,131 +16,25 @@ from pydantic import ValidationError
 
 from skelmsg import contract
 
-from .link import control_link, writer_ports, writer_url
+from ..model import Reference, ReferenceDpu, RunRules, System
+from .link import writer_ports, writer_url
 from .overrides import OverrideError, apply_overrides
 from .rules import Invalid, resolve
 from .schema import (
     DEFAULT_LINK,
     DEFAULT_RUN_CYCLES,
-    Buffer,
     BufferSpec,
-    Chain,
-    Dpu,
     DpuSpec,
-    Event,
     EventSpec,
-    Link,
     LinkSpec,
-    Process,
     ProcessSpec,
-    Reference,
     Run,
     SystemSpec,
 )
+from .schema import Reference as ReferenceSpec
 from .yamlfile import SystemFileError, describe, field_path, parse_yaml, read_yaml
 
-__all__ = ["System", "SystemFileError", "load", "loads"]
-
-
-@dataclass(frozen=True)
-class System:
-    """A validated system file: what the host broadcasts, runs and reports on."""
-    name: str
-    path: Path
-    source_text: str                # the YAML used: the file, or its re-dump after overrides
-    links: tuple[Link, ...]
-    dpus: tuple[Dpu, ...]
-    buffers: tuple[Buffer, ...]
-    processes: tuple[Process, ...]
-    run: Run
-    chains: tuple[Chain, ...]
-    reference: Reference | None
-    events: tuple[Event, ...] = ()
-    overrides: tuple[str, ...] = ()
-    document: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
-
-    # Lookups raise KeyError: after validation a missing id is the caller's bug.
-    def link(self, key: int | str) -> Link:
-        return _lookup(self.links, key, "link")
-
-    def dpu(self, dpu_id: int) -> Dpu:
-        return _lookup(self.dpus, dpu_id, "DPU")
-
-    def buffer(self, key: int | str) -> Buffer:
-        return _lookup(self.buffers, key, "buffer")
-
-    def process(self, key: int | str) -> Process:
-        return _lookup(self.processes, key, "process")
-
-    def processes_on(self, dpu_id: int) -> list[Process]:
-        """The DPU's processes in the order its minor cycle runs them."""
-        return sorted((p for p in self.processes if p.dpu == dpu_id), key=lambda p: p.order)
-
-    def readers(self, buffer_id: int) -> list[Process]:
-        return [p for p in self.processes if buffer_id in p.inputs]
-
-    @functools.cached_property
-    def writer_ports(self) -> dict[tuple[int, int], int]:
-        """(link id, writer process id) -> the port its buffers travel on (host/sysfile/link.py)."""
-        return writer_ports(self.links, ((b.link, b.writer) for b in self.buffers))
-
-    def buffer_url(self, key: int | str) -> str:
-        """The URL a buffer travels on: its writer's group and port on its link; "" on a local link."""
-        b = self.buffer(key)
-        link = self.link(b.link)
-        return "" if link.local else writer_url(link.url, self.writer_ports[b.link, b.writer])
-
-    @property
-    def default_link(self) -> Link:
-        """The first udpm link: buffers without a `link:` use it, and so does control traffic."""
-        found = control_link(self.links)
-        assert found is not None, "rules._links refuses a system without a udpm link"
-        return found
-
-    @property
-    def critical_period_us(self) -> int:
-        """The shortest period of the clock-driven processes (`run.cycles` counts these): an
-        event process's period only bounds how often it may run."""
-        clocked = [p.period_us for p in self.processes if p.sync != "event"]
-        return min(clocked or [p.period_us for p in self.processes])
-
-    def static_load(self, worst: bool = False) -> dict[int, float]:
-        """Per DPU, the fraction of its time its processes compute: Σ compute/period / speed,
-        with each varying compute at its mean, or at its maximum when `worst`."""
-        def compute(p: Process) -> float:
-            return p.worst_compute_us if worst else p.compute_us
-        return {
-            d.id: sum(compute(p) / p.period_us for p in self.processes if p.dpu == d.id) / d.speed
-            for d in self.dpus
-        }
-
-    def run_duration_ns(self, cycles: int | None = None, duration_s: float | None = None) -> int:
-        """The run's length; arguments (the command line) beat the file's `run:` section.
-        Cycles count the critical (shortest) period and include the warm-up."""
-        if cycles is not None and duration_s is not None:
-            raise ValueError("give cycles or a duration, not both")
-        if cycles is None and duration_s is None:
-            cycles, duration_s = self.run.cycles, self.run.duration_s
-        if cycles is not None:
-            if cycles < 1:
-                raise ValueError(f"cycles must be at least 1, got {cycles}")
-            return cycles * self.critical_period_us * 1000
-        if duration_s is None or not duration_s > 0:
-            raise ValueError(f"duration must be positive, got {duration_s}")
-        return round(duration_s * 1e9)
-
-    def with_url(self, url: str) -> System:
-        """A copy whose default link uses `url` (tests give each run its own port)."""
-        if url == self.default_link.url:
-            return self  # keeps source_text exactly as written
-        return _build(self.path, self.document, (*self.overrides, f"link.{self.default_link.name}.url={url}"))
-
-
-def _lookup(items: Sequence[Any], key: int | str, noun: str) -> Any:
-    for item in items:
-        if (item.id if isinstance(key, int) else item.name) == key:
-            return item
-    raise KeyError(f"no {noun} {key!r}")
+__all__ = ["SystemFileError", "load", "loads", "with_url"]
 
 
 # --- loading -------------------------------------------------------------------------------
@@ -159,6 +51,14 @@ def loads(text: str, path: str | Path) -> System:
     """A system file's TEXT, validated as if it were the file at PATH (a `samples:` file is
     looked for beside it): `skel allocate`'s candidates before they are written."""
     return _build(path, parse_yaml(path, text), (), text)
+
+
+def with_url(system: System, url: str) -> System:
+    """A copy whose default link uses `url` (tests give each run its own port)."""
+    if url == system.default_link.url:
+        return system  # keeps source_text exactly as written
+    return _build(system.path, system.document,
+                  (*system.overrides, f"link.{system.default_link.name}.url={url}"))
 
 
 def _build(path: str | Path, doc: Any, overrides: tuple[str, ...], text: str | None = None) -> System:
@@ -190,11 +90,28 @@ def _build(path: str | Path, doc: Any, overrides: tuple[str, ...], text: str | N
     run = spec.run
     if run.cycles is None and run.duration_s is None:
         run = run.model_copy(update={"cycles": DEFAULT_RUN_CYCLES})
+    links = {link.id: link for link in parts.links}
+    ports = writer_ports(parts.links, ((b.link, b.writer) for b in parts.buffers))
+    urls = {b.id: "" if links[b.link].local else writer_url(links[b.link].url, ports[b.link, b.writer])
+            for b in parts.buffers}
     return System(
         name=spec.system, path=Path(path), source_text=text or "", links=parts.links, dpus=parts.dpus,
-        buffers=parts.buffers, processes=parts.processes, run=run, chains=parts.chains,
-        reference=spec.reference, events=parts.events, overrides=overrides, document=doc,
+        buffers=parts.buffers, processes=parts.processes, run=_run_rules(run), chains=parts.chains,
+        reference=_reference(spec.reference), events=parts.events, overrides=overrides, document=doc,
+        writer_ports=ports, buffer_urls=urls,
     )
+
+
+def _run_rules(run: Run) -> RunRules:
+    return RunRules(cycles=run.cycles, duration_s=run.duration_s, warmup_cycles=run.warmup_cycles,
+                    lockout_cycles=run.lockout_cycles, stop_on=tuple(run.stop_on), late_pct=run.late_pct,
+                    too_late_pct=run.too_late_pct, seed=run.seed)
+
+
+def _reference(spec: ReferenceSpec | None) -> Reference | None:
+    if spec is None:
+        return None
+    return Reference(spec.source, {i: ReferenceDpu(**row.model_dump()) for i, row in spec.dpus.items()})
 
 
 def _first(errors: Sequence[Any]) -> Any:

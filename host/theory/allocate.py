@@ -27,9 +27,9 @@ from ortools.sat.python import cp_model
 
 from skeleton.analysis.errors import SkelError
 
+from ..model import Dpu, Process, System
 from ..sysfile import yamledit
-from ..sysfile.schema import Dpu, Process
-from ..sysfile.system import System, loads
+from ..sysfile.system import loads
 from .predict import Prediction, held_up, predict, same_cycle_waits, wire_bytes
 
 PPM = 1_000_000

@@ -15,7 +15,7 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
-from ..sysfile.schema import Dpu, Process
+from ..model import Dpu, Process
 
 # Frames simulated at most: two hyperperiods unless that is longer (mixed periods like 5 and
 # 23.8 ms on one DPU make a hyperperiod of 2975 minor cycles of 200 us).

@@ -28,8 +28,7 @@ from typing import Any
 
 from skelmsg.contract import BUFFER_HEADER_BYTES
 
-from ..sysfile.schema import Dpu, Process
-from ..sysfile.system import System
+from ..model import Dpu, Process, System
 from . import frames
 from .frames import Frame, Timing
 from .schedule import response_times, start_ranges

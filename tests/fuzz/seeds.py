@@ -28,7 +28,8 @@ if str(REPO) not in sys.path:  # run as a script from anywhere
 import skelmsg  # noqa: E402
 from skeleton.analysis.read.seal import Signer  # noqa: E402
 from skeleton.host.live.wire import config_message  # noqa: E402
-from skeleton.host.sysfile.system import System, load, loads  # noqa: E402
+from skeleton.host.model import System  # noqa: E402
+from skeleton.host.sysfile.system import load, loads  # noqa: E402
 from skelmsg import contract  # noqa: E402
 
 FUZZ_RUN_ID = 1             # fuzz.h
