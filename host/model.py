@@ -8,11 +8,15 @@ At the bottom of host/: every package above may import it, and so may analysis/.
 
 from __future__ import annotations
 
+import functools
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
+
+import skelmsg
 
 
 @dataclass(frozen=True)
@@ -191,18 +195,32 @@ class System:
     writer_ports: dict[tuple[int, int], int] = field(default_factory=dict, repr=False, compare=False)
     buffer_urls: dict[int, str] = field(default_factory=dict, repr=False, compare=False)
 
-    # Lookups raise KeyError: after validation a missing id is the caller's bug.
+    # Lookups by id (an int) or name (a str) raise KeyError: after validation a missing one is
+    # the caller's bug.
     def link(self, key: int | str) -> Link:
-        return _lookup(self.links, key, "link")
+        return _lookup(self._index["link"], key, "link")
 
     def dpu(self, dpu_id: int) -> Dpu:
-        return _lookup(self.dpus, dpu_id, "DPU")
+        return _lookup(self._index["DPU"], dpu_id, "DPU")
 
     def buffer(self, key: int | str) -> Buffer:
-        return _lookup(self.buffers, key, "buffer")
+        return _lookup(self._index["buffer"], key, "buffer")
 
     def process(self, key: int | str) -> Process:
-        return _lookup(self.processes, key, "process")
+        return _lookup(self._index["process"], key, "process")
+
+    @functools.cached_property
+    def _index(self) -> dict[str, dict[int | str, Any]]:
+        """Each kind of record by id and by name (the first of a name, as a search would find)."""
+        index: dict[str, dict[int | str, Any]] = {}
+        for noun, items in (("link", self.links), ("DPU", self.dpus), ("buffer", self.buffers),
+                            ("process", self.processes)):
+            by: dict[int | str, Any] = index.setdefault(noun, {})
+            for item in items:
+                by.setdefault(item.id, item)
+                if hasattr(item, "name"):
+                    by.setdefault(item.name, item)
+        return index
 
     def processes_on(self, dpu_id: int) -> list[Process]:
         """The DPU's processes in the order its minor cycle runs them."""
@@ -255,8 +273,55 @@ class System:
         return round(duration_s * 1e9)
 
 
-def _lookup(items: Sequence[Any], key: int | str, noun: str) -> Any:
-    for item in items:
-        if (item.id if isinstance(key, int) else item.name) == key:
-            return item
-    raise KeyError(f"no {noun} {key!r}")
+def _lookup(index: dict[int | str, Any], key: int | str, noun: str) -> Any:
+    try:
+        return index[key]
+    except KeyError:
+        raise KeyError(f"no {noun} {key!r}") from None
+
+
+# --- the model on the wire: config_t's enums, and a System read back from a config_t -------------
+COMPUTE = {"sleep": skelmsg.dpu_t.COMPUTE_SLEEP, "wall": skelmsg.dpu_t.COMPUTE_WALL,
+           "cpu": skelmsg.dpu_t.COMPUTE_CPU, "work": skelmsg.dpu_t.COMPUTE_WORK}
+EXECUTIVE = {"cyclic": skelmsg.dpu_t.EXECUTIVE_CYCLIC, "threads": skelmsg.dpu_t.EXECUTIVE_THREADS}
+SYNC = {"periodic": skelmsg.process_t.SYNC_PERIODIC, "data": skelmsg.process_t.SYNC_DATA,
+        "event": skelmsg.process_t.SYNC_EVENT}
+EVENT_KIND = {"host": skelmsg.event_source_t.KIND_HOST, "periodic": skelmsg.event_source_t.KIND_PERIODIC,
+              "poisson": skelmsg.event_source_t.KIND_POISSON, "bursts": skelmsg.event_source_t.KIND_BURSTS}
+FROM_CONFIG = "table"   # a varying compute read back from a config: its quantile table, not its kind
+
+
+def _named(names: dict[str, int], value: int) -> str:
+    return next(name for name, v in names.items() if v == value)
+
+
+def from_config(msg: skelmsg.config_t) -> System:
+    """The System a config_t describes (host/live/wire.py writes one from a System): what a run's
+    DPUs were sent, as the analysis reads it from the log. What the config does not carry keeps
+    its default: the run's length and stop_on, a link's bandwidth, a varying compute's kind (its
+    quantile table is carried), the reference, the overrides; the path is the run's system.yaml."""
+    processes = tuple(
+        Process(id=p.id, name=p.name, dpu=p.dpu, order=p.order, period_us=p.period_us,
+                compute_us=p.compute_us, sync=_named(SYNC, p.sync), inputs=tuple(p.inputs),
+                required=tuple(b for b, wait in zip(p.inputs, p.required, strict=True) if wait),
+                outputs=tuple(p.outputs),
+                varying=Varying(FROM_CONFIG, tuple(p.quantiles_us), given={}) if p.quantiles_us else None,
+                priority=p.priority, event=p.event, queue=p.queue, emits=tuple(p.emits))
+        for p in msg.processes)
+    return System(
+        name=msg.system, path=Path("system.yaml"), source_text=msg.source,
+        links=tuple(Link(link.id, link.name, link.url or "local") for link in msg.links),
+        dpus=tuple(Dpu(d.id, d.host, None if d.cpu < 0 else d.cpu, _named(COMPUTE, d.compute),
+                       _named(EXECUTIVE, d.executive), d.speed, d.minor_cycle_us, tuple(d.links))
+                   for d in msg.dpus),
+        buffers=tuple(Buffer(b.id, b.name, b.bytes, b.link, b.writer) for b in msg.buffers),
+        processes=processes,
+        run=RunRules(cycles=None, duration_s=None, warmup_cycles=msg.warmup_cycles,
+                     lockout_cycles=msg.lockout_cycles, stop_on=(), late_pct=msg.late_pct,
+                     too_late_pct=msg.too_late_pct, seed=msg.seed),
+        chains=tuple(Chain(c.name, tuple(c.processes)) for c in msg.chains),
+        reference=None,
+        events=tuple(Event(e.name, _named(EVENT_KIND, e.kind), e.dpu, e.period_us, e.jitter_us, e.rate_hz,
+                           e.count, e.spacing_us) for e in msg.events),
+        writer_ports={(b.link, b.writer): urlsplit(b.url).port or 0 for b in msg.buffers if b.url},
+        buffer_urls={b.id: b.url for b in msg.buffers})

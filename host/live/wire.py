@@ -1,9 +1,10 @@
 """A validated System in its outward forms: the config_t every DPU configures
 itself from, and a YAML file with every default made explicit.
 
-The only place that knows how the system file maps onto lcmtypes/config_t.lcm;
-DPUs see ids and enums only, never names they would have to resolve, except an
-event's: its name is its channel (EVENT_CHANNEL_PREFIX + name), whoever sends it.
+With host/model.py's from_config (the way back, and the enums both use), the only place
+that knows how the system file maps onto lcmtypes/config_t.lcm; DPUs see ids and enums
+only, never names they would have to resolve, except an event's: its name is its channel
+(EVENT_CHANNEL_PREFIX + name), whoever sends it.
 """
 
 from __future__ import annotations
@@ -17,24 +18,8 @@ import yaml
 
 import skelmsg
 
-from ..model import Event, System
+from ..model import COMPUTE, EVENT_KIND, EXECUTIVE, SYNC, Event, System
 from ..theory.predict import planned_data_us
-
-COMPUTE = {
-    "sleep": skelmsg.dpu_t.COMPUTE_SLEEP,
-    "wall": skelmsg.dpu_t.COMPUTE_WALL,
-    "cpu": skelmsg.dpu_t.COMPUTE_CPU,
-    "work": skelmsg.dpu_t.COMPUTE_WORK,
-}
-EXECUTIVE = {"cyclic": skelmsg.dpu_t.EXECUTIVE_CYCLIC, "threads": skelmsg.dpu_t.EXECUTIVE_THREADS}
-SYNC = {"periodic": skelmsg.process_t.SYNC_PERIODIC, "data": skelmsg.process_t.SYNC_DATA,
-        "event": skelmsg.process_t.SYNC_EVENT}
-EVENT_KIND = {
-    "host": skelmsg.event_source_t.KIND_HOST,
-    "periodic": skelmsg.event_source_t.KIND_PERIODIC,
-    "poisson": skelmsg.event_source_t.KIND_POISSON,
-    "bursts": skelmsg.event_source_t.KIND_BURSTS,
-}
 
 
 def config_message(system: System, generation: int, run_id: int, committed: bool) -> skelmsg.config_t:
