@@ -209,6 +209,13 @@ class System:
     def process(self, key: int | str) -> Process:
         return _lookup(self._index["process"], key, "process")
 
+    def find_process(self, key: int | str) -> Process | None:
+        """The process, or None: a config read from a log may name one it does not hold."""
+        return self._index["process"].get(key)
+
+    def find_buffer(self, key: int | str) -> Buffer | None:
+        return self._index["buffer"].get(key)
+
     @functools.cached_property
     def _index(self) -> dict[str, dict[int | str, Any]]:
         """Each kind of record by id and by name (the first of a name, as a search would find)."""

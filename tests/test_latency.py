@@ -38,6 +38,7 @@ from skeleton.analysis.measure.metrics import input_counts, measured, process_me
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.read.records import FLAG_RELEASE_SKIPPED, decode_run
 from skeleton.analysis.views.tables import print_report
+from skeleton.host.model import from_config
 from skelmsg.contract import CLOCK_CHANNEL, CONFIG_CHANNEL, TIMING_CHANNEL
 
 
@@ -50,7 +51,8 @@ def _buffers(records: Any, inputs: Any, config: Any, run_records: Any = None) ->
 
 def _chains(records: Any, inputs: Any, config: Any, clock: ClockOffsets = NO_OFFSETS) -> list[ChainMetrics]:
     """The chain table of a window of `records`."""
-    return chain_metrics(ChainRecords.of(records, inputs, config, measured(records, config)), config, clock)
+    system = from_config(config)
+    return chain_metrics(ChainRecords.of(records, inputs, system, measured(records, config)), system, clock)
 
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"

@@ -21,6 +21,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from skeleton.host.model import from_config
+
 from ..read.parallel import map_threads, table_bytes
 from ..read.records import RECORD_DTYPE, RunRecords, select
 from .chains import ChainMetrics, ChainRecords, chain_metrics
@@ -164,7 +166,7 @@ def window_part(
         "sums": lambda: _sums_ns(records, win),
         "ends": lambda: warmup_end_ns(records),
         "buffers": lambda: buffer_parts(records, inputs, config, clock, win, pairs),
-        "chains": lambda: ChainRecords.of(records, inputs, config, win),
+        "chains": lambda: ChainRecords.of(records, inputs, from_config(config), win),
     }
     done = dict(zip(tasks, map_threads(lambda task: task(), tasks.values(), table_bytes(records, inputs)),
                     strict=True))  # fmt: skip
@@ -213,9 +215,10 @@ def finish_window(
     # sorts, searches and percentiles release the GIL, so they go side by side on the cores.
     chain_rows = ChainRecords.join([p.chains for p in parts])
     counted = input_counts(processes)
+    system = from_config(config)
     buffers, chains = map_threads(lambda table: table(), [
         lambda: buffer_metrics(BufferParts.join(p.buffers for p in parts), config, skips, counted),
-        lambda: chain_metrics(chain_rows, config, clock)], table_bytes(chain_rows.records, chain_rows.inputs))
+        lambda: chain_metrics(chain_rows, system, clock)], table_bytes(chain_rows.records, chain_rows.inputs))
     return WindowReport(
         generation=int(config.generation),
         start_ns=min((s.start_ns for s in spans), default=None),
