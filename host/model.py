@@ -287,6 +287,65 @@ def _lookup(index: dict[int | str, Any], key: int | str, noun: str) -> Any:
         raise KeyError(f"no {noun} {key!r}") from None
 
 
+
+# --- a prediction as the analysis lays it beside a run ---------------------------------------
+@dataclass(frozen=True)
+class ExpectedDpu:
+    id: int
+    compute_pct: float | None       # None: it follows from how often the host sends an event
+
+
+@dataclass(frozen=True)
+class ExpectedProcess:
+    name: str
+    response_us: float | None       # worst release -> end of its work; None: unbounded
+    paced_by: str | None            # the writer whose data paces it
+
+
+@dataclass(frozen=True)
+class ExpectedInput:
+    """Per reader cycle: the share that finds new data, the share that finds none, and the
+    writer's sequences skipped (dropped) per cycle, as the analysis counts them; None: it
+    depends on a rate the host's events decide. The prediction makes them (host/theory/predict.py)."""
+
+    reader: str
+    buffer: str
+    writer: str
+    new: float | None
+    stale: float | None
+    dropped: float | None
+
+
+@dataclass(frozen=True)
+class ExpectedChain:
+    name: str
+    processes: tuple[str, ...]
+    best_us: float | None
+    worst_us: float | None          # None: a step falls ever further behind
+
+
+@dataclass(frozen=True)
+class Expected:
+    """What the analysis reads of a prediction (host/theory/predict.py's Prediction, whose JSON
+    form, figures rounded as report.json writes them, from_json reads): per DPU its % compute,
+    per process its worst response, per input its shares, per chain its latency."""
+
+    dpus: tuple[ExpectedDpu, ...]
+    processes: tuple[ExpectedProcess, ...]
+    inputs: tuple[ExpectedInput, ...]
+    chains: tuple[ExpectedChain, ...]
+
+    @classmethod
+    def from_json(cls, doc: dict[str, Any]) -> Expected:
+        return cls(
+            dpus=tuple(ExpectedDpu(d["id"], d["compute_pct"]) for d in doc["dpus"]),
+            processes=tuple(ExpectedProcess(p["name"], p["response_us"], p["paced_by"])
+                            for p in doc["processes"]),
+            inputs=tuple(ExpectedInput(i["reader"], i["buffer"], i["writer"], i["new"], i["stale"],
+                                       i["dropped"]) for i in doc["inputs"]),
+            chains=tuple(ExpectedChain(c["name"], tuple(c["processes"]), c["best_us"], c["worst_us"])
+                         for c in doc["chains"]))
+
 # --- the model on the wire: config_t's enums, and a System read back from a config_t -------------
 COMPUTE = {"sleep": skelmsg.dpu_t.COMPUTE_SLEEP, "wall": skelmsg.dpu_t.COMPUTE_WALL,
            "cpu": skelmsg.dpu_t.COMPUTE_CPU, "work": skelmsg.dpu_t.COMPUTE_WORK}

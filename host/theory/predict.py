@@ -28,7 +28,7 @@ from typing import Any
 
 from skelmsg.contract import BUFFER_HEADER_BYTES
 
-from ..model import Dpu, Process, System
+from ..model import Dpu, ExpectedInput, Process, System
 from . import frames
 from .frames import Frame, Timing
 from .schedule import response_times, start_ranges
@@ -93,20 +93,6 @@ class ProcessPrediction:
 
 
 @dataclass(frozen=True)
-class InputPrediction:
-    """Per reader cycle: the share that finds new data, the share that finds none, and the
-    writer's sequences skipped (dropped) per cycle, as the analysis counts them; None: it
-    depends on a rate the host's events decide."""
-
-    reader: str
-    buffer: str
-    writer: str
-    new: float | None
-    stale: float | None
-    dropped: float | None
-
-
-@dataclass(frozen=True)
 class ChainPrediction:
     """The head's output sent -> the tail's computation started (analysis/measure/chains.py)."""
 
@@ -138,7 +124,7 @@ class Prediction:
     system: str
     dpus: tuple[DpuPrediction, ...]
     processes: tuple[ProcessPrediction, ...]
-    inputs: tuple[InputPrediction, ...]
+    inputs: tuple[ExpectedInput, ...]
     chains: tuple[ChainPrediction, ...]
     links: tuple[LinkPrediction, ...]
     errors: tuple[Problem, ...]     # the system can never run as it is (a data-wait deadlock)
@@ -669,7 +655,7 @@ def _lockout_ms(system: System, d: Dpu, mine: list[Process], load: float) -> flo
 # --- buffers, chains, links ----------------------------------------------------------------
 
 def _inputs(system: System, rates: dict[int, float], unknown: set[int],
-            paced: dict[int, str]) -> tuple[InputPrediction, ...]:
+            paced: dict[int, str]) -> tuple[ExpectedInput, ...]:
     """A share is known when every rate the two may run at gives it: an unknown rate is any
     from 0 up to the one P asks for (nominal_rate_hz), so a writer at least that fast gives
     every cycle of an unknown reader new data, and one at most that slow drops nothing.
@@ -691,7 +677,7 @@ def _inputs(system: System, rates: dict[int, float], unknown: set[int],
             dropped = max(0.0, least - 1) if max(0.0, least - 1) == max(0.0, most - 1) else None
             if w.id in paced and new is not None and p.id not in unknown and rates[p.id] > 0:
                 dropped = 1e6 / w.period_us / rates[p.id] - new
-            out.append(InputPrediction(p.name, b.name, w.name, new, stale, dropped))
+            out.append(ExpectedInput(p.name, b.name, w.name, new, stale, dropped))
     return tuple(out)
 
 
