@@ -46,7 +46,8 @@ def _buffers(records: Any, inputs: Any, config: Any, run_records: Any = None) ->
     """The buffer table of a window of `records`, its skipped releases looked up in `run_records`."""
     everything = records if run_records is None else run_records
     counted = input_counts(process_metrics(records, inputs, config))
-    return buffer_metrics(buffer_parts(records, inputs, config), config, release_skips(everything), counted)
+    parts = buffer_parts(records, inputs, config)
+    return buffer_metrics(parts, from_config(config), release_skips(everything), counted)
 
 
 def _chains(records: Any, inputs: Any, config: Any, clock: ClockOffsets = NO_OFFSETS) -> list[ChainMetrics]:

@@ -217,7 +217,7 @@ def finish_window(
     counted = input_counts(processes)
     system = from_config(config)
     buffers, chains = map_threads(lambda table: table(), [
-        lambda: buffer_metrics(BufferParts.join(p.buffers for p in parts), config, skips, counted),
+        lambda: buffer_metrics(BufferParts.join(p.buffers for p in parts), system, skips, counted),
         lambda: chain_metrics(chain_rows, system, clock)], table_bytes(chain_rows.records, chain_rows.inputs))
     return WindowReport(
         generation=int(config.generation),
