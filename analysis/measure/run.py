@@ -32,7 +32,7 @@ from ..read.logreader import Log
 from ..read.messages import LogError, Messages, open_run_log, published_batches, read_messages
 from ..read.records import IMPOSSIBLE, Heads, RunRecords, load_records, run_ids, run_usual_sizes, timing_heads
 from ..read.seal import KeyFileError, authenticate
-from .columns import Table, faults_table, receptions_table, report_tables, timing_table
+from .columns import Table, faults_table, process_names, receptions_table, report_tables, timing_table
 from .faults import HEARTBEAT_FIELDS, Heartbeats, heartbeats
 from .latency import ClockOffsets
 from .predicted import Predictor, beside
@@ -152,7 +152,7 @@ class RunAnalysis:
 
     def process_names(self) -> dict[int, str]:
         """The report generation's: process id -> name."""
-        return {p.id: p.name for p in self.system.processes}
+        return process_names(self.system)
 
     # The tables of the public API (skeleton/__init__.py) and of `skel export --parquet`.
     @cached_property
