@@ -203,7 +203,8 @@ def finish_window(
             flagged.setdefault(proc, lock)
     # What the timing records flagged and no status_t said (lockouts_from_records' rule).
     locks = {**lockouts, **{proc: lock for proc, lock in sorted(flagged.items()) if proc not in lockouts}}
-    delivered, locks = delivery_faults(config, Deliveries.join(p.deliveries for p in parts), locks)
+    system = from_config(config)
+    delivered, locks = delivery_faults(system, Deliveries.join(p.deliveries for p in parts), locks)
     # what the writers' stalls explain: the whole run's records hold a writer's DPU's cycles
     platform = stalled_writers(locks, stalls, config, clock)
     mine = stalls[stalls["generation"] == config.generation]
@@ -215,7 +216,6 @@ def finish_window(
     # sorts, searches and percentiles release the GIL, so they go side by side on the cores.
     chain_rows = ChainRecords.join([p.chains for p in parts])
     counted = input_counts(processes)
-    system = from_config(config)
     buffers, chains = map_threads(lambda table: table(), [
         lambda: buffer_metrics(BufferParts.join(p.buffers for p in parts), system, skips, counted),
         lambda: chain_metrics(chain_rows, system, clock)], table_bytes(chain_rows.records, chain_rows.inputs))
@@ -229,8 +229,8 @@ def finish_window(
         chains=chains,
         faults=(
             delivered
-            + lockout_faults(locks, config, origin, platform)
-            + jam_faults(locks, config, origin, platform)
+            + lockout_faults(locks, system, origin, platform)
+            + jam_faults(locks, system, origin, platform)
             + behind_faults(behind, config, mine, clock)
             + skipping_faults(processes, config)
             + stall_faults(np.concatenate([p.stalls for p in parts]), config, origin)
