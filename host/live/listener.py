@@ -47,6 +47,7 @@ from skelmsg.contract import (
     TIMING_CHANNEL,
 )
 
+from ..model import from_config
 from .recordstore import RecordStore
 
 KEY_PROBLEMS = {  # what a refused status says about its DPU's key
@@ -422,7 +423,8 @@ class Listener:
         if config is None or run_id is None:
             return []
         locks = lockouts_from_status(statuses, run_id)
-        found = lockout_faults(locks, config) + jam_faults(locks, config)
+        system = from_config(config)
+        found = lockout_faults(locks, system) + jam_faults(locks, system)
         with self.lock:
             self._heard = (key, found)
         return list(found)
