@@ -94,7 +94,7 @@ $(GEN)/c/skelmsg_check.c: lcmtypes/checkgen.py $(LCMTYPES) | $(VENV)/.lcm
 	$(Q)$(PY) lcmtypes/checkgen.py --out $(GEN)/c $(LCMTYPES)
 
 # Channel names, the default URL and the limits (lcmtypes/contract.txt), for C.
-$(GEN_H): lcmtypes/contractgen.py $(CONTRACT) | $(VENV)/.lcm
+$(GEN_H): lcmtypes/contractgen.py $(CONTRACT) $(LCMTYPES) | $(VENV)/.lcm
 	@mkdir -p $(GEN)/c
 	$(call say,GEN   $@)
 	$(Q)$(PY) lcmtypes/contractgen.py --c $(GEN)/c $(CONTRACT)

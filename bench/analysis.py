@@ -43,9 +43,9 @@ from rich.console import Console
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.read.logreader import read_log
 from skeleton.analysis.views.export_mcap import export
-from skeleton.host.listener import CHANNELS
-from skeleton.host.watch import REFRESH_S, Heard, _FaultFinder
-from skeleton.host.watch_view import render
+from skeleton.host.cli.watch import REFRESH_S, Heard, _FaultFinder
+from skeleton.host.cli.watch_view import render
+from skeleton.host.live.listener import CHANNELS
 from skelmsg.contract import TIMING_CHANNEL
 
 REPO = Path(__file__).resolve().parent.parent

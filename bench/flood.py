@@ -25,8 +25,8 @@ from typing import Any
 import skelmsg
 from skeleton.analysis.read.logreader import read_log
 from skeleton.analysis.read.seal import Verdict, Verifier, load_key, write_key
-from skeleton.host.spawn import running
-from skeleton.host.system import load
+from skeleton.host.live.spawn import running
+from skeleton.host.sysfile.system import load, with_url
 from skelmsg import contract
 
 REPO = Path(__file__).resolve().parent.parent
@@ -119,7 +119,7 @@ def flood_servo(tmp: Path, url: str, rate: int, seconds: float) -> FloodResult:
     pids = _dpu_pids(url)
     drops_before = {d: socket_drops(p) for d, p in pids.items()}
     # Each buffer's channel on its writer's port, where its readers listen (a local one: nowhere).
-    on_url = system.with_url(url)
+    on_url = with_url(system, url)
     wire = {b.channel: on_url.buffer_url(b.id) for b in system.buffers}
     channels = [contract.CONFIG_CHANNEL, contract.COMMAND_CHANNEL,
                 *(f"{channel}@{on}" for channel, on in wire.items() if on)]

@@ -9,7 +9,7 @@
 (d) compute emulation: per compute mode, one DPU alone computing 1200 and 3315 us per
     cycle: what each cycle reports against what was asked (goal: within 0.5 %);
 (e) the tasking executive: one DPU in sleep mode runs a rate-monotonic set; each job's
-    start and completion against the ideal schedule's (host/schedule.py), aligned by
+    start and completion against the ideal schedule's (host/theory/schedule.py), aligned by
     release (goal: start p99 within 50 us);
 (f) skel allocate: seeded systems of 40 processes on 8 DPUs, per objective (goal: an
     answer within 30 s);
@@ -64,8 +64,8 @@ from skeleton.analysis.measure.metrics import first_of_frame
 from skeleton.analysis.read.logreader import read_log
 from skeleton.analysis.read.parallel import one_heap
 from skeleton.analysis.read.records import load_records
-from skeleton.host.schedule import ideal_schedule, response_times, utilization
-from skeleton.host.system import loads
+from skeleton.host.sysfile.system import loads
+from skeleton.host.theory.schedule import ideal_schedule, response_times, utilization
 
 T = TypeVar("T")
 BENCH = Path(__file__).resolve().parent
@@ -399,9 +399,9 @@ def part_allocate(seconds: float) -> list[str]:
     sys.path.insert(0, str(REPO / "tests"))
     from randsys import random_pipeline
 
-    from skeleton.host.allocate import allocate
-    from skeleton.host.predict import predict
-    from skeleton.host.system import loads
+    from skeleton.host.sysfile.system import loads
+    from skeleton.host.theory.allocate import allocate
+    from skeleton.host.theory.predict import predict
 
     rows, took = [], []
     for seed in (1, 2, 3):

@@ -18,7 +18,7 @@ period behind, skipped a release (cycle skipping, dpu/cycle.c). The wait also ho
 reader's DPU back, so a stalled DPU slows its writers' readers instead of being overrun by
 them (flow control);
 with a fifth of the period computed per DPU, the ring catches up within a few cycles.
-Every buffer is on the one link, and so on its writer's own group and port (host/link.py):
+Every buffer is on the one link, and so on its writer's own group and port (host/sysfile/link.py):
 a DPU opens only the writers it reads, so it receives a few buffers' traffic, not the whole
 system's. `--snooping` makes the hosts' bridge snoop IGMP (and be the querier), as a lab
 switch that does: each writer's datagrams then reach only the hosts that read them.

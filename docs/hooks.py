@@ -30,14 +30,14 @@ OUTSIDE = {"bench/README.md": "explanation/benchmark-figures.md"} | {
 
 def _sources() -> types.SimpleNamespace:
     """Every project module the reference is generated from (update here when one moves)."""
-    from skeleton.analysis import exitcodes
+    from skeleton.analysis import errors
     from skeleton.analysis.measure import columns, report
-    from skeleton.host import schema
     from skeleton.host.cli import build_parser
-    from skeleton.host.predict import predict
-    from skeleton.host.system import load
+    from skeleton.host.sysfile import schema
+    from skeleton.host.sysfile.system import load
+    from skeleton.host.theory.predict import predict
     return types.SimpleNamespace(system_spec=schema.SystemSpec, build_parser=build_parser,
-                                 columns=columns, run_report=report.RunReport, exitcodes=exitcodes,
+                                 columns=columns, run_report=report.RunReport, exitcodes=errors,
                                  load_system=load, predict=predict)
 
 
@@ -159,7 +159,7 @@ def cli(src: types.SimpleNamespace) -> str:
 
 
 def exit_codes(src: types.SimpleNamespace) -> str:
-    """The exit codes, from analysis/exitcodes.py: its names and the comment beside each."""
+    """The exit codes, from analysis/errors.py: its names and the comment beside each."""
     text = Path(src.exitcodes.__file__).read_text()
     rows = re.findall(r"^(EXIT_\w+) = (\d+)[ \t]*(?:#[ \t]*(.*))?$", text, re.MULTILINE)
     return "\n".join(["| code | name | meaning |", "|---|---|---|"]

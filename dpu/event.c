@@ -28,10 +28,11 @@
 
 #include "dpu.h"
 
-/* An event_t of NAME, encoded: the fixed fields and the name, with room to spare. */
+/* An event_t of NAME, encoded: fingerprint and fixed fields (contract.txt), then the name as
+ * LCM writes a string: its int32 length, its bytes and a NUL. */
 static int event_enc_cap(const char *name)
 {
-    return 8 + 8 + 2 + 2 + 8 + 8 + 4 + (int)strlen(name) + 1;
+    return SKEL_EVENT_HEADER_BYTES + 4 + (int)strlen(name) + 1;
 }
 
 /* Index of NAME in plan->events, added when new; -1 when the table is full. */

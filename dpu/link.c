@@ -81,7 +81,7 @@ static int link_parse(const char **url, uint32_t *group, unsigned *port, const c
 }
 
 /* The record URL of CONTROL (contract: RECORD_OFFSET): its group and port each that much
- * lower, its options kept; host/link.py's record_url says the same. Another provider's
+ * lower, its options kept; host/sysfile/link.py's record_url says the same. Another provider's
  * URL is its own record URL. -1: CONTROL is not udpm://A.B.C.D:PORT[?options], or OUT
  * is too short. */
 int link_record_url(const char *control, char *out, size_t len)

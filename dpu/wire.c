@@ -12,9 +12,6 @@
 #include "dpu.h"
 #include "skelmsg_check.h"
 
-/* Fingerprint (8) then the header fields in .lcm order. */
-#define WIRE_BUFFER_HEADER_BYTES (8 + 8 + 2 + 2 + 8 + 8 + 4)
-
 int wire_buffer_header(const void *buf, int len, wire_buffer_hdr_t *hdr)
 {
     if (skelmsg_buffer_t_check(buf, len) != 0) return -1;
@@ -55,7 +52,7 @@ int wire_event_header(const void *buf, int len, wire_event_hdr_t *hdr)
 
 int wire_buffer_encoded_size(int32_t nbytes)
 {
-    return WIRE_BUFFER_HEADER_BYTES + nbytes;
+    return SKEL_BUFFER_HEADER_BYTES + nbytes;  /* fingerprint and fixed fields (contract.txt) */
 }
 
 /* On success the caller owns CFG and releases it with skelmsg_config_t_decode_cleanup. */

@@ -34,8 +34,8 @@ import pytest
 from hypothesis import settings
 
 import skelmsg
-from skeleton.host import spawn
-from skeleton.host.link import record_url
+from skeleton.host.live import spawn
+from skeleton.host.sysfile.link import record_url
 from skelmsg.contract import DEFAULT_URL, TIMING_CHANNEL
 
 SANITIZER_ERROR = re.compile(rb"ERROR: AddressSanitizer|runtime error:|ERROR: LeakSanitizer")
@@ -43,7 +43,7 @@ SANITIZER_ERROR = re.compile(rb"ERROR: AddressSanitizer|runtime error:|ERROR: Le
 pytest_plugins = ["steal"]
 
 # A suite started in the background (`make test &`: the shell ignores SIGINT for it) would
-# hand that on to every skel it starts, which then rightly ignores Ctrl-C (host/cli.py): the
+# hand that on to every skel it starts, which then rightly ignores Ctrl-C (host/cli/commands.py): the
 # tests of Ctrl-C need it as a terminal gives it. A handler here is reset to the default in
 # the children.
 if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
@@ -268,7 +268,7 @@ class TimingTap:
         self.run_id = run_id
         self.records: list = []  # of the subclass's record type
         self._lock = threading.Lock()
-        self._lcm = lcm.LCM(record_url(url))  # where the DPUs send timing (host/link.py)
+        self._lcm = lcm.LCM(record_url(url))  # where the DPUs send timing (host/sysfile/link.py)
         self._lcm.subscribe(TIMING_CHANNEL, self._handle).set_queue_capacity(0)
         self._running = True
         self._thread = threading.Thread(target=self._drain, daemon=True)

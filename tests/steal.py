@@ -287,6 +287,8 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     """The one line on this run's timing evidence; exit 1 when it could hide a regression."""
+    if session.config.option.collectonly:
+        return   # nothing ran: the run before stays the one to compare with
     try:
         before = json.loads(EVIDENCE_FILE.read_text())["inconclusive"]
     except (OSError, ValueError, KeyError, TypeError):

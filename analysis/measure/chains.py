@@ -1,4 +1,4 @@
-"""End-to-end latency along the chains of the system file (config_t.chains, head first).
+"""End-to-end latency along the chains of the system file (System.chains, head first).
 
 Lineage: a process's cycle k publishes sequence k on every output, and each input
 record says which sequence of that input was current (in_seq). Between two
@@ -33,6 +33,8 @@ from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
+
+from skeleton.host.model import Buffer, Chain, Process, System
 
 from ..read.coltable import ColumnTable
 from ..read.parallel import map_threads, table_bytes
@@ -101,15 +103,15 @@ class _Lookup:
         return self._find(self.in_keys, self.in_index, (records.astype(np.int64) << 16) + (buffer & 0xFFFF))
 
 
-def chain_buffers(chain: Any, config: Any) -> list[int] | None:
+def chain_buffers(chain: Chain, system: System) -> list[int] | None:
     """The buffer of each step (len = processes - 1), None when a step has none."""
-    procs = {p.id: p for p in config.processes}
     out = []
     for up, down in zip(chain.processes[:-1], chain.processes[1:], strict=True):
-        if up not in procs or down not in procs:
+        writer, reader = system.find_process(up), system.find_process(down)
+        if writer is None or reader is None:
             return None
-        written = set(procs[up].outputs)
-        step = next((b for b in procs[down].inputs if b in written), None)
+        written = set(writer.outputs)
+        step = next((b for b in reader.inputs if b in written), None)
         if step is None:
             return None
         out.append(int(step))
@@ -138,19 +140,18 @@ class _Run(NamedTuple):
     in_window: np.ndarray  # measured(records, config)
 
     @classmethod
-    def of(cls, records: np.ndarray, inputs: np.ndarray, config: Any, in_window: np.ndarray) -> _Run:
+    def of(cls, records: np.ndarray, inputs: np.ndarray, system: System, in_window: np.ndarray) -> _Run:
         done = completed(records)
-        processes = sorted({int(p) for chain in config.chains for p in chain.processes})
-        buffers = sorted({b for chain in config.chains for b in chain_buffers(chain, config) or []})
+        processes = sorted({int(p) for chain in system.chains for p in chain.processes})
+        buffers = sorted({b for chain in system.chains for b in chain_buffers(chain, system) or []})
         return cls(_Lookup(records, inputs, done, processes, buffers), done, in_window)
 
 
 def _chain_series(
-    records: np.ndarray, inputs: np.ndarray, config: Any, chain: Any, clock: ClockOffsets, run: _Run
+    records: np.ndarray, inputs: np.ndarray, system: System, chain: Chain, clock: ClockOffsets, run: _Run
 ) -> tuple[ChainSeries, int]:
     """The samples of one chain and the number of broken tail cycles."""
-    steps = chain_buffers(chain, config)
-    procs = {p.id: p for p in config.processes}
+    steps = chain_buffers(chain, system)
     pids = [int(p) for p in chain.processes]
     if steps is None:
         return _empty_series(), 0
@@ -179,8 +180,8 @@ def _chain_series(
     broken = int(np.count_nonzero(in_window & ~ok & (inputs["new"][tail_rows] != 0)))
     keep = first & in_window & (inputs["new"][tail_rows] != 0)  # a stale input brings nothing
     rec = records[tail_rec[keep]]
-    use = clock.to_host(procs[tail].dpu, rec["use_ns"])
-    birth = clock.to_host(procs[pids[0]].dpu, born[keep])
+    use = clock.to_host(system.process(tail).dpu, rec["use_ns"])
+    birth = clock.to_host(system.process(pids[0]).dpu, born[keep])
     return ChainSeries(rec["cycle"].astype(np.int64), head_cycle[keep], use, use - birth), broken
 
 
@@ -203,9 +204,10 @@ class ChainRecords(NamedTuple):
     in_window: np.ndarray
 
     @classmethod
-    def of(cls, records: np.ndarray, inputs: np.ndarray, config: Any, in_window: np.ndarray) -> ChainRecords:
-        processes = sorted({int(p) for chain in config.chains for p in chain.processes})
-        buffers = sorted({b for chain in config.chains for b in chain_buffers(chain, config) or []})
+    def of(cls, records: np.ndarray, inputs: np.ndarray, system: System,
+           in_window: np.ndarray) -> ChainRecords:
+        processes = sorted({int(p) for chain in system.chains for p in chain.processes})
+        buffers = sorted({b for chain in system.chains for b in chain_buffers(chain, system) or []})
         chosen = np.isin(records["process"], processes)
         rows = np.flatnonzero(chosen)
         on = np.flatnonzero(np.isin(inputs["buffer"], buffers)) if len(rows) else np.zeros(0, np.int64)
@@ -237,27 +239,25 @@ def _table(columns: Any, dtype: np.dtype[Any]) -> ColumnTable:
     return ColumnTable.of({name: np.ascontiguousarray(columns[name]) for name in dtype.names or ()}, dtype)
 
 
-def chain_metrics(run: ChainRecords, config: Any, clock: ClockOffsets = NO_OFFSETS) -> list[ChainMetrics]:
-    """Per chain of the config, in config order, from a window's ChainRecords."""
-    names = {p.id: p.name for p in config.processes}
-    buffers = {b.id: b.name for b in config.buffers}
+def chain_metrics(run: ChainRecords, system: System, clock: ClockOffsets = NO_OFFSETS) -> list[ChainMetrics]:
+    """Per chain of the system, in its order, from a window's ChainRecords."""
     records, inputs = run.records, run.inputs
     look = None
-    if config.chains and len(inputs):
-        look = _Run.of(records, inputs, config, run.in_window)
+    if system.chains and len(inputs):
+        look = _Run.of(records, inputs, system, run.in_window)
 
-    def one(chain: Any) -> ChainMetrics:
+    def one(chain: Chain) -> ChainMetrics:
         if look is None:
             series, broken = _empty_series(), 0
         else:
-            series, broken = _chain_series(records, inputs, config, chain, clock, look)
+            series, broken = _chain_series(records, inputs, system, chain, clock, look)
         lat_us = series.latency_ns.astype(np.float64) / 1000.0
         latency, latency_histogram = distribution(lat_us)
-        steps = chain_buffers(chain, config) or []
+        steps = chain_buffers(chain, system) or []
         return ChainMetrics(
             name=chain.name,
-            processes=[names.get(p, f"process {p}") for p in chain.processes],
-            buffers=[buffers.get(b, f"buffer {b}") for b in steps],
+            processes=[_name(system.find_process(p), f"process {p}") for p in chain.processes],
+            buffers=[_name(system.find_buffer(b), f"buffer {b}") for b in steps],
             latency_us=latency,
             samples=len(lat_us),
             broken=broken,
@@ -267,4 +267,8 @@ def chain_metrics(run: ChainRecords, config: Any, clock: ClockOffsets = NO_OFFSE
 
     # The chains read the lookup and write nothing shared: side by side on the cores (their
     # searches and sorts release the GIL).
-    return map_threads(one, config.chains, table_bytes(records, inputs))
+    return map_threads(one, system.chains, table_bytes(records, inputs))
+
+
+def _name(found: Process | Buffer | None, missing: str) -> str:
+    return missing if found is None else found.name

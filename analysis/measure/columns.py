@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 import pyarrow as pa
 
+from skeleton.host.model import System
+
 from ..read.records import CYCLE_FIELDS, FLAG_LOCKOUT, FLAG_OVERRUN, FLAG_RELEASE_SKIPPED, FLAG_SKIPPED
 from .latency import ClockOffsets
 from .metrics import completed, cycle_end_ns, event_latency_us, event_response_us, measured
@@ -150,11 +152,6 @@ def _joined(name: str, windows: Sequence[Mapping[str, Any]]) -> Table:
                                         promote_options="default"))
 
 
-def process_names(config: Any) -> dict[int, str]:
-    """process id -> name in one generation's config_t."""
-    return {p.id: p.name for p in config.processes}
-
-
 def timing_table(run: RunAnalysis) -> Table:
     """Every cycle of every generation window, each measured and named by its own window's
     config (its warm-up and periods decide `measured`, as in that window's report)."""
@@ -162,7 +159,7 @@ def timing_table(run: RunAnalysis) -> Table:
 
 
 def _timing_columns(run: RunAnalysis, config: Any, recs: Any) -> dict[str, Any]:
-    names = process_names(config)
+    names = process_names(run.system_of(int(config.generation)))
     flags = np.asarray(recs["flags"]).astype(np.int64)
     start = np.asarray(recs["start_ns"])
     release = np.asarray(recs["release_ns"])
@@ -185,16 +182,22 @@ def _timing_columns(run: RunAnalysis, config: Any, recs: Any) -> dict[str, Any]:
     }  # fmt: skip
 
 
+def process_names(system: System) -> dict[int, str]:
+    """process id -> name, for naming every row of a table at once."""
+    return {p.id: p.name for p in system.processes}
+
+
 def receptions_table(run: RunAnalysis) -> Table:
     """Every input read in every generation window, named by its own window's config."""
     return _joined("receptions", [_reception_columns(run, config, ins) for config, _, ins in run.windows()])
 
 
 def _reception_columns(run: RunAnalysis, config: Any, ins: Any) -> dict[str, Any]:
-    names = process_names(config)
-    buffers = {b.id: b.name for b in config.buffers}
-    dpu_of = {p.id: p.dpu for p in config.processes}
-    writer_dpu = {b.id: dpu_of.get(b.writer) for b in config.buffers}
+    system = run.system_of(int(config.generation))
+    names = process_names(system)
+    buffers = {b.id: b.name for b in system.buffers}   # per row below: one dict, not a lookup each
+    writer_dpu = {b.id: w.dpu if (w := system.find_process(b.writer)) is not None else None
+                  for b in system.buffers}
     sent = np.asarray(ins["sent_ns"])
     recv = np.asarray(ins["recv_ns"])
     transport = recv - sent

@@ -19,7 +19,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 import skelmsg
-from skelmsg.contract import RECV_SLACK_BYTES
+from skeleton.host.model import System
+from skelmsg.contract import BUFFER_HEADER_BYTES, RECV_SLACK_BYTES
 
 from ..read.messages import int_columns
 from ..read.records import FLAG_LOCKOUT
@@ -142,15 +143,15 @@ def lockouts_from_records(records: np.ndarray, known: dict[int, Lockout]) -> dic
     return out
 
 
-def lockout_at_s(lock: Lockout, config: Any, dpu: int | None, origin: Mapping[int, int]) -> float | None:
+def lockout_at_s(lock: Lockout, system: System, dpu: int | None, origin: Mapping[int, int]) -> float | None:
     """When `lock`'s cycle passed its limit, r_k + lockout_cycles x period, in s from its
     DPU's first release (`origin`), as the definition puts it: not when the DPU found it,
     which is later by the stalls it did not count (or, before it checked at a cycle's end
     and during its computation, by up to the whole computation). None when unknown."""
-    period_us = next((p.period_us for p in config.processes if p.id == lock.process), None)
-    if lock.release_ns is None or lock.release_ns <= 0 or period_us is None or dpu not in origin:
+    proc = system.find_process(lock.process)
+    if lock.release_ns is None or lock.release_ns <= 0 or proc is None or dpu not in origin:
         return None
-    limit_ns = lock.release_ns + int(config.lockout_cycles) * int(period_us) * 1000
+    limit_ns = lock.release_ns + int(system.run.lockout_cycles) * int(proc.period_us) * 1000
     return (limit_ns - origin[dpu]) / 1e9
 
 
@@ -210,44 +211,42 @@ def stalled_writers(lockouts: Mapping[int, Lockout], records: np.ndarray, config
     return out
 
 
-def lockout_faults(lockouts: dict[int, Lockout], config: Any, origin: Mapping[int, int] | None = None,
+def lockout_faults(lockouts: dict[int, Lockout], system: System, origin: Mapping[int, int] | None = None,
                    explained: Mapping[int, str] | None = None) -> list[Fault]:
     """One fault per locked-out process, naming its cycle and, with `origin`
     (first_release_ns of the run), when that cycle's limit passed (at_s); one the platform
     `explained` (stalled_writers) says why and is not the design's flaw."""
-    names, dpus, buffers = _index(config)
     explained = explained or {}
     faults = []
     for proc in sorted(lockouts):
         lock = lockouts[proc]
         if lock.buffer is not None:
-            detail = f"waits on {_bname(buffers, lock.buffer)}"
+            detail = f"waits on {_bname(system, lock.buffer)}"
         elif lock.behind is not None:
-            detail = (f"held up behind {names.get(lock.behind, f'process {lock.behind}')}, which waits "
+            detail = (f"held up behind {_pname(system, lock.behind)}, which waits "
                       f"for data on the same DPU: its one thread runs neither")
         elif lock.known_wait:
             detail = "not waiting for data: its DPU cannot run it"
         else:
             detail = "flagged in the timing records (no status_t)"
-        at_s = lockout_at_s(lock, config, dpus.get(proc), origin or {})
+        at_s = lockout_at_s(lock, system, _dpu(system, proc), origin or {})
         if at_s is not None:
             detail += f"; not completed by {at_s:.3f} s"
         if proc in explained:
             detail += f"; {explained[proc]}"
-        where = _where(proc, lock, names, dpus, buffers)
+        where = _where(proc, lock, system)
         faults.append(Fault(kind="lockout", detail=detail, at_s=at_s, fatal=proc not in explained, **where))
     return faults
 
 
-def _where(proc: int, lock: Lockout, names: dict[int, str], dpus: dict[int, int],
-           buffers: dict[int, Any]) -> dict[str, Any]:
+def _where(proc: int, lock: Lockout, system: System) -> dict[str, Any]:
     """A locked-out process's fault fields: who, where, what it waits on and from whom."""
-    buf = buffers.get(lock.buffer) if lock.buffer is not None else None
+    buf = system.find_buffer(lock.buffer) if lock.buffer is not None else None
     return {
-        "process": names.get(proc, f"process {proc}"),
-        "dpu": dpus.get(proc),
-        "buffer": None if lock.buffer is None else _bname(buffers, lock.buffer),
-        "writer": None if buf is None else names.get(buf.writer, f"process {buf.writer}"),
+        "process": _pname(system, proc),
+        "dpu": _dpu(system, proc),
+        "buffer": None if lock.buffer is None else _bname(system, lock.buffer),
+        "writer": None if buf is None else _pname(system, buf.writer),
         "cycle": lock.cycle,
     }
 
@@ -261,35 +260,34 @@ class _Hold:
     how: str = ""
 
 
-def _holder(proc: int, lockouts: dict[int, Lockout], config: Any) -> _Hold:
+def _holder(proc: int, lockouts: dict[int, Lockout], system: System) -> _Hold:
     """What holds locked-out `proc` up (see the module comment)."""
-    names, dpus, buffers = _index(config)
     lock = lockouts[proc]
 
     def name(p: int) -> str:
-        return names.get(p, f"process {p}")
+        return _pname(system, p)
 
     if lock.buffer is not None:
-        buf = buffers.get(lock.buffer)
+        buf = system.find_buffer(lock.buffer)
         if buf is None:
             return _Hold()
         how = f"{name(proc)} waits on {buf.name} from {name(buf.writer)}"
         return _Hold(int(buf.writer), lock.buffer, how)
     if lock.behind is not None:
         return _Hold(lock.behind, None,
-                     f"{name(proc)} is held up behind {name(lock.behind)} on DPU {dpus.get(proc)}")
-    desc = next((p for p in config.processes if p.id == proc), None)
-    if desc is None or desc.sync != skelmsg.process_t.SYNC_DATA:
+                     f"{name(proc)} is held up behind {name(lock.behind)} on DPU {_dpu(system, proc)}")
+    desc = system.find_process(proc)
+    if desc is None or desc.sync != "data":
         return _Hold()
-    for buffer_id, required in zip(desc.inputs, desc.required, strict=False):
-        buf = buffers.get(buffer_id)
-        if required and buf is not None and buf.writer in lockouts:
+    for buffer_id in desc.inputs:
+        buf = system.find_buffer(buffer_id)
+        if buffer_id in desc.required and buf is not None and buf.writer in lockouts:
             how = f"{name(proc)} needs new {buf.name} from {name(buf.writer)}"
             return _Hold(int(buf.writer), int(buffer_id), how)
     return _Hold()
 
 
-def jam_faults(lockouts: dict[int, Lockout], config: Any, origin: Mapping[int, int] | None = None,
+def jam_faults(lockouts: dict[int, Lockout], system: System, origin: Mapping[int, int] | None = None,
                explained: Mapping[int, str] | None = None) -> list[Fault]:
     """A jam: a locked-out process held up by another locked-out process.
 
@@ -299,9 +297,8 @@ def jam_faults(lockouts: dict[int, Lockout], config: Any, origin: Mapping[int, i
     the head's cycle, and its at_s is when that cycle's limit passed (lockout_at_s). A
     writer not locked out whose reader's lockout the platform `explained` (stalled_writers)
     is the platform's jam, not the design's."""
-    names, dpus, buffers = _index(config)
     explained = explained or {}
-    holders = {p: _holder(p, lockouts, config) for p in lockouts}
+    holders = {p: _holder(p, lockouts, system) for p in lockouts}
 
     def writer_of(proc: int) -> int | None:
         return holders[proc].process
@@ -324,29 +321,31 @@ def jam_faults(lockouts: dict[int, Lockout], config: Any, origin: Mapping[int, i
         if w is not None and w in chain:
             chain.append(w)
             cycle = chain[chain.index(w) :]
-            cause = "circular wait: " + " -> ".join(names.get(p, str(p)) for p in cycle)
+            cause = "circular wait: " + " -> ".join(_pname(system, p, str(p)) for p in cycle)
             cause += " (" + "; ".join(holders[p].how for p in cycle[:-1]) + ")"
         elif w is not None:
             cause = f"{holders[root].how}, which is not locked out"
             if root in explained:
                 cause += f"; {explained[root]}"
         elif not lockouts[root].known_wait:
-            cause = f"{names.get(root)} is locked out; what it waits on is unknown (no status_t)"
+            cause = f"{_pname(system, root, None)} is locked out; what it waits on is unknown (no status_t)"
         else:
-            load = static_load_pct(config, dpus.get(root, -1))
-            cause = f"DPU {dpus.get(root)} overloaded (static load {load:.1f} %): {names.get(root)} can't run"
+            root_dpu = _dpu(system, root)
+            load = static_load_pct(system, -1 if root_dpu is None else root_dpu)
+            who = _pname(system, root, None)
+            cause = f"DPU {root_dpu} overloaded (static load {load:.1f} %): {who} can't run"
         hold = holders[head]
-        where = _where(head, Lockout(head, hold.buffer, lockouts[head].cycle), names, dpus, buffers)
-        where["writer"] = names.get(hold.process, f"process {hold.process}")
+        where = _where(head, Lockout(head, hold.buffer, lockouts[head].cycle), system)
+        where["writer"] = _pname(system, hold.process)
         faults.append(
             Fault(
                 kind="jam",
                 **where,
-                chain=[names.get(p, f"process {p}") for p in chain],
+                chain=[_pname(system, p) for p in chain],
                 detail=cause,
                 static_load_pct=load,
-                root_dpu=dpus.get(root),
-                at_s=lockout_at_s(lockouts[head], config, dpus.get(head), origin or {}),
+                root_dpu=_dpu(system, root),
+                at_s=lockout_at_s(lockouts[head], system, _dpu(system, head), origin or {}),
                 fatal=not (w is not None and w not in chain and root in explained),
             )
         )
@@ -395,7 +394,7 @@ def overrun_faults(processes: list[ProcessMetrics]) -> list[Fault]:
 # logger starved of CPU drops messages (the newest, whoever sent them), so the log is
 # judged with more margin. A DPU restarted sooner is caught by its new pid.
 # A DPU is lost when its heartbeats (5 Hz) stop. Live: three missed beats (LOST_AFTER_S, the one
-# timeout of host/listener.py). In a log: a silence of LOST_GAP_US while other DPUs were heard,
+# timeout of host/live/listener.py). In a log: a silence of LOST_GAP_US while other DPUs were heard,
 # longer because a log's gaps also hold what the logger itself dropped on a busy machine.
 LOST_AFTER_S = 0.6
 LOST_GAP_US = 2_000_000
@@ -507,16 +506,22 @@ def _unheard(times: np.ndarray, silences: tuple[np.ndarray, np.ndarray]) -> np.n
     return np.diff(times) - np.diff(covered)
 
 
-def _index(config: Any) -> tuple[dict[int, str], dict[int, int], dict[int, Any]]:
-    names = {p.id: p.name for p in config.processes}
-    dpus = {p.id: p.dpu for p in config.processes}
-    buffers = {b.id: b for b in config.buffers}
-    return names, dpus, buffers
-
-
-def _bname(buffers: dict[int, Any], buffer_id: int) -> str:
-    desc = buffers.get(buffer_id)
+def _bname(system: System, buffer_id: int) -> str:
+    desc = system.find_buffer(buffer_id)
     return desc.name if desc is not None else f"buffer {buffer_id}"
+
+
+def _pname(system: System, proc: int | None, missing: str | None = "") -> str | None:
+    """A process's name; `missing` when the system has none of that id ("" for "process N")."""
+    desc = system.find_process(proc) if proc is not None else None
+    if desc is not None:
+        return desc.name
+    return f"process {proc}" if missing == "" else missing
+
+
+def _dpu(system: System, proc: int) -> int | None:
+    desc = system.find_process(proc)
+    return desc.dpu if desc is not None else None
 
 
 # A DPU is behind when its minor cycles start more than one minor cycle late for at
@@ -755,7 +760,6 @@ def _why_behind(mine: np.ndarray, config: Any, dpu: int, start: int, t_worst: in
 # (LCM's recv_buf_size; the kernel grants twice that, up to net.core.rmem_max). The DPU asks for
 # it (dpu/link.c, with the contract's RECV_SLACK_BYTES); `skel check` and `skel doctor` compare it
 # with this host.
-BUFFER_HEADER_BYTES = len(skelmsg.buffer_t().encode())
 FRAGMENT_BYTES = 65000        # larger messages go out as several UDP datagrams (LCM fragments)
 DELIVERY_MIN_SENT = 3         # a writer that published fewer gives a reader no fair chance
 
@@ -803,19 +807,18 @@ class Deliveries:
         return out
 
 
-def delivery_faults(config: Any, seen: Deliveries,
+def delivery_faults(system: System, seen: Deliveries,
                     lockouts: dict[int, Lockout]) -> tuple[list[Fault], dict[int, Lockout]]:
     """Buffers whose writer kept publishing but that never reached a reader: not one message
     arrived. That is the machine or the network failing (a datagram larger than the reader's
     socket receive buffer, a firewall, a route), not the design: named as a delivery failure
     (buffer, writer, reader, the likely fix), and the reader's lockout waiting on that buffer is
     taken out of the lockouts. Returns the faults and the lockouts that remain."""
-    names, dpus, buffers = _index(config)
     faults: list[Fault] = []
     kept = dict(lockouts)
-    for reader in sorted(config.processes, key=lambda p: p.id):
+    for reader in sorted(system.processes, key=lambda p: p.id):
         for buffer_id in reader.inputs:
-            desc = buffers.get(buffer_id)
+            desc = system.find_buffer(buffer_id)
             if desc is None or desc.writer == reader.id:
                 continue
             sent = int(seen.completed.get(desc.writer, 0))
@@ -828,10 +831,9 @@ def delivery_faults(config: Any, seen: Deliveries,
                 continue
             if waits_here:
                 del kept[reader.id]
-            faults.append(Fault(kind="delivery", process=names.get(reader.id), dpu=dpus.get(reader.id),
-                                buffer=desc.name, writer=names.get(desc.writer, f"process {desc.writer}"),
-                                count=sent, detail=_delivery_detail(desc, sent, names.get(reader.id, "?"),
-                                                                     dpus.get(reader.id))))
+            faults.append(Fault(kind="delivery", process=reader.name, dpu=reader.dpu, buffer=desc.name,
+                                writer=_pname(system, desc.writer), count=sent,
+                                detail=_delivery_detail(desc, sent, reader.name, reader.dpu)))
     return faults, kept
 
 

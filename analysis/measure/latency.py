@@ -41,6 +41,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from skeleton.host.model import System
+
 from ..read.records import FLAG_RELEASE_SKIPPED
 from .metrics import InputMetrics, InputPairs, completed, input_pairs, rows_by_process, window_mask
 from .stats import Histogram, LatencyUs, distribution, group_slices, latency_us
@@ -241,20 +243,19 @@ def buffer_parts(
     return out
 
 
-def buffer_metrics(parts: BufferParts, config: Any, skips: np.ndarray,
+def buffer_metrics(parts: BufferParts, system: System, skips: np.ndarray,
                    counted: Mapping[tuple[int, int], InputMetrics]) -> list[BufferMetrics]:
-    """Per buffer (config order by id) that has a reader, over the measured window whose
+    """Per buffer (by id) that has a reader, over the measured window whose
     BufferParts are `parts`. `skips`: the skipped releases (release_skips) of the whole run,
     not the window's: a gap after a live switch may hold sequences skipped before it.
     `counted`: the process table's counts of each (reader id, buffer id) input, the same
     input records (counted once, there)."""
-    procs = {p.id: p for p in config.processes}
     out = []
-    for buf in sorted(config.buffers, key=lambda b: b.id):
-        readers = sorted((p for p in config.processes if buf.id in p.inputs), key=lambda p: p.id)
+    for buf in sorted(system.buffers, key=lambda b: b.id):
+        readers = sorted(system.readers(buf.id), key=lambda p: p.id)
         if not readers:
             continue
-        writer = procs.get(buf.writer)
+        writer = system.find_process(buf.writer)
         skipped = np.sort(skips["cycle"][skips["process"] == buf.writer])
         pooled: list[np.ndarray] = []
         reader_metrics = []

@@ -1,5 +1,5 @@
 """The prediction beside the measurement: THE definitions of the delta between what the
-system file predicts (host/predict.py, handed over as its JSON, `skel check --json`'s
+system file predicts (host/theory/predict.py, handed over as its JSON, `skel check --json`'s
 `prediction`) and what a run measured, and of a measured value outside its prediction.
 
 The prediction counts only the file's computations and schedule, so what a run measures
@@ -23,9 +23,10 @@ fatal fault) puts a figure outside its prediction down to that, not to the platf
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+
+from skeleton.host.model import Expected
 
 from .chains import ChainMetrics
 from .faults import Fault
@@ -36,9 +37,9 @@ SHARE = 0.05
 PLATFORM = "the platform's own cost (communication, wake-up, interference)"
 WORST = "the predicted worst"
 
-# The system file a config carries -> its prediction's JSON; raises ValueError (one line:
+# The system file a config carries -> what its prediction expects; raises ValueError (one line:
 # why) when that file cannot be predicted here (a samples file left behind, say).
-Predictor = Callable[[str], Mapping[str, Any]]
+Predictor = Callable[[str], Expected]
 
 
 @dataclass
@@ -134,7 +135,7 @@ def cause_of(faults: Sequence[Fault]) -> str:
     return PLATFORM
 
 
-def beside(prediction: Mapping[str, Any], generation: int, late_pct: int, dpus: list[DpuMetrics],
+def beside(prediction: Expected, generation: int, late_pct: int, dpus: list[DpuMetrics],
            processes: list[ProcessMetrics], chains: list[ChainMetrics],
            faults: Sequence[Fault] = ()) -> Predicted:
     """The measured figures of one generation (the report's, whose `faults` say what to put
@@ -142,33 +143,33 @@ def beside(prediction: Mapping[str, Any], generation: int, late_pct: int, dpus: 
     name, (reader, buffer) and chain name; what either side lacks is left out."""
     out = Predicted(generation, COMPUTE_POINTS, SHARE, late_pct, cause=cause_of(faults))
     measured_dpus = {d.id: d for d in dpus}
-    for d in prediction["dpus"]:
-        if (m := measured_dpus.get(d["id"])) is not None:
-            compute = either_way(d["compute_pct"], m.compute_unstalled_pct, COMPUTE_POINTS)
-            out.dpus.append(DpuBeside(d["id"], compute))
+    for d in prediction.dpus:
+        if (m := measured_dpus.get(d.id)) is not None:
+            compute = either_way(d.compute_pct, m.compute_unstalled_pct, COMPUTE_POINTS)
+            out.dpus.append(DpuBeside(d.id, compute))
     by_name = {p.name: p for p in processes}
-    for p in prediction["processes"]:
-        if (mp := by_name.get(p["name"])) is None:
+    for p in prediction.processes:
+        if (mp := by_name.get(p.name)) is None:
             continue
         margin = mp.period_us * late_pct / 100
-        response = above_worst(p["response_us"], mp.response_us.p99, math.inf if p["paced_by"] else margin)
-        out.processes.append(ProcessBeside(p["name"], mp.dpu, response, mp.response_us.max, p["paced_by"]))
-    for i in prediction["inputs"]:
-        reader = by_name.get(i["reader"])
-        found = next((m for m in reader.inputs if m.buffer == i["buffer"]), None) if reader else None
+        response = above_worst(p.response_us, mp.response_us.p99, math.inf if p.paced_by else margin)
+        out.processes.append(ProcessBeside(p.name, mp.dpu, response, mp.response_us.max, p.paced_by))
+    for i in prediction.inputs:
+        reader = by_name.get(i.reader)
+        found = next((m for m in reader.inputs if m.buffer == i.buffer), None) if reader else None
         shares = input_shares(found) if found else None
         if shares is None:
             continue
-        new, stale, dropped = (either_way(i[k], v, SHARE) for k, v in zip(("new", "stale", "dropped"), shares,
-                                                                           strict=True))
-        out.inputs.append(InputBeside(i["reader"], i["buffer"], i["writer"], new, stale, dropped))
+        new, stale, dropped = (either_way(want, got, SHARE)
+                               for want, got in zip((i.new, i.stale, i.dropped), shares, strict=True))
+        out.inputs.append(InputBeside(i.reader, i.buffer, i.writer, new, stale, dropped))
     measured_chains = {c.name: c for c in chains}
-    for c in prediction["chains"]:
-        mc, tail = measured_chains.get(c["name"]), by_name.get(c["processes"][-1])
+    for c in prediction.chains:
+        mc, tail = measured_chains.get(c.name), by_name.get(c.processes[-1])
         if mc is None or tail is None:
             continue
-        latency = above_worst(c["worst_us"], mc.latency_us.p99, tail.period_us * late_pct / 100)
-        out.chains.append(ChainBeside(c["name"], c["best_us"], latency, mc.latency_us.max))
+        latency = above_worst(c.worst_us, mc.latency_us.p99, tail.period_us * late_pct / 100)
+        out.chains.append(ChainBeside(c.name, c.best_us, latency, mc.latency_us.max))
     out.outside = _outside_lines(out)
     return out
 

@@ -221,7 +221,7 @@ def finish_report(
             if c.generation in generations or (last_always and i == len(configs) - 1)]
     config = configs[kept[-1]]
     window_parts = [[part.windows[i] for part in parts] for i in kept]
-    # A report the logger missed may have been re-sent (host/repair.py): one per DPU.
+    # A report the logger missed may have been re-sent (host/live/repair.py): one per DPU.
     mine = list({r.dpu: r for r in reports if r.run_id == run_id}.values())
     firsts = [_smallest([p.first_cycles for p in wp]) for wp in window_parts]
     locks = split_lockouts(lockouts_from_status(statuses, run_id), firsts)

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from skeleton.host.model import System, from_config
 from skelmsg.contract import CONFIG_CHANNEL, TIMING_CHANNEL
 
 from ..read.logreader import Log
@@ -56,6 +57,7 @@ class RunAnalysis:
     usual: dict[str, float] | None = None  # the bounds of impossible records the parts used
 
     _windows: dict[int, tuple[Any, Any]] = field(default_factory=dict, init=False, repr=False)
+    _systems: dict[int, System] = field(default_factory=dict, init=False, repr=False)
 
     @property
     def path(self) -> str:
@@ -76,6 +78,17 @@ class RunAnalysis:
     def config(self) -> Any:
         """The config_t of the report's generation (the run's last)."""
         return self.messages.configs[self.report.generation]
+
+    @property
+    def system(self) -> System:
+        """The report generation's system, as its config_t describes it (the typed model)."""
+        return self.system_of(self.report.generation)
+
+    def system_of(self, generation: int) -> System:
+        """The system a generation's config_t describes (skeleton.host.model.from_config)."""
+        if generation not in self._systems:
+            self._systems[generation] = from_config(self.messages.configs[generation])
+        return self._systems[generation]
 
     def window(self, generation: int) -> tuple[Any, Any]:
         """The process-cycle records of one generation window (a ColumnTable of RECORD_DTYPE:
@@ -125,20 +138,21 @@ class RunAnalysis:
     def add_prediction(self, predictor: Predictor) -> str | None:
         """Lays the prediction of the report generation's system file (the one its config_t
         carries) beside the report's figures, as report.predicted; None, or why there is none."""
-        if not self.config.source:
+        system = self.system
+        if not system.source_text:
             return "no prediction: the run's configuration carries no system file"
         try:
-            prediction = predictor(self.config.source)
+            prediction = predictor(system.source_text)
         except ValueError as e:
             return f"no prediction: {e}"
         rep = self.report
-        rep.predicted = beside(prediction, rep.generation, self.config.late_pct, rep.dpus, rep.processes,
+        rep.predicted = beside(prediction, rep.generation, system.run.late_pct, rep.dpus, rep.processes,
                                rep.chains, rep.faults)
         return None
 
     def process_names(self) -> dict[int, str]:
-        """The report generation's (`config`)."""
-        return process_names(self.config)
+        """The report generation's: process id -> name."""
+        return process_names(self.system)
 
     # The tables of the public API (skeleton/__init__.py) and of `skel export --parquet`.
     @cached_property

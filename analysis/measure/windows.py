@@ -21,6 +21,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from skeleton.host.model import from_config
+
 from ..read.parallel import map_threads, table_bytes
 from ..read.records import RECORD_DTYPE, RunRecords, select
 from .chains import ChainMetrics, ChainRecords, chain_metrics
@@ -164,7 +166,7 @@ def window_part(
         "sums": lambda: _sums_ns(records, win),
         "ends": lambda: warmup_end_ns(records),
         "buffers": lambda: buffer_parts(records, inputs, config, clock, win, pairs),
-        "chains": lambda: ChainRecords.of(records, inputs, config, win),
+        "chains": lambda: ChainRecords.of(records, inputs, from_config(config), win),
     }
     done = dict(zip(tasks, map_threads(lambda task: task(), tasks.values(), table_bytes(records, inputs)),
                     strict=True))  # fmt: skip
@@ -201,7 +203,8 @@ def finish_window(
             flagged.setdefault(proc, lock)
     # What the timing records flagged and no status_t said (lockouts_from_records' rule).
     locks = {**lockouts, **{proc: lock for proc, lock in sorted(flagged.items()) if proc not in lockouts}}
-    delivered, locks = delivery_faults(config, Deliveries.join(p.deliveries for p in parts), locks)
+    system = from_config(config)
+    delivered, locks = delivery_faults(system, Deliveries.join(p.deliveries for p in parts), locks)
     # what the writers' stalls explain: the whole run's records hold a writer's DPU's cycles
     platform = stalled_writers(locks, stalls, config, clock)
     mine = stalls[stalls["generation"] == config.generation]
@@ -214,8 +217,8 @@ def finish_window(
     chain_rows = ChainRecords.join([p.chains for p in parts])
     counted = input_counts(processes)
     buffers, chains = map_threads(lambda table: table(), [
-        lambda: buffer_metrics(BufferParts.join(p.buffers for p in parts), config, skips, counted),
-        lambda: chain_metrics(chain_rows, config, clock)], table_bytes(chain_rows.records, chain_rows.inputs))
+        lambda: buffer_metrics(BufferParts.join(p.buffers for p in parts), system, skips, counted),
+        lambda: chain_metrics(chain_rows, system, clock)], table_bytes(chain_rows.records, chain_rows.inputs))
     return WindowReport(
         generation=int(config.generation),
         start_ns=min((s.start_ns for s in spans), default=None),
@@ -226,8 +229,8 @@ def finish_window(
         chains=chains,
         faults=(
             delivered
-            + lockout_faults(locks, config, origin, platform)
-            + jam_faults(locks, config, origin, platform)
+            + lockout_faults(locks, system, origin, platform)
+            + jam_faults(locks, system, origin, platform)
             + behind_faults(behind, config, mine, clock)
             + skipping_faults(processes, config)
             + stall_faults(np.concatenate([p.stalls for p in parts]), config, origin)

@@ -16,13 +16,16 @@ import struct
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
+from ..errors import EXIT_BAD_INPUT, SkelError
 from .logreader import Log, read_bytes
 from .mcapformat import METADATA, SOURCE_LOG
 
 
-class McapSourceError(OSError):
+class McapSourceError(SkelError, OSError):
     """The file is not an MCAP written by `skel export` (an OSError, so callers that
     report unreadable files need no new case)."""
+
+    exit_code = EXIT_BAD_INPUT
 
 
 def read_as_log(path: str | os.PathLike[str]) -> Log:

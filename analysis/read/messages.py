@@ -23,6 +23,7 @@ import numpy as np
 import skelmsg
 from skelmsg.contract import CLOCK_CHANNEL, COMMAND_CHANNEL, CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL
 
+from ..errors import EXIT_BAD_INPUT, SkelError
 from .flatdecode import FlatLayout, decode_many
 from .logreader import Log, read_log
 from .mcapsource import read_as_log
@@ -30,8 +31,10 @@ from .mcapsource import read_as_log
 T = TypeVar("T")
 
 
-class LogError(Exception):
+class LogError(SkelError):
     """The file cannot be analysed (unreadable, not an LCM log, no run in it)."""
+
+    exit_code = EXIT_BAD_INPUT
 
 
 def run_log_path(path: str | os.PathLike[str]) -> Path:

@@ -191,7 +191,7 @@ def decode_timing(
     keep = np.setdiff1d(np.arange(len(table)), bad)
     _, first = np.unique(table[keep][:, [0, 2]], axis=0, return_index=True)
     keep = keep[np.sort(first)]
-    # A batch re-sent for the logger (host/repair.py) lands after later ones: put each
+    # A batch re-sent for the logger (host/live/repair.py) lands after later ones: put each
     # DPU's batches back in batch_seq order, so its records run in cycle order.
     reorder = _out_of_order(table[keep])
     if reorder:

@@ -29,6 +29,8 @@ import numpy as np
 import skelmsg
 from skelmsg.contract import KEY_BYTES, KEY_ENV, SEAL_BYTES, SEAL_FRESH_S, SEAL_SIGNED_BYTES
 
+from ..errors import EXIT_BAD_INPUT, SkelError
+
 if TYPE_CHECKING:
     from .logreader import Log
 
@@ -36,8 +38,10 @@ _FINGERPRINT = skelmsg.seal_t._get_packed_fingerprint()
 SENDERS_KEPT = 1024  # senders whose last counter a Verifier keeps (a flood of ids cannot grow it)
 
 
-class KeyFileError(Exception):
+class KeyFileError(SkelError):
     """The key file cannot be used: one line for the user."""
+
+    exit_code = EXIT_BAD_INPUT
 
 
 class Verdict(Enum):

@@ -4,7 +4,7 @@ A reader of stdout may stop early: `skel report RUN | head`, `skel run FILE | gr
 FAULT`. rich's own answer is to exit with 1 on the spot, which would end a run without
 its STOP, its report or its log, and tell a script with `pipefail` that the command
 failed. Here the console goes quiet instead (stdout now leads to /dev/null), the
-command finishes what it was doing, and the CLI ends with EXIT_BROKEN_PIPE (exitcodes.py)
+command finishes what it was doing, and the CLI ends with EXIT_BROKEN_PIPE (errors.py)
 because `reader_gone()` says so.
 """
 

@@ -15,7 +15,7 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
-from ..exitcodes import EXIT_BAD_INPUT, EXIT_OK
+from ..errors import EXIT_BAD_INPUT, EXIT_OK
 from ..measure.report import RunReport
 from ..measure.run import RunAnalysis, load_run
 from ..read.messages import LogError

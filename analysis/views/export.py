@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from ..exitcodes import EXIT_BAD_INPUT, EXIT_OK
+from ..errors import EXIT_BAD_INPUT, EXIT_OK
 from ..measure.run import load_run
 from ..read.messages import LogError
 from .export_mcap import export

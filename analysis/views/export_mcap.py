@@ -272,15 +272,15 @@ def _faults(data: RunAnalysis) -> Iterator[tuple[int, Any]]:
     looked up among the records sorted once by (process, cycle): no pass over them per fault.
     The report's faults are its generation's: looked up in that window's records."""
     recs = data.records
-    ids = {p.name: p.id for p in data.config.processes}
     starts = data.to_utc_ns(recs["dpu"], recs["start_ns"])
     end = int(starts.max()) if len(recs) else 0
     order = np.lexsort((recs["cycle"], recs["process"]))
     process, cycle = recs["process"][order], recs["cycle"][order]
     for fault in data.report.faults:
         when = end
-        if fault.process in ids and fault.cycle is not None:
-            pid = ids[fault.process]
+        found = data.system.find_process(fault.process) if fault.process else None
+        if found is not None and fault.cycle is not None:
+            pid = found.id
             low = np.searchsorted(process, pid, side="left")
             high = np.searchsorted(process, pid, side="right")
             at = low + np.searchsorted(cycle[low:high], fault.cycle)

@@ -92,7 +92,7 @@ def write_plots(data: RunAnalysis, out_dir: Path, window_ms: tuple[float, float]
     if fig is None:
         made.notes.append(
             "Chain latency: the system file names no chains (`chains: [[head, ..., tail]]`)."
-            if not data.config.chains
+            if not data.system.chains
             else "Chain latency: no value travelled a whole chain in the measured window."
         )
     else:
@@ -167,7 +167,7 @@ def default_window_ns(data: RunAnalysis) -> tuple[int, int]:
         return 0, 1
     release = _host_ns(data, use, use["release_ns"])
     firsts = [release[use["process"] == p].min() for p in np.unique(use["process"]).tolist()]
-    slowest_us = max((d.minor_cycle_us for d in data.config.dpus), default=5000)
+    slowest_us = max((d.minor_cycle_us for d in data.system.dpus), default=5000)
     return int(max(firsts)), int(4 * slowest_us * 1000)
 
 
@@ -182,9 +182,8 @@ def timeline(data: RunAnalysis, window_ms: tuple[float, float] | None = None) ->
     end = _host_ns(data, recs, cycle_end_ns(recs))
     shown = recs[(end >= start) & (begin <= start + length)]
     names = data.process_names()
-    dpus = sorted(data.config.dpus, key=lambda d: d.id)
-    rows = {d.id: sorted((p for p in data.config.processes if p.dpu == d.id), key=lambda p: (p.order, p.id))
-            for d in dpus}  # fmt: skip
+    dpus = sorted(data.system.dpus, key=lambda d: d.id)
+    rows = {d.id: sorted(data.system.processes_on(d.id), key=lambda p: (p.order, p.id)) for d in dpus}
     heights = [max(1, len(rows[d.id])) + 0.6 for d in dpus]
     fig = _figure(11, 1.0 + 0.42 * sum(heights))
     grid = fig.subplots(len(dpus), 1, sharex=True, gridspec_kw={"height_ratios": heights}, squeeze=False)
@@ -256,7 +255,7 @@ def schedule(data: RunAnalysis) -> Figure:
     (the whole run for one generation), with the faults `behind` and `stall` of the report
     marked where they happened: the time axis counts from the run's first release, as their
     at_s does."""
-    dpus = sorted(data.config.dpus, key=lambda d: d.id)
+    dpus = sorted(data.system.dpus, key=lambda d: d.id)
     fig = _figure(11, 1.0 + 1.6 * len(dpus))
     axes = fig.subplots(len(dpus), 1, sharex=True, squeeze=False)[:, 0]
     recs = data.records

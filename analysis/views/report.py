@@ -9,7 +9,7 @@ import os
 import sys
 from pathlib import Path
 
-from ..exitcodes import EXIT_BAD_INPUT, EXIT_FATAL_FLAW, EXIT_OK
+from ..errors import EXIT_BAD_INPUT, EXIT_FATAL_FLAW, EXIT_OK
 from ..measure.predicted import Predictor
 from ..measure.run import RunAnalysis, load_run
 from ..read.messages import LogError

@@ -92,16 +92,16 @@ def _faults(run: RunAnalysis) -> Iterator[dict[str, Any]]:
     """The report's faults (its generation's), where they happened: their at_s and cycles count
     from the run's first release (of their DPU; a stall's, of the first DPU's)."""
     origin = first_release_ns(run.recorded.records)
-    period_ns = {p.name: p.period_us * 1000 for p in run.config.processes}
-    dpu_of = {p.name: p.dpu for p in run.config.processes}
+    system = run.system
     start = min(origin.values(), default=0)
     for fault in run.report.faults:
-        dpu = fault.dpu if fault.dpu is not None else dpu_of.get(fault.process or "")
+        proc = system.find_process(fault.process) if fault.process else None
+        dpu = fault.dpu if fault.dpu is not None else proc.dpu if proc is not None else None
         t0 = origin.get(dpu, start) if dpu is not None and fault.kind != "stall" else start
         if fault.at_s is not None:
             t_ns = t0 + int(fault.at_s * 1e9)
-        elif fault.process in period_ns and fault.cycle is not None:
-            t_ns = t0 + fault.cycle * period_ns[fault.process]
+        elif proc is not None and fault.cycle is not None:
+            t_ns = t0 + fault.cycle * proc.period_us * 1000
         else:
             t_ns = t0
         event = {"ph": "i", "cat": "fault", "name": fault.kind, "args": asdict(fault),

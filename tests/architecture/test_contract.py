@@ -112,3 +112,31 @@ def test_no_code_writes_a_contract_text_by_hand(name: str) -> None:
     copies = [f"{path.relative_to(REPO)}:{number}" for path in CODE
               for number, line in enumerate(path.read_text().splitlines(), 1) if quoted.search(line)]
     assert not copies, f"{name} ({value!r}) written by hand; use skelmsg.contract / SKEL_{name}: {copies}"
+
+
+def test_sizes_on_the_wire_are_lcm_gens_encodings() -> None:
+    """contract.txt's sizeof()/offsetof() are computed from the .lcm files: they must be what
+    lcm-gen's encoder writes (an empty payload and an empty name are the fixed parts alone)."""
+    import skelmsg
+    assert contract.BUFFER_HEADER_BYTES == len(skelmsg.buffer_t().encode())
+    name = skelmsg.event_t()
+    name.name = ""
+    assert contract.EVENT_HEADER_BYTES == len(name.encode()) - 4 - 1  # a string: int32 length, bytes, NUL
+    seal = skelmsg.seal_t()
+    seal.mac = bytes(32)   # the encoder writes what it holds: a whole mac, as every seal has
+    assert contract.SEAL_BYTES == len(seal.encode())
+    assert contract.SEAL_SIGNED_BYTES == contract.SEAL_BYTES - len(seal.mac)
+
+
+@pytest.mark.parametrize(("written", "problem"), [
+    ("offsetof(config_t, source)", "has no fixed size"),   # a string and arrays come before it
+    ("offsetof(seal_t, nothing)", "has no field nothing"),
+    ("sizeof(buffer_t)", "has no fixed size"),
+    ("sizeof(seal_t, mac)", "sizeof(message) or offsetof(message, field)")])
+def test_a_size_that_cannot_be_computed_is_refused(written: str, problem: str, tmp_path: Path) -> None:
+    source = tmp_path / "contract.txt"
+    source.write_text(f"X = {written}\n")
+    for lcm_file in (REPO / "lcmtypes").glob("*.lcm"):
+        (tmp_path / lcm_file.name).write_text(lcm_file.read_text())
+    with pytest.raises(SystemExit, match=re.escape(problem)):
+        _contractgen().parse(source)

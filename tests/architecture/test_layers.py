@@ -22,7 +22,9 @@ import pytest
 REPO = Path(__file__).resolve().parents[2]
 PACKAGES = {"skeleton.host": REPO / "host", "skeleton.analysis": REPO / "analysis"}
 ANALYSIS_LAYERS = {"read": 0, "measure": 1, "views": 2}   # imports run only from a higher to a lower one
-HOST_ORDER = ["schema", "link", "rules", "system", "wire"]  # the system file: each imports only earlier ones
+# host/'s packages: each imports only itself and those before it; analysis/ imports only the model
+HOST_LAYERS = {"model": 0, "sysfile": 1, "theory": 2, "live": 3, "cli": 4}
+SYSFILE_ORDER = ["schema", "link", "rules", "system"]  # inside sysfile/: each imports only earlier ones
 
 
 @dataclass(frozen=True)
@@ -107,10 +109,15 @@ def _analysis_layer(module: str) -> int | None:
     return ANALYSIS_LAYERS.get(parts[2]) if len(parts) > 2 and parts[1] == "analysis" else None
 
 
-def _host_rank(module: str) -> int | None:
+def _host_layer(module: str) -> int | None:
     parts = module.split(".")
-    return HOST_ORDER.index(parts[2]) if len(parts) == 3 and parts[1] == "host" and parts[2] in HOST_ORDER \
-        else None
+    return HOST_LAYERS.get(parts[2]) if len(parts) > 2 and parts[1] == "host" else None
+
+
+def _sysfile_rank(module: str) -> int | None:
+    parts = module.split(".")
+    return SYSFILE_ORDER.index(parts[3]) if parts[1:3] == ["host", "sysfile"] and len(parts) == 4 \
+        and parts[3] in SYSFILE_ORDER else None
 
 
 def layer_violations(edges: list[Edge]) -> list[str]:
@@ -119,11 +126,15 @@ def layer_violations(edges: list[Edge]) -> list[str]:
         low, high = _analysis_layer(e.target), _analysis_layer(e.source)
         if low is not None and high is not None and low > high:
             bad.append(f"analysis imports upward: {e}")
-        if e.source.startswith("skeleton.analysis") and e.target.startswith("skeleton.host"):
-            bad.append(f"analysis imports host: {e}")
-        low, high = _host_rank(e.target), _host_rank(e.source)
+        if e.source.startswith("skeleton.analysis") and e.target.startswith("skeleton.host") \
+                and e.target != "skeleton.host.model":
+            bad.append(f"analysis imports host beyond its model: {e}")
+        low, high = _host_layer(e.target), _host_layer(e.source)
+        if low is not None and high is not None and low > high:
+            bad.append(f"host imports upward (model < sysfile < theory < live < cli): {e}")
+        low, high = _sysfile_rank(e.target), _sysfile_rank(e.source)
         if low is not None and high is not None and low >= high:
-            bad.append(f"host imports against schema -> link -> rules -> system -> wire: {e}")
+            bad.append(f"sysfile imports against schema -> link -> rules -> system: {e}")
     return bad
 
 
@@ -140,20 +151,56 @@ def test_layers_hold() -> None:
 def test_the_graph_sees_late_and_relative_imports(tmp_path: Path) -> None:
     """The checks above would pass vacuously if the graph missed imports: it must see a late,
     a relative and a package-relative import, and find the cycle they make."""
-    modules = {"skeleton.host": tmp_path / "__init__.py", "skeleton.host.system": tmp_path / "system.py",
-               "skeleton.host.rules": tmp_path / "rules.py", "skeleton.host.spawn": tmp_path / "spawn.py"}
-    modules["skeleton.host"].write_text("")
-    modules["skeleton.host.system"].write_text("def build():\n    from .rules import resolve\n")
-    modules["skeleton.host.rules"].write_text("from . import spawn\nfrom .system import Dpu\n")
-    modules["skeleton.host.spawn"].write_text("if TYPE_CHECKING:\n    from skeleton.host.rules import X\n")
+    sysfile = "skeleton.host.sysfile"
+    modules = {sysfile: tmp_path / "__init__.py", f"{sysfile}.system": tmp_path / "system.py",
+               f"{sysfile}.rules": tmp_path / "rules.py", f"{sysfile}.spawn": tmp_path / "spawn.py"}
+    modules[sysfile].write_text("")
+    modules[f"{sysfile}.system"].write_text("def build():\n    from .rules import resolve\n")
+    modules[f"{sysfile}.rules"].write_text("from . import spawn\nfrom .system import Dpu\n")
+    modules[f"{sysfile}.spawn"].write_text(f"if TYPE_CHECKING:\n    from {sysfile}.rules import X\n")
     edges = import_graph(modules)
     assert {(e.source, e.target, e.typing_only) for e in edges} == {
-        ("skeleton.host.system", "skeleton.host.rules", False),
-        ("skeleton.host.rules", "skeleton.host.spawn", False),
-        ("skeleton.host.rules", "skeleton.host.system", False),
-        ("skeleton.host.spawn", "skeleton.host.rules", True)}
+        (f"{sysfile}.system", f"{sysfile}.rules", False),
+        (f"{sysfile}.rules", f"{sysfile}.spawn", False),
+        (f"{sysfile}.rules", f"{sysfile}.system", False),
+        (f"{sysfile}.spawn", f"{sysfile}.rules", True)}
     assert find_cycle(edges) is not None
-    assert any("rules -> skeleton.host.system" in v for v in layer_violations(edges))
+    assert any(f"rules -> {sysfile}.system" in v for v in layer_violations(edges))
+
+
+def _write(tmp_path: Path, sources: dict[str, str]) -> dict[str, Path]:
+    """Synthetic modules in a tree like the project's: a name's dots are folders."""
+    modules: dict[str, Path] = {}
+    for name, text in sources.items():
+        parts = name.split(".")[1:]
+        path = tmp_path.joinpath(*parts, "__init__.py") if name.count(".") < 3 else \
+            tmp_path.joinpath(*parts[:-1], parts[-1] + ".py")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+        modules[name] = path
+    return modules
+
+
+def test_a_back_import_between_host_packages_is_reported(tmp_path: Path) -> None:
+    """theory/ importing live/ (a package above it), or analysis/ importing more of host/ than its
+    model, is a violation; the same imports downward are not."""
+    modules = _write(tmp_path, {
+        "skeleton.host": "", "skeleton.host.theory": "", "skeleton.host.live": "",
+        "skeleton.host.theory.predict": "from ..live.run import run\nfrom ..model import System\n",
+        "skeleton.host.live.run": "from ..theory.predict import predict\n",
+        "skeleton.host.model": "",
+        "skeleton.analysis": "", "skeleton.analysis.measure": "",
+        "skeleton.analysis.measure.run": "from skeleton.host.model import System\n"
+                                         "from skeleton.host.live.run import run\n"})
+    edges = import_graph(modules)
+    assert {(e.source, e.target) for e in edges} >= {
+        ("skeleton.host.theory.predict", "skeleton.host.live.run"),
+        ("skeleton.host.live.run", "skeleton.host.theory.predict")}
+    bad = layer_violations(edges)
+    assert [v.split(":")[0] for v in bad] == ["host imports upward (model < sysfile < theory < live < cli)",
+                                              "analysis imports host beyond its model"], bad
+    assert "skeleton.host.theory.predict -> skeleton.host.live.run" in bad[0]
+    assert "skeleton.analysis.measure.run -> skeleton.host.live.run" in bad[1]
 
 
 def _import_alone(module: str) -> tuple[str, subprocess.CompletedProcess[str]]:
@@ -172,15 +219,20 @@ def test_every_module_imports_alone() -> None:
     assert failed == {}
 
 
-def _absolute(node: ast.Import | ast.ImportFrom) -> bool:
-    if isinstance(node, ast.ImportFrom):
-        return not node.level and (node.module or "").startswith("skeleton")
-    return any(alias.name.startswith("skeleton") for alias in node.names)
+def _badly_named(name: str, path: Path, node: ast.Import | ast.ImportFrom) -> bool:
+    """host/ names host/ relatively and analysis/ absolutely: is this import the other way round?"""
+    if isinstance(node, ast.ImportFrom) and node.level:
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        base = package.split(".")
+        return not ".".join(base[: len(base) - (node.level - 1)]).startswith("skeleton.host")
+    names = [node.module or ""] if isinstance(node, ast.ImportFrom) else [a.name for a in node.names]
+    return any(n.split(".")[0] == "skeleton" and not n.startswith("skeleton.analysis") for n in names)
 
 
-def test_host_imports_the_project_relatively() -> None:
-    """host/ names its siblings and analysis/ relatively (`from .system`, `from ..analysis`)."""
-    absolute = [f"{path.name}:{node.lineno}" for name, path in project_modules().items()
-                if name.startswith("skeleton.host")
-                for node, _ in _imports(ast.parse(path.read_text())) if _absolute(node)]
-    assert absolute == []
+def test_host_imports_host_relatively_and_analysis_absolutely() -> None:
+    """Inside host/ a sibling is `from .control`, another package of host/ `from ..sysfile.system`;
+    the analysis, another folder, is `from skeleton.analysis.measure.run` (no `...analysis`)."""
+    bad = [f"{path.relative_to(REPO)}:{node.lineno}" for name, path in project_modules().items()
+           if name.startswith("skeleton.host")
+           for node, _ in _imports(ast.parse(path.read_text())) if _badly_named(name, path, node)]
+    assert bad == []

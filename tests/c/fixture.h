@@ -72,7 +72,7 @@ static void fixture_init(fixture_t *f)
     }
     c->ndpus = 2;
     c->dpus = f->dpus;
-    /* as host/link.py gives them: link 1's writers (processes 1 and 3) on its port + 1, + 2 */
+    /* as host/sysfile/link.py gives them: link 1's writers (processes 1 and 3) on its port + 1, + 2 */
     f->buffers[0] = (skelmsg_buffer_desc_t){ 1, (char *)"b1", 1000, 1, (char *)"udpm://239.255.76.67:7800?ttl=0",
                                              1, (char *)"SKEL_BUF_b1" };
     f->buffers[1] = (skelmsg_buffer_desc_t){ 2, (char *)"b2", 2000, 1, (char *)"udpm://239.255.76.67:7801?ttl=0",

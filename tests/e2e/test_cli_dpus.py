@@ -15,10 +15,10 @@ from pathlib import Path
 from conftest import REPO, SANITIZER_ERROR, DpuFarm, skel
 from unit.test_cli import DUMP, PAIR, _closed_pipe
 
-from skeleton.analysis import exitcodes
+from skeleton.analysis import errors
 from skeleton.analysis.measure.run import load_run
-from skeleton.host import spawn
-from skeleton.host.control import Control
+from skeleton.host.live import spawn
+from skeleton.host.live.control import Control
 
 
 def _skel_popen(*args: str, env: dict[str, str] | None = None) -> subprocess.Popen[str]:
@@ -66,7 +66,7 @@ def test_spawn_is_refused_beside_an_auto_dpu_that_would_take_one(url: str, tmp_p
         done = skel("run", str(system), "--spawn", "--url", url, "--out", str(tmp_path / "run"))
     finally:
         code = spawn.stop(daemon)
-    assert done.returncode == exitcodes.EXIT_FAILED, done.stdout + done.stderr
+    assert done.returncode == errors.EXIT_FAILED, done.stdout + done.stderr
     assert f"DPU 1 (pid {daemon.process.pid} on {socket.gethostname()}, started with --id auto) already up" \
         in done.stdout, done.stdout
     assert not (tmp_path / "run" / "logs").exists() and code == 0
@@ -89,7 +89,7 @@ def test_run_interrupted_by_ctrl_c_writes_its_report_and_exits_130(url: str, tmp
     time.sleep(1.5)
     run.send_signal(signal.SIGINT)
     stdout, stderr = run.communicate(timeout=60)
-    assert run.returncode == exitcodes.EXIT_INTERRUPTED == 130, stdout + stderr
+    assert run.returncode == errors.EXIT_INTERRUPTED == 130, stdout + stderr
     assert not DUMP.search(stderr), stderr
     assert "interrupted: stopping the run" in stdout, stdout
     assert "per process" in stdout and f"run written to {out}/" in stdout, stdout
@@ -119,7 +119,7 @@ def test_watch_ended_by_sigterm_ends_as_by_ctrl_c(dpus: DpuFarm, url: str, tmp_p
         for (mode, signum), watcher in watchers.items():
             _, stderr = watcher.communicate(timeout=30)
             what = f"watch {mode} ended by {signal.Signals(signum).name}: exit {watcher.returncode}\n{stderr}"
-            assert watcher.returncode == exitcodes.EXIT_INTERRUPTED, what
+            assert watcher.returncode == errors.EXIT_INTERRUPTED, what
             assert not DUMP.search(stderr), what
     finally:
         run.send_signal(signal.SIGTERM)
@@ -136,7 +136,7 @@ def test_a_run_whose_reader_goes_away_runs_to_its_report(url: str, tmp_path: Pat
     run = subprocess.run([sys.executable, "-m", "skeleton.host.cli", *args], cwd=REPO, stdout=write_end,
                          stderr=subprocess.PIPE, text=True, timeout=120)  # fmt: skip
     os.close(write_end)
-    assert run.returncode == exitcodes.EXIT_BROKEN_PIPE, run.stderr
+    assert run.returncode == errors.EXIT_BROKEN_PIPE, run.stderr
     assert not DUMP.search(run.stderr) and "warning:" not in run.stderr, run.stderr  # DPUs ended well
     cycles = {p["name"]: p["cycles"] for p in json.loads((out / "report.json").read_text())["processes"]}
     assert set(cycles) == {"slow_writer", "fast_writer", "fast_reader", "slow_reader"}, cycles

@@ -9,9 +9,9 @@ import lcm
 from conftest import DpuFarm, fresh_url, skel
 
 import skelmsg
-from skeleton.host import clock
-from skeleton.host.control import Control
-from skeleton.host.link import record_url
+from skeleton.host.live import clock
+from skeleton.host.live.control import Control
+from skeleton.host.sysfile.link import record_url
 from skelmsg.contract import CLOCK_CHANNEL
 
 TOLERANCE_NS = 200_000

@@ -9,10 +9,10 @@ from conftest import DpuFarm, skel
 from unit.test_control import INT64_MAX, PAIR, _publish, _stray_config
 
 import skelmsg
-from skeleton.host.control import Control
-from skeleton.host.link import parse_url, record_url
-from skeleton.host.system import load
-from skeleton.host.wire import config_message
+from skeleton.host.live.control import Control
+from skeleton.host.live.wire import config_message
+from skeleton.host.sysfile.link import parse_url, record_url
+from skeleton.host.sysfile.system import load
 from skelmsg.contract import CONFIG_CHANNEL
 
 

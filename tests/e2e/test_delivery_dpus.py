@@ -10,7 +10,7 @@ from conftest import faults_but_stalls, skel
 from unit.test_delivery import BIG, _big_url, _system
 
 from skeleton.analysis.measure.faults import recv_buf_needed
-from skeleton.host.link import rmem_max
+from skeleton.host.sysfile.link import rmem_max
 
 
 @pytest.mark.timing  # judges overruns: tests/steal.py

@@ -11,14 +11,14 @@ import lcm
 from conftest import EXAMPLES, DpuFarm
 
 import skelmsg
-from skeleton.host.control import Control
-from skeleton.host.system import load
-from skeleton.host.wire import config_message
+from skeleton.host.live.control import Control
+from skeleton.host.live.wire import config_message
+from skeleton.host.sysfile.system import load, with_url
 from skelmsg.contract import COMMAND_CHANNEL, CONFIG_CHANNEL
 
 
 def _servo(url: str):  # type: ignore[no-untyped-def]
-    return load(EXAMPLES / "servo.yaml", ["run.warmup_cycles=5"]).with_url(url)
+    return with_url(load(EXAMPLES / "servo.yaml", ["run.warmup_cycles=5"]), url)
 
 
 def test_dpus_configure_themselves_from_one_broadcast(dpus: DpuFarm, url: str) -> None:
@@ -79,7 +79,7 @@ def test_dpu_ignores_undecodable_messages(dpus: DpuFarm, url: str) -> None:
         buffer_channels = [b.channel for b in system.buffers if b.id in (3, 5, 6, 7, 8)]
         hostile += [(ch, _negative_length_buffer()) for ch in buffer_channels]
         hostile += [(ch, b"garbage") for ch in buffer_channels]
-        # a buffer's channel is heard on its writer's port (host/link.py), not on the control URL
+        # a buffer's channel is heard on its writer's port (host/sysfile/link.py), not on the control URL
         on_port = {b.channel: lcm.LCM(system.buffer_url(b.id))
                    for b in system.buffers if b.channel in buffer_channels}
         generation = control.next_generation()
@@ -127,7 +127,7 @@ def test_sleep_mode_cycles_run_sched_fifo_where_permitted(dpus: DpuFarm, url: st
     so a busy machine does not stretch them; `wall` spins, and stays SCHED_OTHER."""
     system_file = tmp_path / "modes.yaml"
     system_file.write_text(MODES_SYSTEM)
-    system = load(system_file, []).with_url(url)
+    system = with_url(load(system_file, []), url)
     dpus.start(1, 2)
     pids = {i: dpus.daemons[i].process.pid for i in (1, 2)}
     control = Control(url)

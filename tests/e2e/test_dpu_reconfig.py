@@ -15,9 +15,10 @@ from dataclasses import dataclass
 from conftest import EXAMPLES, DpuFarm, TimingTap
 
 import skelmsg
-from skeleton.host.control import Control
-from skeleton.host.system import System, load
-from skeleton.host.wire import config_message
+from skeleton.host.live.control import Control
+from skeleton.host.live.wire import config_message
+from skeleton.host.model import System
+from skeleton.host.sysfile.system import load, with_url
 
 PAIR = EXAMPLES / "pair-10ms-5ms.yaml"
 MS = 1_000_000
@@ -28,7 +29,7 @@ READY = skelmsg.status_t.STATE_READY
 
 
 def _pair(url: str, *overrides: str) -> System:
-    return load(PAIR, ["run.warmup_cycles=5", *overrides]).with_url(url)
+    return with_url(load(PAIR, ["run.warmup_cycles=5", *overrides]), url)
 
 
 def _slower(url: str) -> System:

@@ -16,7 +16,7 @@ from conftest import EXAMPLES, skel, skel_background
 
 import skeleton
 import skelmsg
-from skeleton.host.control import Control
+from skeleton.host.live.control import Control
 from skelmsg import contract
 
 pytestmark = pytest.mark.timing  # judges the DPUs' timing: tests/steal.py

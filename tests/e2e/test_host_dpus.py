@@ -20,8 +20,8 @@ from unit.test_host import _lab
 
 from skeleton.analysis.read.messages import open_run_log
 from skeleton.analysis.read.records import FLAG_SKIPPED, load_records
-from skeleton.host import spawn
-from skeleton.host.control import Control
+from skeleton.host.live import spawn
+from skeleton.host.live.control import Control
 from skelmsg.contract import DEFAULT_URL
 
 

@@ -10,9 +10,9 @@ from pathlib import Path
 from conftest import DpuFarm, skel, skel_background
 from unit.test_link import _three
 
-from skeleton.host import spawn
-from skeleton.host.link import parse_url, record_url
-from skeleton.host.system import loads
+from skeleton.host.live import spawn
+from skeleton.host.sysfile.link import parse_url, record_url
+from skeleton.host.sysfile.system import loads
 
 
 def test_check_and_the_dpu_refuse_a_control_url_without_a_record_url(tmp_path: Path) -> None:

@@ -18,9 +18,9 @@ import pytest
 from conftest import DpuFarm, faults_but_stalls, skel, skel_background
 
 import skelmsg
-from skeleton.host.control import Control
-from skeleton.host.system import load
-from skeleton.host.wire import config_message
+from skeleton.host.live.control import Control
+from skeleton.host.live.wire import config_message
+from skeleton.host.sysfile.system import load, with_url
 
 SYSTEM = """\
 system: shared
@@ -106,7 +106,7 @@ def test_second_run_and_push_are_refused_at_once_and_the_first_run_stays_clean(
 def test_dpus_refuse_another_sessions_config_and_stop_during_a_run(tmp_path: Path, url: str,
                                                                     dpus: DpuFarm) -> None:
     """The DPUs' own guard, whatever a host tool checks first: another session is refused."""
-    system = load(_system(tmp_path)).with_url(url)
+    system = with_url(load(_system(tmp_path)), url)
     dpus.start(1, 2)
     owner, intruder = Control(url), Control(url)
     try:

@@ -9,8 +9,8 @@ import pytest
 from conftest import EXAMPLES, skel
 from randsys import random_system
 
-from skeleton.host.predict import predict
-from skeleton.host.system import load
+from skeleton.host.sysfile.system import load
+from skeleton.host.theory.predict import predict
 
 DEADLOCK = """\
 system: deadlock

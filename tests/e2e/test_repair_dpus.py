@@ -15,8 +15,8 @@ from pathlib import Path
 
 from conftest import Background, skel_background
 
-from skeleton.host.repair import RESTARTS_MAX
-from skeleton.host.spawn import running
+from skeleton.host.live.repair import RESTARTS_MAX
+from skeleton.host.live.spawn import running
 
 # Two DPUs, 1000 records a second each: ~20 timing batches a second of ~4.5 kB (four
 # datagrams), ~250 kB/s of the logger's socket buffer (net.core.rmem_default, 208 kB

@@ -12,8 +12,8 @@ import pytest
 from conftest import EXAMPLES, LOCKOUT_SYSTEM, skel, skel_background, threads_cpus
 
 import skelmsg
-from skeleton.host.predict import predict
-from skeleton.host.system import load
+from skeleton.host.sysfile.system import load
+from skeleton.host.theory.predict import predict
 from skelmsg.contract import COMMAND_CHANNEL, STATUS_CHANNEL
 
 PAPER_COMPUTE_PCT = {1: 90.3, 2: 73.4, 3: 86.0, 4: 96.5}

@@ -18,8 +18,8 @@ from conftest import EXAMPLES, DpuFarm, skel
 import skelmsg
 from skeleton.analysis.read.logreader import encode_events, read_log
 from skeleton.analysis.read.seal import KeyFileError, Signer, authenticate, load_key, split, write_key
-from skeleton.host import spawn
-from skeleton.host.control import Control
+from skeleton.host.live import spawn
+from skeleton.host.live.control import Control
 from skelmsg import contract
 
 PAIR = EXAMPLES / "pair-10ms-5ms.yaml"

@@ -1,7 +1,7 @@
 """The tasking executive (`executive: threads`) against scheduling theory: a DPU is one
 processor under fixed-priority preemptive scheduling. Real DPUs run textbook rate-monotonic
 task sets; exact response-time analysis and a simulation of the ideal schedule
-(host/schedule.py) say what each job must do, and the timing records are held to it. In
+(host/theory/schedule.py) say what each job must do, and the timing records are held to it. In
 compute mode sleep the DPU runs the schedule itself (exact); in cpu and wall the kernel does,
 on SCHED_FIFO threads pinned to one CPU (within margins: the machine is shared)."""
 
@@ -21,7 +21,7 @@ from conftest import ASAN_DPU, SANITIZER_ERROR, skel
 from unit.test_schedule import MS, SCHEDULABLE, _system
 
 import skeleton
-from skeleton.host.schedule import ideal_schedule, response_times
+from skeleton.host.theory.schedule import ideal_schedule, response_times
 
 UNSCHEDULABLE = [(3, 8), (6, 20), (6, 24)]  # U = 0.93; R3 = 30 ms > T3 = 24 ms
 

@@ -26,10 +26,11 @@ import skeleton
 import skelmsg
 from skeleton.analysis.read.logreader import read_log
 from skeleton.analysis.read.records import load_records
-from skeleton.host.control import Control
-from skeleton.host.schedule import ideal_schedule
-from skeleton.host.system import System, load
-from skeleton.host.wire import config_message
+from skeleton.host.live.control import Control
+from skeleton.host.live.wire import config_message
+from skeleton.host.model import System
+from skeleton.host.sysfile.system import load, with_url
+from skeleton.host.theory.schedule import ideal_schedule
 
 pytestmark = pytest.mark.timing  # judges the DPUs' timing: tests/steal.py
 
@@ -82,7 +83,7 @@ class Tap(TimingTap):
 def _system(tmp_path: Path, url: str, *overrides: str) -> System:
     path = tmp_path / "tasking-switch.yaml"
     path.write_text(SYSTEM.format(url=url))
-    return load(path, list(overrides)).with_url(url)
+    return with_url(load(path, list(overrides)), url)
 
 
 @dataclass
@@ -240,7 +241,7 @@ def test_live_switch_adds_and_removes_processes_of_a_tasking_dpu(dpus: DpuFarm, 
     path.write_text(SYSTEM.format(url=url).replace(
         "  - {id: 2, name: p2, dpu: 1, period_us: 12000, compute_us: 3000}",
         "  - {id: 3, name: p3, dpu: 1, period_us: 20000, compute_us: 5000}"))
-    after = load(path, [f"dpu.1.compute={compute}"]).with_url(url)
+    after = with_url(load(path, [f"dpu.1.compute={compute}"]), url)
     done = _switch(dpus, url, 6363, before, after)
     _clean(done)
     _contiguous(done.records, 1)
@@ -311,8 +312,8 @@ def test_live_switch_carries_a_job_waiting_for_its_data(dpus: DpuFarm, url: str,
     mode = [f"dpu.{d}.compute={compute}" for d in (1, 2)]
     if compute != "sleep":
         mode += ["dpu.1.cpu=0", "dpu.2.cpu=1"]
-    before = load(_data_system(tmp_path, url, 1000), mode).with_url(url)
-    after = load(_data_system(tmp_path, url, 500), mode).with_url(url)
+    before = with_url(load(_data_system(tmp_path, url, 1000), mode), url)
+    after = with_url(load(_data_system(tmp_path, url, 500), mode), url)
     done = _switch(dpus, url, 6565, before, after, ids=(1, 2), periods=DATA_PERIODS, hyper_ns=10 * MS,
                    at_ns=2_500_000)
     _clean(done)

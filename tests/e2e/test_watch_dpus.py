@@ -18,7 +18,7 @@ from unit.test_watch import _same_tables
 
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.measure.tally import RunTally
-from skeleton.host.link import record_url
+from skeleton.host.sysfile.link import record_url
 
 LOGPLAYER = Path(lcm.__file__).parent.parent / "bin" / "lcm-logplayer"
 ENV = {**os.environ, "COLUMNS": "160"}

@@ -4,7 +4,7 @@
  *
  * publishes up to RATE messages a second for SECONDS (wall clock: where the machine cannot
  * send that many, fewer, and it says how many) on the CHANNELs (round robin), each on its
- * own URL where one follows it (a buffer's: its writer's port, host/link.py), else on URL,
+ * own URL where one follows it (a buffer's: its writer's port, host/sysfile/link.py), else on URL,
  * cycling
  * through four kinds: garbage (random bytes), a foreign fingerprint, our own
  * fingerprints with lengths that lie (command_t, config_t, buffer_t), and well-formed

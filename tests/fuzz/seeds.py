@@ -1,5 +1,5 @@
 """The fuzzers' seed corpus: real messages, encoded by the generated skelmsg types and
-host/wire.py as the host tool sends them, one folder per harness (tests/fuzz/fuzz_*.c).
+host/live/wire.py as the host tool sends them, one folder per harness (tests/fuzz/fuzz_*.c).
 
     .venv/bin/python tests/fuzz/seeds.py    # (re)writes tests/fuzz/corpus/<harness>/
 
@@ -27,8 +27,9 @@ if str(REPO) not in sys.path:  # run as a script from anywhere
 
 import skelmsg  # noqa: E402
 from skeleton.analysis.read.seal import Signer  # noqa: E402
-from skeleton.host.system import System, load, loads  # noqa: E402
-from skeleton.host.wire import config_message  # noqa: E402
+from skeleton.host.live.wire import config_message  # noqa: E402
+from skeleton.host.model import System  # noqa: E402
+from skeleton.host.sysfile.system import load, loads  # noqa: E402
 from skelmsg import contract  # noqa: E402
 
 FUZZ_RUN_ID = 1             # fuzz.h

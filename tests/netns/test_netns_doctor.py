@@ -16,7 +16,7 @@ netns_host = hosts_fixture(1)
 
 # --- the whole doctor inside a host (root) --------------------------------------------------------
 def _doctor_in(hosts: Hosts, url: str = URL1) -> tuple[int, str]:
-    code = "import sys; from skeleton.host.doctor import doctor; sys.exit(doctor(sys.argv[1]))"
+    code = "import sys; from skeleton.host.cli.doctor import doctor; sys.exit(doctor(sys.argv[1]))"
     done = hosts.run("skelh1", [sys.executable, "-c", code, url], capture_output=True, text=True, timeout=30)
     return done.returncode, done.stdout
 
@@ -40,7 +40,8 @@ def test_netns_doctor_healthy_host_exits_0(netns_host: Hosts) -> None:
 
 
 def test_netns_doctor_json(netns_host: Hosts) -> None:
-    code = "import sys; from skeleton.host.doctor import doctor; sys.exit(doctor(sys.argv[1], as_json=True))"
+    code = ("import sys; from skeleton.host.cli.doctor import doctor; "
+            "sys.exit(doctor(sys.argv[1], as_json=True))")
     done = netns_host.run("skelh1", [sys.executable, "-c", code, URL1], capture_output=True, text=True)
     doc = json.loads(done.stdout)
     assert done.returncode == 0 and doc["ok"] is True

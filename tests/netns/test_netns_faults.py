@@ -18,7 +18,7 @@ from conftest import EXAMPLES, Background
 
 from netns import Hosts, hosts_fixture
 from netns.test_netns_lab import URL, Lab, host_overrides, report_json, stop, wait_until
-from skeleton.host.spawn import argv_of
+from skeleton.host.live.spawn import argv_of
 
 netns_three_hosts = hosts_fixture(3)
 netns_four_hosts = hosts_fixture(4)

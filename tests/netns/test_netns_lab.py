@@ -21,8 +21,8 @@ import pytest
 from conftest import ASAN_DPU, EXAMPLES, REPO, SANITIZER_ERROR
 
 from netns import Hosts, hosts_fixture
-from skeleton.host.link import record_url
-from skeleton.host.spawn import LOGGED_CHANNELS
+from skeleton.host.live.spawn import LOGGED_CHANNELS
+from skeleton.host.sysfile.link import record_url
 
 pytestmark = pytest.mark.timing  # judges the DPUs' timing: tests/steal.py
 

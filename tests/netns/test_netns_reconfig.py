@@ -98,7 +98,7 @@ def test_netns_push_mid_run_switches_every_dpu_at_one_boundary(netns_hosts: Host
         raise AssertionError(run.communicate()[0]) from None
 
     # DPU 2 refuses a CPU its host lacks (only it can tell): nothing is committed anywhere.
-    # The run is skelh3's: a push from another host tool goes in only with --force (host/owner.py).
+    # The run is skelh3's: a push from another host tool goes in only with --force (host/live/owner.py).
     refused = _skel(netns_hosts, "skelh1", "push", str(system), "-s", "process.sensor.compute_us=500")
     assert refused.returncode == 1 and "--force" in refused.stderr, refused.stdout + refused.stderr
     bad = _skel(netns_hosts, "skelh1", "push", str(system), "-s", "dpu.2.cpu=1000", "--force")

@@ -18,8 +18,8 @@ from conftest import EXAMPLES
 
 from netns import Hosts, hosts_fixture
 from netns.test_netns_lab import RELEASE_DPU, URL, Lab, design_flaws
-from skeleton.host.link import parse_url, record_url
-from skeleton.host.system import loads
+from skeleton.host.sysfile.link import parse_url, record_url
+from skeleton.host.sysfile.system import loads
 
 SCALE = EXAMPLES / "scale-16x2.yaml"
 

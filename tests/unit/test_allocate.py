@@ -1,4 +1,4 @@
-"""host/allocate.py and `skel allocate`: CP-SAT allocations held to the prediction, the
+"""host/theory/allocate.py and `skel allocate`: CP-SAT allocations held to the prediction, the
 user's YAML kept, no-fit advice, and --verify with real DPUs (sanitizer build, sleep mode)."""
 
 from __future__ import annotations
@@ -11,9 +11,10 @@ import pytest
 from conftest import EXAMPLES, skel
 from randsys import random_pipeline
 
-from skeleton.host.allocate import NoFit, allocate
-from skeleton.host.predict import predict
-from skeleton.host.system import System, load
+from skeleton.host.model import System
+from skeleton.host.sysfile.system import load
+from skeleton.host.theory.allocate import NoFit, allocate
+from skeleton.host.theory.predict import predict
 from skelmsg import contract
 
 SERVO = EXAMPLES / "servo.yaml"

@@ -1,4 +1,4 @@
-"""host/check.py: `skel check`, the static view of a system file."""
+"""host/cli/check.py: `skel check`, the static view of a system file."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from typing import Any
 
 import pytest
 
-from skeleton.host import check as check_module
-from skeleton.host.check import check
+from skeleton.host.cli.check import check
+from skeleton.host.live import preflight
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 SERVO = EXAMPLES / "servo.yaml"
@@ -67,24 +67,24 @@ def test_overload_warning_in_table() -> None:
 
 
 def test_more_busy_dpus_than_cores(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(check_module.os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(preflight.os, "cpu_count", lambda: 2)
     busy = ("dpu.1.compute=cpu", "dpu.2.compute=wall", "dpu.3.compute=work")
     assert run_json(SERVO, busy)["warnings"] == [
         "host localhost: 3 busy DPUs (1, 2, 3) compute in cpu/wall/work mode but this machine has 2 cores: "
         "they will preempt each other; use compute: sleep or fewer DPUs"]
     # sleep mode models a dedicated processor: it needs no core, whatever the count
-    monkeypatch.setattr(check_module.os, "cpu_count", lambda: 1)
+    monkeypatch.setattr(preflight.os, "cpu_count", lambda: 1)
     assert run_json(SERVO)["warnings"] == []
 
 
 def test_pinned_dpus_sharing_a_core(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(check_module.os, "cpu_count", lambda: 8)
+    monkeypatch.setattr(preflight.os, "cpu_count", lambda: 8)
     pinned = ("dpu.1.compute=cpu", "dpu.2.compute=cpu", "dpu.1.cpu=1", "dpu.2.cpu=1")
     assert run_json(SERVO, pinned)["warnings"] == ["DPU 2: pinned to cpu 1 like DPU 1: they share one core"]
 
 
 def test_remote_hosts_are_not_counted(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(check_module.os, "cpu_count", lambda: 1)
+    monkeypatch.setattr(preflight.os, "cpu_count", lambda: 1)
     remote = ("dpu.1.compute=cpu", "dpu.2.compute=cpu", "dpu.1.host=lab-a", "dpu.2.host=lab-a")
     assert run_json(SERVO, remote)["warnings"] == []
 
@@ -116,7 +116,7 @@ def test_error_is_one_line_without_a_traceback(tmp_path: Path) -> None:
     path = tmp_path / "bad.yaml"
     path.write_text("system: x\ndpus: [{id: 1}]\nprocesses:\n  - {id: 1, name: p, dpu: 1, period_us: 5000, "
                     "compute_us: 10, sync: dat}\n")
-    code = "import sys; from skeleton.host.check import check; sys.exit(check(sys.argv[1]))"
+    code = "import sys; from skeleton.host.cli.check import check; sys.exit(check(sys.argv[1]))"
     done = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=60)
     assert done.returncode == 2
     assert done.stdout == ""

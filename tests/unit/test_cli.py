@@ -17,7 +17,7 @@ from analysis_synth import batches, report, small_config, small_run, status, wri
 from conftest import EXAMPLES, REPO, skel
 from rich.console import Console
 
-from skeleton.analysis import exitcodes
+from skeleton.analysis import errors
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.views.console import UNLIMITED_WIDTH
 from skeleton.analysis.views.tables import print_report, process_table
@@ -30,7 +30,7 @@ DUMP = re.compile(r"Traceback|object repr|lost sys\.stderr|Exception ignored|Fat
 
 def test_status_with_nothing_up_says_how_long_it_listened(url: str) -> None:
     done = skel("status", "--url", url, "--wait", "3")
-    assert done.returncode == exitcodes.EXIT_FAILED, done.stdout + done.stderr
+    assert done.returncode == errors.EXIT_FAILED, done.stdout + done.stderr
     assert re.search(r"no DPU heard on \S+ \(its record URL \S+\) in 1\.\d s", done.stdout), done.stdout
 
 
@@ -77,7 +77,7 @@ def test_a_reader_that_stops_early_ends_the_report_without_a_traceback(tmp_path:
     os.close(write_end)
     assert os.read(read_end, 1) == b"{"
     os.close(read_end)  # as `| head -c 1` does
-    assert report.wait(timeout=60) == exitcodes.EXIT_BROKEN_PIPE
+    assert report.wait(timeout=60) == errors.EXIT_BROKEN_PIPE
     assert report.stderr is not None and b"Traceback" not in report.stderr.read()
 
 
@@ -98,7 +98,7 @@ def test_a_reader_gone_before_a_short_output_ends_the_command_with_141(args: lis
     done = subprocess.run([sys.executable, "-m", "skeleton.host.cli", *args], cwd=REPO, stdout=write_end,
                           stderr=subprocess.PIPE, text=True, env=env, timeout=60)  # fmt: skip
     os.close(write_end)
-    assert done.returncode == exitcodes.EXIT_BROKEN_PIPE, done.stderr
+    assert done.returncode == errors.EXIT_BROKEN_PIPE, done.stderr
     assert not DUMP.search(done.stderr), done.stderr
 
 
@@ -109,16 +109,16 @@ def test_skel_watch_ends_when_its_reader_goes_away(url: str) -> None:
     argv = [sys.executable, "-m", "skeleton.host.cli", "watch", "--url", url, "--duration", "120"]
     watch = subprocess.Popen(argv, cwd=REPO, stdout=write_end, stderr=subprocess.PIPE)
     os.close(write_end)
-    assert watch.wait(timeout=60) == exitcodes.EXIT_BROKEN_PIPE
+    assert watch.wait(timeout=60) == errors.EXIT_BROKEN_PIPE
     assert watch.stderr is not None and not DUMP.search(watch.stderr.read().decode())
 
 
 def test_exit_codes_are_defined_in_one_module() -> None:
-    """host/ and analysis/ return the codes of analysis/exitcodes.py, never their own."""
+    """host/ and analysis/ return the codes of analysis/errors.py, never their own."""
     definition = re.compile(r"^\s*(EXIT_\w+\s*(,\s*EXIT_\w+\s*)*=|return 13\d\b)", re.MULTILINE)
     found = {str(path.relative_to(REPO)): definition.findall(path.read_text())
-             for folder in ("host", "analysis") for path in sorted((REPO / folder).glob("*.py"))}
-    elsewhere = {path: hits for path, hits in found.items() if hits and path != "analysis/exitcodes.py"}
+             for folder in ("host", "analysis") for path in sorted((REPO / folder).rglob("*.py"))}
+    elsewhere = {path: hits for path, hits in found.items() if hits and path != "analysis/errors.py"}
     assert not elsewhere, elsewhere
-    assert (exitcodes.EXIT_OK, exitcodes.EXIT_FAILED, exitcodes.EXIT_BAD_INPUT, exitcodes.EXIT_FATAL_FLAW,
-            exitcodes.EXIT_INTERRUPTED) == (0, 1, 2, 3, 130)
+    assert (errors.EXIT_OK, errors.EXIT_FAILED, errors.EXIT_BAD_INPUT, errors.EXIT_FATAL_FLAW,
+            errors.EXIT_INTERRUPTED) == (0, 1, 2, 3, 130)

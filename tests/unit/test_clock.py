@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from skeleton.host import clock
-from skeleton.host.control import PingSample
+from skeleton.host.live import clock
+from skeleton.host.live.control import PingSample
 
 
 def test_offset_and_round_trip_from_four_timestamps() -> None:

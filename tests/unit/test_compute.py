@@ -10,8 +10,8 @@ from statistics import NormalDist
 import pytest
 from conftest import skel
 
-from skeleton.host.compute import varying
-from skeleton.host.schema import ComputeSpec
+from skeleton.host.sysfile.compute import varying
+from skeleton.host.sysfile.schema import ComputeSpec
 from skelmsg import contract
 
 

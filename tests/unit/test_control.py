@@ -15,13 +15,13 @@ import pytest
 from conftest import EXAMPLES, skel
 
 import skelmsg
-from skeleton.analysis.exitcodes import EXIT_FAILED
-from skeleton.host.control import Control
-from skeleton.host.link import RECORD_RECV_BYTES, parse_url, record_listen_url, record_url, rmem_max
-from skeleton.host.listener import REPORTS_KEPT
-from skeleton.host.repair import SeenBatches
-from skeleton.host.system import load
-from skeleton.host.wire import config_message
+from skeleton.analysis.errors import EXIT_FAILED
+from skeleton.host.live.control import Control
+from skeleton.host.live.listener import REPORTS_KEPT
+from skeleton.host.live.repair import SeenBatches
+from skeleton.host.live.wire import config_message
+from skeleton.host.sysfile.link import RECORD_RECV_BYTES, parse_url, record_listen_url, record_url, rmem_max
+from skeleton.host.sysfile.system import load
 from skelmsg.contract import CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL
 
 INT64_MAX = 2**63 - 1

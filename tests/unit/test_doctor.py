@@ -6,7 +6,7 @@ import io
 
 import pytest
 
-from skeleton.host.doctor import (
+from skeleton.host.cli.doctor import (
     Check,
     check_route,
     check_rp_filter,

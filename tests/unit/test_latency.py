@@ -27,6 +27,7 @@ from skeleton.analysis.measure.metrics import input_counts, measured, process_me
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.read.records import FLAG_RELEASE_SKIPPED, decode_run
 from skeleton.analysis.views.tables import print_report
+from skeleton.host.model import from_config
 from skelmsg.contract import CLOCK_CHANNEL, CONFIG_CHANNEL, TIMING_CHANNEL
 
 
@@ -34,12 +35,14 @@ def _buffers(records: Any, inputs: Any, config: Any, run_records: Any = None) ->
     """The buffer table of a window of `records`, its skipped releases looked up in `run_records`."""
     everything = records if run_records is None else run_records
     counted = input_counts(process_metrics(records, inputs, config))
-    return buffer_metrics(buffer_parts(records, inputs, config), config, release_skips(everything), counted)
+    parts = buffer_parts(records, inputs, config)
+    return buffer_metrics(parts, from_config(config), release_skips(everything), counted)
 
 
 def _chains(records: Any, inputs: Any, config: Any, clock: ClockOffsets = NO_OFFSETS) -> list[ChainMetrics]:
     """The chain table of a window of `records`."""
-    return chain_metrics(ChainRecords.of(records, inputs, config, measured(records, config)), config, clock)
+    system = from_config(config)
+    return chain_metrics(ChainRecords.of(records, inputs, system, measured(records, config)), system, clock)
 
 T0 = 1_000 * MS  # host clock
 TRUE_US = [100, 200, 300, 400]  # b_out's true transport latency, B (DPU 1) -> C (DPU 2), per cycle

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 from conftest import skel
 
-from skeleton.host.link import group_overlap, record_url
-from skeleton.host.system import loads
+from skeleton.host.sysfile.link import group_overlap, record_url
+from skeleton.host.sysfile.system import loads
 
 THREE = """\
 system: three

@@ -1,4 +1,4 @@
-"""host/listener.py: one live listener. `skel watch`, `skel run` and `skel report` name the same
+"""host/live/listener.py: one live listener. `skel watch`, `skel run` and `skel report` name the same
 faults of the same run (one definition); the listener's faults are the report's; a DPU is lost
 after LOST_AFTER_S without a heartbeat, and each fault is said once."""
 
@@ -11,7 +11,7 @@ from analysis_synth import RUN_ID, batches, small_config, small_run, status
 
 from skeleton.analysis.measure.report import build_report
 from skeleton.analysis.read.records import decode_run
-from skeleton.host.listener import LOST_AFTER_S, Listener, fault_line
+from skeleton.host.live.listener import LOST_AFTER_S, Listener, fault_line
 from skelmsg.contract import CONFIG_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 

@@ -38,6 +38,7 @@ from skeleton.analysis.measure.metrics import (
 from skeleton.analysis.measure.tally import GenerationTally
 from skeleton.analysis.measure.windows import run_stalls
 from skeleton.analysis.read.records import RECORD_DTYPE, RunRecords, decode_run, lost_batches
+from skeleton.host.model import from_config
 
 
 def _lost(config: Any, records: np.ndarray, *args: Any, **kwargs: Any) -> list[Fault]:
@@ -242,7 +243,7 @@ def test_lost_batches_from_batch_seq_gaps() -> None:
 
 
 def test_resent_batches_rejoin_their_place() -> None:
-    """Batches the logger missed come back (host/repair.py) after later ones, some twice:
+    """Batches the logger missed come back (host/live/repair.py) after later ones, some twice:
     the records end up as if nothing had been missed."""
     dpu1, dpu2 = small_run()
     first = [m.encode() for m in batches(1, dpu1, 2) + batches(2, dpu2, 2)]
@@ -270,13 +271,13 @@ def test_jam_chain_back_to_overloaded_dpu() -> None:
     statuses = [status(1, [(0, -1, 7), (1, 0, 7)]), status(2, [(2, 1, 4)]), status(1, [(1, 0, 9)])]
     locks = lockouts_from_status(statuses, RUN_ID)
     assert locks[1].cycle == 7  # first report kept
-    lockouts = lockout_faults(locks, config)
+    lockouts = lockout_faults(locks, from_config(config))
     assert [(f.kind, f.process, f.dpu, f.buffer, f.writer, f.cycle) for f in lockouts] == [
         ("lockout", "A", 1, None, None, 7),
         ("lockout", "B", 1, "a_out", "A", 7),
         ("lockout", "C", 2, "b_out", "B", 4),
     ]
-    (jam,) = jam_faults(locks, config)
+    (jam,) = jam_faults(locks, from_config(config))
     assert jam.kind == "jam" and jam.chain == ["C", "B", "A"]
     assert (jam.process, jam.buffer, jam.writer, jam.cycle) == ("C", "b_out", "B", 4)
     assert jam.dpu == 2 and jam.root_dpu == 1 and jam.static_load_pct == pytest.approx(60.0)
@@ -287,7 +288,7 @@ def test_circular_wait_is_one_jam_and_other_runs_are_ignored() -> None:
     config = small_config()
     config.buffers[2].writer = 2  # c_out from C, read by A: A <- C <- B <- A
     statuses = [status(1, [(0, 2, 5), (1, 0, 5)]), status(2, [(2, 1, 3)]), status(1, [(0, -1, 1)], run_id=7)]
-    (jam,) = jam_faults(lockouts_from_status(statuses, RUN_ID), config)
+    (jam,) = jam_faults(lockouts_from_status(statuses, RUN_ID), from_config(config))
     assert jam.chain == ["A", "C", "B", "A"]
     assert jam.detail.startswith("circular wait")
 
@@ -298,11 +299,11 @@ def test_deadlock_on_one_dpu_names_both_processes_and_the_circular_wait() -> Non
     config.buffers[2].writer = 1
     # A blocks DPU 1's one thread in its wait; B, held up behind it, never runs.
     locks = lockouts_from_status([status(1, [(0, 2, 0), (1, -1, 0, 0)])], RUN_ID)
-    a, b = lockout_faults(locks, config)
+    a, b = lockout_faults(locks, from_config(config))
     assert (a.process, a.buffer, a.writer) == ("A", "c_out", "B")
     assert (b.process, b.dpu, b.buffer) == ("B", 1, None)
     assert b.detail.startswith("held up behind A"), b.detail
-    (jam,) = jam_faults(locks, config)
+    (jam,) = jam_faults(locks, from_config(config))
     assert jam.chain == ["A", "B", "A"]
     assert jam.detail == ("circular wait: A -> B -> A (A waits on c_out from B; "
                           "B is held up behind A on DPU 1)"), jam.detail
@@ -313,13 +314,13 @@ def test_a_data_synchronised_process_is_jammed_by_its_locked_out_writer() -> Non
     # Both found late at their start (no buffer named): C cannot complete a cycle without
     # new b_out, and B, its writer, is locked out on an overloaded DPU.
     locks = lockouts_from_status([status(1, [(1, -1, 7)]), status(2, [(2, -1, 4)])], RUN_ID)
-    (jam,) = jam_faults(locks, config)
+    (jam,) = jam_faults(locks, from_config(config))
     assert jam.chain == ["C", "B"]
     assert (jam.process, jam.buffer, jam.writer, jam.root_dpu) == ("C", "b_out", "B", 1)
     assert jam.detail.startswith("DPU 1 overloaded"), jam.detail
     # A periodic reader does not wait for its writer: no jam through it.
     config.processes[2].sync = 0
-    assert jam_faults(locks, config) == []
+    assert jam_faults(locks, from_config(config)) == []
 
 
 def test_a_lockout_says_when_its_cycles_window_ended_not_when_it_was_found() -> None:
@@ -332,24 +333,24 @@ def test_a_lockout_says_when_its_cycles_window_ended_not_when_it_was_found() -> 
     late = status(2, [(2, 1, 4)])
     late.lockouts[0].release_ns = t0 + 80 * MS
     locks = lockouts_from_status([beat, late], RUN_ID)
-    a, c = lockout_faults(locks, config, {1: t0, 2: t0})
+    a, c = lockout_faults(locks, from_config(config), {1: t0, 2: t0})
     assert (a.process, a.cycle, a.at_s) == ("A", 7, pytest.approx(0.120)), a
     assert a.detail.endswith("; not completed by 0.120 s"), a.detail
     assert (c.process, c.cycle, c.at_s) == ("C", 4, pytest.approx(0.180)), c
     # without the run's first releases, or a release (an old DPU's heartbeat), no instant
-    assert [f.at_s for f in lockout_faults(lockouts_from_status([status(1, [(0, -1, 7)])], RUN_ID), config,
-                                           {1: t0})] == [None]
-    assert [f.at_s for f in lockout_faults(locks, config)] == [None, None]
+    unreleased = lockouts_from_status([status(1, [(0, -1, 7)])], RUN_ID)
+    assert [f.at_s for f in lockout_faults(unreleased, from_config(config), {1: t0})] == [None]
+    assert [f.at_s for f in lockout_faults(locks, from_config(config))] == [None, None]
     # a jam is dated by its head's lockout
     chained = locks | lockouts_from_status([status(1, [(1, 0, 7)])], RUN_ID)  # B waits on A's a_out
-    (jam,) = jam_faults(chained, config, {1: t0, 2: t0})
+    (jam,) = jam_faults(chained, from_config(config), {1: t0, 2: t0})
     assert jam.chain[0] == "C" and jam.at_s == pytest.approx(0.180), jam
 
 
 def test_lockout_without_locked_writer_is_not_a_jam() -> None:
     locks = lockouts_from_status([status(1, [(1, 0, 5)])], RUN_ID)
-    assert jam_faults(locks, small_config()) == []
-    assert [f.kind for f in lockout_faults(locks, small_config())] == ["lockout"]
+    assert jam_faults(locks, from_config(small_config())) == []
+    assert [f.kind for f in lockout_faults(locks, from_config(small_config()))] == ["lockout"]
 
 
 def _spans(dpu_releases_ms: dict[int, list[float]]) -> np.ndarray:

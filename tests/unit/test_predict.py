@@ -1,4 +1,4 @@
-"""host/predict.py: what a system will do, from its file alone, held to theory, to the
+"""host/theory/predict.py: what a system will do, from its file alone, held to theory, to the
 paper's Table 1 and to real runs (sanitizer DPUs, sleep mode, a private port)."""
 
 from __future__ import annotations
@@ -10,9 +10,10 @@ from pathlib import Path
 import pytest
 from conftest import EXAMPLES, HOST_EVENTS_SYSTEM, LOCKOUT_SYSTEM, skel
 
-from skeleton.host.check import check
-from skeleton.host.predict import predict
-from skeleton.host.system import System, load, loads
+from skeleton.host.cli.check import check
+from skeleton.host.model import System
+from skeleton.host.sysfile.system import load, loads
+from skeleton.host.theory.predict import predict
 from skelmsg import contract
 
 TABLE1 = {1: 90.3, 2: 73.4, 3: 86.0, 4: 96.5}

@@ -21,9 +21,10 @@ from skeleton.analysis.measure.predicted import PLATFORM, beside
 from skeleton.analysis.measure.stats import LatencyUs
 from skeleton.analysis.views.report import report_command
 from skeleton.analysis.views.tables import predicted_tables
-from skeleton.host.predict import predict
-from skeleton.host.predict_view import predictor
-from skeleton.host.system import load
+from skeleton.host.model import Expected
+from skeleton.host.sysfile.system import load
+from skeleton.host.theory.predict import predict
+from skeleton.host.theory.predictor import predictor
 from skelmsg.contract import CONFIG_CHANNEL, TIMING_CHANNEL
 
 
@@ -37,7 +38,7 @@ def _process(name: str, p99_us: float, inputs: tuple[InputMetrics, ...] = ()) ->
                           inputs=list(inputs), response_us=LatencyUs(p99_us / 2, p99_us, p99_us + 1))
 
 
-PREDICTION = {
+PREDICTION = Expected.from_json({
     "dpus": [{"id": 1, "compute_pct": 90.0}, {"id": 2, "compute_pct": 75.0}, {"id": 3, "compute_pct": 50.0}],
     "processes": [
         {"name": "a", "response_us": 5000.0, "paced_by": None},
@@ -48,7 +49,7 @@ PREDICTION = {
     "inputs": [{"reader": "b", "buffer": "slow", "writer": "a", "new": 0.21, "stale": 0.79, "dropped": 0.0},
                {"reader": "b", "buffer": "fast", "writer": "a", "new": 1.0, "stale": 0.0, "dropped": 3.76}],
     "chains": [{"name": "ab", "processes": ["a", "b"], "best_us": 1000.0, "worst_us": 9000.0}],
-}
+})
 
 
 def test_each_rule_flags_only_beyond_its_tolerance() -> None:
@@ -97,7 +98,7 @@ def test_what_a_host_events_rate_decides_is_never_outside(tmp_path: Path) -> Non
     however far the run is from one a period, none of it is the platform's cost."""
     path = tmp_path / "host.yaml"
     path.write_text(HOST_EVENTS_SYSTEM)
-    prediction = predict(load(path)).to_json()
+    prediction = Expected.from_json(predict(load(path)).to_json())
     got = beside(prediction, 1, 20, [_dpu(1, 0.4), _dpu(2, 31.0), _dpu(3, 0.2)],
                  [_process("on_demand", 100, (InputMetrics("tick", 2, 3, 3, 900, 1000),)),
                   _process("listener", 600, (InputMetrics("knock", 1, 5, 995, 0, 5),)),

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from skeleton.host.repair import SeenBatches, seq_ranges
+from skeleton.host.live.repair import SeenBatches, seq_ranges
 
 
 def test_holes_are_found_below_the_newest_batch_and_up_to_the_reported_count() -> None:

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 from conftest import EXAMPLES, LOCKOUT_SYSTEM, skel
 
-from skeleton.host.run import keep_off_dpu_cpus
-from skeleton.host.system import System, load
+from skeleton.host.live.run import keep_off_dpu_cpus
+from skeleton.host.sysfile.system import System, load
 
 
 def test_bad_system_file_is_one_line_exit_2(tmp_path: Path) -> None:

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 from conftest import skel
 
-from skeleton.host.schedule import ideal_schedule, response_times
+from skeleton.host.theory.schedule import ideal_schedule, response_times
 
 MS = 1000  # us
 

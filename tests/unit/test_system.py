@@ -11,8 +11,9 @@ import pytest
 import yaml
 
 import skelmsg
-from skeleton.host.system import System, SystemFileError, load
-from skeleton.host.wire import config_message, dump_yaml
+from skeleton.host.live.wire import config_message, dump_yaml
+from skeleton.host.model import System
+from skeleton.host.sysfile.system import SystemFileError, load, with_url
 from skelmsg.contract import DEFAULT_URL
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
@@ -440,11 +441,11 @@ def test_command_line_beats_the_run_section(tmp_path: Path) -> None:
 def test_with_url() -> None:
     system = load(SERVO)
     url = "udpm://239.255.76.67:7711?ttl=0"
-    moved = system.with_url(url)
+    moved = with_url(system, url)
     assert moved.default_link.url == url and system.default_link.url != url
     assert url in moved.source_text and moved.processes == system.processes
     assert config_message(moved, 1, 0, committed=False).links[0].url == url
-    assert system.with_url(system.default_link.url) is system
+    assert with_url(system, system.default_link.url) is system
 
 
 def test_to_config_round_trip() -> None:

@@ -12,7 +12,7 @@ from conftest import EXAMPLES
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from skeleton.host.system import SystemFileError, load
+from skeleton.host.sysfile.system import SystemFileError, load
 
 SOURCES = {p.name: p.read_text() for p in sorted(EXAMPLES.glob("*.yaml"))}
 TOKEN = re.compile(r"[A-Za-z_]+|-?\d+(?:\.\d+)?|[\[\]{}:,\-#&*!|>'\"]")

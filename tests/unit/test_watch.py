@@ -18,9 +18,9 @@ from skeleton.analysis.measure.report import RunReport, build_report
 from skeleton.analysis.measure.run import IMPOSSIBLE
 from skeleton.analysis.measure.tally import GenerationTally, RunTally
 from skeleton.analysis.read.records import decode_run, impossible
-from skeleton.host.recordstore import RecordStore
-from skeleton.host.watch import Heard, _FaultFinder
-from skeleton.host.watch_view import BAR_WIDTH, MIN_BAR_WIDTH, render
+from skeleton.host.cli.watch import Heard, _FaultFinder
+from skeleton.host.cli.watch_view import BAR_WIDTH, MIN_BAR_WIDTH, render
+from skeleton.host.live.recordstore import RecordStore
 from skelmsg.contract import CONFIG_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 

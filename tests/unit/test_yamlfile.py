@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 from conftest import EXAMPLES, skel
 
-from skeleton.host.system import load
-from skeleton.host.yamlfile import MAX_BYTES, MAX_DEPTH, MAX_VALUES, SystemFileError
+from skeleton.host.sysfile.system import load
+from skeleton.host.sysfile.yamlfile import MAX_BYTES, MAX_DEPTH, MAX_VALUES, SystemFileError
 
 # Generous against the 2 s the user may wait: the machine is shared and noisy. Before the
 # limits, the 25 MB file took 149 s and the deep list was a RecursionError traceback.

@@ -1,0 +1,141 @@
+"""A validated System in its outward forms: the config_t every DPU configures
+itself from, and a YAML file with every default made explicit.
+
+With host/model.py's from_config (the way back, and the enums both use), the only place
+that knows how the system file maps onto lcmtypes/config_t.lcm; DPUs see ids and enums
+only, never names they would have to resolve, except an event's: its name is its channel
+(EVENT_CHANNEL_PREFIX + name), whoever sends it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Any
+
+import yaml
+
+import skelmsg
+
+from ..model import COMPUTE, EVENT_KIND, EXECUTIVE, SYNC, Event, System
+from ..theory.predict import planned_data_us
+
+
+def config_message(system: System, generation: int, run_id: int, committed: bool) -> skelmsg.config_t:
+    msg = skelmsg.config_t()
+    msg.generation = generation
+    msg.run_id = run_id
+    msg.sent_utc_ns = time.time_ns()
+    msg.committed = 1 if committed else 0
+    msg.system = system.name
+    msg.warmup_cycles = system.run.warmup_cycles
+    msg.lockout_cycles = system.run.lockout_cycles
+    msg.late_pct = system.run.late_pct
+    msg.too_late_pct = system.run.too_late_pct
+    msg.seed = system.run.seed
+    msg.links = [_link(link.id, link.name, "" if link.local else link.url) for link in system.links]
+    msg.nlinks = len(msg.links)
+    msg.dpus = []
+    for d in system.dpus:
+        dpu = skelmsg.dpu_t()
+        dpu.id, dpu.host, dpu.cpu = d.id, d.host, -1 if d.cpu is None else d.cpu
+        dpu.compute, dpu.executive, dpu.speed = COMPUTE[d.compute], EXECUTIVE[d.executive], d.speed
+        dpu.minor_cycle_us = d.minor_cycle_us
+        dpu.links = list(d.links)
+        dpu.nlinks = len(dpu.links)
+        msg.dpus.append(dpu)
+    msg.ndpus = len(msg.dpus)
+    msg.buffers = []
+    for b in system.buffers:
+        buf = skelmsg.buffer_desc_t()
+        buf.id, buf.name, buf.bytes, buf.link, buf.writer, buf.channel = (
+            b.id, b.name, b.bytes, b.link, b.writer, b.channel)
+        buf.url = system.buffer_url(b.id)
+        msg.buffers.append(buf)
+    msg.nbuffers = len(msg.buffers)
+    msg.processes = []
+    data_us = planned_data_us(system)
+    for p in system.processes:
+        proc = skelmsg.process_t()
+        proc.id, proc.name, proc.dpu, proc.order = p.id, p.name, p.dpu, p.order
+        proc.period_us, proc.compute_us, proc.sync = p.period_us, p.compute_us, SYNC[p.sync]
+        proc.priority = p.priority
+        # rounded up: a wait the schedule plans to the µs is on schedule, never late by rounding
+        proc.ready_us = math.ceil(data_us.get(p.id, 0.0))
+        proc.inputs = list(p.inputs)
+        proc.required = [1 if b in p.required else 0 for b in p.inputs]
+        proc.ninputs = len(proc.inputs)
+        proc.outputs = list(p.outputs)
+        proc.noutputs = len(proc.outputs)
+        proc.quantiles_us = list(p.varying.quantiles_us) if p.varying else []
+        proc.nquantiles = len(proc.quantiles_us)
+        proc.event, proc.queue = p.event, p.queue
+        proc.emits, proc.nemits = list(p.emits), len(p.emits)
+        msg.processes.append(proc)
+    msg.nprocesses = len(msg.processes)
+    msg.chains = []
+    for c in system.chains:
+        chain = skelmsg.chain_t()
+        chain.name, chain.processes, chain.nprocesses = c.name, list(c.processes), len(c.processes)
+        msg.chains.append(chain)
+    msg.nchains = len(msg.chains)
+    msg.events = [_event_source(e) for e in system.events]
+    msg.nevents = len(msg.events)
+    msg.source = system.source_text
+    return msg
+
+
+def _event_source(e: Event) -> skelmsg.event_source_t:
+    src = skelmsg.event_source_t()
+    src.name, src.kind, src.dpu = e.name, EVENT_KIND[e.kind], e.dpu
+    src.period_us, src.jitter_us, src.rate_hz = e.period_us, e.jitter_us, e.rate_hz
+    src.count, src.spacing_us = e.count, e.spacing_us
+    return src
+
+
+def _link(link_id: int, name: str, url: str) -> skelmsg.link_t:
+    link = skelmsg.link_t()
+    link.id, link.name, link.url = link_id, name, url
+    return link
+
+
+def dump_yaml(system: System) -> str:
+    """The system with every default made explicit; loading it gives the same system."""
+    names = {b.id: b.name for b in system.buffers}
+    links = {link.id: link.name for link in system.links}
+    doc: dict[str, Any] = {
+        "system": system.name,
+        "links": [{"name": link.name, "url": link.url} for link in system.links],
+        "dpus": [{"id": d.id, "host": d.host, "cpu": d.cpu, "compute": d.compute, "executive": d.executive,
+                  "speed": d.speed, "minor_cycle_us": d.minor_cycle_us, "links": [links[i] for i in d.links]}
+                 for d in system.dpus],
+        "buffers": [{"id": b.id, "name": b.name, "bytes": b.bytes, "link": links[b.link]}
+                    for b in system.buffers],
+        "processes": [{"id": p.id, "name": p.name, "dpu": p.dpu, "order": p.order, "period_us": p.period_us,
+                       "compute_us": p.varying.given if p.varying else p.compute_us,
+                       "sync": p.sync, **({"priority": p.priority} if p.priority else {}),
+                       "inputs": [names[b] for b in p.inputs],
+                       **({"required": [names[b] for b in p.required]} if p.sync == "data" else {}),
+                       **({"event": p.event, "queue": p.queue} if p.sync == "event" else {}),
+                       **({"emits": list(p.emits)} if p.emits else {}),
+                       "outputs": [names[b] for b in p.outputs]} for p in system.processes],
+        "run": _given(system.run),
+        "chains": [{"name": c.name, "processes": [system.process(i).name for i in c.processes]}
+                   for c in system.chains],
+    }
+    if system.events:
+        doc["events"] = [{k: v for k, v in dataclasses.asdict(e).items() if v or k in ("name", "kind")}
+                         for e in system.events]
+    if system.reference is not None:
+        doc["reference"] = _given(system.reference)
+    return yaml.safe_dump(doc, sort_keys=False)
+
+
+def _given(record: Any) -> Any:
+    """A model record as the file writes it: mappings and lists, fields without a value left out."""
+    if dataclasses.is_dataclass(record):
+        return {k: _given(v) for k, v in dataclasses.asdict(record).items() if v is not None}
+    if isinstance(record, dict):
+        return {k: _given(v) for k, v in record.items() if v is not None}
+    return list(record) if isinstance(record, tuple) else record

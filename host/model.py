@@ -1,0 +1,393 @@
+"""The typed model of a system: the frozen records every layer reads, whoever made them.
+
+The loader (host/sysfile/system.py) builds a System from a system file; the prediction
+(host/theory/) reads it; the DPUs are sent it as a config_t (host/live/wire.py). Nothing
+here validates or parses: pydantic is the file's schema only (host/sysfile/schema.py).
+At the bottom of host/: every package above may import it, and so may analysis/.
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+import skelmsg
+
+
+@dataclass(frozen=True)
+class Link:
+    id: int                 # position in the file, from 1
+    name: str
+    url: str                # "local" or an udpm:// URL
+    bandwidth_mbps: float | None = None
+
+    @property
+    def local(self) -> bool:
+        return self.url == "local"
+
+
+@dataclass(frozen=True)
+class Dpu:
+    id: int
+    host: str
+    cpu: int | None
+    compute: str            # sleep | wall | cpu | work
+    executive: str          # cyclic | threads
+    speed: float
+    minor_cycle_us: int     # resolved: given, or the gcd of its processes' periods
+    links: tuple[int, ...]  # link ids it can reach
+
+
+@dataclass(frozen=True)
+class Buffer:
+    id: int
+    name: str
+    bytes: int
+    link: int               # link id
+    writer: int             # process id
+
+    @property
+    def channel(self) -> str:
+        return f"SKEL_BUF_{self.name}"
+
+
+@dataclass(frozen=True)
+class Varying:
+    """A compute time drawn each cycle from `quantiles_us`: its quantile function at evenly
+    spaced probabilities from 0 to 1, linear between points (host/sysfile/compute.py makes it)."""
+
+    kind: str                         # uniform | normal | lognormal | exponential | samples
+    quantiles_us: tuple[float, ...]
+    # As the system file wrote it (for dump_yaml); the table alone says what is drawn, and a
+    # dict would make the frozen records unhashable.
+    given: dict[str, Any] = field(compare=False)
+
+    @property
+    def mean_us(self) -> float:
+        q = self.quantiles_us
+        return sum(a + b for a, b in itertools.pairwise(q)) / (2 * (len(q) - 1))
+
+    @property
+    def min_us(self) -> float:
+        return self.quantiles_us[0]
+
+    @property
+    def max_us(self) -> float:
+        return self.quantiles_us[-1]
+
+
+@dataclass(frozen=True)
+class Process:
+    id: int
+    name: str
+    dpu: int
+    order: int              # 1.. within its DPU's minor cycle
+    period_us: int
+    compute_us: int         # the constant, or the mean of `varying` (rounded): the schedule's figure
+    sync: str               # periodic | data | event
+    inputs: tuple[int, ...]     # buffer ids
+    required: tuple[int, ...]   # buffer ids a data-synchronised cycle waits for
+    outputs: tuple[int, ...]
+    varying: Varying | None = None  # how compute varies (None: compute_us every cycle)
+    priority: int = 0       # on the tasking executive: 1..MAX_PRIORITY, higher first; 0 on cyclic
+    event: str = ""         # sync: event: the event it awaits ...
+    queue: int = 0          # ... and how many may wait for it (1..MAX_QUEUE)
+    emits: tuple[str, ...] = ()  # events it fires at the end of each cycle
+
+    @property
+    def worst_compute_us(self) -> float:
+        return self.varying.max_us if self.varying else self.compute_us
+
+    @property
+    def best_compute_us(self) -> float:
+        return self.varying.min_us if self.varying else self.compute_us
+
+
+@dataclass(frozen=True)
+class Event:
+    """A source of a named event: the host, or a generator on DPU `dpu`."""
+    name: str
+    kind: str               # host | periodic | poisson | bursts
+    dpu: int = 0            # the generating DPU; 0: the host
+    period_us: int = 0
+    jitter_us: int = 0
+    rate_hz: float = 0.0
+    count: int = 0
+    spacing_us: int = 0
+
+    @property
+    def rate(self) -> float:
+        """Mean events per second (0: the host's, unknown)."""
+        if self.kind == "poisson":
+            return self.rate_hz
+        per_period = self.count if self.kind == "bursts" else 1
+        return per_period * 1e6 / self.period_us if self.period_us else 0.0
+
+
+@dataclass(frozen=True)
+class Chain:
+    name: str
+    processes: tuple[int, ...]  # process ids, head first
+
+
+@dataclass(frozen=True)
+class RunRules:
+    """The file's `run:` section (schema.Run validates it): the run's length, warm-up, lockout
+    rule and when to stop early. cycles counts the critical period."""
+
+    cycles: int | None
+    duration_s: float | None
+    warmup_cycles: int
+    lockout_cycles: int
+    stop_on: tuple[str, ...]
+    late_pct: int
+    too_late_pct: int
+    seed: int
+
+
+@dataclass(frozen=True)
+class ReferenceDpu:
+    """One DPU's row of a published measurement (e.g. the paper's Table 1)."""
+
+    compute_pct: float
+    communicate_pct: float
+    wait_pct: float
+    cycle_ms: float | None = None            # measured cycle
+    modeled_cycle_ms: float | None = None
+
+
+@dataclass(frozen=True)
+class Reference:
+    """Published results to compare a run with (`skel run --compare-paper`); not sent to DPUs."""
+
+    source: str
+    dpus: dict[int, ReferenceDpu] = field(default_factory=dict)
+
+
+def control_link(links: Sequence[Link]) -> Link | None:
+    """The first udpm link: its URL is the control URL (None: every link is local)."""
+    return next((link for link in links if not link.local), None)
+
+
+@dataclass(frozen=True)
+class System:
+    """A validated system file: what the host broadcasts, runs and reports on."""
+    name: str
+    path: Path
+    source_text: str                # the YAML used: the file, or its re-dump after overrides
+    links: tuple[Link, ...]
+    dpus: tuple[Dpu, ...]
+    buffers: tuple[Buffer, ...]
+    processes: tuple[Process, ...]
+    run: RunRules
+    chains: tuple[Chain, ...]
+    reference: Reference | None
+    events: tuple[Event, ...] = ()
+    overrides: tuple[str, ...] = ()
+    document: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+    # What the link rules (host/sysfile/link.py) give: (link id, writer process id) -> the port
+    # its buffers travel on, and each buffer's URL ("" on a local link).
+    writer_ports: dict[tuple[int, int], int] = field(default_factory=dict, repr=False, compare=False)
+    buffer_urls: dict[int, str] = field(default_factory=dict, repr=False, compare=False)
+
+    # Lookups by id (an int) or name (a str) raise KeyError: after validation a missing one is
+    # the caller's bug.
+    def link(self, key: int | str) -> Link:
+        return _lookup(self._index["link"], key, "link")
+
+    def dpu(self, dpu_id: int) -> Dpu:
+        return _lookup(self._index["DPU"], dpu_id, "DPU")
+
+    def buffer(self, key: int | str) -> Buffer:
+        return _lookup(self._index["buffer"], key, "buffer")
+
+    def process(self, key: int | str) -> Process:
+        return _lookup(self._index["process"], key, "process")
+
+    def find_process(self, key: int | str) -> Process | None:
+        """The process, or None: a config read from a log may name one it does not hold."""
+        return self._index["process"].get(key)
+
+    def find_buffer(self, key: int | str) -> Buffer | None:
+        return self._index["buffer"].get(key)
+
+    @functools.cached_property
+    def _index(self) -> dict[str, dict[int | str, Any]]:
+        """Each kind of record by id and by name (the first of a name, as a search would find)."""
+        index: dict[str, dict[int | str, Any]] = {}
+        for noun, items in (("link", self.links), ("DPU", self.dpus), ("buffer", self.buffers),
+                            ("process", self.processes)):
+            by: dict[int | str, Any] = index.setdefault(noun, {})
+            for item in items:
+                by.setdefault(item.id, item)
+                if hasattr(item, "name"):
+                    by.setdefault(item.name, item)
+        return index
+
+    def processes_on(self, dpu_id: int) -> list[Process]:
+        """The DPU's processes in the order its minor cycle runs them."""
+        return sorted((p for p in self.processes if p.dpu == dpu_id), key=lambda p: p.order)
+
+    def readers(self, buffer_id: int) -> list[Process]:
+        return [p for p in self.processes if buffer_id in p.inputs]
+
+    def buffer_url(self, key: int | str) -> str:
+        """The URL a buffer travels on: its writer's group and port on its link; "" on a local link."""
+        return self.buffer_urls[self.buffer(key).id]
+
+    @property
+    def default_link(self) -> Link:
+        """The first udpm link: buffers without a `link:` use it, and so does control traffic."""
+        found = control_link(self.links)
+        assert found is not None, "rules._links refuses a system without a udpm link"
+        return found
+
+    @property
+    def critical_period_us(self) -> int:
+        """The shortest period of the clock-driven processes (`run.cycles` counts these): an
+        event process's period only bounds how often it may run."""
+        clocked = [p.period_us for p in self.processes if p.sync != "event"]
+        return min(clocked or [p.period_us for p in self.processes])
+
+    def static_load(self, worst: bool = False) -> dict[int, float]:
+        """Per DPU, the fraction of its time its processes compute: Σ compute/period / speed,
+        with each varying compute at its mean, or at its maximum when `worst`."""
+        def compute(p: Process) -> float:
+            return p.worst_compute_us if worst else p.compute_us
+        return {
+            d.id: sum(compute(p) / p.period_us for p in self.processes if p.dpu == d.id) / d.speed
+            for d in self.dpus
+        }
+
+    def run_duration_ns(self, cycles: int | None = None, duration_s: float | None = None) -> int:
+        """The run's length; arguments (the command line) beat the file's `run:` section.
+        Cycles count the critical (shortest) period and include the warm-up."""
+        if cycles is not None and duration_s is not None:
+            raise ValueError("give cycles or a duration, not both")
+        if cycles is None and duration_s is None:
+            cycles, duration_s = self.run.cycles, self.run.duration_s
+        if cycles is not None:
+            if cycles < 1:
+                raise ValueError(f"cycles must be at least 1, got {cycles}")
+            return cycles * self.critical_period_us * 1000
+        if duration_s is None or not duration_s > 0:
+            raise ValueError(f"duration must be positive, got {duration_s}")
+        return round(duration_s * 1e9)
+
+
+def _lookup(index: dict[int | str, Any], key: int | str, noun: str) -> Any:
+    try:
+        return index[key]
+    except KeyError:
+        raise KeyError(f"no {noun} {key!r}") from None
+
+
+
+# --- a prediction as the analysis lays it beside a run ---------------------------------------
+@dataclass(frozen=True)
+class ExpectedDpu:
+    id: int
+    compute_pct: float | None       # None: it follows from how often the host sends an event
+
+
+@dataclass(frozen=True)
+class ExpectedProcess:
+    name: str
+    response_us: float | None       # worst release -> end of its work; None: unbounded
+    paced_by: str | None            # the writer whose data paces it
+
+
+@dataclass(frozen=True)
+class ExpectedInput:
+    """Per reader cycle: the share that finds new data, the share that finds none, and the
+    writer's sequences skipped (dropped) per cycle, as the analysis counts them; None: it
+    depends on a rate the host's events decide. The prediction makes them (host/theory/predict.py)."""
+
+    reader: str
+    buffer: str
+    writer: str
+    new: float | None
+    stale: float | None
+    dropped: float | None
+
+
+@dataclass(frozen=True)
+class ExpectedChain:
+    name: str
+    processes: tuple[str, ...]
+    best_us: float | None
+    worst_us: float | None          # None: a step falls ever further behind
+
+
+@dataclass(frozen=True)
+class Expected:
+    """What the analysis reads of a prediction (host/theory/predict.py's Prediction, whose JSON
+    form, figures rounded as report.json writes them, from_json reads): per DPU its % compute,
+    per process its worst response, per input its shares, per chain its latency."""
+
+    dpus: tuple[ExpectedDpu, ...]
+    processes: tuple[ExpectedProcess, ...]
+    inputs: tuple[ExpectedInput, ...]
+    chains: tuple[ExpectedChain, ...]
+
+    @classmethod
+    def from_json(cls, doc: dict[str, Any]) -> Expected:
+        return cls(
+            dpus=tuple(ExpectedDpu(d["id"], d["compute_pct"]) for d in doc["dpus"]),
+            processes=tuple(ExpectedProcess(p["name"], p["response_us"], p["paced_by"])
+                            for p in doc["processes"]),
+            inputs=tuple(ExpectedInput(i["reader"], i["buffer"], i["writer"], i["new"], i["stale"],
+                                       i["dropped"]) for i in doc["inputs"]),
+            chains=tuple(ExpectedChain(c["name"], tuple(c["processes"]), c["best_us"], c["worst_us"])
+                         for c in doc["chains"]))
+
+# --- the model on the wire: config_t's enums, and a System read back from a config_t -------------
+COMPUTE = {"sleep": skelmsg.dpu_t.COMPUTE_SLEEP, "wall": skelmsg.dpu_t.COMPUTE_WALL,
+           "cpu": skelmsg.dpu_t.COMPUTE_CPU, "work": skelmsg.dpu_t.COMPUTE_WORK}
+EXECUTIVE = {"cyclic": skelmsg.dpu_t.EXECUTIVE_CYCLIC, "threads": skelmsg.dpu_t.EXECUTIVE_THREADS}
+SYNC = {"periodic": skelmsg.process_t.SYNC_PERIODIC, "data": skelmsg.process_t.SYNC_DATA,
+        "event": skelmsg.process_t.SYNC_EVENT}
+EVENT_KIND = {"host": skelmsg.event_source_t.KIND_HOST, "periodic": skelmsg.event_source_t.KIND_PERIODIC,
+              "poisson": skelmsg.event_source_t.KIND_POISSON, "bursts": skelmsg.event_source_t.KIND_BURSTS}
+FROM_CONFIG = "table"   # a varying compute read back from a config: its quantile table, not its kind
+
+
+def _named(names: dict[str, int], value: int) -> str:
+    return next(name for name, v in names.items() if v == value)
+
+
+def from_config(msg: skelmsg.config_t) -> System:
+    """The System a config_t describes (host/live/wire.py writes one from a System): what a run's
+    DPUs were sent, as the analysis reads it from the log. What the config does not carry keeps
+    its default: the run's length and stop_on, a link's bandwidth, a varying compute's kind (its
+    quantile table is carried), the reference, the overrides; the path is the run's system.yaml."""
+    processes = tuple(
+        Process(id=p.id, name=p.name, dpu=p.dpu, order=p.order, period_us=p.period_us,
+                compute_us=p.compute_us, sync=_named(SYNC, p.sync), inputs=tuple(p.inputs),
+                required=tuple(b for b, wait in zip(p.inputs, p.required, strict=True) if wait),
+                outputs=tuple(p.outputs),
+                varying=Varying(FROM_CONFIG, tuple(p.quantiles_us), given={}) if p.quantiles_us else None,
+                priority=p.priority, event=p.event, queue=p.queue, emits=tuple(p.emits))
+        for p in msg.processes)
+    return System(
+        name=msg.system, path=Path("system.yaml"), source_text=msg.source,
+        links=tuple(Link(link.id, link.name, link.url or "local") for link in msg.links),
+        dpus=tuple(Dpu(d.id, d.host, None if d.cpu < 0 else d.cpu, _named(COMPUTE, d.compute),
+                       _named(EXECUTIVE, d.executive), d.speed, d.minor_cycle_us, tuple(d.links))
+                   for d in msg.dpus),
+        buffers=tuple(Buffer(b.id, b.name, b.bytes, b.link, b.writer) for b in msg.buffers),
+        processes=processes,
+        run=RunRules(cycles=None, duration_s=None, warmup_cycles=msg.warmup_cycles,
+                     lockout_cycles=msg.lockout_cycles, stop_on=(), late_pct=msg.late_pct,
+                     too_late_pct=msg.too_late_pct, seed=msg.seed),
+        chains=tuple(Chain(c.name, tuple(c.processes)) for c in msg.chains),
+        reference=None,
+        events=tuple(Event(e.name, _named(EVENT_KIND, e.kind), e.dpu, e.period_us, e.jitter_us, e.rate_hz,
+                           e.count, e.spacing_us) for e in msg.events),
+        writer_ports={(b.link, b.writer): urlsplit(b.url).port or 0 for b in msg.buffers if b.url},
+        buffer_urls={b.id: b.url for b in msg.buffers})

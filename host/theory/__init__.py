@@ -1,0 +1,1 @@
+"""Pure computation on a loaded system: frames, schedules, the prediction, an allocation."""
