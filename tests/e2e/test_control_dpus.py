@@ -12,7 +12,7 @@ import skelmsg
 from skeleton.host.live.control import Control
 from skeleton.host.live.wire import config_message
 from skeleton.host.sysfile.link import parse_url, record_url
-from skeleton.host.sysfile.system import load
+from skeleton.host.sysfile.system import load, with_url
 from skelmsg.contract import CONFIG_CHANNEL
 
 
@@ -67,7 +67,7 @@ def test_a_system_one_port_above_does_not_configure_or_command_ours(dpus: DpuFar
     try:
         assert not ours.wait_heard([1, 2], 10.0)
         generation = theirs.next_generation()
-        theirs.publish_config(config_message(load(PAIR).with_url(above), generation, 0, committed=True))
+        theirs.publish_config(config_message(with_url(load(PAIR), above), generation, 0, committed=True))
         theirs.command(skelmsg.command_t.SHUTDOWN)
         time.sleep(1.0)
         statuses = {i: ours.dpus[i].status for i in (1, 2)}
@@ -76,7 +76,7 @@ def test_a_system_one_port_above_does_not_configure_or_command_ours(dpus: DpuFar
         assert all(dpus.daemons[i].alive() for i in (1, 2))
         # What is sent to our control URL still arrives: our host configures them.
         generation = ours.next_generation()
-        assert ours.push(config_message(load(PAIR).with_url(url), generation, 0, committed=False), [1, 2]).ok
+        assert ours.push(config_message(with_url(load(PAIR), url), generation, 0, committed=False), [1, 2]).ok
     finally:
         ours.close()
         theirs.close()

@@ -12,7 +12,7 @@ from unit.test_link import _three
 
 from skeleton.host.live import spawn
 from skeleton.host.sysfile.link import parse_url, record_url
-from skeleton.host.sysfile.system import loads
+from skeleton.host.sysfile.system import loads, with_url
 
 
 def test_check_and_the_dpu_refuse_a_control_url_without_a_record_url(tmp_path: Path) -> None:
@@ -65,7 +65,7 @@ def _bound_udp_ports(pid: int) -> set[int]:
 def test_a_dpu_listens_only_on_the_ports_of_the_writers_it_reads(tmp_path: Path, url: str,
                                                                  dpus: DpuFarm) -> None:
     system_path = _three(tmp_path, url, duration=3.0)
-    system = loads(system_path.read_text(), system_path).with_url(url)
+    system = with_url(loads(system_path.read_text(), system_path), url)
     control = parse_url(url).port
     port = {name: parse_url(system.buffer_url(name)).port for name in ("a", "b")}
     assert port == {"a": control + 1, "b": control + 2}

@@ -21,7 +21,7 @@ from skeleton.host.live.listener import REPORTS_KEPT
 from skeleton.host.live.repair import SeenBatches
 from skeleton.host.live.wire import config_message
 from skeleton.host.sysfile.link import RECORD_RECV_BYTES, parse_url, record_listen_url, record_url, rmem_max
-from skeleton.host.sysfile.system import load
+from skeleton.host.sysfile.system import load, with_url
 from skelmsg.contract import CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL
 
 INT64_MAX = 2**63 - 1
@@ -40,7 +40,7 @@ def _publish(url: str, channel: str, *messages: object, repeats: int = 3) -> Non
 
 def _stray_config(url: str, generation: int, committed: bool, valid: bool) -> skelmsg.config_t:
     """A well-formed config of the test's own system: every DPU refuses it unless `valid`."""
-    config = config_message(load(PAIR).with_url(url), generation, 0, committed=committed)
+    config = config_message(with_url(load(PAIR), url), generation, 0, committed=committed)
     if not valid:
         for process in config.processes:
             process.compute_us = -1

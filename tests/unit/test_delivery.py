@@ -52,7 +52,7 @@ def test_check_says_when_a_socket_cannot_receive_a_buffer_whole(tmp_path: Path) 
 
 
 def test_doctor_check_of_a_buffer_names_the_sysctl() -> None:
-    from skeleton.host.cli.doctor import check_buffer_socket
+    from skeleton.host.live.preflight import check_buffer_socket
 
     need = recv_buf_needed(BIG)
     assert check_buffer_socket("joint_state", BIG, need).ok

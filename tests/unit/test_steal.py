@@ -82,7 +82,7 @@ def _finish(monkeypatch: pytest.MonkeyPatch, evidence: Path, reattempted: int, i
     monkeypatch.setattr(steal, "_reattempted_tests", {f"t::{i}" for i in range(reattempted)})
     monkeypatch.setattr(steal, "_inconclusive", [f"t::{i}: inconclusive" for i in range(inconclusive)])
     monkeypatch.setattr(steal, "_verdict", [])
-    session = SimpleNamespace(exitstatus=0)
+    session = SimpleNamespace(exitstatus=0, config=SimpleNamespace(option=SimpleNamespace(collectonly=False)))
     steal.pytest_sessionfinish(session, 0)  # type: ignore[arg-type]
     return int(session.exitstatus)
 
