@@ -45,7 +45,7 @@ def _replay_once(log: Path, replay_url: str) -> tuple[subprocess.CompletedProces
     assert watch.stderr is not None
     ready = watch.stderr.readline()  # printed once subscribed: nothing of the replay is missed
     assert "waiting for a run" in ready, ready
-    # The watch hears the record URL of its --url, as the logger does (host/link.py).
+    # The watch hears the record URL of its --url, as the logger does (host/sysfile/link.py).
     player = subprocess.run([str(LOGPLAYER), "-s", "1", "-l", record_url(replay_url), str(log)],
                             capture_output=True, text=True, timeout=60)
     assert player.returncode == 0, player.stderr

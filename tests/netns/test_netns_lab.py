@@ -69,7 +69,7 @@ class Lab:
     def logger(self, host: str, path: Path) -> subprocess.Popen[bytes]:
         """lcm-logger on `host` writing `path`; returns once the file is open."""
         with open(path.with_suffix(".logger.txt"), "wb") as out:
-            # On the record URL, where a run's messages travel (host/link.py), as the README says.
+            # On the record URL, where a run's messages travel (host/sysfile/link.py), as the README says.
             argv = [str(LOGGER), "-f", "-q", "-l", record_url(URL), "-c", LOGGED_CHANNELS,
                     "--flush-interval=50", str(path)]
             proc = self.hosts.popen(host, argv, stdout=out, stderr=out)

@@ -1,4 +1,4 @@
-"""A link's writers each get a group and a port of their own (host/link.py): the host
+"""A link's writers each get a group and a port of their own (host/sysfile/link.py): the host
 derives them, the DPUs open only the writers they read, `skel check` refuses links whose
 ports would meet or whose groups would leave the multicast range. The DPU side is checked
 at its sockets (the ports a running DPU is bound to) and, across namespace hosts, at the
