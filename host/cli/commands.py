@@ -136,6 +136,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("watch", help="live view of a run (or of lcm-logplayer replaying one)")
     p.add_argument("--url", default=DEFAULT_URL)
     p.add_argument("--once", action="store_true", help="print the final table when the run ends, then exit")
+    p.add_argument("--all", action="store_true", dest="all_tables",
+                   help="with --once: every table, not one screen (as skel report --all)")
     p.add_argument("--duration", type=float, metavar="S", help="stop watching after S seconds")
     p.add_argument("--json", action="store_true", help="with --once: the final report as JSON (report.json)")
 
@@ -448,7 +450,11 @@ def cmd_watch(args: argparse.Namespace) -> int:
     if args.json and not args.once:
         print("skel watch: --json needs --once (a live view has no final report)", file=sys.stderr)
         return EXIT_BAD_INPUT
-    return watch_command(args.url, once=args.once, duration_s=args.duration, as_json=args.json, key=args.key)
+    if args.all_tables and not args.once:
+        print("skel watch: --all needs --once (the live view is one table)", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    return watch_command(args.url, once=args.once, duration_s=args.duration, as_json=args.json, key=args.key,
+                         all_tables=args.all_tables)
 
 
 def cmd_allocate(args: argparse.Namespace) -> int:

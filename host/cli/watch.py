@@ -36,6 +36,7 @@ from skeleton.analysis.measure.tally import GenerationTally, RunTally
 from skeleton.analysis.read.logreader import encode_events, read_bytes
 from skeleton.analysis.read.messages import LogError
 from skeleton.analysis.views.console import OutputConsole, reader_closed
+from skeleton.analysis.views.summary import print_summary
 from skeleton.analysis.views.tables import print_report
 from skelmsg.contract import COMMAND_CHANNEL
 
@@ -188,8 +189,8 @@ def _pump(lc: Any, until: float) -> None:
 
 
 def watch_command(url: str, once: bool, duration_s: float | None, as_json: bool = False,
-                  key: bytes | None = None) -> int:
-    """`skel watch [--url URL] [--once [--json]] [--duration S]`: 0; 3 (--once) on a lockout or jam;
+                  key: bytes | None = None, all_tables: bool = False) -> int:
+    """`skel watch [--url URL] [--once [--all | --json]] [--duration S]`: 0; 3 (--once) on a lockout or jam;
     1 when --once heard no run; 2 on a bad URL; 130 when ended by Ctrl-C or SIGTERM."""
     heard = Heard(keep_events=once, key=key)
     try:
@@ -200,7 +201,7 @@ def watch_command(url: str, once: bool, duration_s: float | None, as_json: bool 
     deadline = None if duration_s is None else time.monotonic() + duration_s
     try:
         if once:
-            return _once(lc, heard, url, deadline, as_json)
+            return _once(lc, heard, url, deadline, as_json, all_tables)
         _live(lc, heard, url, deadline)
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
@@ -262,7 +263,7 @@ class _FaultFinder:
         self._thread.join(wait_s)
 
 
-def _once(lc: Any, heard: Heard, url: str, deadline: float | None, as_json: bool) -> int:
+def _once(lc: Any, heard: Heard, url: str, deadline: float | None, as_json: bool, all_tables: bool) -> int:
     # Subscribed: say so, so a script may start a replay now without losing its first messages.
     print(f"skel watch: waiting for a run on {url} (hearing its record URL {record_url(url)})",
           file=sys.stderr, flush=True)
@@ -285,6 +286,8 @@ def _once(lc: Any, heard: Heard, url: str, deadline: float | None, as_json: bool
         print(f"skel watch: run {heard.run_id}: {missing}", file=sys.stderr)
     if as_json:
         print(json.dumps(report.to_json(), indent=2))
-    else:
+    elif all_tables:
         print_report(report)
+    else:
+        print_summary(report)   # one screen, as `skel run` and `skel report` print it
     return EXIT_FATAL_FLAW if report.fatal else EXIT_OK

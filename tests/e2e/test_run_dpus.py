@@ -47,7 +47,9 @@ def test_servo_reproduces_table1_and_report_reproduces_run(tmp_path: Path, url: 
     # The log alone gives the same tables and the same JSON.
     again = skel("report", str(out / "run.lcm"))
     assert again.returncode == 0, again.stderr
-    assert again.stdout.strip() and again.stdout.strip() in run.stdout
+    *screen, rest = again.stdout.strip().splitlines()   # the last line says where the rest is
+    assert screen and "\n".join(screen) in run.stdout
+    assert rest == f"the rest: skel report {out / 'run.lcm'} --all (every table), --json, --plots DIR"
     as_json = skel("report", str(out / "run.lcm"), "--json")
     assert json.loads(as_json.stdout) == report
 

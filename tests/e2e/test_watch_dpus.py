@@ -41,7 +41,7 @@ def _replay_and_compare(log: Path, url: str) -> tuple[subprocess.CompletedProces
 
 
 def _replay_once(log: Path, replay_url: str) -> tuple[subprocess.CompletedProcess[str], str, str]:
-    watch = _watch("--once", "--url", replay_url, "--duration", "60")
+    watch = _watch("--once", "--all", "--url", replay_url, "--duration", "60")
     assert watch.stderr is not None
     ready = watch.stderr.readline()  # printed once subscribed: nothing of the replay is missed
     assert "waiting for a run" in ready, ready
@@ -50,7 +50,7 @@ def _replay_once(log: Path, replay_url: str) -> tuple[subprocess.CompletedProces
                             capture_output=True, text=True, timeout=60)
     assert player.returncode == 0, player.stderr
     out, err = watch.communicate(timeout=60)
-    report = skel("report", str(log))
+    report = skel("report", str(log), "--all")   # every table, both
     return report, out, ready + err + f"\n(exit {watch.returncode})"
 
 
