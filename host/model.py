@@ -358,7 +358,12 @@ FROM_CONFIG = "table"   # a varying compute read back from a config: its quantil
 
 
 def _named(names: dict[str, int], value: int) -> str:
-    return next(name for name, v in names.items() if v == value)
+    """The name of a wire enum's value; ValueError for a value the contract does not name (a
+    damaged message: LCM checks a message's type, not its values)."""
+    for name, v in names.items():
+        if v == value:
+            return name
+    raise ValueError(f"{value} is none of {', '.join(f'{v} ({name})' for name, v in names.items())}")
 
 
 def from_config(msg: skelmsg.config_t) -> System:

@@ -22,6 +22,7 @@ from ..read.records import CYCLE_FIELDS, FLAG_LOCKOUT, FLAG_OVERRUN, FLAG_RELEAS
 from .latency import ClockOffsets
 from .metrics import completed, cycle_end_ns, event_latency_us, event_response_us, measured
 from .report import RunReport
+from .windows import Generation
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -33,7 +34,7 @@ class RunAnalysis(Protocol):
     report: RunReport
     clock: ClockOffsets
 
-    def windows(self) -> Iterator[tuple[Any, Any, Any]]: ...
+    def windows(self) -> Iterator[tuple[Generation, Any, Any]]: ...
     def to_utc_ns(self, dpu: np.ndarray | int, mono_ns: np.ndarray | int) -> np.ndarray: ...
 
 _RUN = {
@@ -155,11 +156,11 @@ def _joined(name: str, windows: Sequence[Mapping[str, Any]]) -> Table:
 def timing_table(run: RunAnalysis) -> Table:
     """Every cycle of every generation window, each measured and named by its own window's
     config (its warm-up and periods decide `measured`, as in that window's report)."""
-    return _joined("timing", [_timing_columns(run, config, recs) for config, recs, _ in run.windows()])
+    return _joined("timing", [_timing_columns(run, gen, recs) for gen, recs, _ in run.windows()])
 
 
-def _timing_columns(run: RunAnalysis, config: Any, recs: Any) -> dict[str, Any]:
-    names = process_names(run.system_of(int(config.generation)))
+def _timing_columns(run: RunAnalysis, generation: Generation, recs: Any) -> dict[str, Any]:
+    names = process_names(generation.system)
     flags = np.asarray(recs["flags"]).astype(np.int64)
     start = np.asarray(recs["start_ns"])
     release = np.asarray(recs["release_ns"])
@@ -172,7 +173,7 @@ def _timing_columns(run: RunAnalysis, config: Any, recs: Any) -> dict[str, Any]:
         **{f: np.asarray(recs[f], dtype=np.int64) for f in CYCLE_FIELDS}, "flags": flags.astype(np.int8),
         "overrun": (flags & FLAG_OVERRUN) != 0, "skipped": (flags & FLAG_SKIPPED) != 0,
         "lockout": (flags & FLAG_LOCKOUT) != 0, "release_skipped": (flags & FLAG_RELEASE_SKIPPED) != 0,
-        "measured": measured(recs, config),
+        "measured": measured(recs, generation.system),
         "completed": completed(recs) if n else np.zeros(0, dtype=bool),
         "release_latency_us": (start - release) / 1e3,
         "response_us": (cycle_end_ns(recs) - release) / 1e3 if n else np.zeros(0),
@@ -189,11 +190,11 @@ def process_names(system: System) -> dict[int, str]:
 
 def receptions_table(run: RunAnalysis) -> Table:
     """Every input read in every generation window, named by its own window's config."""
-    return _joined("receptions", [_reception_columns(run, config, ins) for config, _, ins in run.windows()])
+    return _joined("receptions", [_reception_columns(run, gen, ins) for gen, _, ins in run.windows()])
 
 
-def _reception_columns(run: RunAnalysis, config: Any, ins: Any) -> dict[str, Any]:
-    system = run.system_of(int(config.generation))
+def _reception_columns(run: RunAnalysis, generation: Generation, ins: Any) -> dict[str, Any]:
+    system = generation.system
     names = process_names(system)
     buffers = {b.id: b.name for b in system.buffers}   # per row below: one dict, not a lookup each
     writer_dpu = {b.id: w.dpu if (w := system.find_process(b.writer)) is not None else None
@@ -213,7 +214,7 @@ def _reception_columns(run: RunAnalysis, config: Any, ins: Any) -> dict[str, Any
     n = len(ins)
     return {
         "run_id": np.full(n, run.report.run_id, dtype=np.int64),
-        "generation": np.full(n, config.generation, dtype=np.int64),
+        "generation": np.full(n, generation.number, dtype=np.int64),
         "dpu": np.asarray(ins["dpu"]), "process": np.asarray(ins["process"]),
         "process_name": [names.get(int(p), "") for p in ins["process"].tolist()],
         "cycle": np.asarray(ins["cycle"]), "buffer": np.asarray(ins["buffer"]),

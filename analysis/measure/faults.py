@@ -1,7 +1,7 @@
 """Fatal flaws: process lockouts, pipeline jams (with the chain back to the root
 cause), DPUs that run behind their schedule; and what is not the design's: stalls
 of the platform, overruns, lost DPUs, buffers never delivered. Definitions only;
-inputs are decoded messages, record arrays and a config_t, as in metrics.py.
+inputs are decoded messages, record arrays and the window's System, as in metrics.py.
 
 What holds a locked-out process up, in order: the required input its DPU said it
 waits on; the process of its DPU whose data wait held it up (the cyclic executive
@@ -19,7 +19,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 import skelmsg
-from skeleton.host.model import System
+from skeleton.host.model import Buffer, Process, System
 from skelmsg.contract import BUFFER_HEADER_BYTES, RECV_SLACK_BYTES
 
 from ..read.messages import int_columns
@@ -155,20 +155,18 @@ def lockout_at_s(lock: Lockout, system: System, dpu: int | None, origin: Mapping
     return (limit_ns - origin[dpu]) / 1e9
 
 
-def writer_stall(records: np.ndarray, config: Any, clock: ClockOffsets, reader: Any, buffers: Iterable[int],
-                 low_ns: int, high_ns: int) -> tuple[Any, int] | None:
+def writer_stall(records: np.ndarray, system: System, clock: ClockOffsets, reader: Process,
+                 buffers: Iterable[int], low_ns: int, high_ns: int) -> tuple[Process, int] | None:
     """(the writer, its DPU's stalls in ns) of the one of `buffers` (read by `reader`) whose
     writer's DPU was kept from running longest while their data was due, from `low_ns` to
     `high_ns` on the reader's clock (its records' stalls, by their releases): None for none.
     A reader's own stalls are not counted against it; its writer's, on another DPU or host,
     starve it all the same."""
-    writers = {b.id: b.writer for b in config.buffers}
-    procs = {p.id: p for p in config.processes}
-    threads = {d.id for d in config.dpus if d.executive == skelmsg.dpu_t.EXECUTIVE_THREADS}
+    threads = {d.id for d in system.dpus if d.executive == "threads"}
     low, high = clock.to_host(reader.dpu, np.array([low_ns, high_ns], dtype=np.int64)).tolist()
     best = None
     for b in buffers:
-        w = procs.get(writers.get(b, -1))
+        w = _writer(system, b)
         if w is None or w.dpu == reader.dpu:
             continue
         mine = records["dpu"] == w.dpu
@@ -184,27 +182,26 @@ def writer_stall(records: np.ndarray, config: Any, clock: ClockOffsets, reader: 
     return best
 
 
-def _stall_words(w: Any, stalled: int) -> str:
+def _stall_words(w: Process, stalled: int) -> str:
     return (f"{w.name}'s DPU {w.dpu} was kept from running for {stalled / 1e6:.1f} ms meanwhile (stalls: "
             "the platform, not the design)")
 
 
-def stalled_writers(lockouts: Mapping[int, Lockout], records: np.ndarray, config: Any,
+def stalled_writers(lockouts: Mapping[int, Lockout], records: np.ndarray, system: System,
                     clock: ClockOffsets) -> dict[int, str]:
     """Per locked-out process waiting for data, why the platform explains it, when it does:
     its writer's DPU was kept from running (writer_stall) for half the reader's lockout window
     or more while the locked cycle's data was due (from a writer period before its release to
     its limit). A DPU stopped for 300 ms made its reader's lockout and a jam read as the
     design's flaw."""
-    procs = {p.id: p for p in config.processes}
-    writers = {b.id: b.writer for b in config.buffers}
     out = {}
     for proc, lock in lockouts.items():
-        p, w = procs.get(proc), procs.get(writers.get(lock.buffer, -1))
+        p = system.find_process(proc)
+        w = None if lock.buffer is None else _writer(system, lock.buffer)
         if p is None or w is None or lock.release_ns is None:
             continue
-        window = int(config.lockout_cycles) * p.period_us * 1000
-        found = writer_stall(records, config, clock, p, [lock.buffer], lock.release_ns - w.period_us * 1000,
+        window = int(system.run.lockout_cycles) * p.period_us * 1000
+        found = writer_stall(records, system, clock, p, [lock.buffer], lock.release_ns - w.period_us * 1000,
                              lock.release_ns + window)
         if found is not None and 2 * found[1] >= window:
             out[proc] = _stall_words(*found)
@@ -358,13 +355,13 @@ def jam_faults(lockouts: dict[int, Lockout], system: System, origin: Mapping[int
 SKIPPING_MIN_PCT = 10.0
 
 
-def skipping_faults(processes: list[ProcessMetrics], config: Any) -> list[Fault]:
+def skipping_faults(processes: list[ProcessMetrics], system: System) -> list[Fault]:
     faults = []
     for p in processes:
         released = p.cycles + p.releases_skipped
         if not released or 100.0 * p.releases_skipped < SKIPPING_MIN_PCT * released:
             continue
-        load = static_load_pct(config, p.dpu)
+        load = static_load_pct(system, p.dpu)
         cause = (f"DPU {p.dpu} overloaded (static load {load:.1f} %)" if load > 100.0
                  else f"DPU {p.dpu} keeps falling a period behind")
         faults.append(Fault(
@@ -404,7 +401,7 @@ LOG_SILENT_US = 400_000
 _IN_RUN = (skelmsg.status_t.STATE_ARMED, skelmsg.status_t.STATE_RUNNING)
 
 
-def dpu_lost_faults(config: Any, beats: Heartbeats, run_id: int, origin: Mapping[int, int],
+def dpu_lost_faults(system: System, beats: Heartbeats, run_id: int, origin: Mapping[int, int],
                     reported: Collection[int] = ()) -> list[Fault]:
     """A DPU is lost when its heartbeats stopped during the run: a silence of more than
     LOST_GAP_US while the log heard other DPUs, or a new daemon (pid) answering for it,
@@ -417,7 +414,7 @@ def dpu_lost_faults(config: Any, beats: Heartbeats, run_id: int, origin: Mapping
     the log holds) is silent up to its next heartbeat after the run, or the log's last
     one: a DPU that died shortly before the run's end is lost too.
     `origin`: first_release_ns of the run's records (the DPUs with records)."""
-    dpus = sorted({int(p.dpu) for p in config.processes})
+    dpus = sorted({int(p.dpu) for p in system.processes})
     timed = set(origin)
     heard = beats.known
     run = heard & (beats.run_id == run_id)
@@ -519,6 +516,12 @@ def _pname(system: System, proc: int | None, missing: str | None = "") -> str | 
     return f"process {proc}" if missing == "" else missing
 
 
+def _writer(system: System, buffer_id: int) -> Process | None:
+    """The process that writes a buffer; None when the system has no such buffer or writer."""
+    desc = system.find_buffer(buffer_id)
+    return system.find_process(desc.writer) if desc is not None else None
+
+
 def _dpu(system: System, proc: int) -> int | None:
     desc = system.find_process(proc)
     return desc.dpu if desc is not None else None
@@ -534,11 +537,11 @@ def first_release_ns(records: np.ndarray) -> dict[int, int]:
     return smallest_per_id(records["dpu"], records["release_ns"])
 
 
-def stall_threshold_ns(config: Any, dpu: int) -> int:
+def stall_threshold_ns(system: System, dpu: int) -> int:
     """A cycle whose thread was kept from running longer than this is a stall fault: what
     would make a minor cycle late (late_pct of it), at least 1 ms."""
-    minor_us = next((d.minor_cycle_us for d in config.dpus if d.id == dpu), 0)
-    return max(1_000_000, minor_us * 1000 * config.late_pct // 100)
+    minor_us = next((d.minor_cycle_us for d in system.dpus if d.id == dpu), 0)
+    return max(1_000_000, minor_us * 1000 * system.run.late_pct // 100)
 
 
 # A stall fault's cycle: (DPU, where the stall may have begun, where its cycle's work ended,
@@ -547,10 +550,10 @@ def stall_threshold_ns(config: Any, dpu: int) -> int:
 STALL_EVENT = np.dtype([("dpu", "i8"), ("begin_ns", "i8"), ("end_ns", "i8"), ("stall_ns", "i8")])
 
 
-def stall_events(records: np.ndarray, config: Any) -> np.ndarray:
+def stall_events(records: np.ndarray, system: System) -> np.ndarray:
     """The cycles of `records` whose DPU thread was kept from running (late wake-ups, gaps,
     preemption: timing_t.stall_ns) beyond stall_threshold_ns, as STALL_EVENT rows."""
-    limit = per_id(records["dpu"], {d.id: stall_threshold_ns(config, d.id) for d in config.dpus})
+    limit = per_id(records["dpu"], {d.id: stall_threshold_ns(system, d.id) for d in system.dpus})
     stall = records["stall_ns"]
     rows = np.flatnonzero((stall > 0) & (stall >= limit))
     hit = records[rows]
@@ -558,16 +561,16 @@ def stall_events(records: np.ndarray, config: Any) -> np.ndarray:
     out["dpu"], out["stall_ns"] = hit["dpu"], hit["stall_ns"]
     # the record's parts add up to where its work ended, its stalls' wall time included
     out["end_ns"] = cycle_end_ns(hit)
-    before = _stall_before_start(hit, first_of_frame_at(records, rows), config)
+    before = _stall_before_start(hit, first_of_frame_at(records, rows), system)
     out["begin_ns"] = hit["start_ns"].astype(np.int64) - before
     return out
 
 
-def stall_faults(events: np.ndarray, config: Any, origin: Mapping[int, int]) -> list[Fault]:
+def stall_faults(events: np.ndarray, system: System, origin: Mapping[int, int]) -> list[Fault]:
     """Stall faults from the stall_events of a window (of all its parts). The stalls of one
     host's DPUs that overlap in time are one fault naming the host, when and how long: the
     platform, not the design. `origin`: first_release_ns of the whole run."""
-    hosts = {d.id: d.host for d in config.dpus}
+    hosts = {d.id: d.host for d in system.dpus}
     t0 = min(origin.values(), default=0)
     # Host -> (where the stall may have begun, where its cycle's work ended, duration, DPU),
     # on the run's clock.
@@ -591,7 +594,7 @@ def stall_faults(events: np.ndarray, config: Any, origin: Mapping[int, int]) -> 
                 group_end = ev[1]
         # A stall as long as a minor cycle of its DPUs is a fault of its own; shorter ones
         # (a busy VM has many) are one fault per host that counts them.
-        minor_ns = min((d.minor_cycle_us * 1000 for d in config.dpus if d.host == host), default=0)
+        minor_ns = min((d.minor_cycle_us * 1000 for d in system.dpus if d.host == host), default=0)
         short: list[int] = []
         for group in groups:
             start = min(g[0] for g in group)
@@ -617,7 +620,7 @@ def stall_faults(events: np.ndarray, config: Any, origin: Mapping[int, int]) -> 
     return faults
 
 
-def _stall_before_start(hit: np.ndarray, first: np.ndarray, config: Any) -> np.ndarray:
+def _stall_before_start(hit: np.ndarray, first: np.ndarray, system: System) -> np.ndarray:
     """How much of each record's stall came before its start: a late wake-up makes the
     cycle start late by it, a stall in its computation or its publishing (kept in
     preempted_ns too) or its data wait does not, and is placed from the cycle's start. The
@@ -631,7 +634,7 @@ def _stall_before_start(hit: np.ndarray, first: np.ndarray, config: Any) -> np.n
     stall = hit["stall_ns"].astype(np.int64)
     late = np.maximum(hit["start_ns"].astype(np.int64) - hit["sched_ns"].astype(np.int64), 0)
     before = np.clip(stall - hit["preempted_ns"].astype(np.int64), 0, late)
-    cyclic = per_id(hit["dpu"], {d.id: d.executive == skelmsg.dpu_t.EXECUTIVE_CYCLIC for d in config.dpus})
+    cyclic = per_id(hit["dpu"], {d.id: d.executive == "cyclic" for d in system.dpus})
     cyclic_before = np.where(first, np.minimum(before, hit["debt_ns"].astype(np.int64)), 0)
     return np.where(cyclic == 1, cyclic_before, before)
 
@@ -651,17 +654,17 @@ class Behind(NamedTuple):
     wait: tuple[int, int, int] | None
 
 
-def behind_runs(records: np.ndarray, config: Any, in_window: np.ndarray | None = None,
+def behind_runs(records: np.ndarray, system: System, in_window: np.ndarray | None = None,
                 origin: Mapping[int, int] | None = None) -> list[Behind]:
     """A DPU whose minor cycles start more than a minor cycle late, BEHIND_MIN_FRAMES in a
     row or more: how far behind, since when, for how long, and why (a stall of the
-    platform, an overload, a data wait or an overrun). `in_window`: measured(records, config),
+    platform, an overload, a data wait or an overrun). `in_window`: measured(records, system),
     when the caller has it; `origin`: as stall_faults'. Each DPU's from its own records: a
     part of a run holding some DPUs finds theirs."""
     out = []
     t0 = origin if origin is not None else first_release_ns(records)
-    in_window = window_mask(records, config, in_window)
-    for dpu in sorted(config.dpus, key=lambda d: d.id):
+    in_window = window_mask(records, system, in_window)
+    for dpu in sorted(system.dpus, key=lambda d: d.id):
         # A DPU that fell behind in its warm-up and is still behind in the window is found
         # from where it fell behind, so that its cause (a stall, say) is not cut off.
         is_mine = records["dpu"] == dpu.id
@@ -682,26 +685,24 @@ def behind_runs(records: np.ndarray, config: Any, in_window: np.ndarray | None =
             end = int(span["release_ns"].max()) + minor_ns
             worst_minor = minors[first + int(np.argmax(late[first : last + 1]))]
             t_worst = int(span["release_ns"][span["minor"] == worst_minor].min())
-            cause, fatal = _why_behind(mine, config, dpu.id, start, t_worst, worst)
+            cause, fatal = _why_behind(mine, system, dpu.id, start, t_worst, worst)
             out.append(Behind(dpu.id, (start - t0[dpu.id]) / 1e9, (end - start) / 1e9, worst, minor_ns, cause,
                               fatal, _longest_wait(mine, start - worst, t_worst) if fatal else None))
     return out
 
 
-def behind_faults(runs: Iterable[Behind], config: Any, stalls: np.ndarray,
+def behind_faults(runs: Iterable[Behind], system: System, stalls: np.ndarray,
                   clock: ClockOffsets = NO_OFFSETS) -> list[Fault]:
     """The behind_runs of a window as faults. One behind on a data wait is the platform's doing
     when the writer of that wait was on a DPU kept from running for half the lateness or more
     meanwhile (writer_stall over `stalls`: the window's records with a stall, of every DPU;
     `clock`: the DPUs' clocks)."""
-    procs = {p.id: p for p in config.processes}
     faults = []
     for b in runs:
         cause, fatal = b.cause, b.fatal
-        reader = procs.get(b.wait[0]) if b.wait is not None else None
+        reader = system.find_process(b.wait[0]) if b.wait is not None else None
         if b.wait is not None and reader is not None:
-            required = [x for x, needed in zip(reader.inputs, reader.required, strict=True) if needed]
-            found = writer_stall(stalls, config, clock, reader, required, b.wait[1], b.wait[2])
+            found = writer_stall(stalls, system, clock, reader, reader.required, b.wait[1], b.wait[2])
             if found is not None and 2 * found[1] >= b.worst_ns:
                 cause, fatal = f"{cause}: {_stall_words(*found)}", False
         faults.append(Fault(
@@ -727,7 +728,7 @@ def _runs(flags: np.ndarray, min_len: int) -> list[tuple[int, int]]:
     return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a >= min_len]
 
 
-def _why_behind(mine: np.ndarray, config: Any, dpu: int, start: int, t_worst: int,
+def _why_behind(mine: np.ndarray, system: System, dpu: int, start: int, t_worst: int,
                 worst: int) -> tuple[str, bool]:
     """Why a DPU fell behind from `start` to `t_worst` (its clock), where it was `worst` late:
     (the cause in words, whether it is the design's). Time its thread was kept from running
@@ -738,18 +739,17 @@ def _why_behind(mine: np.ndarray, config: Any, dpu: int, start: int, t_worst: in
         return (f"its thread was kept from running for {stalled / 1e6:.1f} ms on the way "
                 "(stalls, other work on its CPU: the platform, not the design)", False)
     lead = mine[(mine["release_ns"] >= start - worst) & (mine["release_ns"] <= start)]
-    load = static_load_pct(config, dpu)
+    load = static_load_pct(system, dpu)
     if load > 100.0:
         return f"overloaded: static load {load:.1f} %", True
-    names = {p.id: p.name for p in config.processes}
     if len(lead):
         blocked = lead[np.argmax(lead["blocked_ns"])]
         if blocked["blocked_ns"] * 2 >= worst:
-            return (f"{names.get(int(blocked['process']))} waited {blocked['blocked_ns'] / 1e6:.1f} ms for "
-                    "its data", True)
+            return (f"{_pname(system, int(blocked['process']), None)} waited "
+                    f"{blocked['blocked_ns'] / 1e6:.1f} ms for its data", True)
         over = lead[np.argmin(lead["slack_ns"])]
         if over["slack_ns"] < 0:
-            return (f"{names.get(int(over['process']))} overran at cycle {int(over['cycle'])} "
+            return (f"{_pname(system, int(over['process']), None)} overran at cycle {int(over['cycle'])} "
                     f"(computed {over['compute_ns'] / 1e6:.1f} ms) and the DPU has too little slack "
                     "to catch up", True)
     return "its cycles take longer than its minor cycle", True
@@ -780,11 +780,11 @@ class Deliveries:
     got: dict[tuple[int, int], tuple[int, int]] = field(default_factory=dict)
 
     @classmethod
-    def of(cls, records: np.ndarray, inputs: np.ndarray, config: Any, ran: set[int]) -> Deliveries:
+    def of(cls, records: np.ndarray, inputs: np.ndarray, system: System, ran: set[int]) -> Deliveries:
         """The Deliveries of `records` and their `inputs`, `ran` the processes they hold."""
         done = records["process"][completed(records)]
         got = {}
-        for reader in config.processes:
+        for reader in system.processes:
             if reader.id not in ran:
                 continue  # no cycle, no input record
             mine = inputs["process"] == reader.id
@@ -837,7 +837,7 @@ def delivery_faults(system: System, seen: Deliveries,
     return faults, kept
 
 
-def _delivery_detail(desc: Any, sent: int, reader: str, dpu: int | None) -> str:
+def _delivery_detail(desc: Buffer, sent: int, reader: str, dpu: int | None) -> str:
     said = f"{desc.name} ({desc.bytes} bytes): {sent} published, none reached {reader}"
     if desc.bytes + BUFFER_HEADER_BYTES > FRAGMENT_BYTES:
         need = recv_buf_needed(desc.bytes)

@@ -30,7 +30,7 @@ Loss at one reader, over the measured window (completed cycles):
 A buffer's `published` is the number of its writer's completed measured cycles (a
 cycle k publishes sequence k on every output).
 
-Like metrics.py, everything here takes record arrays and a config_t, never a file.
+Like metrics.py, everything here takes record arrays and the window's System, never a file.
 """
 
 from __future__ import annotations
@@ -211,16 +211,15 @@ class BufferParts:
 
 
 def buffer_parts(
-    records: np.ndarray, inputs: np.ndarray, config: Any, clock: ClockOffsets = NO_OFFSETS,
+    records: np.ndarray, inputs: np.ndarray, system: System, clock: ClockOffsets = NO_OFFSETS,
     in_window: np.ndarray | None = None, pairs: InputPairs | None = None,
 ) -> BufferParts:
     """The BufferParts of `records` (a window, or the part of it a few DPUs ran) and their
-    `inputs`. `in_window`: measured(records, config), and `pairs`: the inputs' input_pairs,
+    `inputs`. `in_window`: measured(records, system), and `pairs`: the inputs' input_pairs,
     when the caller has them."""
-    procs = {p.id: p for p in config.processes}
-    in_window = window_mask(records, config, in_window)
+    in_window = window_mask(records, system, in_window)
     _, by_process = rows_by_process(records, in_window & completed(records))
-    pairs = input_pairs(records, inputs, config, in_window) if pairs is None else pairs
+    pairs = input_pairs(records, inputs, system, in_window) if pairs is None else pairs
     # The inputs that count, grouped by reader and buffer: one sort of their pairs' indices. What
     # each group needs of them is found over all the inputs' columns at once, then gathered.
     order, by_pair = group_slices(pairs.at)
@@ -228,10 +227,10 @@ def buffer_parts(
     timed = carries_latency(inputs)
     dropping = (inputs["dropped"] > 0) & (inputs["seq"] >= 0)
     out = BufferParts(published={proc: _count(rows) for proc, rows in by_process.items()})
-    for buf in sorted(config.buffers, key=lambda b: b.id):
-        writer = procs.get(buf.writer)
+    for buf in sorted(system.buffers, key=lambda b: b.id):
+        writer = system.find_process(buf.writer)
         writer_dpu = writer.dpu if writer is not None else -1
-        for reader in sorted((p for p in config.processes if buf.id in p.inputs), key=lambda p: p.id):
+        for reader in sorted((p for p in system.processes if buf.id in p.inputs), key=lambda p: p.id):
             if reader.id not in by_process:
                 continue  # not a cycle of it here: another part has its inputs
             at = order[by_pair.get(index[(int(reader.id), int(buf.id))], slice(0, 0))]

@@ -2,9 +2,9 @@
 per-process cycle statistics (per-buffer transport latency and loss: latency.py;
 chain latency: chains.py; faults: faults.py).
 
-Everything here takes record arrays (records.RECORD_DTYPE / INPUT_DTYPE) and a
-config_t, never a file, so a post-mortem report, a replay and a live view compute
-the same numbers with the same code.
+Everything here takes record arrays (records.RECORD_DTYPE / INPUT_DTYPE) and the
+window's System (skeleton.host.model, read from its config_t), never a file, so a
+post-mortem report, a replay and a live view compute the same numbers with the same code.
 
 The measurement window is one per DPU, shared by all its processes: it opens at
 t0 + warmup_cycles x the DPU's longest period (t0: the run's first release), when
@@ -27,17 +27,15 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
-import skelmsg
+from skeleton.host.model import Process, System
 
 from ..read.records import FLAG_OVERRUN, FLAG_RELEASE_SKIPPED, FLAG_SKIPPED
 from .stats import Histogram, LatencyUs, distribution, group_slices
 from .stats import latency_us as _latency
-
-SYNC_EVENT = skelmsg.process_t.SYNC_EVENT
 
 
 @dataclass
@@ -140,7 +138,7 @@ def per_id(ids: np.ndarray, values: dict[int, int]) -> np.ndarray:
     return table[ids.astype(np.int64) & 0xFFFF]
 
 
-def window_start_ns(records: np.ndarray, config: Any) -> dict[int, int]:
+def window_start_ns(records: np.ndarray, system: System) -> dict[int, int]:
     """Per DPU with records: when its measurement window opens, on its own clock.
 
     t0 is where cycle 0 of every process was released (release - cycle x period of
@@ -151,16 +149,16 @@ def window_start_ns(records: np.ndarray, config: Any) -> dict[int, int]:
     at most one minor cycle late on the others, which release it when its event comes), so
     a DPU of events only opens its window when its run began, not at its first event."""
     longest: dict[int, int] = {}
-    for p in config.processes:
+    for p in system.processes:
         longest[p.dpu] = max(longest.get(p.dpu, 0), p.period_us * 1000)
-    minor = {d.id: d.minor_cycle_us * 1000 for d in config.dpus}
-    on_events = {p.id: p for p in config.processes if p.sync == SYNC_EVENT}
+    minor = {d.id: d.minor_cycle_us * 1000 for d in system.dpus}
+    on_events = {p.id: p for p in system.processes if p.sync == "event"}
     step = per_id(records["process"], {p.id: minor.get(p.dpu, 0) if p.id in on_events else p.period_us * 1000
-                                       for p in config.processes})  # fmt: skip
+                                       for p in system.processes})  # fmt: skip
     count = np.where(per_id(records["process"], dict.fromkeys(on_events, 1)) == 1, records["minor"],
                      records["cycle"])  # fmt: skip
     t0 = records["release_ns"] - count * step
-    return {dpu: first + config.warmup_cycles * longest.get(dpu, 0)
+    return {dpu: first + system.run.warmup_cycles * longest.get(dpu, 0)
             for dpu, first in smallest_per_id(records["dpu"], t0).items()}
 
 
@@ -172,18 +170,18 @@ def smallest_per_id(ids: np.ndarray, values: np.ndarray) -> dict[int, int]:
     return {d: int(ordered[rows].min()) for d, rows in groups.items()}
 
 
-def measured(records: np.ndarray, config: Any, starts: dict[int, int] | None = None) -> np.ndarray:
+def measured(records: np.ndarray, system: System, starts: dict[int, int] | None = None) -> np.ndarray:
     """Mask of the records in their DPU's measurement window (`starts`: window_start_ns of
     these records or of a larger set holding them)."""
     if len(records) == 0:
         return np.zeros(0, dtype=bool)
-    return records["release_ns"] >= per_id(records["dpu"], starts or window_start_ns(records, config))
+    return records["release_ns"] >= per_id(records["dpu"], starts or window_start_ns(records, system))
 
 
-def window_mask(records: np.ndarray, config: Any, in_window: np.ndarray | None) -> np.ndarray:
+def window_mask(records: np.ndarray, system: System, in_window: np.ndarray | None) -> np.ndarray:
     """`in_window` when the caller has it (window_part finds it once for every table of a
-    window), else measured(records, config): a table called alone finds it itself."""
-    return measured(records, config) if in_window is None else in_window
+    window), else measured(records, system): a table called alone finds it itself."""
+    return measured(records, system) if in_window is None else in_window
 
 
 def rows_by_process(records: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, dict[int, slice]]:
@@ -211,26 +209,26 @@ def cycle_end_ns(records: np.ndarray) -> np.ndarray:
     )
 
 
-def static_load_pct(config: Any, dpu_id: int) -> float:
+def static_load_pct(system: System, dpu_id: int) -> float:
     """Configured load of a DPU: 100 * sum(compute_us / period_us) of its processes.
 
     Compute is divided by the DPU's speed factor, as the emulation divides it."""
-    speed = next((d.speed for d in config.dpus if d.id == dpu_id), 1.0) or 1.0
-    load = sum(p.compute_us / p.period_us for p in config.processes if p.dpu == dpu_id and p.period_us > 0)
+    speed = next((d.speed for d in system.dpus if d.id == dpu_id), 1.0) or 1.0
+    load = sum(p.compute_us / p.period_us for p in system.processes if p.dpu == dpu_id and p.period_us > 0)
     return 100.0 * load / speed
 
 
-def dpu_metrics(records: np.ndarray, config: Any, in_window: np.ndarray | None = None,
+def dpu_metrics(records: np.ndarray, system: System, in_window: np.ndarray | None = None,
                 earlier: Mapping[int, int] | None = None) -> list[DpuMetrics]:
-    """Per DPU (config order by id) over the measured window (`in_window`: measured(records,
-    config), when the caller has it); `earlier`: when each DPU's work of the generations
+    """Per DPU (by id) over the measured window (`in_window`: measured(records,
+    system), when the caller has it); `earlier`: when each DPU's work of the generations
     before this one ended (windows.earlier_ends_ns), when there were any."""
-    in_window = window_mask(records, config, in_window)
+    in_window = window_mask(records, system, in_window)
     window = records[in_window]
     warmup, earlier = warmup_end_ns(records[~in_window]), earlier or {}
     out = []
-    for dpu in sorted(config.dpus, key=lambda d: d.id):
-        procs = sorted((p for p in config.processes if p.dpu == dpu.id), key=lambda p: (p.order, p.id))
+    for dpu in sorted(system.dpus, key=lambda d: d.id):
+        procs = sorted((p for p in system.processes if p.dpu == dpu.id), key=lambda p: (p.order, p.id))
         mine = window[window["dpu"] == dpu.id]
         overruns = int(np.count_nonzero(overran(mine[completed(mine)])))
         elapsed = _elapsed_ns(mine, latest(warmup.get(dpu.id), earlier.get(dpu.id)))
@@ -247,7 +245,7 @@ def dpu_metrics(records: np.ndarray, config: Any, in_window: np.ndarray | None =
                 communicate_pct=shares[1],
                 wait_pct=shares[2],
                 overhead_pct=shares[3],
-                static_load_pct=static_load_pct(config, dpu.id),
+                static_load_pct=static_load_pct(system, dpu.id),
                 overruns=overruns,
                 elapsed_ms=None if elapsed is None else elapsed / 1e6,
                 records=len(mine),
@@ -383,15 +381,14 @@ def overran(records: np.ndarray) -> np.ndarray:
 
 
 def process_metrics(
-    records: np.ndarray, inputs: np.ndarray, config: Any, in_window: np.ndarray | None = None,
+    records: np.ndarray, inputs: np.ndarray, system: System, in_window: np.ndarray | None = None,
     pairs: InputPairs | None = None,
 ) -> list[ProcessMetrics]:
-    """Per process (config order by id) over the measured window (`in_window`: measured(records,
-    config), when the caller has it) and `inputs`, the input records of `records` (`pairs`: their
+    """Per process (by id) over the measured window (`in_window`: measured(records,
+    system), when the caller has it) and `inputs`, the input records of `records` (`pairs`: their
     input_pairs, when the caller has them)."""
-    buffers = {b.id: b for b in config.buffers}
-    in_window = window_mask(records, config, in_window)
-    pairs = input_pairs(records, inputs, config, in_window) if pairs is None else pairs
+    in_window = window_mask(records, system, in_window)
+    pairs = input_pairs(records, inputs, system, in_window) if pairs is None else pairs
     input_sums = _input_sums(inputs, pairs)
     at, by_process = rows_by_process(records, in_window)  # indexed, not copied, until one process's are taken
     # Whether a cycle was its frame's first matters only for the overruns (what the stalls explain).
@@ -399,7 +396,7 @@ def process_metrics(
     firsts = np.zeros(len(records), dtype=bool)
     firsts[over] = first_of_frame_at(records, over)
     out = []
-    for proc in sorted(config.processes, key=lambda p: p.id):
+    for proc in sorted(system.processes, key=lambda p: p.id):
         rows = at[by_process.get(int(proc.id), slice(0, 0))]
         mine = records[rows]
         skipped = (mine["flags"] & FLAG_SKIPPED) != 0
@@ -413,7 +410,7 @@ def process_metrics(
         response, response_histogram = distribution(response_ns.astype(np.float64) / 1000.0)
         events, event_histogram = _events(proc, mine, done)
         did_overrun = overran(done)
-        late_us, too_late_us = late_limits_us(proc, config)
+        late_us, too_late_us = late_limits_us(proc, system)
         out.append(
             ProcessMetrics(
                 id=proc.id,
@@ -429,7 +426,7 @@ def process_metrics(
                 late=int(np.count_nonzero(lateness > late_us)),
                 too_late=int(np.count_nonzero(lateness > too_late_us)),
                 first_overrun_cycle=int(done["cycle"][did_overrun].min()) if did_overrun.any() else None,
-                inputs=[_input(input_sums.get((int(proc.id), int(b)), _NO_INPUTS), b, buffers)
+                inputs=[_input(input_sums.get((int(proc.id), int(b)), _NO_INPUTS), b, system)
                         for b in proc.inputs],
                 response_us=response,
                 slack_us=SlackUs(
@@ -443,7 +440,7 @@ def process_metrics(
                 releases_skipped=int(np.count_nonzero((mine["flags"] & FLAG_RELEASE_SKIPPED) != 0)),
                 overruns_stalled=int(np.count_nonzero(did_overrun & stall_explains(done, done_first))),
                 stall_ms=float(mine["stall_ns"].sum()) / 1e6,
-                varying=proc.nquantiles > 0,
+                varying=proc.varying is not None,
                 asked_us=_latency(done["asked_ns"].astype(np.float64) / 1000.0),
                 asked_mean_us=float(done["asked_ns"].mean()) / 1000.0 if len(done) else None,
                 compute_us=_latency(done["compute_ns"].astype(np.float64) / 1000.0),
@@ -465,9 +462,9 @@ def lateness_us(records: np.ndarray) -> np.ndarray:
     return (records["start_ns"] - records["sched_ns"]).astype(np.float64) / 1000.0
 
 
-def late_limits_us(proc: Any, config: Any) -> tuple[float, float]:
+def late_limits_us(proc: Process, system: System) -> tuple[float, float]:
     """The lateness (µs) beyond which a cycle of `proc` is late, and too late."""
-    return proc.period_us * config.late_pct / 100.0, proc.period_us * config.too_late_pct / 100.0
+    return proc.period_us * system.run.late_pct / 100.0, proc.period_us * system.run.too_late_pct / 100.0
 
 
 def first_of_frame(records: np.ndarray) -> np.ndarray:
@@ -520,9 +517,10 @@ def event_response_us(records: np.ndarray) -> np.ndarray:
     return np.where(event >= 0, (cycle_end_ns(records) - event) / 1000.0, np.nan)
 
 
-def _events(proc: Any, mine: np.ndarray, done: np.ndarray) -> tuple[EventMetrics | None, Histogram | None]:
+def _events(proc: Process, mine: np.ndarray,
+            done: np.ndarray) -> tuple[EventMetrics | None, Histogram | None]:
     """An event process's events, and the histogram of their latency."""
-    if proc.sync != SYNC_EVENT:
+    if proc.sync != "event":
         return None, None
     got = done[done["event_ns"] >= 0]
     latency, latency_histogram = distribution(event_latency_us(got))
@@ -561,15 +559,15 @@ class InputPairs(NamedTuple):
     at: np.ndarray  # per input record, its pair's index; len(pairs) when it does not count
 
 
-def input_pairs(records: np.ndarray, inputs: np.ndarray, config: Any,
+def input_pairs(records: np.ndarray, inputs: np.ndarray, system: System,
                 in_window: np.ndarray | None = None) -> InputPairs:
     """The InputPairs of `inputs`, the input records of `records`. An input record counts when
     its cycle record is in the window (`in_window`, as window_mask) and completed, so new +
-    stale == cycles for every input; and when its process reads its buffer in `config`."""
-    pairs = sorted({(int(p.id), int(b)) for p in config.processes for b in p.inputs})
+    stale == cycles for every input; and when its process reads its buffer in `system`."""
+    pairs = sorted({(int(p.id), int(b)) for p in system.processes for b in p.inputs})
     if not pairs or not len(inputs):
         return InputPairs(pairs, np.full(len(inputs), len(pairs), dtype=np.int32))
-    counted = (window_mask(records, config, in_window) & completed(records))[inputs["record"]]
+    counted = (window_mask(records, system, in_window) & completed(records))[inputs["record"]]
     return InputPairs(pairs, np.where(counted, _pair_index(inputs["process"], inputs["buffer"], pairs),
                                       len(pairs)))  # fmt: skip
 
@@ -629,8 +627,8 @@ def _exact_sums(key: np.ndarray, values: np.ndarray, bins: int) -> np.ndarray:
     return out
 
 
-def _input(sums: _InputSums, buffer_id: int, buffers: dict[int, Any]) -> InputMetrics:
-    desc = buffers.get(buffer_id)
+def _input(sums: _InputSums, buffer_id: int, system: System) -> InputMetrics:
+    desc = system.find_buffer(buffer_id)
     return InputMetrics(
         buffer=desc.name if desc is not None else f"buffer {buffer_id}",
         buffer_id=int(buffer_id),

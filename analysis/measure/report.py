@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 import skelmsg
+from skeleton.host.model import COMPUTE
 
 from ..read.coltable import ColumnTable
 from ..read.logreader import Integrity
@@ -29,6 +30,7 @@ from .metrics import DpuMetrics, ProcessMetrics
 from .predicted import Predicted
 from .stopped import Stopped, stopped_early
 from .windows import (
+    Generation,
     WindowPart,
     WindowReport,
     earlier_ends_ns,
@@ -39,7 +41,7 @@ from .windows import (
     window_records,
 )
 
-COMPUTE_MODES = {0: "sleep", 1: "wall", 2: "cpu", 3: "work"}
+COMPUTE_MODES = {value: name for name, value in COMPUTE.items()}  # report_t.compute -> its name
 
 
 
@@ -145,16 +147,16 @@ class RunPart:
     skips: np.ndarray  # latency.release_skips
 
 
-def run_part(run: RunRecords, configs: Sequence[Any], dpus: set[int],
+def run_part(run: RunRecords, generations: Sequence[Generation], dpus: set[int],
              clock: ClockOffsets = NO_OFFSETS) -> RunPart:
-    """The RunPart of `run` (the records of the DPUs `dpus`) for the windows of `configs`
-    (report_configs)."""
+    """The RunPart of `run` (the records of the DPUs `dpus`) for the windows of `generations`
+    (report_generations)."""
     origin = first_release_ns(run.records)
     windows: list[WindowPart] = []
     earlier: dict[int, int] = {}  # when each DPU's work of the windows before ended
-    for config in configs:
-        records, inputs = window_records(run, config.generation)
-        windows.append(window_part(config, records, inputs, dpus, clock, earlier, origin))
+    for generation in generations:
+        records, inputs = window_records(run, generation.number)
+        windows.append(window_part(generation, records, inputs, dpus, clock, earlier, origin))
         earlier = earlier_ends_ns(earlier, windows[-1].ends_ns)
     # not a slice of the records: it would hold their columns
     counts = dataclasses.replace(run, records=ColumnTable.empty(RECORD_DTYPE),
@@ -162,22 +164,24 @@ def run_part(run: RunRecords, configs: Sequence[Any], dpus: set[int],
     return RunPart(counts, windows, origin, run_stalls(run.records), release_skips(run.records))
 
 
-def report_configs(config: Any, generations: Collection[int], configs: Mapping[int, Any] | None) -> list[Any]:
-    """The config_t of every window of a report whose last generation is `config`'s: each earlier
-    one of `configs` (generation -> config_t) with timing records (in `generations`), in order."""
+def report_generations(config: skelmsg.config_t, generations: Collection[int],
+                       configs: Mapping[int, skelmsg.config_t] | None) -> list[Generation]:
+    """Every window of a report whose last generation is `config`'s, from the decoded config_t:
+    each earlier one of `configs` (generation -> config_t) with timing records (in
+    `generations`), in order, as the Generation its config describes."""
     by_generation = {g: c for g, c in (configs or {}).items() if g in generations and g < config.generation}
     by_generation[config.generation] = config
-    return [by_generation[g] for g in sorted(by_generation)]
+    return [Generation.of(by_generation[g]) for g in sorted(by_generation)]
 
 
 def build_report(
-    config: Any,
+    config: skelmsg.config_t,
     run: RunRecords,
     statuses: Sequence[Any] = (),
     reports: Sequence[Any] = (),
     integrity: Integrity | None = None,
     malformed: dict[str, int] | None = None,
-    configs: Mapping[int, Any] | None = None,
+    configs: Mapping[int, skelmsg.config_t] | None = None,
     clock: ClockOffsets | None = None,
     heartbeats: Heartbeats | None = None,
     commands: Sequence[tuple[int, Any]] = (),
@@ -190,16 +194,16 @@ def build_report(
     statuses with when they were heard (none: `statuses`, times unknown); `commands` the
     command_t with when they were heard (stopped.py)."""
     clock = clock or NO_OFFSETS
-    windows = report_configs(config, run.generations, configs)
+    windows = report_generations(config, run.generations, configs)
     # one part: every DPU's rows come from it
-    parts = [run_part(run, windows, {int(d.id) for c in windows for d in c.dpus}, clock)]
+    parts = [run_part(run, windows, {int(d.id) for g in windows for d in g.system.dpus}, clock)]
     if heartbeats is None:
         heartbeats = heartbeats_from_status((None, s) for s in statuses)
     return finish_report(windows, parts, heartbeats, statuses, reports, integrity, malformed, clock, commands)
 
 
 def finish_report(
-    configs: Sequence[Any],
+    windows: Sequence[Generation],
     parts: Sequence[RunPart],
     heartbeats: Heartbeats,
     statuses: Sequence[Any] = (),
@@ -210,16 +214,17 @@ def finish_report(
     commands: Sequence[tuple[int, Any]] = (),
     last_always: bool = True,
 ) -> RunReport:
-    """The report of one run from its parts (run_part of each few DPUs, for the windows of
-    `configs`: report_configs), as build_report's arguments say; `statuses`: those that name
-    lockouts suffice. A window of no decoded record is left out, but for the last of `configs`
+    """The report of one run from its parts (run_part of each few DPUs, for the `windows`:
+    report_generations), as build_report's arguments say; `statuses`: those that name
+    lockouts suffice. A window of no decoded record is left out, but for the last of `windows`
     when `last_always` (a live view's config, before its first records come)."""
     clock = clock or NO_OFFSETS
     run_id = parts[0].counts.run_id
     generations = sorted({g for part in parts for g in part.counts.generations})
-    kept = [i for i, c in enumerate(configs)
-            if c.generation in generations or (last_always and i == len(configs) - 1)]
-    config = configs[kept[-1]]
+    kept = [i for i, g in enumerate(windows)
+            if g.number in generations or (last_always and i == len(windows) - 1)]
+    newest = windows[kept[-1]]
+    system = newest.system
     window_parts = [[part.windows[i] for part in parts] for i in kept]
     # A report the logger missed may have been re-sent (host/live/repair.py): one per DPU.
     mine = list({r.dpu: r for r in reports if r.run_id == run_id}.values())
@@ -227,24 +232,24 @@ def finish_report(
     locks = split_lockouts(lockouts_from_status(statuses, run_id), firsts)
     # Every window's faults say when, from the run's first release: not from their window's.
     origin = _smallest([part.origin for part in parts])
-    lost = dpu_lost_faults(config, heartbeats, run_id, origin, {r.dpu for r in mine})
+    lost = dpu_lost_faults(system, heartbeats, run_id, origin, {r.dpu for r in mine})
     stalls = np.concatenate([part.stalls for part in parts])
     skips = np.concatenate([part.skips for part in parts])
     last_i = len(kept) - 1
-    windows = [
-        finish_window(configs[k], wp, locks[i], lost if i == last_i else (), clock, stalls, skips, origin)
+    finished = [
+        finish_window(windows[k], wp, locks[i], lost if i == last_i else (), clock, stalls, skips, origin)
         for i, (k, wp) in enumerate(zip(kept, window_parts, strict=True))
     ]
-    last = windows[-1]
-    modes = {d.id: COMPUTE_MODES.get(d.compute, str(d.compute)) for d in config.dpus}
+    last = finished[-1]
+    modes = {d.id: d.compute for d in system.dpus}
     modes.update({r.dpu: COMPUTE_MODES.get(r.compute, str(r.compute)) for r in mine})
     integ = integrity or Integrity(events=0)
     return RunReport(
         run_id=run_id,
-        system=config.system,
-        generation=config.generation,
+        system=system.name,
+        generation=newest.number,
         generations=generations,
-        warmup_cycles=config.warmup_cycles,
+        warmup_cycles=system.run.warmup_cycles,
         integrity=IntegrityReport(
             events=integ.events,
             corrupt_ranges=list(integ.corrupt_ranges),
@@ -266,18 +271,18 @@ def finish_report(
         not_faithful=sorted(r.dpu for r in mine if r.faults & skelmsg.status_t.FAULT_NOT_FAITHFUL),
         buffers=last.buffers,
         chains=last.chains,
-        windows=windows,
+        windows=finished,
         clock_offsets=clock.latest(),
         stopped=stopped_early(commands, run_id),
     )
 
 
-def holds_its_processes(parts: Sequence[RunPart], configs: Sequence[Any]) -> bool:
-    """Whether every process's records of each window (of `configs`) are in the part of its
+def holds_its_processes(parts: Sequence[RunPart], windows: Sequence[Generation]) -> bool:
+    """Whether every process's records of each window (of `windows`) are in the part of its
     DPU: a process's row is made from that part alone (windows.finish_window), so a process
     with records in another DPU's batches needs the run read as one part."""
-    for i, config in enumerate(configs):
-        dpu_of = {int(p.id): int(p.dpu) for p in config.processes}
+    for i, generation in enumerate(windows):
+        dpu_of = {int(p.id): int(p.dpu) for p in generation.system.processes}
         for part in parts:
             window = part.windows[i]
             if any(dpu_of.get(proc) not in window.dpus for proc in window.deliveries.ran):

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+import skelmsg
 from skeleton.host.model import System, from_config
 from skelmsg.contract import CONFIG_CHANNEL, TIMING_CHANNEL
 
@@ -36,8 +37,8 @@ from .columns import Table, faults_table, process_names, receptions_table, repor
 from .faults import HEARTBEAT_FIELDS, Heartbeats, heartbeats
 from .latency import ClockOffsets
 from .predicted import Predictor, beside
-from .report import RunPart, RunReport, finish_report, holds_its_processes, report_configs, run_part
-from .windows import window_records
+from .report import RunPart, RunReport, finish_report, holds_its_processes, report_generations, run_part
+from .windows import Generation, window_records
 
 NO_CONFIG = f"{TIMING_CHANNEL} (no config for its generation)"
 
@@ -75,8 +76,9 @@ class RunAnalysis:
         return self.held
 
     @property
-    def config(self) -> Any:
-        """The config_t of the report's generation (the run's last)."""
+    def config(self) -> skelmsg.config_t:
+        """The config_t of the report's generation (the run's last), as the log holds it: the
+        export attaches it (its send time); the analysis reads `system`."""
         return self.messages.configs[self.report.generation]
 
     @property
@@ -99,15 +101,15 @@ class RunAnalysis:
             self._windows[generation] = window_records(self.recorded, generation)
         return self._windows[generation]
 
-    def window_configs(self) -> list[Any]:
-        """The config_t of every generation window of the report, in order."""
-        return [self.messages.configs[w.generation] for w in self.report.windows]
+    def window_generations(self) -> list[Generation]:
+        """Every generation window of the report, in order, with the System its config_t describes."""
+        return [Generation(w.generation, self.system_of(w.generation)) for w in self.report.windows]
 
-    def windows(self) -> Iterator[tuple[Any, Any, Any]]:
-        """(config_t, records, inputs) of every generation window of the report, in order: every
+    def windows(self) -> Iterator[tuple[Generation, Any, Any]]:
+        """(generation, records, inputs) of every generation window of the report, in order: every
         cycle of the run but those of a generation no config names (counted as malformed)."""
-        for config in self.window_configs():
-            yield (config, *self.window(config.generation))
+        for generation in self.window_generations():
+            yield (generation, *self.window(generation.number))
 
     @property
     def records(self) -> Any:
@@ -238,7 +240,7 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None,
         raise LogError(f"no config_t (channel {CONFIG_CHANNEL}) for generation {max(generations)}: "
                        "cannot name anything")
     configs = {g: messages.configs[g] for g in candidates}
-    windows = report_configs(configs[candidates[-1]], candidates, configs)
+    windows = report_generations(configs[candidates[-1]], candidates, configs)
     clock = ClockOffsets.from_messages(messages.clock_offsets)
 
     def read(groups: list[list[int]],
@@ -275,8 +277,10 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None,
         raise LogError(f"no timing record of run {run_id} could be decoded")
     report = finish_report(windows, parts, beats, locking, messages.reports, log.integrity, malformed, clock,
                            messages.commands, last_always=False)
-    return RunAnalysis(log=log, heads=heads, messages=messages, report=report, clock=clock,
-                       utc_offset_ns=offsets, held=held, usual=usual)
+    analysis = RunAnalysis(log=log, heads=heads, messages=messages, report=report, clock=clock,
+                           utc_offset_ns=offsets, held=held, usual=usual)
+    analysis._systems.update((g.number, g.system) for g in windows)  # each read from its config once
+    return analysis
 
 
 def _control(log: Log, generations: set[int]) -> tuple[Messages, Heartbeats, dict[int, int], list[Any]]:

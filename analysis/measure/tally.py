@@ -17,9 +17,10 @@ arrives late) is the generation tallied again from all its records.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
+
+import skelmsg
 
 from ..read.records import RunRecords
 from .metrics import (
@@ -38,6 +39,7 @@ from .metrics import (
     work_end_ns,
 )
 from .stats import LatencyUs, group_slices, latency_us
+from .windows import Generation
 
 
 @dataclass
@@ -125,13 +127,13 @@ class ProcessTally:
 class GenerationTally:
     """The live tables of one config generation's window."""
 
-    def __init__(self, config: Any) -> None:
-        self.config = config
-        self.generation = int(config.generation)
-        self.dpus = [DpuTally(int(d.id)) for d in sorted(config.dpus, key=lambda d: d.id)]
+    def __init__(self, generation: Generation) -> None:
+        self.system = generation.system
+        self.generation = generation.number
+        self.dpus = [DpuTally(int(d.id)) for d in sorted(self.system.dpus, key=lambda d: d.id)]
         self.processes = [
-            ProcessTally(int(p.id), p.name, int(p.dpu), late_limits_us(p, config))
-            for p in sorted(config.processes, key=lambda p: p.id)
+            ProcessTally(int(p.id), p.name, int(p.dpu), late_limits_us(p, self.system))
+            for p in sorted(self.system.processes, key=lambda p: p.id)
         ]
         self._dpu = {d.id: d for d in self.dpus}
         self._process = {p.id: p for p in self.processes}
@@ -142,12 +144,12 @@ class GenerationTally:
         would open a DPU's measurement window earlier than the records tallied so far."""
         if len(records) == 0:
             return True
-        starts = window_start_ns(records, self.config)
+        starts = window_start_ns(records, self.system)
         if any(d in self.window_starts and s < self.window_starts[d] for d, s in starts.items()):
             return False
         for dpu, start in starts.items():
             self.window_starts.setdefault(dpu, start)
-        in_window = measured(records, self.config, self.window_starts)
+        in_window = measured(records, self.system, self.window_starts)
         window, before = records[in_window], records[~in_window]
         order, by_dpu = group_slices(window["dpu"])
         for dpu, rows in by_dpu.items():
@@ -180,19 +182,20 @@ class RunTally:
         self.tables: GenerationTally | None = None
         self.seen = 0  # records of the run tallied (or passed over: another generation's)
 
-    def update(self, run: RunRecords, configs: dict[int, Any]) -> GenerationTally | None:
-        """Tally the records of `run` past those seen before (`run` only ever grows)."""
+    def update(self, run: RunRecords, configs: dict[int, skelmsg.config_t]) -> GenerationTally | None:
+        """Tally the records of `run` past those seen before (`run` only ever grows; `configs`:
+        the decoded config_t by generation, as heard)."""
         newest = max((g for g in run.generations if g in configs), default=None)
         if newest is None:
             return None
         if self.tables is None or self.tables.generation != newest:
-            self.tables, self.seen = GenerationTally(configs[newest]), 0
+            self.tables, self.seen = GenerationTally(Generation.of(configs[newest])), 0
         fresh = run.records[self.seen :]
         self.seen = len(run.records)
         # The windows of the report are the generations with a config: so are the earlier ones.
         earlier = [g for g in configs if g < newest]
         if not _tally(self.tables, fresh, earlier):
-            self.tables = GenerationTally(configs[newest])
+            self.tables = GenerationTally(Generation(newest, self.tables.system))
             _tally(self.tables, run.records, earlier)
         return self.tables
 

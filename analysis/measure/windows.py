@@ -2,8 +2,8 @@
 
 When the config changes mid-run (a live `skel push`), every timing record carries
 the generation its cycle ran under, and the log holds every generation's config_t:
-each window is measured with its own config (its own processes, periods,
-allocation), so a table never mixes two systems.
+each window is measured with the System its own config describes (its own processes,
+periods, allocation: a Generation), so a table never mixes two systems.
 
 A window is measured in parts, each from the records of some of its DPUs (window_part),
 then finished from all of them (finish_window): a long run's log is read a few DPUs at a
@@ -21,7 +21,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from skeleton.host.model import from_config
+import skelmsg
+from skeleton.host.model import System, from_config
 
 from ..read.parallel import map_threads, table_bytes
 from ..read.records import RECORD_DTYPE, RunRecords, select
@@ -57,6 +58,20 @@ from .metrics import (
     work_end_ns,
 )
 from .stats import group_slices
+
+
+@dataclass(frozen=True)
+class Generation:
+    """One config generation of a run: its number (config_t.generation, which the wire alone
+    carries: a system file has none) and the System its config_t describes."""
+
+    number: int
+    system: System
+
+    @classmethod
+    def of(cls, config: skelmsg.config_t) -> Generation:
+        """The Generation a decoded config_t describes."""
+        return cls(int(config.generation), from_config(config))
 
 
 @dataclass
@@ -131,7 +146,7 @@ class WindowPart:
 
 
 def window_part(
-    config: Any,
+    generation: Generation,
     records: np.ndarray,
     inputs: np.ndarray,
     dpus: set[int],
@@ -147,26 +162,27 @@ def window_part(
     # side by side on the machine's cores: the process table, the largest, first, the buffers'
     # and the chains' (the next in time and memory) last, so that those seldom hold their
     # temporaries at once (chains second: the peak of 10^7 records 1.96-1.98 GiB, last: 1.83-1.92).
+    system = generation.system
     # Which records are in the measurement window: found once, read by every table (read-only:
     # the tables run side by side).
-    win = measured(records, config)
+    win = measured(records, system)
     win.flags.writeable = False
     # Each process's first cycle here (split_lockouts), its keys the processes that ran (Deliveries).
     first_cycles = smallest_per_id(records["process"], records["cycle"])
     # Which (process, buffer) input each input record counts for: read by two tables, made once.
-    pairs = input_pairs(records, inputs, config, win)
+    pairs = input_pairs(records, inputs, system, win)
     pairs.at.flags.writeable = False
     tasks: dict[str, Callable[[], Any]] = {
-        "processes": lambda: process_metrics(records, inputs, config, win, pairs),
-        "behind": lambda: behind_runs(records, config, win, origin),
-        "dpus": lambda: dpu_metrics(records, config, win, earlier),
+        "processes": lambda: process_metrics(records, inputs, system, win, pairs),
+        "behind": lambda: behind_runs(records, system, win, origin),
+        "dpus": lambda: dpu_metrics(records, system, win, earlier),
         "span": lambda: _span(records, win, clock),
-        "deliveries": lambda: Deliveries.of(records, inputs, config, set(first_cycles)),
-        "stalls": lambda: stall_events(records, config),
+        "deliveries": lambda: Deliveries.of(records, inputs, system, set(first_cycles)),
+        "stalls": lambda: stall_events(records, system),
         "sums": lambda: _sums_ns(records, win),
         "ends": lambda: warmup_end_ns(records),
-        "buffers": lambda: buffer_parts(records, inputs, config, clock, win, pairs),
-        "chains": lambda: ChainRecords.of(records, inputs, from_config(config), win),
+        "buffers": lambda: buffer_parts(records, inputs, system, clock, win, pairs),
+        "chains": lambda: ChainRecords.of(records, inputs, system, win),
     }
     done = dict(zip(tasks, map_threads(lambda task: task(), tasks.values(), table_bytes(records, inputs)),
                     strict=True))  # fmt: skip
@@ -181,7 +197,7 @@ def window_part(
 
 
 def finish_window(
-    config: Any,
+    generation: Generation,
     parts: Sequence[WindowPart],
     lockouts: dict[int, Lockout],
     lost: Sequence[Fault],
@@ -196,18 +212,18 @@ def finish_window(
     and a data wait behind are looked up in); `skips`: the run's skipped releases
     (latency.release_skips: what a buffer's loss looks up across a switch); `origin`: the run's
     first release per DPU."""
-    processes = _rows(parts, config.processes, lambda p: p.dpu, lambda part: part.processes)
+    system = generation.system
+    processes = _rows(parts, system.processes, lambda p: p.dpu, lambda part: part.processes)
     flagged: dict[int, Lockout] = {}
     for part in parts:
         for proc, lock in part.flagged.items():
             flagged.setdefault(proc, lock)
     # What the timing records flagged and no status_t said (lockouts_from_records' rule).
     locks = {**lockouts, **{proc: lock for proc, lock in sorted(flagged.items()) if proc not in lockouts}}
-    system = from_config(config)
     delivered, locks = delivery_faults(system, Deliveries.join(p.deliveries for p in parts), locks)
     # what the writers' stalls explain: the whole run's records hold a writer's DPU's cycles
-    platform = stalled_writers(locks, stalls, config, clock)
-    mine = stalls[stalls["generation"] == config.generation]
+    platform = stalled_writers(locks, stalls, system, clock)
+    mine = stalls[stalls["generation"] == generation.number]
     behind = sorted((b for part in parts for b in part.behind), key=lambda b: b.dpu)
     spans = [part.span for part in parts if part.span.start_ns is not None]
     if any(s.measured for s in spans):
@@ -220,10 +236,10 @@ def finish_window(
         lambda: buffer_metrics(BufferParts.join(p.buffers for p in parts), system, skips, counted),
         lambda: chain_metrics(chain_rows, system, clock)], table_bytes(chain_rows.records, chain_rows.inputs))
     return WindowReport(
-        generation=int(config.generation),
+        generation=generation.number,
         start_ns=min((s.start_ns for s in spans), default=None),
         end_ns=max((s.end_ns for s in spans), default=None),
-        dpus=_rows(parts, config.dpus, lambda d: d.id, lambda part: part.dpu_rows),
+        dpus=_rows(parts, system.dpus, lambda d: d.id, lambda part: part.dpu_rows),
         processes=processes,
         buffers=buffers,
         chains=chains,
@@ -231,9 +247,9 @@ def finish_window(
             delivered
             + lockout_faults(locks, system, origin, platform)
             + jam_faults(locks, system, origin, platform)
-            + behind_faults(behind, config, mine, clock)
-            + skipping_faults(processes, config)
-            + stall_faults(np.concatenate([p.stalls for p in parts]), config, origin)
+            + behind_faults(behind, system, mine, clock)
+            + skipping_faults(processes, system)
+            + stall_faults(np.concatenate([p.stalls for p in parts]), system, origin)
             + overrun_faults(processes)
             + list(lost)
         ),

@@ -21,6 +21,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 import skelmsg
+from skeleton.host.model import from_config
 from skelmsg.contract import CLOCK_CHANNEL, COMMAND_CHANNEL, CONFIG_CHANNEL, REPORT_CHANNEL, STATUS_CHANNEL
 
 from ..errors import EXIT_BAD_INPUT, SkelError
@@ -60,7 +61,7 @@ class Messages:
     """The decoded control-plane messages of a log."""
 
     log: Log = field(repr=False)  # where the statuses are decoded from
-    configs: dict[int, Any]  # generation -> its last config_t (only the generations asked for)
+    configs: dict[int, skelmsg.config_t]  # generation -> its last config_t (only the generations asked for)
     reports: list[Any]  # report_t, in log order
     clock_offsets: list[Any]  # clock_offset_t, in log order
     commands: list[tuple[int, Any]] = field(default_factory=list)  # (utime_us heard, command_t), in log order
@@ -175,11 +176,12 @@ def decode_timed(log: Log, channel: str, decode: Callable[[bytes], T],
 _CONFIG_HEAD = struct.Struct(">q")  # config_t starts with its generation
 
 
-def configs_of(log: Log, generations: Iterable[int], malformed: dict[str, int]) -> dict[int, Any]:
+def configs_of(log: Log, generations: Iterable[int],
+               malformed: dict[str, int]) -> dict[int, skelmsg.config_t]:
     """The last config_t of each generation asked for. Only the header of the others is read:
     a config (with the system file text) is re-sent periodically and is slow to decode."""
     wanted = set(generations)
-    found: dict[int, Any] = {}
+    found: dict[int, skelmsg.config_t] = {}
     fingerprint = skelmsg.config_t._get_packed_fingerprint()
     for _, data in reversed(log.messages(CONFIG_CHANNEL)):
         if len(data) < 16 or data[:8] != fingerprint:
@@ -189,7 +191,10 @@ def configs_of(log: Log, generations: Iterable[int], malformed: dict[str, int]) 
         if generation not in wanted or generation in found:
             continue
         try:
-            found[generation] = skelmsg.config_t.decode(bytes(data))
+            config = skelmsg.config_t.decode(bytes(data))
+            from_config(config)  # what the analysis reads of it: a damaged enum is malformed too
         except Exception:
             malformed[CONFIG_CHANNEL] = malformed.get(CONFIG_CHANNEL, 0) + 1
+            continue
+        found[generation] = config
     return found

@@ -222,9 +222,9 @@ def _timing_source(data: RunAnalysis, out: BulkWriter) -> MessageSource:
 def _timing_channels(data: RunAnalysis, out: BulkWriter, dpu: np.ndarray, process: np.ndarray) -> np.ndarray:
     """The MCAP channel of each record: one per (DPU, process), named as the last generation
     that has the process names it (a process of an earlier window only keeps its name)."""
-    configs = data.window_configs()
-    names = {p.id: p.name for c in configs for p in c.processes}
-    buffers = json.dumps({str(b.id): b.name for c in configs for b in c.buffers})
+    systems = [g.system for g in data.window_generations()]
+    names = {p.id: p.name for s in systems for p in s.processes}
+    buffers = json.dumps({str(b.id): b.name for s in systems for b in s.buffers})
     schema = out.schema("skeleton/msg/TimingRecord", "ros2msg", TIMING_SCHEMA.encode())
     keys, inverse = _pairs(dpu, process)
     ids = [
@@ -290,17 +290,18 @@ def _faults(data: RunAnalysis) -> Iterator[tuple[int, Any]]:
 
 
 def _attach(out: BulkWriter, data: RunAnalysis) -> None:
-    config, log = data.config, data.log
+    system, log = data.system, data.log
     integ = log.integrity
-    when = int(config.sent_utc_ns) if config.sent_utc_ns > 0 else 0
-    out.attach("system.yaml", "application/yaml", config.source.encode(), when)
+    sent_utc_ns = data.config.sent_utc_ns  # the wire's alone: when the host sent the config
+    when = int(sent_utc_ns) if sent_utc_ns > 0 else 0
+    out.attach("system.yaml", "application/yaml", system.source_text.encode(), when)
     out.attach(SOURCE_LOG, "application/x-lcm-log", memoryview(log.buf[: log.size]), when, log.release)
     out.metadata(
         METADATA,
         {
-            "system": config.system,
+            "system": system.name,
             "run_id": str(data.report.run_id),
-            "generation": str(config.generation),
+            "generation": str(data.report.generation),
             "source_log": os.path.basename(log.path),
             "lcm_events": str(integ.events),
             "corrupt_ranges": json.dumps([list(r) for r in integ.corrupt_ranges]),

@@ -161,7 +161,7 @@ def default_window_ns(data: RunAnalysis) -> tuple[int, int]:
     """From the moment every process is past warm-up, 4 minor cycles of the slowest DPU: in the
     report generation's window, whose config names the timeline's rows."""
     recs = data.records
-    in_window = recs[measured(recs, data.config)]
+    in_window = recs[measured(recs, data.system)]
     use = in_window if len(in_window) else recs
     if not len(use):
         return 0, 1

@@ -53,9 +53,9 @@ def _metadata(run: RunAnalysis) -> Iterator[dict[str, Any]]:
     # a process a push moved or removed keeps its track, named as its last config names it.
     hosts: dict[int, str] = {}
     threads: dict[tuple[int, int], str] = {}
-    for config in run.window_configs():
-        hosts.update((d.id, d.host) for d in config.dpus)
-        threads.update(((p.dpu, p.id), p.name) for p in config.processes)
+    for generation in run.window_generations():
+        hosts.update((d.id, d.host) for d in generation.system.dpus)
+        threads.update(((p.dpu, p.id), p.name) for p in generation.system.processes)
     for dpu in sorted(hosts):
         yield {"ph": "M", "name": "process_name", "pid": dpu, "args": {"name": f"DPU {dpu} ({hosts[dpu]})"}}
         yield {"ph": "M", "name": "process_sort_index", "pid": dpu, "args": {"sort_index": dpu}}

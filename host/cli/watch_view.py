@@ -76,7 +76,7 @@ def render(heard: Heard, url: str) -> Group:
         # said so, or its time read as the run's, begun again.
         earlier = sorted(g for g in heard.store.generations if g < tables.generation)
         switched = f" (switched live from {earlier[-1]}; `skel report` has every window)" if earlier else ""
-        head.append(f" · {tables.config.system} · generation {tables.generation}{switched} · measured "
+        head.append(f" · {tables.system.name} · generation {tables.generation}{switched} · measured "
                     f"{tables.elapsed_ms / 1000:.1f} s · {heard.store.n_records} records · "
                     f"{heard.lost_batches} batches lost")
         if heard.store.n_records > heard.covered:

@@ -34,15 +34,16 @@ from skelmsg.contract import CLOCK_CHANNEL, CONFIG_CHANNEL, TIMING_CHANNEL
 def _buffers(records: Any, inputs: Any, config: Any, run_records: Any = None) -> list[BufferMetrics]:
     """The buffer table of a window of `records`, its skipped releases looked up in `run_records`."""
     everything = records if run_records is None else run_records
-    counted = input_counts(process_metrics(records, inputs, config))
-    parts = buffer_parts(records, inputs, config)
-    return buffer_metrics(parts, from_config(config), release_skips(everything), counted)
+    system = from_config(config)
+    counted = input_counts(process_metrics(records, inputs, system))
+    parts = buffer_parts(records, inputs, system)
+    return buffer_metrics(parts, system, release_skips(everything), counted)
 
 
 def _chains(records: Any, inputs: Any, config: Any, clock: ClockOffsets = NO_OFFSETS) -> list[ChainMetrics]:
     """The chain table of a window of `records`."""
     system = from_config(config)
-    return chain_metrics(ChainRecords.of(records, inputs, system, measured(records, config)), system, clock)
+    return chain_metrics(ChainRecords.of(records, inputs, system, measured(records, system)), system, clock)
 
 T0 = 1_000 * MS  # host clock
 TRUE_US = [100, 200, 300, 400]  # b_out's true transport latency, B (DPU 1) -> C (DPU 2), per cycle

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
 from fractions import Fraction
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -36,24 +36,26 @@ from skeleton.analysis.measure.metrics import (
     unstalled_ns,
 )
 from skeleton.analysis.measure.tally import GenerationTally
-from skeleton.analysis.measure.windows import run_stalls
+from skeleton.analysis.measure.windows import Generation, run_stalls
 from skeleton.analysis.read.records import RECORD_DTYPE, RunRecords, decode_run, lost_batches
-from skeleton.host.model import from_config
+from skeleton.host.model import Process, System, from_config
 
 
-def _lost(config: Any, records: np.ndarray, *args: Any, **kwargs: Any) -> list[Fault]:
+def _lost(system: System, records: np.ndarray, *args: Any, **kwargs: Any) -> list[Fault]:
     """dpu_lost_faults of a run whose records are `records`."""
-    return dpu_lost_faults(config, args[0], args[1], first_release_ns(records), *args[2:], **kwargs)
+    return dpu_lost_faults(system, args[0], args[1], first_release_ns(records), *args[2:], **kwargs)
 
 
 def _stalls(records: np.ndarray, config: Any) -> list[Fault]:
     """The stall faults of a run whose records are `records`."""
-    return stall_faults(stall_events(records, config), config, first_release_ns(records))
+    system = from_config(config)
+    return stall_faults(stall_events(records, system), system, first_release_ns(records))
 
 
 def _behind(records: np.ndarray, config: Any) -> list[Fault]:
     """The behind faults of a run whose records are `records`."""
-    return behind_faults(behind_runs(records, config), config, run_stalls(records))
+    system = from_config(config)
+    return behind_faults(behind_runs(records, system), system, run_stalls(records))
 
 
 def _run(dpu1: list[Rec], dpu2: list[Rec], size: int = 4) -> RunRecords:
@@ -78,9 +80,9 @@ def test_a_dpu_behind_at_its_window_counts_its_time_from_the_end_of_its_warm_up_
     first.start_ns = late.end_ns + 100 * US  # one cycle at a time
     config = small_config(warmup_cycles=2)
     run = _run(dpu1, dpu2)
-    d1 = dpu_metrics(run.records, config)[0]
+    d1 = dpu_metrics(run.records, from_config(config))[0]
     assert d1.elapsed_ms == pytest.approx(80.0 - 4.51)  # r9 + 10 ms - (r2 + 4.51 ms)
-    live = GenerationTally(config)
+    live = GenerationTally(Generation.of(config))
     assert live.add(run.records[run.records["dpu"] == 1])
     assert live.dpus[0].elapsed_ms == d1.elapsed_ms and live.dpus[0].shares_pct[0] == d1.compute_pct
 
@@ -88,7 +90,7 @@ def test_a_dpu_behind_at_its_window_counts_its_time_from_the_end_of_its_warm_up_
 def test_dpu_utilization_matches_hand_computation() -> None:
     config = small_config(warmup_cycles=2)
     run = _run(*small_run(warmup=2, cycles=10))
-    d1, d2 = dpu_metrics(run.records, config)
+    d1, d2 = dpu_metrics(run.records, from_config(config))
     # Measured cycles 2..9 of DPU 1: elapsed = r9 + 10 ms - r2 = 80 ms.
     assert d1.elapsed_ms == 80.0
     _exact(d1.compute_pct, Fraction(100 * 8 * 6000, 80_000))  # A 4 ms + B 2 ms per cycle = 60 %
@@ -161,7 +163,7 @@ def test_an_overrun_is_the_platforms_when_stalls_cover_its_overshoot(stall_us: i
     assert late.slack_ns == -250 * US and late.start_ns - late.release_ns == 50 * US
     late.stall_ns, late.debt_ns = stall_us * US, debt_us * US  # its own stalls, those still owed
     run = _run(dpu1, dpu2)
-    c = process_metrics(run.records, run.inputs, small_config(warmup_cycles=2))[2]
+    c = process_metrics(run.records, run.inputs, from_config(small_config(warmup_cycles=2)))[2]
     assert (c.overruns, c.overruns_stalled) == (1, explained)
 
 
@@ -171,7 +173,7 @@ def test_process_metrics_counts_latency_and_inputs(huge: bool, monkeypatch: pyte
         monkeypatch.setattr(metrics, "_PAIR_TABLE_MAX", 0)
     config = small_config(warmup_cycles=2)
     run = _run(*small_run(warmup=2, cycles=10))
-    a, b, c = process_metrics(run.records, run.inputs, config)
+    a, b, c = process_metrics(run.records, run.inputs, from_config(config))
     assert (a.name, a.cycles, a.overruns) == ("A", 8, 0)
     assert a.latency_us.p50 == pytest.approx(155.0) and a.latency_us.max == pytest.approx(190.0)
     assert a.latency_us.p99 == pytest.approx(120 + 0.99 * 70)
@@ -191,19 +193,20 @@ def test_process_metrics_counts_latency_and_inputs(huge: bool, monkeypatch: pyte
     # An input record of a buffer its process does not read in this config counts nowhere: C's
     # of b_out, when the config has C read a_out (B's input) instead.
     config.processes[2].inputs = [0]
-    _, b2, c2 = process_metrics(run.records, run.inputs, config)
+    _, b2, c2 = process_metrics(run.records, run.inputs, from_config(config))
     assert [(i.buffer, i.new, i.stale, i.dropped, i.received) for i in c2.inputs] == [("a_out", 0, 0, 0, 0)]
     assert b2.inputs == b.inputs
 
 
 def test_warmup_cycles_are_excluded_from_every_measure() -> None:
     recs = small_run(warmup=2, cycles=10)
-    with_warm = process_metrics(_run(*recs).records, _run(*recs).inputs, small_config(warmup_cycles=0))
-    without = process_metrics(_run(*recs).records, _run(*recs).inputs, small_config(warmup_cycles=2))
+    warm, cold = from_config(small_config(warmup_cycles=0)), from_config(small_config(warmup_cycles=2))
+    with_warm = process_metrics(_run(*recs).records, _run(*recs).inputs, warm)
+    without = process_metrics(_run(*recs).records, _run(*recs).inputs, cold)
     assert with_warm[0].cycles == 10 and without[0].cycles == 8
     assert with_warm[0].compute_mean_us == pytest.approx((2 * 6000 + 8 * 4000) / 10)
     assert without[0].compute_mean_us == pytest.approx(4000.0)
-    d_warm = dpu_metrics(_run(*recs).records, small_config(warmup_cycles=0))[0]
+    d_warm = dpu_metrics(_run(*recs).records, from_config(small_config(warmup_cycles=0)))[0]
     assert d_warm.elapsed_ms == 100.0
 
 
@@ -214,8 +217,8 @@ def test_skipped_partial_cycle_counts_time_but_not_cycles() -> None:
                     inputs=[(0, 9, 0, 0, 0)]))  # fmt: skip
     run = _run(dpu1, dpu2)
     config = small_config(warmup_cycles=2)
-    d1 = dpu_metrics(run.records, config)[0]
-    b = process_metrics(run.records, run.inputs, config)[1]
+    d1 = dpu_metrics(run.records, from_config(config))[0]
+    b = process_metrics(run.records, run.inputs, from_config(config))[1]
     assert (b.cycles, b.skipped) == (8, 1)
     assert (b.inputs[0].new + b.inputs[0].stale) == 8
     elapsed_us = 80_000 + 3_200  # the partial cycle ends 3.2 ms after r10
@@ -225,7 +228,7 @@ def test_skipped_partial_cycle_counts_time_but_not_cycles() -> None:
 def test_static_load_divides_by_speed() -> None:
     config = small_config()
     config.dpus[0].speed = 2.0
-    assert static_load_pct(config, 1) == pytest.approx(30.0)
+    assert static_load_pct(from_config(config), 1) == pytest.approx(30.0)
 
 
 def test_lost_batches_from_batch_seq_gaps() -> None:
@@ -375,8 +378,15 @@ def _beats(dpu: int, from_s: float, to_s: float, pid: int = 100, run_id: int = R
     return [(int((from_s + i / 5) * 1e6), _status(dpu, pid, run_id, state)) for i in range(steps + 1)]
 
 
+def _one_process_per_dpu(dpus: tuple[int, ...]) -> System:
+    """A System whose DPUs `dpus` run one process each (what dpu_lost_faults reads of it)."""
+    return dataclasses.replace(from_config(small_config()), processes=tuple(
+        Process(id=i, name=f"P{i}", dpu=i, order=1, period_us=5000, compute_us=0, sync="periodic",
+                inputs=(), required=(), outputs=()) for i in dpus))
+
+
 def test_dpu_lost_when_its_heartbeats_stop_not_when_its_timing_does() -> None:
-    config = SimpleNamespace(processes=[SimpleNamespace(id=i, dpu=i, period_us=5000) for i in (1, 2, 3, 4)])
+    system = _one_process_per_dpu((1, 2, 3, 4))
     # DPU 3's timing stops 3.5 s early (a process waiting for data that never comes) while it
     # heartbeats to the end; DPU 2 falls silent at 1.4 s; DPU 4 is restarted (a new pid) at 1 s.
     records = _spans({1: [0, 4000], 2: [0, 1500], 3: [0, 500], 4: [0, 4000]})
@@ -385,7 +395,7 @@ def test_dpu_lost_when_its_heartbeats_stop_not_when_its_timing_does() -> None:
              + _beats(1, 4.2, 5, state=skelmsg.status_t.STATE_READY))
     # In the order a log gives them: each DPU's batch of statuses, not by time. DPUs 1 and 3
     # ran to the end and sent their report_t.
-    faults = _lost(config, records, heartbeats_from_status(beats), RUN_ID, reported={1, 3})
+    faults = _lost(system, records, heartbeats_from_status(beats), RUN_ID, reported={1, 3})
     assert [(f.kind, f.dpu) for f in faults] == [("dpu_lost", 2), ("dpu_lost", 4)], faults
     assert "not heard for 2.60 s from 1.40 s into the run" in faults[0].detail
     assert "restarted during the run (pid 100, then 101)" in faults[1].detail
@@ -394,16 +404,16 @@ def test_dpu_lost_when_its_heartbeats_stop_not_when_its_timing_does() -> None:
     # heartbeat heard (ARMED: here half a second before that release).
     for heard_us, s in beats:
         s.mono_ns = heard_us * 1000 - 500 * MS
-    faults = _lost(config, records, heartbeats_from_status(beats), RUN_ID, reported={1, 3})
+    faults = _lost(system, records, heartbeats_from_status(beats), RUN_ID, reported={1, 3})
     assert "not heard for 2.60 s from 0.90 s into the run" in faults[0].detail, faults[0]
     assert faults[0].at_s == pytest.approx(0.9)
     # The logger stalled from 1 s to 3.5 s: it heard nobody then, so nobody who reported the
     # run is lost for it.
     stalled = [(t, s) for t, s in beats if not 1_000_000 < t < 3_500_000 and s.dpu != 4]
-    assert _lost(config, records, heartbeats_from_status(stalled), RUN_ID, reported={1, 2, 3}) == []
+    assert _lost(system, records, heartbeats_from_status(stalled), RUN_ID, reported={1, 2, 3}) == []
     # Heartbeats of another run, or none at all: only a DPU with no timing record is lost.
     no_times = heartbeats_from_status([(None, _status(1, state=3)), (None, _status(3, state=3))])
-    assert [f.dpu for f in _lost(config, _spans({1: [0, 9]}), no_times, RUN_ID)] == [2, 4]
+    assert [f.dpu for f in _lost(system, _spans({1: [0, 9]}), no_times, RUN_ID)] == [2, 4]
 
 
 
@@ -411,21 +421,21 @@ def test_dpu_lost_shortly_before_the_runs_end_when_it_sent_no_report() -> None:
     """A DPU killed 1.4 s before the run's end was silent for less than LOST_GAP_US within
     the run, which the report took for no fault. But a DPU that finished the run sends its
     report_t and heartbeats on while idle: silent past the end, with no report, it is lost."""
-    config = SimpleNamespace(processes=[SimpleNamespace(id=i, dpu=i, period_us=5000) for i in (1, 2, 3)])
+    system = _one_process_per_dpu((1, 2, 3))
     records = _spans({1: [0, 4000], 2: [0, 2600], 3: [0, 4000]})
     ready = skelmsg.status_t.STATE_READY
     # DPU 2 dies at 2.6 s; DPU 3 is restarted after the run (a new pid, no report for it)
     beats = (_beats(1, 0, 4) + _beats(2, 0, 2.6) + _beats(3, 0, 4)
              + _beats(1, 4.2, 9, state=ready) + _beats(3, 4.8, 9, pid=101, state=ready))
-    faults = _lost(config, records, heartbeats_from_status(beats), RUN_ID, reported={1})
+    faults = _lost(system, records, heartbeats_from_status(beats), RUN_ID, reported={1})
     assert [f.dpu for f in faults] == [2, 3], faults
     assert faults[0].detail.startswith("not heard for 1.40 s from 2.60 s into the run, to its end and after")
     assert "restarted at the run's end with no end-of-run report (pid 100, then 101)" in faults[1].detail
     # Its report_t: it finished the run, whatever came after (stopped, restarted)
-    assert _lost(config, records, heartbeats_from_status(beats), RUN_ID, reported={1, 2, 3}) == []
+    assert _lost(system, records, heartbeats_from_status(beats), RUN_ID, reported={1, 2, 3}) == []
     # A DPU that reported nothing but heartbeats on after the run (its report_t lost) is not lost
     alive = beats + _beats(2, 2.7, 9, state=ready)
-    assert [f.dpu for f in _lost(config, records, heartbeats_from_status(alive), RUN_ID,
+    assert [f.dpu for f in _lost(system, records, heartbeats_from_status(alive), RUN_ID,
                                            reported={1, 3})] == []
 
 

@@ -151,6 +151,19 @@ def test_a_record_a_flipped_bit_made_impossible_is_counted_and_left_out(tmp_path
     assert f"malformed messages skipped: {IMPOSSIBLE}: 1" in _render(rep)
 
 
+def test_a_config_whose_values_the_contract_does_not_name_is_malformed(tmp_path: Path) -> None:
+    """LCM checks a message's type, not its values: a damaged config of compute mode 4 decodes.
+    It is skipped as malformed, and the one re-sent after it (whole) names the run's windows.
+    (Found by test_logreader_properties: the analysis had stopped on it with a traceback.)"""
+    dpu1, dpu2 = small_run()
+    damaged = small_config()
+    damaged.dpus[0].compute = 4
+    path = write_log(tmp_path / "run.lcm", [*_events(dpu1, dpu2), (CONFIG_CHANNEL, damaged)])
+    rep = load_run(str(path), RUN_ID).report
+    assert rep.integrity.malformed == {CONFIG_CHANNEL: 1}
+    assert rep.compute_modes == {1: "sleep", 2: "sleep"}
+
+
 def _events(dpu1: list, dpu2: list) -> list[tuple[str, object]]:
     return [(CONFIG_CHANNEL, small_config())] + [(TIMING_CHANNEL, t) for t in batches(1, dpu1, 4)
                                                    + batches(2, dpu2, 2)]  # fmt: skip
