@@ -174,8 +174,8 @@ def print_summary(report: RunReport, console: Console | None = None, paper: dict
             say(f"  {line}", "yellow")
     for line in stopped_lines(report) + faithful_lines(report) + damage_lines(report):
         say(line, "yellow")
-    if where is not None:
-        say(rest_line(where))
+    if where is not None:   # a path is not broken across lines, however long
+        console.print(rest_line(where), markup=False, highlight=False, soft_wrap=True)
 
 
 def rest_line(where: str) -> str:
