@@ -164,6 +164,14 @@ def _dpus_ended_clean(tmp_path: Path) -> Iterator[None]:
         pytest.fail("\n".join(problems), pytrace=False)
 
 
+def user_env(tmp_path: Path) -> dict[str, str]:
+    """The environment of a user's shell: the shipped daemon (no test's SKEL_DPU or sanitizer
+    options), and daemon state of the test's own."""
+    env = {k: v for k, v in os.environ.items() if k not in ("SKEL_DPU", "ASAN_OPTIONS", "UBSAN_OPTIONS")}
+    env["SKEL_STATE_DIR"] = str(tmp_path / "state")
+    return env
+
+
 def faults_but_stalls(report: dict) -> list[dict]:
     """The report's faults less the stalls and the overruns every one of which a stall
     explains: those are the test machine's (a neighbour, the hypervisor), which a test of the

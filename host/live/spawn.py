@@ -29,7 +29,7 @@ import lcm
 from skeleton.analysis.errors import SkelError
 from skelmsg import contract
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]   # host/live/spawn.py -> the checkout
 LOCAL_HOSTS = {"", "localhost", "127.0.0.1", "::1"}
 # What the logger records by default: everything but the dummy buffers themselves, events
 # included (a regular expression; LCM anchors it at both ends, so the alternatives are grouped).

@@ -12,18 +12,11 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from conftest import EXAMPLES, REPO
+from conftest import EXAMPLES, REPO, user_env
 
 SKEL = REPO / ".venv" / "bin" / "skel"
 SHIPPED = REPO / "build" / "skel-dpu"
 PAIR = EXAMPLES / "pair-10ms-5ms.yaml"
-
-
-def _user_env(tmp_path: Path) -> dict[str, str]:
-    """The environment of a user's shell: no test's choice of daemon build, state of its own."""
-    env = {k: v for k, v in os.environ.items() if k not in ("SKEL_DPU", "ASAN_OPTIONS", "UBSAN_OPTIONS")}
-    env["SKEL_STATE_DIR"] = str(tmp_path / "state")
-    return env
 
 
 def _in_own_netns(script: str, tmp_path: Path) -> subprocess.CompletedProcess[str]:
@@ -32,7 +25,7 @@ def _in_own_netns(script: str, tmp_path: Path) -> subprocess.CompletedProcess[st
         pytest.skip("a network namespace of its own needs root, unshare and ip (make test installs ip)")
     setup = "set -e; ip link set lo up; ip link set lo multicast on; ip route add 224.0.0.0/4 dev lo; "
     return subprocess.run(["unshare", "--net", "sh", "-c", setup + script], cwd=tmp_path,
-                          env=_user_env(tmp_path), capture_output=True, text=True, timeout=240)
+                          env=user_env(tmp_path), capture_output=True, text=True, timeout=240)
 
 
 @pytest.mark.timing   # the run's verdict is judged: a platform stall can lock a process out
@@ -59,7 +52,7 @@ def test_the_shipped_build_on_the_default_url_records_into_the_default_folder(tm
 
 
 def test_skel_doctor_from_the_command_line_checks_this_machine(tmp_path: Path) -> None:
-    done = subprocess.run([str(SKEL), "doctor"], env=_user_env(tmp_path), capture_output=True, text=True,
+    done = subprocess.run([str(SKEL), "doctor"], env=user_env(tmp_path), capture_output=True, text=True,
                           timeout=60)
     lines = [line for line in done.stdout.splitlines() if line[:4] in ("OK  ", "WARN", "FAIL")]
     assert done.returncode == (1 if any(line.startswith("FAIL") for line in lines) else 0), done.stdout
@@ -70,10 +63,10 @@ def test_skel_doctor_from_the_command_line_checks_this_machine(tmp_path: Path) -
 def test_skel_allocate_for_latency_writes_a_file_skel_check_accepts(tmp_path: Path) -> None:
     out = tmp_path / "servo-latency.yaml"
     done = subprocess.run([str(SKEL), "allocate", str(EXAMPLES / "servo.yaml"), "--objective", "latency",
-                           "--time-limit", "20", "--out", str(out)], env=_user_env(tmp_path),
+                           "--time-limit", "20", "--out", str(out)], env=user_env(tmp_path),
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "latency" in done.stdout, done.stdout
-    checked = subprocess.run([str(SKEL), "check", str(out)], env=_user_env(tmp_path), capture_output=True,
+    checked = subprocess.run([str(SKEL), "check", str(out)], env=user_env(tmp_path), capture_output=True,
                              text=True, timeout=60)
     assert checked.returncode == 0, checked.stdout + checked.stderr
