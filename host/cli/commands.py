@@ -55,6 +55,9 @@ def _system_args(parser: argparse.ArgumentParser, optional: bool = False) -> Non
     parser.add_argument("--url", help="LCM URL of the system's default link (overrides the file)")
 
 
+CONTROL_URL_HELP = f"the control URL the DPUs listen on (default {DEFAULT_URL})"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skel", description="Run the skeleton of a distributed "
                                      "real-time control system and measure it (NIST skeleton approach).")
@@ -62,7 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("check", help="validate a system file and print its static load")
     _system_args(p)
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="the static view and the prediction as JSON")
 
     p = sub.add_parser("up", help="start the local skel-dpu daemons of a system and leave them running")
     _system_args(p)
@@ -78,14 +81,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true",
                    help="push even into a run another host tool started (the DPUs log who did it)")
 
-    p = sub.add_parser("run", help="push, run at one shared instant, record, and print the tables")
+    p = sub.add_parser("run", help="push, run at one shared instant, record, and print one screen of it")
     _system_args(p, optional=True)
     p.add_argument("--spawn", action="store_true", help="start local DPUs for this run and stop them after")
     length = p.add_mutually_exclusive_group()
     length.add_argument("--cycles", type=int, help="run length in cycles of the shortest period")
     length.add_argument("--duration", type=float, metavar="S", help="run length in seconds")
     p.add_argument("--out", type=Path, help="run directory (default runs/<system>-<time>/)")
-    p.add_argument("--json", action="store_true", help="print report.json instead of tables")
+    p.add_argument("--json", action="store_true", help="print report.json instead of one screen")
     p.add_argument("--all", action="store_true", dest="all_tables",
                    help="print every table, not one screen (the verdict, per DPU, faults and deltas counted)")
     p.add_argument("--compare-paper", action="store_true",
@@ -103,19 +106,19 @@ def build_parser() -> argparse.ArgumentParser:
     listen = (f"listen until no new DPU was heard for {QUIET_S:g} s, at most S seconds "
               f"(default {LISTEN_LIMIT_S:g})")
     p = sub.add_parser("clock", help="estimate each DPU's clock offset and round trip (ping, best of N)")
-    p.add_argument("--url", default=DEFAULT_URL)
+    p.add_argument("--url", default=DEFAULT_URL, help=CONTROL_URL_HELP)
     p.add_argument("--samples", type=int, default=8, help="pings per DPU (default 8)")
     p.add_argument("--wait", type=float, default=LISTEN_LIMIT_S, metavar="S", help=listen)
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="each DPU's offset and round trip as JSON")
 
     p = sub.add_parser("status", help="the DPUs heard on the control channel")
-    p.add_argument("--url", default=DEFAULT_URL)
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--url", default=DEFAULT_URL, help=CONTROL_URL_HELP)
+    p.add_argument("--json", action="store_true", help="every DPU heard, as JSON")
     p.add_argument("--wait", type=float, default=LISTEN_LIMIT_S, metavar="S", help=listen)
 
     p = sub.add_parser("report", help="the tables of a recorded run, from its log alone")
     p.add_argument("log", type=Path, help="run.lcm, run.mcap, or a run directory")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print report.json instead of one screen")
     p.add_argument("--run-id", type=int, help="which run, when the log holds several (default the last)")
     p.add_argument("--all", action="store_true", dest="all_tables",
                    help="print every table, not one screen (the verdict, per DPU, faults and deltas counted)")
@@ -124,7 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("diff", help="two runs' tables side by side, with deltas")
     p.add_argument("run_a", type=Path)
     p.add_argument("run_b", type=Path)
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="the deltas as JSON")
 
     p = sub.add_parser("export", help="a run as MCAP (Foxglove), Parquet tables or a Perfetto trace")
     p.add_argument("log", type=Path, help="run.lcm, or a run directory")
@@ -134,7 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--trace", type=Path, metavar="FILE.json", help="write a Chrome/Perfetto trace of the run")
 
     p = sub.add_parser("watch", help="live view of a run (or of lcm-logplayer replaying one)")
-    p.add_argument("--url", default=DEFAULT_URL)
+    p.add_argument("--url", default=DEFAULT_URL, help=CONTROL_URL_HELP)
     p.add_argument("--once", action="store_true", help="print the final table when the run ends, then exit")
     p.add_argument("--all", action="store_true", dest="all_tables",
                    help="with --once: every table, not one screen (as skel report --all)")
@@ -145,14 +148,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("name", help="the event, as the system file names it (an `events:` entry of kind host)")
     p.add_argument("--count", type=int, default=1, help="how many (default 1)")
     p.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="events per second (default 10)")
-    p.add_argument("--url", default=DEFAULT_URL)
+    p.add_argument("--url", default=DEFAULT_URL, help=CONTROL_URL_HELP)
 
     from .allocate_cmd import add_parser  # ortools loads only for `skel allocate`
     _system_args(add_parser(sub))
 
     p = sub.add_parser("doctor", help="check what would break LCM multicast here, with the fix for each")
-    p.add_argument("--url", default=DEFAULT_URL)
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--url", default=DEFAULT_URL, help=CONTROL_URL_HELP)
+    p.add_argument("--json", action="store_true", help="every check as JSON")
 
     p = sub.add_parser("keygen", help="write a new random key for signed control (mode 0600)")
     p.add_argument("file", type=Path, help="the key file to create (never overwritten)")
