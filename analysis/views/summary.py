@@ -81,8 +81,8 @@ def dpu_summary_table(report: RunReport) -> Any:
     predicted = {d.id: d.compute_pct for d in report.predicted.dpus} if report.predicted else {}
     dpus = report.dpus
     if len(dpus) > DPU_ROWS:
-        busiest = sorted(dpus, key=lambda d: -(d.compute_pct or 0.0))[:DPU_ROWS]
-        dpus = [d for d in dpus if d in busiest]
+        busiest = {d.id for d in sorted(dpus, key=lambda d: -(d.compute_pct or 0.0))[:DPU_ROWS]}
+        dpus = [d for d in dpus if d.id in busiest]
     rows = []
     for d in dpus:
         pred = predicted.get(d.id)
