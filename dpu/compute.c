@@ -171,9 +171,8 @@ static void compute_sleep(const skel_compute_t *c, int64_t start, int64_t ns, in
     int64_t end = start + ns, wake = start;
     if (ns > c->spin_ns) {
         wake = end - c->spin_ns;
-        struct timespec ts = { .tv_sec = wake / SKEL_NS_PER_S, .tv_nsec = wake % SKEL_NS_PER_S };
-        /* EINTR only shortens the sleep; the spin below still ends on time. */
-        (void)clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL);
+        /* Ending early only shortens the sleep; the spin below still ends on time. */
+        (void)clock_nap(wake);
     }
     compute_spin_until(c, wake, end, stall);
 }

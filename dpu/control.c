@@ -143,11 +143,33 @@ static int control_poll(skel_control_t *c)
     if (fds[0].revents & POLLIN)
         for (int n = 0; n < 1000 && lcm_handle_timeout(c->s->ctl, 0) > 0; n++) {
         }
-    if (fds[1].revents & POLLIN) {
-        uint64_t v;
-        if (read(c->s->notify_fd, &v, sizeof v) > 0) c->status_due = 1;
-    }
+    if (fds[1].revents & POLLIN) control_notice(c);
     return 0;
+}
+
+/* The executive said something happened (a lockout, a state, a switch): a status at once. */
+void control_notice(skel_control_t *c)
+{
+    uint64_t v;
+    if (read(c->s->notify_fd, &v, sizeof v) > 0) c->status_due = 1;
+}
+
+/* One round of the control thread's work between two polls: timing batches, a
+ * switch's plans, the end of a run, the status when due. 1 once the executive has
+ * exited. A simulation (sim.c) runs the same rounds on virtual time. */
+int control_step(skel_control_t *c)
+{
+    skel_server_t *s = c->s;
+    control_drain_timing(c, 0);
+    apply_drain_next(c);
+    if (pthread_mutex_lock(&s->lock) != 0) return 1;
+    int ended = s->run_ended, done = s->exec_done;
+    pthread_mutex_unlock(&s->lock);
+    if (ended) control_finish_run(c);
+    if (c->status_due || clock_mono_ns() - c->last_status_ns >= SKEL_STATUS_NS)
+        if (report_status_publish(c) != 0) log_line("cannot publish status");
+    seal_note(&s->seal, s->dpu_id);
+    return done;
 }
 
 void *control_main(void *arg)
@@ -166,16 +188,7 @@ void *control_main(void *arg)
     c->status_due = 1;
     for (;;) {
         if (control_poll(c) != 0) log_line("control poll failed: %s", strerror(errno));
-        control_drain_timing(c, 0);
-        apply_drain_next(c);
-        if (pthread_mutex_lock(&s->lock) != 0) break;
-        int ended = s->run_ended, done = s->exec_done;
-        pthread_mutex_unlock(&s->lock);
-        if (ended) control_finish_run(c);
-        if (c->status_due || clock_mono_ns() - c->last_status_ns >= SKEL_STATUS_NS)
-            if (report_status_publish(c) != 0) log_line("cannot publish status");
-        seal_note(&s->seal, s->dpu_id);
-        if (done) break;
+        if (control_step(c)) break;
     }
     return NULL;
 }

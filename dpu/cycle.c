@@ -157,11 +157,8 @@ int cycle_wait(skel_exec_t *x, int64_t until)
         int64_t now = clock_mono_ns();
         if (now >= until) return 0;
 
-        int64_t t = until - now > piece ? now + piece : until;
-        struct timespec ts = { .tv_sec = t / SKEL_NS_PER_S, .tv_nsec = t % SKEL_NS_PER_S };
         x->mark_stale = 1; /* the steps after a chosen sleep are judged from a fresh mark */
-        int rc = clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL);
-        if (rc != 0 && rc != EINTR) return 1;
+        if (clock_nap(until - now > piece ? now + piece : until) != 0) return 1;
     }
 }
 

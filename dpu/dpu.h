@@ -62,7 +62,7 @@
 void log_line(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 void log_sanitize(char *line); /* control characters -> '?', in place */
 
-/* ---- clock (clock.c): CLOCK_MONOTONIC ns inside the DPU ------------------------ */
+/* ---- clock (clock.c): time and the wire, the machine's or a simulation's ---------- */
 int64_t clock_mono_ns(void);
 int64_t clock_utc_ns(void);
 int64_t clock_thread_cpu_ns(void);
@@ -73,6 +73,49 @@ int64_t clock_utc_to_mono(int64_t at_utc_ns, int64_t now_mono_ns, int64_t now_ut
 int64_t clock_mono_to_utc(int64_t at_mono_ns, int64_t now_mono_ns, int64_t now_utc_ns);
 /* Absolute sleep on CLOCK_MONOTONIC; returns early (1) when *stop becomes set. */
 int clock_sleep_until(int64_t mono_ns, atomic_int *stop);
+/* One absolute sleep until UNTIL; it may end early (a signal, another fiber's join): 0, -1 failed. */
+int clock_nap(int64_t until);
+
+/* The wire as the executives reach it: LCM on the machine, the simulation's delivery under
+ * one. A channel's subscription names it plainly (CHANNEL) beside LCM's regular expression. */
+lcm_t *clock_open(const char *url);
+void clock_close(lcm_t *lcm);
+lcm_subscription_t *clock_subscribe(lcm_t *lcm, const char *channel, const char *regex,
+                                    lcm_msg_handler_t handler, void *user);
+int clock_publish(lcm_t *lcm, const char *channel, const void *data, unsigned len);
+int clock_handle(lcm_t *lcm);                     /* one message received: 1, none: 0, -1 */
+/* Simulated only: waits up to TIMEOUT_NS for a message on one of LCMS: >0 one came, 0 not. */
+int clock_wait(lcm_t *const *lcms, int n, int64_t timeout_ns);
+
+/* A thread of the DPU's own (the event generators): a kernel thread, or a simulation's fiber. */
+typedef struct {
+    pthread_t tid;
+    int fiber;
+    int simulated;
+} clock_thread_t;
+
+int clock_thread_start(clock_thread_t *t, void *(*fn)(void *), void *arg); /* 0, or an error */
+int clock_thread_join(clock_thread_t *t);
+
+/* A simulated world (sim.c): virtual CLOCK_MONOTONIC, and messages delivered by it. Every
+ * DPU of a system runs on one thread, each executive and generator a fiber of it. */
+typedef struct {
+    void *ctx;
+    int64_t utc_offset_ns;                            /* UTC = monotonic + this */
+    int64_t (*now)(void *ctx);
+    void (*nap)(void *ctx, int64_t until);
+    lcm_t *(*open)(void *ctx, const char *url);
+    void (*close)(void *ctx, lcm_t *lcm);               /* before LCM destroys it */
+    int (*subscribe)(void *ctx, lcm_t *lcm, const char *channel, lcm_msg_handler_t handler, void *user);
+    int (*publish)(void *ctx, lcm_t *lcm, const char *channel, const void *data, unsigned len);
+    int (*handle)(void *ctx, lcm_t *lcm);
+    int (*wait)(void *ctx, lcm_t *const *lcms, int n, int64_t timeout_ns);
+    int (*spawn)(void *ctx, int *fiber, void *(*fn)(void *), void *arg);
+    int (*join)(void *ctx, int fiber);
+} clock_world_t;
+
+void clock_simulate(const clock_world_t *world); /* before anything runs; NULL: the machine */
+int clock_simulated(void);
 
 /* ---- wire (wire.c): every received message is checked before it is decoded ---- */
 typedef struct {
@@ -437,7 +480,7 @@ typedef struct skel_plan {
     lcm_t *gen_lcm;             /* the generator thread's own lcm_t */
     lcm_t *gen_rec;             /* ... and its own on the record URL, for the log's copy */
     lcm_t *emit_rec;            /* the executive's on the record URL, for the log's copy of what it emits */
-    pthread_t gen_thread;
+    clock_thread_t gen_thread;
     int gen_started;
     atomic_int gen_stop;
     int64_t gen_end_ns;
@@ -691,6 +734,7 @@ void threads_end(threads_t *t);                 /* stops and joins every thread,
  * DPU's executive ----------------------------------------------------------------- */
 void *executive_main(void *arg);
 void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run);
+int executive_serve(skel_server_t *s);
 
 /* ---- control (control.c): the control thread ------------------------------------ */
 typedef struct {
@@ -714,6 +758,8 @@ typedef struct {
 int control_init(skel_control_t *c, skel_server_t *s);
 void control_free(skel_control_t *c);
 void *control_main(void *arg);
+void control_notice(skel_control_t *c);
+int control_step(skel_control_t *c);
 
 /* ---- command (command.c): a config or a command the control thread received ---- */
 void command_handle_config(skel_control_t *c, const void *data, int len);
@@ -734,5 +780,8 @@ int owner_refuses(skel_control_t *c, int64_t session, int8_t force, const char *
 int report_status_publish(skel_control_t *c);
 void report_reject(skel_control_t *c, int64_t generation, const char *reason, int fault);
 int report_publish(skel_server_t *s, const skel_plan_t *plan, skel_history_t *history);
+
+/* ---- sim (sim.c): every DPU of a system on virtual time, one process ------------ */
+int sim_main(const char *input, const char *output, const char *url); /* an exit code */
 
 #endif

@@ -162,7 +162,7 @@ int event_open(skel_plan_t *plan, const char *control_url, const char *record_ur
 {
     int emits = 0;
     for (int i = 0; i < plan->nprocesses; i++) emits |= plan->processes[i].nemits > 0;
-    if (emits && (plan->emit_rec = lcm_create(record_url)) == NULL) return -1;
+    if (emits && (plan->emit_rec = clock_open(record_url)) == NULL) return -1;
     if (plan->awaits_events || emits) {
         for (int i = 0; i < plan->nlinks && plan->event_link < 0; i++)
             if (strcmp(plan->links[i].url, control_url) == 0) plan->event_link = i;
@@ -183,8 +183,8 @@ int event_open(skel_plan_t *plan, const char *control_url, const char *record_ur
                                        event_on_message, &plan->events[i]) != 0)
                 return -1;
     }
-    if (plan->nsources > 0 && ((plan->gen_lcm = lcm_create(control_url)) == NULL ||
-                               (plan->gen_rec = lcm_create(record_url)) == NULL))
+    if (plan->nsources > 0 && ((plan->gen_lcm = clock_open(control_url)) == NULL ||
+                               (plan->gen_rec = clock_open(record_url)) == NULL))
         return -1;
     return 0;
 }
@@ -192,9 +192,9 @@ int event_open(skel_plan_t *plan, const char *control_url, const char *record_ur
 void event_free(skel_plan_t *plan)
 {
     event_generators_stop(plan);
-    if (plan->gen_lcm != NULL) lcm_destroy(plan->gen_lcm);
-    if (plan->gen_rec != NULL) lcm_destroy(plan->gen_rec);
-    if (plan->emit_rec != NULL) lcm_destroy(plan->emit_rec);
+    if (plan->gen_lcm != NULL) clock_close(plan->gen_lcm);
+    if (plan->gen_rec != NULL) clock_close(plan->gen_rec);
+    if (plan->emit_rec != NULL) clock_close(plan->emit_rec);
     for (int i = 0; i < plan->nevents; i++) {
         free(plan->events[i].name);
         free(plan->events[i].channel);
@@ -271,8 +271,8 @@ void event_emit(skel_plan_t *plan, const skel_process_t *p, int64_t now_ns)
     for (int i = 0; i < p->nemits; i++) {
         skel_event_t *e = &plan->events[p->emits[i]];
         int len = event_encode(e, e->enc, e->enc_cap, plan->run_id, plan->dpu, p->id, e->seq++, now_ns);
-        if ((len < 0 || lcm_publish(plan->links[plan->event_link].lcm, e->channel, e->enc, (unsigned)len) != 0 ||
-             lcm_publish(plan->emit_rec, e->channel, e->enc, (unsigned)len) != 0)
+        if ((len < 0 || clock_publish(plan->links[plan->event_link].lcm, e->channel, e->enc, (unsigned)len) != 0 ||
+             clock_publish(plan->emit_rec, e->channel, e->enc, (unsigned)len) != 0)
             && plan->publish_errors++ == 0)
             log_line("DPU %d: process %d cannot publish event %s", plan->dpu, p->id, e->name);
     }
@@ -312,8 +312,8 @@ static void *event_generate(void *arg)
         skel_event_t *e = &plan->events[g->event];
         int len = event_encode(e, g->enc, g->enc_cap, plan->run_id, plan->dpu, 0, g->k,
                                g->next_ns + plan->clock_offset_ns);
-        if (len < 0 || lcm_publish(plan->gen_lcm, e->channel, g->enc, (unsigned)len) != 0 ||
-            lcm_publish(plan->gen_rec, e->channel, g->enc, (unsigned)len) != 0)
+        if (len < 0 || clock_publish(plan->gen_lcm, e->channel, g->enc, (unsigned)len) != 0 ||
+            clock_publish(plan->gen_rec, e->channel, g->enc, (unsigned)len) != 0)
             log_line("DPU %d: cannot publish generated event %s", plan->dpu, e->name);
         g->k++;
         g->next_ns = event_source_next(g, plan->run_t0_ns, g->next_ns);
@@ -397,7 +397,7 @@ int event_generators_start(skel_plan_t *plan, int64_t end)
     if (plan->nsources == 0) return 0;
     plan->gen_end_ns = end;
     atomic_store(&plan->gen_stop, 0);
-    if (pthread_create(&plan->gen_thread, NULL, event_generate, plan) != 0) {
+    if (clock_thread_start(&plan->gen_thread, event_generate, plan) != 0) {
         log_line("DPU %d: cannot start the event generators' thread: no generated events", plan->dpu);
         return -1;
     }
@@ -409,7 +409,7 @@ void event_generators_stop(skel_plan_t *plan)
 {
     if (!plan->gen_started) return;
     atomic_store(&plan->gen_stop, 1);
-    if (pthread_join(plan->gen_thread, NULL) != 0) log_line("DPU %d: cannot join the event thread", plan->dpu);
+    if (clock_thread_join(&plan->gen_thread) != 0) log_line("DPU %d: cannot join the event thread", plan->dpu);
     plan->gen_started = 0;
 }
 

@@ -89,6 +89,22 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
     (void)cycle_schedule(s, x.plan, 0);
 }
 
+/* Runs the run a START asked for, if one waits: 1 when it ran one, 0 when none waits,
+ * -1 when the lock failed. The caller holds S->lock, held again on return. */
+int executive_serve(skel_server_t *s)
+{
+    if (!s->run.requested || s->plan == NULL) return 0;
+    skel_run_t run = s->run;
+    skel_plan_t *plan = s->plan;
+    s->run.requested = 0;
+    pthread_mutex_unlock(&s->lock);
+    executive_run(s, plan, &run);
+    if (pthread_mutex_lock(&s->lock) != 0) return -1;
+    s->run_ended = 1;
+    server_wake(s->notify_fd);
+    return 1;
+}
+
 /* Waits for a START. During a run only the executive swaps the plan (at a
  * boundary, cycle_switch); between runs only the control thread does. */
 void *executive_main(void *arg)
@@ -101,17 +117,9 @@ void *executive_main(void *arg)
         log_line("warning: cannot set timer slack: wake-ups may be up to 50 us late");
     if (pthread_mutex_lock(&s->lock) != 0) return NULL;
     while (!atomic_load(&s->quit)) {
-        if (s->run.requested && s->plan != NULL) {
-            skel_run_t run = s->run;
-            skel_plan_t *plan = s->plan;
-            s->run.requested = 0;
-            pthread_mutex_unlock(&s->lock);
-            executive_run(s, plan, &run);
-            if (pthread_mutex_lock(&s->lock) != 0) return NULL;
-            s->run_ended = 1;
-            server_wake(s->notify_fd);
-            continue;
-        }
+        int served = executive_serve(s);
+        if (served < 0) return NULL;
+        if (served) continue;
         /* Idle: keep the links' unlimited queues from growing between runs. */
         if (s->plan != NULL) (void)link_drain(s->plan->links, s->plan->nlinks);
         struct timespec ts;

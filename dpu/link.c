@@ -116,7 +116,7 @@ int link_open(skel_link_t *link)
     else if (asked > 0)
         log_line("link %s: socket receive buffer of %d bytes asked (recv_buf_size) for messages of up "
                  "to %d bytes", link->url, asked, link->largest);
-    link->lcm = lcm_create(url);
+    link->lcm = clock_open(url);
     if (link->lcm == NULL) return -1;
     /* Nothing received yet: LCM joins the group, binds the port and starts its receive
      * thread on the first subscription (link_subscribe_channel). A link we only write to
@@ -128,7 +128,7 @@ int link_open(skel_link_t *link)
 
 void link_close(skel_link_t *link)
 {
-    if (link->lcm != NULL) lcm_destroy(link->lcm);
+    if (link->lcm != NULL) clock_close(link->lcm);
     free(link->url);
     memset(link, 0, sizeof *link);
 }
@@ -199,7 +199,7 @@ int link_subscribe_channel(skel_link_t *link, const char *channel, lcm_msg_handl
 {
     char regex[512];
     if (link_channel_regex(channel, regex, sizeof regex) != 0) return -1;
-    lcm_subscription_t *sub = lcm_subscribe(link->lcm, regex, handler, user);
+    lcm_subscription_t *sub = clock_subscribe(link->lcm, channel, regex, handler, user);
     if (sub == NULL) return -1;
     if (link->fd < 0 && (link->fd = lcm_get_fileno(link->lcm)) < 0) return -1;
     /* LCM's default queue drops the newest past 30 messages: nothing may be lost here. */
@@ -212,7 +212,7 @@ int link_drain(skel_link_t *links, int nlinks)
     for (int i = 0; i < nlinks; i++) {
         if (links[i].fd < 0) continue; /* written only: lcm_handle would start receiving */
         for (int n = 0; n < LINK_DRAIN_MAX; n++) {
-            int rc = lcm_handle_timeout(links[i].lcm, 0);
+            int rc = clock_handle(links[i].lcm);
             if (rc < 0) return -1;
             if (rc == 0) break;
             handled++;
@@ -225,6 +225,13 @@ int link_drain(skel_link_t *links, int nlinks)
  * signalled: >0 ready, 0 timeout. */
 int link_wait(skel_link_t *links, int nlinks, int wake_fd, int64_t timeout_ns)
 {
+    if (clock_simulated()) { /* nothing wakes a simulated DPU but its links and its clock */
+        lcm_t *lcms[SKEL_MAX_LINKS];
+        int m = 0;
+        for (int i = 0; i < nlinks; i++)
+            if (links[i].fd >= 0) lcms[m++] = links[i].lcm;
+        return clock_wait(lcms, m, timeout_ns < 0 ? 0 : timeout_ns);
+    }
     struct pollfd fds[SKEL_MAX_LINKS + 1];
     int n = 0;
     for (int i = 0; i < nlinks; i++) fds[n++] = (struct pollfd){ .fd = links[i].fd, .events = POLLIN };

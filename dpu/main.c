@@ -16,6 +16,7 @@ static void usage(void)
     fprintf(stderr,
             "usage: skel-dpu --id N|auto [--url URL] [--clock-offset-ns N] [--spin-us N]\n"
             "                [--rt-priority N] [--key FILE] [--verbose]\n"
+            "       skel-dpu --simulate INPUT.lcm OUTPUT.lcm [--url URL]\n"
             "  --id N|auto          this DPU's id in the config; auto: the DPU whose host is this\n"
             "                       machine's host name\n"
             "  --url URL            control URL (default %s); status and timing go to its\n"
@@ -25,7 +26,10 @@ static void usage(void)
             "  --rt-priority N      run cycles under SCHED_FIFO priority N (1-99; 0: never);\n"
             "                       default: 10 in compute mode SLEEP where permitted\n"
             "  --key FILE           sign and check control with this key (`skel keygen`);\n"
-            "                       default: $%s when set, else none (unauthenticated)\n",
+            "                       default: $%s when set, else none (unauthenticated)\n"
+            "  --simulate           run every DPU of INPUT's system on virtual time: INPUT holds\n"
+            "                       the host's configs and commands (`skel simulate` writes it),\n"
+            "                       OUTPUT the log a run's logger would have written\n",
             SKEL_DEFAULT_URL, SKEL_KEY_ENV);
 }
 
@@ -119,6 +123,11 @@ static int run_threads(skel_server_t *s, skel_control_t *c)
 
 int main(int argc, char **argv)
 {
+    if (argc >= 2 && strcmp(argv[1], "--simulate") == 0) {
+        int with_url = argc == 6 && strcmp(argv[4], "--url") == 0;
+        if (argc != 4 && !with_url) { usage(); return SKEL_EXIT_USAGE; }
+        return sim_main(argv[2], argv[3], with_url ? argv[5] : SKEL_DEFAULT_URL);
+    }
     static skel_server_t server; /* large (ring, lockouts): static, not on the stack */
     static skel_control_t control;
     skel_server_t *s = &server;

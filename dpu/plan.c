@@ -149,6 +149,13 @@ skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason
     plan->dpu = d->id;
     plan->cpu = d->cpu;
     plan->compute = d->compute;
+    /* On virtual time every mode computes exactly what it is asked, which is SLEEP's
+     * definition (a dedicated processor), so the tasking executive runs its own exact
+     * schedule (tasking.c), and no simulated DPU takes a CPU of the machine. */
+    if (clock_simulated()) {
+        plan->compute = SKELMSG_DPU_T_COMPUTE_SLEEP;
+        plan->cpu = -1;
+    }
     plan->tasking = d->executive == SKELMSG_DPU_T_EXECUTIVE_THREADS;
     plan->speed = d->speed;
     plan->minor_ns = config_minor_us(cfg, d) * SKEL_NS_PER_US;

@@ -302,7 +302,7 @@ void process_write_outputs(skel_exec_t *x, skel_process_t *p, int64_t k)
         int len = buffers_output_encode(out, plan->run_id, p->id, k, send_ns, plan->dummy);
         int rc = len < 0 ? -1 : 0;
         if (rc == 0 && out->link >= 0)
-            rc = lcm_publish(plan->links[out->link].lcm, out->channel, out->enc, (unsigned)len);
+            rc = clock_publish(plan->links[out->link].lcm, out->channel, out->enc, (unsigned)len);
         else if (rc == 0 && out->local_slot >= 0) {
             /* Local memory: the readers' slot is written directly, as common memory was. */
             wire_buffer_hdr_t hdr = { plan->run_id, p->id, out->buffer, k, send_ns, out->bytes };

@@ -176,7 +176,7 @@ void seal_note(skel_seal_t *k, int dpu)
 
 int seal_publish(skel_seal_t *k, lcm_t *lcm, const char *channel, const void *data, int len)
 {
-    if (k == NULL || !k->keyed) return lcm_publish(lcm, channel, data, (unsigned)len);
+    if (k == NULL || !k->keyed) return clock_publish(lcm, channel, data, (unsigned)len);
     size_t need = (size_t)len + SKEL_SEAL_BYTES;
     if (need > k->out_cap) {
         /* Grows to the largest message once (a full timing batch): never in the cycle loop. */
@@ -187,7 +187,7 @@ int seal_publish(skel_seal_t *k, lcm_t *lcm, const char *channel, const void *da
     }
     memcpy(k->out, data, (size_t)len);
     if (seal_sign(k, channel, k->out, len, k->out + len) != 0) return -1;
-    return lcm_publish(lcm, channel, k->out, (unsigned)need);
+    return clock_publish(lcm, channel, k->out, (unsigned)need);
 }
 
 int seal_sign(skel_seal_t *k, const char *channel, const uint8_t *msg, int len, uint8_t *tail)

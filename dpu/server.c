@@ -69,8 +69,8 @@ int server_open(skel_server_t *s, char *why, size_t len)
                  "the record URL's offset (%d)", s->url, SKEL_RECORD_OFFSET);
         return -1;
     }
-    s->ctl = lcm_create(s->url);
-    s->rec = s->ctl != NULL ? lcm_create(s->rec_url) : NULL;
+    s->ctl = clock_open(s->url);
+    s->rec = s->ctl != NULL ? clock_open(s->rec_url) : NULL;
     if (s->rec == NULL) {
         snprintf(why, len, "cannot open %s URL %s (is there a multicast route?)", s->ctl ? "record" : "control",
                  s->ctl ? s->rec_url : s->url);
@@ -82,8 +82,8 @@ int server_open(skel_server_t *s, char *why, size_t len)
 
 void server_close(skel_server_t *s)
 {
-    if (s->rec != NULL) lcm_destroy(s->rec);
-    if (s->ctl != NULL) lcm_destroy(s->ctl);
+    if (s->rec != NULL) clock_close(s->rec);
+    if (s->ctl != NULL) clock_close(s->ctl);
     s->rec = s->ctl = NULL;
 }
 

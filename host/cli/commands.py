@@ -103,6 +103,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-check", action="store_true",
                    help="run even a system `skel check` refuses (a data-wait deadlock: it locks out)")
 
+    p = sub.add_parser("simulate", help="run the whole system on virtual time here, in seconds: the same "
+                       "log, report and one screen as `skel run`, the same every time")
+    _system_args(p)
+    length = p.add_mutually_exclusive_group()
+    length.add_argument("--cycles", type=int, help="run length in cycles of the shortest period")
+    length.add_argument("--duration", type=float, metavar="S", help="run length in seconds (of system time)")
+    p.add_argument("--out", type=Path, help="run directory (default runs/<system>-sim-<time>/)")
+    p.add_argument("--json", action="store_true", help="print report.json instead of one screen")
+    p.add_argument("--all", action="store_true", dest="all_tables",
+                   help="print every table, not one screen")
+    p.add_argument("--compare-paper", action="store_true",
+                   help="print the system file's reference values (the paper's Table 1) beside ours")
+    p.add_argument("--no-check", action="store_true",
+                   help="simulate even a system `skel check` refuses (a data-wait deadlock: it locks out)")
+
     listen = (f"listen until no new DPU was heard for {QUIET_S:g} s, at most S seconds "
               f"(default {LISTEN_LIMIT_S:g})")
     p = sub.add_parser("clock", help="estimate each DPU's clock offset and round trip (ping, best of N)")
@@ -310,6 +325,23 @@ def cmd_run(args: argparse.Namespace) -> int:
     return run(system, options, console=output_console())
 
 
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from skeleton.analysis.views.console import output_console
+
+    from ..live.run import RunOptions
+    from ..live.simulate import simulate
+
+    system = _load(args)
+    if not args.no_check and (refused := deadlocks(system)[0]):
+        for problem in refused:
+            print(SystemFileError(system.path, problem.path, problem.problem), file=sys.stderr)
+        print("skel simulate: refused (--no-check simulates it anyway, and it locks out)", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    options = RunOptions(cycles=args.cycles, duration_s=args.duration, out=args.out, as_json=args.json,
+                         compare_paper=args.compare_paper, all_tables=args.all_tables)
+    return simulate(system, options, console=output_console())
+
+
 def _listen(control: Control, args: argparse.Namespace) -> float:
     """Listen for the DPUs as --wait says; the seconds listened, said on stderr."""
     listened = control.listen(args.wait)
@@ -507,6 +539,7 @@ def cmd_keygen(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"check": cmd_check, "up": cmd_up, "down": cmd_down, "push": cmd_push, "run": cmd_run,
+            "simulate": cmd_simulate,
             "status": cmd_status, "clock": cmd_clock, "report": cmd_report, "diff": cmd_diff,
             "export": cmd_export, "watch": cmd_watch, "doctor": cmd_doctor, "event": cmd_event,
             "allocate": cmd_allocate, "keygen": cmd_keygen}

@@ -205,7 +205,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         problems.append(f"the log is incomplete: {repaired.missing} of what the DPUs published never "
                         f"reached it (the logger missed {repaired.asked}; asked again, "
                         f"{repaired.missing} could not be had again)")
-    code = _report(console, system, options, out, run_id, follower.lost, repaired, keeper.restarts, problems)
+    code = report_run(console, system, options, out, run_id, follower.lost, repaired, keeper.restarts, problems)
     return EXIT_INTERRUPTED if interrupted else code
 
 
@@ -301,12 +301,15 @@ class RunFollower:
             self.console.print(f"DPU {dpu_id} heard again ({state}): it joins the next run")
 
     def fault_window_s(self) -> float:
-        """How long a run stopped early goes on: one lockout window of its slowest process
-        (at most FAULT_WINDOW_MAX_S), so the lockouts that come with the first (the rest of
-        a jam: processes downstream, or on a DPU that falls behind a little later) are
-        recorded too."""
-        slowest_us = max(p.period_us for p in self.system.processes)
-        return min(FAULT_WINDOW_MAX_S, self.system.run.lockout_cycles * slowest_us / 1e6)
+        return fault_window_s(self.system)
+
+
+def fault_window_s(system: System) -> float:
+    """How long a run stopped early goes on: one lockout window of its slowest process (at
+    most FAULT_WINDOW_MAX_S), so the lockouts that come with the first (the rest of a jam:
+    processes downstream, or on a DPU that falls behind a little later) are recorded too."""
+    slowest_us = max(p.period_us for p in system.processes)
+    return min(FAULT_WINDOW_MAX_S, system.run.lockout_cycles * slowest_us / 1e6)
 
 
 def _live_line(fault: Fault) -> str:
@@ -438,7 +441,7 @@ def _wait_nonempty(path: Path, timeout_s: float) -> None:
         time.sleep(0.02)
 
 
-def _report(console: Console, system: System, options: RunOptions, out: Path, run_id: int,
+def report_run(console: Console, system: System, options: RunOptions, out: Path, run_id: int,
             lost: set[int], repaired: RepairResult, restarts: int = 0, problems: Sequence[str] = ()) -> int:
     """The tables, with what makes the run's log or the run itself incomplete said first."""
     for problem in problems:

@@ -1,0 +1,140 @@
+"""`skel simulate`: the whole system on virtual time, on this machine, in seconds.
+
+The host tool writes what it would publish for a run (the committed config, then START)
+into an input log, each message at a virtual instant; `skel-dpu --simulate` runs every
+DPU's own executive on virtual time in one process and writes the log a run's logger
+would have written; the same analysis as `skel run` reports it. Nothing of the machine
+enters it: no clock, no network, no platform stall. So the same file and seed give the
+same log and report, byte for byte, and what a simulated run shows is the executives'
+logic alone: predicted -> simulated is the analysis's own pessimism or error, simulated
+-> measured the platform's cost.
+
+A run's `stop_on` is honoured as `skel run` honours it: the simulation is run again with
+a STOP where `skel run` would have sent it (one fault window after the first such fault),
+which on virtual time changes nothing before that instant.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import lcm
+from rich.console import Console
+
+import skelmsg
+from skeleton.analysis.errors import EXIT_FAILED
+from skeleton.analysis.measure.run import load_run
+from skeleton.analysis.read.messages import LogError
+from skelmsg import contract
+
+from ..model import System
+from .repair import RepairResult
+from .run import START_LEAD_S, RunOptions, control_url, fault_window_s, report_run
+from .spawn import dpu_binary
+from .wire import config_message
+
+# A simulated run's clock: UTC starts at 2000-01-01T00:00:00Z, fixed, so that nothing in its
+# log or report depends on when it was made.
+SIM_EPOCH_UTC_NS = 946_684_800 * 1_000_000_000
+SIM_RUN_ID = 1
+SIM_GENERATION = 1
+SIM_SESSION = 1
+SIM_SENDER = "skel simulate"
+# The input's messages, as `skel run` sends them: the config, then START a lead later.
+_COMMAND_AFTER_NS = 1_000_000
+
+
+@dataclass(frozen=True)
+class Simulated:
+    """What one simulation took: virtual seconds, and the wall seconds they cost."""
+
+    virtual_s: float
+    wall_s: float
+
+    @property
+    def speed(self) -> float:
+        return self.virtual_s / self.wall_s if self.wall_s > 0 else float("inf")
+
+
+class SimulationError(RuntimeError):
+    pass
+
+
+def _command(kind: int, seq: int, **fields: int) -> bytes:
+    cmd = skelmsg.command_t()
+    cmd.seq, cmd.kind, cmd.dpu = seq, kind, -1
+    cmd.session, cmd.force, cmd.sender = SIM_SESSION, 0, SIM_SENDER
+    for name, value in fields.items():
+        setattr(cmd, name, value)
+    return cmd.encode()
+
+
+def write_input(system: System, path: Path, duration_ns: int, stop_at_ns: int | None = None) -> None:
+    """The host's side of a run, as messages at virtual instants (µs, UTC): the committed
+    config at the epoch, START one START_LEAD_S later, and a STOP `stop_at_ns` after START."""
+    config = config_message(system, SIM_GENERATION, SIM_RUN_ID, committed=True)
+    config.session, config.force, config.sender = SIM_SESSION, 0, SIM_SENDER
+    config.sent_utc_ns = SIM_EPOCH_UTC_NS
+    start_utc_ns = SIM_EPOCH_UTC_NS + round(START_LEAD_S * 1e9)
+    log = lcm.EventLog(str(path), "w", overwrite=True)
+    try:
+        log.write_event(SIM_EPOCH_UTC_NS // 1000, contract.CONFIG_CHANNEL, config.encode())
+        log.write_event((SIM_EPOCH_UTC_NS + _COMMAND_AFTER_NS) // 1000, contract.COMMAND_CHANNEL,
+                        _command(skelmsg.command_t.START, 1, generation=SIM_GENERATION, run_id=SIM_RUN_ID,
+                                 at_utc_ns=start_utc_ns, duration_ns=duration_ns))
+        if stop_at_ns is not None:
+            log.write_event((start_utc_ns + stop_at_ns) // 1000, contract.COMMAND_CHANNEL,
+                            _command(skelmsg.command_t.STOP, 2))
+    finally:
+        log.close()
+
+
+def run_simulation(system: System, out: Path, duration_ns: int, stop_at_ns: int | None = None) -> Simulated:
+    """Writes out/run.lcm; the simulation's own lines go to out/logs/simulate.log."""
+    (out / "logs").mkdir(parents=True, exist_ok=True)
+    given = out / "logs" / "input.lcm"
+    write_input(system, given, duration_ns, stop_at_ns)
+    began = time.perf_counter()
+    with open(out / "logs" / "simulate.log", "wb") as said:
+        done = subprocess.run([str(dpu_binary()), "--simulate", str(given), str(out / "run.lcm"),
+                               "--url", control_url(system)], stdout=said, stderr=subprocess.STDOUT,
+                              check=False)
+    wall_s = time.perf_counter() - began
+    if done.returncode != 0:
+        raise SimulationError(f"the simulation failed (exit {done.returncode}): see {out / 'logs' / 'simulate.log'}")
+    return Simulated(virtual_s=(START_LEAD_S * 1e9 + duration_ns) / 1e9, wall_s=wall_s)
+
+
+def _stop_after_ns(system: System, out: Path) -> int | None:
+    """Where `skel run` would have stopped this run (ns after its start), None: nowhere."""
+    if not system.run.stop_on:
+        return None
+    first = min((f.at_s for f in load_run(out / "run.lcm").report.faults if f.kind in system.run.stop_on),
+                default=None)
+    if first is None:
+        return None
+    return round((first + fault_window_s(system)) * 1e9)
+
+
+def simulate(system: System, options: RunOptions, console: Console) -> int:
+    out = options.out or Path("runs") / f"{system.name}-sim-{time.strftime('%Y%m%d-%H%M%S')}"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "system.yaml").write_text(system.source_text)
+    duration_ns = system.run_duration_ns(options.cycles, options.duration_s)
+    try:
+        took = run_simulation(system, out, duration_ns)
+        stop = _stop_after_ns(system, out)
+        if stop is not None and stop < duration_ns:
+            took = run_simulation(system, out, duration_ns, stop_at_ns=stop)
+    except (SimulationError, OSError, LogError) as error:
+        console.print(f"[red]{error}[/]", soft_wrap=True)
+        return EXIT_FAILED
+    code = report_run(console, system, options, out, SIM_RUN_ID, set(), RepairResult())
+    if not options.as_json:
+        console.print(f"simulated {took.virtual_s:.1f} s of system time in {took.wall_s:.2f} s "
+                      f"({took.speed:.0f} times real time), on virtual time: no platform in it",
+                      highlight=False)
+    return code
