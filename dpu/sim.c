@@ -67,6 +67,7 @@ typedef struct {
 typedef struct {
     sim_msg_t *msg;
     int sub;
+    int64_t at;                /* when it arrived: its receive stamp */
 } sim_delivery_t;
 
 typedef struct {
@@ -400,7 +401,7 @@ static void sim_arrive(sim_t *sim, int s, sim_msg_t *m)
         ep->cap = cap;
         ep->head = 0;
     }
-    ep->inbox[(ep->head + ep->count) % ep->cap] = (sim_delivery_t){ m, s };
+    ep->inbox[(ep->head + ep->count) % ep->cap] = (sim_delivery_t){ m, s, sim->now };
     ep->count++;
     sim->deliveries++;
     for (int f = 0; f < sim->nfibers; f++) {
@@ -427,7 +428,7 @@ static int sim_handle(void *ctx, lcm_t *lcm)
     ep->count--;
     const sim_sub_t *sub = &sim->subs[d.sub];
     lcm_recv_buf_t rbuf = { .data = d.msg->bytes, .data_size = (uint32_t)d.msg->len,
-                            .recv_utime = (sim->now + sim->utc_offset_ns) / 1000, .lcm = lcm };
+                            .recv_utime = (d.at + sim->utc_offset_ns) / 1000, .lcm = lcm };
     sub->handler(&rbuf, sub->channel, sub->user);
     sim_release(d.msg);
     return 1;

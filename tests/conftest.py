@@ -145,7 +145,7 @@ def dpu_log_problems(root: Path) -> list[str]:
     reports, and how each DPU stopped when not cleanly (spawn.stop's note: a DPU stuck on
     exit and killed, or a status other than 0). A DPU the test killed itself has no note."""
     problems = []
-    for log in sorted(root.rglob("dpu*.log")):
+    for log in sorted([*root.rglob("dpu*.log"), *root.rglob("simulate.log")]):
         text = log.read_bytes().decode(errors="replace")
         if SANITIZER_ERROR.search(text.encode()):
             problems.append(f"{log}: sanitizer report:\n{text[-6000:]}")

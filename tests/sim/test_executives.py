@@ -1,0 +1,201 @@
+"""The executives' logic on simulated time (`skel simulate`), with exact expectations.
+
+Each test runs the real skel-dpu (its sanitizer build, as every test does) on virtual time:
+no platform stalls, no wake-up latency, no network. So a figure either is what the theory
+says, to the nanosecond the records keep, or the executive is wrong: nothing is retried and
+nothing has a tolerance for the platform."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pandas as pd
+from conftest import REPO, skel
+from unit.test_schedule import MS, _system
+
+import skeleton
+from skeleton.host.sysfile.system import load
+from skeleton.host.theory.predict import predict
+from skeleton.host.theory.schedule import ideal_schedule, response_times
+
+SERVO = REPO / "examples" / "servo.yaml"
+RATE_MONOTONIC = [(2, 8), (4, 12), (6, 24)]  # C/T ms; U = 0.83; R = 2, 6, 20 ms
+
+
+def simulate(out: Path, *args: str) -> dict:
+    done = skel("simulate", *args, "--out", str(out), "--json")
+    assert done.returncode in (0, 3), done.stdout + done.stderr
+    return json.loads(done.stdout)
+
+
+def _cycles(out: Path) -> pd.DataFrame:
+    timing = skeleton.load_run(out).timing.to_pandas()
+    timing = timing[timing.completed].copy()
+    timing["task"] = timing.process - 1
+    return timing
+
+
+def _against_the_ideal_schedule(tmp_path: Path, tasks: list[tuple[int, int]], run_s: float) -> pd.DataFrame:
+    """Every completed job's response and preemptions beside the ideal schedule's, to the ns."""
+    out = tmp_path / "run"
+    simulate(out, str(_system(tmp_path, tasks, run_s)))
+    cycles = _cycles(out)
+    ideal = ideal_schedule(tasks, math.ceil(run_s * 1000) + 1000)
+    epoch = (cycles.release_ns - cycles.cycle * cycles.task.map(lambda i: tasks[i][1] * MS * 1000)).min()
+    for row in cycles.itertuples():
+        job = ideal[(row.task, row.cycle)]
+        assert row.release_ns - epoch == job.release * MS * 1000, row
+        assert round(row.response_us * 1000) == job.response * MS * 1000, (row.task, row.cycle, job)
+        assert row.preemptions == job.preemptions, (row.task, row.cycle, row.preemptions, job)
+    return cycles
+
+
+def test_rate_monotonic_responses_are_the_ideal_schedules_to_the_nanosecond(tmp_path: Path) -> None:
+    rta = response_times(RATE_MONOTONIC)
+    assert rta == [2, 6, 20]
+    cycles = _against_the_ideal_schedule(tmp_path, RATE_MONOTONIC, 2.0)
+    worst = cycles.groupby("task").response_us.max().tolist()
+    assert worst == [r * MS for r in rta]  # the response-time analysis's bound, reached
+    # p2's responses: 6 ms at the critical instant, 4 ms when p1 is not released with it
+    assert sorted(set(cycles[cycles.task == 1].response_us)) == [4 * MS, 6 * MS]
+    assert not cycles.overrun.any()
+    assert cycles[cycles.task == 2].preemptions.max() >= 2
+
+
+def test_an_unschedulable_set_misses_exactly_the_deadlines_of_the_ideal_schedule(tmp_path: Path) -> None:
+    tasks = [(3, 8), (6, 20), (6, 24)]  # U = 0.93; R3 = 30 ms > 24 ms
+    cycles = _against_the_ideal_schedule(tmp_path, tasks, 1.0)
+    ideal = ideal_schedule(tasks, 2000)
+    missed = {(i, k) for (i, k), job in ideal.items() if job.response > tasks[i][1]}
+    ran = set(zip(cycles.task, cycles.cycle, strict=True))
+    assert set(zip(cycles.task[cycles.overrun], cycles.cycle[cycles.overrun], strict=True)) == missed & ran
+    assert any(i == 2 for i, _ in missed & ran)
+
+
+def test_servo_gives_table_1s_compute_to_a_hundredth_of_a_point(tmp_path: Path) -> None:
+    report = simulate(tmp_path / "run", str(SERVO))
+    paper = load(SERVO).reference
+    assert paper is not None
+    assert report["fatal"] is False and not report["faults"], report["faults"]
+    for dpu in report["dpus"]:
+        assert abs(dpu["compute_pct"] - paper.dpus[dpu["id"]].compute_pct) <= 0.01, dpu
+        # nothing of the platform on virtual time: every cycle starts at its release
+        assert dpu["release_latency_us"]["max"] == 0.0 and dpu["stall_ms"] == 0.0, dpu
+
+
+def test_servo_at_2_5_ms_locks_each_dpu_out_at_the_instant_the_prediction_gives(tmp_path: Path) -> None:
+    path = REPO / "examples" / "servo-2.5ms.yaml"
+    report = simulate(tmp_path / "run", str(path))
+    predicted = {d.id: d.lockout_ms for d in predict(load(path)).dpus if d.lockout_ms is not None}
+    assert set(predicted) == {1, 2, 3}
+    first: dict[int, float] = {}
+    for fault in report["faults"]:
+        if fault["kind"] == "lockout":
+            first[fault["dpu"]] = min(first.get(fault["dpu"], math.inf), fault["at_s"] * 1000)
+    assert first == predicted
+    # run.stop_on: the simulation stopped where `skel run` stops, one lockout window later
+    assert report["stopped"] is not None, report["stopped"]
+
+
+def test_the_same_file_and_seed_give_the_same_log_and_report_byte_for_byte(tmp_path: Path) -> None:
+    jitter = str(REPO / "examples" / "servo-jitter.yaml")
+    a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    simulate(a, jitter, "--duration", "0.5")
+    simulate(b, jitter, "--duration", "0.5")
+    simulate(c, jitter, "--duration", "0.5", "-s", "run.seed=3")
+    assert (a / "run.lcm").read_bytes() == (b / "run.lcm").read_bytes()
+    assert (a / "report.json").read_bytes() == (b / "report.json").read_bytes()
+    assert (a / "report.json").read_bytes() != (c / "report.json").read_bytes()  # the seed draws anew
+
+
+def test_each_dpus_window_opens_at_warmup_cycles_of_its_longest_period(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    report = simulate(out, str(SERVO), "--duration", "3")
+    assert report["warmup_cycles"] == 100
+    system = load(SERVO)
+    cycles = _cycles(out)
+    t0 = cycles.release_ns.min()
+    for process, mine in cycles.groupby("process"):
+        p = system.process(int(process))
+        window_ns = 100 * max(q.period_us for q in system.processes if q.dpu == p.dpu) * 1000
+        first = mine[mine.measured].release_ns.min() - t0
+        assert window_ns <= first < window_ns + p.period_us * 1000, (p.name, first, window_ns)
+        assert not mine[mine.release_ns - t0 < window_ns].measured.any(), p.name
+
+
+# One tasking DPU, two processes awaiting the same bursts of 5 events 0.5 ms apart, each at
+# most once per 50 ms (the same system as tests/e2e/test_event.py's on real time).
+BURSTS = """\
+system: bursts
+dpus: [{id: 1, executive: threads}]
+processes:
+  - {id: 1, name: newest, dpu: 1, period_us: 50000, compute_us: 200, sync: event, event: burst, queue: 1}
+  - {id: 2, name: oldest, dpu: 1, period_us: 50000, compute_us: 200, sync: event, event: burst, queue: 2}
+events:
+  - {name: burst, kind: bursts, dpu: 1, period_us: 200000, count: 5, spacing_us: 500}
+run: {duration_s: 2.1, warmup_cycles: 0, lockout_cycles: 1000, stop_on: []}
+"""
+
+
+def test_an_event_queue_keeps_the_newest_or_the_oldest_and_each_job_runs_when_the_schedule_says(
+        tmp_path: Path) -> None:
+    path = tmp_path / "bursts.yaml"
+    path.write_text(BURSTS)
+    out = tmp_path / "run"
+    simulate(out, str(path))
+    got = _cycles(out)
+    got = got[got.event_ns >= 0]
+    first = got.event_ns.min()
+    ms = MS * 1000
+    # Per burst at s: `newest` (the higher priority) runs at once on the first event, and a
+    # period later on the last (the 3 between dropped); `oldest` runs after it, on the first,
+    # then on the two it kept, a period apart (2 dropped). To the nanosecond, in every burst
+    # (the tenth, at 2.0 s, has its third job at 2.1 s: the run's end).
+    expected = {"newest": [(0, 0, 0), (2.0, 50.0, 3)],
+                "oldest": [(0, 0.2, 0), (0.5, 50.2, 2), (1.0, 100.0, 0)]}
+    for burst in range(9):
+        s = first + burst * 200 * ms
+        for name, jobs in expected.items():
+            mine = got[(got.process_name == name) & (got.event_ns >= s) & (got.event_ns < s + 200 * ms)]
+            seen = [((e - s) / ms, (b - s) / ms, d) for e, b, d in
+                    zip(mine.event_ns, mine.start_ns, mine.event_dropped, strict=True)]
+            assert seen == jobs, (name, burst, seen)
+
+
+CHAIN = """\
+system: chain
+dpus: [{id: 1}, {id: 2, executive: threads}]
+buffers: [{id: 1, name: frame, bytes: 64}]
+processes:
+  - {id: 1, name: sensor, dpu: 1, period_us: 2000, compute_us: 300, sync: event, event: pulse, queue: 8,
+     outputs: [frame], emits: [fresh]}
+  - {id: 2, name: servo, dpu: 2, period_us: 5000, compute_us: 1000, inputs: [frame]}
+  - {id: 3, name: react, dpu: 2, period_us: 1000, compute_us: 100, sync: event, event: fresh, queue: 64}
+events:
+  - {name: pulse, kind: poisson, dpu: 1, rate_hz: 200}
+run: {duration_s: 2, warmup_cycles: 10, seed: 7}
+"""
+
+
+def test_an_emitted_event_releases_its_reaction_at_once_above_the_servo_loop(tmp_path: Path) -> None:
+    path = tmp_path / "chain.yaml"
+    path.write_text(CHAIN)
+    out = tmp_path / "run"
+    simulate(out, str(path))
+    cycles = _cycles(out)
+    sensor = cycles[(cycles.process_name == "sensor") & cycles.completed]
+    react = cycles[(cycles.process_name == "react") & cycles.completed]
+    # The cyclic DPU takes the oldest pulse waiting at a frame it is due in, in order; one
+    # that came with none waiting is taken at the next such frame, within one period.
+    assert (sensor.start_ns == sensor.release_ns).all() and (sensor.start_ns >= sensor.event_ns).all()
+    assert sensor.event_ns.is_monotonic_increasing and sensor.event_ns.is_unique
+    alone = sensor[sensor.event_queued == 0].start_ns - sensor[sensor.event_queued == 0].event_ns
+    assert (alone < 2 * MS * 1000).mean() > 0.5
+    # Each sensor cycle fires `fresh` as its work ends, and the reaction runs on it at that
+    # instant, preempting the servo loop: one reaction per sensor cycle, no wait at all.
+    ends = sorted(sensor.start_ns + 300 * 1000)
+    assert sorted(react.event_ns) == ends[:len(react)] and len(ends) - len(react) <= 1
+    assert (react.start_ns == react.event_ns).all() and react.event_dropped.sum() == 0
+    assert cycles[cycles.process_name == "servo"].preemptions.max() >= 1
