@@ -115,6 +115,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print every table, not one screen")
     p.add_argument("--compare-paper", action="store_true",
                    help="print the system file's reference values (the paper's Table 1) beside ours")
+    p.add_argument("--push", action="append", default=[], metavar="S:FILE",
+                   help="push FILE S seconds into the run, as `skel push` would: every DPU switches "
+                        "at the first boundary they share from then (repeatable)")
     p.add_argument("--no-check", action="store_true",
                    help="simulate even a system `skel check` refuses (a data-wait deadlock: it locks out)")
 
@@ -329,9 +332,21 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from skeleton.analysis.views.console import output_console
 
     from ..live.run import RunOptions
-    from ..live.simulate import simulate
+    from ..live.simulate import Push, simulate
 
     system = _load(args)
+    pushes = []
+    for given in args.push:
+        at, _, name = given.partition(":")
+        try:
+            at_s = float(at)
+        except ValueError:
+            at_s = -1.0
+        if not name or not 0 < at_s < system.run_duration_ns(args.cycles, args.duration) / 1e9:
+            print(f"skel simulate: --push {given}: expected S:FILE, S seconds into the run (> 0, before "
+                  "its end)", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        pushes.append(Push(at_s, load(Path(name))))
     if not args.no_check and (refused := deadlocks(system)[0]):
         for problem in refused:
             print(SystemFileError(system.path, problem.path, problem.problem), file=sys.stderr)
@@ -339,7 +354,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     options = RunOptions(cycles=args.cycles, duration_s=args.duration, out=args.out, as_json=args.json,
                          compare_paper=args.compare_paper, all_tables=args.all_tables)
-    return simulate(system, options, console=output_console())
+    return simulate(system, options, console=output_console(), pushes=pushes)
 
 
 def _listen(control: Control, args: argparse.Namespace) -> float:

@@ -205,7 +205,8 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         problems.append(f"the log is incomplete: {repaired.missing} of what the DPUs published never "
                         f"reached it (the logger missed {repaired.asked}; asked again, "
                         f"{repaired.missing} could not be had again)")
-    code = report_run(console, system, options, out, run_id, follower.lost, repaired, keeper.restarts, problems)
+    code = report_run(console, system, options, out, run_id, follower.lost, repaired, keeper.restarts,
+                      problems)
     return EXIT_INTERRUPTED if interrupted else code
 
 

@@ -9,6 +9,10 @@ same log and report, byte for byte, and what a simulated run shows is the execut
 logic alone: predicted -> simulated is the analysis's own pessimism or error, simulated
 -> measured the platform's cost.
 
+A push during the run (`--push S:FILE`, as `skel push` would do it S seconds into the run)
+is staged, then committed for that instant: every DPU switches at the first boundary of
+the grid they share from then, without a restart, as on the real machines.
+
 A run's `stop_on` is honoured as `skel run` honours it: the simulation is run again with
 a STOP where `skel run` would have sent it (one fault window after the first such fault),
 which on virtual time changes nothing before that instant.
@@ -18,6 +22,7 @@ from __future__ import annotations
 
 import subprocess
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,6 +53,18 @@ _COMMAND_AFTER_NS = 1_000_000
 
 
 @dataclass(frozen=True)
+class Push:
+    """A `skel push` of `system` during the run, committed for `at_s` after its start."""
+
+    at_s: float
+    system: System
+
+
+# A push is staged and committed just before its instant, as `skel push --at-ms` leads it.
+_STAGE_BEFORE_NS = 2_000_000
+
+
+@dataclass(frozen=True)
 class Simulated:
     """What one simulation took: virtual seconds, and the wall seconds they cost."""
 
@@ -72,39 +89,53 @@ def _command(kind: int, seq: int, **fields: int) -> bytes:
     return cmd.encode()
 
 
-def write_input(system: System, path: Path, duration_ns: int, stop_at_ns: int | None = None) -> None:
+def write_input(system: System, path: Path, duration_ns: int, pushes: Sequence[Push] = (),
+                stop_at_ns: int | None = None) -> None:
     """The host's side of a run, as messages at virtual instants (µs, UTC): the committed
-    config at the epoch, START one START_LEAD_S later, and a STOP `stop_at_ns` after START."""
+    config at the epoch, START one START_LEAD_S later, each push staged and committed for its
+    instant, and a STOP `stop_at_ns` after START."""
     config = config_message(system, SIM_GENERATION, SIM_RUN_ID, committed=True)
     config.session, config.force, config.sender = SIM_SESSION, 0, SIM_SENDER
     config.sent_utc_ns = SIM_EPOCH_UTC_NS
     start_utc_ns = SIM_EPOCH_UTC_NS + round(START_LEAD_S * 1e9)
+    messages = [(SIM_EPOCH_UTC_NS, contract.CONFIG_CHANNEL, config.encode()),
+                (SIM_EPOCH_UTC_NS + _COMMAND_AFTER_NS, contract.COMMAND_CHANNEL,
+                 _command(skelmsg.command_t.START, 1, generation=SIM_GENERATION, run_id=SIM_RUN_ID,
+                          at_utc_ns=start_utc_ns, duration_ns=duration_ns))]
+    for n, push in enumerate(sorted(pushes, key=lambda p: p.at_s)):
+        generation, at_ns = SIM_GENERATION + 1 + n, start_utc_ns + round(push.at_s * 1e9)
+        staged = config_message(push.system, generation, SIM_RUN_ID, committed=False)
+        staged.session, staged.force, staged.sender = SIM_SESSION, 0, SIM_SENDER
+        staged.sent_utc_ns = at_ns - _STAGE_BEFORE_NS
+        messages.append((at_ns - _STAGE_BEFORE_NS, contract.CONFIG_CHANNEL, staged.encode()))
+        messages.append((at_ns - _STAGE_BEFORE_NS // 2, contract.COMMAND_CHANNEL,
+                         _command(skelmsg.command_t.COMMIT, 2 + n, generation=generation, at_utc_ns=at_ns)))
+    if stop_at_ns is not None:
+        messages.append((start_utc_ns + stop_at_ns, contract.COMMAND_CHANNEL,
+                         _command(skelmsg.command_t.STOP, 2 + len(pushes))))
     log = lcm.EventLog(str(path), "w", overwrite=True)
     try:
-        log.write_event(SIM_EPOCH_UTC_NS // 1000, contract.CONFIG_CHANNEL, config.encode())
-        log.write_event((SIM_EPOCH_UTC_NS + _COMMAND_AFTER_NS) // 1000, contract.COMMAND_CHANNEL,
-                        _command(skelmsg.command_t.START, 1, generation=SIM_GENERATION, run_id=SIM_RUN_ID,
-                                 at_utc_ns=start_utc_ns, duration_ns=duration_ns))
-        if stop_at_ns is not None:
-            log.write_event((start_utc_ns + stop_at_ns) // 1000, contract.COMMAND_CHANNEL,
-                            _command(skelmsg.command_t.STOP, 2))
+        for at_ns, channel, data in sorted(messages, key=lambda m: m[0]):
+            log.write_event(at_ns // 1000, channel, data)
     finally:
         log.close()
 
 
-def run_simulation(system: System, out: Path, duration_ns: int, stop_at_ns: int | None = None) -> Simulated:
+def run_simulation(system: System, out: Path, duration_ns: int, pushes: Sequence[Push] = (),
+                   stop_at_ns: int | None = None) -> Simulated:
     """Writes out/run.lcm; the simulation's own lines go to out/logs/simulate.log."""
     (out / "logs").mkdir(parents=True, exist_ok=True)
     given = out / "logs" / "input.lcm"
-    write_input(system, given, duration_ns, stop_at_ns)
+    write_input(system, given, duration_ns, pushes, stop_at_ns)
     began = time.perf_counter()
-    with open(out / "logs" / "simulate.log", "wb") as said:
+    with open(out / "logs" / "simulate.log", "wb") as lines:
         done = subprocess.run([str(dpu_binary()), "--simulate", str(given), str(out / "run.lcm"),
-                               "--url", control_url(system)], stdout=said, stderr=subprocess.STDOUT,
+                               "--url", control_url(system)], stdout=lines, stderr=subprocess.STDOUT,
                               check=False)
     wall_s = time.perf_counter() - began
     if done.returncode != 0:
-        raise SimulationError(f"the simulation failed (exit {done.returncode}): see {out / 'logs' / 'simulate.log'}")
+        said = out / "logs" / "simulate.log"
+        raise SimulationError(f"the simulation failed (exit {done.returncode}): see {said}")
     return Simulated(virtual_s=(START_LEAD_S * 1e9 + duration_ns) / 1e9, wall_s=wall_s)
 
 
@@ -119,16 +150,18 @@ def _stop_after_ns(system: System, out: Path) -> int | None:
     return round((first + fault_window_s(system)) * 1e9)
 
 
-def simulate(system: System, options: RunOptions, console: Console) -> int:
+def simulate(system: System, options: RunOptions, console: Console, pushes: Sequence[Push] = ()) -> int:
     out = options.out or Path("runs") / f"{system.name}-sim-{time.strftime('%Y%m%d-%H%M%S')}"
     out.mkdir(parents=True, exist_ok=True)
     (out / "system.yaml").write_text(system.source_text)
+    for n, push in enumerate(sorted(pushes, key=lambda p: p.at_s)):  # as `skel run` keeps a push's file
+        (out / f"system-g{SIM_GENERATION + 1 + n}.yaml").write_text(push.system.source_text)
     duration_ns = system.run_duration_ns(options.cycles, options.duration_s)
     try:
-        took = run_simulation(system, out, duration_ns)
+        took = run_simulation(system, out, duration_ns, pushes)
         stop = _stop_after_ns(system, out)
         if stop is not None and stop < duration_ns:
-            took = run_simulation(system, out, duration_ns, stop_at_ns=stop)
+            took = run_simulation(system, out, duration_ns, pushes, stop_at_ns=stop)
     except (SimulationError, OSError, LogError) as error:
         console.print(f"[red]{error}[/]", soft_wrap=True)
         return EXIT_FAILED

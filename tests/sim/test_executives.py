@@ -199,3 +199,69 @@ def test_an_emitted_event_releases_its_reaction_at_once_above_the_servo_loop(tmp
     assert sorted(react.event_ns) == ends[:len(react)] and len(ends) - len(react) <= 1
     assert (react.start_ns == react.event_ns).all() and react.event_dropped.sum() == 0
     assert cycles[cycles.process_name == "servo"].preemptions.max() >= 1
+
+
+def test_no_simulated_response_exceeds_its_predicted_worst(tmp_path: Path) -> None:
+    """The prediction's worst response (exact response-time analysis on the tasking executive,
+    the frame schedule on the cyclic one) bounds every simulated job: the executives never do
+    worse than the theory says, on any example that fits."""
+    for name in ("servo", "servo-tasking", "servo-events", "pair-10ms-5ms"):
+        path = REPO / "examples" / f"{name}.yaml"
+        out = tmp_path / name
+        simulate(out, str(path), "--duration", "1")
+        worst = {p.name: p.response_us for p in predict(load(path)).processes}
+        measured = _cycles(out).groupby("process_name").response_us.max()  # warm-up included
+        assert len(measured) == len(worst), (name, measured)
+        for process, most in measured.items():
+            bound = worst[str(process)]
+            assert bound is None or most <= bound, (name, process, most, bound)
+        assert any(bound is not None for bound in worst.values())
+
+
+PACED = """\
+system: paced
+dpus: [{id: 1}, {id: 2}]
+buffers: [{id: 1, name: sample, bytes: 64}]
+processes:
+  - {id: 1, name: writer, dpu: 1, period_us: 10000, compute_us: 1000, outputs: [sample]}
+  - {id: 2, name: reader, dpu: 2, period_us: 5000, compute_us: 1000, sync: data, inputs: [sample]}
+run: {duration_s: 1, warmup_cycles: 10, lockout_cycles: 10, stop_on: []}
+"""
+
+
+def test_a_data_reader_paced_by_a_slower_writer_skips_every_other_release(tmp_path: Path) -> None:
+    """The reader (5 ms) gets a sample every 10 ms: its release without one waits, and its
+    period passes: the next release is skipped, as the prediction says (`paced by writer: it
+    will run at 100 Hz`), never falling further behind."""
+    path = tmp_path / "paced.yaml"
+    path.write_text(PACED)
+    report = simulate(tmp_path / "run", str(path))
+    (reader,) = [p for p in report["processes"] if p["name"] == "reader"]
+    assert reader["releases_skipped"] == reader["cycles"] == 94  # of 188 measured releases
+    assert reader["inputs"][0]["new"] == reader["cycles"] and reader["inputs"][0]["dropped"] == 0
+    assert reader["response_us"] == {"p50": 12000.0, "p99": 12000.0, "max": 12000.0}
+    (skipping,) = [f for f in report["faults"] if f["kind"] == "skipping"]
+    assert skipping["count"] == 94
+
+
+def test_a_push_mid_run_switches_every_dpu_at_one_boundary_without_a_restart(tmp_path: Path) -> None:
+    """`--push 2:FILE`: the executor's compute 3500 -> 3000 us is staged and committed for 2 s
+    into the run; every DPU switches at the first boundary of the grid they share from then,
+    and the new generation measures what its prediction says, to a hundredth of a point."""
+    changed = tmp_path / "servo-3000.yaml"
+    changed.write_text(SERVO.read_text().replace("name: executor, dpu: 2, period_us: 5000, compute_us: 3500",
+                                                 "name: executor, dpu: 2, period_us: 5000, compute_us: 3000"))
+    out = tmp_path / "run"
+    report = simulate(out, str(SERVO), "--duration", "6", "--push", f"2:{changed}")
+    assert report["generations"] == [1, 2] and report["generation"] == 2
+    assert (out / "system-g2.yaml").read_text() == changed.read_text()
+    (dpu2,) = [d for d in report["dpus"] if d["id"] == 2]
+    assert abs(dpu2["compute_pct"] - 63.4) <= 0.01, dpu2
+    cycles = skeleton.load_run(out).timing.to_pandas()
+    t0 = cycles.release_ns.min()
+    common_ns = math.lcm(5000, 23800) * 1000  # the grid all four DPUs share: 595 ms
+    switch = {dpu: mine[mine.generation == 2].release_ns.min() - t0 for dpu, mine in cycles.groupby("dpu")}
+    first = -(-2_000_000_000 // common_ns) * common_ns
+    assert switch == dict.fromkeys((1, 2, 3, 4), first), switch
+    last_old = {dpu: mine[mine.generation == 1].release_ns.max() - t0 for dpu, mine in cycles.groupby("dpu")}
+    assert all(at < first for at in last_old.values()), last_old
