@@ -35,6 +35,8 @@ from .metrics import DpuMetrics, InputMetrics, ProcessMetrics
 COMPUTE_POINTS = 2.0
 SHARE = 0.05
 PLATFORM = "the platform's own cost (communication, wake-up, interference)"
+# A simulated run has no platform: what it puts outside the prediction is the prediction's own.
+SIMPLIFIED = "the prediction's own simplifications (a simulated run has no platform)"
 WORST = "the predicted worst"
 
 # The system file a config carries -> what its prediction expects; raises ValueError (one line:

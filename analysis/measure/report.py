@@ -28,6 +28,7 @@ from .faults import (
 from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets, release_skips
 from .metrics import DpuMetrics, ProcessMetrics
 from .predicted import Predicted
+from .simulated import Simulation
 from .stopped import Stopped, stopped_early
 from .windows import (
     Generation,
@@ -93,6 +94,10 @@ class RunReport:
     # `skel report` add it (RunAnalysis.add_prediction), since only the host tool can predict
     predicted: Predicted | None = None
     stopped: Stopped | None = None  # a command ended the run before its planned end
+    simulated: bool = False  # the run itself ran on virtual time (`skel simulate`): no platform in it
+    # a simulation of the report generation's system beside this measured run, per DPU: what the
+    # platform cost (`skel run` adds it, RunAnalysis.add_simulation)
+    simulation: Simulation | None = None
 
     @property
     def fatal(self) -> bool:

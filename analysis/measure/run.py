@@ -27,7 +27,7 @@ import numpy as np
 
 import skelmsg
 from skeleton.host.model import System, from_config
-from skelmsg.contract import CONFIG_CHANNEL, TIMING_CHANNEL
+from skelmsg.contract import CONFIG_CHANNEL, SIMULATED_SENDER, TIMING_CHANNEL
 
 from ..read.logreader import Log
 from ..read.messages import LogError, Messages, open_run_log, published_batches, read_messages
@@ -36,8 +36,9 @@ from ..read.seal import KeyFileError, authenticate
 from .columns import Table, faults_table, process_names, receptions_table, report_tables, timing_table
 from .faults import HEARTBEAT_FIELDS, Heartbeats, heartbeats
 from .latency import ClockOffsets
-from .predicted import Predictor, beside
+from .predicted import PLATFORM, SIMPLIFIED, Predictor, beside
 from .report import RunPart, RunReport, finish_report, holds_its_processes, report_generations, run_part
+from .simulated import simulation_beside
 from .windows import Generation, window_records
 
 NO_CONFIG = f"{TIMING_CHANNEL} (no config for its generation)"
@@ -150,7 +151,14 @@ class RunAnalysis:
         rep = self.report
         rep.predicted = beside(prediction, rep.generation, system.run.late_pct, rep.dpus, rep.processes,
                                rep.chains, rep.faults)
+        if rep.simulated and rep.predicted.cause == PLATFORM:
+            rep.predicted.cause = SIMPLIFIED
         return None
+
+    def add_simulation(self, simulated: RunReport, where: str) -> None:
+        """Lays a simulated run of the same system (its report) beside this measured one, as
+        report.simulation: per DPU, what the platform cost."""
+        self.report.simulation = simulation_beside(self.report.dpus, simulated.dpus, where)
 
     def process_names(self) -> dict[int, str]:
         """The report generation's: process id -> name."""
@@ -277,6 +285,7 @@ def analyze_log(log: Log, run_id: int | None = None, key: bytes | None = None,
         raise LogError(f"no timing record of run {run_id} could be decoded")
     report = finish_report(windows, parts, beats, locking, messages.reports, log.integrity, malformed, clock,
                            messages.commands, last_always=False)
+    report.simulated = any(c.sender == SIMULATED_SENDER for c in configs.values())
     analysis = RunAnalysis(log=log, heads=heads, messages=messages, report=report, clock=clock,
                            utc_offset_ns=offsets, held=held, usual=usual)
     analysis._systems.update((g.number, g.system) for g in windows)  # each read from its config once

@@ -1,6 +1,7 @@
 """`skel report RUN [--all] [--json] [--run N] [--plots DIR]`: the run read once, its prediction
-laid beside it when the host tool gives a predictor, then one screen of it (every table with
---all, or report.json on stdout) and, when asked, its plots and report.html."""
+laid beside it when the host tool gives a predictor, and the simulation `skel run` left beside
+it (RUN/simulated/), then one screen of it (every table with --all, or report.json on stdout)
+and, when asked, its plots and report.html."""
 
 from __future__ import annotations
 
@@ -29,6 +30,12 @@ def report_command(path: str | os.PathLike[str], as_json: bool, run_id: int | No
     missing = run.add_prediction(predictor) if predictor is not None else None
     if missing:
         print(f"{path}: {missing}", file=sys.stderr)
+    simulated = Path(path).parent / "simulated" / "run.lcm"
+    if not run.report.simulated and simulated.exists():
+        try:
+            run.add_simulation(load_run(simulated).report, os.fspath(simulated.parent))
+        except LogError as e:
+            print(f"{simulated}: no simulation beside the run: {e}", file=sys.stderr)
     if as_json:
         json.dump(run.report.to_json(), sys.stdout, indent=2)
         sys.stdout.write("\n")

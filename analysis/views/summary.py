@@ -16,6 +16,7 @@ from rich.console import Console
 from ..measure.faults import Fault
 from ..measure.predicted import Beside, Predicted
 from ..measure.report import RunReport
+from ..measure.simulated import NAMED_POINTS, Simulation
 from .console import OutputConsole
 from .tables import damage_lines, faithful_lines, make_table, num, paper_table, signed, stopped_lines
 
@@ -61,7 +62,8 @@ def screen_console(console: Console | None = None) -> Console:
 
 def verdict(report: RunReport) -> str:
     """The run in one line: what it is, and whether the architecture works."""
-    head = f"{report.system}, run {report.run_id}, generation {report.generation}"
+    simulated = " (simulated)" if report.simulated else ""
+    head = f"{report.system}, run {report.run_id}{simulated}, generation {report.generation}"
     fatal = [f for f in report.faults if f.fatal]
     failed = [f for f in report.faults if f.kind in FAILED_KINDS]
     if fatal:
@@ -77,24 +79,28 @@ def verdict(report: RunReport) -> str:
 
 
 def dpu_summary_table(report: RunReport) -> Any:
-    """Per DPU (the paper's Table 1), with the predicted % compute beside the measured."""
+    """Per DPU (the paper's Table 1), with the predicted and the simulated % compute beside the
+    measured."""
     predicted = {d.id: d.compute_pct for d in report.predicted.dpus} if report.predicted else {}
+    simulated = {d.id: d for d in report.simulation.dpus} if report.simulation else {}
     dpus = report.dpus
     if len(dpus) > DPU_ROWS:
         busiest = {d.id for d in sorted(dpus, key=lambda d: -(d.compute_pct or 0.0))[:DPU_ROWS]}
         dpus = [d for d in dpus if d.id in busiest]
     rows = []
     for d in dpus:
-        pred = predicted.get(d.id)
-        rows.append([
-            str(d.id), num(d.measured_cycle_ms, 2), ", ".join(d.processes),
-            num(d.compute_pct), num(pred.predicted) if pred else "-", num(d.communicate_pct),
-            num(d.wait_pct), num(d.overhead_pct), num(d.release_latency_us.p99, 0), num(d.stall_ms),
-        ])  # fmt: skip
-    columns = [
-        ("DPU", True), ("cycle\nms", True), ("processes", False), ("% comp", True), ("pred.", True),
-        ("% comm", True), ("% wait", True), ("% ovhd", True), ("wake\np99 µs", True), ("stall\nms", True),
-    ]  # fmt: skip
+        pred, sim = predicted.get(d.id), simulated.get(d.id)
+        row = [str(d.id), num(d.measured_cycle_ms, 2), ", ".join(d.processes), num(d.compute_pct),
+               num(pred.predicted) if pred else "-"]
+        if simulated:
+            row.append(num(sim.simulated_compute_pct) if sim else "-")
+        rows.append([*row, num(d.communicate_pct), num(d.wait_pct), num(d.overhead_pct),
+                     num(d.release_latency_us.p99, 0), num(d.stall_ms)])
+    columns = [("DPU", True), ("cycle\nms", True), ("processes", False), ("% comp", True), ("pred.", True)]
+    if simulated:
+        columns.append(("sim.", True))
+    columns += [("% comm", True), ("% wait", True), ("% ovhd", True), ("wake\np99 µs", True),
+                ("stall\nms", True)]
     title = "per DPU"
     if len(dpus) < len(report.dpus):
         title += f": the {len(dpus)} busiest of {len(report.dpus)}"
@@ -126,6 +132,18 @@ def fault_lines(faults: Sequence[Fault]) -> list[str]:
         cycles = sum(f.count or 0 for f in overruns)
         lines.append(f"overrun: {cycles} cycle{_s(cycles)} of {len(overruns)} process{_es(len(overruns))} "
                      "ended after their next release")
+    return lines
+
+
+def platform_summary(simulation: Simulation) -> list[str]:
+    """Measured beside simulated: each DPU whose measurement the platform moved, and by what."""
+    lines = []
+    for d in simulation.dpus:
+        if d.named is None:
+            continue
+        others = ", ".join(f"{kind} {signed(points, 1)}" for kind, points in d.costs.items()
+                           if kind != d.named)
+        lines.append(f"DPU {d.id}: {d.named} {signed(d.cost_points, 1)} points ({others})")
     return lines
 
 
@@ -168,6 +186,13 @@ def print_summary(report: RunReport, console: Console | None = None, paper: dict
     serious = min(FAULT_LINES + 1, sum(1 for f in report.faults if f.fatal or f.kind in FAILED_KINDS))
     for i, line in enumerate(fault_lines(report.faults)):
         say(line, "red" if i < serious else "yellow")
+    if report.simulation is not None:
+        moved = platform_summary(report.simulation)
+        say(f"beside its simulation ({report.simulation.where}): " +
+            ("the platform's cost, by DPU:" if moved else "every DPU ran as simulated, within "
+             f"{NAMED_POINTS:g} point"), "yellow" if moved else None)
+        for line in moved:
+            say(f"  {line}", "yellow")
     if report.predicted is not None and report.predicted.outside:
         say(f"outside the prediction, put down to {report.predicted.cause}:", "yellow")
         for line in predicted_summary(report.predicted):

@@ -32,7 +32,8 @@ def num(value: float | None, digits: int = 1) -> str:
         return "-"
     if abs(value) >= 1000:
         digits = 0  # the decimals of a large figure are noise and cost width
-    return f"{value:.{digits}f}"
+    # + 0.0: a sum that is zero up to rounding (100 - the other three %) shows 0.0, not -0.0
+    return f"{round(value, digits) + 0.0:.{digits}f}"
 
 
 def make_table(title: str, columns: list[tuple[str, bool]], rows: list[list[str]]) -> Table:

@@ -237,7 +237,7 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_up(args: argparse.Namespace) -> int:
-    from ..live.run import control_url
+    from ..live.outcome import control_url
 
     system = _load(args)
     url = control_url(system)
@@ -256,7 +256,7 @@ def cmd_down(args: argparse.Namespace) -> int:
 
 def cmd_push(args: argparse.Namespace) -> int:
     from ..live import owner
-    from ..live.run import HEAR_TIMEOUT_S, control_url
+    from ..live.outcome import HEAR_TIMEOUT_S, control_url
 
     if args.at_ms < 0:
         print(f"skel push: --at-ms {args.at_ms:g}: must be >= 0", file=sys.stderr)
@@ -331,7 +331,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 def cmd_simulate(args: argparse.Namespace) -> int:
     from skeleton.analysis.views.console import output_console
 
-    from ..live.run import RunOptions
+    from ..live.outcome import RunOptions
     from ..live.simulate import Push, simulate
 
     system = _load(args)

@@ -20,13 +20,10 @@ file is shared, so the push may come from another machine than the run.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import sys
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from rich.console import Console
@@ -37,27 +34,23 @@ import skelmsg
 from skeleton.analysis.errors import EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_INTERRUPTED, EXIT_OK
 from skeleton.analysis.measure.faults import LOST_AFTER_S, Fault
 from skeleton.analysis.measure.metrics import utilization_pct
-from skeleton.analysis.measure.run import load_run
-from skeleton.analysis.read.messages import LogError
 from skeleton.analysis.views.console import OutputConsole
-from skeleton.analysis.views.summary import FAILED_KINDS, fault_line, print_summary, rest_line
-from skeleton.analysis.views.tables import print_report
+from skeleton.analysis.views.summary import FAILED_KINDS, fault_line
 from skelmsg.contract import KEY_ENV
 
 from ..model import System
-from ..theory.predictor import predictor
 from . import owner, spawn
 from .clock import ClockKeeper
 from .control import Control, PushResult
 from .listener import DpuView
+from .outcome import START_LEAD_S, RunOptions, control_url, fault_window_s, report_run
 from .preflight import delivery_warnings, warmup_warnings
 from .repair import LoggerKeeper, LogRepair, RepairResult
+from .simulate import beside_run
 from .wire import config_message
 
-START_LEAD_S = 0.5          # time for START to reach every DPU before cycle 0
 REPORT_GRACE_S = 5.0        # how long after the end we wait for the DPUs' reports
 SETTLE_S = 1.0              # ... before a DPU still running the run is sent STOP
-HEAR_TIMEOUT_S = 5.0
 CONFIG_RESEND_S = 1.0
 POLL_S = 0.1                # follower period: a lost DPU is reported within LOST_AFTER_S + this
 PUSH_TIMEOUT_S = 3.0        # per phase (stage, commit) of Control.push
@@ -70,30 +63,6 @@ LIVE_KINDS = ("lockout", "jam", "behind", "stall", "dpu_lost", "delivery")
 # The platform's faults (stall, behind) said live before they are only counted: a noisy
 # machine makes dozens, and the summary counts them all.
 LIVE_PLATFORM_LINES = 3
-FAULT_WINDOW_MAX_S = 1.0    # a run stopped early (run.stop_on) goes on at most this long
-
-
-@dataclass
-class RunOptions:
-    spawn: bool = False
-    cycles: int | None = None
-    duration_s: float | None = None
-    out: Path | None = None
-    as_json: bool = False
-    compare_paper: bool = False
-    all_tables: bool = False  # every table, not one screen
-    # Run the generation `skel push` already applied, when every DPU still has it.
-    pushed_generation: int | None = None
-    dpu_args: list[str] = field(default_factory=list)
-    wait_dpus_s: float = HEAR_TIMEOUT_S
-    logger: str = "local"   # local: lcm-logger here; external: someone else records the run
-    force: bool = False     # take over another host tool's run on our DPUs (host/live/owner.py)
-    key: bytes | None = None        # signed control (analysis/read/seal.py): the key ...
-    key_file: Path | None = None    # ... and its file, which spawned DPUs are given
-
-
-def control_url(system: System) -> str:
-    return system.default_link.url
 
 
 def default_out(system: System) -> Path:
@@ -205,8 +174,11 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         problems.append(f"the log is incomplete: {repaired.missing} of what the DPUs published never "
                         f"reached it (the logger missed {repaired.asked}; asked again, "
                         f"{repaired.missing} could not be had again)")
+    simulated, why_not = beside_run(system, out, duration_ns)
+    if why_not:
+        console.print(why_not, style="yellow", markup=False, highlight=False)
     code = report_run(console, system, options, out, run_id, follower.lost, repaired, keeper.restarts,
-                      problems)
+                      problems, simulated=simulated)
     return EXIT_INTERRUPTED if interrupted else code
 
 
@@ -303,14 +275,6 @@ class RunFollower:
 
     def fault_window_s(self) -> float:
         return fault_window_s(self.system)
-
-
-def fault_window_s(system: System) -> float:
-    """How long a run stopped early goes on: one lockout window of its slowest process (at
-    most FAULT_WINDOW_MAX_S), so the lockouts that come with the first (the rest of a jam:
-    processes downstream, or on a DPU that falls behind a little later) are recorded too."""
-    slowest_us = max(p.period_us for p in system.processes)
-    return min(FAULT_WINDOW_MAX_S, system.run.lockout_cycles * slowest_us / 1e6)
 
 
 def _live_line(fault: Fault) -> str:
@@ -440,50 +404,6 @@ def _wait_nonempty(path: Path, timeout_s: float) -> None:
     deadline = time.monotonic() + timeout_s
     while path.stat().st_size == 0 and time.monotonic() < deadline:
         time.sleep(0.02)
-
-
-def report_run(console: Console, system: System, options: RunOptions, out: Path, run_id: int,
-            lost: set[int], repaired: RepairResult, restarts: int = 0, problems: Sequence[str] = ()) -> int:
-    """The tables, with what makes the run's log or the run itself incomplete said first."""
-    for problem in problems:
-        console.print(f"[bold red]INCOMPLETE[/] {problem}", soft_wrap=True)
-    try:
-        run = load_run(out / "run.lcm", run_id=run_id, key=options.key)
-    except LogError as error:
-        console.print(f"[red]{out / 'run.lcm'}: {error}[/]")
-        return EXIT_FAILED
-    missing = run.add_prediction(predictor(system.path))
-    report = run.report
-    (out / "report.json").write_text(json.dumps(report.to_json(), indent=2) + "\n")
-    if options.as_json:
-        print(json.dumps(report.to_json(), indent=2))
-        if missing:
-            print(missing, file=sys.stderr)  # stdout stays pure JSON
-    else:
-        paper = None
-        if options.compare_paper and system.reference is not None:
-            paper = {i: dataclasses.asdict(row) for i, row in system.reference.dpus.items()}
-        if options.all_tables:
-            print_report(report, console=console, paper=paper)
-        else:
-            print_summary(report, console=console, paper=paper)
-        if missing:
-            console.print(missing, style="yellow", markup=False, highlight=False)
-        if restarts:
-            console.print(f"the logger died and was restarted {restarts} time{'s' if restarts > 1 else ''}")
-        if repaired.asked:
-            console.print(f"the logger missed {repaired.asked} messages; the DPUs sent them again"
-                          + (f", {repaired.missing} still missing" if repaired.missing else ": all logged"))
-        console.print(f"run written to {out}/ (system.yaml, run.lcm, report.json)")
-        if not options.all_tables:
-            console.print(rest_line(str(out)), highlight=False, soft_wrap=True)
-    kinds = {f["kind"] for f in report.to_json()["faults"]}
-    if "delivery" in kinds:
-        return EXIT_FAILED  # what did not arrive locks its readers out: not the design's flaw
-    if report.fatal:
-        return EXIT_FATAL_FLAW
-    # A lost DPU's part of the run is missing: the tables cover the others only.
-    return EXIT_FAILED if lost or problems or kinds & set(FAILED_KINDS) else EXIT_OK
 
 
 def _external_summary(console: Console, out: Path, run_id: int, dpu_ids: list[int],

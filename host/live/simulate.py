@@ -30,15 +30,15 @@ import lcm
 from rich.console import Console
 
 import skelmsg
-from skeleton.analysis.errors import EXIT_FAILED
+from skeleton.analysis.errors import EXIT_FAILED, SkelError
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.read.messages import LogError
 from skelmsg import contract
 
 from ..model import System
+from .outcome import START_LEAD_S, RunOptions, control_url, fault_window_s, report_run
 from .repair import RepairResult
-from .run import START_LEAD_S, RunOptions, control_url, fault_window_s, report_run
-from .spawn import dpu_binary
+from .spawn import SpawnError, dpu_binary
 from .wire import config_message
 
 # A simulated run's clock: UTC starts at 2000-01-01T00:00:00Z, fixed, so that nothing in its
@@ -47,7 +47,6 @@ SIM_EPOCH_UTC_NS = 946_684_800 * 1_000_000_000
 SIM_RUN_ID = 1
 SIM_GENERATION = 1
 SIM_SESSION = 1
-SIM_SENDER = "skel simulate"
 # The input's messages, as `skel run` sends them: the config, then START a lead later.
 _COMMAND_AFTER_NS = 1_000_000
 
@@ -76,14 +75,14 @@ class Simulated:
         return self.virtual_s / self.wall_s if self.wall_s > 0 else float("inf")
 
 
-class SimulationError(RuntimeError):
-    pass
+class SimulationError(SkelError, RuntimeError):
+    """skel-dpu --simulate failed; the message names its log."""
 
 
 def _command(kind: int, seq: int, **fields: int) -> bytes:
     cmd = skelmsg.command_t()
     cmd.seq, cmd.kind, cmd.dpu = seq, kind, -1
-    cmd.session, cmd.force, cmd.sender = SIM_SESSION, 0, SIM_SENDER
+    cmd.session, cmd.force, cmd.sender = SIM_SESSION, 0, contract.SIMULATED_SENDER
     for name, value in fields.items():
         setattr(cmd, name, value)
     return cmd.encode()
@@ -95,7 +94,7 @@ def write_input(system: System, path: Path, duration_ns: int, pushes: Sequence[P
     config at the epoch, START one START_LEAD_S later, each push staged and committed for its
     instant, and a STOP `stop_at_ns` after START."""
     config = config_message(system, SIM_GENERATION, SIM_RUN_ID, committed=True)
-    config.session, config.force, config.sender = SIM_SESSION, 0, SIM_SENDER
+    config.session, config.force, config.sender = SIM_SESSION, 0, contract.SIMULATED_SENDER
     config.sent_utc_ns = SIM_EPOCH_UTC_NS
     start_utc_ns = SIM_EPOCH_UTC_NS + round(START_LEAD_S * 1e9)
     messages = [(SIM_EPOCH_UTC_NS, contract.CONFIG_CHANNEL, config.encode()),
@@ -105,7 +104,7 @@ def write_input(system: System, path: Path, duration_ns: int, pushes: Sequence[P
     for n, push in enumerate(sorted(pushes, key=lambda p: p.at_s)):
         generation, at_ns = SIM_GENERATION + 1 + n, start_utc_ns + round(push.at_s * 1e9)
         staged = config_message(push.system, generation, SIM_RUN_ID, committed=False)
-        staged.session, staged.force, staged.sender = SIM_SESSION, 0, SIM_SENDER
+        staged.session, staged.force, staged.sender = SIM_SESSION, 0, contract.SIMULATED_SENDER
         staged.sent_utc_ns = at_ns - _STAGE_BEFORE_NS
         messages.append((at_ns - _STAGE_BEFORE_NS, contract.CONFIG_CHANNEL, staged.encode()))
         messages.append((at_ns - _STAGE_BEFORE_NS // 2, contract.COMMAND_CHANNEL,
@@ -139,6 +138,15 @@ def run_simulation(system: System, out: Path, duration_ns: int, pushes: Sequence
     return Simulated(virtual_s=(START_LEAD_S * 1e9 + duration_ns) / 1e9, wall_s=wall_s)
 
 
+def beside_run(system: System, out: Path, duration_ns: int) -> tuple[Path | None, str | None]:
+    """The simulation `skel run` lays beside a measured run (in `out`/simulated), or why none."""
+    try:
+        simulate_into(system, out / "simulated", duration_ns)
+    except (SimulationError, SpawnError, OSError, LogError) as error:
+        return None, f"no simulation beside the run: {error}"
+    return out / "simulated", None
+
+
 def _stop_after_ns(system: System, out: Path) -> int | None:
     """Where `skel run` would have stopped this run (ns after its start), None: nowhere."""
     if not system.run.stop_on:
@@ -150,19 +158,26 @@ def _stop_after_ns(system: System, out: Path) -> int | None:
     return round((first + fault_window_s(system)) * 1e9)
 
 
-def simulate(system: System, options: RunOptions, console: Console, pushes: Sequence[Push] = ()) -> int:
-    out = options.out or Path("runs") / f"{system.name}-sim-{time.strftime('%Y%m%d-%H%M%S')}"
+def simulate_into(system: System, out: Path, duration_ns: int, pushes: Sequence[Push] = ()) -> Simulated:
+    """A simulated run of `system` in `out` (system.yaml, run.lcm, logs/), stopped where
+    `skel run` would stop it; raises SimulationError, OSError or LogError."""
     out.mkdir(parents=True, exist_ok=True)
     (out / "system.yaml").write_text(system.source_text)
     for n, push in enumerate(sorted(pushes, key=lambda p: p.at_s)):  # as `skel run` keeps a push's file
         (out / f"system-g{SIM_GENERATION + 1 + n}.yaml").write_text(push.system.source_text)
+    took = run_simulation(system, out, duration_ns, pushes)
+    stop = _stop_after_ns(system, out)
+    if stop is not None and stop < duration_ns:
+        took = run_simulation(system, out, duration_ns, pushes, stop_at_ns=stop)
+    return took
+
+
+def simulate(system: System, options: RunOptions, console: Console, pushes: Sequence[Push] = ()) -> int:
+    out = options.out or Path("runs") / f"{system.name}-sim-{time.strftime('%Y%m%d-%H%M%S')}"
     duration_ns = system.run_duration_ns(options.cycles, options.duration_s)
     try:
-        took = run_simulation(system, out, duration_ns, pushes)
-        stop = _stop_after_ns(system, out)
-        if stop is not None and stop < duration_ns:
-            took = run_simulation(system, out, duration_ns, pushes, stop_at_ns=stop)
-    except (SimulationError, OSError, LogError) as error:
+        took = simulate_into(system, out, duration_ns, pushes)
+    except (SimulationError, SpawnError, OSError, LogError) as error:
         console.print(f"[red]{error}[/]", soft_wrap=True)
         return EXIT_FAILED
     code = report_run(console, system, options, out, SIM_RUN_ID, set(), RepairResult())
