@@ -23,7 +23,9 @@
     processes at 100 Hz until one past the goal is not clean (goal: 64 DPUs and 256 processes
     with no buffer dropped and no lockout); the largest clean size;
 (k) analysis (bench/analysis.py): `skel report` and `skel export` of a SERVO run grown to 10^7
-    records (goals: report in 10 s and 2 GiB, export at 10^6 records/s).
+    records (goals: report in 10 s and 2 GiB, export at 10^6 records/s);
+(l) simulate (bench/simulation.py): ten minutes of SERVO on virtual time (goal: 100 simulated
+    seconds per wall second), and a handover between DPUs as a fiber switch against threads.
 
 Each part writes bench/results/<name>.txt, the headlines go to bench/results/summary.txt.
 Runs use a private multicast port with ttl=0 (nothing leaves the host). About 5 minutes.
@@ -31,7 +33,7 @@ Runs use a private multicast port with ttl=0 (nothing leaves the host). About 5 
 Usage: .venv/bin/python bench/run.py [--seconds S] [--records N] [--tasking-seconds S]
        [--allocate-seconds S] [--flood-rate N] [--analysis-records N] [--parts P,...]
 (--parts: only those of wakeup, publish, logreader, compute, tasking, allocate, flood, bookkeeping, rate,
-scale, analysis;
+scale, analysis, simulate;
 summary.txt is then
 left alone and the headlines are printed only.)
 """
@@ -439,7 +441,7 @@ def cost_run(tmp: Path) -> Callable[[str, str, float], tuple[np.ndarray, dict[st
 FLOOD_SECONDS = 10
 FLOOD_POINTS = 2.0
 PARTS = ("wakeup", "publish", "logreader", "compute", "tasking", "allocate", "flood", "bookkeeping", "rate",
-         "scale", "analysis")
+         "scale", "analysis", "simulate")
 
 
 def main() -> int:
@@ -492,6 +494,10 @@ def main() -> int:
             from analysis import part_analysis  # bench/analysis.py, beside this file
 
             parts["analysis"] = part_analysis(tmp, URL, args.analysis_records)
+        if "simulate" in wanted:
+            from simulation import part_simulate  # bench/simulation.py, beside this file
+
+            parts["simulate"] = part_simulate(tmp)
     for name, lines in parts.items():
         (RESULTS / f"{name}.txt").write_text("\n".join(lines) + "\n")
         print("\n".join(lines) + "\n")

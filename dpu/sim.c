@@ -11,9 +11,10 @@
  * A fiber (ucontext) runs until it waits: it never takes virtual time while it runs,
  * so every step but a sleep, a computation or a wait is instantaneous, and nothing
  * stalls it. A buffer published at t arrives at t (no link models a delay yet). The
- * fibers are switched on one thread: measured here, a switch costs 0.2 us, a handover
- * between two threads 5-10 us, too slow for the half a million events a second the
- * simulation of SERVO needs at 100 times real time.
+ * fibers are switched on one thread: a handover between two DPUs costs 0.2-0.5 us so, and
+ * 2.3-3.2 us between two threads (bench/switch.c, `make bench`, 2026-12-02): ten minutes
+ * of SERVO are 2.8 million events, which threads alone would take 15 s of handovers for,
+ * short of the goal of 100 times real time (fibers: 2.5 s in all).
  *
  * The input is an LCM log the host tool writes: the configs and commands it would
  * publish, each at its virtual UTC instant. The output is the log the run's logger
