@@ -168,6 +168,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="events per second (default 10)")
     p.add_argument("--url", default=DEFAULT_URL, help=CONTROL_URL_HELP)
 
+    from .margin_cmd import add_parser as add_margin
+
+    _system_args(add_margin(sub))
     from .allocate_cmd import add_parser  # ortools loads only for `skel allocate`
     _system_args(add_parser(sub))
 
@@ -507,6 +510,12 @@ def cmd_watch(args: argparse.Namespace) -> int:
                          all_tables=args.all_tables)
 
 
+def cmd_margin(args: argparse.Namespace) -> int:
+    from .margin_cmd import margin_command
+
+    return margin_command(args, _load(args))
+
+
 def cmd_allocate(args: argparse.Namespace) -> int:
     from .allocate_cmd import allocate_command
 
@@ -557,5 +566,5 @@ COMMANDS = {"check": cmd_check, "up": cmd_up, "down": cmd_down, "push": cmd_push
             "simulate": cmd_simulate,
             "status": cmd_status, "clock": cmd_clock, "report": cmd_report, "diff": cmd_diff,
             "export": cmd_export, "watch": cmd_watch, "doctor": cmd_doctor, "event": cmd_event,
-            "allocate": cmd_allocate, "keygen": cmd_keygen}
+            "allocate": cmd_allocate, "margin": cmd_margin, "keygen": cmd_keygen}
 

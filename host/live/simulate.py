@@ -20,7 +20,9 @@ which on virtual time changes nothing before that instant.
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
+import tempfile
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -33,9 +35,11 @@ import skelmsg
 from skeleton.analysis.errors import EXIT_FAILED, SkelError
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.read.messages import LogError
+from skeleton.analysis.views.summary import fault_line
 from skelmsg import contract
 
 from ..model import System
+from ..theory.predict import predict
 from .outcome import START_LEAD_S, RunOptions, control_url, fault_window_s, report_run
 from .repair import RepairResult
 from .spawn import SpawnError, dpu_binary
@@ -186,3 +190,25 @@ def simulate(system: System, options: RunOptions, console: Console, pushes: Sequ
                       f"({took.speed:.0f} times real time), on virtual time: no platform in it",
                       highlight=False)
     return code
+
+
+# A margin probe (host/theory/margin.py) simulates this many cycles of the slowest period past
+# a short warm-up: an overload overruns within a frame or two, an RTA miss within a hyperperiod
+# of the DPU's own.
+PROBE_WARMUP_CYCLES = 2
+PROBE_CYCLES = 20
+
+
+def simulated_flaws(system: System) -> list[str]:
+    """The flaws a short simulation of `system` shows: its fatal faults, and any overrun or
+    skipped release (on virtual time no platform explains one), but a paced reader's, which
+    overruns by design."""
+    paced = {p.name for p in predict(system).processes if p.paced_by is not None}
+    probe = dataclasses.replace(system, run=dataclasses.replace(system.run, warmup_cycles=PROBE_WARMUP_CYCLES,
+                                                                stop_on=()))
+    slowest_ns = max(p.period_us for p in system.processes) * 1000
+    with tempfile.TemporaryDirectory(prefix="skel-margin-") as tmp:
+        simulate_into(probe, Path(tmp), (PROBE_WARMUP_CYCLES + PROBE_CYCLES) * slowest_ns)
+        faults = load_run(Path(tmp) / "run.lcm").report.faults
+    return [fault_line(f) for f in faults
+            if (f.fatal or f.kind in ("overrun", "skipping")) and f.process not in paced]
