@@ -7,11 +7,19 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 from skeleton.analysis.errors import EXIT_BAD_INPUT, EXIT_OK
+from skeleton.analysis.views.console import OutputConsole, output_console
+from skeleton.analysis.views.tables import make_table
 
 from ..model import System
 from ..theory.margin import AXES, MOST, Margin, Scope, margin, scopes
+
+if TYPE_CHECKING:
+    from ..live.sweep import Sweep  # the sweep loads the live layer: only for --measure
 
 SIMULATED_PRECISION = 1e-4
 
@@ -28,6 +36,13 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:  # t
                    help="the margin of DPU D's computations together (repeatable; compute axis)")
     p.add_argument("--simulate", action="store_true",
                    help="also search on the executives themselves, on virtual time (a second a scope)")
+    p.add_argument("--measure", action="store_true",
+                   help="also measure it on the real DPUs, in one run of live pushes, restarting nothing "
+                        "(compute axis; all processes, or the one --dpu or --process given)")
+    p.add_argument("--spawn", action="store_true",
+                   help="with --measure: start local DPUs and stop them after")
+    p.add_argument("--out", type=Path, help="with --measure: the sweep's run directory (default "
+                   "runs/<system>-margin-<time>/)")
     p.add_argument("--json", action="store_true", help="the margins as JSON")
     return p
 
@@ -51,6 +66,10 @@ def margin_command(args: argparse.Namespace, system: System) -> int:
         print(f"skel margin: --axis {args.axis} grows the whole system: --process and --dpu are for "
               "the compute axis", file=sys.stderr)
         return EXIT_BAD_INPUT
+    if args.measure and (args.axis != "compute" or len(args.process) + len(args.dpu) > 1):
+        print("skel margin: --measure sweeps the compute axis of one scope: all processes, or one "
+              "--dpu or --process", file=sys.stderr)
+        return EXIT_BAD_INPUT
     wanted = scopes(system, args.process, args.dpu) if args.axis == "compute" else [Scope()]
     rows = []
     for scope in wanted:
@@ -58,28 +77,75 @@ def margin_command(args: argparse.Namespace, system: System) -> int:
         simulated = (margin(system, args.axis, scope, probe=simulated_flaws, precision=SIMULATED_PRECISION)
                      if args.simulate else None)
         rows.append((scope, predicted, simulated))
+    swept = None
+    if args.measure:
+        from ..live.sweep import measure
+
+        scope, predicted = rows[0][0], rows[0][1].factor
+        if predicted is None:
+            print("skel margin: nothing limits this scope up to the search's limit: nothing to measure",
+                  file=sys.stderr)
+            return EXIT_BAD_INPUT
+        out = args.out or Path("runs") / f"{system.name}-margin-{time.strftime('%Y%m%d-%H%M%S')}"
+        # its progress on stderr with --json: stdout stays pure JSON
+        said = OutputConsole(stderr=True) if args.json else output_console()
+        swept = measure(system, scope, predicted, out, said, spawn_dpus=args.spawn, key=args.key)
     if args.json:
         print(json.dumps({"system": system.name, "axis": args.axis, "margins": [
             {"scope": s.name, "predicted": p.to_json(), "simulated": m.to_json() if m else None}
-            for s, p, m in rows]}, indent=2))
+            for s, p, m in rows], "measured": _sweep_json(swept)}, indent=2))
         return EXIT_OK
-    _print(system.name, args.axis, rows)
+    _print(system.name, args.axis, rows, swept)
+    if swept is not None:
+        _print_sweep(swept)
     return EXIT_OK
 
 
-def _print(name: str, axis: str, rows: list[tuple[Scope, Margin, Margin | None]]) -> None:
-    from skeleton.analysis.views.console import output_console
-    from skeleton.analysis.views.tables import make_table
+def _sweep_json(swept: Sweep | None) -> dict[str, object] | None:
+    if swept is None:
+        return None
+    return {"factor": swept.margin, "run": str(swept.out),
+            "steps": [{"factor": s.factor, "generation": s.generation, "heard": s.heard, "flaw": s.flaw}
+                      for s in swept.steps]}
 
+
+def _print_sweep(swept: Sweep) -> None:
+    table = make_table(f"measured on the DPUs, one run of live pushes ({swept.out})",
+                       [("factor", True), ("generation", True), ("its window in the log", False)],
+                       [[f"{s.factor:.4f}", str(s.generation), s.flaw or "clean"] for s in swept.steps])
+    console = output_console()
+    console.print(table)
+    last = swept.steps[-1]
+    if swept.margin is None:
+        measured = f"under {swept.steps[0].factor:.4f}: the first step was flawed already"
+    elif last.heard and last.flaw is None:  # the sweep ended on what the log puts down to the platform
+        measured = (f"at least {swept.margin:.4f} (the heartbeats ended the sweep there: {last.heard}; its "
+                    "window in the log puts them down to the platform's stalls)")
+    else:
+        measured = f"{swept.margin:.4f} (the last step before the first flawed one)"
+    console.print(f"measured margin: {measured}; `skel report {swept.out} --all` shows every step's window",
+                  markup=False, highlight=False)
+
+
+def _print(name: str, axis: str, rows: list[tuple[Scope, Margin, Margin | None]],
+           swept: Sweep | None) -> None:
+    """The margins; a sweep's measured one beside its scope (the first row)."""
     grows = {"compute": "computations times", "rate": "every period divided by",
              "bytes": "buffer sizes times"}
     console = output_console()
     simulated = any(m is not None for _, _, m in rows)
     columns = [("scope", False), ("predicted", True)] + ([("simulated", True)] if simulated else [])
+    if swept is not None:
+        columns.append(("measured", True))
     columns.append(("breaks first (predicted)", False))
+    table_rows = []
+    for i, (s, p, m) in enumerate(rows):
+        row = [s.name, _factor(p), *([_factor(m)] if simulated else [])]
+        if swept is not None:
+            row.append("-" if i or swept.margin is None else f"{swept.margin:.4f}")
+        table_rows.append([*row, p.breaks[0] if p.breaks else "nothing up to the limit"])
     table = make_table(f"{name}: the largest factor before a fatal flaw ({grows[axis]} it)", columns,
-                       [[s.name, _factor(p), *([_factor(m)] if simulated else []),
-                         p.breaks[0] if p.breaks else "nothing up to the limit"] for s, p, m in rows])
+                       table_rows)
     console.print(table)
     for line in rows[0][1].paced:
         console.print(f"note: {line}", markup=False, highlight=False)

@@ -92,13 +92,13 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         if options.spawn:
             # Before anything starts: DPUs of ours already up and busy are someone's run.
             control.wait_for(lambda: set(dpu_ids) <= control.dpus.keys(), owner.HEAR_BEFORE_SPAWN_S)
-            # Idle DPUs of our ids (busy ones are someone's run, which _claim names, unless we
+            # Idle DPUs of our ids (busy ones are someone's run, which claim names, unless we
             # --force it: then spawning beside them would still be wrong).
             up = _already_up(control, system)
             if up is not None and (options.force or not owner.foreign_runs(control, dpu_ids)):
                 console.print(f"[red]{up}[/]", soft_wrap=True)
                 return EXIT_FAILED
-            if not _claim(control, dpu_ids, options.force, console):
+            if not claim(control, dpu_ids, options.force, console):
                 return EXIT_FAILED
             dpu_deadline_s = options.wait_dpus_s + 2 * PUSH_TIMEOUT_S + logger_deadline_s
             daemons = [spawn.start_dpu(d.id, url, out / "logs", options.dpu_args, deadline_s=dpu_deadline_s,
@@ -120,7 +120,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
             for line in refused:
                 console.print(f"[red]{line}[/]", soft_wrap=True)
             return EXIT_FAILED
-        if not _claim(control, dpu_ids, options.force, console):
+        if not claim(control, dpu_ids, options.force, console):
             return EXIT_FAILED
         run_id = time.time_ns() // 1_000_000
         generation = options.pushed_generation
@@ -135,7 +135,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
         if options.logger == "local":
             keeper = LoggerKeeper(control.listen_url, out / "run.lcm", logger_deadline_s, say=console.print)
             # Its file exists before it has joined the group: wait for the first heartbeat it records.
-            _wait_nonempty(out / "run.lcm", LOGGER_READY_S)
+            wait_nonempty(out / "run.lcm", LOGGER_READY_S)
             repair = LogRepair(control, out / "run.lcm", run_id, dpu_ids, keeper)
         clocks = ClockKeeper(control, dpu_ids)
         clocks.refresh()  # before START, so the log has offsets for the whole run
@@ -149,7 +149,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
             interrupted = True
             console.print("interrupted: stopping the run; its report covers what ran")
             control.stop()
-        _finish(control, run_id, [d for d in dpu_ids if d not in follower.lost], console)
+        finish(control, run_id, [d for d in dpu_ids if d not in follower.lost], console)
         follower.poll(dpu_ids, running=False)  # what the last heartbeats and batches said
         reports = {d: r for (d, r_id), r in control.reports.items() if r_id == run_id}
         if repair is not None:
@@ -211,7 +211,7 @@ def _already_up(control: Control, system: System) -> str | None:
             "id. Run without --spawn to use them, or stop them first (`skel down`)")
 
 
-def _claim(control: Control, dpu_ids: list[int], force: bool, console: Console) -> bool:
+def claim(control: Control, dpu_ids: list[int], force: bool, console: Console) -> bool:
     """Our DPUs are free, or (--force) made free: another session's run is refused or taken over."""
     runs = owner.foreign_runs(control, dpu_ids)
     if not runs:
@@ -373,7 +373,7 @@ def _follow(control: Control, follower: RunFollower, clocks: ClockKeeper, config
             control.publish_config(adopted)
 
 
-def _finish(control: Control, run_id: int, dpu_ids: list[int], console: Console) -> None:
+def finish(control: Control, run_id: int, dpu_ids: list[int], console: Console) -> None:
     """Wait until every DPU has reported the run and is idle (READY) again. One still
     running it SETTLE_S after its end (a DPU behind its releases, or a long computation)
     is sent STOP: when `skel run` returns, the DPUs are ready for the next run."""
@@ -400,7 +400,7 @@ def _finish(control: Control, run_id: int, dpu_ids: list[int], console: Console)
                       "`skel status` shows when it is ready again")
 
 
-def _wait_nonempty(path: Path, timeout_s: float) -> None:
+def wait_nonempty(path: Path, timeout_s: float) -> None:
     deadline = time.monotonic() + timeout_s
     while path.stat().st_size == 0 and time.monotonic() < deadline:
         time.sleep(0.02)
