@@ -43,6 +43,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:  # t
                    help="with --measure: start local DPUs and stop them after")
     p.add_argument("--out", type=Path, help="with --measure: the sweep's run directory (default "
                    "runs/<system>-margin-<time>/)")
+    p.add_argument("--plots", type=Path, metavar="DIR",
+                   help="write DIR/margin-AXIS.png: each DPU's load and each process's worst response "
+                        "against the factor, the margin marked (and a measured sweep's steps)")
     p.add_argument("--json", action="store_true", help="the margins as JSON")
     return p
 
@@ -90,6 +93,12 @@ def margin_command(args: argparse.Namespace, system: System) -> int:
         # its progress on stderr with --json: stdout stays pure JSON
         said = OutputConsole(stderr=True) if args.json else output_console()
         swept = measure(system, scope, predicted, out, said, spawn_dpus=args.spawn, key=args.key)
+    if args.plots is not None:
+        from .margin_plot import write_margin_plot  # matplotlib: only for --plots
+
+        steps = [(s.factor, s.compute_pct) for s in swept.steps] if swept else []
+        made = write_margin_plot(system, rows[0][1], args.plots, steps)
+        print(f"plot: {made}", file=sys.stderr)
     if args.json:
         print(json.dumps({"system": system.name, "axis": args.axis, "margins": [
             {"scope": s.name, "predicted": p.to_json(), "simulated": m.to_json() if m else None}
@@ -105,8 +114,8 @@ def _sweep_json(swept: Sweep | None) -> dict[str, object] | None:
     if swept is None:
         return None
     return {"factor": swept.margin, "run": str(swept.out),
-            "steps": [{"factor": s.factor, "generation": s.generation, "heard": s.heard, "flaw": s.flaw}
-                      for s in swept.steps]}
+            "steps": [{"factor": s.factor, "generation": s.generation, "heard": s.heard, "flaw": s.flaw,
+                       "compute_pct": s.compute_pct, "platform": s.platform} for s in swept.steps]}
 
 
 def _print_sweep(swept: Sweep) -> None:
@@ -115,6 +124,10 @@ def _print_sweep(swept: Sweep) -> None:
                        [[f"{s.factor:.4f}", str(s.generation), s.flaw or "clean"] for s in swept.steps])
     console = output_console()
     console.print(table)
+    for step in swept.steps:
+        if step.platform:
+            console.print(f"x{step.factor:.4f} beside its simulation, the platform's cost: {step.platform}",
+                          markup=False, highlight=False)
     last = swept.steps[-1]
     if swept.margin is None:
         measured = f"under {swept.steps[0].factor:.4f}: the first step was flawed already"

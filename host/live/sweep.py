@@ -18,13 +18,14 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from rich.console import Console
 
 from skeleton.analysis.errors import SkelError
 from skeleton.analysis.measure.run import load_run
+from skeleton.analysis.measure.simulated import simulation_beside
 from skeleton.analysis.measure.windows import WindowReport
 from skeleton.analysis.views.summary import fault_line
 
@@ -35,6 +36,7 @@ from .control import Control
 from .outcome import HEAR_TIMEOUT_S, START_LEAD_S, control_url
 from .repair import LoggerKeeper
 from .run import claim, finish, wait_nonempty
+from .simulate import simulate_into
 from .wire import config_message
 
 STEPS = (0.8, 0.9, 0.95, 0.98, 0.99, 1.0, 1.01, 1.02, 1.05, 1.1)  # x the predicted margin
@@ -52,6 +54,10 @@ class Step:
     generation: int
     heard: str | None = None     # what the heartbeats said ended the sweep here
     flaw: str | None = None      # what the log's window of this step shows (None: clean)
+    compute_pct: dict[int, float] = field(default_factory=dict)  # its window's % compute per DPU
+    # the flawed step: its flawed DPU's largest cost against a simulation of the step
+    # (analysis/measure/simulated.py: communication, wake-up or interference)
+    platform: str | None = None
 
 
 @dataclass
@@ -163,7 +169,25 @@ def measure(system: System, scope: Scope, predicted: float, out: Path, console: 
     for step in steps:
         window = windows.get(step.generation)
         step.flaw = "no window measured" if window is None else _window_flaw(window)
+        if window is not None:
+            step.compute_pct = {d.id: d.compute_pct for d in window.dpus if d.compute_pct is not None}
+    flawed = next((s for s in steps if s.flaw is not None), None)
+    if flawed is not None and flawed.generation in windows:
+        flawed.platform = _platform(system, scope, flawed, windows[flawed.generation], out)
     return Sweep(out, steps)
+
+
+def _platform(system: System, scope: Scope, step: Step, window: WindowReport, out: Path) -> str | None:
+    """What the platform cost the flawed step's DPUs beyond a simulation of the same step."""
+    at = out / f"simulated-g{step.generation}"
+    try:
+        simulate_into(scaled(system, "compute", step.factor, scope), at, round(hold_s(system) * 4e9))
+        simulated = load_run(at / "run.lcm").report.dpus
+    except (SkelError, OSError) as error:
+        return f"no simulation of the step: {error}"
+    named = [f"DPU {c.id}: {c.named} {c.cost_points:+.1f} points" for c in
+             simulation_beside(window.dpus, simulated, str(at)).dpus if c.named]
+    return "; ".join(named) or "within half a point of its simulation on every DPU"
 
 
 class SweepError(SkelError, RuntimeError):

@@ -71,3 +71,10 @@ def test_a_bad_scope_gets_one_line_and_exit_2(tmp_path: Path) -> None:
     assert done.returncode == 2 and done.stderr.strip().count("\n") == 0 and "nobody" in done.stderr
     done = skel("margin", str(SERVO), "--axis", "rate", "--dpu", "1")
     assert done.returncode == 2 and "compute axis" in done.stderr, done.stderr
+
+
+def test_the_plot_marks_the_margin(tmp_path: Path) -> None:
+    done = skel("margin", str(SERVO), "--plots", str(tmp_path / "plots"))
+    assert done.returncode == 0, done.stderr
+    png = tmp_path / "plots" / "margin-compute.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
