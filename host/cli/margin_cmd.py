@@ -56,6 +56,13 @@ def _factor(m: Margin | None) -> str:
     return f"> {MOST:g}" if m.factor is None else f"{m.factor:.4f}"
 
 
+def _measured_scopes(system: System, args: argparse.Namespace) -> list[Scope]:
+    """What --measure sweeps: the scopes asked for, or all processes together and each DPU."""
+    if args.process or args.dpu:
+        return scopes(system, args.process, args.dpu)
+    return [Scope()] + [Scope(dpu=d.id) for d in system.dpus]
+
+
 def margin_command(args: argparse.Namespace, system: System) -> int:
     from ..live.simulate import simulated_flaws
 
@@ -65,13 +72,9 @@ def margin_command(args: argparse.Namespace, system: System) -> int:
     if unknown:
         print(f"skel margin: no such process or DPU in {system.path}: {', '.join(unknown)}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    if args.axis != "compute" and (args.process or args.dpu):
-        print(f"skel margin: --axis {args.axis} grows the whole system: --process and --dpu are for "
-              "the compute axis", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    if args.measure and (args.axis != "compute" or len(args.process) + len(args.dpu) > 1):
-        print("skel margin: --measure sweeps the compute axis of one scope: all processes, or one "
-              "--dpu or --process", file=sys.stderr)
+    if args.axis != "compute" and (args.process or args.dpu or args.measure):
+        print(f"skel margin: --axis {args.axis} grows the whole system: --process, --dpu and --measure are "
+              "for the compute axis", file=sys.stderr)
         return EXIT_BAD_INPUT
     wanted = scopes(system, args.process, args.dpu) if args.axis == "compute" else [Scope()]
     rows = []
@@ -80,34 +83,43 @@ def margin_command(args: argparse.Namespace, system: System) -> int:
         simulated = (margin(system, args.axis, scope, probe=simulated_flaws, precision=SIMULATED_PRECISION)
                      if args.simulate else None)
         rows.append((scope, predicted, simulated))
-    swept = None
+    swept: dict[str, Sweep] = {}
     if args.measure:
         from ..live.sweep import measure
 
-        scope, predicted = rows[0][0], rows[0][1].factor
-        if predicted is None:
-            print("skel margin: nothing limits this scope up to the search's limit: nothing to measure",
-                  file=sys.stderr)
-            return EXIT_BAD_INPUT
         out = args.out or Path("runs") / f"{system.name}-margin-{time.strftime('%Y%m%d-%H%M%S')}"
         # its progress on stderr with --json: stdout stays pure JSON
         said = OutputConsole(stderr=True) if args.json else output_console()
-        swept = measure(system, scope, predicted, out, said, spawn_dpus=args.spawn, key=args.key)
+        predicted_of = {s.name: p.factor for s, p, _ in rows}
+        for scope in _measured_scopes(system, args):
+            if predicted_of[scope.name] is None:
+                said.print(f"{scope.name}: nothing limits it up to the search's limit: not measured")
+                continue
+            said.print(f"measuring {scope.name}")
+            swept[scope.name] = measure(system, scope, predicted_of[scope.name], out / _slug(scope), said,
+                                        spawn_dpus=args.spawn, key=args.key)
     if args.plots is not None:
         from .margin_plot import write_margin_plot  # matplotlib: only for --plots
 
-        steps = [(s.factor, s.compute_pct) for s in swept.steps] if swept else []
+        first = swept.get(rows[0][0].name)
+        steps = [(s.factor, s.compute_pct) for s in first.steps] if first else []
         made = write_margin_plot(system, rows[0][1], args.plots, steps)
         print(f"plot: {made}", file=sys.stderr)
     if args.json:
         print(json.dumps({"system": system.name, "axis": args.axis, "margins": [
-            {"scope": s.name, "predicted": p.to_json(), "simulated": m.to_json() if m else None}
-            for s, p, m in rows], "measured": _sweep_json(swept)}, indent=2))
+            {"scope": s.name, "predicted": p.to_json(), "simulated": m.to_json() if m else None,
+             "measured": _sweep_json(swept.get(s.name))} for s, p, m in rows]}, indent=2))
         return EXIT_OK
     _print(system.name, args.axis, rows, swept)
-    if swept is not None:
-        _print_sweep(swept)
+    for scope_name, one in swept.items():
+        _print_sweep(scope_name, one)
     return EXIT_OK
+
+
+def _slug(scope: Scope) -> str:
+    if scope.process is not None:
+        return f"process-{scope.process}"
+    return f"dpu-{scope.dpu}" if scope.dpu is not None else "all"
 
 
 def _sweep_json(swept: Sweep | None) -> dict[str, object] | None:
@@ -118,44 +130,54 @@ def _sweep_json(swept: Sweep | None) -> dict[str, object] | None:
                        "compute_pct": s.compute_pct, "platform": s.platform} for s in swept.steps]}
 
 
-def _print_sweep(swept: Sweep) -> None:
-    table = make_table(f"measured on the DPUs, one run of live pushes ({swept.out})",
-                       [("factor", True), ("generation", True), ("its window in the log", False)],
-                       [[f"{s.factor:.4f}", str(s.generation), s.flaw or "clean"] for s in swept.steps])
-    console = output_console()
-    console.print(table)
-    for step in swept.steps:
-        if step.platform:
-            console.print(f"x{step.factor:.4f} beside its simulation, the platform's cost: {step.platform}",
-                          markup=False, highlight=False)
+def _measured(swept: Sweep) -> str:
+    """The measured margin: `<` the first step when it was flawed already, `>=` when the sweep
+    ended on heartbeats the log puts down to the platform."""
     last = swept.steps[-1]
     if swept.margin is None:
-        measured = f"under {swept.steps[0].factor:.4f}: the first step was flawed already"
-    elif last.heard and last.flaw is None:  # the sweep ended on what the log puts down to the platform
-        measured = (f"at least {swept.margin:.4f} (the heartbeats ended the sweep there: {last.heard}; its "
-                    "window in the log puts them down to the platform's stalls)")
-    else:
-        measured = f"{swept.margin:.4f} (the last step before the first flawed one)"
-    console.print(f"measured margin: {measured}; `skel report {swept.out} --all` shows every step's window",
-                  markup=False, highlight=False)
+        return f"< {swept.steps[0].factor:.4f}"
+    return f">= {swept.margin:.4f}" if last.heard and last.flaw is None else f"{swept.margin:.4f}"
+
+
+def _print_sweep(scope: str, swept: Sweep) -> None:
+    """A sweep in a few lines: its steps, what flawed the first flawed one and what the platform
+    cost there; its log holds the rest."""
+    console = output_console()
+
+    def say(line: str) -> None:
+        console.print(line, markup=False, highlight=False, soft_wrap=True)
+
+    steps = ", ".join(f"x{s.factor:.4f} {'clean' if s.flaw is None else 'FLAWED'}" for s in swept.steps)
+    say(f"{scope}: measured {_measured(swept)} in one run of live pushes: {steps}")
+    for step in swept.steps:
+        if step.flaw is not None:
+            say(f"  x{step.factor:.4f}: {step.flaw}")
+        if step.platform:
+            say(f"  x{step.factor:.4f} beside its simulation, the platform's cost: {step.platform}")
+    last = swept.steps[-1]
+    if last.heard and last.flaw is None:
+        say(f"  the heartbeats ended the sweep at x{last.factor:.4f} ({last.heard}); its window in the log "
+            "puts them down to the platform's stalls")
+    say(f"  every step's window: skel report {swept.out} --all")
 
 
 def _print(name: str, axis: str, rows: list[tuple[Scope, Margin, Margin | None]],
-           swept: Sweep | None) -> None:
-    """The margins; a sweep's measured one beside its scope (the first row)."""
+           swept: dict[str, Sweep]) -> None:
+    """The margins; each sweep's measured one beside its scope."""
     grows = {"compute": "computations times", "rate": "every period divided by",
              "bytes": "buffer sizes times"}
     console = output_console()
     simulated = any(m is not None for _, _, m in rows)
     columns = [("scope", False), ("predicted", True)] + ([("simulated", True)] if simulated else [])
-    if swept is not None:
+    if swept:
         columns.append(("measured", True))
     columns.append(("breaks first (predicted)", False))
     table_rows = []
-    for i, (s, p, m) in enumerate(rows):
+    for s, p, m in rows:
         row = [s.name, _factor(p), *([_factor(m)] if simulated else [])]
-        if swept is not None:
-            row.append("-" if i or swept.margin is None else f"{swept.margin:.4f}")
+        if swept:
+            one = swept.get(s.name)
+            row.append("-" if one is None else _measured(one))
         table_rows.append([*row, p.breaks[0] if p.breaks else "nothing up to the limit"])
     table = make_table(f"{name}: the largest factor before a fatal flaw ({grows[axis]} it)", columns,
                        table_rows)

@@ -5,7 +5,8 @@ The run starts on the system scaled by the first step's factor; each next step i
 of the grid they share, and holds for HOLD_HYPERPERIODS of that grid (at least MIN_HOLD_S).
 The steps are factors of the predicted margin, STEPS, closer together near it. The sweep ends
 at the first step whose heartbeats show a lockout, or overruns in more than OVERRUN_SHARE of
-its cycles; then the run is stopped, and the one log holds every step, a generation each
+its cycles that its window in the log so far confirms (not the platform's stalls); then the
+run is stopped, and the one log holds every step, a generation each
 (`skel report` shows the sweep: a window per generation).
 
 The verdict of each step is then the log's, window by window: a step is flawed by a fatal
@@ -27,6 +28,7 @@ from skeleton.analysis.errors import SkelError
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.measure.simulated import simulation_beside
 from skeleton.analysis.measure.windows import WindowReport
+from skeleton.analysis.read.messages import LogError
 from skeleton.analysis.views.summary import fault_line
 
 from ..model import System
@@ -100,6 +102,15 @@ def _window_flaw(window: WindowReport) -> str | None:
     return None
 
 
+def _flawed_so_far(out: Path, run_id: int, generation: int) -> bool:
+    """Whether the log recorded so far shows generation `generation`'s window flawed."""
+    try:
+        windows = load_run(out / "run.lcm", run_id=run_id).report.windows
+    except LogError:
+        return True  # nothing to judge by: the heartbeats' count stands
+    return any(w.generation == generation and _window_flaw(w) is not None for w in windows)
+
+
 def measure(system: System, scope: Scope, predicted: float, out: Path, console: Console,
             spawn_dpus: bool = False, key: bytes | None = None) -> Sweep:
     out.mkdir(parents=True, exist_ok=True)
@@ -142,8 +153,12 @@ def measure(system: System, scope: Scope, predicted: float, out: Path, console: 
             time.sleep(hold)
             after = _totals(control, dpu_ids, run_id)
             overran, cycles = after[0] - before[0], after[1] - before[1]
-            if after[2] > before[2] or (cycles and overran > OVERRUN_SHARE * cycles):
-                steps[-1].heard = (f"{after[2] - before[2]} lockout(s)" if after[2] > before[2]
+            locked = after[2] > before[2]
+            # Overruns the heartbeats count may be the platform's: the log so far judges them as
+            # the step's window will be judged (a lockout ends the sweep at once).
+            if locked or (cycles and overran > OVERRUN_SHARE * cycles and _flawed_so_far(out, run_id,
+                                                                                         generation)):
+                steps[-1].heard = (f"{after[2] - before[2]} lockout(s)" if locked
                                    else f"{overran} of {cycles} minor cycles overran")
                 console.print(f"x{steps[-1].factor:.4f}: {steps[-1].heard}: the sweep ends here")
                 break

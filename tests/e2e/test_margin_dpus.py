@@ -29,16 +29,16 @@ def test_a_half_loaded_dpu_measures_a_margin_between_1_8_and_2_restarting_nothin
     try:
         pids = {d["dpu"]: d["pid"] for d in json.loads(skel("status", "--url", url, "--json").stdout)}
         out = tmp_path / "sweep"
-        done = skel("margin", str(path), "--url", url, "--measure", "--out", str(out), "--json")
+        done = skel("margin", str(path), "--url", url, "--measure", "--dpu", "1", "--out", str(out), "--json")
         assert done.returncode == 0, done.stdout + done.stderr
         found = json.loads(done.stdout)
         assert found["margins"][0]["predicted"]["factor"] == pytest.approx(2.0, rel=1e-6)
-        measured = found["measured"]
+        measured = found["margins"][0]["measured"]
         assert 1.8 <= measured["factor"] <= 2.0, measured
         # one log, every step a generation of its own, each with its window
         steps = [s["generation"] for s in measured["steps"]]
         assert len(steps) >= 2 and steps == list(range(steps[0], steps[0] + len(steps)))
-        windows = [w.generation for w in skeleton.load_run(out).report.windows]
+        windows = [w.generation for w in skeleton.load_run(Path(measured["run"])).report.windows]
         assert windows == steps
         after = {d["dpu"]: d["pid"] for d in json.loads(skel("status", "--url", url, "--json").stdout)}
         assert after == pids  # nothing restarted
