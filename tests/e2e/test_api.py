@@ -192,11 +192,23 @@ def test_report_with_plots_reads_and_decodes_the_log_once(two_runs: tuple[Path, 
             return fn(*args, **kwargs)
         return wrapper
 
-    monkeypatch.setattr(logreader, "_read", counted("read", logreader._read))
+    read_paths: list[str] = []
+
+    def read(path: str, *args, **kwargs):  # type: ignore[no-untyped-def]
+        read_paths.append(path)
+        return original(path, *args, **kwargs)
+
+    original = logreader._read
+    monkeypatch.setattr(logreader, "_read", read)
     monkeypatch.setattr(records, "decode_many", counted("decode timing", records.decode_many))
     monkeypatch.setattr(records, "decode_heads", counted("decode heads", records.decode_heads))
     code = report_command(two_runs[0] / "run.lcm", as_json=True, run_id=None, plots=tmp_path / "plots")
     assert code in (0, 3)
     assert (tmp_path / "plots" / "report.html").exists()
-    assert json.loads(capsys.readouterr().out)["system"] == "servo"
-    assert calls == {"read": 1, "decode timing": 1, "decode heads": 1}
+    report = json.loads(capsys.readouterr().out)
+    assert report["system"] == "servo"
+    # the run's log once, and once the simulation `skel run` left beside it (RUN/simulated/)
+    assert sorted(read_paths) == sorted([str(two_runs[0] / "run.lcm"),
+                                         str(two_runs[0] / "simulated" / "run.lcm")])
+    assert report["simulation"] is not None and report["simulation"]["dpus"]
+    assert calls == {"decode timing": 2, "decode heads": 2}
