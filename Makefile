@@ -236,9 +236,10 @@ docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --site-dir $(BUILD)/site
 
 # cyclictest is the wake-up baseline (Debian rt-tests).
+# PARTS=a,b runs only those parts (bench/run.py --parts)
 bench: $(BUILD)/skel-dpu $(BUILD)/flood $(STAMP)
 	@$(call want_commands,cyclictest:rt-tests)
-	$(PY) bench/run.py
+	$(PY) bench/run.py $(if $(PARTS),--parts $(PARTS))
 
 # SERVO for 10 minutes (CI runs the same check for 20 s): no process a period behind,
 # no fault the platform does not explain.

@@ -44,6 +44,7 @@ import argparse
 import contextlib
 import ctypes
 import functools
+import importlib
 import json
 import os
 import re
@@ -60,6 +61,7 @@ import cost  # bench/cost.py, beside this file
 import lcm
 import numpy as np
 from cost import us_at
+from machine import Ticks, machine_line
 
 import skelmsg
 from skeleton.analysis.measure.metrics import first_of_frame
@@ -444,6 +446,25 @@ PARTS = ("wakeup", "publish", "logreader", "compute", "tasking", "allocate", "fl
          "scale", "analysis", "simulate")
 
 
+def _beside(module: str) -> Any:
+    """A part's module beside this file (bench/scale.py, analysis.py, simulation.py), imported
+    only when its part runs."""
+    return importlib.import_module(module)
+
+
+PROBE_S = 2.0
+
+
+def probe_p99_us() -> float | None:
+    """cyclictest's p99 over PROBE_S on the DPUs' CPU, in the sleep mode's class: what the
+    machine's wake-ups were right after a part (None without cyclictest)."""
+    binary, _ = cyclictest_binary()
+    if binary is None:
+        return None
+    return cost.cyclictest_result(*cyclictest_histogram(
+        cyclictest_start(binary, PROBE_S, SLEEP_PRIORITY, DPU_CPU), PROBE_S))["p99"]
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=5.0, help="length of each timed run (default 5)")
@@ -463,41 +484,39 @@ def main() -> int:
     summary = [f"# make bench, {time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} CPUs, "
                f"load average {os.getloadavg()[0]:.1f} at start (the machine may be shared)"]
     parts: dict[str, list[str]] = {}
+
+    def run_part(name: str, work: Callable[[], list[str]]) -> None:
+        """One part, with the machine it ran on beside its figures (bench/machine.py)."""
+        before = Ticks.now()
+        lines = work()
+        after = Ticks.now()
+        parts[name] = [*lines, machine_line(before, after, probe_p99_us())]
+
     with tempfile.TemporaryDirectory(prefix="skel-bench-") as name:
         tmp = Path(name)
-        if "wakeup" in wanted or "publish" in wanted:
-            wake = part_wakeup(tmp, args.seconds)
-            if "wakeup" in wanted:
-                parts["wakeup"] = wake
+        if "wakeup" in wanted or "publish" in wanted:  # publish reads the wake-up part's run
+            run_part("wakeup", lambda: part_wakeup(tmp, args.seconds))
+            if "wakeup" not in wanted:
+                del parts["wakeup"]
         if "publish" in wanted:
             records = load_records(read_log(tmp / "sleep" / "run.lcm")).records
-            parts["publish"] = part_publish(tmp, args.seconds, records[records["cycle"] >= WARMUP_CYCLES])
-        if "logreader" in wanted:
-            parts["logreader"] = part_logreader(args.records)
-        if "compute" in wanted:
-            parts["compute"] = part_compute(tmp, args.seconds)
-        if "tasking" in wanted:
-            parts["tasking"] = part_tasking(tmp, args.tasking_seconds)
-        if "allocate" in wanted:
-            parts["allocate"] = part_allocate(args.allocate_seconds)
-        if "flood" in wanted:
-            parts["flood"] = part_flood(tmp, args.flood_rate)
-        if "bookkeeping" in wanted:
-            parts["bookkeeping"] = cost.part_bookkeeping(cost_run(tmp), URL, args.seconds)
-        if "rate" in wanted:
-            parts["rate"] = cost.part_rate(cost_run(tmp), URL, with_cyclictest, DPU_CPU, SLEEP_PRIORITY)
-        if "scale" in wanted:
-            from scale import part_scale  # bench/scale.py, beside this file
-
-            parts["scale"] = part_scale()
-        if "analysis" in wanted:
-            from analysis import part_analysis  # bench/analysis.py, beside this file
-
-            parts["analysis"] = part_analysis(tmp, URL, args.analysis_records)
-        if "simulate" in wanted:
-            from simulation import part_simulate  # bench/simulation.py, beside this file
-
-            parts["simulate"] = part_simulate(tmp)
+            run_part("publish", lambda: part_publish(tmp, args.seconds,
+                                                     records[records["cycle"] >= WARMUP_CYCLES]))
+        singles: dict[str, Callable[[], list[str]]] = {
+            "logreader": lambda: part_logreader(args.records),
+            "compute": lambda: part_compute(tmp, args.seconds),
+            "tasking": lambda: part_tasking(tmp, args.tasking_seconds),
+            "allocate": lambda: part_allocate(args.allocate_seconds),
+            "flood": lambda: part_flood(tmp, args.flood_rate),
+            "bookkeeping": lambda: cost.part_bookkeeping(cost_run(tmp), URL, args.seconds),
+            "rate": lambda: cost.part_rate(cost_run(tmp), URL, with_cyclictest, DPU_CPU, SLEEP_PRIORITY),
+            "scale": lambda: _beside("scale").part_scale(),
+            "analysis": lambda: _beside("analysis").part_analysis(tmp, URL, args.analysis_records),
+            "simulate": lambda: _beside("simulation").part_simulate(tmp),
+        }
+        for part, work in singles.items():
+            if part in wanted:
+                run_part(part, work)
     for name, lines in parts.items():
         (RESULTS / f"{name}.txt").write_text("\n".join(lines) + "\n")
         print("\n".join(lines) + "\n")
