@@ -109,11 +109,11 @@ typedef struct {
     sim_fiber_t *fibers;
     int nfibers, capfibers, current, alive;
     sim_endpoint_t *endpoints;
-    int nendpoints;
+    int nendpoints, capendpoints;
     sim_sub_t *subs;
-    int nsubs;
+    int nsubs, capsubs;
     char **urls;
-    int nurls, record_url;
+    int nurls, capurls, record_url;
     sim_dpu_t *dpus;
     int ndpus, cur_dpu;
     lcm_eventlog_t *in, *out;
@@ -282,8 +282,7 @@ static int sim_url(sim_t *sim, const char *url)
     size_t n = strcspn(url, "?"); /* the options (a receive buffer's size) are no part of it */
     for (int i = 0; i < sim->nurls; i++)
         if (strlen(sim->urls[i]) == n && strncmp(sim->urls[i], url, n) == 0) return i;
-    int cap = sim->nurls;
-    sim->urls = sim_grow(sim->urls, &cap, sim->nurls + 1, sizeof *sim->urls);
+    sim->urls = sim_grow(sim->urls, &sim->capurls, sim->nurls + 1, sizeof *sim->urls);
     if ((sim->urls[sim->nurls] = strndup(url, n)) == NULL) return -1;
     return sim->nurls++;
 }
@@ -304,8 +303,8 @@ static lcm_t *sim_open(void *ctx, const char *url)
     if (lcm == NULL) return NULL;
     int i = sim_endpoint(sim, NULL);
     if (i < 0) {
-        int cap = sim->nendpoints;
-        sim->endpoints = sim_grow(sim->endpoints, &cap, sim->nendpoints + 1, sizeof *sim->endpoints);
+        sim->endpoints = sim_grow(sim->endpoints, &sim->capendpoints, sim->nendpoints + 1,
+                                  sizeof *sim->endpoints);
         i = sim->nendpoints++;
     }
     sim->endpoints[i] = (sim_endpoint_t){ .lcm = lcm, .dpu = sim->cur_dpu, .url = u };
@@ -337,8 +336,7 @@ static int sim_subscribe(void *ctx, lcm_t *lcm, const char *channel, lcm_msg_han
     sim_t *sim = ctx;
     int e = sim_endpoint(sim, lcm);
     if (e < 0) return -1;
-    int cap = sim->nsubs;
-    sim->subs = sim_grow(sim->subs, &cap, sim->nsubs + 1, sizeof *sim->subs);
+    sim->subs = sim_grow(sim->subs, &sim->capsubs, sim->nsubs + 1, sizeof *sim->subs);
     char *copy = strdup(channel);
     if (copy == NULL) return -1;
     sim->subs[sim->nsubs++] = (sim_sub_t){ e, sim->endpoints[e].url, copy, handler, user };
