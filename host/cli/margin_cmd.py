@@ -39,6 +39,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:  # t
     p.add_argument("--measure", action="store_true",
                    help="also measure it on the real DPUs, in one run of live pushes, restarting nothing "
                         "(compute axis; all processes, or the one --dpu or --process given)")
+    p.add_argument("--hold", type=int, default=2, metavar="N",
+                   help="with --measure: hold each step N hyperperiods of the DPUs' shared grid (default 2, "
+                        "at least 1 s)")
     p.add_argument("--spawn", action="store_true",
                    help="with --measure: start local DPUs and stop them after")
     p.add_argument("--out", type=Path, help="with --measure: the sweep's run directory (default "
@@ -72,6 +75,9 @@ def margin_command(args: argparse.Namespace, system: System) -> int:
     if unknown:
         print(f"skel margin: no such process or DPU in {system.path}: {', '.join(unknown)}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    if args.hold < 1:
+        print(f"skel margin: --hold {args.hold}: at least 1 hyperperiod", file=sys.stderr)
+        return EXIT_BAD_INPUT
     if args.axis != "compute" and (args.process or args.dpu or args.measure):
         print(f"skel margin: --axis {args.axis} grows the whole system: --process, --dpu and --measure are "
               "for the compute axis", file=sys.stderr)
@@ -97,7 +103,7 @@ def margin_command(args: argparse.Namespace, system: System) -> int:
                 continue
             said.print(f"measuring {scope.name}")
             swept[scope.name] = measure(system, scope, predicted_of[scope.name], out / _slug(scope), said,
-                                        spawn_dpus=args.spawn, key=args.key)
+                                        spawn_dpus=args.spawn, key=args.key, hyperperiods=args.hold)
     if args.plots is not None:
         from .margin_plot import write_margin_plot  # matplotlib: only for --plots
 

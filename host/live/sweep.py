@@ -78,9 +78,9 @@ class Sweep:
         return last
 
 
-def hold_s(system: System) -> float:
+def hold_s(system: System, hyperperiods: int = HOLD_HYPERPERIODS) -> float:
     grid_us = math.lcm(*(d.minor_cycle_us for d in system.dpus))
-    return max(MIN_HOLD_S, HOLD_HYPERPERIODS * min(grid_us / 1e6, GRID_MAX_S))
+    return max(MIN_HOLD_S, hyperperiods * min(grid_us / 1e6, GRID_MAX_S))
 
 
 def _totals(control: Control, dpu_ids: list[int], run_id: int) -> tuple[int, int, int]:
@@ -112,13 +112,14 @@ def _flawed_so_far(out: Path, run_id: int, generation: int) -> bool:
 
 
 def measure(system: System, scope: Scope, predicted: float, out: Path, console: Console,
-            spawn_dpus: bool = False, key: bytes | None = None) -> Sweep:
+            spawn_dpus: bool = False, key: bytes | None = None,
+            hyperperiods: int = HOLD_HYPERPERIODS) -> Sweep:
     out.mkdir(parents=True, exist_ok=True)
     (out / "system.yaml").write_text(system.source_text)
     url = control_url(system)
     dpu_ids = sorted(d.id for d in system.dpus)
     factors = [predicted * s for s in STEPS]
-    hold = hold_s(system)
+    hold = hold_s(system, hyperperiods)
     warmup_s = system.run.warmup_cycles * max(p.period_us for p in system.processes) / 1e6
     duration_ns = round((warmup_s + len(factors) * (hold + PUSH_LEAD_MS / 1e3 + GRID_MAX_S) + 1) * 1e9)
     control = Control(url, key)

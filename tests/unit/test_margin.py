@@ -78,3 +78,8 @@ def test_the_plot_marks_the_margin(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     png = tmp_path / "plots" / "margin-compute.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+
+
+def test_a_hold_under_one_hyperperiod_is_refused_in_one_line() -> None:
+    done = skel("margin", str(SERVO), "--measure", "--hold", "0")
+    assert done.returncode == 2 and "--hold 0" in done.stderr and done.stderr.count("\n") == 1, done.stderr
