@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
 import subprocess
 import sys
@@ -79,11 +80,13 @@ def _run(tmp_path: Path, url: str, tasks: list[tuple[int, int]]) -> pd.DataFrame
                for h in range(first + 1, int(last_ms // hyper_ms) + 1)}
     measured = timing[timing.measured]
     kept = measured[~measured.hyper.isin(stalled | carried)]
-    if len(kept) < KEPT_SHARE * len(measured):
-        # Not a verdict on the DPU either way: what is kept is always judged in full.
-        pytest.skip(f"inconclusive: the machine disturbed {len(stalled | carried)} of "
-                    f"{measured.hyper.nunique()} hyperperiods ({len(stalled)} stalled the DPU over "
-                    f"{STALL_NS // 1000} us): fewer than {KEPT_SHARE:.0%} of the jobs left to judge")
+    # Too few left is a failure like any other: the harness attempts it again only when its own
+    # witnesses (steal, its probe: tests/steal.py) saw the platform take the time, never on the
+    # DPU's word, and a regression that leaves jobs behind the ideal schedule fails here.
+    assert len(kept) >= KEPT_SHARE * len(measured), (
+        f"the machine disturbed {len(stalled | carried)} of {measured.hyper.nunique()} hyperperiods "
+        f"({len(stalled)} stalled the DPU over {STALL_NS // 1000} us, {len(carried - stalled)} began behind "
+        f"the ideal schedule): fewer than {KEPT_SHARE:.0%} of the jobs left to judge")
     return kept
 
 
@@ -185,7 +188,7 @@ def test_fifo_threads_preempt_as_response_time_analysis_bounds(tmp_path: Path, u
     r3 = 15
     cycles, out = _threaded_run(tmp_path, url, compute)
     log = (out / "logs" / "dpu1.log").read_text(errors="replace")
-    if "not faithful" in log:
+    if "not faithful" in log and os.geteuid() != 0:   # root is never refused: there, a failure
         pytest.skip(f"SCHED_FIFO or pinning refused on this machine: {log}")
     assert "SCHED_FIFO 97..99 on CPU" in log, log
     # The machine itself may stop the CPU (a VM's vCPU not running: the guest sees no switch).
