@@ -60,7 +60,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Generator, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
@@ -167,11 +167,12 @@ def no_evidence(stolen_share: float, probe: Lateness | None) -> bool:
 
 
 class Probe:
-    """tests/probe.py for one attempt, writing to FILE."""
+    """build/probe (tests/probe/probe.c) for one attempt, writing to FILE."""
 
     def __init__(self, file: Path) -> None:
         self.file = file
         self.began = time.monotonic()
+        self.ended: float | None = None
         self.process = subprocess.Popen([str(PROBE), str(file)], stdin=subprocess.DEVNULL)
         # its first line says whether it runs under SCHED_FIFO: the attempt starts after it
         ready_by = self.began + PROBE_READY_S
@@ -186,11 +187,13 @@ class Probe:
 
     def lateness(self) -> Lateness | None:
         text = self._text()
-        return probe_lateness(text[:text.rfind("\n") + 1], time.monotonic() - self.began)
+        ran_s = (self.ended or time.monotonic()) - self.began
+        return probe_lateness(text[:text.rfind("\n") + 1], ran_s)   # whole lines only
 
     def stop(self) -> None:
         self.process.kill()
         self.process.wait()
+        self.ended = time.monotonic()
 
 
 @dataclass
@@ -201,7 +204,6 @@ class Attempt:
     root: Path | None = None  # the test's tmp_path, where its DPUs' logs go
     probe: Probe | None = None
     reported: bool = False
-    lateness: Lateness | None = field(default=None, init=False)
 
     def stolen_share(self) -> tuple[float, float]:
         """(ms stolen, its share of the CPUs' time) since the attempt began."""
