@@ -21,7 +21,9 @@ other work of the machine going on: load 1.7): in 60 s, 134 wake-ups 1 ms or mor
 latest 10.9 ms, and the time lost to them (their lateness summed) 0.41 % of the whole; in each
 5 s window, the latest 0.7-10.9 ms and 0-0.82 % lost. So a late wake-up alone is no evidence
 (one comes nearly every second); the share of the attempt's time lost is, and STEAL_SHARE of
-it lies above each window of the floor. The probe costs 2.6 % of one CPU while it runs (the
+it lies above each window of the floor. With others' tests busy on both cores (load 2.5-3,
+180 s): 606 wake-ups 1 ms or more late, the latest 22.8 ms, 0.71 % lost, and 8 of 36 windows
+of 5 s at 1 % or more (at most 1.8 %). The probe costs 2.6 % of one CPU while it runs (the
 kernel's wake-ups of a VM, not its own code: a Python probe cost as much).
 
 Steal comes in spells (here: seconds to tens of seconds at 10-45 % of the CPUs, between long
