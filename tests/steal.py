@@ -230,6 +230,7 @@ _probe_dir: Path | None = None
 _attempts = 0
 _reattempted: list[str] = []
 _reattempted_tests: set[str] = set()
+_evidenced: dict[str, int] = {}   # per test, its failed attempts the platform's evidence covered
 _verdict: list[str] = []   # the session's one line on its timing evidence, and why it failed, if it did
 # per test, the share of the CPUs stolen and what the probe saw in each failed attempt
 _failed_attempts: dict[str, list[tuple[float, Lateness | None]]] = {}
@@ -250,8 +251,10 @@ def platform_took_the_cpus(error: BaseException | None) -> bool:
     if error is not None and not _current.reported:  # once per failed attempt
         _current.reported = True
         _reattempted_tests.add(_current.nodeid)
-        _reattempted.append(f"{_current.nodeid}: {ms:.0f} ms stolen ({100 * share:.1f} % of the CPUs' "
-                            f"time), {_said(probe)}, {type(error).__name__}")
+        _evidenced[_current.nodeid] = _evidenced.get(_current.nodeid, 0) + 1
+        if _evidenced[_current.nodeid] <= REATTEMPTS:   # the last one is not attempted again
+            _reattempted.append(f"{_current.nodeid}: {ms:.0f} ms stolen ({100 * share:.1f} % of the "
+                                f"CPUs' time), {_said(probe)}, {type(error).__name__}")
     return True
 
 

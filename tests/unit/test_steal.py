@@ -79,6 +79,7 @@ def _attempt(root: Path, stolen_ns: int, probe: Lateness | None) -> steal.Attemp
 def fresh(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(steal, "_reattempted", [])
     monkeypatch.setattr(steal, "_reattempted_tests", set())
+    monkeypatch.setattr(steal, "_evidenced", {})
 
 
 def test_what_a_dpu_logs_of_its_own_stalls_and_speed_buys_no_attempt(
@@ -94,6 +95,11 @@ def test_what_a_dpu_logs_of_its_own_stalls_and_speed_buys_no_attempt(
     assert steal.platform_took_the_cpus(AssertionError("late"))   # the probe's witness
     assert steal._reattempted == ["t::x: 0 ms stolen (0.0 % of the CPUs' time), the probe woke up to 12.0 ms "
                                   "late (2.0 % of the time lost), AssertionError"]
+    for _ in range(steal.REATTEMPTS):   # the next attempts, each failed as the platform took the time
+        monkeypatch.setattr(steal, "_current", _attempt(root, 0, Lateness(12.0, 0.02)))
+        assert steal.platform_took_the_cpus(AssertionError("late"))
+    # listed once per attempt made again: the last one is not
+    assert len(steal._reattempted) == steal.REATTEMPTS and steal._reattempted_tests == {"t::x"}
 
 
 def test_the_probe_runs_under_sched_fifo_where_permitted_and_reads_as_evidence(tmp_path: Path) -> None:
