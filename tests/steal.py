@@ -10,8 +10,9 @@ VMs: gaps of 1-17 ms, 1.5-2 % of the time, with 0-3 ticks of steal).
 
 Only two witnesses count, and neither is the code under test: the kernel's steal counter
 (/proc/stat) and the harness's own probe (tests/probe/probe.c, build/probe), a process apart,
-started for each attempt, that sleeps 1 ms at a time under SCHED_FIFO above every DPU's cycles
-and writes down each wake-up 200 us or more late (what cyclictest measures, and it agrees: 30 s
+started for each attempt, that sleeps 1 ms at a time under SCHED_FIFO 50 (above a DPU's cycles,
+below the tasking executive's threads, which are pinned to one CPU: it wakes on another) and
+writes down each wake-up 200 us or more late (what cyclictest measures, and it agrees: 30 s
 of both side by side here, 75 and 55 wake-ups 1 ms late or more, the latest 11.3 and 11.0 ms).
 What the DPUs say of themselves (their stalls, their WORK kernel's drift) buys nothing: a fault
 of ours could say the same.
