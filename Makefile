@@ -142,6 +142,11 @@ $(BUILD)/flood: tests/flood/flood.c $(GEN_C) | $(STAMP)
 	$(call say,CC    $@)
 	$(Q)$(CC) $(WARN) -O2 $(INC) -o $@ $< $(filter-out $(GEN)/c/skelmsg_check.c,$(GEN_C)) $(LIBS)
 
+# The timing harness's witness of the platform (tests/steal.py, tests/probe/probe.c).
+$(BUILD)/probe: tests/probe/probe.c
+	$(call say,CC    $@)
+	$(Q)$(CC) $(WARN) -O2 -o $@ $<
+
 # --- what users run ----------------------------------------------------------------
 # DEMO_ARGS: e.g. a private --url and --out, as the test of the demo gives.
 demo: $(BUILD)/skel-dpu $(STAMP)
@@ -152,7 +157,7 @@ test: test-c test-fuzz test-py
 test-c: $(C_TESTS)
 	@set -e; for t in $(C_TESTS); do echo "== $$t"; $$t; done
 
-test-py: $(BUILD)/skel-dpu $(BUILD)/asan/skel-dpu $(BUILD)/flood $(STAMP) test-tools
+test-py: $(BUILD)/skel-dpu $(BUILD)/asan/skel-dpu $(BUILD)/flood $(BUILD)/probe $(STAMP) test-tools
 	$(VENV)/bin/pytest -q -rfEs --durations=15 $(PYTEST_ARGS)
 
 # The multi-host tests (network namespaces, root only) run ip, and nft to lose packets.

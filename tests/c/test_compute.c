@@ -1,6 +1,6 @@
 /* test_compute.c: each compute mode emulates the time asked. SLEEP and WALL
- * report wall time (generous upper bounds: the machine running the tests may
- * be busy), CPU the time the thread held the processor and WORK the wall time
+ * report wall time (the median of five within 0.5 ms: one run can meet a
+ * stop of the machine), CPU the time the thread held the processor and WORK the wall time
  * of its chunks of work less what a chunk took beyond its work, which another
  * process on the core does not stretch: those are held close to what was
  * asked. */
@@ -56,18 +56,21 @@ static void test_modes(void)
     printf("2 ms asked: sleep %.3f wall %.3f ms (wall time), cpu %.3f work %.3f ms (time run; "
            "%.3f ms before its drift was taken back)\n",
            sleep_ns / 1e6, wall_ns / 1e6, cpu_ns / 1e6, work_ns / 1e6, median(ran, ROUNDS) / 1e6);
-    CHECK(sleep_ns >= ns && sleep_ns < ns + 5000000);
-    CHECK(wall_ns >= ns && wall_ns < ns + 5000000);
+    /* Medians of five runs: 2.000 ms each in 5 runs here, beside a probe that woke up to 5 ms
+     * late (2026-12-02); a bound of 5 ms came without a measured cause. */
+    CHECK(sleep_ns >= ns && sleep_ns < ns + 500000);
+    CHECK(wall_ns >= ns && wall_ns < ns + 500000);
     CHECK(cpu_ns >= ns && cpu_ns < ns + ns / 200); /* within 0.5 % */
     /* This checks the calibration is the one used (a computation that ran 7 %
      * more work than it says fails here); how close the calibration comes to the
      * speed of the moment is the drift checked below, and `make bench` measures
-     * it on a quiet machine. */
+     * it on a quiet machine. 5 %: a CI run beside a build measured 2.21 %, and 5
+     * runs here (2026-12-02) -0.9 to +2.1 %: 2 % fails one run in five. */
     CHECK(work_ns > ns - ns / 20 && work_ns < ns + ns / 20);
     /* SLEEP below the spin stretch is a pure spin; zero is free. */
     int64_t stall = 0;
     int64_t short_ns = compute_run(&c, SKELMSG_DPU_T_COMPUTE_SLEEP, 50000, &stall);
-    CHECK(short_ns >= 50000 && short_ns < 20000000); /* a preempted spin still ends */
+    CHECK(short_ns >= 50000 && short_ns < 1000000); /* 0.050 ms in each of 5 runs here */
     CHECK_EQ(compute_run(&c, SKELMSG_DPU_T_COMPUTE_WALL, 0, &stall), 0);
     /* The run-start check finds the calibration it was made with: the median of
      * the checks just after each, as one alone here ranged from 29 % faster to

@@ -43,12 +43,14 @@ def test_real_run_has_small_buffer_latencies_and_chain_samples(tmp_path: Path, u
         assert b["published"] > 100, b
         for r in b["readers"]:
             lat = r["latency_us"]
-            # One machine, one clock: positive, and typically well below the 10 ms period.
-            # On this shared machine a preempted sender or receiver stretches single
-            # samples (13 ms seen under load): only p50 is bounded.
+            # One machine, one clock: positive, and well below the 10 ms period but for single
+            # samples: on this shared machine a preempted sender or receiver stretches one
+            # (13 ms seen under load; the harness's probe meets stops of 10-15 ms about once a
+            # minute). So p99 is bounded, not the largest (5 runs here, 2026-12-02: p99 at most
+            # 99 us, the largest 1.8 ms).
             assert r["samples"] > 100, (b["buffer"], r)
             assert 0 < lat["p50"] <= lat["p99"] <= lat["max"], (b["buffer"], r)
-            assert lat["p50"] < 10_000, (b["buffer"], r)
+            assert lat["p99"] < 10_000, (b["buffer"], r)
             assert r["lost"] == 0, (b["buffer"], r)  # ttl=0 on one host: nothing is lost
     (chain,) = report["chains"]
     assert chain["processes"] == ["joint_sensors", "jacobian_transpose", "executor"]

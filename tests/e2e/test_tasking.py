@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
 import subprocess
 import sys
@@ -18,6 +19,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 from conftest import ASAN_DPU, SANITIZER_ERROR, skel
+from steal import inconclusive
 from unit.test_schedule import MS, SCHEDULABLE, _system
 
 import skeleton
@@ -80,10 +82,17 @@ def _run(tmp_path: Path, url: str, tasks: list[tuple[int, int]]) -> pd.DataFrame
     measured = timing[timing.measured]
     kept = measured[~measured.hyper.isin(stalled | carried)]
     if len(kept) < KEPT_SHARE * len(measured):
-        # Not a verdict on the DPU either way: what is kept is always judged in full.
-        pytest.skip(f"inconclusive: the machine disturbed {len(stalled | carried)} of "
-                    f"{measured.hyper.nunique()} hyperperiods ({len(stalled)} stalled the DPU over "
-                    f"{STALL_NS // 1000} us): fewer than {KEPT_SHARE:.0%} of the jobs left to judge")
+        left = (f"{len(stalled | carried)} of {measured.hyper.nunique()} hyperperiods left out "
+                f"({len(stalled)} stalled the DPU over {STALL_NS // 1000} us, {len(carried - stalled)} more "
+                f"began behind the ideal schedule): fewer than {KEPT_SHARE:.0%} of the jobs left to judge")
+        # Jobs behind the ideal schedule with no stall to explain them are what a regression of
+        # the executive leaves: too few left for them alone is a failure.
+        unexplained = measured[~measured.hyper.isin(carried - stalled)]
+        assert len(unexplained) >= KEPT_SHARE * len(measured), left
+        # Too few left for the stalls the DPU saw: no verdict either way, counted as inconclusive
+        # (tests/steal.py: the session's line shows it, a second run in a row fails). 1 of 7 runs
+        # of the unschedulable set here (2026-12-02): 54 of its 67 hyperperiods of 120 ms stalled.
+        inconclusive(left)
     return kept
 
 
@@ -185,7 +194,7 @@ def test_fifo_threads_preempt_as_response_time_analysis_bounds(tmp_path: Path, u
     r3 = 15
     cycles, out = _threaded_run(tmp_path, url, compute)
     log = (out / "logs" / "dpu1.log").read_text(errors="replace")
-    if "not faithful" in log:
+    if "not faithful" in log and os.geteuid() != 0:   # root is never refused: there, a failure
         pytest.skip(f"SCHED_FIFO or pinning refused on this machine: {log}")
     assert "SCHED_FIFO 97..99 on CPU" in log, log
     # The machine itself may stop the CPU (a VM's vCPU not running: the guest sees no switch).
@@ -214,6 +223,12 @@ def test_fifo_threads_preempt_as_response_time_analysis_bounds(tmp_path: Path, u
     # One released before p3's end but woken after it (its release latency) did not delay p3.
     # The bound holds for the design: the time the machine stopped the CPU in the window (the
     # jobs' stall_ns: gaps in a computation without a switch of its thread) is not the design's.
+    # Its width, 1.3 R + 2 ms, is the platform's, measured (2026-12-02, 5 runs in each mode beside
+    # the harness's probe, tests/probe/probe.c): p3's worst, less stalls, was 15.3-19.0 ms and
+    # p1's 2.2-3.0 ms (R = 15 and 2 ms); within this file's sleep-mode margin (5 % + 0.2 ms) they
+    # failed in 9 and 8 runs of 10. The probe in the same runs woke up to 3.7-14.7 ms late, 12-141
+    # times 1 ms or more: a stop of the machine across a switch of threads is in no stall_ns. The
+    # exact check of the schedule is the simulated one; this one checks the kernel preempts.
     hp_release = hp.release_ns.to_numpy()
     hp_start = hp_release + (hp.release_latency_us * 1000).to_numpy()
     hp_compute = hp.compute_ns.to_numpy()

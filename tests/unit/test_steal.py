@@ -1,80 +1,139 @@
-"""tests/steal.py reads the platform's evidence from the DPUs' own logs: the lines it parses are
-made here from the format strings in dpu/, so a reworded log line fails here, not silently there."""
+"""tests/steal.py grants another attempt on the platform's evidence from outside the code under
+test only: the kernel's steal counter and the harness's probe (tests/probe/probe.c), never what
+a DPU logs of itself."""
 
 from __future__ import annotations
 
 import json
-import re
+import os
 import time
 from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
 import steal
-from steal import WorkSpeed, work_speed
+from steal import PROBE_LATE_MS, STEAL_SHARE, Lateness, another_attempt, no_evidence, probe_lateness
 
-DPU_SOURCE = Path(__file__).resolve().parents[2] / "dpu"
-
-
-def _c_format(file: str, containing: str) -> str:
-    """The C string literal (adjacent literals joined) of the log_line call in dpu/FILE whose
-    format contains CONTAINING."""
-    for call in re.finditer(r'log_line\(((?:\s*"(?:[^"\\]|\\.)*")+)', (DPU_SOURCE / file).read_text()):
-        text = "".join(re.findall(r'"((?:[^"\\]|\\.)*)"', call.group(1)))
-        if containing in text:
-            return text.replace("%lld", "%d")
-    raise AssertionError(f"no log_line in dpu/{file} says {containing!r}")
+MS = 1_000_000
 
 
-def _drift_line(at: str, pct: float) -> str:
-    fmt = _c_format("executive.c", "the WORK kernel runs")
-    slower = pct > 0
-    return "skel-dpu[1]: " + fmt % (1, at, abs(pct), "slower" if slower else "faster",
-                                    "longer" if slower else "less")
+def _probe_file(*late_ms: float, klass: str = "fifo") -> str:
+    """A probe's file: its class, then one wake-up 10 ms after the other, each LATE_MS late."""
+    wake_ups = (f"{(1_000 + 10 * i) * MS} {round(ms * MS)}\n" for i, ms in enumerate(late_ms))
+    return "".join([f"{klass}\n", *wake_ups])
 
 
-def _armed_line(run_id: int) -> str:
-    return "skel-dpu[1]: " + _c_format("command.c", "armed") % (1, run_id, 499.5, 2.0)
+def test_the_probe_says_its_latest_wake_up_and_the_share_of_time_its_late_ones_lost() -> None:
+    # over 2 s: 0.3 ms late is reported but below PROBE_LATE_MS, so it loses nothing
+    assert probe_lateness(_probe_file(0.3, 4.0, 16.0), 2.0) == Lateness(16.0, 0.010)
+    assert probe_lateness(_probe_file(0.3, PROBE_LATE_MS), 1.0) == Lateness(PROBE_LATE_MS, 0.001)
+    assert probe_lateness(_probe_file(), 5.0) == Lateness(0.0, 0.0)
 
 
-def test_the_work_speed_is_as_far_off_as_logged_and_moved_each_runs_end_less_its_start(
-        tmp_path: Path) -> None:
-    (tmp_path / "run").mkdir()
-    log = tmp_path / "run" / "dpu1.log"
-    log.write_text("\n".join([
-        _armed_line(1), _drift_line("start", 4.1), _drift_line("end", 2.8),     # moved 1.3
-        _armed_line(2), _drift_line("start", 2.5),                              # end within 2 %: 2.5
-        _armed_line(3), _drift_line("end", -3.0),   # not paired with run 2's start: 3.0
-    ]) + "\n")
-    assert work_speed(tmp_path) == WorkSpeed(off=4.1, moved=3.0)
-    with log.open("a") as f:
-        f.write("\n".join([_armed_line(4), _drift_line("start", 97.5), _drift_line("end", -10.0)]) + "\n")
-    assert work_speed(tmp_path) == WorkSpeed(off=97.5, moved=107.5)
+def test_a_probe_that_was_refused_sched_fifo_is_no_evidence() -> None:
+    """Under SCHED_OTHER the DPUs themselves could have made it late."""
+    assert probe_lateness(_probe_file(50.0, klass="other"), 1.0) is None
+    assert probe_lateness("", 1.0) is None   # it never started
 
 
-def test_a_run_without_drift_lines_moved_nothing(tmp_path: Path) -> None:
-    (tmp_path / "dpu2.log").write_text(_armed_line(7) + "\n")
-    assert work_speed(tmp_path) == WorkSpeed(off=0.0, moved=0.0)
+@pytest.mark.parametrize(("stolen", "probe", "again"), [
+    (0.0, None, False),                                   # no witness saw anything
+    (0.0, Lateness(0.0, 0.0), False),
+    (STEAL_SHARE * 0.99, Lateness(0.9, 0.0), False),
+    (STEAL_SHARE, None, True),                            # the hypervisor took the CPUs
+    (0.0, Lateness(9.0, STEAL_SHARE), True),              # it kept the probe from running
+    (0.0, Lateness(24.0, STEAL_SHARE * 0.99), False),     # one late wake-up, as the floor has: no evidence
+])
+def test_another_attempt_only_when_steal_or_the_probe_lost_steal_share_of_the_time(
+        stolen: float, probe: Lateness | None, again: bool) -> None:
+    assert another_attempt(stolen, probe) is again
 
 
-def _attempt_with_steal(root: Path) -> steal.Attempt:
-    """An attempt during which the hypervisor took every CPU: the platform's evidence at its most."""
-    return steal.Attempt("t::x", time.monotonic() - 1.0, steal.stolen_ns() - 10 ** 10, root)
+@pytest.mark.parametrize(("stolen", "probe", "void"), [
+    (steal.INCONCLUSIVE_SHARE, None, True),
+    (0.0, Lateness(30.0, steal.INCONCLUSIVE_SHARE), True),
+    (steal.INCONCLUSIVE_SHARE * 0.99, Lateness(30.0, steal.INCONCLUSIVE_SHARE * 0.99), False),
+])
+def test_an_attempt_says_nothing_either_way_only_past_inconclusive_share(
+        stolen: float, probe: Lateness | None, void: bool) -> None:
+    assert no_evidence(stolen, probe) is void
+
+
+class _Seen:
+    """A probe's evidence, as read after an attempt."""
+
+    def __init__(self, lateness: Lateness | None) -> None:
+        self._lateness = lateness
+
+    def lateness(self) -> Lateness | None:
+        return self._lateness
+
+
+def _attempt(root: Path, stolen_ns: int, probe: Lateness | None) -> steal.Attempt:
+    """An attempt of one second in which the hypervisor took STOLEN_NS and the probe saw PROBE."""
+    return steal.Attempt("t::x", time.monotonic() - 1.0, steal.stolen_ns() - stolen_ns, root,
+                         _Seen(probe))  # type: ignore[arg-type]
+
+
+@pytest.fixture
+def fresh(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(steal, "_reattempted", [])
+    monkeypatch.setattr(steal, "_reattempted_tests", set())
+    monkeypatch.setattr(steal, "_evidenced", {})
+
+
+def test_what_a_dpu_logs_of_its_own_stalls_and_speed_buys_no_attempt(
+        tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch, fresh: None) -> None:
+    root = tmp_path_factory.mktemp("attempt")
+    log = root / "dpu-logs" / "dpu1.log"
+    log.parent.mkdir()
+    log.write_text("skel-dpu[1]: DPU 1: run 1 ended: 500 cycles, longest platform stall 50.0 ms\n"
+                   "skel-dpu[1]: DPU 1: at the run's end the WORK kernel runs 97.5 % slower\n")
+    monkeypatch.setattr(steal, "_current", _attempt(root, 0, Lateness(0.4, 0.0)))
+    assert not steal.platform_took_the_cpus(AssertionError("late"))
+    monkeypatch.setattr(steal, "_current", _attempt(root, 0, Lateness(12.0, 0.02)))
+    assert steal.platform_took_the_cpus(AssertionError("late"))   # the probe's witness
+    assert steal._reattempted == ["t::x: 0 ms stolen (0.0 % of the CPUs' time), the probe woke up to 12.0 ms "
+                                  "late (2.0 % of the time lost), AssertionError"]
+    for _ in range(steal.REATTEMPTS):   # the next attempts, each failed as the platform took the time
+        monkeypatch.setattr(steal, "_current", _attempt(root, 0, Lateness(12.0, 0.02)))
+        assert steal.platform_took_the_cpus(AssertionError("late"))
+    # listed once per attempt made again: the last one is not
+    assert len(steal._reattempted) == steal.REATTEMPTS and steal._reattempted_tests == {"t::x"}
+
+
+def test_the_probe_runs_under_sched_fifo_where_permitted_and_reads_as_evidence(tmp_path: Path) -> None:
+    probe = steal.Probe(tmp_path / "probe.txt")
+    try:
+        time.sleep(0.05)
+        first = (tmp_path / "probe.txt").read_text().split("\n", 1)[0]
+        assert first == "fifo" or (first == "other" and os.geteuid() != 0), first  # root may
+        assert (probe.lateness() is None) == (first != "fifo")
+    finally:
+        probe.stop()
 
 
 def test_an_attempt_whose_dpu_wrote_a_sanitizer_report_is_never_run_again(
-        tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+        tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch, fresh: None) -> None:
     # the attempt's logs outside this test's own tmp_path, which conftest judges after the test
     root = tmp_path_factory.mktemp("attempt")
-    monkeypatch.setattr(steal, "_current", _attempt_with_steal(root))
-    monkeypatch.setattr(steal, "_reattempted", [])
-    monkeypatch.setattr(steal, "_reattempted_tests", set())
+    # the hypervisor took every CPU: the platform's evidence at its most
+    monkeypatch.setattr(steal, "_current", _attempt(root, 10 ** 10, Lateness(500.0, 0.5)))
     log = root / "dpu-logs" / "dpu1.log"
     log.parent.mkdir()
     log.write_text("skel-dpu[1]: run 1 started\n")
     assert steal.platform_took_the_cpus(AssertionError("late"))       # the platform's, another attempt
     log.write_text("==1==ERROR: AddressSanitizer: heap-buffer-overflow on address 0x6020\n")
     assert not steal.platform_took_the_cpus(AssertionError("late"))   # ours, whatever was stolen
+
+
+def test_a_test_that_cannot_judge_its_run_is_skipped_and_counted_inconclusive(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(steal, "_inconclusive", [])
+    monkeypatch.setattr(steal, "_current", steal.Attempt("t::x", time.monotonic(), 0))
+    with pytest.raises(pytest.skip.Exception, match=r"^inconclusive: 54 of 67 stalled$"):
+        steal.inconclusive("54 of 67 stalled")
+    assert steal._inconclusive == ["t::x: inconclusive: 54 of 67 stalled"]
 
 
 def _finish(monkeypatch: pytest.MonkeyPatch, evidence: Path, reattempted: int, inconclusive: int) -> int:
