@@ -265,3 +265,39 @@ def test_a_push_mid_run_switches_every_dpu_at_one_boundary_without_a_restart(tmp
     assert switch == dict.fromkeys((1, 2, 3, 4), first), switch
     last_old = {dpu: mine[mine.generation == 1].release_ns.max() - t0 for dpu, mine in cycles.groupby("dpu")}
     assert all(at < first for at in last_old.values()), last_old
+
+
+DATA = """\
+system: tasking-data
+dpus: [{{id: 1, executive: threads}}, {{id: 2, executive: threads}}]
+buffers: [{{id: 1, name: a, bytes: 64}}]
+processes:
+  - {{id: 1, name: fast1, dpu: 1, period_us: 2500, compute_us: 500}}
+  - {{id: 2, name: writer, dpu: 1, period_us: 10000, compute_us: 2500, outputs: [a]}}
+  - {{id: 3, name: fast2, dpu: 2, period_us: 2500, compute_us: 500}}
+  - {{id: 4, name: reader, dpu: 2, period_us: 10000, compute_us: {reader}, sync: data, inputs: [a]}}
+run: {{duration_s: 1.5, warmup_cycles: 2, lockout_cycles: 20, stop_on: []}}
+"""
+
+
+def test_a_live_switch_carries_a_tasking_job_waiting_for_its_data(tmp_path: Path) -> None:
+    """The writer's buffer comes 3.5 ms after each 10 ms release (fast1 preempts it once), so at
+    the grid point 2.5 ms into a period the reader's job waits for it: the switch there carries
+    it, and it starts when its data comes, once, computing what the new plan asks."""
+    before, after = tmp_path / "before.yaml", tmp_path / "after.yaml"
+    before.write_text(DATA.format(reader=1000))
+    after.write_text(DATA.format(reader=500))
+    out = tmp_path / "run"
+    simulate(out, str(before), "--push", f"0.8025:{after}")
+    cycles = _cycles(out)
+    t0 = cycles.release_ns.min()
+    ms = MS * 1000
+    fast = cycles[cycles.process.isin((1, 3)) & (cycles.generation == 2)]
+    assert fast.release_ns.min() - t0 == 802.5 * ms  # both DPUs switch at the grid point
+    reader = cycles[cycles.process == 4].set_index(cycles[cycles.process == 4].release_ns - t0)
+    carried = reader.loc[800 * ms]
+    assert carried.generation == 1 and carried.asked_ns == 500 * 1000  # the old plan's job, the new time
+    assert (reader.start_ns - reader.index - t0 == 3.5 * ms).all()  # every job when its data comes
+    assert (reader[reader.index < 800 * ms].asked_ns == 1000 * 1000).all()
+    assert (reader[reader.index > 800 * ms].asked_ns == 500 * 1000).all()
+    assert reader.completed.all()  # none skipped, cut short or locked out
