@@ -1,0 +1,97 @@
+"""Push, Run and Compare from the page: `skel push`, `skel run` and `skel diff` themselves,
+run as commands (the same two-phase commit, the same run and record, the same deltas), one
+at a time, their output shown as they print it. The runs started here are the session's
+notebook."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+OUTPUT_LINES = 400  # the last lines of a job's output the page is given
+
+
+@dataclass
+class Job:
+    kind: str  # push | run | diff
+    argv: list[str]
+    out: Path | None = None  # a run's directory
+    edits: list[str] = field(default_factory=list)
+    lines: list[str] = field(default_factory=list)
+    returncode: int | None = None
+    started: float = field(default_factory=time.time)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"kind": self.kind, "command": " ".join(["skel", *self.argv]),
+                "running": self.returncode is None,
+                "returncode": self.returncode, "output": self.lines[-OUTPUT_LINES:],
+                "out": str(self.out) if self.out else None}
+
+
+class Busy(Exception):
+    """A push or run is under way: one at a time, as at a terminal."""
+
+
+class Jobs:
+    def __init__(self, runs_dir: Path) -> None:
+        self.runs_dir = runs_dir
+        self.current: Job | None = None
+        self.runs: list[Job] = []  # the session's, oldest first
+        self._lock = threading.Lock()
+
+    def start(self, job: Job) -> Job:
+        with self._lock:
+            if self.current is not None and self.current.returncode is None:
+                raise Busy(f"`{self.current.to_json()['command']}` is still running")
+            self.current = job
+            if job.kind == "run":
+                self.runs.append(job)
+        proc = subprocess.Popen([sys.executable, "-m", "skeleton.host.cli", *job.argv],
+                                stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                text=True, errors="replace")
+        threading.Thread(target=self._follow, args=(job, proc), name=f"skel-console-{job.kind}",
+                         daemon=True).start()
+        return job
+
+    @staticmethod
+    def _follow(job: Job, proc: subprocess.Popen[str]) -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            job.lines.append(line.rstrip("\n"))
+            del job.lines[:-OUTPUT_LINES]
+        job.returncode = proc.wait()
+
+    def run_dir(self, system: str) -> Path:
+        return self.runs_dir / f"{system}-{time.strftime('%Y%m%d-%H%M%S')}-{len(self.runs) + 1}"
+
+    def notebook(self) -> list[dict[str, Any]]:
+        """Each run of the session: its system, edits, verdict and per-DPU figures (report.json)."""
+        return [{**job.to_json(), "edits": job.edits,
+                 "started": time.strftime("%H:%M:%S", time.localtime(job.started)),
+                 **_figures(job.out)} for job in self.runs if job.out is not None]
+
+    def run_of(self, out: str) -> Job | None:
+        return next((job for job in self.runs if str(job.out) == out), None)
+
+
+def _figures(out: Path | None) -> dict[str, Any]:
+    path = out / "report.json" if out else None
+    if path is None or not path.is_file():
+        return {"verdict": None, "dpus": []}
+    try:
+        report = json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        return {"verdict": f"report.json unreadable: {e}", "dpus": []}
+    fatal = report.get("fatal")
+    faults = len(report.get("faults", []))
+    verdict = (f"{report.get('system')}, run {report.get('run_id')}: "
+               + ("FATAL FLAW (a lockout, a jam)" if fatal else "no fatal flaw") + f", {faults} fault(s)")
+    keys = ("id", "compute_pct", "communicate_pct", "wait_pct", "measured_cycle_ms", "overruns")
+    dpus = [{k: d.get(k) for k in keys} for d in report.get("dpus", [])]
+    return {"verdict": verdict, "fatal": fatal, "dpus": dpus}

@@ -1,0 +1,355 @@
+// skel console's page: draws what the server computes and sends the operator's edits back.
+// It analyses nothing itself: the prediction is skel check's, the live figures skel watch's.
+"use strict";
+
+const SVG = "http://www.w3.org/2000/svg";
+const elk = new ELK();
+const state = { base: null, current: null, edits: {}, seq: 0, live: null, picked: new Set() };
+
+function $(id) { return document.getElementById(id); }
+function el(tag, attrs = {}, text) {
+  const node = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) node.setAttribute(k, v);
+  if (text !== undefined) node.textContent = text;
+  return node;
+}
+function svg(tag, attrs = {}, text) {
+  const node = document.createElementNS(SVG, tag);
+  for (const [k, v] of Object.entries(attrs)) node.setAttribute(k, v);
+  if (text !== undefined) node.textContent = text;
+  return node;
+}
+async function call(method, path, body) {
+  const response = await fetch(path, { method, headers: { "Content-Type": "application/json" },
+                                       body: body === undefined ? undefined : JSON.stringify(body) });
+  let data = null;
+  try { data = await response.json(); } catch (e) { data = { ok: false, error: await response.text() }; }
+  return { status: response.status, data };
+}
+function fmt(v, digits = 1) { return v === null || v === undefined ? "-" : Number(v).toFixed(digits); }
+
+// --- the picture (the paper's Figure 8), laid out by ELK ------------------------------------
+function textWidth(text) { return 6.2 * text.length + 8; }
+
+function chainEdges(graph) {
+  const pairs = new Set();
+  for (const chain of graph.chains)
+    for (let i = 0; i + 1 < chain.processes.length; i++) pairs.add(chain.processes[i] + ">" + chain.processes[i + 1]);
+  return pairs;
+}
+
+function elkGraph(graph, loads) {
+  const procNode = (p) => ({ id: "p:" + p.name, width: Math.max(120, textWidth(p.name)), height: 36 });
+  const dpuNode = (d) => {
+    const label = `DPU ${d.id} · ${fmt(loads[d.id])} %`;
+    return { id: "d:" + d.id, layoutOptions: { "elk.padding": "[top=26,left=10,bottom=10,right=10]" },
+             labels: [{ text: label, width: textWidth(label), height: 14 }],
+             children: graph.processes.filter((p) => p.dpu === d.id).map(procNode) };
+  };
+  const hostNode = (h) => ({ id: "h:" + h.name, layoutOptions: { "elk.padding": "[top=26,left=10,bottom=10,right=10]" },
+                             labels: [{ text: "host " + h.name, width: textWidth("host " + h.name), height: 14 }],
+                             children: graph.dpus.filter((d) => d.host === h.name).map(dpuNode) });
+  const edges = [];
+  const sources = [];
+  for (const b of graph.buffers) {
+    b.readers.forEach((r, i) => {
+      const label = `${b.name} ${b.bytes} B · ${fmt(b.rate_hz, 0)} Hz`;
+      edges.push({ id: `b:${b.id}:${i}`, sources: ["p:" + b.writer], targets: ["p:" + r.process],
+                   labels: i === 0 ? [{ text: label, width: textWidth(label), height: 12 }] : [] });
+    });
+  }
+  graph.events.forEach((e, k) => {
+    e.from.forEach((from, i) => {
+      let source = "p:" + from;
+      if (!graph.processes.some((p) => p.name === from)) {
+        source = `e:${k}:${i}`;
+        sources.push({ id: source, width: textWidth(from), height: 24, labels: [{ text: from }] });
+      }
+      e.to.forEach((to, j) => edges.push({ id: `ev:${k}:${i}:${j}`, sources: [source], targets: ["p:" + to],
+                                            labels: [{ text: "event " + e.name, width: textWidth("event " + e.name), height: 12 }] }));
+    });
+  });
+  return {
+    id: "root",
+    layoutOptions: { "elk.algorithm": "layered", "elk.direction": "RIGHT",
+                     "elk.hierarchyHandling": "INCLUDE_CHILDREN", "elk.json.edgeCoords": "ROOT",
+                     "elk.json.shapeCoords": "ROOT", "elk.layered.spacing.nodeNodeBetweenLayers": "40",
+                     "elk.spacing.edgeLabel": "2", "elk.edgeLabels.inline": "false" },
+    children: [...graph.hosts.map(hostNode), ...sources],
+    edges,
+  };
+}
+
+async function draw(graph, loads) {
+  const laid = await elk.layout(elkGraph(graph, loads));
+  const root = $("graph");
+  root.replaceChildren();
+  // Scaled to the column's width: SERVO and a 64-DPU system alike are seen whole.
+  root.setAttribute("viewBox", `-10 -10 ${laid.width + 20} ${laid.height + 20}`);
+  root.setAttribute("width", "100%");
+  const defs = svg("defs");
+  for (const [id, color] of [["arrow", "#555"], ["arrow-wait", "#06c"], ["arrow-chain", "#e80"], ["arrow-event", "#93c"]]) {
+    const marker = svg("marker", { id, viewBox: "0 0 10 10", refX: 9, refY: 5, markerWidth: 7, markerHeight: 7, orient: "auto" });
+    marker.append(svg("path", { d: "M0,0 L10,5 L0,10 z", fill: color }));
+    defs.append(marker);
+  }
+  root.append(defs);
+  const chained = chainEdges(graph);
+  const inChain = new Set(graph.chains.flatMap((c) => c.processes));
+  const box = (node, cls, attrs) => {
+    const g = svg("g", { class: cls, ...attrs });
+    g.append(svg("rect", { x: node.x, y: node.y, width: node.width, height: node.height }));
+    return g;
+  };
+  for (const host of laid.children.filter((n) => n.id.startsWith("h:"))) {
+    const hg = box(host, "host", { "data-host": host.id.slice(2) });
+    hg.append(svg("text", { x: host.x + 6, y: host.y + 16, class: "title" }, host.labels[0].text));
+    root.append(hg);
+    for (const dpu of host.children) {
+      const id = Number(dpu.id.slice(2));
+      const dg = box(dpu, "dpu" + (loads[id] > 100 ? " over" : ""), { "data-dpu": id });
+      dg.append(svg("text", { x: dpu.x + 6, y: dpu.y + 16, class: "title" }, dpu.labels[0].text));
+      root.append(dg);
+      for (const proc of dpu.children) {
+        const p = graph.processes.find((q) => "p:" + q.name === proc.id);
+        const pg = box(proc, "process" + (inChain.has(p.name) ? " in-chain" : ""), { "data-process": p.name, "data-dpu": id });
+        pg.append(svg("text", { x: proc.x + 6, y: proc.y + 15, class: "title" }, p.name));
+        const sync = p.sync === "periodic" ? "" : " · " + p.sync;
+        pg.append(svg("text", { x: proc.x + 6, y: proc.y + 29 }, `${p.compute_us} / ${p.period_us} µs${sync}`));
+        pg.addEventListener("click", () => select(p.name));
+        root.append(pg);
+      }
+    }
+  }
+  for (const source of laid.children.filter((n) => n.id.startsWith("e:"))) {
+    const sg = box(source, "event-source", {});
+    sg.append(svg("text", { x: source.x + 4, y: source.y + 16 }, source.labels[0].text));
+    root.append(sg);
+  }
+  const groups = {};
+  for (const edge of laid.edges) {
+    const [kind, ident, index] = edge.id.split(":");
+    const path = (edge.sections || []).map((s) =>
+      "M" + [s.startPoint, ...(s.bendPoints || []), s.endPoint].map((pt) => `${pt.x},${pt.y}`).join(" L")).join(" ");
+    let cls = "";
+    let marker = "arrow";
+    if (kind === "b") {
+      const b = graph.buffers.find((x) => String(x.id) === ident);
+      const reader = b.readers[Number(index)];
+      if (chained.has(b.writer + ">" + reader.process)) { cls = "chain"; marker = "arrow-chain"; }
+      else if (reader.waits) { cls = "wait"; marker = "arrow-wait"; }
+      if (reader.waits) cls += " wait";
+      const key = "b" + ident;
+      if (!groups[key]) {
+        groups[key] = svg("g", { class: "buffer", "data-buffer": b.name });
+        root.append(groups[key]);
+      }
+      groups[key].append(svg("path", { d: path, class: cls.trim(), "marker-end": `url(#${marker})`,
+                                       "data-reader": reader.process }));
+      for (const label of edge.labels || [])
+        groups[key].append(svg("text", { x: label.x, y: label.y + 10, class: "label" }, label.text));
+    } else {
+      const g = svg("g", { class: "event" });
+      g.append(svg("path", { d: path, "marker-end": "url(#arrow-event)" }));
+      for (const label of edge.labels || []) g.append(svg("text", { x: label.x, y: label.y + 10, class: "label" }, label.text));
+      root.append(g);
+    }
+  }
+}
+
+function select(name) {
+  document.querySelectorAll("#graph .process").forEach((g) => g.classList.toggle("selected", g.dataset.process === name));
+  const input = $(`edit-process-${name}-compute_us`);
+  if (input) { input.focus(); input.scrollIntoView({ block: "nearest" }); }
+}
+
+// --- the descriptors, editable ---------------------------------------------------------------
+function editor(target, value, options) {
+  const id = "edit-" + target.replaceAll(".", "-");
+  let input;
+  if (options) {
+    input = el("select", { id, "data-target": target });
+    for (const o of options) input.append(el("option", { value: o }, o));
+    input.value = String(value);
+  } else {
+    input = el("input", { id, "data-target": target, type: "number", value });
+  }
+  input.dataset.original = String(value);
+  input.addEventListener("change", () => edited(input));
+  return input;
+}
+
+function edited(input) {
+  const target = input.dataset.target;
+  const raw = input.value;
+  if (raw === input.dataset.original) delete state.edits[target];
+  else state.edits[target] = input.type === "number" || /^\d+$/.test(raw) ? Number(raw) : raw;
+  input.classList.toggle("changed", target in state.edits);
+  repredict();
+}
+
+function descriptors(graph) {
+  const rows = $("processes").tBodies[0];
+  rows.replaceChildren();
+  const dpuIds = graph.dpus.map((d) => String(d.id));
+  for (const p of graph.processes) {
+    const tr = el("tr", { "data-process": p.name });
+    tr.append(el("td", {}, p.name));
+    for (const [field, value, options] of [["dpu", p.dpu, dpuIds], ["compute_us", p.compute_us],
+                                           ["period_us", p.period_us], ["sync", p.sync, ["periodic", "data", "event"]]]) {
+      const td = el("td");
+      td.append(editor(`process.${p.name}.${field}`, value, options));
+      tr.append(td);
+    }
+    rows.append(tr);
+  }
+  const buffers = $("buffers").tBodies[0];
+  buffers.replaceChildren();
+  for (const b of graph.buffers) {
+    const tr = el("tr", { "data-buffer": b.name });
+    tr.append(el("td", {}, b.name));
+    const td = el("td");
+    td.append(editor(`buffer.${b.name}.bytes`, b.bytes));
+    tr.append(td);
+    tr.append(el("td", {}, `${b.writer} → ${b.readers.map((r) => r.process + (r.waits ? " (waits)" : "")).join(", ") || "nobody"}`));
+    buffers.append(tr);
+  }
+  $("chains").replaceChildren(...graph.chains.map((c) => el("span", { title: "chain" }, `${c.name}: ${c.processes.join(" → ")}`)));
+}
+
+// --- the prediction, as skel check gives it ----------------------------------------------------
+function loadsOf(summary) {
+  const out = {};
+  for (const d of summary.prediction.dpus) out[d.id] = d.load_pct;
+  return out;
+}
+
+async function showPrediction(result) {
+  const error = $("error");
+  const invalid = !result.ok;
+  error.hidden = !invalid;
+  error.textContent = invalid ? result.error : "";
+  for (const id of ["push", "run", "save"]) $(id).disabled = invalid;
+  $("prediction").classList.toggle("stale", invalid);
+  if (invalid) return;
+  state.current = result;
+  const base = loadsOf(state.base.summary);
+  const body = $("prediction").tBodies[0];
+  body.replaceChildren();
+  for (const d of result.summary.prediction.dpus) {
+    const tr = el("tr", { id: `predict-dpu-${d.id}`, "data-dpu": d.id });
+    tr.append(el("td", {}, String(d.id)));
+    tr.append(el("td", { class: "load" + (d.load_pct > 100 ? " over" : "") }, fmt(d.load_pct)));
+    tr.append(el("td", { class: "base" }, fmt(base[d.id])));
+    tr.append(el("td", {}, d.schedulable ? "yes" : "NO" + (d.lockout_ms ? ` (lockout ${fmt(d.lockout_ms)} ms)` : "")));
+    tr.append(el("td", { class: "live" }, liveCell(d.id)));
+    body.append(tr);
+  }
+  $("warnings").replaceChildren(...result.summary.warnings.map((w) => el("li", {}, "WARN " + w)));
+  const changed = Object.entries(state.edits).map(([k, v]) => `${k}=${v}`);
+  $("changes").textContent = changed.length ? "edits: " + changed.join(", ") : "no edits";
+  await draw(result.graph, loadsOf(result.summary));
+}
+
+async function repredict() {
+  const seq = ++state.seq;
+  const { data } = await call("POST", "/api/predict", { set: state.edits });
+  if (seq !== state.seq) return;  // a newer edit's answer wins
+  await showPrediction(data);
+  if (seq === state.seq) document.body.dataset.settled = String(seq);
+}
+
+// --- push, run, save: skel push, skel run, the file rewritten ---------------------------------
+async function job(path, body) {
+  const { status, data } = await call("POST", path, body);
+  if (status >= 400) { $("job").textContent = data.error; return; }
+  follow();
+}
+
+async function follow() {
+  const { data } = await call("GET", "/api/job");
+  if (!data) return;
+  $("job").textContent = `$ ${data.command}\n${data.output.join("\n")}` +
+    (data.running ? "\n…" : `\n(exit ${data.returncode})`);
+  if (data.running) setTimeout(follow, 500);
+  else notebook();
+}
+
+async function save() {
+  const { status, data } = await call("POST", "/api/save", { set: state.edits });
+  $("job").textContent = status >= 400 ? data.error : `saved ${data.saved} (${data.edits.join(", ") || "no edits"})`;
+  if (status < 400) start();
+}
+
+// --- live: skel watch's tables, streamed ---------------------------------------------------------
+function liveCell(dpu) {
+  const row = state.live && (state.live.dpus || []).find((d) => d.id === dpu);
+  return row ? `${fmt(row.compute_pct)} / ${fmt(row.communicate_pct)} / ${fmt(row.wait_pct)}` : "-";
+}
+
+function showLive(view) {
+  state.live = view;
+  const head = view.error ? view.error : view.run_id === null ? `waiting for a run on ${view.url}` :
+    `run ${view.run_id} · generation ${view.generation ?? "-"} · ${fmt(view.elapsed_s)} s · ${view.records ?? 0} records`;
+  $("live-head").textContent = head;
+  document.querySelectorAll("#prediction tr[data-dpu]").forEach((tr) => {
+    tr.querySelector(".live").textContent = liveCell(Number(tr.dataset.dpu));
+  });
+  const body = $("live-processes").tBodies[0];
+  body.replaceChildren(...(view.processes || []).map((p) => {
+    const tr = el("tr");
+    for (const cell of [p.name, p.dpu, p.cycles, p.overruns,
+                        `${fmt(p.latency_p50_us)} / ${fmt(p.latency_p99_us)} / ${fmt(p.latency_max_us)}`, `${p.late} / ${p.too_late}`])
+      tr.append(el("td", {}, String(cell)));
+    return tr;
+  }));
+  $("faults").replaceChildren(...view.faults.map((f) => el("li", { class: "over" }, `${f.at_s} s: ${f.text}`)));
+}
+
+// --- the notebook: this session's runs, any two compared ----------------------------------------
+async function notebook() {
+  const { data } = await call("GET", "/api/runs");
+  const body = $("runs").tBodies[0];
+  body.replaceChildren(...data.map((r) => {
+    const tr = el("tr", { "data-out": r.out });
+    const tick = el("input", { type: "checkbox" });
+    tick.checked = state.picked.has(r.out);
+    tick.addEventListener("change", () => { tick.checked ? state.picked.add(r.out) : state.picked.delete(r.out); });
+    const td = el("td");
+    td.append(tick);
+    tr.append(td);
+    const figures = r.dpus.map((d) => `${d.id}: ${fmt(d.compute_pct)}`).join(", ");
+    for (const cell of [r.started, r.edits.join(", ") || "-", r.running ? "running…" : (r.verdict ?? `exit ${r.returncode}`),
+                        figures || "-", r.out])
+      tr.append(el("td", {}, cell));
+    return tr;
+  }));
+}
+
+async function compare() {
+  const [a, b] = [...state.picked];
+  if (state.picked.size !== 2) { $("job").textContent = "tick two runs to compare"; return; }
+  job("/api/diff", { a, b });
+}
+
+// --- start --------------------------------------------------------------------------------------
+async function start() {
+  const { data } = await call("GET", "/api/system");
+  $("file").textContent = data.file;
+  if (!data.ok) { $("error").hidden = false; $("error").textContent = data.error; return; }
+  state.base = data;
+  state.edits = {};
+  $("system-name").textContent = data.summary.system;
+  $("status").textContent = `DPUs on ${data.url}` + (data.spawn ? " (Run spawns local DPUs)" : "");
+  descriptors(data.graph);
+  await showPrediction(data);
+  notebook();
+}
+
+$("push").addEventListener("click", () => job("/api/push", { set: state.edits }));
+$("run").addEventListener("click", () => job("/api/run", { set: state.edits }));
+$("save").addEventListener("click", save);
+$("reset").addEventListener("click", start);
+$("compare").addEventListener("click", compare);
+new EventSource("/api/live").onmessage = (message) => showLive(JSON.parse(message.data));
+start().then(() => { document.body.dataset.ready = "1"; });
