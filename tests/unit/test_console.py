@@ -1,0 +1,134 @@
+"""skel console's web application without a browser (Starlette's test client): the token
+refuses every request without it, an edit is predicted as `skel check -s` predicts it and an
+invalid one gets its one line, bad HTTP input is a clear 4xx and starts nothing, Save keeps
+the comments. The page itself, in Chromium: tests/e2e/test_console_browser.py."""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from conftest import EXAMPLES
+from starlette.testclient import TestClient
+
+from skeleton.host.cli.check import check
+from skeleton.host.console.app import COOKIE, Settings, build_app
+from skeleton.host.console.edits import MAX_BODY_BYTES
+
+TOKEN = "t0ken-for-the-tests"
+
+
+@pytest.fixture
+def servo(tmp_path: Path) -> Path:
+    path = tmp_path / "servo.yaml"
+    shutil.copy(EXAMPLES / "servo.yaml", path)
+    return path
+
+
+def client(file: Path, tmp_path: Path) -> TestClient:
+    settings = Settings(file=file, url=None, key_file=None, spawn=False, runs_dir=tmp_path / "runs",
+                        token=TOKEN)
+    return TestClient(build_app(settings, None, "udpm://239.255.76.67:7667?ttl=0"))
+
+
+@pytest.fixture
+def console(servo: Path, tmp_path: Path) -> TestClient:
+    c = client(servo, tmp_path)
+    assert c.get(f"/?token={TOKEN}").status_code == 200  # the printed URL: sets the cookie
+    return c
+
+
+@pytest.mark.parametrize("path", ["/", "/api/system", "/api/job", "/static/console.js",
+                                  "/static/elk/elk.bundled.js", "/nowhere"])
+@pytest.mark.parametrize("token", [None, "", "wrong", TOKEN + "x"])
+def test_no_token_is_refused(servo: Path, tmp_path: Path, path: str, token: str | None) -> None:
+    c = client(servo, tmp_path)
+    if token is not None:
+        c.cookies.set(COOKIE, token)
+    response = c.get(path if token is None else f"{path}?token={token}")
+    assert response.status_code == 403 and "token" in response.text
+    assert c.post("/api/push", json={"set": {}}).status_code == 403
+
+
+def test_the_token_once_then_its_cookie(servo: Path, tmp_path: Path) -> None:
+    c = client(servo, tmp_path)
+    first = c.get(f"/?token={TOKEN}")
+    assert first.status_code == 200 and "HttpOnly" in first.headers["set-cookie"]
+    assert "SameSite=Strict" in first.headers["set-cookie"]
+    assert c.get("/api/system").status_code == 200
+    assert c.get("/static/elk/elk.bundled.js").status_code == 200  # served by the package, not a CDN
+
+
+def test_the_system_as_check_sees_it(console: TestClient) -> None:
+    data = console.get("/api/system").json()
+    graph = data["graph"]
+    assert data["ok"] and data["summary"]["system"] == "servo"
+    assert (len(graph["processes"]), len(graph["dpus"]), len(graph["buffers"])) == (9, 4, 9)
+    assert [h["dpus"] for h in graph["hosts"]] == [[1, 2, 3, 4]]
+    joint_state = next(b for b in graph["buffers"] if b["name"] == "joint_state")
+    assert joint_state["writer"] == "joint_sensors" and joint_state["rate_hz"] == 200
+    assert {"process": "jacobian_transpose", "waits": True} in joint_state["readers"]  # sync: data
+    assert len(graph["chains"]) == 2
+
+
+def test_an_edit_is_predicted_as_skel_check_predicts_it(console: TestClient) -> None:
+    response = console.post("/api/predict", json={"set": {"process.executor.compute_us": 3000}})
+    loads = {d["id"]: d["load_pct"] for d in response.json()["summary"]["prediction"]["dpus"]}
+    assert response.status_code == 200 and loads == {1: 90.3, 2: 63.4, 3: 86.0, 4: 96.5}
+
+
+def test_an_invalid_edit_gets_skel_checks_line_and_starts_nothing(
+        console: TestClient, servo: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert check(servo, ["process.executor.period_us=0"]) == 2
+    line = capsys.readouterr().err.strip()
+    for path in ("/api/predict", "/api/push", "/api/run", "/api/save"):
+        response = console.post(path, json={"set": {"process.executor.period_us": 0}})
+        assert response.status_code == 422 and response.json() == {"ok": False, "error": line}
+    assert console.get("/api/job").json() is None and console.get("/api/runs").json() == []
+    assert servo.read_text() == (EXAMPLES / "servo.yaml").read_text()
+
+
+@pytest.mark.parametrize(("body", "status", "says"), [
+    (b"{not json", 400, "not JSON"),
+    (b'{"set": {}, "also": 1}', 400, "also: Extra inputs are not permitted"),
+    (b'{"sett": {}}', 400, "sett"),
+    (b'{"set": {"process.executor.compute_us": {"a": 1}}}', 400, "process.executor.compute_us"),
+    (b'{"set": {"process.executor.compute_us=3000": 1}}', 400, "is no descriptor"),
+    (b'{"set": ["process.executor.compute_us"]}', 400, "set"),
+    (b"[" * 100_000, 413, "larger than"),
+    (b'{"set": {"x": "' + b"a" * MAX_BODY_BYTES + b'"}}', 413, "larger than"),
+])
+def test_bad_http_input_is_a_clear_4xx_and_sends_nothing(console: TestClient, body: bytes, status: int,
+                                                         says: str) -> None:
+    for path in ("/api/predict", "/api/push", "/api/run"):
+        response = console.post(path, content=body, headers={"content-type": "application/json"})
+        assert response.status_code == status and says in response.json()["error"], response.text
+        assert "\n" not in response.json()["error"]
+    assert console.get("/api/job").json() is None
+
+
+def test_a_huge_body_without_a_length_is_cut_off(console: TestClient) -> None:
+    def chunks() -> Iterator[bytes]:  # a generator body: sent chunked, no content-length
+        for _ in range(100):
+            yield b" " * 4096
+    response = console.post("/api/push", content=chunks(), headers={"content-type": "application/json"})
+    assert response.status_code == 413
+
+
+def test_save_writes_the_edits_and_keeps_the_comments(console: TestClient, servo: Path) -> None:
+    response = console.post("/api/save", json={"set": {"process.executor.compute_us": 3000,
+                                                       "process.force_control.dpu": 1}})
+    assert response.status_code == 200, response.text
+    text = servo.read_text()
+    assert "{id: 4, name: executor, dpu: 2, period_us: 5000, compute_us: 3000," in text
+    assert "# The Executor (process 4) is the paper's Figure 9" in text
+    assert len(text.splitlines()) == len((EXAMPLES / "servo.yaml").read_text().splitlines())
+    dpus = console.get("/api/system").json()["summary"]["prediction"]["dpus"]
+    assert {d["id"]: d["load_pct"] for d in dpus}[2] == 63.4
+
+
+def test_compare_takes_only_the_sessions_runs(console: TestClient) -> None:
+    response = console.post("/api/diff", json={"a": "/etc", "b": "/tmp"})
+    assert response.status_code == 404 and console.get("/api/job").json() is None
