@@ -8,7 +8,7 @@ import asyncio
 import contextlib
 import json
 import secrets
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -93,7 +93,10 @@ def _error(status: int, line: str) -> JSONResponse:
     return JSONResponse({"ok": False, "error": line}, status_code=status)
 
 
-def build_app(settings: Settings, key: bytes | None, live_url: str) -> ASGIApp:
+def build_app(settings: Settings, key: bytes | None, live_url: str,
+              closing: Callable[[], bool] = lambda: False) -> ASGIApp:
+    """The application; `closing()` turns true when the server is asked to stop (its live
+    streams then end, or an open page would hold the server up)."""
     jobs = Jobs(settings.runs_dir)
     live: dict[str, LiveView] = {}
 
@@ -162,7 +165,7 @@ def build_app(settings: Settings, key: bytes | None, live_url: str) -> ASGIApp:
         view = live.setdefault("view", LiveView(live_url, key))
 
         async def events() -> Any:
-            while not await request.is_disconnected():
+            while not closing() and not await request.is_disconnected():
                 yield f"data: {json.dumps(view.snapshot())}\n\n"
                 await asyncio.sleep(LIVE_PERIOD_S)
 

@@ -21,6 +21,7 @@ from .app import Settings, build_app
 from .edits import evaluate
 
 TOKEN_BYTES = 24
+SHUTDOWN_S = 1.0
 
 
 def console_command(args: argparse.Namespace) -> int:
@@ -44,13 +45,17 @@ def console_command(args: argparse.Namespace) -> int:
     token = secrets.token_urlsafe(TOKEN_BYTES)
     settings = Settings(file=Path(file), url=args.url, key_file=args.key_file, spawn=args.spawn,
                         runs_dir=args.runs_dir, token=token)
-    app = build_app(settings, args.key, control_url(found.system))
+    server: uvicorn.Server | None = None
+    app = build_app(settings, args.key, control_url(found.system),
+                    closing=lambda: server is not None and server.should_exit)
     host, port = sock.getsockname()[:2]
     shown = f"[{host}]" if ":" in host else host
     print(f"skel console: {found.system.name} ({file}) at http://{shown}:{port}/?token={token}", flush=True)
-    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on"))
+    # A live stream ends when the server is asked to stop; a request under way has this long.
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on",
+                                           timeout_graceful_shutdown=SHUTDOWN_S))
     server.run(sockets=[sock])
-    return EXIT_OK
+    return EXIT_OK  # after Ctrl-C or SIGTERM, uvicorn raises it again: skel exits 130, as every command
 
 
 def _family(host: str) -> socket.AddressFamily:

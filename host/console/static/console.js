@@ -182,6 +182,7 @@ function editor(target, value, options) {
 function edited(input) {
   const target = input.dataset.target;
   const raw = input.value;
+  if (raw === "") return;  // a field being retyped: nothing to predict yet
   if (raw === input.dataset.original) delete state.edits[target];
   else state.edits[target] = input.type === "number" || /^\d+$/.test(raw) ? Number(raw) : raw;
   input.classList.toggle("changed", target in state.edits);

@@ -1,0 +1,181 @@
+"""`skel console` in a real browser: Debian's headless Chromium driven by Selenium, on SERVO.
+
+What an operator does on the page: sees the system drawn (9 processes in 4 DPUs, 9 buffers),
+is refused without the token, edits `executor`'s compute and reads the prediction (DPU 2 at
+63.4 %, as `skel check` says), pushes it to running DPUs (no restart: same pid, a new
+generation), and gets `skel check`'s one line for an invalid edit, with nothing sent (the
+DPUs' generation unchanged); bad HTTP input from the page's origin is a 4xx, nothing sent.
+`make test` installs chromium and chromium-driver as root (Makefile: test-tools); without
+them these tests skip and say so. Cost: about 15 s (one browser for the module, a console
+per test, four DPUs for the push test).
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from conftest import EXAMPLES, Background, DpuFarm, skel_background
+
+from skeleton.analysis.errors import EXIT_INTERRUPTED
+from skeleton.host.live.control import Control
+
+CHROMIUM, DRIVER = shutil.which("chromium"), shutil.which("chromedriver")
+pytestmark = pytest.mark.skipif(
+    not (CHROMIUM and DRIVER),
+    reason="needs Debian's chromium and chromium-driver (`make test` as root installs them)")
+SERVO = EXAMPLES / "servo.yaml"
+WAIT_S = 20.0
+PERIOD_0_LINE = (f"{SERVO}: processes.executor.period_us: must be a positive number of microseconds, got 0 "
+                 "(set by -s process.executor.period_us=0)")
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1600,1000"):
+        options.add_argument(arg)
+    options.binary_location = CHROMIUM
+    driver = webdriver.Chrome(options=options, service=Service(DRIVER))
+    yield driver
+    driver.quit()
+
+
+class Console:
+    """`skel console` running in the background, and the URL it printed."""
+
+    def __init__(self, url: str, runs: Path) -> None:
+        self.proc: Background = skel_background("console", str(SERVO), "--url", url, "--port", "0",
+                                                "--runs-dir", str(runs))
+        deadline = time.monotonic() + WAIT_S
+        while not (found := re.search(r"at (http://127\.0\.0\.1:\d+/)\?token=(\S+)", self.proc.output)):
+            assert time.monotonic() < deadline and self.proc.proc.poll() is None, self.proc.output
+            time.sleep(0.05)
+        self.base, self.token = found.group(1), found.group(2)
+
+    @property
+    def url(self) -> str:
+        return f"{self.base}?token={self.token}"
+
+    def stop(self) -> None:
+        """SIGTERM ends it at once, open page or not, as every command: 130, no traceback."""
+        self.proc.proc.terminate()
+        code = self.proc.wait(10)
+        assert code == EXIT_INTERRUPTED and "Traceback" not in self.proc.output, self.proc.output
+
+
+@pytest.fixture
+def console(url: str, tmp_path: Path) -> Iterator[Console]:
+    c = Console(url, tmp_path / "runs")
+    yield c
+    c.stop()
+
+
+def until(browser: Any, script: str, timeout_s: float = WAIT_S) -> Any:
+    """The value of `script` (JavaScript returning something) once it is truthy."""
+    deadline = time.monotonic() + timeout_s
+    while not (value := browser.execute_script(script)):
+        assert time.monotonic() < deadline, f"never true: {script}"
+        time.sleep(0.05)
+    return value
+
+
+def open_page(browser: Any, console: Console) -> None:
+    browser.get(console.url)
+    until(browser, "return document.body.dataset.ready")
+
+
+def edit(browser: Any, target: str, value: str) -> None:
+    """Type a descriptor's new value, as the operator does, and wait for its prediction."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+
+    settled = browser.execute_script("return document.body.dataset.settled || '0'")
+    field = browser.find_element(By.ID, "edit-" + target.replace(".", "-"))
+    field.send_keys(Keys.CONTROL, "a")
+    field.send_keys(value, Keys.TAB)
+    until(browser, f"return (document.body.dataset.settled || '0') !== '{settled}' || "
+                   "!document.getElementById('error').hidden")
+
+
+def loads(browser: Any) -> dict[str, str]:
+    return browser.execute_script(
+        "return Object.fromEntries([...document.querySelectorAll('#prediction tr[data-dpu]')]"
+        ".map(tr => [tr.dataset.dpu, tr.querySelector('.load').textContent]))")
+
+
+def post(browser: Any, path: str, body: str) -> tuple[int, str]:
+    """A request from the page's own origin (its cookie sent): the status and the error line."""
+    return tuple(browser.execute_async_script(
+        "const done = arguments[arguments.length - 1];"
+        "fetch(arguments[0], {method: 'POST', headers: {'Content-Type': 'application/json'},"
+        " body: arguments[1]})"
+        ".then(r => r.json().then(j => done([r.status, j.error || ''])))", path, body))
+
+
+def dpu_views(url: str) -> dict[int, tuple[int, int]]:
+    """Each DPU heard on `url`: (pid, generation)."""
+    control = Control(url)
+    try:
+        control.listen(1.0)
+        return {v.status.dpu: (v.status.pid, v.status.generation) for v in control.daemons()}
+    finally:
+        control.close()
+
+
+def test_the_page_draws_servo_and_predicts_an_edit(browser: Any, console: Console) -> None:
+    browser.get(console.base)  # no token: refused
+    assert "refused" in browser.find_element("tag name", "body").text
+    open_page(browser, console)
+    counts = browser.execute_script(
+        "return [document.querySelectorAll('#graph .process').length,"
+        " document.querySelectorAll('#graph .dpu').length,"
+        " new Set([...document.querySelectorAll('#graph .buffer')].map(g => g.dataset.buffer)).size,"
+        " document.querySelectorAll('#graph .buffer path.wait').length,"
+        " document.querySelectorAll('#graph .buffer path.chain').length]")
+    assert counts[:3] == [9, 4, 9]
+    assert counts[3] == 1 and counts[4] >= 3  # jacobian_transpose's data wait; the chains drawn apart
+    assert loads(browser) == {"1": "90.3", "2": "73.4", "3": "86.0", "4": "96.5"}
+    edit(browser, "process.executor.compute_us", "3000")
+    assert loads(browser)["2"] == "63.4"
+    title = "return document.querySelector('#graph .dpu[data-dpu=\"2\"] .title').textContent"
+    assert browser.execute_script(title) == "DPU 2 · 63.4 %"  # drawn on the graph too
+    edit(browser, "process.executor.period_us", "0")
+    assert browser.execute_script("return document.getElementById('error').textContent") == PERIOD_0_LINE
+    assert browser.execute_script("return document.getElementById('push').disabled")
+
+
+def test_push_from_the_page_and_nothing_sent_on_bad_input(browser: Any, console: Console,
+                                                          dpus: DpuFarm) -> None:
+    from selenium.webdriver.common.by import By
+
+    dpus.start(1, 2, 3, 4)
+    before = dpu_views(dpus.url)
+    assert sorted(before) == [1, 2, 3, 4], before
+    open_page(browser, console)
+    edit(browser, "process.executor.compute_us", "3000")
+    browser.find_element(By.ID, "push").click()
+    job = "const t = document.getElementById('job').textContent; return /\\(exit \\d+\\)/.test(t) && t"
+    text = until(browser, job)
+    assert "(exit 0)" in text and "committed" in text, text
+    pushed = dpu_views(dpus.url)
+    pids = {d: pid for d, (pid, _) in before.items()}
+    assert {d: pid for d, (pid, _) in pushed.items()} == pids  # nothing restarted
+    generation = {g for _, g in pushed.values()}
+    assert len(generation) == 1 and generation.pop() > max(g for _, g in before.values())
+
+    edit(browser, "process.executor.period_us", "0")
+    assert browser.execute_script("return document.getElementById('error').textContent") == PERIOD_0_LINE
+    assert post(browser, "/api/push", '{"set": {"process.executor.period_us": 0}}') == (422, PERIOD_0_LINE)
+    for body, status in (("{not json", 400), ('{"set": {}, "dpu": 2}', 400),
+                         ('{"set": {"a": [{}]}}', 400), ('{"set": {"x": "' + "a" * 70_000 + '"}}', 413)):
+        assert post(browser, "/api/push", body)[0] == status, body
+    assert dpu_views(dpus.url) == pushed  # the same pids, the same generation: nothing was sent
