@@ -215,6 +215,7 @@ function descriptors(graph) {
     tr.append(el("td", {}, `${b.writer} → ${b.readers.map((r) => r.process + (r.waits ? " (waits)" : "")).join(", ") || "nobody"}`));
     buffers.append(tr);
   }
+  $("cycles").replaceChildren(editor("run.cycles", graph.run.cycles ?? ""));
   $("chains").replaceChildren(...graph.chains.map((c) => el("span", { title: "chain" }, `${c.name}: ${c.processes.join(" → ")}`)));
 }
 
