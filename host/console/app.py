@@ -182,6 +182,7 @@ def build_app(settings: Settings, key: bytes | None, live_url: str,
     @contextlib.asynccontextmanager
     async def lifespan(app: Starlette) -> AsyncIterator[None]:
         yield
+        jobs.stop()
         for view in live.values():
             view.stop()
 

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 OUTPUT_LINES = 400  # the last lines of a job's output the page is given
+STOP_WAIT_S = 30.0  # a run told to stop writes its report first
 
 
 @dataclass
@@ -44,6 +45,7 @@ class Jobs:
         self.current: Job | None = None
         self.runs: list[Job] = []  # the session's, oldest first
         self._lock = threading.Lock()
+        self._proc: subprocess.Popen[str] | None = None
 
     def start(self, job: Job) -> Job:
         with self._lock:
@@ -55,6 +57,7 @@ class Jobs:
         proc = subprocess.Popen([sys.executable, "-m", "skeleton.host.cli", *job.argv],
                                 stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                 text=True, errors="replace")
+        self._proc = proc
         threading.Thread(target=self._follow, args=(job, proc), name=f"skel-console-{job.kind}",
                          daemon=True).start()
         return job
@@ -66,6 +69,17 @@ class Jobs:
             job.lines.append(line.rstrip("\n"))
             del job.lines[:-OUTPUT_LINES]
         job.returncode = proc.wait()
+
+    def stop(self) -> None:
+        """The console is stopping: a job under way is ended as Ctrl-C ends it at a terminal
+        (`skel run` stops the run, writes its report, stops the DPUs it spawned)."""
+        proc = self._proc
+        if proc is not None and proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(STOP_WAIT_S)
+            except subprocess.TimeoutExpired:
+                proc.kill()
 
     def run_dir(self, system: str) -> Path:
         return self.runs_dir / f"{system}-{time.strftime('%Y%m%d-%H%M%S')}-{len(self.runs) + 1}"

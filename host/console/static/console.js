@@ -216,7 +216,8 @@ function descriptors(graph) {
     buffers.append(tr);
   }
   $("cycles").replaceChildren(editor("run.cycles", graph.run.cycles ?? ""));
-  $("chains").replaceChildren(...graph.chains.map((c) => el("span", { title: "chain" }, `${c.name}: ${c.processes.join(" → ")}`)));
+  const chain = (c) => c.processes.join(" → ") + (c.name === c.processes.join("->") ? "" : ` (${c.name})`);
+  $("chains").replaceChildren(...graph.chains.map((c) => el("span", { title: "chain" }, chain(c))));
 }
 
 // --- the prediction, as skel check gives it ----------------------------------------------------
