@@ -3,6 +3,7 @@
 "use strict";
 
 const SVG = "http://www.w3.org/2000/svg";
+const MIN_SCALE = 0.7;
 const elk = new ELK();
 const state = { base: null, current: null, edits: {}, seq: 0, live: null, picked: new Set() };
 
@@ -84,9 +85,13 @@ async function draw(graph, loads) {
   const laid = await elk.layout(elkGraph(graph, loads));
   const root = $("graph");
   root.replaceChildren();
-  // Scaled to the column's width: SERVO and a 64-DPU system alike are seen whole.
-  root.setAttribute("viewBox", `-10 -10 ${laid.width + 20} ${laid.height + 20}`);
-  root.setAttribute("width", "100%");
+  // Scaled to the column's width, but never below MIN_SCALE: a large system scrolls, its
+  // labels still readable, rather than shrinking to a line.
+  const [width, height] = [laid.width + 20, laid.height + 20];
+  const scale = Math.max(MIN_SCALE, Math.min(1, $("picture").clientWidth / width));
+  root.setAttribute("viewBox", `-10 -10 ${width} ${height}`);
+  root.setAttribute("width", width * scale);
+  root.setAttribute("height", height * scale);
   const defs = svg("defs");
   for (const [id, color] of [["arrow", "#555"], ["arrow-wait", "#06c"], ["arrow-chain", "#e80"], ["arrow-event", "#93c"]]) {
     const marker = svg("marker", { id, viewBox: "0 0 10 10", refX: 9, refY: 5, markerWidth: 7, markerHeight: 7, orient: "auto" });
@@ -306,7 +311,7 @@ function showLive(view) {
       tr.append(el("td", {}, String(cell)));
     return tr;
   }));
-  $("faults").replaceChildren(...view.faults.map((f) => el("li", { class: "over" }, `${f.at_s} s: ${f.text}`)));
+  $("faults").replaceChildren(...(view.faults || []).map((f) => el("li", { class: "over" }, `${f.at_s} s: ${f.text}`)));
 }
 
 // --- the notebook: this session's runs, any two compared ----------------------------------------
