@@ -4,10 +4,11 @@ What an operator does on the page: sees the system drawn (9 processes in 4 DPUs,
 is refused without the token, edits `executor`'s compute and reads the prediction (DPU 2 at
 63.4 %, as `skel check` says), pushes it to running DPUs (no restart: same pid, a new
 generation), and gets `skel check`'s one line for an invalid edit, with nothing sent (the
-DPUs' generation unchanged); bad HTTP input from the page's origin is a 4xx, nothing sent.
+DPUs' generation unchanged); bad HTTP input from the page's origin is a 4xx, nothing sent;
+runs twice from the page (Table 1, then executor at 3000 us measured at 63.4 %) and compares.
 `make test` installs chromium and chromium-driver as root (Makefile: test-tools); without
-them these tests skip and say so. Cost: about 15 s (one browser for the module, a console
-per test, four DPUs for the push test).
+them these tests skip and say so. Cost: about 36 s (one browser for the module, a console per
+test; four DPUs for the push test, 9 s; two 600-cycle runs and a diff, 22 s).
 """
 
 from __future__ import annotations
@@ -23,7 +24,9 @@ import pytest
 from conftest import EXAMPLES, Background, DpuFarm, skel_background
 
 from skeleton.analysis.errors import EXIT_INTERRUPTED
+from skeleton.host.console.app import LIVE_PERIOD_S
 from skeleton.host.live.control import Control
+from skeleton.host.sysfile.system import load
 
 CHROMIUM, DRIVER = shutil.which("chromium"), shutil.which("chromedriver")
 pytestmark = pytest.mark.skipif(
@@ -31,6 +34,10 @@ pytestmark = pytest.mark.skipif(
     reason="needs Debian's chromium and chromium-driver (`make test` as root installs them)")
 SERVO = EXAMPLES / "servo.yaml"
 WAIT_S = 20.0
+RUN_WAIT_S = 60.0  # a 600-cycle run with its spawn, clock estimate and report, on a loaded machine
+REFERENCE = load(SERVO).reference
+assert REFERENCE is not None
+TABLE_1 = {d: row.compute_pct for d, row in REFERENCE.dpus.items()}  # the paper's % compute
 PERIOD_0_LINE = (f"{SERVO}: processes.executor.period_us: must be a positive number of microseconds, got 0 "
                  "(set by -s process.executor.period_us=0)")
 
@@ -52,9 +59,9 @@ def browser() -> Iterator[Any]:
 class Console:
     """`skel console` running in the background, and the URL it printed."""
 
-    def __init__(self, url: str, runs: Path) -> None:
+    def __init__(self, url: str, runs: Path, *extra: str) -> None:
         self.proc: Background = skel_background("console", str(SERVO), "--url", url, "--port", "0",
-                                                "--runs-dir", str(runs))
+                                                "--runs-dir", str(runs), *extra)
         deadline = time.monotonic() + WAIT_S
         while not (found := re.search(r"at (http://127\.0\.0\.1:\d+/)\?token=(\S+)", self.proc.output)):
             assert time.monotonic() < deadline and self.proc.proc.poll() is None, self.proc.output
@@ -75,6 +82,14 @@ class Console:
 @pytest.fixture
 def console(url: str, tmp_path: Path) -> Iterator[Console]:
     c = Console(url, tmp_path / "runs")
+    yield c
+    c.stop()
+
+
+@pytest.fixture
+def spawning_console(url: str, tmp_path: Path) -> Iterator[Console]:
+    """A console whose Run spawns the run's DPUs (skel run --spawn), into the test's tmp_path."""
+    c = Console(url, tmp_path / "runs", "--spawn")
     yield c
     c.stop()
 
@@ -151,6 +166,51 @@ def test_the_page_draws_servo_and_predicts_an_edit(browser: Any, console: Consol
     edit(browser, "process.executor.period_us", "0")
     assert browser.execute_script("return document.getElementById('error').textContent") == PERIOD_0_LINE
     assert browser.execute_script("return document.getElementById('push').disabled")
+
+
+def run_from_the_page(browser: Any) -> dict[int, float]:
+    """Click Run, wait for `skel run` to end (exit 0) and the live tables to have its last
+    figures: each DPU's live % compute, as the page shows it beside the prediction."""
+    from selenium.webdriver.common.by import By
+
+    runs = browser.execute_script("return document.querySelectorAll('#runs tbody tr').length")
+    browser.find_element(By.ID, "run").click()
+    text = until(browser, "const t = document.getElementById('job').textContent;"
+                          "return t.startsWith('$ skel run') && /\\(exit \\d+\\)/.test(t) && t", RUN_WAIT_S)
+    assert "(exit 0)" in text, text
+    until(browser, f"return document.querySelectorAll('#runs tbody tr').length === {runs + 1}")
+    time.sleep(2 * LIVE_PERIOD_S)  # the stream's snapshot after the run's last records
+    cells = browser.execute_script(
+        "return Object.fromEntries([...document.querySelectorAll('#prediction tr[data-dpu]')]"
+        ".map(tr => [tr.dataset.dpu, tr.querySelector('.live').textContent]))")
+    return {int(d): float(cell.split(" / ")[0]) for d, cell in cells.items()}
+
+
+@pytest.mark.timing
+def test_run_from_the_page_measures_the_prediction_and_compares(browser: Any,
+                                                                 spawning_console: Console) -> None:
+    """Two runs from the page (spawned DPUs, 600 cycles each): the file's, whose live table is the
+    paper's Table 1 within 1 point, then executor at 3000 us, whose DPU 2 measures the 63.4 %
+    predicted; both in the notebook, and Compare prints `skel diff` of them."""
+    from selenium.webdriver.common.by import By
+
+    open_page(browser, spawning_console)
+    edit(browser, "run.cycles", "600")
+    first = run_from_the_page(browser)
+    assert first == pytest.approx(TABLE_1, abs=1.0), first
+    edit(browser, "process.executor.compute_us", "3000")
+    assert loads(browser)["2"] == "63.4"
+    second = run_from_the_page(browser)
+    assert second == pytest.approx({**TABLE_1, 2: 63.4}, abs=1.0), second
+    verdicts = browser.execute_script("return [...document.querySelectorAll('#runs tbody tr')]"
+                                      ".map(tr => tr.cells[3].textContent)")
+    assert len(verdicts) == 2 and all("no fatal flaw" in v for v in verdicts), verdicts
+    for tick in browser.find_elements(By.CSS_SELECTOR, "#runs tbody input[type=checkbox]"):
+        tick.click()
+    browser.find_element(By.ID, "compare").click()
+    text = until(browser, "const t = document.getElementById('job').textContent;"
+                          "return t.startsWith('$ skel diff') && /\\(exit \\d+\\)/.test(t) && t")
+    assert "(exit 0)" in text and "per DPU: B - A" in text, text
 
 
 def test_push_from_the_page_and_nothing_sent_on_bad_input(browser: Any, console: Console,
