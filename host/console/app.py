@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import re
 import secrets
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
@@ -26,6 +27,7 @@ from .edits import (
     BadRequest,
     DiffRequest,
     EditRequest,
+    PlotsRequest,
     evaluate,
     overrides,
     parse,
@@ -37,6 +39,8 @@ from .live import LiveView
 STATIC = Path(__file__).parent / "static"
 COOKIE = "skel_console_token"
 LIVE_PERIOD_S = 0.5  # how often the live stream sends a snapshot
+PLOTS = "plots"  # a run's folder of `skel report --plots`
+PLOT_NAME = re.compile(r"^[a-z0-9_]+\.png$")
 REFUSED = "refused: open the URL `skel console` printed (it carries the token)\n"
 
 
@@ -152,14 +156,33 @@ def build_app(settings: Settings, key: bytes | None, live_url: str,
     async def runs(request: Request) -> Response:
         return JSONResponse(jobs.notebook())
 
+    key_args = ["--key", str(settings.key_file)] if settings.key_file else []
+
     async def diff(request: Request) -> Response:
         asked = parse(await _body(request), DiffRequest)
         a, b = jobs.run_of(asked.a), jobs.run_of(asked.b)
-        if a is None or b is None or a.out is None or b.out is None:
-            raise BadRequest(404, "compare two runs of this session's notebook")
-        key = ["--key", str(settings.key_file)] if settings.key_file else []
-        argv = ["diff", str(a.out), str(b.out), *key]
-        return JSONResponse(jobs.start(Job("diff", argv)).to_json())
+        if a is None or b is None:
+            raise BadRequest(404, "compare two runs of the notebook")
+        return JSONResponse(jobs.start(Job("diff", ["diff", str(a), str(b), *key_args])).to_json())
+
+    async def draw_plots(request: Request) -> Response:
+        run = jobs.run_of(parse(await _body(request), PlotsRequest).run)
+        if run is None:
+            raise BadRequest(404, "plot a run of the notebook")
+        argv = ["report", str(run), "--plots", str(run / PLOTS), *key_args]
+        return JSONResponse(jobs.start(Job("report", argv, out=run)).to_json())
+
+    async def plots(request: Request) -> Response:
+        """The plots `skel report --plots` drew for a run of the notebook: their names, or one."""
+        run = jobs.run_of(request.query_params.get("run", ""))
+        if run is None:
+            raise BadRequest(404, "a run of the notebook")
+        name = request.query_params.get("name")
+        if name is None:
+            return JSONResponse(sorted(p.name for p in (run / PLOTS).glob("*.png")))
+        if not PLOT_NAME.match(name) or not (run / PLOTS / name).is_file():
+            raise BadRequest(404, f"no plot {name[:80]} for this run")
+        return FileResponse(run / PLOTS / name)
 
     async def stream(request: Request) -> Response:
         view = live.setdefault("view", LiveView(live_url, key))
@@ -191,6 +214,7 @@ def build_app(settings: Settings, key: bytes | None, live_url: str,
         Route("/api/push", push, methods=["POST"]), Route("/api/run", run, methods=["POST"]),
         Route("/api/save", save, methods=["POST"]), Route("/api/job", job), Route("/api/runs", runs),
         Route("/api/diff", diff, methods=["POST"]), Route("/api/live", stream),
+        Route("/api/plots", draw_plots, methods=["POST"]), Route("/api/plots", plots, methods=["GET"]),
         Mount("/static", StaticFiles(directory=STATIC)),
     ]
     app = Starlette(routes=routes, exception_handlers={BadRequest: refused, Busy: busy},

@@ -43,9 +43,18 @@ class EditRequest(BaseModel):
 
 
 class DiffRequest(BaseModel):
+    """{"a": RUN, "b": RUN}: two runs of the notebook, by their directory."""
+
     model_config = ConfigDict(extra="forbid", strict=True)
     a: str = Field(max_length=4096)
     b: str = Field(max_length=4096)
+
+
+class PlotsRequest(BaseModel):
+    """{"run": RUN}: a run of the notebook whose plots to draw."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+    run: str = Field(max_length=4096)
 
 
 def parse(body: bytes, model: type[BaseModel]) -> Any:

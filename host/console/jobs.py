@@ -20,9 +20,9 @@ STOP_WAIT_S = 30.0  # a run told to stop writes its report first
 
 @dataclass
 class Job:
-    kind: str  # push | run | diff
+    kind: str  # push | run | diff | report
     argv: list[str]
-    out: Path | None = None  # a run's directory
+    out: Path | None = None  # the run's directory (a run's, or a report's)
     edits: list[str] = field(default_factory=list)
     lines: list[str] = field(default_factory=list)
     returncode: int | None = None
@@ -84,14 +84,28 @@ class Jobs:
     def run_dir(self, system: str) -> Path:
         return self.runs_dir / f"{system}-{time.strftime('%Y%m%d-%H%M%S')}-{len(self.runs) + 1}"
 
-    def notebook(self) -> list[dict[str, Any]]:
-        """Each run of the session: its system, edits, verdict and per-DPU figures (report.json)."""
-        return [{**job.to_json(), "edits": job.edits,
-                 "started": time.strftime("%H:%M:%S", time.localtime(job.started)),
-                 **_figures(job.out)} for job in self.runs if job.out is not None]
+    def recorded(self) -> list[Path]:
+        """The runs recorded in the runs folder before this session (each with its report.json)."""
+        session = {job.out for job in self.runs}
+        if not self.runs_dir.is_dir():
+            return []
+        return sorted(p for p in self.runs_dir.iterdir()
+                      if p not in session and (p / "report.json").is_file())
 
-    def run_of(self, out: str) -> Job | None:
-        return next((job for job in self.runs if str(job.out) == out), None)
+    def notebook(self) -> list[dict[str, Any]]:
+        """The runs recorded before, then the session's: for each its edits (the session's), its
+        verdict and per-DPU figures (report.json)."""
+        earlier = [{"kind": "run", "command": None, "running": False, "returncode": None, "out": str(p),
+                    "edits": [], "started": time.strftime("%m-%d %H:%M", time.localtime(p.stat().st_mtime)),
+                    **_figures(p)} for p in self.recorded()]
+        return earlier + [{**job.to_json(), "edits": job.edits,
+                           "started": time.strftime("%H:%M:%S", time.localtime(job.started)),
+                           **_figures(job.out)} for job in self.runs if job.out is not None]
+
+    def run_of(self, out: str) -> Path | None:
+        """The run directory `out` names, when it is one of the notebook's (none other is read)."""
+        return next((p for p in [*self.recorded(), *(job.out for job in self.runs if job.out is not None)]
+                     if str(p) == out), None)
 
 
 def _figures(out: Path | None) -> dict[str, Any]:

@@ -5,6 +5,7 @@ the comments. The page itself, in Chromium: tests/e2e/test_console_browser.py.""
 
 from __future__ import annotations
 
+import json
 import shutil
 from collections.abc import Iterator
 from pathlib import Path
@@ -132,3 +133,26 @@ def test_save_writes_the_edits_and_keeps_the_comments(console: TestClient, servo
 def test_compare_takes_only_the_sessions_runs(console: TestClient) -> None:
     response = console.post("/api/diff", json={"a": "/etc", "b": "/tmp"})
     assert response.status_code == 404 and console.get("/api/job").json() is None
+
+
+def test_the_notebook_opens_earlier_runs_and_serves_only_their_plots(servo: Path, tmp_path: Path) -> None:
+    run = tmp_path / "runs" / "servo-earlier"
+    (run / "plots").mkdir(parents=True)
+    (run / "report.json").write_text(json.dumps({"system": "servo", "run_id": 7, "fatal": False, "faults": [],
+                                                 "dpus": [{"id": 2, "compute_pct": 73.4}]}))
+    (run / "plots" / "utilization.png").write_bytes(b"\x89PNG\r\n")
+    (tmp_path / "runs" / "not-a-run").mkdir()
+    c = client(servo, tmp_path)
+    c.get(f"/?token={TOKEN}")
+    [listed] = c.get("/api/runs").json()
+    assert listed["out"] == str(run) and listed["verdict"] == "servo, run 7: no fatal flaw, 0 fault(s)"
+    assert listed["dpus"] == [{"id": 2, "compute_pct": 73.4, "communicate_pct": None, "wait_pct": None,
+                               "measured_cycle_ms": None, "overruns": None}]
+    assert c.get("/api/plots", params={"run": str(run)}).json() == ["utilization.png"]
+    assert c.get("/api/plots", params={"run": str(run), "name": "utilization.png"}).content == b"\x89PNG\r\n"
+    for params in ({"run": str(run), "name": "../report.json"}, {"run": str(run), "name": "nothing.png"},
+                   {"run": str(tmp_path / "runs" / "not-a-run")}, {"run": "/etc", "name": "passwd"}):
+        assert c.get("/api/plots", params=params).status_code == 404, params
+    assert c.post("/api/plots", json={"run": "/etc"}).status_code == 404
+    assert c.post("/api/plots", json={"run": str(run), "also": 1}).status_code == 400
+    assert c.get("/api/job").json() is None

@@ -280,6 +280,7 @@ async function follow() {
   $("job").textContent = `$ ${data.command}\n${data.output.join("\n")}` +
     (data.running ? "\n…" : `\n(exit ${data.returncode})`);
   if (data.running) setTimeout(follow, 500);
+  else if (data.kind === "report") showPlots(data.out);
   else notebook();
 }
 
@@ -330,8 +331,20 @@ async function notebook() {
     for (const cell of [r.started, r.edits.join(", ") || "-", r.running ? "running…" : (r.verdict ?? `exit ${r.returncode}`),
                         figures || "-", r.out])
       tr.append(el("td", {}, cell));
+    const plot = el("button", { class: "plot", title: "skel report RUN --plots" }, "Plots");
+    plot.addEventListener("click", () => job("/api/plots", { run: r.out }));
+    const cell = el("td");
+    cell.append(plot);
+    tr.append(cell);
     return tr;
   }));
+}
+
+async function showPlots(run) {
+  const { data } = await call("GET", "/api/plots?run=" + encodeURIComponent(run));
+  $("plots").replaceChildren(el("h2", {}, "Plots of " + run), ...data.map((name) =>
+    el("img", { src: `/api/plots?run=${encodeURIComponent(run)}&name=${encodeURIComponent(name)}`, alt: name,
+                title: name, width: "100%" })));
 }
 
 async function compare() {
