@@ -24,7 +24,10 @@ from ..theory.predict import predict
 MAX_BODY_BYTES = 64 * 1024  # a request body beyond this is refused (413) before it is parsed
 MAX_EDITS = 256
 TARGET = re.compile(r"^[A-Za-z0-9_]+(\.[A-Za-z0-9_-]+){0,2}$")
-Value = str | int | float | bool | list[str | int | float] | None
+Scalar = str | int | float | bool
+# A descriptor's value, as the system file writes it: a scalar, a list, or one mapping (a link's, a
+# compute distribution's `varying:`); deeper nesting is no descriptor.
+Value = Scalar | list[Scalar] | dict[str, Scalar | list[Scalar]] | None
 
 
 class BadRequest(Exception):

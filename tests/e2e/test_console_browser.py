@@ -121,6 +121,18 @@ def edit(browser: Any, target: str, value: str) -> None:
                    "!document.getElementById('error').hidden")
 
 
+def drag(browser: Any, process: str, dpu: int) -> None:
+    """Drag a process's box onto a DPU's title on the graph, and wait for the prediction."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+
+    settled = browser.execute_script("return document.body.dataset.settled || '0'")
+    box = browser.find_element(By.CSS_SELECTOR, f'#graph .process[data-process="{process}"] rect')
+    title = browser.find_element(By.CSS_SELECTOR, f'#graph .dpu[data-dpu="{dpu}"] .title')
+    ActionChains(browser).drag_and_drop(box, title).perform()
+    until(browser, f"return (document.body.dataset.settled || '0') !== '{settled}'")
+
+
 def loads(browser: Any) -> dict[str, str]:
     return browser.execute_script(
         "return Object.fromEntries([...document.querySelectorAll('#prediction tr[data-dpu]')]"
@@ -163,6 +175,10 @@ def test_the_page_draws_servo_and_predicts_an_edit(browser: Any, console: Consol
     assert loads(browser)["2"] == "63.4"
     title = "return document.querySelector('#graph .dpu[data-dpu=\"2\"] .title').textContent"
     assert browser.execute_script(title) == "DPU 2 · 63.4 %"  # drawn on the graph too
+    drag(browser, "force_control", 1)  # onto DPU 1, as choosing it in its row
+    assert loads(browser) == {"1": "120.3", "2": "63.4", "3": "56.0", "4": "96.5"}
+    row = "return document.getElementById('edit-process-force_control-dpu').value"
+    assert browser.execute_script(row) == "1"
     edit(browser, "process.executor.period_us", "0")
     assert browser.execute_script("return document.getElementById('error').textContent") == PERIOD_0_LINE
     assert browser.execute_script("return document.getElementById('push').disabled")

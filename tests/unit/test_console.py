@@ -95,7 +95,8 @@ def test_an_invalid_edit_gets_skel_checks_line_and_starts_nothing(
     (b"{not json", 400, "not JSON"),
     (b'{"set": {}, "also": 1}', 400, "also: Extra inputs are not permitted"),
     (b'{"sett": {}}', 400, "sett"),
-    (b'{"set": {"process.executor.compute_us": {"a": 1}}}', 400, "process.executor.compute_us"),
+    (b'{"set": {"process.executor.compute_us": {"a": {"b": 1}}}}', 400, "process.executor.compute_us"),
+    (b'{"set": {"process.executor.compute_us": {"a": 1}}}', 422, "unknown key"),
     (b'{"set": {"process.executor.compute_us=3000": 1}}', 400, "is no descriptor"),
     (b'{"set": ["process.executor.compute_us"]}', 400, "set"),
     (b"[" * 100_000, 413, "larger than"),
@@ -156,3 +157,14 @@ def test_the_notebook_opens_earlier_runs_and_serves_only_their_plots(servo: Path
     assert c.post("/api/plots", json={"run": "/etc"}).status_code == 404
     assert c.post("/api/plots", json={"run": str(run), "also": 1}).status_code == 400
     assert c.get("/api/job").json() is None
+
+
+def test_any_descriptor_even_a_distribution_is_an_edit(console: TestClient) -> None:
+    """The page's `-s` field: a compute distribution (a mapping) is predicted as `skel check` does."""
+    varying = {"process.dynamics.compute_us": {"dist": "uniform", "min": 9000, "max": 19000}}
+    summary = console.post("/api/predict", json={"set": varying}).json()["summary"]
+    assert summary["varying_compute"] == [{"process": "dynamics", "kind": "uniform", "min_us": 9000.0,
+                                           "mean_us": 14000.0, "max_us": 19000.0}]
+    assert any("117.5 % when its varying computations draw their maximum" in w for w in summary["warnings"])
+    deeper = {"process.dynamics.compute_us": {"dist": {"nested": 1}}}
+    assert console.post("/api/predict", json={"set": deeper}).status_code == 400

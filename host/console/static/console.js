@@ -121,7 +121,7 @@ async function draw(graph, loads) {
         pg.append(svg("text", { x: proc.x + 6, y: proc.y + 15, class: "title" }, p.name));
         const sync = p.sync === "periodic" ? "" : " · " + p.sync;
         pg.append(svg("text", { x: proc.x + 6, y: proc.y + 29 }, `${p.compute_us} / ${p.period_us} µs${sync}`));
-        pg.addEventListener("click", () => select(p.name));
+        pg.addEventListener("pointerdown", (event) => { event.preventDefault(); state.dragging = p; });
         root.append(pg);
       }
     }
@@ -161,6 +161,20 @@ async function draw(graph, loads) {
     }
   }
 }
+
+// A process dragged onto another DPU (its box, or a process in it) is allocated there: the same
+// edit as choosing that DPU in its row. A press without a move selects it.
+document.addEventListener("pointerup", (event) => {
+  const p = state.dragging;
+  state.dragging = null;
+  if (!p) return;
+  const onto = document.elementFromPoint(event.clientX, event.clientY)?.closest("#graph [data-dpu]");
+  const dpu = onto ? Number(onto.dataset.dpu) : p.dpu;
+  if (dpu === p.dpu) { select(p.name); return; }
+  const field = $(`edit-process-${p.name}-dpu`);
+  field.value = String(dpu);
+  edited(field);
+});
 
 function select(name) {
   document.querySelectorAll("#graph .process").forEach((g) => g.classList.toggle("selected", g.dataset.process === name));
@@ -367,6 +381,22 @@ async function start() {
   notebook();
 }
 
+// Any descriptor, as `-s TARGET=VALUE`: VALUE is read as JSON when it is (3000, [3, 5], {"kind": ...}),
+// as YAML's flow mapping when it looks like one, else as the text typed.
+$("any-edit").addEventListener("keydown", (event) => {
+  if (event.key !== "Enter") return;
+  const [target, ...rest] = event.target.value.split("=");
+  const raw = rest.join("=").trim();
+  let value = raw;
+  try { value = JSON.parse(raw); } catch (e) {
+    const flow = raw.match(/^\{(.*)\}$/);
+    if (flow) value = Object.fromEntries(flow[1].split(",").map((kv) => kv.split(":").map((s) => s.trim()))
+      .map(([k, v]) => [k, v !== "" && !isNaN(Number(v)) ? Number(v) : v]));
+  }
+  state.edits[target.trim()] = raw === "" ? null : value;
+  event.target.value = "";
+  repredict();
+});
 $("push").addEventListener("click", () => job("/api/push", { set: state.edits }));
 $("run").addEventListener("click", () => job("/api/run", { set: state.edits }));
 $("save").addEventListener("click", save);
