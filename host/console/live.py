@@ -44,33 +44,13 @@ class LiveView:
                 self.heard.refresh()
                 spawn.keep_off(self.heard.pinned_here(), allowed, spawn.own_threads())
                 finder.check()
-                view = self._view()
+                view = live_view(self.heard, self.url)
                 with self._lock:
                     self._snapshot = view
         except Exception as e:  # said on the page: the console serves on without a live view
             self.error = f"live view stopped: {e}"
         finally:
             finder.stop()
-
-    def _view(self) -> dict[str, Any]:
-        heard, tables = self.heard, self.heard.tables
-        states = {d: STATE_NAMES.get(s.state, str(s.state)) for d, s in heard.latest.items()}
-        out: dict[str, Any] = {"url": self.url, "run_id": heard.run_id,
-                               "states": {str(d): s for d, s in sorted(states.items())},
-                               "faults": [{"at_s": round(at, 1), "text": text}
-                                          for at, text in heard.faults[-FAULTS_SHOWN:]]}
-        if tables is None:
-            return out
-        out.update({
-            "system": tables.system.name, "generation": tables.generation,
-            "elapsed_s": round(tables.elapsed_ms / 1000, 1), "lost_batches": heard.lost_batches,
-            "records": heard.store.n_records if heard.store else 0,
-            "dpus": [_dpu_row(d) for d in tables.dpus],
-            "processes": [{"name": p.name, "dpu": p.dpu, "cycles": p.cycles, "overruns": p.overruns,
-                           "latency_p50_us": _pct(p.latency_us.p50), "latency_p99_us": _pct(p.latency_us.p99),
-                           "latency_max_us": _pct(p.latency_us.max), "late": p.late, "too_late": p.too_late}
-                          for p in tables.processes]})  # fmt: skip
-        return out
 
     def snapshot(self) -> dict[str, Any]:
         with self._lock:
@@ -82,6 +62,33 @@ class LiveView:
     def stop(self) -> None:
         self._stopped.set()
         self._thread.join(2 * REFRESH_S)
+
+
+def live_view(heard: Heard, url: str) -> dict[str, Any]:
+    """What the page shows of what `heard` heard: the DPUs' states, the followed run's live
+    tables (`skel watch`'s), and its faults as found, each with what the graph marks (the process,
+    the DPU, a jam's chain from its head to the root cause)."""
+    tables = heard.tables
+    with heard.listener.lock:
+        found = list(zip(heard.faults, heard.listener.found, strict=False))[-FAULTS_SHOWN:]
+    states = {d: STATE_NAMES.get(s.state, str(s.state)) for d, s in heard.latest.items()}
+    out: dict[str, Any] = {"url": url, "run_id": heard.run_id,
+                           "states": {str(d): s for d, s in sorted(states.items())},
+                           "faults": [{"at_s": round(at, 1), "text": text, "kind": f.kind, "fatal": f.fatal,
+                                       "process": f.process, "dpu": f.dpu, "chain": f.chain}
+                                      for (at, text), f in found]}
+    if tables is None:
+        return out
+    out.update({
+        "system": tables.system.name, "generation": tables.generation,
+        "elapsed_s": round(tables.elapsed_ms / 1000, 1), "lost_batches": heard.lost_batches,
+        "records": heard.store.n_records if heard.store else 0,
+        "dpus": [_dpu_row(d) for d in tables.dpus],
+        "processes": [{"name": p.name, "dpu": p.dpu, "cycles": p.cycles, "overruns": p.overruns,
+                       "latency_p50_us": _pct(p.latency_us.p50), "latency_p99_us": _pct(p.latency_us.p99),
+                       "latency_max_us": _pct(p.latency_us.max), "late": p.late, "too_late": p.too_late}
+                      for p in tables.processes]})  # fmt: skip
+    return out
 
 
 def _dpu_row(d: Any) -> dict[str, Any]:

@@ -150,7 +150,7 @@ async function draw(graph, loads) {
         root.append(groups[key]);
       }
       groups[key].append(svg("path", { d: path, class: cls.trim(), "marker-end": `url(#${marker})`,
-                                       "data-reader": reader.process }));
+                                       "data-reader": reader.process, "data-writer": b.writer }));
       for (const label of edge.labels || [])
         groups[key].append(svg("text", { x: label.x, y: label.y + 10, class: "label" }, label.text));
     } else {
@@ -271,6 +271,7 @@ async function showPrediction(result) {
   const changed = Object.entries(state.edits).map(([k, v]) => `${k}=${v}`);
   $("changes").textContent = changed.length ? "edits: " + changed.join(", ") : "no edits";
   await draw(result.graph, loadsOf(result.summary));
+  markFaults();
 }
 
 async function repredict() {
@@ -326,7 +327,19 @@ function showLive(view) {
       tr.append(el("td", {}, String(cell)));
     return tr;
   }));
+  markFaults();
   $("faults").replaceChildren(...(view.faults || []).map((f) => el("li", { class: "over" }, `${f.at_s} s: ${f.text}`)));
+}
+
+// A fatal fault on the graph: the process that locked out, or a jam's chain from its head back to
+// the root cause (each step a reader waiting for its writer), as the listener found them.
+function markFaults() {
+  const faults = ((state.live && state.live.faults) || []).filter((f) => f.fatal);
+  const procs = new Set(faults.flatMap((f) => [f.process, ...(f.chain || [])]).filter(Boolean));
+  const steps = new Set(faults.flatMap((f) => (f.chain || []).slice(0, -1).map((p, i) => `${f.chain[i + 1]}>${p}`)));
+  document.querySelectorAll("#graph .process").forEach((g) => g.classList.toggle("faulty", procs.has(g.dataset.process)));
+  document.querySelectorAll("#graph .buffer path").forEach((path) =>
+    path.classList.toggle("faulty", steps.has(`${path.dataset.writer}>${path.dataset.reader}`)));
 }
 
 // --- the notebook: this session's runs, any two compared ----------------------------------------
