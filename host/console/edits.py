@@ -15,6 +15,8 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from skeleton.analysis.errors import EXIT_BAD_INPUT, SkelError
+
 from ..cli.check import summarize
 from ..model import System
 from ..sysfile import yamledit
@@ -30,8 +32,10 @@ Scalar = str | int | float | bool
 Value = Scalar | list[Scalar] | dict[str, Scalar | list[Scalar]] | None
 
 
-class BadRequest(Exception):
-    """A request the page would never send: the status and one line."""
+class BadRequest(SkelError):
+    """A request refused: its HTTP status and one line (the page shows it; nothing is sent)."""
+
+    exit_code = EXIT_BAD_INPUT
 
     def __init__(self, status: int, line: str) -> None:
         super().__init__(line)

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from skeleton.analysis.errors import SkelError
+
 OUTPUT_LINES = 400  # the last lines of a job's output the page is given
 STOP_WAIT_S = 30.0  # a run told to stop writes its report first
 
@@ -35,8 +37,8 @@ class Job:
                 "out": str(self.out) if self.out else None}
 
 
-class Busy(Exception):
-    """A push or run is under way: one at a time, as at a terminal."""
+class Busy(SkelError):
+    """A push or run is under way: one at a time, as at a terminal (the page gets 409)."""
 
 
 class Jobs:

@@ -17,6 +17,7 @@ from starlette.testclient import TestClient
 from skeleton.host.cli.check import check
 from skeleton.host.console.app import COOKIE, Settings, build_app
 from skeleton.host.console.edits import MAX_BODY_BYTES
+from skelmsg.contract import DEFAULT_URL
 
 TOKEN = "t0ken-for-the-tests"
 
@@ -31,7 +32,7 @@ def servo(tmp_path: Path) -> Path:
 def client(file: Path, tmp_path: Path) -> TestClient:
     settings = Settings(file=file, url=None, key_file=None, spawn=False, runs_dir=tmp_path / "runs",
                         token=TOKEN)
-    return TestClient(build_app(settings, None, "udpm://239.255.76.67:7667?ttl=0"))
+    return TestClient(build_app(settings, None, DEFAULT_URL))  # no test here opens the live stream
 
 
 @pytest.fixture
