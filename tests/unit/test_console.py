@@ -5,7 +5,9 @@ the comments. The page itself, in Chromium: tests/e2e/test_console_browser.py.""
 
 from __future__ import annotations
 
+import hashlib
 import json
+import re
 import shutil
 from collections.abc import Iterator
 from pathlib import Path
@@ -15,7 +17,7 @@ from conftest import EXAMPLES
 from starlette.testclient import TestClient
 
 from skeleton.host.cli.check import check
-from skeleton.host.console.app import COOKIE, Settings, build_app
+from skeleton.host.console.app import COOKIE, STATIC, Settings, build_app
 from skeleton.host.console.edits import MAX_BODY_BYTES
 from skelmsg.contract import DEFAULT_URL
 
@@ -169,3 +171,16 @@ def test_any_descriptor_even_a_distribution_is_an_edit(console: TestClient) -> N
     assert any("117.5 % when its varying computations draw their maximum" in w for w in summary["warnings"])
     deeper = {"process.dynamics.compute_us": {"dist": {"nested": 1}}}
     assert console.post("/api/predict", json={"set": deeper}).status_code == 400
+
+
+def test_the_layout_library_is_the_pinned_one_with_its_licence(console: TestClient) -> None:
+    """elkjs is vendored, not fetched: the file served is the one its VERSION note pins, and its
+    licence travels with it; the page loads scripts from the package alone."""
+    elk = STATIC / "elk"
+    digest = re.search(r"^sha256 ([0-9a-f]{64})  elk.bundled.js$", (elk / "VERSION").read_text(), re.M)
+    served = console.get("/static/elk/elk.bundled.js").content
+    assert digest and hashlib.sha256(served).hexdigest() == digest.group(1)
+    assert "Eclipse Public License - v 2.0" in (elk / "LICENSE.md").read_text()
+    page = console.get("/").text
+    assert re.findall(r'src="([^"]+)"', page) == ["/static/elk/elk.bundled.js", "/static/console.js"]
+    assert "http" not in " ".join(re.findall(r'(?:src|href)="([^"]+)"', page))
