@@ -268,6 +268,11 @@ async function showPrediction(result) {
     body.append(tr);
   }
   $("warnings").replaceChildren(...result.summary.warnings.map((w) => el("li", {}, "WARN " + w)));
+  const row = (cells) => { const tr = el("tr"); for (const c of cells) tr.append(el("td", {}, String(c))); return tr; };
+  $("responses").tBodies[0].replaceChildren(...result.summary.prediction.processes.map((p) =>
+    row([p.name, p.dpu, p.response_us === null ? "unbounded" : fmt(p.response_us, 0), p.paced_by ?? "-"])));
+  $("chain-bounds").tBodies[0].replaceChildren(...result.summary.prediction.chains.map((c) =>
+    row([c.processes.join(" → "), fmt(c.best_us, 0), c.worst_us === null ? "unbounded" : fmt(c.worst_us, 0)])));
   const changed = Object.entries(state.edits).map(([k, v]) => `${k}=${v}`);
   $("changes").textContent = changed.length ? "edits: " + changed.join(", ") : "no edits";
   await draw(result.graph, loadsOf(result.summary));
@@ -314,7 +319,9 @@ function liveCell(dpu) {
 function showLive(view) {
   state.live = view;
   const head = view.error ? view.error : view.run_id === null ? `waiting for a run on ${view.url}` :
-    `run ${view.run_id} · generation ${view.generation ?? "-"} · ${fmt(view.elapsed_s)} s · ${view.records ?? 0} records`;
+    `run ${view.run_id} · generation ${view.generation ?? "-"} · ${fmt(view.elapsed_s)} s measured` +
+    (state.current ? ` of ${fmt(state.current.graph.run.planned_s)} s planned (warm-up included)` : "") +
+    ` · ${view.records ?? 0} records`;
   $("live-head").textContent = head;
   document.querySelectorAll("#prediction tr[data-dpu]").forEach((tr) => {
     tr.querySelector(".live").textContent = liveCell(Number(tr.dataset.dpu));
