@@ -135,7 +135,11 @@ def build_app(settings: Settings, key: bytes | None, live_url: str,
 
     async def push(request: Request) -> Response:
         edits, _ = await edited(request)
-        return JSONResponse(jobs.start(Job("push", ["push", *command_args(edits)], edits=edits)).to_json())
+        # Into the run the page started (its DPUs switch at one shared cycle boundary): that run
+        # is another session's to `skel push`, so this one says it means it.
+        into_run = ["--force"] if any(j.kind == "run" for j in jobs.running()) else []
+        argv = ["push", *command_args(edits), *into_run]
+        return JSONResponse(jobs.start(Job("push", argv, edits=edits)).to_json())
 
     async def run(request: Request) -> Response:
         edits, found = await edited(request)
@@ -151,7 +155,7 @@ def build_app(settings: Settings, key: bytes | None, live_url: str,
         return JSONResponse({"ok": True, "saved": str(settings.file), "edits": edits})
 
     async def job(request: Request) -> Response:
-        return JSONResponse(jobs.current.to_json() if jobs.current else None)
+        return JSONResponse([j.to_json() for j in jobs.shown()])
 
     async def runs(request: Request) -> Response:
         return JSONResponse(jobs.notebook())

@@ -18,6 +18,7 @@ from skeleton.analysis.errors import SkelError
 
 OUTPUT_LINES = 400  # the last lines of a job's output the page is given
 STOP_WAIT_S = 30.0  # a run told to stop writes its report first
+KEPT_JOBS = 20  # the commands remembered (the runs are all kept, in the notebook)
 
 
 @dataclass
@@ -38,28 +39,44 @@ class Job:
 
 
 class Busy(SkelError):
-    """A push or run is under way: one at a time, as at a terminal (the page gets 409)."""
+    """A command is under way: one at a time, as at a terminal, but for a push into the run the
+    page started (the page gets 409)."""
 
 
 class Jobs:
     def __init__(self, runs_dir: Path) -> None:
         self.runs_dir = runs_dir
-        self.current: Job | None = None
-        self.runs: list[Job] = []  # the session's, oldest first
+        self.started: list[Job] = []  # every command the page started, oldest first
+        self.runs: list[Job] = []  # the session's runs, oldest first
         self._lock = threading.Lock()
-        self._proc: subprocess.Popen[str] | None = None
+        self._procs: list[subprocess.Popen[str]] = []
+        self._batch: Job | None = None  # the first of the commands shown
+
+    def running(self) -> list[Job]:
+        return [job for job in self.started if job.returncode is None]
+
+    def shown(self) -> list[Job]:
+        """What the page shows: the commands started since the last one started with nothing
+        running (a run and the pushes into it, or a single command), running or ended."""
+        return self.started[self.started.index(self._batch):] if self._batch in self.started else []
 
     def start(self, job: Job) -> Job:
+        """Start `job`'s command, unless one is running: a push may go into the page's run
+        (live reconfiguration), nothing else goes beside another command."""
         with self._lock:
-            if self.current is not None and self.current.returncode is None:
-                raise Busy(f"`{self.current.to_json()['command']}` is still running")
-            self.current = job
+            busy = self.running()
+            if busy and not (job.kind == "push" and all(j.kind == "run" for j in busy)):
+                raise Busy(f"`{busy[0].to_json()['command']}` is still running")
+            if not busy:
+                self._batch = job
+            self.started.append(job)
+            del self.started[:-KEPT_JOBS]
             if job.kind == "run":
                 self.runs.append(job)
-        proc = subprocess.Popen([sys.executable, "-m", "skeleton.host.cli", *job.argv],
-                                stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                text=True, errors="replace")
-        self._proc = proc
+            proc = subprocess.Popen([sys.executable, "-m", "skeleton.host.cli", *job.argv],
+                                    stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                    stderr=subprocess.STDOUT, text=True, errors="replace")
+            self._procs = [p for p in self._procs if p.poll() is None] + [proc]
         threading.Thread(target=self._follow, args=(job, proc), name=f"skel-console-{job.kind}",
                          daemon=True).start()
         return job
@@ -75,9 +92,10 @@ class Jobs:
     def stop(self) -> None:
         """The console is stopping: a job under way is ended as Ctrl-C ends it at a terminal
         (`skel run` stops the run, writes its report, stops the DPUs it spawned)."""
-        proc = self._proc
-        if proc is not None and proc.poll() is None:
-            proc.terminate()
+        for proc in self._procs:
+            if proc.poll() is None:
+                proc.terminate()
+        for proc in self._procs:
             try:
                 proc.wait(STOP_WAIT_S)
             except subprocess.TimeoutExpired:

@@ -9,16 +9,18 @@ import hashlib
 import json
 import re
 import shutil
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import EXAMPLES
+from conftest import EXAMPLES, fresh_url
 from starlette.testclient import TestClient
 
 from skeleton.host.cli.check import check
 from skeleton.host.console.app import COOKIE, STATIC, Settings, build_app
 from skeleton.host.console.edits import MAX_BODY_BYTES
+from skeleton.host.console.jobs import Busy, Job, Jobs
 from skelmsg.contract import DEFAULT_URL
 
 TOKEN = "t0ken-for-the-tests"
@@ -90,7 +92,7 @@ def test_an_invalid_edit_gets_skel_checks_line_and_starts_nothing(
     for path in ("/api/predict", "/api/push", "/api/run", "/api/save"):
         response = console.post(path, json={"set": {"process.executor.period_us": 0}})
         assert response.status_code == 422 and response.json() == {"ok": False, "error": line}
-    assert console.get("/api/job").json() is None and console.get("/api/runs").json() == []
+    assert console.get("/api/job").json() == [] and console.get("/api/runs").json() == []
     assert servo.read_text() == (EXAMPLES / "servo.yaml").read_text()
 
 
@@ -111,7 +113,7 @@ def test_bad_http_input_is_a_clear_4xx_and_sends_nothing(console: TestClient, bo
         response = console.post(path, content=body, headers={"content-type": "application/json"})
         assert response.status_code == status and says in response.json()["error"], response.text
         assert "\n" not in response.json()["error"]
-    assert console.get("/api/job").json() is None
+    assert console.get("/api/job").json() == []
 
 
 def test_a_huge_body_without_a_length_is_cut_off(console: TestClient) -> None:
@@ -136,7 +138,7 @@ def test_save_writes_the_edits_and_keeps_the_comments(console: TestClient, servo
 
 def test_compare_takes_only_the_sessions_runs(console: TestClient) -> None:
     response = console.post("/api/diff", json={"a": "/etc", "b": "/tmp"})
-    assert response.status_code == 404 and console.get("/api/job").json() is None
+    assert response.status_code == 404 and console.get("/api/job").json() == []
 
 
 def test_the_notebook_opens_earlier_runs_and_serves_only_their_plots(servo: Path, tmp_path: Path) -> None:
@@ -159,7 +161,7 @@ def test_the_notebook_opens_earlier_runs_and_serves_only_their_plots(servo: Path
         assert c.get("/api/plots", params=params).status_code == 404, params
     assert c.post("/api/plots", json={"run": "/etc"}).status_code == 404
     assert c.post("/api/plots", json={"run": str(run), "also": 1}).status_code == 400
-    assert c.get("/api/job").json() is None
+    assert c.get("/api/job").json() == []
 
 
 def test_any_descriptor_even_a_distribution_is_an_edit(console: TestClient) -> None:
@@ -184,3 +186,27 @@ def test_the_layout_library_is_the_pinned_one_with_its_licence(console: TestClie
     page = console.get("/").text
     assert re.findall(r'src="([^"]+)"', page) == ["/static/elk/elk.bundled.js", "/static/console.js"]
     assert "http" not in " ".join(re.findall(r'(?:src|href)="([^"]+)"', page))
+
+
+def test_one_command_at_a_time_but_a_push_into_the_pages_run(tmp_path: Path) -> None:
+    """As at a terminal, a command waits for the one before, except a push into the run the page
+    started (live reconfiguration). Stand-ins: `skel watch --once` waiting for a run,
+    `skel keygen` for the push."""
+    jobs = Jobs(tmp_path / "runs")
+    waiting = ["watch", "--url", fresh_url(), "--once", "--duration", "30"]
+    run = jobs.start(Job("run", waiting, out=tmp_path / "run"))
+    try:
+        push = jobs.start(Job("push", ["keygen", str(tmp_path / "key")]))
+        for kind in ("run", "diff", "report"):
+            with pytest.raises(Busy, match=r"skel watch .* is still running"):
+                jobs.start(Job(kind, ["keygen", str(tmp_path / kind)]))
+        deadline = time.monotonic() + 30
+        while push.returncode is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert push.returncode == 0 and jobs.shown() == [run, push] and jobs.runs == [run]
+    finally:
+        jobs.stop()  # as when the console stops: the run is ended as Ctrl-C ends it
+    assert run.returncode is not None and jobs.running() == []
+    assert jobs.shown() == [run, push]  # the run and its push, ended, until the next command
+    later = jobs.start(Job("diff", ["keygen", str(tmp_path / "later")]))
+    assert jobs.shown() == [later]

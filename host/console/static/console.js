@@ -291,16 +291,23 @@ async function repredict() {
 async function job(path, body) {
   const { status, data } = await call("POST", path, body);
   if (status >= 400) { $("job").textContent = data.error; return; }
-  follow();
+  followAfter(0);
 }
 
+let followTimer = null;
+function followAfter(ms) { clearTimeout(followTimer); followTimer = setTimeout(follow, ms); }
+
+// The commands running (a run, and a push into it) and the last one started, each as a terminal
+// shows it, until none runs.
 async function follow() {
   const { data } = await call("GET", "/api/job");
-  if (!data) return;
-  $("job").textContent = `$ ${data.command}\n${data.output.join("\n")}` +
-    (data.running ? "\n…" : `\n(exit ${data.returncode})`);
-  if (data.running) setTimeout(follow, 500);
-  else if (data.kind === "report") showPlots(data.out);
+  $("job").replaceChildren(...data.map((j, i) => el("span", {
+    class: "job", "data-kind": j.kind, "data-running": j.running, "data-returncode": j.returncode ?? "",
+    "data-out": j.out ?? "" }, (i ? "\n\n" : "") + `$ ${j.command}\n${j.output.join("\n")}` +
+    (j.running ? "\n…" : `\n(exit ${j.returncode})`))));
+  if (data.some((j) => j.running)) { followAfter(500); return; }
+  const last = data[data.length - 1];
+  if (last && last.kind === "report") showPlots(last.out);
   else notebook();
 }
 
