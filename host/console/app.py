@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from starlette.applications import Starlette
+from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, PlainTextResponse, Response, StreamingResponse
 from starlette.routing import Mount, Route
@@ -100,7 +101,8 @@ def _error(status: int, line: str) -> JSONResponse:
 def build_app(settings: Settings, key: bytes | None, live_url: str,
               closing: Callable[[], bool] = lambda: False) -> ASGIApp:
     """The application; `closing()` turns true when the server is asked to stop (its live
-    streams then end, or an open page would hold the server up)."""
+    streams then end, or an open page would hold the server up). Validating and predicting run
+    in a worker thread: a large system's prediction holds up no live stream."""
     jobs = Jobs(settings.runs_dir)
     live: dict[str, LiveView] = {}
 
@@ -115,7 +117,7 @@ def build_app(settings: Settings, key: bytes | None, live_url: str,
     async def edited(request: Request) -> tuple[list[str], System]:
         """The request's edits and the system they make, or BadRequest: 4xx, nothing sent."""
         edits = overrides(parse(await _body(request), EditRequest))
-        found = evaluate(settings.file, edits, settings.url)
+        found = await run_in_threadpool(evaluate, settings.file, edits, settings.url)
         if found.system is None:
             raise BadRequest(422, found.error or "invalid")
         return edits, found.system
@@ -124,13 +126,13 @@ def build_app(settings: Settings, key: bytes | None, live_url: str,
         return FileResponse(STATIC / "index.html")
 
     async def system(request: Request) -> Response:
-        found = evaluate(settings.file, [], settings.url)
+        found = await run_in_threadpool(evaluate, settings.file, [], settings.url)
         return JSONResponse({**found.to_json(), "file": str(settings.file), "spawn": settings.spawn,
                              "url": live_url})
 
     async def predict(request: Request) -> Response:
         edits = overrides(parse(await _body(request), EditRequest))
-        found = evaluate(settings.file, edits, settings.url)
+        found = await run_in_threadpool(evaluate, settings.file, edits, settings.url)
         return JSONResponse(found.to_json(), status_code=200 if found.system else 422)
 
     async def push(request: Request) -> Response:
