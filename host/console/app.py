@@ -191,7 +191,9 @@ def build_app(settings: Settings, key: bytes | None, live_url: str,
         return FileResponse(run / PLOTS / name)
 
     async def stream(request: Request) -> Response:
-        view = live.setdefault("view", LiveView(live_url, key))
+        if "view" not in live:  # one listener for every page open, started by the first
+            live["view"] = LiveView(live_url, key)
+        view = live["view"]
 
         async def events() -> Any:
             while not closing() and not await request.is_disconnected():
