@@ -9,6 +9,7 @@ import hashlib
 import json
 import re
 import shutil
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -210,3 +211,25 @@ def test_one_command_at_a_time_but_a_push_into_the_pages_run(tmp_path: Path) -> 
     assert jobs.shown() == [run, push]  # the run and its push, ended, until the next command
     later = jobs.start(Job("diff", ["keygen", str(tmp_path / "later")]))
     assert jobs.shown() == [later]
+
+
+def test_every_page_shares_one_live_listener(servo: Path, tmp_path: Path) -> None:
+    """The live stream sends snapshots until the server stops (here after one each): however many
+    pages open it, one listener hears the run."""
+    asked: list[bool] = []
+
+    def closing() -> bool:  # each stream: one snapshot, then the server is stopping
+        asked.append(True)
+        return len(asked) % 2 == 0
+
+    settings = Settings(file=servo, url=None, key_file=None, spawn=False, runs_dir=tmp_path / "runs",
+                        token=TOKEN)
+    with TestClient(build_app(settings, None, fresh_url(), closing)) as c:
+        c.get(f"/?token={TOKEN}")
+        for _ in range(3):
+            stream = c.get("/api/live")
+            assert stream.headers["content-type"].startswith("text/event-stream")
+            [event] = [line for line in stream.text.splitlines() if line.startswith("data: ")]
+            assert json.loads(event[len("data: "):])["run_id"] is None
+        assert [t.name for t in threading.enumerate()].count("skel-console-live") == 1
+    assert "skel-console-live" not in [t.name for t in threading.enumerate()]  # stopped with the server
