@@ -160,9 +160,10 @@ test-c: $(C_TESTS)
 test-py: $(BUILD)/skel-dpu $(BUILD)/asan/skel-dpu $(BUILD)/flood $(BUILD)/probe $(STAMP) test-tools
 	$(VENV)/bin/pytest -q -rfEs --durations=15 $(PYTEST_ARGS)
 
-# The multi-host tests (network namespaces, root only) run ip, and nft to lose packets.
+# The multi-host tests (network namespaces, root only) run ip, and nft to lose packets; the
+# console's browser tests (tests/e2e/test_console_browser.py) drive Debian's headless Chromium.
 test-tools:
-	@$(call want_commands,ip:iproute2 nft:nftables)
+	@$(call want_commands,ip:iproute2 nft:nftables chromium:chromium chromedriver:chromium-driver)
 
 # --- fuzzing: libFuzzer harnesses, one per path from received bytes to DPU state ----------
 # clang and its runtimes (Debian: clang, libclang-rt-14-dev) build them; installed as root,

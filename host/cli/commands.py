@@ -174,6 +174,19 @@ def build_parser() -> argparse.ArgumentParser:
     from .allocate_cmd import add_parser  # ortools loads only for `skel allocate`
     _system_args(add_parser(sub))
 
+    p = sub.add_parser("console", help="serve the operator's web page: the system drawn, edits predicted, "
+                                       "pushed and run, runs compared (prints its URL with a token)")
+    p.add_argument("file", type=Path, nargs="?",
+                   help="the system file (YAML); default: the one `skel push` applied last")
+    p.add_argument("--url", help="LCM URL of the system's default link (overrides the file)")
+    p.add_argument("--host", default="127.0.0.1", metavar="ADDR",
+                   help="the address to serve on (default 127.0.0.1: this machine only)")
+    p.add_argument("--port", type=int, default=8767, metavar="N",
+                   help="the TCP port (default 8767; 0: any free one)")
+    p.add_argument("--spawn", action="store_true", help="the page's Run starts local DPUs for each run")
+    p.add_argument("--runs-dir", type=Path, default=Path("runs"), metavar="DIR",
+                   help="where the page's runs are recorded (default runs/)")
+
     p = sub.add_parser("doctor", help="check what would break LCM multicast here, with the fix for each")
     p.add_argument("--url", default=DEFAULT_URL, help=CONTROL_URL_HELP)
     p.add_argument("--json", action="store_true", help="every check as JSON")
@@ -522,6 +535,12 @@ def cmd_allocate(args: argparse.Namespace) -> int:
     return allocate_command(args)
 
 
+def cmd_console(args: argparse.Namespace) -> int:
+    from ..console.serve import console_command  # starlette and uvicorn load only for the console
+
+    return console_command(args)
+
+
 def cmd_doctor(args: argparse.Namespace) -> int:
     from .doctor import doctor
 
@@ -566,5 +585,6 @@ COMMANDS = {"check": cmd_check, "up": cmd_up, "down": cmd_down, "push": cmd_push
             "simulate": cmd_simulate,
             "status": cmd_status, "clock": cmd_clock, "report": cmd_report, "diff": cmd_diff,
             "export": cmd_export, "watch": cmd_watch, "doctor": cmd_doctor, "event": cmd_event,
-            "allocate": cmd_allocate, "margin": cmd_margin, "keygen": cmd_keygen}
+            "allocate": cmd_allocate, "margin": cmd_margin, "keygen": cmd_keygen,
+            "console": cmd_console}
 

@@ -157,6 +157,7 @@ class Listener:
         self.last_timing = 0.0
         self.last_report = 0.0
         self.faults: list[tuple[float, str]] = []   # (s since the run was first heard, fault_line)
+        self.found: list[Fault] = []   # the same faults, whole (the console draws them on the graph)
         self._announced: set[tuple[Any, ...]] = set()
         # The followed run's lockouts heard in heartbeats, (DPU, process, cycle): each heartbeat
         # repeats its DPU's, so they are counted once each.
@@ -323,7 +324,7 @@ class Listener:
 
     def _follow(self, run_id: int) -> None:
         self.store = RecordStore(run_id)
-        self.pending, self.faults, self.next_run = [], [], None
+        self.pending, self.faults, self.found, self.next_run = [], [], [], None
         self.generations = set()
         self.statuses = [s for s in self.statuses if s.run_id == run_id]
         self._lockouts = {(s.dpu, lock.process, lock.cycle) for s in self.statuses for lock in s.lockouts}
@@ -457,6 +458,7 @@ class Listener:
                     self._announced.add(key)
                     new.append(fault)
                     self.faults.append((time.monotonic() - self.started, fault_line(fault)))
+                    self.found.append(fault)
         return new
 
     # --- waiting ----------------------------------------------------------------------

@@ -61,3 +61,45 @@ def apply(text: str, edits: list[Edit]) -> str:
     for start, end, new in sorted(edits, reverse=True):
         text = text[:start] + new + text[end:]
     return text
+
+
+def with_overrides(text: str, overrides: list[str]) -> str:
+    """TEXT with `-s TARGET=VALUE` overrides (overrides.py) written into it, keeping everything
+    else as the user wrote it: the console's Save. VALUE is written as given (YAML); a target
+    the text does not spell out (a DPU's absent section, an empty value that removes a key)
+    is a ValueError naming it: the caller validates the result against load() with the same
+    overrides, so what is saved is what was predicted."""
+    for override in overrides:
+        target, _, raw = override.partition("=")
+        if not raw.strip():
+            raise ValueError(f"{override}: removing a key is not written into the file; set a value")
+        node = _holder(root(text), target.strip().split("."))
+        if node is None:
+            raise ValueError(f"{override}: the file spells out no such item to edit")
+        holder, key = node
+        text = apply(text, [set_key(text, holder, key, raw.strip())])
+    return text
+
+
+def _holder(top: yaml.MappingNode, parts: list[str]) -> tuple[yaml.MappingNode, str] | None:
+    from .overrides import SECTIONS
+
+    if parts == ["system"]:
+        return top, "system"
+    if len(parts) == 2 and parts[0] == "run":
+        run = value(top, "run")
+        return (run, parts[1]) if isinstance(run, yaml.MappingNode) and run.value else None
+    if len(parts) != 3 or parts[0] not in SECTIONS:
+        return None
+    section, key, field = SECTIONS[parts[0]], parts[1], parts[2]
+    items = value(top, section)
+    if not isinstance(items, yaml.SequenceNode):
+        return None
+    for item in items.value:
+        if not isinstance(item, yaml.MappingNode) or not item.value:
+            continue
+        name, ident = value(item, "name"), value(item, "id")
+        if (section != "dpus" and name is not None and name.value == key) or (
+                section in ("dpus", "processes", "buffers") and ident is not None and ident.value == key):
+            return item, field
+    return None

@@ -1,5 +1,5 @@
-"""The Makefile's set-up, run for real: `make test` installs what the multi-host tests run (as
-root, with apt-get), the tests find the sanitizer DPU built after a plain `make`, and a test
+"""The Makefile's set-up, run for real: `make test` installs what the multi-host and browser
+tests run (as root, with apt-get), the tests find the sanitizer DPU built after a plain `make`, and a test
 whose command is missing skips with the reason."""
 
 from __future__ import annotations
@@ -22,9 +22,10 @@ def _stub(bin_dir: Path, name: str, script: str) -> None:
     path.chmod(0o755)
 
 
-def test_make_test_installs_ip_and_nft_as_root(tmp_path: Path) -> None:
-    """On a fresh Debian machine as root neither `ip` nor `nft` is there: `make test` (its
-    test-tools step) installs iproute2 and nftables with apt-get, once, before the tests."""
+def test_make_test_installs_ip_nft_and_chromium_as_root(tmp_path: Path) -> None:
+    """On a fresh Debian machine as root neither `ip` nor `nft` nor Chromium is there: `make test`
+    (its test-tools step) installs iproute2, nftables, chromium and chromium-driver (the console's
+    browser tests) with apt-get, once, before the tests."""
     assert MAKE is not None
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
@@ -35,7 +36,8 @@ def test_make_test_installs_ip_and_nft_as_root(tmp_path: Path) -> None:
     done = subprocess.run([MAKE, "-s", "--no-print-directory", "test-tools"], cwd=REPO, capture_output=True,
                           text=True, env={**os.environ, "PATH": str(bin_dir)}, timeout=60)
     assert done.returncode == 0, done.stdout + done.stderr
-    assert calls.read_text().splitlines() == ["update -qq", "install -y -qq iproute2 nftables"]
+    assert calls.read_text().splitlines() == [
+        "update -qq", "install -y -qq iproute2 nftables chromium chromium-driver"]
 
 
 def test_make_test_installs_nothing_when_everything_is_there(tmp_path: Path) -> None:
@@ -45,7 +47,7 @@ def test_make_test_installs_nothing_when_everything_is_there(tmp_path: Path) -> 
     calls = tmp_path / "apt-get.calls"
     _stub(bin_dir, "id", "echo 0\n")
     _stub(bin_dir, "apt-get", f'echo "$*" >> {calls}\n')
-    for present in ("ip", "nft"):
+    for present in ("ip", "nft", "chromium", "chromedriver"):
         _stub(bin_dir, present, "exit 0\n")
     done = subprocess.run([MAKE, "-s", "--no-print-directory", "test-tools"], cwd=REPO, capture_output=True,
                           text=True, env={**os.environ, "PATH": str(bin_dir)}, timeout=60)
