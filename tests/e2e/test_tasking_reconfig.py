@@ -326,11 +326,20 @@ def test_live_switch_carries_a_job_waiting_for_its_data(dpus: DpuFarm, url: str,
     assert len(skipped) <= 2, skipped
     reader = [r for p in (1, 2, 3, 4) for r in _contiguous(done.records, p) if r.process == 4]
     ran = [r for r in reader if not r.flags & FLAGS.FLAG_RELEASE_SKIPPED]
-    # The waiting job is carried: it starts when its data comes, once, and computes what the
-    # new plan asks (its computation is drawn when it starts).
+    # The job released 2.5 ms before the switch is the old plan's, and is carried. Waiting for its
+    # data at the switch, it starts when the data comes, once, and computes what the new plan
+    # asks (its computation is drawn when it starts): tests/sim/ holds this exactly, on virtual
+    # time. Here the platform may have stalled the writer past a whole period just before
+    # (the reader then skipped that release): the data was already there, and the job ran on the
+    # old plan before the switch. Either way the executive did what the design says.
     carried = next(r for r in reader if abs(r.release_ns - (done.at - 2_500_000)) < 100_000)
-    assert carried.generation == done.g and carried.asked_ns == 500_000, carried
-    assert 2.6 * MS < carried.start_ns - carried.release_ns < 9.9 * MS, carried
+    assert carried.generation == done.g, carried
+    before = [r for r in reader if r.release_ns < carried.release_ns]
+    if before and before[-1].flags & FLAGS.FLAG_RELEASE_SKIPPED:
+        assert carried.asked_ns == 1_000_000 and carried.start_ns < done.at, carried
+    else:
+        assert carried.asked_ns == 500_000, carried
+        assert 2.6 * MS < carried.start_ns - carried.release_ns < 9.9 * MS, carried
     assert all(r.asked_ns == 1_000_000 for r in ran if r.release_ns < carried.release_ns)
     assert all(r.asked_ns == 500_000 for r in ran if r.release_ns > carried.release_ns)
 
