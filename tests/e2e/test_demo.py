@@ -6,11 +6,13 @@ from __future__ import annotations
 import subprocess
 from pathlib import Path
 
+import pytest
 from conftest import REPO, user_env
 
 SCREEN_LINES, SCREEN_COLUMNS = 60, 120
 
 
+@pytest.mark.timing  # Table 1's % compute, measured on the platform
 def test_make_demo_prints_one_screen_with_table_1_beside_ours(tmp_path: Path, url: str) -> None:
     out = tmp_path / "demo"
     done = subprocess.run(["make", "--no-print-directory", "demo", f"DEMO_ARGS=--url {url} --out {out}"],
@@ -23,4 +25,8 @@ def test_make_demo_prints_one_screen_with_table_1_beside_ours(tmp_path: Path, ur
     assert "FATAL FLAW" not in verdict or done.returncode == 3, done.stdout
     table_1 = next(i for i, line in enumerate(lines) if "the paper's Table 1 beside this run" in line)
     assert table_1 < SCREEN_LINES // 2, done.stdout   # on the first screen
+    # each DPU's % compute within 1 point of the paper's (the Δ column: ours - paper)
+    rows = [line.split("│") for line in lines[table_1:] if line.startswith("│")][:4]
+    assert [int(r[1]) for r in rows] == [1, 2, 3, 4], done.stdout
+    assert all(abs(float(r[6])) <= 1.0 for r in rows), done.stdout
     assert (out / "report.json").is_file() and f"skel report {out} --all" in done.stdout
