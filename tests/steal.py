@@ -44,8 +44,6 @@ A test whose every attempt failed while the hypervisor took at least INCONCLUSIV
 CPUs (well above the 1-4 % of a quiet hour here), or while the probe was kept from running that
 share of the attempt's time, has no valid evidence either way: it is reported skipped, as
 inconclusive, with what each attempt lost. One attempt that failed with less is a failure.
-A test that cannot judge its run (too little of it left undisturbed) says so with
-inconclusive(): skipped and counted the same way, never silently.
 
 None of this hides a fault of ours. An attempt whose DPUs wrote a sanitizer report is never run
 again, whatever the platform did. Every run of pytest ends with one line counting the timing
@@ -67,7 +65,7 @@ from collections import deque
 from collections.abc import Generator, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple, NoReturn
+from typing import NamedTuple
 
 import pytest
 from conftest import SANITIZER_ERROR
@@ -257,14 +255,6 @@ def platform_took_the_cpus(error: BaseException | None) -> bool:
             _reattempted.append(f"{_current.nodeid}: {ms:.0f} ms stolen ({100 * share:.1f} % of the "
                                 f"CPUs' time), {_said(probe)}, {type(error).__name__}")
     return True
-
-
-def inconclusive(reason: str) -> NoReturn:
-    """For a timing test whose run left too little undisturbed to judge, by its DPU's account
-    (no witness of the harness's: so no other attempt): skipped, and counted with the
-    inconclusive ones, so the session's line shows it and a second run in a row fails."""
-    _inconclusive.append(f"{_current.nodeid if _current is not None else '?'}: inconclusive: {reason}")
-    pytest.skip(f"inconclusive: {reason}")
 
 
 @pytest.hookimpl(hookwrapper=True)

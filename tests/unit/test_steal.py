@@ -127,15 +127,6 @@ def test_an_attempt_whose_dpu_wrote_a_sanitizer_report_is_never_run_again(
     assert not steal.platform_took_the_cpus(AssertionError("late"))   # ours, whatever was stolen
 
 
-def test_a_test_that_cannot_judge_its_run_is_skipped_and_counted_inconclusive(
-        monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(steal, "_inconclusive", [])
-    monkeypatch.setattr(steal, "_current", steal.Attempt("t::x", time.monotonic(), 0))
-    with pytest.raises(pytest.skip.Exception, match=r"^inconclusive: 54 of 67 stalled$"):
-        steal.inconclusive("54 of 67 stalled")
-    assert steal._inconclusive == ["t::x: inconclusive: 54 of 67 stalled"]
-
-
 def _finish(monkeypatch: pytest.MonkeyPatch, evidence: Path, reattempted: int, inconclusive: int) -> int:
     monkeypatch.setattr(steal, "EVIDENCE_FILE", evidence)
     monkeypatch.setattr(steal, "_reattempted_tests", {f"t::{i}" for i in range(reattempted)})
