@@ -55,6 +55,20 @@ def _system_args(parser: argparse.ArgumentParser, optional: bool = False) -> Non
     parser.add_argument("--url", help="LCM URL of the system's default link (overrides the file)")
 
 
+def _run_args(parser: argparse.ArgumentParser, default_out: str) -> None:
+    """What `skel run` and `skel simulate` share: the run's length, its directory, what it prints."""
+    length = parser.add_mutually_exclusive_group()
+    length.add_argument("--cycles", type=int, help="run length in cycles of the shortest period")
+    length.add_argument("--duration", type=float, metavar="S", help="run length in seconds")
+    parser.add_argument("--out", type=Path, help=f"run directory (default {default_out})")
+    parser.add_argument("--json", action="store_true", help="print report.json instead of one screen")
+    parser.add_argument("--all", action="store_true", dest="all_tables",
+                        help="print every table, not one screen (the verdict, per DPU, faults and deltas "
+                             "counted)")
+    parser.add_argument("--compare-paper", action="store_true",
+                        help="print the system file's reference values (the paper's Table 1) beside ours")
+
+
 CONTROL_URL_HELP = f"the control URL the DPUs listen on (default {DEFAULT_URL})"
 
 
@@ -84,15 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="push, run at one shared instant, record, and print one screen of it")
     _system_args(p, optional=True)
     p.add_argument("--spawn", action="store_true", help="start local DPUs for this run and stop them after")
-    length = p.add_mutually_exclusive_group()
-    length.add_argument("--cycles", type=int, help="run length in cycles of the shortest period")
-    length.add_argument("--duration", type=float, metavar="S", help="run length in seconds")
-    p.add_argument("--out", type=Path, help="run directory (default runs/<system>-<time>/)")
-    p.add_argument("--json", action="store_true", help="print report.json instead of one screen")
-    p.add_argument("--all", action="store_true", dest="all_tables",
-                   help="print every table, not one screen (the verdict, per DPU, faults and deltas counted)")
-    p.add_argument("--compare-paper", action="store_true",
-                   help="print the system file's reference values (the paper's Table 1) beside ours")
+    _run_args(p, "runs/<system>-<time>/")
     p.add_argument("--wait-dpus", type=float, default=5.0, metavar="S",
                    help="wait up to S seconds for every DPU's first heartbeat (default 5)")
     p.add_argument("--logger", choices=("local", "external"), default="local",
@@ -106,15 +112,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("simulate", help="run the whole system on virtual time here, in seconds: the same "
                        "log, report and one screen as `skel run`, the same every time")
     _system_args(p)
-    length = p.add_mutually_exclusive_group()
-    length.add_argument("--cycles", type=int, help="run length in cycles of the shortest period")
-    length.add_argument("--duration", type=float, metavar="S", help="run length in seconds (of system time)")
-    p.add_argument("--out", type=Path, help="run directory (default runs/<system>-sim-<time>/)")
-    p.add_argument("--json", action="store_true", help="print report.json instead of one screen")
-    p.add_argument("--all", action="store_true", dest="all_tables",
-                   help="print every table, not one screen")
-    p.add_argument("--compare-paper", action="store_true",
-                   help="print the system file's reference values (the paper's Table 1) beside ours")
+    _run_args(p, "runs/<system>-sim-<time>/")
     p.add_argument("--push", action="append", default=[], metavar="S:FILE",
                    help="push FILE S seconds into the run, as `skel push` would: every DPU switches "
                         "at the first boundary they share from then (repeatable)")

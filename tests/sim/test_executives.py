@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pandas as pd
 from conftest import REPO, skel
+from e2e.test_event import BURSTS, CHAIN
 from unit.test_schedule import MS, _system
 
 import skeleton
@@ -125,24 +126,11 @@ def test_each_dpus_window_opens_at_warmup_cycles_of_its_longest_period(tmp_path:
         assert not mine[mine.release_ns - t0 < window_ns].measured.any(), p.name
 
 
-# One tasking DPU, two processes awaiting the same bursts of 5 events 0.5 ms apart, each at
-# most once per 50 ms (the same system as tests/e2e/test_event.py's on real time).
-BURSTS = """\
-system: bursts
-dpus: [{id: 1, executive: threads}]
-processes:
-  - {id: 1, name: newest, dpu: 1, period_us: 50000, compute_us: 200, sync: event, event: burst, queue: 1}
-  - {id: 2, name: oldest, dpu: 1, period_us: 50000, compute_us: 200, sync: event, event: burst, queue: 2}
-events:
-  - {name: burst, kind: bursts, dpu: 1, period_us: 200000, count: 5, spacing_us: 500}
-run: {duration_s: 2.1, warmup_cycles: 0, lockout_cycles: 1000, stop_on: []}
-"""
-
-
 def test_an_event_queue_keeps_the_newest_or_the_oldest_and_each_job_runs_when_the_schedule_says(
         tmp_path: Path) -> None:
+    # the system tests/e2e/test_event.py runs on real time
     path = tmp_path / "bursts.yaml"
-    path.write_text(BURSTS)
+    path.write_text(BURSTS.replace("COMPUTE", "sleep"))
     out = tmp_path / "run"
     simulate(out, str(path))
     got = _cycles(out)
@@ -164,24 +152,9 @@ def test_an_event_queue_keeps_the_newest_or_the_oldest_and_each_job_runs_when_th
             assert seen == jobs, (name, burst, seen)
 
 
-CHAIN = """\
-system: chain
-dpus: [{id: 1}, {id: 2, executive: threads}]
-buffers: [{id: 1, name: frame, bytes: 64}]
-processes:
-  - {id: 1, name: sensor, dpu: 1, period_us: 2000, compute_us: 300, sync: event, event: pulse, queue: 8,
-     outputs: [frame], emits: [fresh]}
-  - {id: 2, name: servo, dpu: 2, period_us: 5000, compute_us: 1000, inputs: [frame]}
-  - {id: 3, name: react, dpu: 2, period_us: 1000, compute_us: 100, sync: event, event: fresh, queue: 64}
-events:
-  - {name: pulse, kind: poisson, dpu: 1, rate_hz: 200}
-run: {duration_s: 2, warmup_cycles: 10, seed: 7}
-"""
-
-
 def test_an_emitted_event_releases_its_reaction_at_once_above_the_servo_loop(tmp_path: Path) -> None:
     path = tmp_path / "chain.yaml"
-    path.write_text(CHAIN)
+    path.write_text(CHAIN.replace("SEED", "7").replace("COMPUTE", "sleep"))
     out = tmp_path / "run"
     simulate(out, str(path))
     cycles = _cycles(out)
