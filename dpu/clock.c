@@ -5,6 +5,8 @@
  * executives run on them unchanged. UTC only appears at the edges (a START instant, a
  * message's kernel receive stamp), converted with one simultaneous reading of both clocks. */
 #include <errno.h>
+#include <pthread.h>
+#include <signal.h>
 #include <sys/resource.h>
 #include <time.h>
 
@@ -43,6 +45,28 @@ int64_t clock_thread_preemptions(void)
     if (clock_world != NULL) return 0;
     struct rusage ru;
     return getrusage(RUSAGE_THREAD, &ru) == 0 ? ru.ru_nivcsw : 0;
+}
+
+/* A stopped process (SIGSTOP, a debugger, job control) is a stall the platform
+ * imposed, though to the kernel its threads chose to wait. main blocks SIGCONT in
+ * every thread, so each continue stays pending until one call here takes it and
+ * counts it: a thread that read the count before a stop reads a larger one after,
+ * whichever thread took the signal. Simulated, nothing stops. */
+int64_t clock_stops(void)
+{
+    static pthread_mutex_t lock = PTHREAD_MUTEX_INITIALIZER;
+    static int64_t stops;
+    if (clock_world != NULL) return 0;
+    if (pthread_mutex_lock(&lock) != 0) return 0;
+    sigset_t pending, cont;
+    sigemptyset(&cont);
+    sigaddset(&cont, SIGCONT);
+    const struct timespec none = { 0, 0 };
+    if (sigpending(&pending) == 0 && sigismember(&pending, SIGCONT) == 1 && sigtimedwait(&cont, NULL, &none) == SIGCONT)
+        stops++;
+    int64_t n = stops;
+    pthread_mutex_unlock(&lock);
+    return n;
 }
 
 int64_t clock_utc_to_mono(int64_t at_utc_ns, int64_t now_mono_ns, int64_t now_utc_ns)

@@ -136,6 +136,18 @@ static void cyclic_woke(skel_exec_t *x, int64_t until)
     x->stall_debt_ns = x->wake_stall_ns;
 }
 
+/* The executive found itself at release R already past: what of the time since its
+ * last step the thread was kept from running (a stop of the process between two steps,
+ * after the last one judged) is the stall of this minor's wake-up, at most its lateness.
+ * Nothing charged it, and the lateness it explains would read as the design's. */
+static void cyclic_behind(skel_exec_t *x, int64_t r)
+{
+    int64_t now = clock_mono_ns();
+    int64_t lost = process_lost(x, now, now - r);
+    x->wake_stall_ns += lost;
+    x->stall_debt_ns += lost;
+}
+
 /* The release after minor J: the plan's next due minor, or the switch if sooner. */
 static int64_t cyclic_next_r(const skel_exec_t *x, int64_t j, int64_t next_j)
 {
@@ -173,6 +185,7 @@ void cyclic_run(skel_exec_t *x, const skel_run_t *run)
         if (rc == 2) continue;
         if (rc != 0 || r >= run->end_mono_ns) break;
         if (on_time) cyclic_woke(x, until);
+        else cyclic_behind(x, r);
         atomic_store(&s->behind_ns, on_time ? 0 : clock_mono_ns() - r);
         if (x->announce) cycle_announce(x);
         int64_t next_j = cyclic_next_release(x->plan, j + 1);

@@ -68,6 +68,7 @@ int64_t clock_utc_ns(void);
 int64_t clock_thread_cpu_ns(void);
 /* The calling thread's involuntary context switches so far (0 if unknown). */
 int64_t clock_thread_preemptions(void);
+int64_t clock_stops(void); /* the times the process was stopped and continued so far */
 /* The monotonic instant of UTC instant AT, given one simultaneous reading of both clocks. */
 int64_t clock_utc_to_mono(int64_t at_utc_ns, int64_t now_mono_ns, int64_t now_utc_ns);
 int64_t clock_mono_to_utc(int64_t at_mono_ns, int64_t now_mono_ns, int64_t now_utc_ns);
@@ -624,11 +625,13 @@ void server_fault(skel_server_t *s, int fault);
 int64_t server_now(const skel_server_t *s); /* reported time: monotonic + test offset */
 
 /* ---- process (process.c): one process's cycle ---------------------------------- */
-/* The wall clock, the thread's CPU time (-1: unknown) and the waits it chose
- * (voluntary switches) at one instant: what a step's stall is judged from. */
+/* The wall clock, the thread's CPU time (-1: unknown), the waits it chose
+ * (voluntary switches) and the process's stops at one instant: what a step's stall
+ * is judged from. */
 typedef struct {
     int64_t mono_ns, cpu_ns;
     long chose_to_wait;
+    int64_t stops;
 } skel_mark_t;
 
 typedef struct {
@@ -665,6 +668,7 @@ void process_finish(skel_exec_t *x, skel_process_t *p, skel_rec_t *rec, int64_t 
                     int64_t t_out, int measured);
 void process_remark(skel_exec_t *x, int64_t now);
 int64_t process_kept(skel_exec_t *x, skel_rec_t *rec, int64_t step_from, int64_t now);
+int64_t process_lost(skel_exec_t *x, int64_t now, int64_t most);
 
 /* ---- event (event.c) ------------------------------------------------------------ */
 int event_add_process(skel_plan_t *plan, skel_process_t *p, const skelmsg_process_t *src);

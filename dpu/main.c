@@ -78,7 +78,9 @@ static int parse_args(skel_server_t *s, int argc, char **argv)
 }
 
 /* Signals are blocked in every thread and taken by sigwait() in main only, so no
- * handler runs in the middle of a cycle or an LCM call. */
+ * handler runs in the middle of a cycle or an LCM call. SIGCONT is blocked too, and
+ * never taken here: its continuing cannot be blocked, and the signal left pending is
+ * how the executives learn that the process was stopped (clock_stops). */
 static int wait_for_signal(void)
 {
     sigset_t set;
@@ -95,6 +97,7 @@ static int block_signals(void)
     sigemptyset(&set);
     sigaddset(&set, SIGTERM);
     sigaddset(&set, SIGINT);
+    sigaddset(&set, SIGCONT);
     return pthread_sigmask(SIG_BLOCK, &set, NULL);
 }
 

@@ -168,7 +168,7 @@ static int process_usage(int64_t *cpu_ns, long *chose_to_wait)
 
 static skel_mark_t process_mark(int64_t now)
 {
-    skel_mark_t m = { now, -1, 0 };
+    skel_mark_t m = { now, -1, 0, clock_stops() };
     if (process_usage(&m.cpu_ns, &m.chose_to_wait) != 0) m.cpu_ns = -1; /* not judged */
     return m;
 }
@@ -183,39 +183,49 @@ void process_remark(skel_exec_t *x, int64_t now)
     x->mark_stale = 0;
 }
 
-/* Reading inputs and publishing outputs run: a step (from STEP_FROM) that took
- * longer than the stall threshold while the thread did not run, and did not choose
- * to wait (a send blocked on a full socket buffer is communication; so, to the
- * kernel, is a SIGSTOP), was a stall: the hypervisor or another thread had its CPU.
- * A short step cannot hide one, so it costs two clock reads and no system call; a
- * long one is judged against the last mark: the time since it that the thread did
- * not run, less the stalls already charged since, at most the step's own length.
- * Returns the stall charged: the platform's, not communication, so the record keeps it
- * in preempted_ns and the caller takes it out of the step's comm_in_ns or comm_out_ns
- * (% communicate is the design's; % overhead holds the stalls). */
-int64_t process_kept(skel_exec_t *x, skel_rec_t *rec, int64_t step_from, int64_t now)
+/* The time since the last mark that the thread did not run and did not choose to wait
+ * (a stop of the process is no choice, though the kernel counts it as one), less the
+ * stalls already charged since, at most MOST: a stall when over the threshold, else 0.
+ * Marks anew at NOW, so no stall is charged twice. */
+int64_t process_lost(skel_exec_t *x, int64_t now, int64_t most)
 {
-    const int64_t threshold = x->s->compute.stall_ns;
-    if (now - step_from <= threshold) return 0;
     int64_t cpu_ns;
     long chose_to_wait;
     if (process_usage(&cpu_ns, &chose_to_wait) != 0) return 0;
+    const int64_t stops = clock_stops();
     const skel_mark_t was = x->mark;
-    int64_t charged = 0;
-    if (was.cpu_ns >= 0 && !x->mark_stale && chose_to_wait == was.chose_to_wait) {
-        int64_t off = (now - was.mono_ns) - (cpu_ns - was.cpu_ns) - x->mark_charged_ns;
-        if (off > now - step_from) off = now - step_from;
-        if (off > threshold) {
-            process_stalled(x, rec, off);
-            rec->preempted_ns += off;
-            charged = off;
-        }
+    int64_t off = 0;
+    if (was.cpu_ns >= 0 && !x->mark_stale && (chose_to_wait == was.chose_to_wait || stops != was.stops)) {
+        off = (now - was.mono_ns) - (cpu_ns - was.cpu_ns) - x->mark_charged_ns;
+        if (off > most) off = most;
+        if (off <= x->s->compute.stall_ns) off = 0;
     }
-    /* the stalls charged so far are before the new mark: none is subtracted again */
-    x->mark = (skel_mark_t){ now, cpu_ns, chose_to_wait };
+    x->mark = (skel_mark_t){ now, cpu_ns, chose_to_wait, stops };
     x->mark_charged_ns = 0;
     x->mark_stale = 0;
-    return charged;
+    return off;
+}
+
+/* Reading inputs and publishing outputs run: a step (from STEP_FROM) that took
+ * longer than the stall threshold while the thread did not run, and did not choose
+ * to wait (a send blocked on a full socket buffer is communication; a stop of the
+ * process is not), was a stall: the hypervisor or another thread had its CPU, or the
+ * process was stopped. A short step cannot hide one, so it costs two clock reads and
+ * no system call; a long one is judged against the last mark (process_lost), at most
+ * the step's own length. Returns the stall charged: the platform's, not
+ * communication, so the record keeps it in preempted_ns and the caller takes it out
+ * of the step's comm_in_ns or comm_out_ns (% communicate is the design's; % overhead
+ * holds the stalls). */
+int64_t process_kept(skel_exec_t *x, skel_rec_t *rec, int64_t step_from, int64_t now)
+{
+    if (now - step_from <= x->s->compute.stall_ns) return 0;
+    int64_t off = process_lost(x, now, now - step_from);
+    if (off > 0) {
+        process_stalled(x, rec, off);
+        x->mark_charged_ns = 0; /* charged before the new mark */
+        rec->preempted_ns += off;
+    }
+    return off;
 }
 
 /* Waits for new data on every required input: 1 when the run ended or stopped

@@ -190,7 +190,8 @@ def test_a_lockout_the_writers_stalled_dpu_explains_is_the_platforms(tmp_path: P
     locks = [f for f in report["faults"] if f["kind"] in ("lockout", "jam")]
     assert any(f["kind"] == "lockout" and f["process"] == "controller" for f in locks), report["faults"]
     for fault in locks:
-        assert not fault["fatal"] and "sensor's DPU 1 was kept from running" in fault["detail"], fault
+        explained = "sensor's DPU 1 was kept from running" in fault["detail"]
+        assert not fault["fatal"] and explained, fault["detail"]
     assert code == 0, run.output
 
 
@@ -389,3 +390,43 @@ def test_a_records_parts_add_up_to_where_its_work_ended(tmp_path: Path, url: str
     while _longest_dpu_stall_ms(tmp_path) < 10 and time.monotonic() < waited:
         time.sleep(0.05)
     assert _longest_dpu_stall_ms(tmp_path) >= 10, dpus.log(1)
+
+
+STOPS_SYSTEM = """\
+system: stops
+dpus: [{id: 1}, {id: 2}]
+buffers: [{id: 1, name: frame, bytes: 1048576}]
+processes:
+  - {id: 1, name: camera, dpu: 1, period_us: 10000, compute_us: 500, outputs: [frame]}
+  - {id: 2, name: viewer, dpu: 2, period_us: 10000, compute_us: 500, inputs: [frame]}
+run: {duration_s: 3, warmup_cycles: 2, lockout_cycles: 50, stop_on: []}
+"""
+
+
+def test_every_stop_of_a_dpu_is_a_stall_wherever_it_lands(tmp_path: Path, url: str, dpus: DpuFarm) -> None:
+    """A stop of the writer's DPU is the platform's stall wherever in its cycle it lands:
+    in its sleep, its computation, while it publishes a 1 MiB frame (to the kernel a
+    sender stopped in a system call chose to wait, as one blocked on a full socket would)
+    or between two steps, when it is already behind. Each of 16 stops of 25 ms is one
+    record's stall of at least 15 ms (the 10 ms period less what was left of a sleep it
+    cut short). A stop that none of them charged made its reader's lockout read as the
+    design's flaw (test_a_lockout_the_writers_stalled_dpu_explains_is_the_platforms)."""
+    path = tmp_path / "stops.yaml"
+    path.write_text(STOPS_SYSTEM)
+    dpus.start(1, 2)
+    out = tmp_path / "run"
+    run = skel_background("run", str(path), "--url", url, "--out", str(out))
+    run.wait_started(lambda: dpus.logs(1, 2), 2)
+    pid = dpus.daemons[1].process.pid
+    stops = 16
+    time.sleep(0.3)  # the run's first release is after the DPUs log that it started
+    for i in range(stops):
+        time.sleep(0.06 + 0.0037 * i)  # a phase that walks through the whole cycle
+        os.kill(pid, signal.SIGSTOP)
+        time.sleep(0.025)
+        os.kill(pid, signal.SIGCONT)
+    assert run.wait(60) == 0, run.output
+    t = skeleton.load_run(out).timing.to_pandas()
+    camera = t[t.process == 1]
+    stalled = camera[camera.stall_ns >= 15_000_000]
+    assert len(stalled) >= stops, camera[camera.stall_ns > 0][["cycle", "stall_ns", "preempted_ns"]]
