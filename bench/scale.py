@@ -112,10 +112,19 @@ def dropped_share(report: dict[str, Any]) -> tuple[int, int]:
     return dropped, sum(i["new"] for i in inputs) + dropped
 
 
+def cpu_seconds(pid: int) -> float:
+    """A live process's CPU time so far, user and system, all its threads."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def run_on_hosts(system_text: str, hosts: int, dpus_per_host: int, workdir: Path,
                  dpu_binary: Path = REPO / "build" / "skel-dpu",
-                 dpu_args: tuple[str, ...] = (), snooping: bool = False) -> tuple[int, dict[str, Any], str]:
-    """Start the DPUs on namespace hosts, `skel run` from host 1; (exit code, report.json, output)."""
+                 dpu_args: tuple[str, ...] = (),
+                 snooping: bool = False) -> tuple[int, dict[str, Any], str, float]:
+    """Start the DPUs on namespace hosts, `skel run` from host 1; (exit code, report.json, output,
+    the DPUs' CPU seconds from their start to the run's end: its cycles, their communication
+    included, and what they cost idle before and after)."""
     sys.path.insert(0, str(REPO / "tests"))
     from netns import Hosts, cleanup_stale
 
@@ -130,17 +139,19 @@ def run_on_hosts(system_text: str, hosts: int, dpus_per_host: int, workdir: Path
         for dpu in doc["dpus"]:
             dpu["host"] = names[dpu["host"]]
         path.write_text(yaml.safe_dump(doc, sort_keys=False))
+        daemons = []
         for dpu in doc["dpus"]:
             log = open(workdir / f"dpu{dpu['id']}.log", "wb")
-            net.popen(dpu["host"], [str(dpu_binary), "--id", str(dpu["id"]), "--url", url, *dpu_args],
-                      stdout=log, stderr=subprocess.STDOUT)
+            daemons.append(net.popen(dpu["host"], [str(dpu_binary), "--id", str(dpu["id"]), "--url", url,
+                                                   *dpu_args], stdout=log, stderr=subprocess.STDOUT))
         env = {**os.environ, "COLUMNS": "160", "SKEL_STATE_DIR": str(workdir / "state")}
         done = net.run(net.names[0], [sys.executable, "-m", "skeleton.host.cli", "run", str(path),
                                       "--out", str(workdir / "run")], capture_output=True, text=True,
                        cwd=REPO, env=env, timeout=300)
+        cpu = sum(cpu_seconds(d.pid) for d in daemons if d.poll() is None)
     report_path = workdir / "run" / "report.json"
     report = json.loads(report_path.read_text()) if report_path.exists() else {}
-    return done.returncode, report, done.stdout + done.stderr
+    return done.returncode, report, done.stdout + done.stderr, cpu
 
 
 @dataclass(frozen=True)
@@ -169,6 +180,18 @@ class Outcome:
     total: int
     faults: tuple[str, ...]
     seconds: float
+    cycles: int = 0         # the process cycles the run recorded
+    cpu_s: float = 0.0      # what the DPUs' processes took of the CPUs meanwhile
+
+    @property
+    def cost_us(self) -> float:
+        """CPU per process cycle, communication and the DPUs' idle cost included."""
+        return 1e6 * self.cpu_s / self.cycles if self.cycles else float("nan")
+
+    @property
+    def capacity(self) -> float:
+        """Process cycles a second this machine's CPUs hold at that cost."""
+        return (os.cpu_count() or 1) * 1e6 / self.cost_us if self.cycles else float("nan")
 
     @property
     def clean(self) -> bool:
@@ -178,7 +201,9 @@ class Outcome:
     def __str__(self) -> str:
         return (f"{self.size}: exit {self.code}, "
                 f"dropped {self.dropped}/{self.total} = {100 * self.dropped / max(self.total, 1):.3f} %, "
-                f"faults {', '.join(self.faults) or 'none'}, {self.seconds:.1f} s")
+                f"faults {', '.join(self.faults) or 'none'}, {self.seconds:.1f} s; "
+                f"{self.cost_us:.0f} us of CPU per process cycle: the machine holds {self.capacity:,.0f} "
+                f"process cycles/s, this size asks {self.size.dpus * self.size.processes * self.size.hz:,}")
 
 
 def measure(size: Size, seconds: float = 3.0, dpu: Path = REPO / "build" / "skel-dpu",
@@ -187,13 +212,14 @@ def measure(size: Size, seconds: float = 3.0, dpu: Path = REPO / "build" / "skel
     text = system_yaml(size.hosts, size.dpus_per_host, size.processes, size.hz, seconds)
     with tempfile.TemporaryDirectory(prefix="skel-scale-") as tmp:
         started = time.monotonic()
-        code, report, output = run_on_hosts(text, size.hosts, size.dpus_per_host, Path(tmp), dpu, dpu_args,
-                                            snooping=snooping)
+        code, report, output, cpu = run_on_hosts(text, size.hosts, size.dpus_per_host, Path(tmp), dpu,
+                                                 dpu_args, snooping=snooping)
     if not report:
         raise RuntimeError(output)
     dropped, total = dropped_share(report)
     faults = tuple(sorted({f["kind"] for f in report["faults"]}))
-    return Outcome(size, code, dropped, total, faults, time.monotonic() - started)
+    cycles = sum(int(p["cycles"]) for p in report["processes"])
+    return Outcome(size, code, dropped, total, faults, time.monotonic() - started, cycles, cpu)
 
 
 # The sweep's sizes, smallest first: 64, 128 and 256 processes (GOAL: issue 13's 64 DPUs and
@@ -227,7 +253,9 @@ def part_scale() -> list[str]:
     verdict = "PASS" if goal is not None and goal.clean else "FAIL"
     head = f"scale: largest clean {clean[-1] if clean else 'none'}; goal {GOAL}: {verdict}"
     return [head, "# namespace hosts on one bridge (no snooping), default DPU options, 3 s runs; clean: "
-            "exit 0, no buffer dropped, no lockout (bench/scale.py)", *lines]
+            "exit 0, no buffer dropped, no lockout; the CPU per process cycle is the DPUs' processes' "
+            "user and system time over the cycles the run recorded (a `sleep` compute spins its last "
+            "150 us) (bench/scale.py)", *lines]
 
 
 def main(argv: list[str] | None = None) -> int:
