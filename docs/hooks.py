@@ -258,12 +258,14 @@ def servo_bus_fit(src: types.SimpleNamespace) -> str:
     fits = src.busfit.fits(system)
     ids = [row.dpu for row in fits[src.busfit.CHOSEN].rows]
     out = ["| model | what it charges | fitted (least squares, none negative) | "
-           + " | ".join(f"Δ % comm. DPU {d}" for d in ids) + " | worst of the 12 cells |",
-           "|---|---|---|" + "---|" * len(ids) + "---|"]
+           + " | ".join(f"Δ % comm. DPU {d}" for d in ids) + " | worst of the 12 cells | "
+           "Δ % comm. left out of the fit, per DPU |",
+           "|---|---|---|" + "---|" * len(ids) + "---|---|"]
     for name, f in fits.items():
         costs = ", ".join(_cost(v, c) for v, c in zip(f.values, f.model.costs, strict=True))
         out.append(f"| `{name}` | {_cell(f.model.meaning)} | {costs} | "
-                   + " | ".join(f"{row.residuals[1]:+.1f}" for row in f.rows) + f" | {f.worst:.1f} |")
+                   + " | ".join(f"{row.residuals[1]:+.1f}" for row in f.rows) + f" | {f.worst:.1f} | "
+                   + " / ".join(f"{r:+.1f}" for r in f.left_out) + " |")
     chosen = fits[src.busfit.CHOSEN]
     out += ["", f"The chosen model, `{chosen.model.name}`:", ""]
     out += [f"- {_cost(v, c)}: {_cell(c.meaning)}"

@@ -125,6 +125,9 @@ class Fit:
     model: Model
     values: tuple[float, ...]   # per cost of the model, in its unit
     rows: tuple[Row, ...]
+    # per row, its % communicate by the model fitted to the other rows alone, minus the
+    # reference's: how well the model predicts a DPU it was not fitted to
+    left_out: tuple[float, ...]
 
     @property
     def worst(self) -> float:
@@ -153,19 +156,27 @@ def _nonnegative_lstsq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return best
 
 
+def _design(system: System, model: Model, counts: dict[int, Traffic]
+            ) -> tuple[list[int], np.ndarray, np.ndarray]:
+    """The reference's DPU ids, the % communicate one unit of each cost gives each (counts per
+    second x the unit in seconds x 100), and the reference's % communicate."""
+    if system.reference is None or not system.reference.dpus:
+        raise ValueError(f"{system.name}: no reference to fit to")
+    ids = sorted(system.reference.dpus)
+    a = np.array([[100 * SCALE[c.unit] * sum(getattr(counts[d], f) for f in c.counts) for c in model.costs]
+                  for d in ids])
+    return ids, a, np.array([system.reference.dpus[d].communicate_pct for d in ids])
+
+
 def fit(system: System, model: Model, prediction: Prediction | None = None) -> Fit:
     """The model's costs that best reproduce the reference's % communicate, and the three
     columns they give each DPU of the reference."""
-    if system.reference is None or not system.reference.dpus:
-        raise ValueError(f"{system.name}: no reference to fit to")
     prediction = prediction or predict(system)
-    counts = traffic(system, prediction)
-    ids = sorted(system.reference.dpus)
-    # % communicate of one unit of each cost: counts per second x the unit in seconds x 100
-    a = np.array([[100 * SCALE[c.unit] * sum(getattr(counts[d], f) for f in c.counts) for c in model.costs]
-                  for d in ids])
-    target = np.array([system.reference.dpus[d].communicate_pct for d in ids])
+    ids, a, target = _design(system, model, traffic(system, prediction))
     values = _nonnegative_lstsq(a, target)
+    others = [[i for i in range(len(ids)) if i != k] for k in range(len(ids))]
+    left_out = tuple(float(a[k] @ _nonnegative_lstsq(a[o], target[o]) - target[k])
+                     for k, o in enumerate(others))
     rows = []
     for d, communicate in zip(ids, a @ values, strict=True):
         compute = prediction.dpu(d).compute_pct or 0.0
@@ -175,7 +186,7 @@ def fit(system: System, model: Model, prediction: Prediction | None = None) -> F
         rows.append(Row(d, system.reference.dpus[d], compute * share, float(communicate) * share,
                         max(0.0, 100 - demand), demand,
                         system.dpu(d).minor_cycle_us / 1000 / share))
-    return Fit(model, tuple(float(v) for v in values), tuple(rows))
+    return Fit(model, tuple(float(v) for v in values), tuple(rows), left_out)
 
 
 def fits(system: System) -> dict[str, Fit]:

@@ -54,6 +54,13 @@ def test_the_agreed_two_costs_cannot_fit_table_1(fits: dict[str, busfit.Fit]) ->
     assert min(f.worst for f in fits.values()) == fits[busfit.CHOSEN].worst
 
 
+def test_the_fit_holds_dpu_3_but_does_not_predict_it_from_the_others(fits: dict[str, busfit.Fit]) -> None:
+    """What the page says of how well the fit holds: DPU 3 alone fixes the cost per read."""
+    left_out = fits[busfit.CHOSEN].left_out
+    assert left_out[2] > 5
+    assert max(abs(r) for k, r in enumerate(left_out) if k != 2) < 3
+
+
 def test_a_dpu_asked_over_its_time_measures_shares_of_a_longer_cycle(fits: dict[str, busfit.Fit]) -> None:
     dpu4 = fits[busfit.CHOSEN].rows[3]
     assert dpu4.demand_pct > 100
