@@ -12,7 +12,7 @@ if the DPUs charged those costs, before the platform's own.
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -37,15 +37,15 @@ class Traffic:
 def traffic(system: System, prediction: Prediction) -> dict[int, Traffic]:
     """Per DPU id, its traffic at the prediction's rates (a process of unknown rate counts none)."""
     rate = {p.name: p.rate_hz or 0.0 for p in prediction.processes}
-    counts = {d.id: dict.fromkeys(Traffic.__dataclass_fields__, 0.0) for d in system.dpus}
+    counts = {d.id: dict.fromkeys((f.name for f in fields(Traffic)), 0.0) for d in system.dpus}
     for p in system.processes:
         mine, hz = counts[p.dpu], rate[p.name]
         for b in map(system.buffer, p.outputs):
-            others = {r.dpu for r in system.readers(b.id)} - {p.dpu}
+            reading = {r.dpu for r in system.readers(b.id)}
             mine["published"] += hz
             mine["published_bytes"] += hz * b.bytes
-            mine["pushed_bytes"] += hz * b.bytes * len(others)
-            for d in {r.dpu for r in system.readers(b.id)}:
+            mine["pushed_bytes"] += hz * b.bytes * len(reading - {p.dpu})
+            for d in reading:
                 counts[d]["received"] += hz
                 counts[d]["received_bytes"] += hz * b.bytes
         for b in map(system.buffer, (*p.inputs, *p.outputs)):
