@@ -38,10 +38,11 @@ def _sources() -> types.SimpleNamespace:
     from skeleton.host.cli import build_parser
     from skeleton.host.sysfile import schema
     from skeleton.host.sysfile.system import load
+    from skeleton.host.theory import busfit
     from skeleton.host.theory.predict import predict
     return types.SimpleNamespace(system_spec=schema.SystemSpec, build_parser=build_parser,
                                  columns=columns, run_report=report.RunReport, exitcodes=errors,
-                                 load_system=load, predict=predict)
+                                 load_system=load, predict=predict, busfit=busfit)
 
 
 def _cell(text: str) -> str:
@@ -246,6 +247,44 @@ def servo_fast_check(src: types.SimpleNamespace) -> str:
     return "```text\n$ skel check examples/servo-2.5ms.yaml\n" + done.stdout.rstrip() + "\n```\n"
 
 
+def _cost(value: float, cost: Any) -> str:
+    return f"`{cost.name}: {value:.4g}`"
+
+
+def servo_bus_fit(src: types.SimpleNamespace) -> str:
+    """examples/servo.yaml's reference fitted by every bus model of host/theory/busfit.py, then the
+    chosen one's twelve cells beside the paper's: every figure computed when the site is built."""
+    system = src.load_system(REPO / "examples" / "servo.yaml")
+    fits = src.busfit.fits(system)
+    ids = [row.dpu for row in fits[src.busfit.CHOSEN].rows]
+    out = ["| model | what it charges | fitted (least squares, none negative) | "
+           + " | ".join(f"Δ % comm. DPU {d}" for d in ids) + " | worst of the 12 cells | "
+           "Δ % comm. left out of the fit, per DPU |",
+           "|---|---|---|" + "---|" * len(ids) + "---|---|"]
+    for name, f in fits.items():
+        costs = ", ".join(_cost(v, c) for v, c in zip(f.values, f.model.costs, strict=True))
+        out.append(f"| `{name}` | {_cell(f.model.meaning)} | {costs} | "
+                   + " | ".join(f"{row.residuals[1]:+.1f}" for row in f.rows) + f" | {f.worst:.1f} | "
+                   + " / ".join(f"{r:+.1f}" for r in f.left_out) + " |")
+    chosen = fits[src.busfit.CHOSEN]
+    out += ["", f"The chosen model, `{chosen.model.name}`:", ""]
+    out += [f"- {_cost(v, c)}: {_cell(c.meaning)}"
+            for v, c in zip(chosen.values, chosen.model.costs, strict=True)]
+    out += ["", "| DPU | % compute paper / model (Δ) | % communicate paper / model (Δ) | "
+            "% wait paper / model (Δ) | compute + communicate asked | cycle ms paper / model |",
+            "|---|---|---|---|---|---|"]
+    for row in chosen.rows:
+        model = (row.compute_pct, row.communicate_pct, row.wait_pct)
+        paper = (row.paper.compute_pct, row.paper.communicate_pct, row.paper.wait_pct)
+        cells = [f"{p:.1f} / {m:.1f} ({r:+.1f})" for p, m, r in zip(paper, model, row.residuals, strict=True)]
+        cycle = "-" if row.paper.cycle_ms is None else f"{row.paper.cycle_ms:.1f}"
+        out.append(f"| {row.dpu} | " + " | ".join(cells)
+                   + f" | {row.demand_pct:.1f} % | {cycle} / {row.cycle_ms:.1f} |")
+    out += ["", f"Worst cell: {chosen.worst:.2f} points; % communicate residuals "
+            f"{chosen.rms_communicate:.2f} points RMS over the {len(ids)} DPUs."]
+    return "\n".join(out) + "\n"
+
+
 def bench_summary(src: types.SimpleNamespace) -> str:
     """The summary of the `make bench` run committed to bench/results/, as it wrote it."""
     return "```text\n" + (REPO / "bench" / "results" / "summary.txt").read_text().rstrip() + "\n```\n"
@@ -255,6 +294,7 @@ GENERATORS: dict[str, Callable[[types.SimpleNamespace], str]] = {
     "system-file": system_file, "cli": cli, "exit-codes": exit_codes,
     "report-json": report_json, "columns": columns, "servo-table": servo_table,
     "bench-summary": bench_summary, "servo-fast-check": servo_fast_check,
+    "servo-bus-fit": servo_bus_fit,
 }
 
 
