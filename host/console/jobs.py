@@ -50,6 +50,7 @@ class Jobs:
         self.runs: list[Job] = []  # the session's runs, oldest first
         self._lock = threading.Lock()
         self._procs: list[subprocess.Popen[str]] = []
+        self._followers: list[threading.Thread] = []
         self._batch: Job | None = None  # the first of the commands shown
 
     def running(self) -> list[Job]:
@@ -77,8 +78,11 @@ class Jobs:
                                     stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                     stderr=subprocess.STDOUT, text=True, errors="replace")
             self._procs = [p for p in self._procs if p.poll() is None] + [proc]
-        threading.Thread(target=self._follow, args=(job, proc), name=f"skel-console-{job.kind}",
-                         daemon=True).start()
+        follower = threading.Thread(target=self._follow, args=(job, proc),
+                                    name=f"skel-console-{job.kind}", daemon=True)
+        follower.start()
+        with self._lock:
+            self._followers = [t for t in self._followers if t.is_alive()] + [follower]
         return job
 
     @staticmethod
@@ -100,6 +104,10 @@ class Jobs:
                 proc.wait(STOP_WAIT_S)
             except subprocess.TimeoutExpired:
                 proc.kill()
+        # a job ends when its follower has read the last line and set the return code, not when
+        # its process exits: the page asked right after the stop must see it ended
+        for follower in self._followers:
+            follower.join(STOP_WAIT_S)
 
     def run_dir(self, system: str) -> Path:
         return self.runs_dir / f"{system}-{time.strftime('%Y%m%d-%H%M%S')}-{len(self.runs) + 1}"
