@@ -195,6 +195,24 @@ def mapped_kib(path: Path) -> int:
     return total
 
 
+def bound_udp_ports(pid: int) -> set[int]:
+    """The UDP ports the process's sockets are bound to (its fds' inodes in /proc/net/udp)."""
+    inodes = set()
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        try:
+            target = fd.readlink().as_posix()
+        except OSError:
+            continue  # closed meanwhile
+        if (m := re.fullmatch(r"socket:\[(\d+)\]", target)) is not None:
+            inodes.add(m.group(1))
+    ports = set()
+    for line in Path(f"/proc/{pid}/net/udp").read_text().splitlines()[1:]:
+        fields = line.split()
+        if fields[9] in inodes:
+            ports.add(int(fields[1].split(":")[1], 16))
+    return ports
+
+
 def threads_cpus(pid: int) -> dict[int, set[int]]:
     """Per thread of process `pid`, the CPUs it may run on (its Cpus_allowed_list); a thread
     that ended meanwhile (a thread pool's) is left out."""

@@ -530,6 +530,7 @@ def _dpu(system: System, proc: int) -> int | None:
 # A DPU is behind when its minor cycles start more than one minor cycle late for at
 # least this many minor cycles in a row: a hiccup it catches up on is not a fault.
 BEHIND_MIN_FRAMES = 20
+ON_SCHEDULE_FRACTION = 10  # a frame late by less than this fraction of the worst was on schedule
 
 
 def first_release_ns(records: np.ndarray) -> dict[int, int]:
@@ -685,7 +686,12 @@ def behind_runs(records: np.ndarray, system: System, in_window: np.ndarray | Non
             end = int(span["release_ns"].max()) + minor_ns
             worst_minor = minors[first + int(np.argmax(late[first : last + 1]))]
             t_worst = int(span["release_ns"][span["minor"] == worst_minor].min())
-            cause, fatal = _why_behind(mine, system, dpu.id, start, t_worst, worst)
+            # Where it was last on schedule: a DPU with little slack takes hundreds of cycles to
+            # make up a stall, and one back over a minor cycle after a dip just under it owes
+            # the lateness to stalls long before this run of late frames.
+            on_time = np.flatnonzero(late[:first] <= worst // ON_SCHEDULE_FRACTION)
+            since = int(releases[on_time[-1]]) if len(on_time) else int(releases[0])
+            cause, fatal = _why_behind(mine, system, dpu.id, min(since, start - worst), start, t_worst, worst)
             out.append(Behind(dpu.id, (start - t0[dpu.id]) / 1e9, (end - start) / 1e9, worst, minor_ns, cause,
                               fatal, _longest_wait(mine, start - worst, t_worst) if fatal else None))
     return out
@@ -728,12 +734,13 @@ def _runs(flags: np.ndarray, min_len: int) -> list[tuple[int, int]]:
     return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a >= min_len]
 
 
-def _why_behind(mine: np.ndarray, system: System, dpu: int, start: int, t_worst: int,
+def _why_behind(mine: np.ndarray, system: System, dpu: int, since: int, start: int, t_worst: int,
                 worst: int) -> tuple[str, bool]:
-    """Why a DPU fell behind from `start` to `t_worst` (its clock), where it was `worst` late:
-    (the cause in words, whether it is the design's). Time its thread was kept from running
-    on the way there that accounts for half the lateness or more is the platform's doing."""
-    way = mine[(mine["release_ns"] >= start - worst) & (mine["release_ns"] <= t_worst)]
+    """Why a DPU fell behind from `start` to `t_worst` (its clock), where it was `worst` late,
+    having been on schedule at `since`: (the cause in words, whether it is the design's). Time
+    its thread was kept from running on the way from `since` that accounts for half the lateness
+    or more is the platform's doing."""
+    way = mine[(mine["release_ns"] >= since) & (mine["release_ns"] <= t_worst)]
     stalled = int(way["stall_ns"].sum())
     if stalled * 2 >= worst:
         return (f"its thread was kept from running for {stalled / 1e6:.1f} ms on the way "

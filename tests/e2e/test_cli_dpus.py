@@ -12,13 +12,14 @@ import sys
 import time
 from pathlib import Path
 
-from conftest import REPO, SANITIZER_ERROR, DpuFarm, skel
+from conftest import REPO, SANITIZER_ERROR, DpuFarm, bound_udp_ports, skel
 from unit.test_cli import DUMP, PAIR, _closed_pipe
 
 from skeleton.analysis import errors
 from skeleton.analysis.measure.run import load_run
 from skeleton.host.live import spawn
 from skeleton.host.live.control import Control
+from skeleton.host.sysfile.link import parse_url, record_url
 
 
 def _skel_popen(*args: str, env: dict[str, str] | None = None) -> subprocess.Popen[str]:
@@ -113,7 +114,15 @@ def test_watch_ended_by_sigterm_ends_as_by_ctrl_c(dpus: DpuFarm, url: str, tmp_p
         watchers = {("--once", signal.SIGTERM): _skel_popen("watch", "--url", url, "--once"),
                     ("live", signal.SIGTERM): _skel_popen("watch", "--url", url),
                     ("--once", signal.SIGINT): _skel_popen("watch", "--url", url, "--once")}
-        time.sleep(2.5)
+        # Each once it listens (a loaded machine took more than 2.5 s to import it: killed
+        # before main() had its handler, one ended with -15), then a while into its wait.
+        port = parse_url(record_url(url)).port  # where a watcher hears the run
+        deadline = time.monotonic() + 60
+        while not all(w.poll() is None and port in bound_udp_ports(w.pid) for w in watchers.values()):
+            ended = {mode: w.communicate() for mode, w in watchers.items() if w.poll() is not None}
+            assert not ended and time.monotonic() < deadline, f"a watcher never listened: {ended}"
+            time.sleep(0.1)
+        time.sleep(1.0)
         for (_, signum), watcher in watchers.items():
             watcher.send_signal(signum)
         for (mode, signum), watcher in watchers.items():

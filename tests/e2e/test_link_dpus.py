@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import os
-import re
 import subprocess
 from pathlib import Path
 
-from conftest import DpuFarm, skel, skel_background
+from conftest import DpuFarm, bound_udp_ports, skel, skel_background
 from unit.test_link import _three
 
 from skeleton.host.live import spawn
@@ -44,24 +43,6 @@ def _receive_threads(pid: int) -> list[tuple[int, int]]:
     return found
 
 
-def _bound_udp_ports(pid: int) -> set[int]:
-    """The UDP ports the process's sockets are bound to (its fds' inodes in /proc/net/udp)."""
-    inodes = set()
-    for fd in Path(f"/proc/{pid}/fd").iterdir():
-        try:
-            target = fd.readlink().as_posix()
-        except OSError:
-            continue  # closed meanwhile
-        if (m := re.fullmatch(r"socket:\[(\d+)\]", target)) is not None:
-            inodes.add(m.group(1))
-    ports = set()
-    for line in Path(f"/proc/{pid}/net/udp").read_text().splitlines()[1:]:
-        fields = line.split()
-        if fields[9] in inodes:
-            ports.add(int(fields[1].split(":")[1], 16))
-    return ports
-
-
 def test_a_dpu_listens_only_on_the_ports_of_the_writers_it_reads(tmp_path: Path, url: str,
                                                                  dpus: DpuFarm) -> None:
     system_path = _three(tmp_path, url, duration=3.0)
@@ -76,7 +57,7 @@ def test_a_dpu_listens_only_on_the_ports_of_the_writers_it_reads(tmp_path: Path,
     record = parse_url(record_url(url)).port
     assert record == control - 1
     ours = {control, record, *port.values()}
-    bound = {d: _bound_udp_ports(dpus.daemons[d].process.pid) & ours for d in (1, 2, 3)}
+    bound = {d: bound_udp_ports(dpus.daemons[d].process.pid) & ours for d in (1, 2, 3)}
     receivers = {d: _receive_threads(dpus.daemons[d].process.pid) for d in (1, 2, 3)}
     assert run.wait(60) == 0, run.output
     # The reader of a, on DPU 3, has a socket on wa's port and none on wb's: the kernel hands it

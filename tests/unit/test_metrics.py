@@ -515,6 +515,25 @@ def test_a_dpu_behind_from_a_stall_in_its_warm_up_is_the_platform_not_the_design
     assert faults[0].at_s == pytest.approx(0.010) and "kept from running for 80.0 ms" in faults[0].detail
 
 
+def test_a_dpu_back_behind_after_a_dip_owes_it_to_the_stalls_since_it_was_on_schedule() -> None:
+    """Two stalls under a minor cycle each (8 ms, then 6 ms 29 cycles later) on a DPU that makes
+    up 0.05 ms a cycle: the second puts it 12.55 ms behind, 300 ms after the first, which only
+    half the lateness lies within. The report had looked back as far as the lateness only, found
+    the 6 ms stall short of half, and blamed the design (CI, 2026-12-03: `long overran ...
+    (computed 3.3 ms), too little slack to catch up`, the computation exactly what was asked)."""
+    late = [0.0] + [8.0 - 0.05 * k for k in range(29)]
+    late += [late[-1] - 0.05 + 6.0 - 0.05 * k for k in range(120)]
+    config = small_config(warmup_cycles=0)
+    config.processes = [p for p in config.processes if p.dpu == 1][:1]
+    config.nprocesses = 1
+    faults = _behind(_cycles(1, 0, 10, late, {1: 8.0, 30: 6.0}), config)
+    assert len(faults) == 1 and not faults[0].fatal, faults
+    assert faults[0].at_s == pytest.approx(0.300) and "kept from running for 14.0 ms" in faults[0].detail
+    # The same lateness with no stall before the run of late frames is the design's.
+    faults = _behind(_cycles(1, 0, 10, late, {30: 6.0}), config)
+    assert len(faults) == 1 and faults[0].fatal, faults
+
+
 def test_a_dpu_behind_only_in_its_warm_up_is_no_fault() -> None:
     late = [0.0, *(max(0.0, 80.0 - 8.0 * k) for k in range(49))]
     config = small_config(warmup_cycles=20)
