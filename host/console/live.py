@@ -29,6 +29,7 @@ class LiveView:
         self._lock = threading.Lock()
         self._snapshot: dict[str, Any] = {"url": url, "run_id": None}
         self._stopped = threading.Event()
+        self._listening = threading.Event()  # subscribed: from now on nothing sent is missed
         self._thread = threading.Thread(target=self._loop, name="skel-console-live", daemon=True)
         self._thread.start()
 
@@ -38,6 +39,7 @@ class LiveView:
         except (RuntimeError, ValueError, OSError) as e:
             self.error = f"cannot hear {self.url}: {e}"
             return
+        self._listening.set()
         allowed = os.sched_getaffinity(0)
         finder = _FaultFinder(self.heard)
         try:
@@ -57,6 +59,7 @@ class LiveView:
     def snapshot(self) -> dict[str, Any]:
         with self._lock:
             view = dict(self._snapshot)
+        view["listening"] = self._listening.is_set()
         if self.error:
             view["error"] = self.error
         return view

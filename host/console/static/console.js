@@ -338,7 +338,8 @@ function liveCell(dpu) {
 
 function showLive(view) {
   state.live = view;
-  const head = view.error ? view.error : view.run_id === null ? `waiting for a run on ${view.url}` :
+  const head = view.error ? view.error : !view.listening ? `subscribing to ${view.url}…` :
+    view.run_id === null ? `waiting for a run on ${view.url}` :
     `run ${view.run_id}` + (view.system ? ` of ${view.system} · generation ${view.generation}` : "") +
     ` · ${fmt(view.elapsed_s)} s measured (warm-up excluded) · ${view.records ?? 0} records`;
   $("live-head").textContent = head;
