@@ -346,7 +346,7 @@ return {
     .map((t) => t.textContent),
   layout_ms: Number(document.body.dataset.layoutMs)};
 """
-LAYOUT_MS = {"servo": 2000, "autoware-22": 3000, "scale-32x2": 15000}  # a loaded 2-core machine's
+LAYOUT_MS = {"servo": 2000, "autoware-22": 2000, "scale-32x2": 10000}  # a loaded 2-core machine's
 READABLE = ((SERVO, 9, 4, 1), (EXAMPLES / "autoware-22.yaml", 22, 6, 1),  # (file, processes, DPUs, hosts)
             (EXAMPLES / "scale-32x2.yaml", 128, 64, 32))
 
@@ -385,14 +385,14 @@ def test_the_page_follows_a_replayed_log_and_draws_its_faults(browser: Any, url:
     would the run. SERVO at 2.5 ms, simulated (virtual time, a second), recorded its log; replayed,
     the live table shows that run, its processes' cycles as its report counts them, its progress
     (the planned 400 cycles, stopped early), and each fatal fault drawn on the graph as its chain
-    back to the root cause."""
+    back to the root cause (a DPU that ran behind, its box)."""
     out = tmp_path / "jammed"
     done = skel("simulate", str(JAMMED), "--out", str(out))
     assert done.returncode == EXIT_FATAL_FLAW, done.stdout + done.stderr
     report = json.loads((out / "report.json").read_text())
-    fatal = [f for f in report["faults"] if f["fatal"]]
-    chains = [struck(f) for f in fatal]
-    assert chains, report["faults"]
+    chains = [struck(f) for f in report["faults"] if f["fatal"] and f["process"]]
+    behind = sorted(str(f["dpu"]) for f in report["faults"] if f["fatal"] and not f["process"])
+    assert chains and any(len(c) > 1 for c in chains), report["faults"]  # a jam among them
     console = Console(url, tmp_path / "runs", file=JAMMED)
     try:
         open_page(browser, console)
@@ -409,6 +409,7 @@ def test_the_page_follows_a_replayed_log_and_draws_its_faults(browser: Any, url:
             " progress: {...document.getElementById('progress').dataset},"
             " faulty: faulty('#graph .process.faulty').map(g => g.dataset.process).sort(),"
             " roots: faulty('#graph .process.root-cause').map(g => g.dataset.process).sort(),"
+            " dpus: faulty('#graph .dpu.faulty').map(g => g.dataset.dpu).sort(),"
             " steps: faulty('#graph .buffer path.faulty')"
             "   .map(p => p.dataset.writer + '>' + p.dataset.reader).sort()}")
     finally:
@@ -420,3 +421,4 @@ def test_the_page_follows_a_replayed_log_and_draws_its_faults(browser: Any, url:
     assert shown["faulty"] == sorted({p for c in chains for p in c})
     assert shown["roots"] == sorted({c[-1] for c in chains})
     assert shown["steps"] == sorted({f"{c[i + 1]}>{c[i]}" for c in chains for i in range(len(c) - 1)})
+    assert shown["dpus"] == behind  # each DPU that ran behind its schedule

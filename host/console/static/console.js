@@ -376,7 +376,8 @@ function showProgress(progress) {
 
 // A fatal fault on the graph: its chain from the process it struck back to the root cause (a
 // lockout's process and the writer it waits on, a jam's chain; each step a reader waiting for its
-// writer), as the listener found them; the root cause drawn apart.
+// writer), as the listener found them; the root cause drawn apart. A DPU's own fault (it ran behind
+// its schedule) marks the DPU.
 function markFaults() {
   const faults = ((state.live && state.live.faults) || []).filter((f) => f.fatal);
   const procs = new Set(faults.flatMap((f) => [f.process, ...(f.chain || [])]).filter(Boolean));
@@ -386,6 +387,8 @@ function markFaults() {
     g.classList.toggle("faulty", procs.has(g.dataset.process));
     g.classList.toggle("root-cause", roots.has(g.dataset.process));
   });
+  const dpus = new Set(faults.filter((f) => !f.process && f.dpu !== null).map((f) => String(f.dpu)));  // behind
+  document.querySelectorAll("#graph .dpu").forEach((g) => g.classList.toggle("faulty", dpus.has(g.dataset.dpu)));
   document.querySelectorAll("#graph .buffer path").forEach((path) =>
     path.classList.toggle("faulty", steps.has(`${path.dataset.writer}>${path.dataset.reader}`)));
 }
