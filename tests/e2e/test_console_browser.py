@@ -5,11 +5,14 @@ is refused without the token, edits `executor`'s compute and reads the predictio
 63.4 %, as `skel check` says), pushes it to running DPUs (no restart: same pid, a new
 generation), and gets `skel check`'s one line for an invalid edit, with nothing sent (the
 DPUs' generation unchanged); bad HTTP input from the page's origin is a 4xx, nothing sent;
-runs from the page (Table 1 reached live), pushes executor at 3000 us into that run, runs again
-(63.4 % measured) and compares the two. `make test` installs chromium and chromium-driver as
-root (Makefile: test-tools); without them these tests skip and say so. Cost: about 36 s (one
-browser for the module, a console per test; four DPUs for the push test, 7 s; a 1200-cycle and
-a 600-cycle run, a push and a diff, 21 s).
+runs from the page (Table 1 reached live, its progress counted), pushes executor at 3000 us into
+that run, runs again (63.4 % measured) and compares the two; follows `lcm-logplayer` replaying a
+log, its faults drawn as chains back to their root cause; and the layout stays readable from SERVO
+to the 64-DPU scale system (measured: boxes, nesting, texts). `make test` installs chromium and
+chromium-driver as root (Makefile: test-tools); without them these tests skip and say so. Cost:
+about 67 s (one browser for the module, a console per test; four DPUs for the push test, 7 s; a
+1200-cycle and a 600-cycle run, a push and a diff, 25 s; three layouts, 12 s; a simulation and
+its replay, 8 s).
 """
 
 from __future__ import annotations
