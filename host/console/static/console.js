@@ -5,7 +5,7 @@
 const SVG = "http://www.w3.org/2000/svg";
 const MIN_SCALE = 0.7;
 const elk = new ELK();
-const state = { base: null, current: null, edits: {}, seq: 0, live: null, picked: new Set() };
+const state = { base: null, current: null, edits: {}, seq: 0, live: null, picked: new Set(), direction: null };
 
 function $(id) { return document.getElementById(id); }
 function el(tag, attrs = {}, text) {
@@ -47,7 +47,7 @@ function chainEdges(graph) {
   return pairs;
 }
 
-function elkGraph(graph, loads) {
+function elkGraph(graph, loads, direction) {
   const procNode = (p) => ({ id: "p:" + p.name, height: 36,
                              width: Math.max(120, textWidth(p.name, "title"), textWidth(processLine(p))) });
   // A box at least as wide as its title, which is drawn above its children.
@@ -80,7 +80,7 @@ function elkGraph(graph, loads) {
   });
   return {
     id: "root",
-    layoutOptions: { "elk.algorithm": "layered", "elk.direction": "RIGHT",
+    layoutOptions: { "elk.algorithm": "layered", "elk.direction": direction,
                      "elk.hierarchyHandling": "INCLUDE_CHILDREN", "elk.json.edgeCoords": "ROOT",
                      "elk.json.shapeCoords": "ROOT", "elk.layered.spacing.nodeNodeBetweenLayers": "40",
                      "elk.spacing.edgeLabel": "2", "elk.edgeLabels.inline": "false" },
@@ -89,15 +89,33 @@ function elkGraph(graph, loads) {
   };
 }
 
+// Left to right, as the paper's Figure 8, when that fits the column at MIN_SCALE; a graph too
+// long for it (a long chain of processes) is laid out top to bottom too, kept when that fits: a
+// page scrolls down better than sideways. A graph that fits neither way (the 64-DPU ring) stays
+// left to right, where the arrows enter the boxes from the side, clear of their titles. The
+// direction is chosen once per system loaded: an edit redraws with one layout, the same way round.
+async function laidOut(graph, loads) {
+  if (state.direction) return elk.layout(elkGraph(graph, loads, state.direction));
+  const fits = (laid) => (laid.width + 20) * MIN_SCALE <= $("picture").clientWidth;
+  const right = await elk.layout(elkGraph(graph, loads, "RIGHT"));
+  state.direction = "RIGHT";
+  if (fits(right)) return right;
+  const down = await elk.layout(elkGraph(graph, loads, "DOWN"));
+  if (!fits(down)) return right;
+  state.direction = "DOWN";
+  return down;
+}
+
 function processLine(p) {
   return `${p.compute_us} / ${p.period_us} µs` + (p.sync === "periodic" ? "" : " · " + p.sync);
 }
 
 async function draw(graph, loads) {
   const began = performance.now();
-  const laid = await elk.layout(elkGraph(graph, loads));
+  const laid = await laidOut(graph, loads);
   const root = $("graph");
   root.replaceChildren();
+  root.dataset.direction = state.direction;
   // Scaled to the column's width, but never below MIN_SCALE: a large system scrolls, its
   // labels still readable, rather than shrinking to a line.
   const [width, height] = [laid.width + 20, laid.height + 20];
@@ -438,6 +456,7 @@ async function start() {
   if (!data.ok) { $("error").hidden = false; $("error").textContent = data.error; return; }
   state.base = data;
   state.edits = {};
+  state.direction = null;
   $("system-name").textContent = data.summary.system;
   $("status").textContent = `DPUs on ${data.url}` + (data.spawn ? " (Run spawns local DPUs)" : "");
   descriptors(data.graph);
