@@ -31,6 +31,7 @@ from conftest import EXAMPLES, LOGPLAYER, Background, DpuFarm, skel, skel_backgr
 
 from skeleton.analysis.errors import EXIT_FATAL_FLAW, EXIT_INTERRUPTED
 from skeleton.host.console.app import LIVE_PERIOD_S
+from skeleton.host.console.live import FAULTS_SHOWN
 from skeleton.host.live.control import Control
 from skeleton.host.sysfile.link import record_url
 from skeleton.host.sysfile.system import load
@@ -415,7 +416,11 @@ def test_the_page_follows_a_replayed_log_and_draws_its_faults(browser: Any, url:
         player = subprocess.run([str(LOGPLAYER), "-s", "1", "-l", record_url(url), str(out / "run.lcm")],
                                 capture_output=True, text=True, timeout=60)
         assert player.returncode == 0, player.stderr
-        time.sleep(3 * LIVE_PERIOD_S)  # the stream's snapshot after the log's last messages
+        # The faults are searched for in a thread of their own, as often as their cost allows: the
+        # page is read once it shows as many as the report has, and after the stream's next snapshot.
+        expected = min(len(report['faults']), FAULTS_SHOWN)
+        until(browser, f"return document.querySelectorAll('#faults li').length >= {expected}")
+        time.sleep(2 * LIVE_PERIOD_S)
         shown = browser.execute_script(
             "const faulty = (s) => [...document.querySelectorAll(s)];"
             "return {head: document.getElementById('live-head').textContent,"
