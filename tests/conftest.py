@@ -53,6 +53,7 @@ if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
 REPO = Path(__file__).resolve().parent.parent
 ASAN_DPU = REPO / "build" / "asan" / "skel-dpu"
 EXAMPLES = REPO / "examples"
+LOGPLAYER = Path(lcm.__file__).parent.parent / "bin" / "lcm-logplayer"  # LCM's, from the venv
 # Property-based tests (Hypothesis): a hundred examples each in `make test`, thousands in
 # `make fuzz` (SKEL_HYPOTHESIS=fuzz). No deadline: a shared machine's pauses are not failures.
 settings.register_profile("test", max_examples=100, deadline=None)

@@ -157,7 +157,5 @@ def graph(system: System) -> dict[str, Any]:
                     "to": [p.name for p in system.processes if p.event == n]}
                    for n in sorted({p.event for p in system.processes if p.event})],
         "chains": [{"name": c.name, "processes": [names[i] for i in c.processes]} for c in system.chains],
-        "run": {"cycles": system.run.cycles, "duration_s": system.run.duration_s,
-                "planned_s": system.run.duration_s if system.run.cycles is None
-                else system.run.cycles * system.critical_period_us / 1e6},
+        "run": {"cycles": system.run.cycles, "duration_s": system.run.duration_s},
     }

@@ -3,7 +3,8 @@ live listener.
 
 `skel status`, `skel run` (through Control, which adds the sending) and `skel watch`
 each hear the DPUs through a Listener: every DPU's latest heartbeat (and every daemon's,
-by host and pid), the reports, the configs by generation, and, of the run it follows,
+by host and pid), the reports, the configs by generation, each run's START (how far a
+run has come: progress()), and, of the run it follows,
 its statuses and its timing batches in a RecordStore decoded batch by batch as they
 come. From these it answers what a live view asks: which DPUs are lost (their
 heartbeats stopped for LOST_AFTER_S: the one live timeout), the report of the records
@@ -41,6 +42,7 @@ from skeleton.analysis.views.summary import fault_line
 from skelmsg import contract
 from skelmsg.contract import (
     CLOCK_CHANNEL,
+    COMMAND_CHANNEL,
     CONFIG_CHANNEL,
     KEY_ENV,
     REPORT_CHANNEL,
@@ -81,6 +83,7 @@ RUN_ID_MAX = 2**53 - 1
 REPORTS_KEPT = 1024          # report_t kept, newest first out: a flood of them cannot grow memory
 PROCESSES_KEPT = 4096        # daemons (host, pid) remembered for `skel status`, likewise
 STATUSES_BEFORE_RUN = 1024   # statuses kept before a run is followed (its lockouts may come first)
+STARTS_KEPT = 64             # the runs whose START was heard, newest kept
 # The faults of the records heard are found by the report's code over all of them: it runs
 # again once this many times its last cost has passed (a long run's cost grows), so it takes
 # a bounded share of a core; a new lockout in a heartbeat makes it run at once.
@@ -166,9 +169,13 @@ class Listener:
         # heard_lockouts' last answer, and what it was for: (run, lockouts heard, generation)
         self._heard: tuple[tuple[Any, ...], list[Fault]] = ((), [])
         self._faults_due = 0.0
+        # Each run's START, heard on the record URL (the sender sends its commands there too, and a
+        # log replays them): run -> (cycle 0's release, its planned length; 0: until STOP), UTC ns.
+        self.starts: dict[int, tuple[int, int]] = {}
+        self._running_utc_ns = 0  # the DPUs' clock in the followed run's newest RUNNING heartbeat
         self._handlers: dict[str, Callable[[bytes, int], None]] = {
             STATUS_CHANNEL: self._status, REPORT_CHANNEL: self._report, CONFIG_CHANNEL: self._config,
-            TIMING_CHANNEL: self._timing}
+            TIMING_CHANNEL: self._timing, COMMAND_CHANNEL: self._command}
 
     # --- hearing ----------------------------------------------------------------------
     @property
@@ -259,6 +266,8 @@ class Listener:
                     del self.statuses[:-STATUSES_BEFORE_RUN]
                 else:
                     self._lockouts.update((status.dpu, lock.process, lock.cycle) for lock in status.lockouts)
+                    if status.state == skelmsg.status_t.STATE_RUNNING:
+                        self._running_utc_ns = max(self._running_utc_ns, status.utc_ns)
             self.status_heard(status, heard_ns)
             self.changed.notify_all()
 
@@ -298,6 +307,20 @@ class Listener:
                 self._config_bytes.pop(old, None)
             self.changed.notify_all()
 
+    def _command(self, data: bytes, _heard_ns: int) -> None:
+        """A run's START: when its cycle 0 is released and for how long (progress())."""
+        command = self._decode(COMMAND_CHANNEL, skelmsg.command_t, data)
+        if command is None or command.kind != skelmsg.command_t.START:
+            return
+        if not is_run_id(command.run_id) or command.duration_ns < 0:
+            self._refuse(COMMAND_CHANNEL)
+            return
+        with self.lock:
+            self.starts.pop(command.run_id, None)
+            self.starts[command.run_id] = (command.at_utc_ns, command.duration_ns)
+            while len(self.starts) > STARTS_KEPT:
+                del self.starts[next(iter(self.starts))]
+
     def _timing(self, data: bytes, _heard_ns: int) -> None:
         if len(data) < 8 + _TIMING_HEAD.size or data[:8] != _TIMING_FP:
             self._refuse(TIMING_CHANNEL)
@@ -329,8 +352,26 @@ class Listener:
         self.statuses = [s for s in self.statuses if s.run_id == run_id]
         self._lockouts = {(s.dpu, lock.process, lock.cycle) for s in self.statuses for lock in s.lockouts}
         self._announced, self._locks_seen, self._faults_due = set(), 0, 0.0
+        running = [s.utc_ns for s in self.statuses if s.state == skelmsg.status_t.STATE_RUNNING]
+        self._running_utc_ns = max(running, default=0)
         self.started = time.monotonic()
         self.last_report = 0.0
+
+    def progress(self) -> tuple[float, float | None] | None:
+        """How far the followed run has come: seconds since its cycle 0 was released, by its
+        DPUs' clocks in their newest heartbeat while running (a run stopped early stays where it
+        stopped), and its planned length in seconds (None: until STOP); None before its START
+        and a heartbeat of it running were heard."""
+        with self.lock:
+            start = None if self.store is None else self.starts.get(self.store.run_id)
+            now_ns = self._running_utc_ns
+        if start is None or now_ns == 0:
+            return None
+        at_ns, duration_ns = start
+        elapsed_ns = max(0, now_ns - at_ns)
+        if duration_ns:
+            elapsed_ns = min(elapsed_ns, duration_ns)
+        return elapsed_ns / 1e9, duration_ns / 1e9 if duration_ns else None
 
     def absorb(self) -> None:
         """Decode the timing batches that came since the last call (cheap: those only)."""

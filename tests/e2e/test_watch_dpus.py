@@ -11,16 +11,14 @@ import sys
 import time
 from pathlib import Path
 
-import lcm
 import pytest
-from conftest import EXAMPLES, LOCKOUT_SYSTEM, REPO, fresh_url, short_servo_run, skel, threads_cpus
+from conftest import EXAMPLES, LOCKOUT_SYSTEM, LOGPLAYER, REPO, fresh_url, short_servo_run, skel, threads_cpus
 from unit.test_watch import _same_tables
 
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.measure.tally import RunTally
 from skeleton.host.sysfile.link import record_url
 
-LOGPLAYER = Path(lcm.__file__).parent.parent / "bin" / "lcm-logplayer"
 ENV = {**os.environ, "COLUMNS": "160"}
 
 

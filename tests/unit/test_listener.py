@@ -9,10 +9,11 @@ import time
 
 from analysis_synth import RUN_ID, batches, small_config, small_run, status
 
+import skelmsg
 from skeleton.analysis.measure.report import build_report
 from skeleton.analysis.read.records import decode_run
 from skeleton.host.live.listener import LOST_AFTER_S, Listener, fault_line
-from skelmsg.contract import CONFIG_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
+from skelmsg.contract import COMMAND_CHANNEL, CONFIG_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 
 def _heard(listener: Listener) -> None:
@@ -84,3 +85,39 @@ def test_a_report_of_a_run_no_longer_followed_says_nothing() -> None:
     listener.handle(TIMING_CHANNEL, batches(1, dpu1, 3, run_id=RUN_ID + 1)[0].encode())
     assert listener.run_id == RUN_ID + 1
     assert listener.announce(old, running=False) == [] and listener.faults == []
+
+
+def test_progress_is_the_runs_start_and_its_dpus_clocks_while_running() -> None:
+    """How far the followed run has come (the console shows it): from its START, heard on the
+    record URL as a log replays it, to the newest clock of a DPU heartbeating while running it. A
+    heartbeat after the run (ready) does not move it on; it never passes the planned length."""
+    at_ns = 1_700_000_000 * 10**9
+    listener = Listener()
+    listener.follow(RUN_ID)
+
+    def beat(dpu: int, after_s: float, state: int = skelmsg.status_t.STATE_RUNNING) -> None:
+        s = status(dpu, [])
+        s.state, s.utc_ns = state, at_ns + round(after_s * 1e9)
+        listener.handle(STATUS_CHANNEL, s.encode())
+
+    def start(run_id: int, duration_s: float) -> bytes:
+        c = skelmsg.command_t()
+        c.kind, c.run_id, c.at_utc_ns, c.duration_ns, c.sender = (
+            skelmsg.command_t.START, run_id, at_ns, round(duration_s * 1e9), "HOST pid 1")
+        return c.encode()
+
+    beat(1, 0.2)
+    assert listener.progress() is None  # no START heard
+    listener.handle(COMMAND_CHANNEL, start(RUN_ID, 2.0))
+    assert listener.progress() == (0.2, 2.0)
+    beat(2, 1.5)
+    beat(1, 1.4)  # the DPUs' newest clock counts
+    assert listener.progress() == (1.5, 2.0)
+    beat(1, 9.0, skelmsg.status_t.STATE_READY)
+    assert listener.progress() == (1.5, 2.0)
+    beat(2, 3.0)
+    assert listener.progress() == (2.0, 2.0)
+    listener.handle(COMMAND_CHANNEL, start(RUN_ID, 0.0))  # until STOP
+    assert listener.progress() == (3.0, None)
+    listener.handle(COMMAND_CHANNEL, start(0, 1.0))  # no run id: refused, counted
+    assert listener.malformed == {COMMAND_CHANNEL: 1}

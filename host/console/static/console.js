@@ -5,7 +5,7 @@
 const SVG = "http://www.w3.org/2000/svg";
 const MIN_SCALE = 0.7;
 const elk = new ELK();
-const state = { base: null, current: null, edits: {}, seq: 0, live: null, picked: new Set() };
+const state = { base: null, current: null, edits: {}, seq: 0, live: null, picked: new Set(), direction: null };
 
 function $(id) { return document.getElementById(id); }
 function el(tag, attrs = {}, text) {
@@ -30,7 +30,15 @@ async function call(method, path, body) {
 function fmt(v, digits = 1) { return v === null || v === undefined ? "-" : Number(v).toFixed(digits); }
 
 // --- the picture (the paper's Figure 8), laid out by ELK ------------------------------------
-function textWidth(text) { return 6.2 * text.length + 8; }
+// Each label is measured in the font it is drawn in (console.css: svg text, .title, .label), so
+// ELK gives every box and edge label the room its text takes: none runs out of its box.
+const FONTS = { plain: "11px system-ui, sans-serif", title: "bold 11px system-ui, sans-serif",
+                label: "10px system-ui, sans-serif" };
+const ruler = document.createElement("canvas").getContext("2d");
+function textWidth(text, font = "plain") {
+  ruler.font = FONTS[font];
+  return Math.ceil(ruler.measureText(text).width) + 12;
+}
 
 function chainEdges(graph) {
   const pairs = new Set();
@@ -39,24 +47,24 @@ function chainEdges(graph) {
   return pairs;
 }
 
-function elkGraph(graph, loads) {
-  const procNode = (p) => ({ id: "p:" + p.name, width: Math.max(120, textWidth(p.name)), height: 36 });
-  const dpuNode = (d) => {
-    const label = `DPU ${d.id} · ${fmt(loads[d.id])} %`;
-    return { id: "d:" + d.id, layoutOptions: { "elk.padding": "[top=26,left=10,bottom=10,right=10]" },
-             labels: [{ text: label, width: textWidth(label), height: 14 }],
-             children: graph.processes.filter((p) => p.dpu === d.id).map(procNode) };
-  };
-  const hostNode = (h) => ({ id: "h:" + h.name, layoutOptions: { "elk.padding": "[top=26,left=10,bottom=10,right=10]" },
-                             labels: [{ text: "host " + h.name, width: textWidth("host " + h.name), height: 14 }],
-                             children: graph.dpus.filter((d) => d.host === h.name).map(dpuNode) });
+function elkGraph(graph, loads, direction) {
+  const procNode = (p) => ({ id: "p:" + p.name, height: 36,
+                             width: Math.max(120, textWidth(p.name, "title"), textWidth(processLine(p))) });
+  // A box at least as wide as its title, which is drawn above its children.
+  const titled = (id, title, children) => ({
+    id, children, labels: [{ text: title, width: textWidth(title, "title"), height: 14 }],
+    layoutOptions: { "elk.padding": "[top=26,left=10,bottom=10,right=10]",
+                     "elk.nodeSize.constraints": "MINIMUM_SIZE", "elk.nodeSize.minimum": `(${textWidth(title, "title") + 12}, 40)` } });
+  const dpuNode = (d) => titled("d:" + d.id, `DPU ${d.id} · ${fmt(loads[d.id])} %`,
+                                graph.processes.filter((p) => p.dpu === d.id).map(procNode));
+  const hostNode = (h) => titled("h:" + h.name, "host " + h.name, graph.dpus.filter((d) => d.host === h.name).map(dpuNode));
   const edges = [];
   const sources = [];
   for (const b of graph.buffers) {
     b.readers.forEach((r, i) => {
       const label = `${b.name} ${b.bytes} B · ${fmt(b.rate_hz, 0)} Hz`;
       edges.push({ id: `b:${b.id}:${i}`, sources: ["p:" + b.writer], targets: ["p:" + r.process],
-                   labels: i === 0 ? [{ text: label, width: textWidth(label), height: 12 }] : [] });
+                   labels: i === 0 ? [{ text: label, width: textWidth(label, "label"), height: 12 }] : [] });
     });
   }
   graph.events.forEach((e, k) => {
@@ -67,12 +75,12 @@ function elkGraph(graph, loads) {
         sources.push({ id: source, width: textWidth(from), height: 24, labels: [{ text: from }] });
       }
       e.to.forEach((to, j) => edges.push({ id: `ev:${k}:${i}:${j}`, sources: [source], targets: ["p:" + to],
-                                            labels: [{ text: "event " + e.name, width: textWidth("event " + e.name), height: 12 }] }));
+                                            labels: [{ text: "event " + e.name, width: textWidth("event " + e.name, "label"), height: 12 }] }));
     });
   });
   return {
     id: "root",
-    layoutOptions: { "elk.algorithm": "layered", "elk.direction": "RIGHT",
+    layoutOptions: { "elk.algorithm": "layered", "elk.direction": direction,
                      "elk.hierarchyHandling": "INCLUDE_CHILDREN", "elk.json.edgeCoords": "ROOT",
                      "elk.json.shapeCoords": "ROOT", "elk.layered.spacing.nodeNodeBetweenLayers": "40",
                      "elk.spacing.edgeLabel": "2", "elk.edgeLabels.inline": "false" },
@@ -81,10 +89,33 @@ function elkGraph(graph, loads) {
   };
 }
 
+// Left to right, as the paper's Figure 8, when that fits the column at MIN_SCALE; a graph too
+// long for it (a long chain of processes) is laid out top to bottom too, kept when that fits: a
+// page scrolls down better than sideways. A graph that fits neither way (the 64-DPU ring) stays
+// left to right, where the arrows enter the boxes from the side, clear of their titles. The
+// direction is chosen once per system loaded: an edit redraws with one layout, the same way round.
+async function laidOut(graph, loads) {
+  if (state.direction) return elk.layout(elkGraph(graph, loads, state.direction));
+  const fits = (laid) => (laid.width + 20) * MIN_SCALE <= $("picture").clientWidth;
+  const right = await elk.layout(elkGraph(graph, loads, "RIGHT"));
+  state.direction = "RIGHT";
+  if (fits(right)) return right;
+  const down = await elk.layout(elkGraph(graph, loads, "DOWN"));
+  if (!fits(down)) return right;
+  state.direction = "DOWN";
+  return down;
+}
+
+function processLine(p) {
+  return `${p.compute_us} / ${p.period_us} µs` + (p.sync === "periodic" ? "" : " · " + p.sync);
+}
+
 async function draw(graph, loads) {
-  const laid = await elk.layout(elkGraph(graph, loads));
+  const began = performance.now();
+  const laid = await laidOut(graph, loads);
   const root = $("graph");
   root.replaceChildren();
+  root.dataset.direction = state.direction;
   // Scaled to the column's width, but never below MIN_SCALE: a large system scrolls, its
   // labels still readable, rather than shrinking to a line.
   const [width, height] = [laid.width + 20, laid.height + 20];
@@ -112,15 +143,14 @@ async function draw(graph, loads) {
     root.append(hg);
     for (const dpu of host.children) {
       const id = Number(dpu.id.slice(2));
-      const dg = box(dpu, "dpu" + (loads[id] > 100 ? " over" : ""), { "data-dpu": id });
+      const dg = box(dpu, "dpu" + (loads[id] > 100 ? " over" : ""), { "data-dpu": id, "data-host": host.id.slice(2) });
       dg.append(svg("text", { x: dpu.x + 6, y: dpu.y + 16, class: "title" }, dpu.labels[0].text));
       root.append(dg);
       for (const proc of dpu.children) {
         const p = graph.processes.find((q) => "p:" + q.name === proc.id);
         const pg = box(proc, "process" + (inChain.has(p.name) ? " in-chain" : ""), { "data-process": p.name, "data-dpu": id });
         pg.append(svg("text", { x: proc.x + 6, y: proc.y + 15, class: "title" }, p.name));
-        const sync = p.sync === "periodic" ? "" : " · " + p.sync;
-        pg.append(svg("text", { x: proc.x + 6, y: proc.y + 29 }, `${p.compute_us} / ${p.period_us} µs${sync}`));
+        pg.append(svg("text", { x: proc.x + 6, y: proc.y + 29 }, processLine(p)));
         pg.addEventListener("pointerdown", (event) => { event.preventDefault(); state.dragging = p; });
         root.append(pg);
       }
@@ -160,6 +190,7 @@ async function draw(graph, loads) {
       root.append(g);
     }
   }
+  document.body.dataset.layoutMs = String(Math.round(performance.now() - began));
 }
 
 // A process dragged onto another DPU (its box, or a process in it) is allocated there: the same
@@ -325,11 +356,12 @@ function liveCell(dpu) {
 
 function showLive(view) {
   state.live = view;
-  const head = view.error ? view.error : view.run_id === null ? `waiting for a run on ${view.url}` :
-    `run ${view.run_id} · generation ${view.generation ?? "-"} · ${fmt(view.elapsed_s)} s measured` +
-    (state.current ? ` of ${fmt(state.current.graph.run.planned_s)} s planned (warm-up included)` : "") +
-    ` · ${view.records ?? 0} records`;
+  const head = view.error ? view.error : !view.listening ? `subscribing to ${view.url}…` :
+    view.run_id === null ? `waiting for a run on ${view.url}` :
+    `run ${view.run_id}` + (view.system ? ` of ${view.system} · generation ${view.generation}` : "") +
+    ` · ${fmt(view.elapsed_s)} s measured (warm-up excluded) · ${view.records ?? 0} records`;
   $("live-head").textContent = head;
+  showProgress(view.run_id === null ? null : view.progress);
   document.querySelectorAll("#prediction tr[data-dpu]").forEach((tr) => {
     tr.querySelector(".live").textContent = liveCell(Number(tr.dataset.dpu));
   });
@@ -345,13 +377,36 @@ function showLive(view) {
   $("faults").replaceChildren(...(view.faults || []).map((f) => el("li", { class: "over" }, `${f.at_s} s: ${f.text}`)));
 }
 
-// A fatal fault on the graph: the process that locked out, or a jam's chain from its head back to
-// the root cause (each step a reader waiting for its writer), as the listener found them.
+// How far the run has come: since its cycle 0, in the cycles `run.cycles` counts (warm-up
+// included), of its planned length, as the listener has it from the run's START and heartbeats.
+function showProgress(progress) {
+  const bar = $("run-progress");
+  const text = $("progress");
+  bar.hidden = !progress || progress.planned_s === null;
+  text.dataset.cycle = progress ? progress.cycle : "";
+  text.dataset.cycles = progress ? progress.cycles ?? "" : "";
+  if (!progress) { text.textContent = ""; return; }
+  text.textContent = progress.planned_s === null
+    ? `cycle ${progress.cycle} · ${fmt(progress.elapsed_s)} s, until stopped`
+    : `cycle ${progress.cycle} of ${progress.cycles} · ${fmt(progress.elapsed_s)} s of ${fmt(progress.planned_s)} s`;
+  if (progress.planned_s) bar.value = progress.elapsed_s / progress.planned_s;
+}
+
+// A fatal fault on the graph: its chain from the process it struck back to the root cause (a
+// lockout's process and the writer it waits on, a jam's chain; each step a reader waiting for its
+// writer), as the listener found them; the root cause drawn apart. A DPU's own fault (it ran behind
+// its schedule) marks the DPU.
 function markFaults() {
   const faults = ((state.live && state.live.faults) || []).filter((f) => f.fatal);
   const procs = new Set(faults.flatMap((f) => [f.process, ...(f.chain || [])]).filter(Boolean));
+  const roots = new Set(faults.map((f) => (f.chain || []).at(-1)).filter(Boolean));
   const steps = new Set(faults.flatMap((f) => (f.chain || []).slice(0, -1).map((p, i) => `${f.chain[i + 1]}>${p}`)));
-  document.querySelectorAll("#graph .process").forEach((g) => g.classList.toggle("faulty", procs.has(g.dataset.process)));
+  document.querySelectorAll("#graph .process").forEach((g) => {
+    g.classList.toggle("faulty", procs.has(g.dataset.process));
+    g.classList.toggle("root-cause", roots.has(g.dataset.process));
+  });
+  const dpus = new Set(faults.filter((f) => !f.process && f.dpu !== null).map((f) => String(f.dpu)));  // behind
+  document.querySelectorAll("#graph .dpu").forEach((g) => g.classList.toggle("faulty", dpus.has(g.dataset.dpu)));
   document.querySelectorAll("#graph .buffer path").forEach((path) =>
     path.classList.toggle("faulty", steps.has(`${path.dataset.writer}>${path.dataset.reader}`)));
 }
@@ -401,6 +456,7 @@ async function start() {
   if (!data.ok) { $("error").hidden = false; $("error").textContent = data.error; return; }
   state.base = data;
   state.edits = {};
+  state.direction = null;
   $("system-name").textContent = data.summary.system;
   $("status").textContent = `DPUs on ${data.url}` + (data.spawn ? " (Run spawns local DPUs)" : "");
   descriptors(data.graph);
