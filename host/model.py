@@ -25,10 +25,38 @@ class Link:
     name: str
     url: str                # "local" or an udpm:// URL
     bandwidth_mbps: float | None = None
+    # The transport the reading DPUs emulate (schema.LinkSpec's last block)
+    latency_us: int = 0
+    jitter_us: int = 0
+    jitter: str = "uniform"            # uniform | normal
+    loss_pct: float = 0.0              # the good state's when bursty
+    burst: LossBurst | None = None
 
     @property
     def local(self) -> bool:
         return self.url == "local"
+
+    @property
+    def delay_us(self) -> tuple[float, float, float]:
+        """The least, mean and most delay of a buffer on it (a normal jitter is cut at 3 sigma)."""
+        spread = self.jitter_us * (3 if self.jitter == "normal" else 1)
+        return max(0.0, self.latency_us - spread), float(self.latency_us), float(self.latency_us + spread)
+
+    @property
+    def mean_loss_pct(self) -> float:
+        """The long-run share of buffers lost: the bad state's loss for the share of time it is bad."""
+        b = self.burst
+        if b is None or b.enter_pct == 0:
+            return self.loss_pct
+        bad = b.enter_pct / (b.enter_pct + b.leave_pct)
+        return (1 - bad) * self.loss_pct + bad * b.loss_pct
+
+
+@dataclass(frozen=True)
+class LossBurst:
+    enter_pct: float        # per version: good -> bad
+    leave_pct: float        # per version: bad -> good
+    loss_pct: float         # lost in the bad state
 
 
 @dataclass(frozen=True)
@@ -381,7 +409,11 @@ def from_config(msg: skelmsg.config_t) -> System:
         for p in msg.processes)
     return System(
         name=msg.system, path=Path("system.yaml"), source_text=msg.source,
-        links=tuple(Link(link.id, link.name, link.url or "local") for link in msg.links),
+        links=tuple(Link(link.id, link.name, link.url or "local", None, link.latency_us, link.jitter_us,
+                         "normal" if link.jitter == skelmsg.link_t.JITTER_NORMAL else "uniform", link.loss_pct,
+                         LossBurst(link.burst_enter_pct, link.burst_leave_pct, link.burst_loss_pct)
+                         if link.burst_enter_pct > 0 else None)
+                    for link in msg.links),
         dpus=tuple(Dpu(d.id, d.host, None if d.cpu < 0 else d.cpu, _named(COMPUTE, d.compute),
                        _named(EXECUTIVE, d.executive), d.speed, d.minor_cycle_us, tuple(d.links))
                    for d in msg.dpus),
