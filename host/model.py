@@ -342,6 +342,8 @@ class ExpectedInput:
     new: float | None
     stale: float | None
     dropped: float | None
+    transport_us: float = 0.0       # the mean delay its link's emulated latency and jitter add
+    lost_pct: float = 0.0           # the share of the writer's buffers its link's emulation loses
 
 
 @dataclass(frozen=True)
@@ -350,6 +352,7 @@ class ExpectedChain:
     processes: tuple[str, ...]
     best_us: float | None
     worst_us: float | None          # None: a step falls ever further behind
+    network_us: float = 0.0         # of its latency, the mean its links' emulated delays add
 
 
 @dataclass(frozen=True)
@@ -370,8 +373,10 @@ class Expected:
             processes=tuple(ExpectedProcess(p["name"], p["response_us"], p["paced_by"])
                             for p in doc["processes"]),
             inputs=tuple(ExpectedInput(i["reader"], i["buffer"], i["writer"], i["new"], i["stale"],
-                                       i["dropped"]) for i in doc["inputs"]),
-            chains=tuple(ExpectedChain(c["name"], tuple(c["processes"]), c["best_us"], c["worst_us"])
+                                       i["dropped"], i.get("transport_us", 0.0), i.get("lost_pct", 0.0))
+                         for i in doc["inputs"]),
+            chains=tuple(ExpectedChain(c["name"], tuple(c["processes"]), c["best_us"], c["worst_us"],
+                                       c.get("network_us", 0.0))
                          for c in doc["chains"]))
 
 # --- the model on the wire: config_t's enums, and a System read back from a config_t -------------

@@ -150,7 +150,7 @@ class RunAnalysis:
             return f"no prediction: {e}"
         rep = self.report
         rep.predicted = beside(prediction, rep.generation, system.run.late_pct, rep.dpus, rep.processes,
-                               rep.chains, rep.faults)
+                               rep.chains, rep.faults, rep.buffers)
         if rep.simulated and rep.predicted.cause == PLATFORM:
             rep.predicted.cause = SIMPLIFIED
         return None

@@ -100,6 +100,7 @@ class ChainPrediction:
     processes: tuple[str, ...]
     best_us: float
     worst_us: float | None          # None: a step falls ever further behind
+    network_us: float = 0.0         # of its latency, the mean its links' emulated delays add
 
 
 @dataclass(frozen=True)
@@ -677,7 +678,9 @@ def _inputs(system: System, rates: dict[int, float], unknown: set[int],
             dropped = max(0.0, least - 1) if max(0.0, least - 1) == max(0.0, most - 1) else None
             if w.id in paced and new is not None and p.id not in unknown and rates[p.id] > 0:
                 dropped = 1e6 / w.period_us / rates[p.id] - new
-            out.append(ExpectedInput(p.name, b.name, w.name, new, stale, dropped))
+            link = system.link(b.link)
+            out.append(ExpectedInput(p.name, b.name, w.name, new, stale, dropped, link.delay_us[1],
+                                     link.mean_loss_pct))
     return tuple(out)
 
 
@@ -692,10 +695,13 @@ def _chains(system: System, by_name: dict[str, ProcessPrediction], rates: dict[i
     out = []
     for c in system.chains:
         steps = [system.process(i) for i in c.processes]
-        best, worst = 0.0, 0.0
+        best, worst, network = 0.0, 0.0, 0.0
         for i, (before, p) in enumerate(itertools.pairwise(steps), start=1):
             at = by_name[p.name]
             buffer = next(b for b in p.inputs if b in before.outputs)
+            # its link's emulated delay: the value is seen that much later, then waits for the read
+            least, mean, most = system.link(system.buffer(buffer).link).delay_us
+            best, worst, network = best + least, worst + most, network + mean
             fastest = nominal_rate_hz(system, before) if before.id in unknown else rates[before.id]
             data_paced = buffer in p.required and fastest <= 1e6 / p.period_us * (1 + 1e-9)
             wait = at.start_max_us if data_paced else p.period_us + at.start_max_us - at.start_min_us
@@ -708,7 +714,7 @@ def _chains(system: System, by_name: dict[str, ProcessPrediction], rates: dict[i
                 best += frames.best_us(p, system.dpu(p.dpu))
                 worst += (at.response_us or math.inf) - at.start_max_us
         out.append(ChainPrediction(c.name, tuple(s.name for s in steps), best,
-                                   worst if math.isfinite(worst) else None))
+                                   worst if math.isfinite(worst) else None, network))
     return tuple(out)
 
 
