@@ -399,6 +399,13 @@ def _named(names: dict[str, int], value: int) -> str:
     raise ValueError(f"{value} is none of {', '.join(f'{v} ({name})' for name, v in names.items())}")
 
 
+def _link(link: skelmsg.link_t) -> Link:
+    burst = LossBurst(link.burst_enter_pct, link.burst_leave_pct, link.burst_loss_pct)
+    return Link(link.id, link.name, link.url or "local", None, link.latency_us, link.jitter_us,
+                "normal" if link.jitter == skelmsg.link_t.JITTER_NORMAL else "uniform", link.loss_pct,
+                burst if link.burst_enter_pct > 0 else None)
+
+
 def from_config(msg: skelmsg.config_t) -> System:
     """The System a config_t describes (host/live/wire.py writes one from a System): what a run's
     DPUs were sent, as the analysis reads it from the log. What the config does not carry keeps
@@ -414,11 +421,7 @@ def from_config(msg: skelmsg.config_t) -> System:
         for p in msg.processes)
     return System(
         name=msg.system, path=Path("system.yaml"), source_text=msg.source,
-        links=tuple(Link(link.id, link.name, link.url or "local", None, link.latency_us, link.jitter_us,
-                         "normal" if link.jitter == skelmsg.link_t.JITTER_NORMAL else "uniform", link.loss_pct,
-                         LossBurst(link.burst_enter_pct, link.burst_leave_pct, link.burst_loss_pct)
-                         if link.burst_enter_pct > 0 else None)
-                    for link in msg.links),
+        links=tuple(_link(link) for link in msg.links),
         dpus=tuple(Dpu(d.id, d.host, None if d.cpu < 0 else d.cpu, _named(COMPUTE, d.compute),
                        _named(EXECUTIVE, d.executive), d.speed, d.minor_cycle_us, tuple(d.links))
                    for d in msg.dpus),

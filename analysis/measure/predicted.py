@@ -22,6 +22,7 @@ fatal fault) puts a figure outside its prediction down to that, not to the platf
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -158,7 +159,7 @@ def _network(prediction: Expected, chain_processes: tuple[str, ...],
              transports: dict[tuple[str, str], tuple[BufferMetrics, ReaderMetrics]]) -> float | None:
     """The sum of the measured p50 transport of a chain's buffers, each at the step that reads it."""
     total = 0.0
-    for before, after in zip(chain_processes, chain_processes[1:], strict=False):
+    for before, after in itertools.pairwise(chain_processes):
         i = next((i for i in prediction.inputs if i.reader == after and i.writer == before), None)
         found = transports.get((after, i.buffer)) if i else None
         if found is None or found[1].latency_us.p50 is None:
@@ -197,8 +198,8 @@ def beside(prediction: Expected, generation: int, late_pct: int, dpus: list[DpuM
                                for want, got in zip((i.new, i.stale, i.dropped), shares, strict=True))
         b, r = transports.get((i.reader, i.buffer), (None, None))
         transport = _plain(i.transport_us, r.latency_us.p50 if r is not None else None)
-        lost = _plain(i.lost_pct, 100 * r.lost / b.published if b is not None and r is not None and b.published
-                      else None)
+        measured = b is not None and r is not None and b.published > 0
+        lost = _plain(i.lost_pct, 100 * r.lost / b.published if measured else None)
         out.inputs.append(InputBeside(i.reader, i.buffer, i.writer, new, stale, dropped, transport, lost))
     measured_chains = {c.name: c for c in chains}
     for c in prediction.chains:

@@ -109,8 +109,8 @@ def _links(specs: list[LinkSpec] | None) -> tuple[Link, ...]:
     if all(s.url == "local" for s in specs):
         raise Invalid("links", "needs at least one udpm:// link: the host reaches the DPUs over it")
     return tuple(Link(i + 1, s.name, s.url, s.bandwidth_mbps, s.latency_us, s.jitter_us, s.jitter, s.loss_pct,
-                      None if s.loss_burst is None else LossBurst(s.loss_burst.enter_pct, s.loss_burst.leave_pct,
-                                                                  s.loss_burst.loss_pct))
+                      None if (b := s.loss_burst) is None else LossBurst(b.enter_pct, b.leave_pct,
+                                                                         b.loss_pct))
                  for i, s in enumerate(specs))
 
 
