@@ -203,7 +203,7 @@ def predict(system: System) -> Prediction:
         dpus.append(DpuPrediction(d.id, d.executive, d.speed, d.minor_cycle_us,
                                   frames.hyperperiod(mine, d.minor_cycle_us), 100 * load,
                                   compute, found[d.id], ok, _lockout_ms(system, d, mine, load)))
-    fed = {(r, w.id): _data_at(system, timing, w)[0] for r, ws in waits.items() for _, w in ws}
+    fed = {(r, w.id): _data_at(system, timing, w, b)[0] for r, ws in waits.items() for b, w in ws}
     for r, (w, data, at) in _paced_timings(system, timing, rates, paced).items():
         timing[r], fed[(r, w)] = at, data
     processes = tuple(
@@ -308,13 +308,15 @@ def _paced_tasking(period: int, writer: int, data: float, at: Timing
     return came, starts, ends
 
 
-def _data_at(system: System, timing: dict[int, Timing], w: Process) -> tuple[float, float]:
+def _data_at(system: System, timing: dict[int, Timing], w: Process, buffer: int | None = None
+             ) -> tuple[float, float]:
     """When W's data of a cycle comes, after its release: its earliest and latest end (inf:
-    it falls ever further behind), at its shortest and longest draws. Its publishing and the
-    transport are the platform's."""
+    it falls ever further behind), at its shortest and longest draws, and on BUFFER's link its
+    least and most emulated delay. Its publishing and the real transport are the platform's."""
     t = timing[w.id]
-    return (t.start_min_us + frames.best_us(w, system.dpu(w.dpu)),
-            t.response_us if t.response_us is not None else math.inf)
+    least, _, most = (0.0, 0.0, 0.0) if buffer is None else system.link(system.buffer(buffer).link).delay_us
+    return (t.start_min_us + frames.best_us(w, system.dpu(w.dpu)) + least,
+            t.response_us + most if t.response_us is not None else math.inf)
 
 
 def planned_data_us(system: System) -> dict[int, float]:
@@ -337,8 +339,8 @@ def _timings(system: System, waits: dict[int, list[tuple[int, Process]]]
     moved: set[int] = set()
     for _ in range(len(system.processes) + 1):
         timing, found = _schedule(system, ready)
-        now = {r: (max(_data_at(system, timing, w)[0] for _, w in ws),
-                   max(_data_at(system, timing, w)[1] for _, w in ws)) for r, ws in waits.items()}
+        now = {r: (max(_data_at(system, timing, w, b)[0] for b, w in ws),
+                   max(_data_at(system, timing, w, b)[1] for b, w in ws)) for r, ws in waits.items()}
         if now == ready:
             return timing, found, ready
         moved, ready = {r for r in now if now[r] != ready.get(r)}, now
@@ -691,7 +693,8 @@ def _chains(system: System, by_name: dict[str, ProcessPrediction], rates: dict[i
     (it waits for each value), its latest start, less the writer's earliest end when it waits
     for the value of its own cycle (FED: (reader, writer) -> that end); a reader of unknown
     rate that runs on events reads when the next comes, which nothing bounds. A step in the
-    middle then computes (at best its compute, at worst up to its response)."""
+    middle then computes (at best its compute, at worst up to its response). A link's emulated
+    delay (Link.delay_us) comes before the read: its least at best, its most at worst."""
     out = []
     for c in system.chains:
         steps = [system.process(i) for i in c.processes]
@@ -701,12 +704,13 @@ def _chains(system: System, by_name: dict[str, ProcessPrediction], rates: dict[i
             buffer = next(b for b in p.inputs if b in before.outputs)
             # its link's emulated delay: the value is seen that much later, then waits for the read
             least, mean, most = system.link(system.buffer(buffer).link).delay_us
-            best, worst, network = best + least, worst + most, network + mean
+            best, network = best + least, network + mean
             fastest = nominal_rate_hz(system, before) if before.id in unknown else rates[before.id]
             data_paced = buffer in p.required and fastest <= 1e6 / p.period_us * (1 + 1e-9)
             wait = at.start_max_us if data_paced else p.period_us + at.start_max_us - at.start_min_us
-            if data_paced and (p.id, before.id) in fed:
-                wait = max(0.0, at.start_max_us - fed[(p.id, before.id)])
+            wait += most
+            if data_paced and (p.id, before.id) in fed:  # FED holds the least delay, its start the most
+                wait = max(0.0, at.start_max_us - fed[(p.id, before.id)]) + least
             if buffer in p.required and before.id in unknown:  # below its fastest, the writer may pace P
                 wait = max(wait, at.start_max_us)
             worst += math.inf if p.sync == "event" and p.id in unknown else wait

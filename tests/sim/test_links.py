@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import skel
+from e2e.test_link_delay_dpus import TWO_LINKS
 from sim.test_executives import simulate
 
 import skeleton
@@ -78,6 +79,19 @@ def test_a_latency_longer_than_the_period_holds_several_versions_in_order(tmp_pa
     seq = np.asarray(inputs["seq"])[np.asarray(inputs["new"]) != 0]
     assert (np.diff(seq) == 1).all()  # one period each: every version seen, none skipped
     assert _reader(report)["lost"] == 0
+
+
+def test_a_data_reader_behind_a_slow_link_starts_2_ms_later_as_predicted(tmp_path: Path) -> None:
+    path = tmp_path / "two.yaml"
+    path.write_text(TWO_LINKS.format(bus="udpm://239.255.76.67:7667?ttl=0", slow="udpm://239.255.76.67:7677?ttl=0"))
+    report = simulate(tmp_path / "run", str(path))
+    chains = {c["name"]: c for c in report["predicted"]["chains"]}
+    near, far = chains["writer->near_reader"], chains["writer->far_reader"]
+    # each reader waits for its data: near sees it when sent, far when the link makes it due
+    assert near["latency_us"]["measured"] == near["latency_max_us"] == 0.0
+    assert far["latency_us"]["measured"] == far["latency_max_us"] == far["latency_us"]["predicted"] == 2000.0
+    assert far["best_us"] == 2000.0 and far["network_us"]["measured"] == 2000.0
+    assert not report["faults"]
 
 
 @pytest.mark.parametrize("jitter", ["uniform", "normal"])
