@@ -15,13 +15,14 @@ from e2e.test_link_delay_dpus import TWO_LINKS
 from sim.test_executives import simulate
 
 import skeleton
+from skelmsg.contract import DEFAULT_URL
 
 # A writer on DPU 1, its reader on DPU 2, of one period: without a link model every version is
 # seen when sent, and every cycle of the reader finds a new one.
 PAIR = """\
 system: pair
 links:
-  - {{name: net, url: "udpm://239.255.76.67:7667?ttl=0", {link}}}
+  - {{name: net, url: "{url}", {link}}}
 dpus:
   - {{id: 1}}
   - {{id: 2}}
@@ -37,8 +38,9 @@ run: {{duration_s: {duration}, warmup_cycles: 10}}
 
 
 def _pair(tmp_path: Path, link: str, period: int = 5000, duration: float = 1.0) -> Path:
-    path = tmp_path / f"pair-{abs(hash(link)) % 10**8}.yaml"
-    path.write_text(PAIR.format(link=link or "loss_pct: 0", period=period, duration=duration))
+    path = tmp_path / f"pair-{len(list(tmp_path.glob('pair-*.yaml')))}.yaml"
+    path.write_text(PAIR.format(url=DEFAULT_URL, link=link or "loss_pct: 0", period=period,
+                                duration=duration))
     return path
 
 
@@ -83,7 +85,7 @@ def test_a_latency_longer_than_the_period_holds_several_versions_in_order(tmp_pa
 
 def test_a_data_reader_behind_a_slow_link_starts_2_ms_later_as_predicted(tmp_path: Path) -> None:
     path = tmp_path / "two.yaml"
-    path.write_text(TWO_LINKS.format(bus="udpm://239.255.76.67:7667?ttl=0", slow="udpm://239.255.76.67:7677?ttl=0"))
+    path.write_text(TWO_LINKS.format(bus=DEFAULT_URL, slow=DEFAULT_URL.replace(":7667", ":7677")))
     report = simulate(tmp_path / "run", str(path))
     chains = {c["name"]: c for c in report["predicted"]["chains"]}
     near, far = chains["writer->near_reader"], chains["writer->far_reader"]
@@ -169,7 +171,7 @@ def test_a_bad_value_is_one_line_naming_its_field(tmp_path: Path, given: str, fi
 def test_each_reading_dpu_loses_versions_of_its_own(tmp_path: Path) -> None:
     """Each reading DPU draws its own losses: two readers of one buffer on two DPUs lose different
     versions (a link loses a version for one receiver, not for all)."""
-    text = PAIR.format(link="loss_pct: 10", period=1000, duration=2).replace(
+    text = PAIR.format(url=DEFAULT_URL, link="loss_pct: 10", period=1000, duration=2).replace(
         "  - {id: 2}\n", "  - {id: 2}\n  - {id: 3}\n").replace(
         "chains:", "  - {id: 3, name: logger, dpu: 3, period_us: 1000, compute_us: 100, inputs: [sample]}\n"
         "chains:")
