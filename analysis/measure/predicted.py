@@ -40,6 +40,8 @@ PLATFORM = "the platform's own cost (communication, wake-up, interference)"
 # A simulated run has no platform: what it puts outside the prediction is the prediction's own.
 SIMPLIFIED = "the prediction's own simplifications (a simulated run has no platform)"
 WORST = "the predicted worst"
+# The prediction counts a link's emulated loss, not what it does to a data reader's wait.
+LOSSES = "or the links' emulated losses (a data reader waits on for the buffer after a lost one)"
 
 # The system file a config carries -> what its prediction expects; raises ValueError (one line:
 # why) when that file cannot be predicted here (a samples file left behind, say).
@@ -175,6 +177,8 @@ def beside(prediction: Expected, generation: int, late_pct: int, dpus: list[DpuM
     a figure outside its prediction down to) beside `prediction`, matched by DPU id, process
     name, (reader, buffer) and chain name; what either side lacks is left out."""
     out = Predicted(generation, COMPUTE_POINTS, SHARE, late_pct, cause=cause_of(faults))
+    if any(i.lost_pct > 0 for i in prediction.inputs):
+        out.cause += f"; {LOSSES}"
     transports = _measured(buffers)
     measured_dpus = {d.id: d for d in dpus}
     for d in prediction.dpus:
