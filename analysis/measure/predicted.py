@@ -59,6 +59,11 @@ class Beside:
     outside: bool = False
 
 
+def _none() -> Beside:
+    """No emulated transport: nothing modelled, nothing measured beside it."""
+    return Beside(0.0, None)
+
+
 @dataclass
 class DpuBeside:
     id: int
@@ -82,10 +87,9 @@ class InputBeside:
     new: Beside  # share of the reader's cycles
     stale: Beside
     dropped: Beside  # sequences per reader cycle
-    # The link's emulated transport: its mean delay beside the measured p50 transport (which adds
-    # the platform's own), and the % of the writer's buffers lost beside the measured; not judged.
-    transport_us: Beside = field(default_factory=lambda: Beside(0.0, None))
-    lost_pct: Beside = field(default_factory=lambda: Beside(0.0, None))
+    # The link's emulated transport, not judged (a real run adds the platform's own transport):
+    transport_us: Beside = field(default_factory=_none)  # its mean delay beside the measured p50 transport
+    lost_pct: Beside = field(default_factory=_none)  # % of the writer's buffers lost beside the measured
 
 
 @dataclass
@@ -94,9 +98,9 @@ class ChainBeside:
     best_us: float
     latency_us: Beside  # predicted worst (None: unbounded) beside the measured p99
     latency_max_us: float | None
-    # Of its latency, the network's: its links' mean emulated delays beside the sum of its
-    # buffers' measured p50 transport (to the step that reads each); not judged.
-    network_us: Beside = field(default_factory=lambda: Beside(0.0, None))
+    # Of its latency, the network's, not judged: the links' mean emulated delays beside the sum of its
+    # buffers' measured p50 transport, each to the step that reads it.
+    network_us: Beside = field(default_factory=_none)  # links' mean delays beside its buffers' transport
 
 
 @dataclass
