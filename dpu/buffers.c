@@ -85,6 +85,25 @@ void buffers_slot_advance(skel_slot_t *slot, int64_t now_ns)
     }
 }
 
+void buffers_slot_carry(skel_slot_t *slot, const skel_slot_t *old)
+{
+    memcpy(slot->state, old->state, sizeof slot->state);
+    slot->bad = old->bad;
+    slot->lost = old->lost;
+    slot->overflow = old->overflow;
+    slot->last_due_ns = old->last_due_ns;
+    for (int n = 0; n < old->pend_count; n++) {
+        const skel_pending_t *v = &old->pending[(old->pend_head + n) % old->pend_cap];
+        if (v->seq > slot->dup_upto) slot->dup_upto = v->seq;
+        if (slot->pend_cap == 0) /* the new plan's link delays nothing: seen at once, stamped as due */
+            buffers_take(slot, v->seq, v->send_ns, v->due_ns);
+        else if (slot->pend_count < slot->pend_cap)
+            slot->pending[(slot->pend_head + slot->pend_count++) % slot->pend_cap] = *v;
+        else
+            slot->overflow++;
+    }
+}
+
 int64_t buffers_advance(skel_plan_t *plan, int64_t now_mono_ns)
 {
     int64_t next = INT64_MAX;

@@ -225,6 +225,8 @@ void buffers_slot_reset(skel_slot_t *slot);
 int buffers_slot_receive(skel_slot_t *slot, int64_t run_id, const wire_buffer_hdr_t *hdr,
                          int64_t recv_ns);
 void buffers_slot_seed(skel_slot_t *slot, int64_t seed, int16_t dpu);
+/* A live switch: what OLD's emulated link still holds comes as it would have (its draws go on). */
+void buffers_slot_carry(skel_slot_t *slot, const skel_slot_t *old);
 /* Takes the held versions due at NOW into the slot: what a reader may see from then on. */
 void buffers_slot_advance(skel_slot_t *slot, int64_t now_ns);
 /* Every slot's versions due by NOW (monotonic): the next instant one is (INT64_MAX: none). */

@@ -87,18 +87,7 @@ static void swap_carry_slots(skel_plan_t *next, const skel_plan_t *old)
         slot->received = o->received;
         slot->foreign = o->foreign;
         slot->dup_upto = o->newest_seq;
-        /* What the old plan's emulated link still holds back comes as it would have. */
-        memcpy(slot->state, o->state, sizeof slot->state);
-        slot->bad = o->bad;
-        slot->lost = o->lost;
-        slot->overflow = o->overflow;
-        slot->last_due_ns = o->last_due_ns;
-        for (int n = 0; n < o->pend_count; n++) {
-            const skel_pending_t *v = &o->pending[(o->pend_head + n) % o->pend_cap];
-            if (v->seq > slot->dup_upto) slot->dup_upto = v->seq;
-            if (slot->pend_count < slot->pend_cap) slot->pending[slot->pend_count++] = *v;
-            else slot->overflow++;
-        }
+        buffers_slot_carry(slot, o);
     }
 }
 

@@ -210,6 +210,32 @@ static void test_held_until_due_in_order(void)
     CHECK_EQ(r.slot.overflow, 0);
 }
 
+/* A live switch carries what is held: into the new ring, or seen at once when the new link delays nothing. */
+static void test_carry_held(void)
+{
+    rig_t old, with, without;
+    rig_init(&old);
+    rig_init(&with);
+    rig_init(&without);
+    skel_pending_t ring[4], ring2[4];
+    old.slot.pending = ring;
+    old.slot.pend_cap = 4;
+    old.slot.tr.latency_ns = 1000;
+    old.slot.tr.from_send = 1;
+    CHECK_EQ(rig_send(&old, 0, 0, 10), BUFFERS_ACCEPTED);
+    CHECK_EQ(rig_send(&old, 1, 100, 110), BUFFERS_ACCEPTED);
+    with.slot.pending = ring2;
+    with.slot.pend_cap = 4;
+    buffers_slot_carry(&with.slot, &old.slot);
+    CHECK_EQ(with.slot.pend_count, 2);
+    CHECK_EQ(with.slot.dup_upto, 1);
+    buffers_slot_advance(&with.slot, 1100);
+    CHECK_EQ(rig_read(&with, 1).seq, 1);
+    buffers_slot_carry(&without.slot, &old.slot);
+    CHECK_EQ(without.slot.received, 2);
+    CHECK_EQ(rig_read(&without, 1).seq, 1);
+}
+
 /* loss_pct 100: every version lost, none received; 0: none. */
 static void test_emulated_loss(void)
 {
@@ -240,5 +266,6 @@ int main(void)
     test_output_encode();
     test_held_until_due_in_order();
     test_emulated_loss();
+    test_carry_held();
     return CHECK_DONE();
 }
