@@ -112,6 +112,8 @@ class LinkPrediction:
     bandwidth_mbps: float | None
     known_messages_per_s: float     # of its writers of known rate: all of it when none is unknown
     known_bytes_per_s: float
+    delay_us: tuple[float, float, float] = (0.0, 0.0, 0.0)  # its emulated delay: least, mean, most
+    lost_pct: float = 0.0           # the long-run share of buffers its emulation loses
 
     @property
     def over(self) -> bool:
@@ -736,7 +738,7 @@ def _links(system: System, rates: dict[int, float], unknown: set[int]) -> tuple[
         size = sum(rates[b.writer] * (b.bytes if link.local else wire_bytes(system, b.id)) for b in known)
         whole = len(known) == len(mine)
         out.append(LinkPrediction(link.name, link.local, messages if whole else None, size if whole else None,
-                                  link.bandwidth_mbps, messages, size))
+                                  link.bandwidth_mbps, messages, size, link.delay_us, link.mean_loss_pct))
     return tuple(out)
 
 
