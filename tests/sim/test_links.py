@@ -83,9 +83,17 @@ def test_a_latency_longer_than_the_period_holds_several_versions_in_order(tmp_pa
     assert _reader(report)["lost"] == 0
 
 
-def test_a_data_reader_behind_a_slow_link_starts_2_ms_later_as_predicted(tmp_path: Path) -> None:
+@pytest.mark.parametrize("executive", ["cyclic", "threads"])
+def test_a_data_reader_behind_a_slow_link_starts_2_ms_later_as_predicted(tmp_path: Path, executive: str
+                                                                          ) -> None:
+    text = TWO_LINKS.format(bus=DEFAULT_URL, slow=DEFAULT_URL.replace(":7667", ":7677"))
+    if executive == "threads":  # the tasking executive's data wait (dpu/tasking.c on virtual time)
+        text = text.replace("{id: 1}, {id: 2}, {id: 3}", ", ".join(
+            f"{{id: {i}, executive: threads}}" for i in (1, 2, 3)))
+        for before in (", sync: data", ", outputs"):
+            text = text.replace(before, ", priority: 5" + before)
     path = tmp_path / "two.yaml"
-    path.write_text(TWO_LINKS.format(bus=DEFAULT_URL, slow=DEFAULT_URL.replace(":7667", ":7677")))
+    path.write_text(text)
     report = simulate(tmp_path / "run", str(path))
     chains = {c["name"]: c for c in report["predicted"]["chains"]}
     near, far = chains["writer->near_reader"], chains["writer->far_reader"]
