@@ -28,8 +28,8 @@ void buffers_slot_reset(skel_slot_t *slot)
  * the processes' (draw_seed: the id in the top bits) and the generators' (0x8000 | i). */
 void buffers_slot_seed(skel_slot_t *slot, int64_t seed, int16_t dpu)
 {
-    draw_seed_state(slot->state, (int64_t)((uint64_t)seed ^ 0x5851f42d4c957f2dULL ^ ((uint64_t)(uint16_t)dpu << 20)),
-                    (uint16_t)slot->buffer);
+    uint64_t mine = (uint64_t)seed ^ 0x5851f42d4c957f2dULL ^ ((uint64_t)(uint16_t)dpu << 20);
+    draw_seed_state(slot->state, (int64_t)mine, (uint16_t)slot->buffer);
 }
 
 int buffers_emulated(const skel_transport_t *tr)
@@ -130,7 +130,10 @@ static void buffers_transport(skel_slot_t *slot, const wire_buffer_hdr_t *hdr, i
         buffers_take(slot, hdr->seq, hdr->send_ns, recv_ns);
         return;
     }
-    int64_t due = (slot->tr.from_send ? hdr->send_ns : recv_ns) + buffers_delay(slot);
+    /* From the send stamp, but no later than the arrival: a stamp from the future (another
+     * clock, a damaged message) can hold nothing longer than the delay, nor overflow. */
+    int64_t from = slot->tr.from_send && hdr->send_ns < recv_ns ? hdr->send_ns : recv_ns;
+    int64_t due = from + buffers_delay(slot);
     if (due < slot->last_due_ns) due = slot->last_due_ns;
     if (due <= recv_ns && slot->pend_count == 0) {
         slot->last_due_ns = recv_ns;

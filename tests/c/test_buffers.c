@@ -202,7 +202,13 @@ static void test_held_until_due_in_order(void)
     CHECK_EQ(rig_send(&r, 3, 600, 1700), BUFFERS_ACCEPTED);
     CHECK_EQ(r.slot.pend_count, 0);
     CHECK_EQ(rig_read(&r, 1).recv_ns, 1700);
-    for (int64_t k = 4; k < 8; k++) CHECK_EQ(rig_send(&r, k, 5000, 5001), BUFFERS_ACCEPTED);
+    /* a stamp from the future holds it no longer than the delay from its arrival */
+    CHECK_EQ(rig_send(&r, 4, INT64_MAX, 1800), BUFFERS_ACCEPTED);
+    buffers_slot_advance(&r.slot, 2799);
+    CHECK_EQ(rig_read(&r, 1).new_data, 0);
+    buffers_slot_advance(&r.slot, 2800);
+    CHECK_EQ(rig_read(&r, 1).seq, 4);
+    for (int64_t k = 5; k < 9; k++) CHECK_EQ(rig_send(&r, k, 5000, 5001), BUFFERS_ACCEPTED);
     CHECK_EQ(r.slot.pend_count, 3);
     CHECK_EQ(r.slot.overflow, 1);
     buffers_slot_reset(&r.slot);
