@@ -471,7 +471,8 @@ def same_cycle_waits(system: System,
     finds what it used last cycle until the writer's computation of this one ends. Not a
     writer before it in its cyclic frame (it has ended), nor after it there (a deadlock:
     held_up()), nor a higher priority on its tasking processor that is ready at its release (it
-    holds the processor until it ends anyway); an event writer runs on no grid. LEFT_OUT:
+    holds the processor until it ends anyway), unless its link's emulated delay keeps the data
+    from the reader after that end; an event writer runs on no grid. LEFT_OUT:
     readers that never start, run at an unknown rate or are paced by a slower writer."""
     out: dict[int, list[tuple[int, Process]]] = {}
     for p in sorted(system.processes, key=lambda q: -q.priority):  # a higher priority is settled first
@@ -481,9 +482,13 @@ def same_cycle_waits(system: System,
             w = system.process(system.buffer(b).writer)
             if w.period_us != p.period_us or w.sync == "event":
                 continue
-            if w.dpu == p.dpu and (system.dpu(p.dpu).executive != "threads"
-                                   or (w.priority > p.priority and w.id not in out)):
+            # a link's emulated delay keeps the reader waiting after its writer ends, on one DPU too
+            delayed = system.link(system.buffer(b).link).delay_us[2] > 0
+            cyclic = system.dpu(p.dpu).executive != "threads"
+            if w.dpu == p.dpu and not delayed and (cyclic or (w.priority > p.priority and w.id not in out)):
                 continue
+            if w.dpu == p.dpu and cyclic and (w.order, w.id) > (p.order, p.id):
+                continue  # after it in its frame: held_up()
             out.setdefault(p.id, []).append((b, w))
     return out
 
