@@ -4,6 +4,7 @@
  * (nothing newer), and `dropped` counts the sequences skipped in between (the
  * writer is faster than the reader, or messages were lost). Pure functions on
  * plain structs, so the unit tests drive them without a network. */
+#include <math.h>
 #include <string.h>
 
 #include "dpu.h"
@@ -16,6 +17,136 @@ void buffers_slot_reset(skel_slot_t *slot)
     slot->newest_recv_ns = 0;
     slot->received = 0;
     slot->foreign = 0;
+    slot->pend_head = slot->pend_count = 0;
+    slot->last_due_ns = INT64_MIN;
+    slot->bad = 0;
+    slot->lost = slot->overflow = 0;
+}
+
+/* Each reading DPU draws its own losses and delays (a link loses a version for one reader,
+ * not for all), the same from run to run with the same seed: a stream of its own, apart from
+ * the processes' (draw_seed: the id in the top bits) and the generators' (0x8000 | i). */
+void buffers_slot_seed(skel_slot_t *slot, int64_t seed, int16_t dpu)
+{
+    uint64_t mine = (uint64_t)seed ^ 0x5851f42d4c957f2dULL ^ ((uint64_t)(uint16_t)dpu << 20);
+    draw_seed_state(slot->state, (int64_t)mine, (uint16_t)slot->buffer);
+}
+
+int buffers_emulated(const skel_transport_t *tr)
+{
+    return tr->latency_ns > 0 || tr->jitter_ns > 0 || tr->loss > 0 || tr->enter > 0;
+}
+
+/* Gilbert-Elliott: the state moves first, then the version is lost with its state's loss. */
+static int buffers_lost(skel_slot_t *slot)
+{
+    const skel_transport_t *tr = &slot->tr;
+    if (tr->enter > 0 && draw_unit(slot->state) < (slot->bad ? tr->leave : tr->enter)) slot->bad = !slot->bad;
+    double p = slot->bad ? tr->burst_loss : tr->loss;
+    return p > 0 && draw_unit(slot->state) < p;
+}
+
+/* One version's delay: the latency plus a jitter draw (uniform in +-jitter, or normal with
+ * jitter as its standard deviation, cut at 3), never below 0. */
+static int64_t buffers_delay(skel_slot_t *slot)
+{
+    const skel_transport_t *tr = &slot->tr;
+    double z = 0;
+    if (tr->jitter_ns > 0 && tr->jitter == SKELMSG_LINK_T_JITTER_NORMAL) {
+        double u1 = 1.0 - draw_unit(slot->state), u2 = draw_unit(slot->state); /* u1 in (0, 1] */
+        z = sqrt(-2.0 * log(u1)) * cos(6.283185307179586 * u2);
+        z = z > 3 ? 3 : z < -3 ? -3 : z;
+    } else if (tr->jitter_ns > 0) {
+        z = 2.0 * draw_unit(slot->state) - 1.0;
+    }
+    double d = (double)tr->latency_ns + z * (double)tr->jitter_ns;
+    return d <= 0 ? 0 : (int64_t)(d + 0.5);
+}
+
+/* A version the reader may see from AT on. */
+static void buffers_take(skel_slot_t *slot, int64_t seq, int64_t send_ns, int64_t at_ns)
+{
+    slot->received++;
+    /* A late, reordered message still counts as received but never replaces newer data. */
+    if (seq > slot->newest_seq) {
+        slot->newest_seq = seq;
+        slot->newest_send_ns = send_ns;
+        slot->newest_recv_ns = at_ns;
+    }
+}
+
+void buffers_slot_advance(skel_slot_t *slot, int64_t now_ns)
+{
+    while (slot->pend_count > 0 && slot->pending[slot->pend_head].due_ns <= now_ns) {
+        const skel_pending_t *v = &slot->pending[slot->pend_head];
+        buffers_take(slot, v->seq, v->send_ns, v->due_ns);
+        slot->pend_head = (slot->pend_head + 1) % slot->pend_cap;
+        slot->pend_count--;
+    }
+}
+
+void buffers_slot_carry(skel_slot_t *slot, const skel_slot_t *old)
+{
+    memcpy(slot->state, old->state, sizeof slot->state);
+    slot->bad = old->bad;
+    slot->lost = old->lost;
+    slot->overflow = old->overflow;
+    slot->last_due_ns = old->last_due_ns;
+    for (int n = 0; n < old->pend_count; n++) {
+        const skel_pending_t *v = &old->pending[(old->pend_head + n) % old->pend_cap];
+        if (v->seq > slot->dup_upto) slot->dup_upto = v->seq;
+        if (slot->pend_cap == 0) /* the new plan's link delays nothing: seen at once, stamped as due */
+            buffers_take(slot, v->seq, v->send_ns, v->due_ns);
+        else if (slot->pend_count < slot->pend_cap)
+            slot->pending[(slot->pend_head + slot->pend_count++) % slot->pend_cap] = *v;
+        else
+            slot->overflow++;
+    }
+}
+
+int64_t buffers_advance(skel_plan_t *plan, int64_t now_mono_ns)
+{
+    int64_t next = INT64_MAX;
+    for (int i = 0; i < plan->nslots; i++) {
+        skel_slot_t *slot = &plan->slots[i];
+        if (slot->pend_count == 0) continue;
+        buffers_slot_advance(slot, now_mono_ns + plan->clock_offset_ns);
+        if (slot->pend_count > 0 && slot->pending[slot->pend_head].due_ns - plan->clock_offset_ns < next)
+            next = slot->pending[slot->pend_head].due_ns - plan->clock_offset_ns;
+    }
+    return next;
+}
+
+/* Through the link's emulated transport: lost, held until due, or seen at once. Versions
+ * leave in the order they came (a link delivers in order): one due before an earlier
+ * one waits for it. A full ring drops the version, counted. */
+static void buffers_transport(skel_slot_t *slot, const wire_buffer_hdr_t *hdr, int64_t recv_ns)
+{
+    if (buffers_lost(slot)) {
+        slot->lost++;
+        return;
+    }
+    if (slot->pending == NULL) { /* loss only */
+        buffers_take(slot, hdr->seq, hdr->send_ns, recv_ns);
+        return;
+    }
+    /* From the send stamp, but no later than the arrival: a stamp from the future (another
+     * clock, a damaged message) can hold nothing longer than the delay, nor overflow. */
+    int64_t from = slot->tr.from_send && hdr->send_ns < recv_ns ? hdr->send_ns : recv_ns;
+    int64_t due = from + buffers_delay(slot);
+    if (due < slot->last_due_ns) due = slot->last_due_ns;
+    if (due <= recv_ns && slot->pend_count == 0) {
+        slot->last_due_ns = recv_ns;
+        buffers_take(slot, hdr->seq, hdr->send_ns, recv_ns);
+        return;
+    }
+    if (slot->pend_count == slot->pend_cap) {
+        slot->overflow++;
+        return;
+    }
+    slot->pending[(slot->pend_head + slot->pend_count++) % slot->pend_cap] =
+        (skel_pending_t){ hdr->seq, hdr->send_ns, due };
+    slot->last_due_ns = due;
 }
 
 /* A message whose buffer id or writer is not this channel's is malformed or
@@ -32,13 +163,8 @@ int buffers_slot_receive(skel_slot_t *slot, int64_t run_id, const wire_buffer_hd
     /* After a live switch the new plan's lcm_t holds copies of what the old one
      * delivered already: those are not received twice. */
     if (hdr->seq <= slot->dup_upto) return BUFFERS_DUPLICATE;
-    slot->received++;
-    /* A late, reordered message still counts as received but never replaces newer data. */
-    if (hdr->seq > slot->newest_seq) {
-        slot->newest_seq = hdr->seq;
-        slot->newest_send_ns = hdr->send_ns;
-        slot->newest_recv_ns = recv_ns;
-    }
+    if (buffers_emulated(&slot->tr)) buffers_transport(slot, hdr, recv_ns);
+    else buffers_take(slot, hdr->seq, hdr->send_ns, recv_ns);
     return BUFFERS_ACCEPTED;
 }
 

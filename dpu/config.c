@@ -102,6 +102,22 @@ static int config_check_local(const skelmsg_config_t *cfg, const skelmsg_buffer_
     return 0;
 }
 
+static int config_pct(double v) { return v >= 0 && v <= 100; } /* false for NaN too */
+
+/* A link's emulated transport (buffers.c); an int32 of us is far within an int64 of ns. */
+static int config_check_transport(const skelmsg_link_t *l, char *reason, size_t len)
+{
+    if (l->latency_us < 0 || l->jitter_us < 0)
+        return config_fail(reason, len, "link %d: latency_us %d or jitter_us %d is negative", l->id,
+                           l->latency_us, l->jitter_us);
+    if (l->jitter != SKELMSG_LINK_T_JITTER_UNIFORM && l->jitter != SKELMSG_LINK_T_JITTER_NORMAL)
+        return config_fail(reason, len, "link %d: unknown jitter %d", l->id, l->jitter);
+    if (!config_pct(l->loss_pct) || !config_pct(l->burst_enter_pct) || !config_pct(l->burst_leave_pct) ||
+        !config_pct(l->burst_loss_pct))
+        return config_fail(reason, len, "link %d: a loss or burst percentage is outside 0..100", l->id);
+    return 0;
+}
+
 /* One buffer a process of ours reads or writes: known, sized, on a reachable link. */
 static int config_check_buffer(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d,
                                const skelmsg_process_t *p, int16_t id, char *reason, size_t len)
@@ -114,6 +130,7 @@ static int config_check_buffer(const skelmsg_config_t *cfg, const skelmsg_dpu_t 
                            SKEL_MAX_BUFFER_BYTES);
     const skelmsg_link_t *l = config_link(cfg, b->link);
     if (l == NULL) return config_fail(reason, len, "buffer %d: unknown link %d", b->id, b->link);
+    if (config_check_transport(l, reason, len) != 0) return -1;
     if (l->url[0] == '\0') {
         if (b->url[0] != '\0')
             return config_fail(reason, len, "buffer %d: on local link %d but sent to '%.64s'", b->id,

@@ -148,6 +148,20 @@ int wire_buffer_encoded_size(int32_t nbytes);
 /* ---- buffers (buffers.c): what a DPU holds of each buffer it reads ------------- */
 struct skel_plan;
 
+/* A version received and held back by the link's emulated latency until it is due. */
+typedef struct {
+    int64_t seq, send_ns, due_ns;
+} skel_pending_t;
+
+/* The transport the reading DPU emulates for one buffer (link_t's latency, jitter, loss). */
+typedef struct {
+    int64_t latency_ns, jitter_ns;
+    int8_t jitter;             /* link_t JITTER_* */
+    int8_t from_send;          /* the writer shares this DPU's clock: due from its send stamp,
+                                * else from the arrival (the real network's delay adds) */
+    double loss, enter, leave, burst_loss; /* probabilities per version (Gilbert-Elliott) */
+} skel_transport_t;
+
 /* One buffer this DPU reads (shared by all its readers on this DPU). Written by
  * the link handler or by a local writer; read by process cycles; one thread. */
 typedef struct skel_slot {
@@ -162,6 +176,14 @@ typedef struct skel_slot {
     int64_t received;          /* messages accepted in this run */
     int64_t foreign;           /* messages of another run (ignored) */
     struct skel_plan *plan;
+    /* The link's emulated transport (buffers.c): NULL pending when it has no latency. */
+    skel_transport_t tr;
+    skel_pending_t *pending;   /* a ring of pend_cap, sized at config time */
+    int pend_cap, pend_head, pend_count;
+    int64_t last_due_ns;       /* versions are delivered in order: none due before this */
+    int8_t bad;                /* Gilbert-Elliott: in the bad state */
+    uint64_t state[4];         /* its draws, seeded by the run's seed, this DPU and the buffer */
+    int64_t lost, overflow;    /* versions the emulation lost; versions a full ring dropped */
 } skel_slot_t;
 
 /* One input of one process: what it last used, and its measured-window sums. */
@@ -202,6 +224,14 @@ enum { BUFFERS_ACCEPTED = 0, BUFFERS_FOREIGN_RUN = 1, BUFFERS_DUPLICATE = 2, BUF
 void buffers_slot_reset(skel_slot_t *slot);
 int buffers_slot_receive(skel_slot_t *slot, int64_t run_id, const wire_buffer_hdr_t *hdr,
                          int64_t recv_ns);
+void buffers_slot_seed(skel_slot_t *slot, int64_t seed, int16_t dpu);
+/* A live switch: what OLD's emulated link still holds comes as it would have (its draws go on). */
+void buffers_slot_carry(skel_slot_t *slot, const skel_slot_t *old);
+/* Takes the held versions due at NOW into the slot: what a reader may see from then on. */
+void buffers_slot_advance(skel_slot_t *slot, int64_t now_ns);
+/* Every slot's versions due by NOW (monotonic): the next instant one is (INT64_MAX: none). */
+int64_t buffers_advance(struct skel_plan *plan, int64_t now_mono_ns);
+int buffers_emulated(const skel_transport_t *tr);
 void buffers_input_reset(skel_input_t *in);
 void buffers_input_peek(const skel_input_t *in, const skel_slot_t *slot, skel_in_rec_t *rec);
 void buffers_input_commit(skel_input_t *in, const skel_slot_t *slot, const skel_in_rec_t *rec,

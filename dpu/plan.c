@@ -8,6 +8,8 @@
 
 #include "dpu.h"
 
+#define PLAN_MAX_HELD 65536 /* versions one slot holds back at most (an emulated link's delay) */
+
 /* Index of URL in plan->links (registered once); -1 for local or when full. */
 static int plan_link_index(skel_plan_t *plan, const char *url)
 {
@@ -28,6 +30,44 @@ int plan_process_index(const skel_plan_t *plan, int16_t id)
     return -1;
 }
 
+/* The host of DPU ID in CFG, "" when unknown. */
+static const char *plan_host(const skelmsg_config_t *cfg, int16_t id)
+{
+    for (int i = 0; i < cfg->ndpus; i++)
+        if (cfg->dpus[i].id == id) return cfg->dpus[i].host;
+    return "";
+}
+
+/* The emulated transport of buffer B's link as this DPU reads it, and its ring of held
+ * versions: as many as the writer can send within the longest delay, and a few for a burst
+ * of late cycles (a full ring drops and counts). A writer on another host stamps its send
+ * time on its own clock, so its delay starts at the arrival there (the real network's adds). */
+static int plan_transport(skel_plan_t *plan, const skelmsg_config_t *cfg, const skelmsg_buffer_desc_t *b,
+                          skel_slot_t *slot)
+{
+    const skelmsg_link_t *l = config_link(cfg, b->link);
+    skel_transport_t *tr = &slot->tr;
+    tr->latency_ns = (int64_t)l->latency_us * SKEL_NS_PER_US;
+    tr->jitter_ns = (int64_t)l->jitter_us * SKEL_NS_PER_US;
+    tr->jitter = l->jitter;
+    tr->loss = l->loss_pct / 100;
+    tr->enter = l->burst_enter_pct / 100;
+    tr->leave = l->burst_leave_pct / 100;
+    tr->burst_loss = l->burst_loss_pct / 100;
+    const skelmsg_process_t *w = NULL;
+    for (int i = 0; i < cfg->nprocesses; i++)
+        if (cfg->processes[i].id == b->writer) w = &cfg->processes[i];
+    tr->from_send = clock_simulated() ||
+                    (w != NULL && strcmp(plan_host(cfg, w->dpu), plan_host(cfg, plan->dpu)) == 0);
+    if (tr->latency_ns == 0 && tr->jitter_ns == 0) return 0;
+    int64_t most = tr->latency_ns + (tr->jitter == SKELMSG_LINK_T_JITTER_NORMAL ? 3 : 1) * tr->jitter_ns;
+    int64_t period = w != NULL && w->period_us > 0 ? (int64_t)w->period_us * SKEL_NS_PER_US : SKEL_MIN_PERIOD_US * SKEL_NS_PER_US;
+    int64_t cap = most / period + 8;
+    slot->pend_cap = (int)(cap > PLAN_MAX_HELD ? PLAN_MAX_HELD : cap);
+    slot->pending = calloc((size_t)slot->pend_cap, sizeof *slot->pending);
+    return slot->pending == NULL ? -1 : 0;
+}
+
 static int plan_slot_index(skel_plan_t *plan, const skelmsg_config_t *cfg, int16_t id)
 {
     for (int i = 0; i < plan->nslots; i++)
@@ -40,6 +80,7 @@ static int plan_slot_index(skel_plan_t *plan, const skelmsg_config_t *cfg, int16
     slot->channel = strdup(b->channel);
     slot->plan = plan;
     if (slot->link == -2 || slot->channel == NULL) return -1;
+    if (plan_transport(plan, cfg, b, slot) != 0) return -1;
     buffers_slot_reset(slot);
     return plan->nslots++;
 }
@@ -220,7 +261,10 @@ void plan_free(skel_plan_t *plan)
     if (plan == NULL) return;
     event_free(plan);
     for (int i = 0; i < plan->nlinks; i++) link_close(&plan->links[i]);
-    for (int s = 0; plan->slots != NULL && s < plan->nslots; s++) free(plan->slots[s].channel);
+    for (int s = 0; plan->slots != NULL && s < plan->nslots; s++) {
+        free(plan->slots[s].channel);
+        free(plan->slots[s].pending);
+    }
     /* nprocesses counts a process before its outputs are allocated (plan_add_processes),
      * so a plan that failed half-way is freed whole; the rest of the table is zeros. */
     for (int i = 0; plan->processes != NULL && i < plan->nprocesses; i++)
@@ -238,7 +282,10 @@ void plan_free(skel_plan_t *plan)
 void plan_reset_run(skel_plan_t *plan, int64_t run_id)
 {
     plan->run_id = run_id;
-    for (int s = 0; s < plan->nslots; s++) buffers_slot_reset(&plan->slots[s]);
+    for (int s = 0; s < plan->nslots; s++) {
+        buffers_slot_reset(&plan->slots[s]);
+        buffers_slot_seed(&plan->slots[s], plan->seed, plan->dpu);
+    }
     for (int i = 0; i < plan->nprocesses; i++) {
         skel_process_t *p = &plan->processes[i];
         for (int q = 0; q < p->ninputs; q++) buffers_input_reset(&p->inputs[q]);

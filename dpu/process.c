@@ -106,6 +106,14 @@ static int64_t process_held_up(skel_exec_t *x, const skel_process_t *p, int64_t 
 void process_peek_inputs(const skel_plan_t *plan, const skel_process_t *p, skel_rec_t *rec)
 {
     rec->ninputs = (int8_t)p->ninputs;
+    /* What an emulated link held back and is due by now is the reader's from now on. */
+    int64_t now = INT64_MIN;
+    for (int q = 0; q < p->ninputs; q++) {
+        skel_slot_t *slot = &plan->slots[p->inputs[q].slot];
+        if (slot->pend_count == 0) continue;
+        if (now == INT64_MIN) now = clock_mono_ns() + plan->clock_offset_ns;
+        buffers_slot_advance(slot, now);
+    }
     for (int q = 0; q < p->ninputs; q++)
         buffers_input_peek(&p->inputs[q], &plan->slots[p->inputs[q].slot], &rec->in[q]);
 }
@@ -255,6 +263,8 @@ static int process_wait_data(skel_exec_t *x, skel_process_t *p, int64_t k, int64
         int64_t due = process_lockout_due(x, lockout_at);
         if (!p->locked_out && due < wake) wake = due;
         if (x->end_mono_ns < wake) wake = x->end_mono_ns;
+        int64_t held = buffers_advance(plan, now); /* a version an emulated link holds back */
+        if (held < wake) wake = held;
         int64_t timeout_ns = wake - now < 10 * 1000000LL ? wake - now : 10 * 1000000LL;
         if (timeout_ns < 0) timeout_ns = 0;
         int ready = link_wait(plan->links, plan->nlinks, x->s->wake_fd, timeout_ns);

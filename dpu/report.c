@@ -164,6 +164,13 @@ int report_publish(skel_server_t *s, const skel_plan_t *plan, skel_history_t *hi
     r.stall_ns = d->stall_ns;
     r.nprocesses = (int16_t)n;
     r.processes = procs;
+    /* What an emulated link took away shows in the analysis as lost (never received); the
+     * log says which of it a full ring of held versions dropped rather than the link. */
+    for (int i = 0; i < plan->nslots; i++)
+        if (plan->slots[i].overflow > 0 || plan->slots[i].lost > 0)
+            log_line("DPU %d: buffer %d: the link's emulation lost %lld versions, its full ring of held "
+                     "versions %lld", plan->dpu, plan->slots[i].buffer, (long long)plan->slots[i].lost,
+                     (long long)plan->slots[i].overflow);
     int rc = history_publish_report(history, s->rec, &r);
     free(procs);
     free(ins);

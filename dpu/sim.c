@@ -10,7 +10,8 @@
  *
  * A fiber (ucontext) runs until it waits: it never takes virtual time while it runs,
  * so every step but a sleep, a computation or a wait is instantaneous, and nothing
- * stalls it. A buffer published at t arrives at t (no link models a delay yet). The
+ * stalls it. A buffer published at t arrives at t (a link's emulated delay and loss are
+ * the reading DPU's own, buffers.c, as on the machine). The
  * fibers are switched on one thread: a handover between two DPUs costs 0.2-0.5 us so, and
  * 2.3-3.2 us between two threads (bench/switch.c, `make bench`, 2026-12-02): ten minutes
  * of SERVO are 2.8 million events, which threads alone would take 15 s of handovers for,

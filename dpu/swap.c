@@ -87,6 +87,7 @@ static void swap_carry_slots(skel_plan_t *next, const skel_plan_t *old)
         slot->received = o->received;
         slot->foreign = o->foreign;
         slot->dup_upto = o->newest_seq;
+        buffers_slot_carry(slot, o);
     }
 }
 

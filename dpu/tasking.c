@@ -37,9 +37,12 @@ static int tasking_wait(skel_exec_t *x, int64_t until, int watch, int64_t *stall
         int64_t now = clock_mono_ns();
         if (now >= until - spin) break;
         int64_t t = until - spin - now;
+        /* a version an emulated link holds back comes when it is due */
+        const int64_t held = watch ? buffers_advance(plan, now) : INT64_MAX;
+        if (held - now < t) t = held - now;
         int rc = link_wait(plan->links, watch ? plan->nlinks : 0, x->s->wake_fd, t > piece ? piece : t);
         if (rc < 0) return 2;
-        if (rc > 0 && watch && !atomic_load(&x->s->stop)) return 1;
+        if ((rc > 0 || clock_mono_ns() >= held) && watch && !atomic_load(&x->s->stop)) return 1;
         if (atomic_load(&x->s->switch_seq) != x->switch_seq) return 1; /* a COMMIT: a new event */
     }
     int64_t now = clock_mono_ns();

@@ -188,6 +188,8 @@ static int threads_wait(threads_worker_t *w, int64_t until, int watch)
         fds[n++] = (struct pollfd){ .fd = plan->links[i].fd, .events = POLLIN };
     fds[n++] = (struct pollfd){ .fd = w->kick_fd, .events = POLLIN };
     fds[n++] = (struct pollfd){ .fd = t->done_fd, .events = POLLIN };
+    int64_t held = watch ? buffers_advance(t->plan, clock_mono_ns()) : INT64_MAX; /* held back by an emulated link */
+    if (held < until) until = held;
     int64_t left = until - clock_mono_ns();
     left = left < 0 ? 0 : left > THREADS_PIECE_NS ? THREADS_PIECE_NS : left;
     struct timespec ts = { .tv_sec = left / SKEL_NS_PER_S, .tv_nsec = left % SKEL_NS_PER_S };

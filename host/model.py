@@ -25,10 +25,38 @@ class Link:
     name: str
     url: str                # "local" or an udpm:// URL
     bandwidth_mbps: float | None = None
+    # The transport the reading DPUs emulate (schema.LinkSpec's last block)
+    latency_us: int = 0
+    jitter_us: int = 0
+    jitter: str = "uniform"            # uniform | normal
+    loss_pct: float = 0.0              # the good state's when bursty
+    burst: LossBurst | None = None
 
     @property
     def local(self) -> bool:
         return self.url == "local"
+
+    @property
+    def delay_us(self) -> tuple[float, float, float]:
+        """The least, mean and most delay of a buffer on it (a normal jitter is cut at 3 sigma)."""
+        spread = self.jitter_us * (3 if self.jitter == "normal" else 1)
+        return max(0.0, self.latency_us - spread), float(self.latency_us), float(self.latency_us + spread)
+
+    @property
+    def mean_loss_pct(self) -> float:
+        """The long-run share of buffers lost: the bad state's loss for the share of time it is bad."""
+        b = self.burst
+        if b is None or b.enter_pct == 0:
+            return self.loss_pct
+        bad = b.enter_pct / (b.enter_pct + b.leave_pct)
+        return (1 - bad) * self.loss_pct + bad * b.loss_pct
+
+
+@dataclass(frozen=True)
+class LossBurst:
+    enter_pct: float        # per version: good -> bad
+    leave_pct: float        # per version: bad -> good
+    loss_pct: float         # lost in the bad state
 
 
 @dataclass(frozen=True)
@@ -314,6 +342,8 @@ class ExpectedInput:
     new: float | None
     stale: float | None
     dropped: float | None
+    transport_us: float = 0.0       # the mean delay its link's emulated latency and jitter add
+    lost_pct: float = 0.0           # the share of the writer's buffers its link's emulation loses
 
 
 @dataclass(frozen=True)
@@ -322,6 +352,7 @@ class ExpectedChain:
     processes: tuple[str, ...]
     best_us: float | None
     worst_us: float | None          # None: a step falls ever further behind
+    network_us: float = 0.0         # of its latency, the mean its links' emulated delays add
 
 
 @dataclass(frozen=True)
@@ -342,8 +373,10 @@ class Expected:
             processes=tuple(ExpectedProcess(p["name"], p["response_us"], p["paced_by"])
                             for p in doc["processes"]),
             inputs=tuple(ExpectedInput(i["reader"], i["buffer"], i["writer"], i["new"], i["stale"],
-                                       i["dropped"]) for i in doc["inputs"]),
-            chains=tuple(ExpectedChain(c["name"], tuple(c["processes"]), c["best_us"], c["worst_us"])
+                                       i["dropped"], i.get("transport_us", 0.0), i.get("lost_pct", 0.0))
+                         for i in doc["inputs"]),
+            chains=tuple(ExpectedChain(c["name"], tuple(c["processes"]), c["best_us"], c["worst_us"],
+                                       c.get("network_us", 0.0))
                          for c in doc["chains"]))
 
 # --- the model on the wire: config_t's enums, and a System read back from a config_t -------------
@@ -366,6 +399,13 @@ def _named(names: dict[str, int], value: int) -> str:
     raise ValueError(f"{value} is none of {', '.join(f'{v} ({name})' for name, v in names.items())}")
 
 
+def _link(link: skelmsg.link_t) -> Link:
+    burst = LossBurst(link.burst_enter_pct, link.burst_leave_pct, link.burst_loss_pct)
+    return Link(link.id, link.name, link.url or "local", None, link.latency_us, link.jitter_us,
+                "normal" if link.jitter == skelmsg.link_t.JITTER_NORMAL else "uniform", link.loss_pct,
+                burst if link.burst_enter_pct > 0 else None)
+
+
 def from_config(msg: skelmsg.config_t) -> System:
     """The System a config_t describes (host/live/wire.py writes one from a System): what a run's
     DPUs were sent, as the analysis reads it from the log. What the config does not carry keeps
@@ -381,7 +421,7 @@ def from_config(msg: skelmsg.config_t) -> System:
         for p in msg.processes)
     return System(
         name=msg.system, path=Path("system.yaml"), source_text=msg.source,
-        links=tuple(Link(link.id, link.name, link.url or "local") for link in msg.links),
+        links=tuple(_link(link) for link in msg.links),
         dpus=tuple(Dpu(d.id, d.host, None if d.cpu < 0 else d.cpu, _named(COMPUTE, d.compute),
                        _named(EXECUTIVE, d.executive), d.speed, d.minor_cycle_us, tuple(d.links))
                    for d in msg.dpus),

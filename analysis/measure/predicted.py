@@ -22,6 +22,7 @@ fatal fault) puts a figure outside its prediction down to that, not to the platf
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -30,6 +31,7 @@ from skeleton.host.model import Expected
 
 from .chains import ChainMetrics
 from .faults import Fault
+from .latency import BufferMetrics, ReaderMetrics
 from .metrics import DpuMetrics, InputMetrics, ProcessMetrics
 
 COMPUTE_POINTS = 2.0
@@ -38,6 +40,8 @@ PLATFORM = "the platform's own cost (communication, wake-up, interference)"
 # A simulated run has no platform: what it puts outside the prediction is the prediction's own.
 SIMPLIFIED = "the prediction's own simplifications (a simulated run has no platform)"
 WORST = "the predicted worst"
+# The prediction counts a link's emulated loss, not what it does to a data reader's wait.
+LOSSES = "or the links' emulated losses (a data reader waits on for the buffer after a lost one)"
 
 # The system file a config carries -> what its prediction expects; raises ValueError (one line:
 # why) when that file cannot be predicted here (a samples file left behind, say).
@@ -53,6 +57,11 @@ class Beside:
     measured: float | None
     delta: float | None = None
     outside: bool = False
+
+
+def _none() -> Beside:
+    """No emulated transport: nothing modelled, nothing measured beside it."""
+    return Beside(0.0, None)
 
 
 @dataclass
@@ -78,6 +87,9 @@ class InputBeside:
     new: Beside  # share of the reader's cycles
     stale: Beside
     dropped: Beside  # sequences per reader cycle
+    # The link's emulated transport, not judged (a real run adds the platform's own transport):
+    transport_us: Beside = field(default_factory=_none)  # its mean delay beside the measured p50 transport
+    lost_pct: Beside = field(default_factory=_none)  # % of the writer's buffers lost beside the measured
 
 
 @dataclass
@@ -86,6 +98,9 @@ class ChainBeside:
     best_us: float
     latency_us: Beside  # predicted worst (None: unbounded) beside the measured p99
     latency_max_us: float | None
+    # Of its latency, the network's, not judged: the links' mean emulated delays beside the sum of its
+    # buffers' measured p50 transport, each to the step that reads it.
+    network_us: Beside = field(default_factory=_none)  # links' mean delays beside its buffers' transport
 
 
 @dataclass
@@ -102,6 +117,11 @@ class Predicted:
     chains: list[ChainBeside] = field(default_factory=list)
     outside: list[str] = field(default_factory=list)  # one line per figure outside its prediction
     cause: str = PLATFORM  # what a figure outside its prediction is put down to (cause_of)
+
+
+def _plain(predicted: float, measured: float | None) -> Beside:
+    """Side by side, never judged."""
+    return Beside(predicted, measured, None if measured is None else measured - predicted)
 
 
 def either_way(predicted: float | None, measured: float | None, tolerance: float) -> Beside:
@@ -137,13 +157,33 @@ def cause_of(faults: Sequence[Fault]) -> str:
     return PLATFORM
 
 
+def _measured(buffers: Sequence[BufferMetrics]) -> dict[tuple[str, str], tuple[BufferMetrics, ReaderMetrics]]:
+    return {(r.process, b.buffer): (b, r) for b in buffers for r in b.readers}
+
+
+def _network(prediction: Expected, chain_processes: tuple[str, ...],
+             transports: dict[tuple[str, str], tuple[BufferMetrics, ReaderMetrics]]) -> float | None:
+    """The sum of the measured p50 transport of a chain's buffers, each at the step that reads it."""
+    total = 0.0
+    for before, after in itertools.pairwise(chain_processes):
+        i = next((i for i in prediction.inputs if i.reader == after and i.writer == before), None)
+        found = transports.get((after, i.buffer)) if i else None
+        if found is None or found[1].latency_us.p50 is None:
+            return None
+        total += found[1].latency_us.p50
+    return total
+
+
 def beside(prediction: Expected, generation: int, late_pct: int, dpus: list[DpuMetrics],
            processes: list[ProcessMetrics], chains: list[ChainMetrics],
-           faults: Sequence[Fault] = ()) -> Predicted:
+           faults: Sequence[Fault] = (), buffers: Sequence[BufferMetrics] = ()) -> Predicted:
     """The measured figures of one generation (the report's, whose `faults` say what to put
     a figure outside its prediction down to) beside `prediction`, matched by DPU id, process
     name, (reader, buffer) and chain name; what either side lacks is left out."""
     out = Predicted(generation, COMPUTE_POINTS, SHARE, late_pct, cause=cause_of(faults))
+    if any(i.lost_pct > 0 for i in prediction.inputs):
+        out.cause += f"; {LOSSES}"
+    transports = _measured(buffers)
     measured_dpus = {d.id: d for d in dpus}
     for d in prediction.dpus:
         if (m := measured_dpus.get(d.id)) is not None:
@@ -164,14 +204,19 @@ def beside(prediction: Expected, generation: int, late_pct: int, dpus: list[DpuM
             continue
         new, stale, dropped = (either_way(want, got, SHARE)
                                for want, got in zip((i.new, i.stale, i.dropped), shares, strict=True))
-        out.inputs.append(InputBeside(i.reader, i.buffer, i.writer, new, stale, dropped))
+        b, r = transports.get((i.reader, i.buffer), (None, None))
+        transport = _plain(i.transport_us, r.latency_us.p50 if r is not None else None)
+        measured = b is not None and r is not None and b.published > 0
+        lost = _plain(i.lost_pct, 100 * r.lost / b.published if measured else None)
+        out.inputs.append(InputBeside(i.reader, i.buffer, i.writer, new, stale, dropped, transport, lost))
     measured_chains = {c.name: c for c in chains}
     for c in prediction.chains:
         mc, tail = measured_chains.get(c.name), by_name.get(c.processes[-1])
         if mc is None or tail is None:
             continue
         latency = above_worst(c.worst_us, mc.latency_us.p99, tail.period_us * late_pct / 100)
-        out.chains.append(ChainBeside(c.name, c.best_us, latency, mc.latency_us.max))
+        network = _plain(c.network_us, _network(prediction, c.processes, transports))
+        out.chains.append(ChainBeside(c.name, c.best_us, latency, mc.latency_us.max, network))
     out.outside = _outside_lines(out)
     return out
 

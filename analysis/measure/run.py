@@ -150,9 +150,9 @@ class RunAnalysis:
             return f"no prediction: {e}"
         rep = self.report
         rep.predicted = beside(prediction, rep.generation, system.run.late_pct, rep.dpus, rep.processes,
-                               rep.chains, rep.faults)
-        if rep.simulated and rep.predicted.cause == PLATFORM:
-            rep.predicted.cause = SIMPLIFIED
+                               rep.chains, rep.faults, rep.buffers)
+        if rep.simulated and rep.predicted.cause.startswith(PLATFORM):
+            rep.predicted.cause = SIMPLIFIED + rep.predicted.cause[len(PLATFORM):]
         return None
 
     def add_simulation(self, simulated: RunReport, where: str) -> None:

@@ -301,6 +301,29 @@ def predicted_tables(p: Predicted) -> list[Table]:
             f"{p.late_pct} % of the tail's period, above)",
             [("chain", False), ("best\npred.", True), ("worst\npred.", True), ("p99\nmeas.", True),
              ("Δ", True), ("max\nmeas.", True), OUTSIDE], rows))
+    tables += _network_tables(p)
+    return tables
+
+
+def _network_tables(p: Predicted) -> list[Table]:
+    """Where a link's transport is emulated (latency, jitter, loss): what it models beside what was
+    measured, per input and per chain."""
+    emulated = [i for i in p.inputs if i.transport_us.predicted or i.lost_pct.predicted]
+    if not emulated:
+        return []
+    rows = [[f"{i.reader} <- {i.buffer} ({i.writer})", *_beside(i.transport_us, 0), *_beside(i.lost_pct, 2)]
+            for i in emulated]
+    tables = [make_table(
+        "per input: the link's emulated transport, mean delay modelled beside the measured p50 transport "
+        "(µs, the platform's own adds) and % of the writer's buffers lost",
+        [("reader <- buffer (writer)", False), ("delay\nmodel", True), ("p50\nmeas.", True), ("Δ", True),
+         ("% lost\nmodel", True), ("% lost\nmeas.", True), ("Δ", True)], rows)]
+    rows = [[c.name, *_beside(c.network_us, 0)] for c in p.chains if c.network_us.predicted]
+    if rows:
+        tables.append(make_table(
+            "per chain: how much of its latency is the network, the links' mean emulated delays beside the "
+            "sum of its buffers' measured p50 transport, µs",
+            [("chain", False), ("network\nmodel", True), ("network\nmeas.", True), ("Δ", True)], rows))
     return tables
 
 

@@ -68,14 +68,18 @@ def print_prediction(console: Console, pred: Prediction) -> None:
         for c in pred.chains:
             chains.add_row(" -> ".join(c.processes), _ms(c.best_us), _ms(c.worst_us))
         console.print(chains)
-    links = _table("link", "messages/s", "Mbit/s")
+    emulated = any(link.delay_us[2] or link.lost_pct for link in pred.links)
+    links = _table("link", "messages/s", "Mbit/s", *(("emulated delay ms", "lost %") if emulated else ()))
     for link in pred.links:
         rate = _known(None if link.bytes_per_s is None else 8 * link.bytes_per_s / 1e6, ".3g")
         if link.bytes_per_s is None and link.over:  # its known part alone is too much
             rate = f"at least {8 * link.known_bytes_per_s / 1e6:.3g}"
         rate += f" of {link.bandwidth_mbps:g}" if link.bandwidth_mbps else ""
+        least, mean, most = link.delay_us
+        delay = f"{mean / 1000:g}" + (f" ({least / 1000:g}..{most / 1000:g})" if least != most else "")
         links.add_row(link.name + (" (local)" if link.local else ""), _known(link.messages_per_s, ".0f"),
-                      f"[red]{rate}[/]" if link.over else rate)
+                      f"[red]{rate}[/]" if link.over else rate,
+                      *((delay, f"{link.lost_pct:.3g}") if emulated else ()))
     console.print(links)
 
 

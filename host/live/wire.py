@@ -18,7 +18,7 @@ import yaml
 
 import skelmsg
 
-from ..model import COMPUTE, EVENT_KIND, EXECUTIVE, SYNC, Event, System
+from ..model import COMPUTE, EVENT_KIND, EXECUTIVE, SYNC, Event, Link, System
 from ..theory.predict import planned_data_us
 
 
@@ -34,7 +34,7 @@ def config_message(system: System, generation: int, run_id: int, committed: bool
     msg.late_pct = system.run.late_pct
     msg.too_late_pct = system.run.too_late_pct
     msg.seed = system.run.seed
-    msg.links = [_link(link.id, link.name, "" if link.local else link.url) for link in system.links]
+    msg.links = [_link(link) for link in system.links]
     msg.nlinks = len(msg.links)
     msg.dpus = []
     for d in system.dpus:
@@ -94,10 +94,28 @@ def _event_source(e: Event) -> skelmsg.event_source_t:
     return src
 
 
-def _link(link_id: int, name: str, url: str) -> skelmsg.link_t:
-    link = skelmsg.link_t()
-    link.id, link.name, link.url = link_id, name, url
-    return link
+def _link(link: Link) -> skelmsg.link_t:
+    msg = skelmsg.link_t()
+    msg.id, msg.name, msg.url = link.id, link.name, "" if link.local else link.url
+    msg.latency_us, msg.jitter_us, msg.loss_pct = link.latency_us, link.jitter_us, link.loss_pct
+    msg.jitter = skelmsg.link_t.JITTER_NORMAL if link.jitter == "normal" else skelmsg.link_t.JITTER_UNIFORM
+    if link.burst is not None:
+        msg.burst_enter_pct, msg.burst_leave_pct = link.burst.enter_pct, link.burst.leave_pct
+        msg.burst_loss_pct = link.burst.loss_pct
+    return msg
+
+
+def _transport(link: Link) -> dict[str, Any]:
+    """A link's emulated transport as the file gives it: only what differs from none."""
+    out: dict[str, Any] = {}
+    if link.latency_us or link.jitter_us:
+        out |= {"latency_us": link.latency_us, "jitter_us": link.jitter_us, "jitter": link.jitter}
+    if link.loss_pct:
+        out["loss_pct"] = link.loss_pct
+    if link.burst is not None:
+        out["loss_burst"] = {"enter_pct": link.burst.enter_pct, "leave_pct": link.burst.leave_pct,
+                             "loss_pct": link.burst.loss_pct}
+    return out
 
 
 def dump_yaml(system: System) -> str:
@@ -106,7 +124,7 @@ def dump_yaml(system: System) -> str:
     links = {link.id: link.name for link in system.links}
     doc: dict[str, Any] = {
         "system": system.name,
-        "links": [{"name": link.name, "url": link.url} for link in system.links],
+        "links": [{"name": link.name, "url": link.url, **_transport(link)} for link in system.links],
         "dpus": [{"id": d.id, "host": d.host, "cpu": d.cpu, "compute": d.compute, "executive": d.executive,
                   "speed": d.speed, "minor_cycle_us": d.minor_cycle_us, "links": [links[i] for i in d.links]}
                  for d in system.dpus],

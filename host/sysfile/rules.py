@@ -18,7 +18,7 @@ from typing import Any
 from skeleton.analysis.errors import EXIT_BAD_INPUT, SkelError
 from skelmsg import contract
 
-from ..model import Buffer, Chain, Dpu, Event, Link, Process, Varying, control_link
+from ..model import Buffer, Chain, Dpu, Event, Link, LossBurst, Process, Varying, control_link
 from .compute import ComputeError, varying
 from .link import parse_url, port_clash, record_url, writer_ports
 from .schema import (
@@ -108,7 +108,10 @@ def _links(specs: list[LinkSpec] | None) -> tuple[Link, ...]:
     _unique(specs, "links", "name")
     if all(s.url == "local" for s in specs):
         raise Invalid("links", "needs at least one udpm:// link: the host reaches the DPUs over it")
-    return tuple(Link(i + 1, s.name, s.url, s.bandwidth_mbps) for i, s in enumerate(specs))
+    return tuple(Link(i + 1, s.name, s.url, s.bandwidth_mbps, s.latency_us, s.jitter_us, s.jitter, s.loss_pct,
+                      None if (b := s.loss_burst) is None else LossBurst(b.enter_pct, b.leave_pct,
+                                                                         b.loss_pct))
+                 for i, s in enumerate(specs))
 
 
 def _dpu_links(spec: SystemSpec, links: tuple[Link, ...]) -> dict[int, tuple[int, ...]]:

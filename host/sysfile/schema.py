@@ -184,6 +184,23 @@ class _Spec(BaseModel):
 
 # --- the schema ----------------------------------------------------------------------------
 
+Percent = Annotated[float, _within(0, 100)]
+Latency = Annotated[int, _between(0, contract.MAX_PERIOD_US, " us")]
+
+
+class LossBurstSpec(_Spec):
+    """Gilbert-Elliott: the link is good or bad; before each version it may change state, then
+    the version is lost with its state's loss (the good state's is the link's `loss_pct`)."""
+
+    enter_pct: Percent
+    """Per version, the chance that a good link turns bad."""
+    leave_pct: Annotated[float, _within(0, 100), AfterValidator(_positive)]
+    """Per version, the chance that a bad link turns good again: a burst lasts 100 / leave_pct
+    versions on average."""
+    loss_pct: Percent = 100.0
+    """The loss in the bad state."""
+
+
 class LinkSpec(_Spec):
     name: Name
     """The link's name, which buffers and DPUs refer to."""
@@ -193,6 +210,21 @@ class LinkSpec(_Spec):
     it. `ttl=0` never leaves the machine, `ttl=1` for a lab."""
     bandwidth_mbps: Positive | None = None
     """What the link carries, in Mbit/s: `skel check` warns when its buffers need more."""
+    # The link's transport, emulated by the reading DPUs (dpu/buffers.c): one block, kept last.
+    latency_us: Latency = 0
+    """The link's one-way latency: a reader sees a buffer no earlier than its send time plus this (plus
+    a jitter draw), in the order it was sent. Emulated by the reading DPU, on any link, local too."""
+    jitter_us: Latency = 0
+    """The spread of each buffer's latency: see `jitter`. A delay is never below 0."""
+    jitter: Literal["uniform", "normal"] = "uniform"
+    """`uniform` (latency_us ± jitter_us) or `normal` (jitter_us the standard deviation, cut at 3).
+    The draws come from run.seed: a simulation repeats."""
+    loss_pct: Percent = 0.0
+    """The chance that a buffer is lost, drawn independently by each reading DPU (from run.seed). A
+    lost buffer is never seen by that DPU's readers; the report counts it as lost."""
+    loss_burst: LossBurstSpec | None = None
+    """Losses that come in bursts (Gilbert-Elliott): `enter_pct`, `leave_pct`, and `loss_pct` in
+    the bad state (default 100); `loss_pct` above is then the good state's."""
 
     @field_validator("url")
     @classmethod

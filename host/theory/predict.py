@@ -100,6 +100,7 @@ class ChainPrediction:
     processes: tuple[str, ...]
     best_us: float
     worst_us: float | None          # None: a step falls ever further behind
+    network_us: float = 0.0         # of its latency, the mean its links' emulated delays add
 
 
 @dataclass(frozen=True)
@@ -111,6 +112,8 @@ class LinkPrediction:
     bandwidth_mbps: float | None
     known_messages_per_s: float     # of its writers of known rate: all of it when none is unknown
     known_bytes_per_s: float
+    delay_us: tuple[float, float, float] = (0.0, 0.0, 0.0)  # its emulated delay: least, mean, most
+    lost_pct: float = 0.0           # the long-run share of buffers its emulation loses
 
     @property
     def over(self) -> bool:
@@ -202,7 +205,7 @@ def predict(system: System) -> Prediction:
         dpus.append(DpuPrediction(d.id, d.executive, d.speed, d.minor_cycle_us,
                                   frames.hyperperiod(mine, d.minor_cycle_us), 100 * load,
                                   compute, found[d.id], ok, _lockout_ms(system, d, mine, load)))
-    fed = {(r, w.id): _data_at(system, timing, w)[0] for r, ws in waits.items() for _, w in ws}
+    fed = {(r, w.id): _data_at(system, timing, w, b)[0] for r, ws in waits.items() for b, w in ws}
     for r, (w, data, at) in _paced_timings(system, timing, rates, paced).items():
         timing[r], fed[(r, w)] = at, data
     processes = tuple(
@@ -307,13 +310,15 @@ def _paced_tasking(period: int, writer: int, data: float, at: Timing
     return came, starts, ends
 
 
-def _data_at(system: System, timing: dict[int, Timing], w: Process) -> tuple[float, float]:
+def _data_at(system: System, timing: dict[int, Timing], w: Process, buffer: int | None = None
+             ) -> tuple[float, float]:
     """When W's data of a cycle comes, after its release: its earliest and latest end (inf:
-    it falls ever further behind), at its shortest and longest draws. Its publishing and the
-    transport are the platform's."""
+    it falls ever further behind), at its shortest and longest draws, and on BUFFER's link its
+    least and most emulated delay. Its publishing and the real transport are the platform's."""
     t = timing[w.id]
-    return (t.start_min_us + frames.best_us(w, system.dpu(w.dpu)),
-            t.response_us if t.response_us is not None else math.inf)
+    least, _, most = (0.0, 0.0, 0.0) if buffer is None else system.link(system.buffer(buffer).link).delay_us
+    return (t.start_min_us + frames.best_us(w, system.dpu(w.dpu)) + least,
+            t.response_us + most if t.response_us is not None else math.inf)
 
 
 def planned_data_us(system: System) -> dict[int, float]:
@@ -336,8 +341,8 @@ def _timings(system: System, waits: dict[int, list[tuple[int, Process]]]
     moved: set[int] = set()
     for _ in range(len(system.processes) + 1):
         timing, found = _schedule(system, ready)
-        now = {r: (max(_data_at(system, timing, w)[0] for _, w in ws),
-                   max(_data_at(system, timing, w)[1] for _, w in ws)) for r, ws in waits.items()}
+        now = {r: (max(_data_at(system, timing, w, b)[0] for b, w in ws),
+                   max(_data_at(system, timing, w, b)[1] for b, w in ws)) for r, ws in waits.items()}
         if now == ready:
             return timing, found, ready
         moved, ready = {r for r in now if now[r] != ready.get(r)}, now
@@ -466,7 +471,8 @@ def same_cycle_waits(system: System,
     finds what it used last cycle until the writer's computation of this one ends. Not a
     writer before it in its cyclic frame (it has ended), nor after it there (a deadlock:
     held_up()), nor a higher priority on its tasking processor that is ready at its release (it
-    holds the processor until it ends anyway); an event writer runs on no grid. LEFT_OUT:
+    holds the processor until it ends anyway), unless its link's emulated delay keeps the data
+    from the reader after that end; an event writer runs on no grid. LEFT_OUT:
     readers that never start, run at an unknown rate or are paced by a slower writer."""
     out: dict[int, list[tuple[int, Process]]] = {}
     for p in sorted(system.processes, key=lambda q: -q.priority):  # a higher priority is settled first
@@ -476,9 +482,13 @@ def same_cycle_waits(system: System,
             w = system.process(system.buffer(b).writer)
             if w.period_us != p.period_us or w.sync == "event":
                 continue
-            if w.dpu == p.dpu and (system.dpu(p.dpu).executive != "threads"
-                                   or (w.priority > p.priority and w.id not in out)):
+            # a link's emulated delay keeps the reader waiting after its writer ends, on one DPU too
+            delayed = system.link(system.buffer(b).link).delay_us[2] > 0
+            cyclic = system.dpu(p.dpu).executive != "threads"
+            if w.dpu == p.dpu and not delayed and (cyclic or (w.priority > p.priority and w.id not in out)):
                 continue
+            if w.dpu == p.dpu and cyclic and (w.order, w.id) > (p.order, p.id):
+                continue  # after it in its frame: held_up()
             out.setdefault(p.id, []).append((b, w))
     return out
 
@@ -677,7 +687,9 @@ def _inputs(system: System, rates: dict[int, float], unknown: set[int],
             dropped = max(0.0, least - 1) if max(0.0, least - 1) == max(0.0, most - 1) else None
             if w.id in paced and new is not None and p.id not in unknown and rates[p.id] > 0:
                 dropped = 1e6 / w.period_us / rates[p.id] - new
-            out.append(ExpectedInput(p.name, b.name, w.name, new, stale, dropped))
+            link = system.link(b.link)
+            out.append(ExpectedInput(p.name, b.name, w.name, new, stale, dropped, link.delay_us[1],
+                                     link.mean_loss_pct))
     return tuple(out)
 
 
@@ -688,19 +700,24 @@ def _chains(system: System, by_name: dict[str, ProcessPrediction], rates: dict[i
     (it waits for each value), its latest start, less the writer's earliest end when it waits
     for the value of its own cycle (FED: (reader, writer) -> that end); a reader of unknown
     rate that runs on events reads when the next comes, which nothing bounds. A step in the
-    middle then computes (at best its compute, at worst up to its response)."""
+    middle then computes (at best its compute, at worst up to its response). A link's emulated
+    delay (Link.delay_us) comes before the read: its least at best, its most at worst."""
     out = []
     for c in system.chains:
         steps = [system.process(i) for i in c.processes]
-        best, worst = 0.0, 0.0
+        best, worst, network = 0.0, 0.0, 0.0
         for i, (before, p) in enumerate(itertools.pairwise(steps), start=1):
             at = by_name[p.name]
             buffer = next(b for b in p.inputs if b in before.outputs)
+            # its link's emulated delay: the value is seen that much later, then waits for the read
+            least, mean, most = system.link(system.buffer(buffer).link).delay_us
+            best, network = best + least, network + mean
             fastest = nominal_rate_hz(system, before) if before.id in unknown else rates[before.id]
             data_paced = buffer in p.required and fastest <= 1e6 / p.period_us * (1 + 1e-9)
             wait = at.start_max_us if data_paced else p.period_us + at.start_max_us - at.start_min_us
-            if data_paced and (p.id, before.id) in fed:
-                wait = max(0.0, at.start_max_us - fed[(p.id, before.id)])
+            wait += most
+            if data_paced and (p.id, before.id) in fed:  # FED holds the least delay, its start the most
+                wait = max(0.0, at.start_max_us - fed[(p.id, before.id)]) + least
             if buffer in p.required and before.id in unknown:  # below its fastest, the writer may pace P
                 wait = max(wait, at.start_max_us)
             worst += math.inf if p.sync == "event" and p.id in unknown else wait
@@ -708,7 +725,7 @@ def _chains(system: System, by_name: dict[str, ProcessPrediction], rates: dict[i
                 best += frames.best_us(p, system.dpu(p.dpu))
                 worst += (at.response_us or math.inf) - at.start_max_us
         out.append(ChainPrediction(c.name, tuple(s.name for s in steps), best,
-                                   worst if math.isfinite(worst) else None))
+                                   worst if math.isfinite(worst) else None, network))
     return tuple(out)
 
 
@@ -726,7 +743,7 @@ def _links(system: System, rates: dict[int, float], unknown: set[int]) -> tuple[
         size = sum(rates[b.writer] * (b.bytes if link.local else wire_bytes(system, b.id)) for b in known)
         whole = len(known) == len(mine)
         out.append(LinkPrediction(link.name, link.local, messages if whole else None, size if whole else None,
-                                  link.bandwidth_mbps, messages, size))
+                                  link.bandwidth_mbps, messages, size, link.delay_us, link.mean_loss_pct))
     return tuple(out)
 
 

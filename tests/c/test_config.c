@@ -70,6 +70,11 @@ static void test_rejections(void)
     REJECTS(f.dpus[0].executive = SKELMSG_DPU_T_EXECUTIVE_THREADS; f.procs[0].priority = 7;
             f.procs[3].priority = 7; f.procs[4].priority = 6, 0, "processes 1 and 4 of DPU 1 have one priority 7");
     REJECTS(f.procs[0].priority = 5, 0, "process 1: priority 5 (the tasking executive's: 1..99; the cyclic one's: 0)");
+    /* A link's emulated transport */
+    REJECTS(f.links[0].latency_us = -1, 0, "link 1: latency_us -1 or jitter_us 0 is negative");
+    REJECTS(f.links[0].jitter = 2, 0, "link 1: unknown jitter 2");
+    REJECTS(f.links[0].loss_pct = 100.5, 0, "link 1: a loss or burst percentage is outside 0..100");
+    REJECTS(f.links[0].burst_leave_pct = -1, 0, "link 1: a loss or burst percentage is outside 0..100");
     {
         fixture_t f;
         fixture_init(&f);
