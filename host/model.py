@@ -8,8 +8,10 @@ At the bottom of host/: every package above may import it, and so may analysis/.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import itertools
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,10 +27,19 @@ class Link:
     name: str
     url: str                # "local" or an udpm:// URL
     bandwidth_mbps: float | None = None
+    # its CPU costs (the schema's LinkSpec, a preset's filled in), charged by the DPUs: charges()
+    per_message_us: float = 0.0
+    per_byte_ns: float = 0.0
+    push_byte_ns: float = 0.0
+    remote_read_us: float = 0.0
 
     @property
     def local(self) -> bool:
         return self.url == "local"
+
+    @property
+    def costs(self) -> bool:
+        return any((self.per_message_us, self.per_byte_ns, self.push_byte_ns, self.remote_read_us))
 
 
 @dataclass(frozen=True)
@@ -82,6 +93,20 @@ class Varying:
 
 
 @dataclass(frozen=True)
+class Charge:
+    """The CPU a process's DPU charges it per cycle for its links' costs, in us (charges())."""
+
+    in_us: float = 0.0          # comm_in: its remote reads, and the messages it pays for, on average
+    in_worst_us: float = 0.0    # ... with the most messages one cycle can find (a slower reader)
+    in_best_us: float = 0.0     # ... and the fewest
+    out_us: float = 0.0         # comm_out: what it publishes
+
+    @property
+    def us(self) -> float:
+        return self.in_us + self.out_us
+
+
+@dataclass(frozen=True)
 class Process:
     id: int
     name: str
@@ -98,6 +123,7 @@ class Process:
     event: str = ""         # sync: event: the event it awaits ...
     queue: int = 0          # ... and how many may wait for it (1..MAX_QUEUE)
     emits: tuple[str, ...] = ()  # events it fires at the end of each cycle
+    charge: Charge = Charge()   # its links' costs per cycle (charges())
 
     @property
     def worst_compute_us(self) -> float:
@@ -346,6 +372,44 @@ class Expected:
             chains=tuple(ExpectedChain(c["name"], tuple(c["processes"]), c["best_us"], c["worst_us"])
                          for c in doc["chains"]))
 
+def charges(links: Sequence[Link], dpus: Sequence[Dpu], buffers: Sequence[Buffer],
+            processes: Sequence[Process]) -> tuple[Process, ...]:
+    """The processes, each with the CPU its DPU charges it per cycle for its links' costs, as
+    dpu/plan.c works them out (keep the two alike). The writer pays, in comm_out, per buffer it
+    publishes: per_message_us + per_byte_ns x bytes, and push_byte_ns x bytes for each other DPU
+    that reads it. A reader pays, in comm_in: remote_read_us per input written on another DPU,
+    every cycle; and its DPU, which receives each message once, pays per_message_us +
+    per_byte_ns x bytes per message received, charged to the process that reads the buffer
+    there most often (the shortest period, then the first in the DPU's order): a period of its
+    per period of the writer on average, the whole ones for the fewest and one more for the most.
+    A DPU's speed does not shorten them: they are the bus's and its interfaces', not the code's."""
+    link = {k.id: k for k in links}
+    by_id = {p.id: p for p in processes}
+    readers: dict[int, list[Process]] = {}
+    for p in processes:
+        for b in p.inputs:
+            readers.setdefault(b, []).append(p)
+    out: list[Process] = []
+    for p in processes:
+        c = {"in_us": 0.0, "in_worst_us": 0.0, "in_best_us": 0.0, "out_us": 0.0}
+        for b in (x for x in buffers if x.id in p.outputs):
+            k = link[b.link]
+            others = len({r.dpu for r in readers.get(b.id, [])} - {p.dpu})
+            c["out_us"] += k.per_message_us + (k.per_byte_ns + k.push_byte_ns * others) * b.bytes / 1000
+        for b in (x for x in buffers if x.id in p.inputs):
+            k, writer = link[b.link], by_id[b.writer]
+            remote = k.remote_read_us if writer.dpu != p.dpu else 0.0
+            payer = min((r for r in readers[b.id] if r.dpu == p.dpu),
+                        key=lambda r: (r.period_us, r.order, r.id))
+            message = k.per_message_us + k.per_byte_ns * b.bytes / 1000 if payer.id == p.id else 0.0
+            per_cycle = p.period_us / writer.period_us
+            c["in_us"] += remote + message * per_cycle
+            c["in_worst_us"] += remote + message * math.ceil(per_cycle - 1e-9)
+            c["in_best_us"] += remote + message * math.floor(per_cycle + 1e-9)
+        out.append(dataclasses.replace(p, charge=Charge(**c)) if any(c.values()) else p)
+    return tuple(out)
+
+
 # --- the model on the wire: config_t's enums, and a System read back from a config_t -------------
 COMPUTE = {"sleep": skelmsg.dpu_t.COMPUTE_SLEEP, "wall": skelmsg.dpu_t.COMPUTE_WALL,
            "cpu": skelmsg.dpu_t.COMPUTE_CPU, "work": skelmsg.dpu_t.COMPUTE_WORK}
@@ -371,6 +435,9 @@ def from_config(msg: skelmsg.config_t) -> System:
     DPUs were sent, as the analysis reads it from the log. What the config does not carry keeps
     its default: the run's length and stop_on, a link's bandwidth, a varying compute's kind (its
     quantile table is carried), the reference, the overrides; the path is the run's system.yaml."""
+    links = tuple(Link(k.id, k.name, k.url or "local", None, k.per_message_us, k.per_byte_ns, k.push_byte_ns,
+                       k.remote_read_us) for k in msg.links)
+    buffers = tuple(Buffer(b.id, b.name, b.bytes, b.link, b.writer) for b in msg.buffers)
     processes = tuple(
         Process(id=p.id, name=p.name, dpu=p.dpu, order=p.order, period_us=p.period_us,
                 compute_us=p.compute_us, sync=_named(SYNC, p.sync), inputs=tuple(p.inputs),
@@ -379,14 +446,15 @@ def from_config(msg: skelmsg.config_t) -> System:
                 varying=Varying(FROM_CONFIG, tuple(p.quantiles_us), given={}) if p.quantiles_us else None,
                 priority=p.priority, event=p.event, queue=p.queue, emits=tuple(p.emits))
         for p in msg.processes)
+    dpus = tuple(Dpu(d.id, d.host, None if d.cpu < 0 else d.cpu, _named(COMPUTE, d.compute),
+                     _named(EXECUTIVE, d.executive), d.speed, d.minor_cycle_us, tuple(d.links))
+                 for d in msg.dpus)
     return System(
         name=msg.system, path=Path("system.yaml"), source_text=msg.source,
-        links=tuple(Link(link.id, link.name, link.url or "local") for link in msg.links),
-        dpus=tuple(Dpu(d.id, d.host, None if d.cpu < 0 else d.cpu, _named(COMPUTE, d.compute),
-                       _named(EXECUTIVE, d.executive), d.speed, d.minor_cycle_us, tuple(d.links))
-                   for d in msg.dpus),
-        buffers=tuple(Buffer(b.id, b.name, b.bytes, b.link, b.writer) for b in msg.buffers),
-        processes=processes,
+        links=links,
+        dpus=dpus,
+        buffers=buffers,
+        processes=charges(links, dpus, buffers, processes),
         run=RunRules(cycles=None, duration_s=None, warmup_cycles=msg.warmup_cycles,
                      lockout_cycles=msg.lockout_cycles, stop_on=(), late_pct=msg.late_pct,
                      too_late_pct=msg.too_late_pct, seed=msg.seed),

@@ -18,7 +18,7 @@ import yaml
 
 import skelmsg
 
-from ..model import COMPUTE, EVENT_KIND, EXECUTIVE, SYNC, Event, System
+from ..model import COMPUTE, EVENT_KIND, EXECUTIVE, SYNC, Event, Link, System
 from ..theory.predict import planned_data_us
 
 
@@ -34,7 +34,7 @@ def config_message(system: System, generation: int, run_id: int, committed: bool
     msg.late_pct = system.run.late_pct
     msg.too_late_pct = system.run.too_late_pct
     msg.seed = system.run.seed
-    msg.links = [_link(link.id, link.name, "" if link.local else link.url) for link in system.links]
+    msg.links = [_link(link) for link in system.links]
     msg.nlinks = len(msg.links)
     msg.dpus = []
     for d in system.dpus:
@@ -94,9 +94,11 @@ def _event_source(e: Event) -> skelmsg.event_source_t:
     return src
 
 
-def _link(link_id: int, name: str, url: str) -> skelmsg.link_t:
+def _link(k: Link) -> skelmsg.link_t:
     link = skelmsg.link_t()
-    link.id, link.name, link.url = link_id, name, url
+    link.id, link.name, link.url = k.id, k.name, "" if k.local else k.url
+    link.per_message_us, link.per_byte_ns = k.per_message_us, k.per_byte_ns
+    link.push_byte_ns, link.remote_read_us = k.push_byte_ns, k.remote_read_us
     return link
 
 
@@ -106,7 +108,8 @@ def dump_yaml(system: System) -> str:
     links = {link.id: link.name for link in system.links}
     doc: dict[str, Any] = {
         "system": system.name,
-        "links": [{"name": link.name, "url": link.url} for link in system.links],
+        "links": [{k: v for k, v in dataclasses.asdict(link).items()
+                   if k != "id" and (v or k in ("name", "url"))} for link in system.links],
         "dpus": [{"id": d.id, "host": d.host, "cpu": d.cpu, "compute": d.compute, "executive": d.executive,
                   "speed": d.speed, "minor_cycle_us": d.minor_cycle_us, "links": [links[i] for i in d.links]}
                  for d in system.dpus],
