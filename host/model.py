@@ -319,6 +319,7 @@ def _lookup(index: dict[int | str, Any], key: int | str, noun: str) -> Any:
 class ExpectedDpu:
     id: int
     compute_pct: float | None       # None: it follows from how often the host sends an event
+    communicate_pct: float | None = None  # its links' charged costs (None: unknown, or a log before them)
 
 
 @dataclass(frozen=True)
@@ -364,7 +365,7 @@ class Expected:
     @classmethod
     def from_json(cls, doc: dict[str, Any]) -> Expected:
         return cls(
-            dpus=tuple(ExpectedDpu(d["id"], d["compute_pct"]) for d in doc["dpus"]),
+            dpus=tuple(ExpectedDpu(d["id"], d["compute_pct"], d.get("communicate_pct")) for d in doc["dpus"]),
             processes=tuple(ExpectedProcess(p["name"], p["response_us"], p["paced_by"])
                             for p in doc["processes"]),
             inputs=tuple(ExpectedInput(i["reader"], i["buffer"], i["writer"], i["new"], i["stale"],

@@ -88,10 +88,10 @@ def resolve(spec: SystemSpec, base: Path) -> Resolved:
 
 def _charged_tasking(spec: SystemSpec, processes: tuple[Process, ...]) -> None:
     """The link costs are charged by the cyclic executive only (dpu/process.c)."""
-    tasking = {d.id: i for i, d in enumerate(spec.dpus) if d.executive == "threads"}
+    tasking = {d.id for d in spec.dpus if d.executive == "threads"}
     for p in processes:
         if p.dpu in tasking and p.charge.us > 0:
-            raise Invalid(f"dpus[{tasking[p.dpu]}].executive",
+            raise Invalid(f"dpus.{p.dpu}.executive",
                           f"the tasking executive charges no link costs yet (process {p.name} would "
                           "pay its links' per_message_us, per_byte_ns, push_byte_ns or remote_read_us): "
                           "use `cyclic`, or links without costs")
