@@ -55,8 +55,8 @@ static void fixture_init(fixture_t *f)
     c->lockout_cycles = 4;
     c->source = (char *)"system: fixture\n";
     c->sender = (char *)"fixture pid 1";
-    f->links[0] = (skelmsg_link_t){ 1, (char *)"net", (char *)"udpm://239.255.76.67:7799?ttl=0" };
-    f->links[1] = (skelmsg_link_t){ 2, (char *)"mem", (char *)"" };
+    f->links[0] = (skelmsg_link_t){ .id = 1, .name = (char *)"net", .url = (char *)"udpm://239.255.76.67:7799?ttl=0" };
+    f->links[1] = (skelmsg_link_t){ .id = 2, .name = (char *)"mem", .url = (char *)"" };
     c->nlinks = 2;
     c->links = f->links;
     for (int i = 0; i < 2; i++) {
