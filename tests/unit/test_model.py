@@ -12,6 +12,7 @@ from conftest import REPO
 from skeleton.host.live.wire import config_message
 from skeleton.host.model import FROM_CONFIG, RunRules, System, from_config
 from skeleton.host.sysfile.system import load
+from skelmsg.contract import DEFAULT_URL
 
 EXAMPLES = sorted((REPO / "examples").glob("*.yaml"))
 
@@ -51,10 +52,10 @@ def test_each_process_is_charged_its_links_costs_as_the_dpu_charges_them(tmp_pat
     """model.charges(), which dpu/plan.c mirrors: the writer per message, per byte and per byte
     for each other reading DPU; a reader per remote input every cycle; the DPU per message it
     receives, charged to its fastest reader of the buffer (the first in order among equals)."""
-    (tmp_path / "s.yaml").write_text("""
+    (tmp_path / "s.yaml").write_text(f"""
 system: charged
-links: [{name: bus, url: "udpm://239.255.76.67:7667?ttl=0", per_message_us: 10, per_byte_ns: 2,
-         push_byte_ns: 3, remote_read_us: 7}]
+links: [{{name: bus, url: "{DEFAULT_URL}", per_message_us: 10, per_byte_ns: 2, push_byte_ns: 3,
+         remote_read_us: 7}}]
 dpus: [{id: 1}, {id: 2}]
 buffers: [{id: 1, name: a, bytes: 100}]
 processes:
