@@ -52,10 +52,9 @@ def test_each_process_is_charged_its_links_costs_as_the_dpu_charges_them(tmp_pat
     """model.charges(), which dpu/plan.c mirrors: the writer per message, per byte and per byte
     for each other reading DPU; a reader per remote input every cycle; the DPU per message it
     receives, charged to its fastest reader of the buffer (the first in order among equals)."""
-    (tmp_path / "s.yaml").write_text(f"""
+    (tmp_path / "s.yaml").write_text("""
 system: charged
-links: [{{name: bus, url: "{DEFAULT_URL}", per_message_us: 10, per_byte_ns: 2, push_byte_ns: 3,
-         remote_read_us: 7}}]
+links: [{name: bus, url: "URL", per_message_us: 10, per_byte_ns: 2, push_byte_ns: 3, remote_read_us: 7}]
 dpus: [{id: 1}, {id: 2}]
 buffers: [{id: 1, name: a, bytes: 100}]
 processes:
@@ -64,7 +63,7 @@ processes:
   - {id: 3, name: slow, dpu: 2, period_us: 10000, compute_us: 100, inputs: [a]}
   - {id: 4, name: fast, dpu: 2, period_us: 5000, compute_us: 100, inputs: [a]}
   - {id: 5, name: also, dpu: 2, period_us: 5000, compute_us: 100, inputs: [a]}
-""")
+""".replace("URL", DEFAULT_URL))
     system = load(tmp_path / "s.yaml")
     message = 10 + 2 * 100 / 1000                      # us per message, as received
     # one other DPU reads it: 10 us + 2 ns x 100 B + 3 ns x 100 B x 1 DPU
