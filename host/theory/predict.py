@@ -9,9 +9,10 @@ nor can a cyclic DPU whose data reader's wait holds it from its writer there: an
 data reader of a slower writer is paced by it, waiting for its next value in each cycle it
 runs (_paced_timings(), in its start and response); one of a writer of its own period waits, each
 cycle, for that writer's end: same_cycle_waits(), in its start and all that follows); per
-chain the best and worst end-to-end latency; per link its traffic. The DPUs' own costs
-(communication, wake-up, interference) are not in it: what a run measures beyond it is the
-platform's.
+chain the best and worst end-to-end latency; per link its traffic. The costs a system's
+links charge (model.charges()) are in each process's time per cycle (frames.compute_us) and
+each DPU's predicted % communicate; the DPUs' own costs (communication, wake-up,
+interference) are not in it: what a run measures beyond it is the platform's.
 
 How often the host sends an event (`kind: host`, `skel event`) is in no file, so what follows
 from the rate of a process it drives (directly, through events or data, or by taking the
