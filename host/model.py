@@ -385,6 +385,8 @@ def charges(links: Sequence[Link], dpus: Sequence[Dpu], buffers: Sequence[Buffer
     per period of the writer on average, the whole ones for the fewest and one more for the most.
     A DPU's speed does not shorten them: they are the bus's and its interfaces', not the code's."""
     link = {k.id: k for k in links}
+    if not any(k.costs for k in links):
+        return tuple(processes)
     by_id = {p.id: p for p in processes}
     readers: dict[int, list[Process]] = {}
     for p in processes:
@@ -398,7 +400,9 @@ def charges(links: Sequence[Link], dpus: Sequence[Dpu], buffers: Sequence[Buffer
             others = len({r.dpu for r in readers.get(b.id, [])} - {p.dpu})
             c["out_us"] += k.per_message_us + (k.per_byte_ns + k.push_byte_ns * others) * b.bytes / 1000
         for b in (x for x in buffers if x.id in p.inputs):
-            k, writer = link[b.link], by_id[b.writer]
+            k, writer = link[b.link], by_id.get(b.writer)
+            if writer is None:  # a config without its writer (the rules refuse one): charged nothing
+                continue
             remote = k.remote_read_us if writer.dpu != p.dpu else 0.0
             payer = min((r for r in readers[b.id] if r.dpu == p.dpu),
                         key=lambda r: (r.period_us, r.order, r.id))
