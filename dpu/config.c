@@ -131,6 +131,11 @@ static int config_check_buffer(const skelmsg_config_t *cfg, const skelmsg_dpu_t 
     const skelmsg_link_t *l = config_link(cfg, b->link);
     if (l == NULL) return config_fail(reason, len, "buffer %d: unknown link %d", b->id, b->link);
     if (config_check_transport(l, reason, len) != 0) return -1;
+    const double costs[] = { l->per_message_us, l->per_byte_ns, l->push_byte_ns, l->remote_read_us };
+    for (size_t i = 0; i < sizeof costs / sizeof *costs; i++)
+        if (!(costs[i] >= 0 && costs[i] <= SKEL_MAX_LINK_COST) || (l->url[0] == '\0' && costs[i] != 0))
+            return config_fail(reason, len, "link %d (%.64s): a cost outside 0..%d, or one on a local link",
+                               l->id, l->name, SKEL_MAX_LINK_COST);
     if (l->url[0] == '\0') {
         if (b->url[0] != '\0')
             return config_fail(reason, len, "buffer %d: on local link %d but sent to '%.64s'", b->id,

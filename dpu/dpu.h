@@ -194,6 +194,7 @@ typedef struct {
     int64_t last_used;         /* -1: nothing used yet; SKEL_SEQ_JOINED: input added mid-run */
     int64_t received_seen;     /* slot->received at the previous cycle */
     int64_t n_new, n_stale, n_dropped;
+    int64_t message_ns;        /* link cost per message received here, when this process pays it (plan.c) */
 } skel_input_t;
 
 /* What one cycle saw on one input. */
@@ -443,6 +444,10 @@ typedef struct {
                                 * its release (process_t.ready_us); 0: no wait planned */
     skel_draw_t draw;
     int64_t ratio;             /* period / minor cycle */
+    /* Link costs (plan.c), charged in the DPU's compute mode: comm_in every cycle (remote
+     * reads; plus its inputs' message_ns per message received), comm_out every cycle, and
+     * the mean of both per cycle (the configured load). */
+    int64_t charge_in_ns, charge_out_ns, charge_mean_ns;
     int ninputs, noutputs;
     skel_input_t inputs[SKEL_MAX_IO];
     skel_output_t outputs[SKEL_MAX_IO];

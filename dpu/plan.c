@@ -2,6 +2,7 @@
  * needs: processes in run order, one slot per buffer read, a preallocated
  * encode buffer per output, the dummy payload, and one lcm_t per link URL.
  * All allocation happens here, when a config is applied, never in a cycle. */
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -170,13 +171,88 @@ static int plan_add_processes(skel_plan_t *plan, const skelmsg_config_t *cfg, in
     return 0;
 }
 
+static const skelmsg_process_t *plan_config_process(const skelmsg_config_t *cfg, int16_t id)
+{
+    for (int i = 0; i < cfg->nprocesses; i++)
+        if (cfg->processes[i].id == id) return &cfg->processes[i];
+    return NULL;
+}
+
+/* The DPUs other than DPU where some process reads buffer B. */
+static int plan_other_readers(const skelmsg_config_t *cfg, int16_t b, int16_t dpu)
+{
+    int n = 0;
+    for (int i = 0; i < cfg->nprocesses; i++) {
+        const skelmsg_process_t *r = &cfg->processes[i];
+        int reads = 0, counted = r->dpu == dpu;
+        for (int q = 0; q < r->ninputs; q++) reads |= r->inputs[q] == b;
+        for (int j = 0; reads && !counted && j < i; j++)
+            for (int q = 0; q < cfg->processes[j].ninputs; q++)
+                counted |= cfg->processes[j].dpu == r->dpu && cfg->processes[j].inputs[q] == b;
+        n += reads && !counted;
+    }
+    return n;
+}
+
+/* Whether P pays for the messages of buffer B this DPU receives: of its processes reading
+ * B, it has the shortest period, then the lowest (order, id). */
+static int plan_pays(const skel_plan_t *plan, const skel_process_t *p, int16_t b)
+{
+    for (int i = 0; i < plan->nprocesses; i++) {
+        const skel_process_t *r = &plan->processes[i];
+        int reads = 0;
+        for (int q = 0; q < r->ninputs; q++) reads |= r->inputs[q].buffer == b;
+        if (reads && r != p && (r->period_ns < p->period_ns || (r->period_ns == p->period_ns &&
+                                (r->order < p->order || (r->order == p->order && r->id < p->id)))))
+            return 0;
+    }
+    return 1;
+}
+
+/* The link costs each process pays per cycle, worked out once (host/model.py charges()
+ * says the same: keep the two alike); the cycle only multiplies messages received. */
+static int plan_charges(skel_plan_t *plan, const skelmsg_config_t *cfg, char *reason, size_t len)
+{
+    for (int i = 0; i < plan->nprocesses; i++) {
+        skel_process_t *p = &plan->processes[i];
+        double in = 0, out = 0, mean = 0;
+        for (int q = 0; q < p->noutputs; q++) {
+            const skelmsg_buffer_desc_t *b = config_buffer(cfg, p->outputs[q].buffer);
+            const skelmsg_link_t *l = config_link(cfg, b->link);
+            int others = plan_other_readers(cfg, b->id, plan->dpu);
+            out += l->per_message_us * SKEL_NS_PER_US + (l->per_byte_ns + l->push_byte_ns * others) * b->bytes;
+        }
+        for (int q = 0; q < p->ninputs; q++) {
+            skel_input_t *inp = &p->inputs[q];
+            const skelmsg_buffer_desc_t *b = config_buffer(cfg, inp->buffer);
+            const skelmsg_link_t *l = config_link(cfg, b->link);
+            const skelmsg_process_t *w = plan_config_process(cfg, b->writer);
+            if (w == NULL || w->period_us <= 0) continue; /* config_validate refuses it */
+            if (w->dpu != plan->dpu) in += l->remote_read_us * SKEL_NS_PER_US;
+            double message = l->per_message_us * SKEL_NS_PER_US + l->per_byte_ns * b->bytes;
+            inp->message_ns = plan_pays(plan, p, b->id) ? llround(message) : 0;
+            mean += (double)inp->message_ns * (double)p->period_ns / ((double)w->period_us * SKEL_NS_PER_US);
+        }
+        p->charge_in_ns = llround(in);
+        p->charge_out_ns = llround(out);
+        p->charge_mean_ns = llround(in + out + mean);
+        if (plan->tasking && p->charge_mean_ns > 0) {
+            snprintf(reason, len, "DPU %d: the tasking executive charges no link costs (process %d)",
+                     plan->dpu, p->id);
+            return -1;
+        }
+    }
+    return 0;
+}
+
 /* Whether the configured load fits the DPU (Σ compute / period <= 1): cycle.c
  * skips a data-synchronised process's late releases only then. */
 static int plan_fits(const skel_plan_t *plan)
 {
     double load = 0.0;
     for (int i = 0; i < plan->nprocesses; i++)
-        load += (double)plan->processes[i].compute_ns / (double)plan->processes[i].period_ns;
+        load += (double)(plan->processes[i].compute_ns + plan->processes[i].charge_mean_ns) /
+                (double)plan->processes[i].period_ns;
     return load <= 1.0;
 }
 
@@ -210,6 +286,10 @@ skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason
     if (plan->processes == NULL || plan->slots == NULL) goto oom;
     plan->event_link = -1;
     if (plan_add_processes(plan, cfg, d->id) != 0) goto oom;
+    if (plan_charges(plan, cfg, reason, len) != 0) {
+        plan_free(plan);
+        return NULL;
+    }
     if (event_add_sources(plan, cfg, d->id) != 0) goto oom;
     plan->fits = plan_fits(plan);
     plan_size_links(plan, cfg);

@@ -236,6 +236,32 @@ int64_t process_kept(skel_exec_t *x, skel_rec_t *rec, int64_t step_from, int64_t
     return off;
 }
 
+/* Charges NS of a link's cost (plan.c) to the communicate step under way, emulated as the
+ * DPU's compute mode emulates a computation (so SLEEP sleeps it, CPU spins it, and a
+ * simulation charges it on virtual time). Returns the wall time the thread was kept from
+ * running meanwhile (the platform's, in preempted_ns), which the step leaves out. */
+static int64_t process_charge(skel_exec_t *x, skel_rec_t *rec, int64_t ns)
+{
+    if (ns <= 0) return 0;
+    int64_t from = clock_mono_ns(), stall = 0;
+    int64_t ran = compute_run(&x->s->compute, x->plan->compute, ns, &stall);
+    process_stalled(x, rec, stall);
+    x->mark_stale = 1; /* it may have slept: the steps after it are judged from a fresh mark */
+    int64_t off = clock_mono_ns() - from - ran;
+    if (off <= 0) return 0;
+    rec->preempted_ns += off;
+    return off;
+}
+
+/* What cycle REC's reading costs on its links: every cycle its remote reads, and each
+ * message received since its last cycle on the inputs whose messages it pays for. */
+static int64_t process_charge_in(const skel_process_t *p, const skel_rec_t *rec)
+{
+    int64_t ns = p->charge_in_ns;
+    for (int q = 0; q < p->ninputs; q++) ns += p->inputs[q].message_ns * rec->in[q].received;
+    return ns;
+}
+
 /* Waits for new data on every required input: 1 when the run ended or stopped
  * first. Cycle K (minor J of the plan) was released at RELEASE. Meanwhile the
  * processes it holds up are watched for lockout (process_held_up). */
@@ -432,6 +458,15 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
         rec->slack_ns = release + p->period_ns - t_blocked;
         return PROCESS_STOPPED;
     }
+    /* The link's cost of reading, once what the cycle reads is known (after its data wait):
+     * part of comm_in, as the prediction has it (host/model.py charges()). */
+    int64_t charge = process_charge_in(p, rec);
+    if (charge > 0) {
+        int64_t kept = process_charge(x, rec, charge);
+        int64_t now = clock_mono_ns();
+        rec->comm_in_ns += now - t_blocked - kept;
+        t_blocked = now;
+    }
     process_commit(plan, p, rec, measured);
     rec->asked_ns = draw_ns(&p->draw, p->compute_ns);
     rec->compute_ns = process_compute(x, p, k, release, rec, t_blocked);
@@ -448,6 +483,7 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
         if (x->mark_stale) process_remark(x, t_out);
         process_write_outputs(x, p, k);
         kept_out = process_kept(x, rec, t_out, clock_mono_ns());
+        kept_out += process_charge(x, rec, p->charge_out_ns); /* the link's cost of publishing */
     }
     /* comm_out_ns runs from where publishing ended less its stall (in preempted_ns) */
     process_finish(x, p, rec, release, t_out + kept_out, measured);

@@ -8,8 +8,10 @@ At the bottom of host/: every package above may import it, and so may analysis/.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import itertools
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,10 +33,19 @@ class Link:
     jitter: str = "uniform"            # uniform | normal
     loss_pct: float = 0.0              # the good state's when bursty
     burst: LossBurst | None = None
+    # its CPU costs (the schema's LinkSpec, a preset's filled in), charged by the DPUs: charges()
+    per_message_us: float = 0.0
+    per_byte_ns: float = 0.0
+    push_byte_ns: float = 0.0
+    remote_read_us: float = 0.0
 
     @property
     def local(self) -> bool:
         return self.url == "local"
+
+    @property
+    def costs(self) -> bool:
+        return any((self.per_message_us, self.per_byte_ns, self.push_byte_ns, self.remote_read_us))
 
     @property
     def delay_us(self) -> tuple[float, float, float]:
@@ -110,6 +121,20 @@ class Varying:
 
 
 @dataclass(frozen=True)
+class Charge:
+    """The CPU a process's DPU charges it per cycle for its links' costs, in us (charges())."""
+
+    in_us: float = 0.0          # comm_in: its remote reads, and the messages it pays for, on average
+    in_worst_us: float = 0.0    # ... with the most messages one cycle can find (a slower reader)
+    in_best_us: float = 0.0     # ... and the fewest
+    out_us: float = 0.0         # comm_out: what it publishes
+
+    @property
+    def us(self) -> float:
+        return self.in_us + self.out_us
+
+
+@dataclass(frozen=True)
 class Process:
     id: int
     name: str
@@ -126,6 +151,7 @@ class Process:
     event: str = ""         # sync: event: the event it awaits ...
     queue: int = 0          # ... and how many may wait for it (1..MAX_QUEUE)
     emits: tuple[str, ...] = ()  # events it fires at the end of each cycle
+    charge: Charge = Charge()   # its links' costs per cycle (charges())
 
     @property
     def worst_compute_us(self) -> float:
@@ -321,6 +347,7 @@ def _lookup(index: dict[int | str, Any], key: int | str, noun: str) -> Any:
 class ExpectedDpu:
     id: int
     compute_pct: float | None       # None: it follows from how often the host sends an event
+    communicate_pct: float | None = None  # its links' charged costs (None: unknown, or a log before them)
 
 
 @dataclass(frozen=True)
@@ -369,7 +396,7 @@ class Expected:
     @classmethod
     def from_json(cls, doc: dict[str, Any]) -> Expected:
         return cls(
-            dpus=tuple(ExpectedDpu(d["id"], d["compute_pct"]) for d in doc["dpus"]),
+            dpus=tuple(ExpectedDpu(d["id"], d["compute_pct"], d.get("communicate_pct")) for d in doc["dpus"]),
             processes=tuple(ExpectedProcess(p["name"], p["response_us"], p["paced_by"])
                             for p in doc["processes"]),
             inputs=tuple(ExpectedInput(i["reader"], i["buffer"], i["writer"], i["new"], i["stale"],
@@ -378,6 +405,48 @@ class Expected:
             chains=tuple(ExpectedChain(c["name"], tuple(c["processes"]), c["best_us"], c["worst_us"],
                                        c.get("network_us", 0.0))
                          for c in doc["chains"]))
+
+def charges(links: Sequence[Link], dpus: Sequence[Dpu], buffers: Sequence[Buffer],
+            processes: Sequence[Process]) -> tuple[Process, ...]:
+    """The processes, each with the CPU its DPU charges it per cycle for its links' costs, as
+    dpu/plan.c works them out (keep the two alike). The writer pays, in comm_out, per buffer it
+    publishes: per_message_us + per_byte_ns x bytes, and push_byte_ns x bytes for each other DPU
+    that reads it. A reader pays, in comm_in: remote_read_us per input written on another DPU,
+    every cycle; and its DPU, which receives each message once, pays per_message_us +
+    per_byte_ns x bytes per message received, charged to the process that reads the buffer
+    there most often (the shortest period, then the first in the DPU's order): a period of its
+    per period of the writer on average, the whole ones for the fewest and one more for the most.
+    A DPU's speed does not shorten them: they are the bus's and its interfaces', not the code's."""
+    link = {k.id: k for k in links}
+    if not any(k.costs for k in links):
+        return tuple(processes)
+    by_id = {p.id: p for p in processes}
+    readers: dict[int, list[Process]] = {}
+    for p in processes:
+        for b in p.inputs:
+            readers.setdefault(b, []).append(p)
+    out: list[Process] = []
+    for p in processes:
+        c = {"in_us": 0.0, "in_worst_us": 0.0, "in_best_us": 0.0, "out_us": 0.0}
+        for b in (x for x in buffers if x.id in p.outputs):
+            k = link[b.link]
+            others = len({r.dpu for r in readers.get(b.id, [])} - {p.dpu})
+            c["out_us"] += k.per_message_us + (k.per_byte_ns + k.push_byte_ns * others) * b.bytes / 1000
+        for b in (x for x in buffers if x.id in p.inputs):
+            k, writer = link[b.link], by_id.get(b.writer)
+            if writer is None:  # a config without its writer (the rules refuse one): charged nothing
+                continue
+            remote = k.remote_read_us if writer.dpu != p.dpu else 0.0
+            payer = min((r for r in readers[b.id] if r.dpu == p.dpu),
+                        key=lambda r: (r.period_us, r.order, r.id))
+            message = k.per_message_us + k.per_byte_ns * b.bytes / 1000 if payer.id == p.id else 0.0
+            per_cycle = p.period_us / writer.period_us
+            c["in_us"] += remote + message * per_cycle
+            c["in_worst_us"] += remote + message * math.ceil(per_cycle - 1e-9)
+            c["in_best_us"] += remote + message * math.floor(per_cycle + 1e-9)
+        out.append(dataclasses.replace(p, charge=Charge(**c)) if any(c.values()) else p)
+    return tuple(out)
+
 
 # --- the model on the wire: config_t's enums, and a System read back from a config_t -------------
 COMPUTE = {"sleep": skelmsg.dpu_t.COMPUTE_SLEEP, "wall": skelmsg.dpu_t.COMPUTE_WALL,
@@ -401,9 +470,12 @@ def _named(names: dict[str, int], value: int) -> str:
 
 def _link(link: skelmsg.link_t) -> Link:
     burst = LossBurst(link.burst_enter_pct, link.burst_leave_pct, link.burst_loss_pct)
-    return Link(link.id, link.name, link.url or "local", None, link.latency_us, link.jitter_us,
-                "normal" if link.jitter == skelmsg.link_t.JITTER_NORMAL else "uniform", link.loss_pct,
-                burst if link.burst_enter_pct > 0 else None)
+    return Link(link.id, link.name, link.url or "local", None, latency_us=link.latency_us,
+                jitter_us=link.jitter_us,
+                jitter="normal" if link.jitter == skelmsg.link_t.JITTER_NORMAL else "uniform",
+                loss_pct=link.loss_pct, burst=burst if link.burst_enter_pct > 0 else None,
+                per_message_us=link.per_message_us, per_byte_ns=link.per_byte_ns,
+                push_byte_ns=link.push_byte_ns, remote_read_us=link.remote_read_us)
 
 
 def from_config(msg: skelmsg.config_t) -> System:
@@ -411,6 +483,8 @@ def from_config(msg: skelmsg.config_t) -> System:
     DPUs were sent, as the analysis reads it from the log. What the config does not carry keeps
     its default: the run's length and stop_on, a link's bandwidth, a varying compute's kind (its
     quantile table is carried), the reference, the overrides; the path is the run's system.yaml."""
+    links = tuple(_link(k) for k in msg.links)
+    buffers = tuple(Buffer(b.id, b.name, b.bytes, b.link, b.writer) for b in msg.buffers)
     processes = tuple(
         Process(id=p.id, name=p.name, dpu=p.dpu, order=p.order, period_us=p.period_us,
                 compute_us=p.compute_us, sync=_named(SYNC, p.sync), inputs=tuple(p.inputs),
@@ -419,14 +493,15 @@ def from_config(msg: skelmsg.config_t) -> System:
                 varying=Varying(FROM_CONFIG, tuple(p.quantiles_us), given={}) if p.quantiles_us else None,
                 priority=p.priority, event=p.event, queue=p.queue, emits=tuple(p.emits))
         for p in msg.processes)
+    dpus = tuple(Dpu(d.id, d.host, None if d.cpu < 0 else d.cpu, _named(COMPUTE, d.compute),
+                     _named(EXECUTIVE, d.executive), d.speed, d.minor_cycle_us, tuple(d.links))
+                 for d in msg.dpus)
     return System(
         name=msg.system, path=Path("system.yaml"), source_text=msg.source,
-        links=tuple(_link(link) for link in msg.links),
-        dpus=tuple(Dpu(d.id, d.host, None if d.cpu < 0 else d.cpu, _named(COMPUTE, d.compute),
-                       _named(EXECUTIVE, d.executive), d.speed, d.minor_cycle_us, tuple(d.links))
-                   for d in msg.dpus),
-        buffers=tuple(Buffer(b.id, b.name, b.bytes, b.link, b.writer) for b in msg.buffers),
-        processes=processes,
+        links=links,
+        dpus=dpus,
+        buffers=buffers,
+        processes=charges(links, dpus, buffers, processes),
         run=RunRules(cycles=None, duration_s=None, warmup_cycles=msg.warmup_cycles,
                      lockout_cycles=msg.lockout_cycles, stop_on=(), late_pct=msg.late_pct,
                      too_late_pct=msg.too_late_pct, seed=msg.seed),

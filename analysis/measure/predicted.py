@@ -8,6 +8,8 @@ tolerances say how much of that cost passes unremarked:
 - % compute per DPU: within COMPUTE_POINTS either way (sleep mode measures SERVO to 0.03),
   measured over the time the platform let the DPU run (DpuMetrics.compute_unstalled_pct): the
   prediction is for a dedicated CPU, and the stalls are the platform's, reported as such;
+- % communicate per DPU, where its links charge costs (the prediction's is theirs alone): no
+  more than COMPUTE_POINTS below it (the platform's communication only adds);
 - new / stale share of a reader's cycles and dropped sequences per cycle: within SHARE
   either way (they follow from the two rates alone);
 - response (release -> end of work) per process and chain latency: the measured p99 may
@@ -68,6 +70,7 @@ def _none() -> Beside:
 class DpuBeside:
     id: int
     compute_pct: Beside
+    communicate_pct: Beside = field(default_factory=lambda: Beside(None, None))  # the links' charged costs
 
 
 @dataclass
@@ -138,6 +141,13 @@ def above_worst(worst: float | None, measured: float | None, margin: float) -> B
     return Beside(worst, measured, delta, delta > margin)
 
 
+def at_least(predicted: float | None, measured: float | None, tolerance: float) -> Beside:
+    if predicted is None or measured is None:
+        return Beside(predicted, measured)
+    delta = measured - predicted
+    return Beside(predicted, measured, delta, delta < -tolerance)
+
+
 def input_shares(metrics: InputMetrics) -> tuple[float, float, float] | None:
     """(new, stale, dropped) per cycle of the reader: None before its first cycle."""
     cycles = metrics.new + metrics.stale
@@ -188,7 +198,8 @@ def beside(prediction: Expected, generation: int, late_pct: int, dpus: list[DpuM
     for d in prediction.dpus:
         if (m := measured_dpus.get(d.id)) is not None:
             compute = either_way(d.compute_pct, m.compute_unstalled_pct, COMPUTE_POINTS)
-            out.dpus.append(DpuBeside(d.id, compute))
+            charged = d.communicate_pct or None  # no cost charged: nothing to compare
+            out.dpus.append(DpuBeside(d.id, compute, at_least(charged, m.communicate_pct, COMPUTE_POINTS)))
     by_name = {p.name: p for p in processes}
     for p in prediction.processes:
         if (mp := by_name.get(p.name)) is None:
@@ -224,6 +235,9 @@ def beside(prediction: Expected, generation: int, late_pct: int, dpus: list[DpuM
 def _outside_lines(p: Predicted) -> list[str]:
     lines = [f"DPU {d.id}: % compute {_said(p, d.compute_pct, 1, '', f'±{p.compute_points:g} points')}"
              for d in p.dpus if d.compute_pct.outside]
+    below = f"-{p.compute_points:g} points"
+    lines += [f"DPU {d.id}: % communicate {_said(p, d.communicate_pct, 1, '', below)}"
+              for d in p.dpus if d.communicate_pct.outside]
     margin = f"late_pct ({p.late_pct} %) of the period"
     lines += [f"{r.name} (DPU {r.dpu}): response p99 {_said(p, r.response_us, 0, ' µs', margin, WORST)}"
               for r in p.processes if r.response_us.outside]

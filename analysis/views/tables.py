@@ -274,9 +274,14 @@ def predicted_tables(p: Predicted) -> list[Table]:
     and `!` where the measured value is outside its prediction."""
     title = (f"predicted (from the system file alone) beside measured, generation {p.generation}: per DPU "
              f"(! beyond ±{p.compute_points:g} points)")
-    columns = [("DPU", True), ("% comp\npred.", True), ("% comp\nmeas.", True), ("Δ", True), OUTSIDE]
-    tables = [make_table(title, columns, [[str(d.id), *_beside(d.compute_pct), _flag(d.compute_pct)]
-                                      for d in p.dpus])]
+    columns = [("DPU", True), ("% comp\npred.", True), ("% comp\nmeas.", True), ("Δ", True)]
+    # the links' charged costs beside the measured % communicate, where a link charges any
+    charged = any(d.communicate_pct.predicted is not None for d in p.dpus)
+    if charged:
+        columns += [("% comm\npred.", True), ("% comm\nmeas.", True), ("Δ", True)]
+    tables = [make_table(title, [*columns, OUTSIDE], [
+        [str(d.id), *_beside(d.compute_pct), *(_beside(d.communicate_pct, 1, "-") if charged else []),
+         "!" if d.compute_pct.outside or d.communicate_pct.outside else "-"] for d in p.dpus])]
     rows = [[r.name, str(r.dpu), *_beside(r.response_us, 0, "unbounded"), num(r.response_max_us, 0),
              f"paced by {r.paced_by}" if r.paced_by else _flag(r.response_us)] for r in p.processes]
     tables.append(make_table(

@@ -29,8 +29,10 @@ def _table(*columns: str) -> Table:
 
 def print_prediction(console: Console, pred: Prediction) -> None:
     console.print("[bold]prediction[/] (from the file alone: the platform's own costs come on top)")
-    dpus = _table("DPU", "executive", "load %", "predicted % compute", "frames that overflow",
-                  "lockout at ms")
+    # the links' costs the DPUs charge (model.charges()), in their own columns when there are any
+    charged = any(p.communicate_us for p in pred.processes)
+    dpus = _table("DPU", "executive", "load %", "predicted % compute",
+                  *(["predicted % communicate"] if charged else []), "frames that overflow", "lockout at ms")
     for d in pred.dpus:
         over = ", ".join(f"{f.first} ({_ms(f.demand_us + f.wait_us, 4)} of {f.minor_cycle_us / 1000:g} ms)"
                          for f in d.overflowing[:3]) + (" ..." if len(d.overflowing) > 3 else "")
@@ -40,10 +42,12 @@ def print_prediction(console: Console, pred: Prediction) -> None:
         over = ", ".join(x for x in (over, maybe) if x)
         load = f"[red]{d.load_pct:.1f}[/]" if not d.schedulable else f"{d.load_pct:.1f}"
         dpus.add_row(str(d.id), "tasking" if d.executive == "threads" else "cyclic", load,
-                     _known(d.compute_pct, ".1f"), over or "-",
+                     _known(d.compute_pct, ".1f"),
+                     *([_known(d.communicate_pct, ".1f")] if charged else []), over or "-",
                      f"{d.lockout_ms:.0f}" if d.lockout_ms else "-")
     console.print(dpus)
-    procs = _table("process", "DPU", "period ms", "compute ms", "runs Hz", "start ms", "worst response ms")
+    procs = _table("process", "DPU", "period ms", "compute ms", *(["communicate ms"] if charged else []),
+                   "runs Hz", "start ms", "worst response ms")
     for p in pred.processes:
         resp = _ms(p.response_us)
         resp = resp if p.schedulable else f"[red]{resp}[/]"
@@ -51,7 +55,8 @@ def print_prediction(console: Console, pred: Prediction) -> None:
         # a DPU that falls ever further behind starts its processes ever later
         start = f"{_ms(p.start_min_us)}..{_ms(p.start_max_us)}" if p.response_us is not None else "-"
         procs.add_row(p.name + paced, str(p.dpu), f"{p.period_us / 1000:g}", f"{p.compute_us / 1000:.4g}",
-                      _known(p.rate_hz, ".4g"), start, resp)
+                      *([f"{p.communicate_us / 1000:.4g}"] if charged else []), _known(p.rate_hz, ".4g"),
+                      start, resp)
     console.print(procs)
     mixed = [i for i in pred.inputs if i.stale is None or i.dropped is None or i.stale > 0.005
              or i.dropped > 0.005]

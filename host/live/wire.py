@@ -19,6 +19,7 @@ import yaml
 import skelmsg
 
 from ..model import COMPUTE, EVENT_KIND, EXECUTIVE, SYNC, Event, Link, System
+from ..sysfile.schema import COSTS
 from ..theory.predict import planned_data_us
 
 
@@ -102,11 +103,13 @@ def _link(link: Link) -> skelmsg.link_t:
     if link.burst is not None:
         msg.burst_enter_pct, msg.burst_leave_pct = link.burst.enter_pct, link.burst.leave_pct
         msg.burst_loss_pct = link.burst.loss_pct
+    msg.per_message_us, msg.per_byte_ns = link.per_message_us, link.per_byte_ns
+    msg.push_byte_ns, msg.remote_read_us = link.push_byte_ns, link.remote_read_us
     return msg
 
 
 def _transport(link: Link) -> dict[str, Any]:
-    """A link's emulated transport as the file gives it: only what differs from none."""
+    """A link's emulated transport and its costs as the file gives them: only what differs from none."""
     out: dict[str, Any] = {}
     if link.latency_us or link.jitter_us:
         out |= {"latency_us": link.latency_us, "jitter_us": link.jitter_us, "jitter": link.jitter}
@@ -115,6 +118,8 @@ def _transport(link: Link) -> dict[str, Any]:
     if link.burst is not None:
         out["loss_burst"] = {"enter_pct": link.burst.enter_pct, "leave_pct": link.burst.leave_pct,
                              "loss_pct": link.burst.loss_pct}
+    # its CPU costs as charged (a preset's filled in): only those it has
+    out |= {k: v for k in COSTS if (v := getattr(link, k))}
     return out
 
 

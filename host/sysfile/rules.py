@@ -18,11 +18,12 @@ from typing import Any
 from skeleton.analysis.errors import EXIT_BAD_INPUT, SkelError
 from skelmsg import contract
 
-from ..model import Buffer, Chain, Dpu, Event, Link, LossBurst, Process, Varying, control_link
+from ..model import Buffer, Chain, Dpu, Event, Link, LossBurst, Process, Varying, charges, control_link
 from .compute import ComputeError, varying
 from .link import parse_url, port_clash, record_url, writer_ports
 from .schema import (
     ABSURD_COMPUTE_PERIODS,
+    COSTS,
     DEFAULT_LINK,
     BufferSpec,
     ComputeSpec,
@@ -71,25 +72,29 @@ def resolve(spec: SystemSpec, base: Path) -> Resolved:
     chains = _chains(spec, by_name)
     events = _events(spec)
     _reference(spec)
-    return Resolved(
-        links=links,
-        dpus=tuple(
-            Dpu(d.id, d.host, d.cpu, d.compute, d.executive, d.speed, minor[d.id], dpu_links[d.id])
-            for d in spec.dpus
-        ),
-        buffers=tuple(
-            Buffer(b.id, b.name, b.bytes, buffer_links[b.id].id, by_name[writers[b.id]].id)
-            for b in spec.buffers
-        ),
-        processes=tuple(
-            Process(p.id, p.name, p.dpu, order[p.id], p.period_us, _compute_us(p, varying), p.sync,
-                    ports[p.id][0], ports[p.id][2], ports[p.id][1], varying.get(p.id), priority[p.id],
-                    p.event or "", (p.queue or 1) if p.sync == "event" else 0, tuple(p.emits))
-            for p in spec.processes
-        ),
-        chains=chains,
-        events=events,
-    )
+    dpus = tuple(Dpu(d.id, d.host, d.cpu, d.compute, d.executive, d.speed, minor[d.id], dpu_links[d.id])
+                 for d in spec.dpus)
+    buffers = tuple(Buffer(b.id, b.name, b.bytes, buffer_links[b.id].id, by_name[writers[b.id]].id)
+                    for b in spec.buffers)
+    processes = charges(links, dpus, buffers, tuple(
+        Process(p.id, p.name, p.dpu, order[p.id], p.period_us, _compute_us(p, varying), p.sync,
+                ports[p.id][0], ports[p.id][2], ports[p.id][1], varying.get(p.id), priority[p.id],
+                p.event or "", (p.queue or 1) if p.sync == "event" else 0, tuple(p.emits))
+        for p in spec.processes))
+    _charged_tasking(spec, processes)
+    return Resolved(links=links, dpus=dpus, buffers=buffers, processes=processes, chains=chains,
+                    events=events)
+
+
+def _charged_tasking(spec: SystemSpec, processes: tuple[Process, ...]) -> None:
+    """The link costs are charged by the cyclic executive only (dpu/process.c)."""
+    tasking = {d.id for d in spec.dpus if d.executive == "threads"}
+    for p in processes:
+        if p.dpu in tasking and p.charge.us > 0:
+            raise Invalid(f"dpus.{p.dpu}.executive",
+                          f"the tasking executive charges no link costs yet (process {p.name} would "
+                          "pay its links' per_message_us, per_byte_ns, push_byte_ns or remote_read_us): "
+                          "use `cyclic`, or links without costs")
 
 
 def _unique(items: Sequence[Any], section: str, attr: str) -> None:
@@ -108,9 +113,10 @@ def _links(specs: list[LinkSpec] | None) -> tuple[Link, ...]:
     _unique(specs, "links", "name")
     if all(s.url == "local" for s in specs):
         raise Invalid("links", "needs at least one udpm:// link: the host reaches the DPUs over it")
-    return tuple(Link(i + 1, s.name, s.url, s.bandwidth_mbps, s.latency_us, s.jitter_us, s.jitter, s.loss_pct,
-                      None if (b := s.loss_burst) is None else LossBurst(b.enter_pct, b.leave_pct,
-                                                                         b.loss_pct))
+    return tuple(Link(i + 1, s.name, s.url, s.figure("bandwidth_mbps"), s.latency_us, s.jitter_us, s.jitter,
+                      s.loss_pct, None if (b := s.loss_burst) is None else LossBurst(b.enter_pct, b.leave_pct,
+                                                                                     b.loss_pct),
+                      **{cost: s.figure(cost) or 0.0 for cost in COSTS})
                  for i, s in enumerate(specs))
 
 

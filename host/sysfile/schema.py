@@ -11,6 +11,7 @@ import ipaddress
 import math
 import re
 import urllib.parse
+from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
 from pydantic import (
@@ -199,6 +200,47 @@ class LossBurstSpec(_Spec):
     versions on average."""
     loss_pct: Percent = 100.0
     """The loss in the bad state."""
+def _cost(v: float) -> float:
+    """from 0 to the contract's MAX_LINK_COST"""
+    # The DPUs refuse a larger one (config.c): beyond it a cost is a units mistake.
+    if not (math.isfinite(v) and 0 <= v <= contract.MAX_LINK_COST):
+        raise ValueError(f"must be a cost from 0 to {contract.MAX_LINK_COST:g}, got {show(v)}")
+    return v
+
+
+NotNegative = Annotated[float, AfterValidator(_cost)]
+COSTS = ("per_message_us", "per_byte_ns", "push_byte_ns", "remote_read_us")   # a link's CPU costs
+
+
+@dataclass(frozen=True)
+class Preset:
+    source: str                     # where its figures come from
+    values: dict[str, float]        # LinkSpec fields: the costs and bandwidth_mbps
+
+
+# Built-in links: only figures of fields the DPUs and `skel check` act on, each with its source.
+PRESETS = {
+    "vme": Preset("the paper's VME/VSB bus with common memory: the `push` model fitted to Table 1 "
+                  "(host/theory/busfit.py; explanation/paper.md shows the fit)",
+                  {"push_byte_ns": 1352, "remote_read_us": 58.8}),
+    "can-1m": Preset("high-speed CAN at its highest bit rate, 1 Mbit/s (ISO 11898-2); its CPU costs "
+                     "are the controller's and driver's: give them measured",
+                     {"bandwidth_mbps": 1}),
+    "ethernet-100m": Preset("Fast Ethernet, 100 Mbit/s (IEEE 802.3u, 100BASE-TX); its CPU costs are "
+                            "the network stack's, which a run on a real network measures itself",
+                            {"bandwidth_mbps": 100}),
+}
+
+
+def _preset(v: str) -> str:
+    if v not in PRESETS:
+        raise ValueError(f"no preset {show(v)}; presets: {', '.join(PRESETS)}")
+    return v
+
+
+_preset.__doc__ = "one of: " + "; ".join(
+    f"`{name}` ({', '.join(f'{k} {v:g}' for k, v in p.values.items())}: {p.source})"
+    for name, p in PRESETS.items())
 
 
 class LinkSpec(_Spec):
@@ -225,6 +267,33 @@ class LinkSpec(_Spec):
     loss_burst: LossBurstSpec | None = None
     """Losses that come in bursts (Gilbert-Elliott): `enter_pct`, `leave_pct`, and `loss_pct` in
     the bad state (default 100); `loss_pct` above is then the good state's."""
+    preset: Annotated[str, AfterValidator(_preset)] | None = None
+    """A built-in link whose figures this link takes (`bandwidth_mbps` and the costs below); a field
+    given beside it overrides the preset's."""
+    per_message_us: NotNegative | None = None
+    """CPU cost, in us: the writer's per message it publishes (comm_out), and each reading DPU's per
+    message it receives (comm_in of its fastest process reading the buffer). Default 0."""
+    per_byte_ns: NotNegative | None = None
+    """CPU cost per byte of those messages, in ns, charged as `per_message_us` is. Default 0."""
+    push_byte_ns: NotNegative | None = None
+    """CPU cost, in ns, of the writer per byte it publishes for each other DPU that reads the buffer
+    (it copies the buffer into that DPU's memory), in comm_out. Default 0."""
+    remote_read_us: NotNegative | None = None
+    """CPU cost, in us, of a process every cycle it runs, per input written on another DPU (the
+    handshake over the bus), in comm_in, new data or not. Default 0."""
+
+    @model_validator(mode="after")
+    def _costs(self) -> LinkSpec:
+        # A local link is memory inside one DPU: there is no bus whose cost it could charge.
+        if self.url == "local" and (self.preset or any(getattr(self, f) for f in COSTS)):
+            raise ValueError("a `local` link is memory inside one DPU and charges no cost: "
+                             "give the cost to an udpm:// link")
+        return self
+
+    def figure(self, name: str) -> float | None:
+        """A cost or the bandwidth as this link has it: given, else its preset's (None: neither)."""
+        given = getattr(self, name)
+        return given if given is not None else PRESETS.get(self.preset or "", Preset("", {})).values.get(name)
 
     @field_validator("url")
     @classmethod

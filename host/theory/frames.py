@@ -69,19 +69,20 @@ class Timing:
 
 def compute_us(p: Process, d: Dpu) -> float:
     """What the DPU emulates per cycle: the configured compute divided by its speed (a varying
-    one's mean: the figure of averages, loads and rates)."""
-    return p.compute_us / d.speed
+    one's mean: the figure of averages, loads and rates), and its links' costs (p.charge: the
+    communicate step's, charged as a computation is emulated)."""
+    return p.compute_us / d.speed + p.charge.us
 
 
 def worst_us(p: Process, d: Dpu) -> float:
     """The longest a cycle computes: a varying compute's largest draw (the top of its quantile
-    table, dpu/draw.c) divided by the speed, as plan.c divides the table."""
-    return p.worst_compute_us / d.speed
+    table, dpu/draw.c) divided by the speed, as plan.c divides the table; the most messages."""
+    return p.worst_compute_us / d.speed + p.charge.in_worst_us + p.charge.out_us
 
 
 def best_us(p: Process, d: Dpu) -> float:
     """The shortest a cycle computes: a varying compute's smallest draw (its table's bottom)."""
-    return p.best_compute_us / d.speed
+    return p.best_compute_us / d.speed + p.charge.in_best_us + p.charge.out_us
 
 
 Compute = Callable[[Process, Dpu], float]

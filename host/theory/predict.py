@@ -9,9 +9,10 @@ nor can a cyclic DPU whose data reader's wait holds it from its writer there: an
 data reader of a slower writer is paced by it, waiting for its next value in each cycle it
 runs (_paced_timings(), in its start and response); one of a writer of its own period waits, each
 cycle, for that writer's end: same_cycle_waits(), in its start and all that follows); per
-chain the best and worst end-to-end latency; per link its traffic. The DPUs' own costs
-(communication, wake-up, interference) are not in it: what a run measures beyond it is the
-platform's.
+chain the best and worst end-to-end latency; per link its traffic. The costs a system's
+links charge (model.charges()) are in each process's time per cycle (frames.compute_us) and
+each DPU's predicted % communicate; the DPUs' own costs (communication, wake-up,
+interference) are not in it: what a run measures beyond it is the platform's.
 
 How often the host sends an event (`kind: host`, `skel event`) is in no file, so what follows
 from the rate of a process it drives (directly, through events or data, or by taking the
@@ -55,8 +56,9 @@ class DpuPrediction:
     speed: float
     minor_cycle_us: int
     hyperperiod: int                # minor cycles until the frames repeat
-    load_pct: float                 # static load: Σ compute / period / speed
+    load_pct: float                 # static load: Σ (compute / speed + links' costs) / period
     compute_pct: float | None       # what a run's % compute will be: at the rates processes run
+    communicate_pct: float | None   # ... and its % communicate: its links' costs (the platform's not in it)
     frames: tuple[Frame, ...]       # cyclic: one hyperperiod's frames, grouped by what is due
     # even at the largest draws: cyclic: no frame overflows, nor may; tasking: every response <= period
     schedulable: bool
@@ -78,6 +80,7 @@ class ProcessPrediction:
     dpu: int
     period_us: int
     compute_us: float               # divided by the DPU's speed; a varying one's mean
+    communicate_us: float           # its links' costs per cycle, charged by its DPU (model.charges())
     priority: int                   # tasking; 0 on the cyclic executive
     rate_hz: float | None           # cycles a second it will run (paced, starved or overloaded)
     paced_by: str | None            # the writer whose data paces it (sync: data), or may: of unknown rate
@@ -198,18 +201,24 @@ def predict(system: System) -> Prediction:
     for d in system.dpus:
         mine = system.processes_on(d.id)
         load = sum(frames.compute_us(p, d) / p.period_us for p in mine)
-        busy = sum(frames.compute_us(p, d) * rates[p.id] / 1e6 for p in mine)
-        compute = None if any(p.id in unknown for p in mine) else 100 * min(1.0, busy)
+        # an overloaded DPU's rates are slowed to what it can give (_serve): shares of its time
+        busy = sum(p.compute_us / d.speed * rates[p.id] / 1e6 for p in mine)
+        charged = sum(p.charge.us * rates[p.id] / 1e6 for p in mine)
+        over = max(1.0, busy + charged)
+        known = not any(p.id in unknown for p in mine)
+        compute = 100 * busy / over if known else None
+        communicate = 100 * charged / over if known else None
         ok = all(_meets(timing[p.id], p) for p in mine) and not any(f.overflows or f.may_overflow
                                                                     for f in found[d.id])
         dpus.append(DpuPrediction(d.id, d.executive, d.speed, d.minor_cycle_us,
                                   frames.hyperperiod(mine, d.minor_cycle_us), 100 * load,
-                                  compute, found[d.id], ok, _lockout_ms(system, d, mine, load)))
+                                  compute, communicate, found[d.id], ok, _lockout_ms(system, d, mine, load)))
     fed = {(r, w.id): _data_at(system, timing, w, b)[0] for r, ws in waits.items() for b, w in ws}
     for r, (w, data, at) in _paced_timings(system, timing, rates, paced).items():
         timing[r], fed[(r, w)] = at, data
     processes = tuple(
-        ProcessPrediction(p.name, p.dpu, p.period_us, frames.compute_us(p, system.dpu(p.dpu)), p.priority,
+        ProcessPrediction(p.name, p.dpu, p.period_us, p.compute_us / system.dpu(p.dpu).speed, p.charge.us,
+                          p.priority,
                           None if p.id in unknown else rates[p.id], _paced_by(system, p, paced, unknown),
                           timing[p.id].start_min_us, timing[p.id].start_max_us, timing[p.id].response_us)
         for p in system.processes)

@@ -89,6 +89,11 @@ static void test_rejections(void)
         }
     }
     REJECTS(f.dpus[0].compute = 9, 0, "unknown compute mode 9");
+    /* A link's costs: 0 .. MAX_LINK_COST, none on a local link (host/sysfile/schema.py says the same) */
+    REJECTS(f.links[0].per_message_us = -1.0, 0, "link 1 (net): a cost outside 0..1000000, or one on a local link");
+    REJECTS(f.links[0].push_byte_ns = 0.0 / 0.0, 0, "link 1 (net): a cost outside");
+    REJECTS(f.links[0].per_byte_ns = 2e6, 0, "link 1 (net): a cost outside");
+    REJECTS(f.links[1].remote_read_us = 5.0, 0, "link 2 (mem): a cost outside");
     REJECTS(f.dpus[0].cpu = 1000, 0, "cpu 1000 is not one this host lets it run on");
     REJECTS(f.dpus[0].speed = 0.0, 0, "DPU 1: speed 0 outside 0.001..1000");
     /* A speed so small that compute times / speed are no int64 of ns (UB in plan.c), or huge */
@@ -283,6 +288,44 @@ static void test_plan(void)
     plan_free(plan);
 }
 
+/* Each process's link costs, worked out once (host/model.py charges() says the same): the
+ * writer per message, per byte and per byte for each other reading DPU; the reader per
+ * remote input; the reading DPU per message received, paid by its fastest reader. */
+static void test_plan_charges(void)
+{
+    fixture_t f;
+    fixture_init(&f);
+    f.links[0].per_message_us = 10;
+    f.links[0].per_byte_ns = 1;
+    f.links[0].push_byte_ns = 2;
+    f.links[0].remote_read_us = 3;
+    CHECK_EQ(validate(&f, 0), 0);
+    skel_plan_t *plan = plan_build(&f.cfg, 0, reason, sizeof reason);
+    CHECK(plan != NULL);
+    if (plan == NULL) return;
+    skel_process_t *p1 = &plan->processes[0], *p5 = &plan->processes[1], *p4 = &plan->processes[2];
+    /* p1 writes b1 (1000 B), read on DPU 2 only: 10 us + (1 + 2 x 1 DPU) ns x 1000 B */
+    CHECK_EQ(p1->charge_out_ns, 13000);
+    CHECK_EQ(p1->charge_in_ns, 0);
+    /* p5 writes b3 on the local link: nothing */
+    CHECK_EQ(p5->charge_out_ns + p5->charge_in_ns + p5->charge_mean_ns, 0);
+    /* p4 reads b2 (2000 B) from DPU 2 every 10 ms, written every 5 ms: a remote read, and two
+     * messages a cycle of 10 us + 1 ns x 2000 B; b3 is local */
+    CHECK_EQ(p4->charge_in_ns, 3000);
+    CHECK_EQ(p4->inputs[0].message_ns, 12000);
+    CHECK_EQ(p4->inputs[1].message_ns, 0);
+    CHECK_EQ(p4->charge_mean_ns, 3000 + 2 * 12000);
+    plan_free(plan);
+    /* The tasking executive charges none yet: refused with the process named */
+    f.dpus[0].executive = SKELMSG_DPU_T_EXECUTIVE_THREADS;
+    f.procs[0].priority = 9;
+    f.procs[3].priority = 8;
+    f.procs[4].priority = 7;
+    CHECK_EQ(validate(&f, 0), 0);
+    CHECK(plan_build(&f.cfg, 0, reason, sizeof reason) == NULL);
+    CHECK_HAS(reason, "DPU 1: the tasking executive charges no link costs (process 1)");
+}
+
 /* A link's socket is sized for the largest buffer on its URL (a writer's port), and only
  * asked for when the kernel's default would not hold it. */
 static void test_link_recv_buf_size(void)
@@ -356,6 +399,7 @@ int main(void)
     test_valid();
     test_rejections();
     test_plan();
+    test_plan_charges();
     test_link_recv_buf_size();
     test_links_limit();
     test_record_url();

@@ -122,3 +122,27 @@ def test_error_is_one_line_without_a_traceback(tmp_path: Path) -> None:
     assert done.stdout == ""
     assert done.stderr == (f"{path}: processes.p.sync: must be one of 'periodic', 'data' or 'event', "
                            "got 'dat'\n")
+
+
+@pytest.mark.parametrize(("override", "line"), [
+    ("link.bus.per_message_us=-1", "links.bus.per_message_us: must be a cost from 0 to 1e+06, got -1"),
+    ("link.bus.preset=token-ring",
+     "links.bus.preset: no preset 'token-ring'; presets: vme, can-1m, ethernet-100m"),
+])
+def test_a_bad_link_cost_is_one_line_and_exit_2(override: str, line: str,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    assert check(SERVO, [override], out=io.StringIO()) == 2
+    assert capsys.readouterr().err == f"{SERVO}: {line} (set by -s {override})\n"
+
+
+def test_the_costs_a_link_charges_are_predicted_and_an_overload_they_make_is_flagged() -> None:
+    """examples/servo-vme.yaml: the fitted VME bus's costs (docs/explanation/paper.md)."""
+    result = run_json(EXAMPLES / "servo-vme.yaml")
+    dpus = result["prediction"]["dpus"]
+    assert [d["communicate_pct"] for d in dpus] == [9.491, 20.59, 9.341, 4.768]
+    assert [d["compute_pct"] for d in dpus] == [90.3, 73.4, 86.0, 95.232]  # DPU 4: a share of its time
+    assert [w.split(":")[0] for w in result["warnings"]] == ["DPU 3", "DPU 4"]
+    assert "static load 101.3 % exceeds 100 %" in result["warnings"][1]
+    out = io.StringIO()
+    assert check(EXAMPLES / "servo-vme.yaml", out=out) == 0
+    assert out.getvalue().count("communicate") == 2  # the DPUs' column and the processes' (wrapped)

@@ -12,6 +12,7 @@ from conftest import REPO
 from skeleton.host.live.wire import config_message
 from skeleton.host.model import FROM_CONFIG, RunRules, System, from_config
 from skeleton.host.sysfile.system import load
+from skelmsg.contract import DEFAULT_URL
 
 EXAMPLES = sorted((REPO / "examples").glob("*.yaml"))
 
@@ -45,3 +46,35 @@ def test_lookups_by_id_and_by_name() -> None:
     assert system.dpu(system.dpus[-1].id) is system.dpus[-1]
     with pytest.raises(KeyError, match="no process 'nobody'"):
         system.process("nobody")
+
+
+def test_each_process_is_charged_its_links_costs_as_the_dpu_charges_them(tmp_path: Path) -> None:
+    """model.charges(), which dpu/plan.c mirrors: the writer per message, per byte and per byte
+    for each other reading DPU; a reader per remote input every cycle; the DPU per message it
+    receives, charged to its fastest reader of the buffer (the first in order among equals)."""
+    (tmp_path / "s.yaml").write_text("""
+system: charged
+links: [{name: bus, url: "URL", per_message_us: 10, per_byte_ns: 2, push_byte_ns: 3, remote_read_us: 7}]
+dpus: [{id: 1}, {id: 2}]
+buffers: [{id: 1, name: a, bytes: 100}]
+processes:
+  - {id: 1, name: w, dpu: 1, period_us: 2000, compute_us: 100, outputs: [a]}
+  - {id: 2, name: here, dpu: 1, period_us: 5000, compute_us: 100, inputs: [a]}
+  - {id: 3, name: slow, dpu: 2, period_us: 10000, compute_us: 100, inputs: [a]}
+  - {id: 4, name: fast, dpu: 2, period_us: 5000, compute_us: 100, inputs: [a]}
+  - {id: 5, name: also, dpu: 2, period_us: 5000, compute_us: 100, inputs: [a]}
+""".replace("URL", DEFAULT_URL))
+    system = load(tmp_path / "s.yaml")
+    message = 10 + 2 * 100 / 1000                      # us per message, as received
+    # one other DPU reads it: 10 us + 2 ns x 100 B + 3 ns x 100 B x 1 DPU
+    assert system.process("w").charge.out_us == pytest.approx(10.5)
+    # DPU 1's only reader takes 2.5 of the writer's messages a cycle: 2 at least, 3 at most
+    here = system.process("here").charge
+    assert (here.in_us, here.in_best_us, here.in_worst_us) == pytest.approx((2.5 * message, 2 * message,
+                                                                              3 * message))
+    # DPU 2: `fast` pays (the shortest period, before `also` in order); every reader there reads remotely
+    assert system.process("fast").charge.in_us == pytest.approx(7 + 2.5 * message)
+    assert system.process("also").charge.in_us == pytest.approx(7)
+    assert system.process("slow").charge.in_us == pytest.approx(7)
+    back = from_config(config_message(system, generation=1, run_id=0, committed=False))
+    assert [p.charge for p in back.processes] == [p.charge for p in system.processes]

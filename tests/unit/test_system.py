@@ -270,6 +270,22 @@ ERRORS: list[tuple[str, Callable[[Doc], None], str]] = [
      "events.t.kind: must be one of 'host', 'periodic', 'poisson' or 'bursts', got 'often'"),
     ("duplicate event", _set("events", [{"name": "t", "kind": "host"}, {"name": "t", "kind": "host"}]),
      "events[1].name: duplicate name 't' (also events[0])"),
+    # a link's CPU costs (issue 44)
+    ("negative link cost", _set("links", [{**BUS, "per_message_us": -1}]),
+     "links.bus.per_message_us: must be a cost from 0 to 1e+06, got -1"),
+    ("link cost not a number", _set("links", [{**BUS, "per_byte_ns": float("nan")}]),
+     "links.bus.per_byte_ns: must be a cost from 0 to 1e+06, got nan"),
+    ("link cost a units mistake", _set("links", [{**BUS, "push_byte_ns": 2e6}]),
+     "links.bus.push_byte_ns: must be a cost from 0 to 1e+06, got 2e+06"),
+    ("unknown link preset", _set("links", [{**BUS, "preset": "vme2"}]),
+     "links.bus.preset: no preset 'vme2'; presets: vme, can-1m, ethernet-100m"),
+    ("cost on a local link", _set("links", [BUS, {**MEM, "remote_read_us": 5}]),
+     "links.mem: a `local` link is memory inside one DPU and charges no cost: give the cost to an "
+     "udpm:// link"),
+    ("link cost on a tasking DPU", _both(_set("links", [{**BUS, "remote_read_us": 5}]),
+                                         _set("dpus.2.executive", "threads")),
+     "dpus.2.executive: the tasking executive charges no link costs yet (process b would pay its links' "
+     "per_message_us, per_byte_ns, push_byte_ns or remote_read_us): use `cyclic`, or links without costs"),
 ]
 
 
@@ -489,3 +505,20 @@ def test_loading_does_not_touch_the_document(tmp_path: Path) -> None:
     before = copy.deepcopy(doc)
     load(write(tmp_path, doc), ["process.a.compute_us=10"])
     assert doc == before
+
+
+def test_a_preset_gives_its_figures_and_a_field_beside_it_overrides(tmp_path: Path) -> None:
+    doc = base()
+    doc["links"] = [{**BUS, "preset": "vme", "push_byte_ns": 10}]
+    link = load(write(tmp_path, doc)).link("bus")
+    assert (link.push_byte_ns, link.remote_read_us, link.per_message_us, link.bandwidth_mbps) == (
+        10, 58.8, 0, None)
+    doc["links"] = [{**BUS, "preset": "can-1m"}]
+    assert load(write(tmp_path, doc)).link("bus").bandwidth_mbps == 1
+
+
+def test_servo_vme_is_servo_with_the_vme_preset(tmp_path: Path) -> None:
+    vme = load(EXAMPLES / "servo-vme.yaml")
+    doc = yaml.safe_load((EXAMPLES / "servo-vme.yaml").read_text())
+    doc["links"] = [{"name": "bus", "url": doc["links"][0]["url"], "preset": "vme"}]
+    assert load(write(tmp_path, doc)).links == vme.links
