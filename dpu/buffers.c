@@ -22,7 +22,7 @@ void buffers_slot_reset(skel_slot_t *slot)
  * misconfigured (BUFFERS_MISMATCH, counted as rejected); one from another run
  * is a leftover or a neighbour's test (BUFFERS_FOREIGN_RUN, ignored quietly). */
 int buffers_slot_receive(skel_slot_t *slot, int64_t run_id, const wire_buffer_hdr_t *hdr,
-                         int64_t recv_ns)
+                         const uint8_t *payload, int64_t recv_ns)
 {
     if (hdr->buffer != slot->buffer || hdr->writer != slot->writer) return BUFFERS_MISMATCH;
     if (hdr->run_id != run_id) {
@@ -38,6 +38,11 @@ int buffers_slot_receive(skel_slot_t *slot, int64_t run_id, const wire_buffer_hd
         slot->newest_seq = hdr->seq;
         slot->newest_send_ns = hdr->send_ns;
         slot->newest_recv_ns = recv_ns;
+        /* Real code reads the bytes (code.c); a message longer than the buffer is cut. */
+        if (slot->bytes != NULL && payload != NULL) {
+            slot->nbytes = hdr->nbytes < 0 ? 0 : hdr->nbytes > slot->cap ? slot->cap : hdr->nbytes;
+            memcpy(slot->bytes, payload, (size_t)slot->nbytes);
+        }
     }
     return BUFFERS_ACCEPTED;
 }
@@ -85,10 +90,11 @@ void buffers_input_commit(skel_input_t *in, const skel_slot_t *slot, const skel_
     in->n_dropped += rec->dropped;
 }
 
-/* The generated encoder copies the dummy payload each cycle: moving the bytes
- * is the communication being emulated. OUT->enc was sized at config time. */
+/* The generated encoder copies the payload each cycle (the dummy one, or the NBYTES real
+ * code wrote, at most out->bytes): moving the bytes is the communication being emulated.
+ * OUT->enc was sized at config time. */
 int buffers_output_encode(skel_output_t *out, int64_t run_id, int16_t writer, int64_t seq,
-                          int64_t send_ns, const uint8_t *dummy)
+                          int64_t send_ns, const uint8_t *payload, int32_t nbytes)
 {
     skelmsg_buffer_t msg;
     memset(&msg, 0, sizeof msg);
@@ -97,7 +103,7 @@ int buffers_output_encode(skel_output_t *out, int64_t run_id, int16_t writer, in
     msg.buffer = out->buffer;
     msg.seq = seq;
     msg.send_ns = send_ns;
-    msg.nbytes = out->bytes;
-    msg.payload = (uint8_t *)dummy;
+    msg.nbytes = nbytes;
+    msg.payload = (uint8_t *)payload;
     return skelmsg_buffer_t_encode(out->enc, 0, out->enc_len, &msg);
 }

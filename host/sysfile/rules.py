@@ -18,7 +18,7 @@ from typing import Any
 from skeleton.analysis.errors import EXIT_BAD_INPUT, SkelError
 from skelmsg import contract
 
-from ..model import Buffer, Chain, Dpu, Event, Link, Process, Varying, control_link
+from ..model import Buffer, Chain, Code, Dpu, Event, Link, Process, Varying, control_link
 from .compute import ComputeError, varying
 from .link import parse_url, port_clash, record_url, writer_ports
 from .schema import (
@@ -84,7 +84,8 @@ def resolve(spec: SystemSpec, base: Path) -> Resolved:
         processes=tuple(
             Process(p.id, p.name, p.dpu, order[p.id], p.period_us, _compute_us(p, varying), p.sync,
                     ports[p.id][0], ports[p.id][2], ports[p.id][1], varying.get(p.id), priority[p.id],
-                    p.event or "", (p.queue or 1) if p.sync == "event" else 0, tuple(p.emits))
+                    p.event or "", (p.queue or 1) if p.sync == "event" else 0, tuple(p.emits),
+                    Code(p.compute.library, p.compute.function) if p.compute else None)
             for p in spec.processes
         ),
         chains=chains,
@@ -358,6 +359,9 @@ def _priorities(spec: SystemSpec, order: dict[int, int]) -> dict[int, int]:
     for d in spec.dpus:
         mine = [p for p in spec.processes if p.dpu == d.id]
         given = [p for p in mine if p.priority is not None]
+        if d.executive != "cyclic" and (coded := next((p for p in mine if p.compute), None)):
+            raise Invalid(f"processes.{coded.name}.compute", f"DPU {d.id} runs executive: {d.executive}; "
+                          "real code runs on the cyclic executive only")
         if d.executive == "cyclic":
             if given:
                 raise Invalid(f"processes.{given[0].name}.priority", f"DPU {d.id} runs the cyclic executive, "
