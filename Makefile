@@ -143,6 +143,9 @@ $(BUILD)/examples/libsum.so: examples/code/sum.c include/skel_step.h
 	$(call say,CC    $@)
 	$(Q)$(CC) $(WARN) $(CFLAGS) -fPIC -shared -Iinclude -o $@ $<
 
+# test_code loads the example library.
+$(BUILD)/asan/test_code: $(BUILD)/examples/libsum.so
+
 # Hostile traffic for the flood test and `make bench` (tests/flood/flood.c).
 $(BUILD)/flood: tests/flood/flood.c $(GEN_C) | $(STAMP)
 	$(call say,CC    $@)

@@ -27,8 +27,7 @@ static skel_plan_t *apply_build(skel_control_t *c)
     skel_plan_t *plan = plan_build(cfg, index, reason, sizeof reason);
     if (plan != NULL && code_load(plan, cfg, s->lib_dirs, s->nlib_dirs, reason, sizeof reason) != 0) {
         char line[SKEL_REASON_LEN];
-        snprintf(line, sizeof line, "DPU %d: generation %lld rejected: %.200s", plan->dpu,
-                 (long long)cfg->generation, reason);
+        snprintf(line, sizeof line, "generation %lld rejected: %.200s", (long long)cfg->generation, reason);
         snprintf(reason, sizeof reason, "%s", line);
         plan_free(plan);
         plan = NULL;

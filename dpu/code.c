@@ -86,6 +86,38 @@ static int code_views(skel_plan_t *plan, skel_process_t *p, const skelmsg_config
     return 0;
 }
 
+/* SRC's library, found in DIRS into PATH; -1 with REASON when it cannot be. */
+static int code_locate(const skelmsg_process_t *src, const char *const *dirs, int ndirs, char *path,
+                       size_t path_len, char *reason, size_t len)
+{
+    if (clock_simulated())
+        return code_fail(reason, len, "process", src->name,
+                         "runs real code, which a simulation cannot time: run it on DPUs");
+    if (ndirs == 0)
+        return code_fail(reason, len, "library", src->library,
+                         "cannot be loaded: this DPU was started without --lib-dir");
+    if (code_find(src->library, dirs, ndirs, path, path_len) != 0) {
+        char why[200];
+        snprintf(why, sizeof why, "lib%.60s.so is not in this DPU's --lib-dir (%.80s%s)", src->library,
+                 dirs[0], ndirs > 1 ? ", ..." : "");
+        return code_fail(reason, len, "library", src->library, why);
+    }
+    return 0;
+}
+
+int code_check(const skelmsg_config_t *cfg, int16_t dpu, const char *const *dirs, int ndirs, char *reason,
+               size_t len)
+{
+    char path[4096];
+    for (int i = 0; i < cfg->nprocesses; i++) {
+        const skelmsg_process_t *src = &cfg->processes[i];
+        if (src->dpu == dpu && src->library[0] != '\0' &&
+            code_locate(src, dirs, ndirs, path, sizeof path, reason, len) != 0)
+            return -1;
+    }
+    return 0;
+}
+
 int code_load(skel_plan_t *plan, const skelmsg_config_t *cfg, const char *const *dirs, int ndirs,
               char *reason, size_t len)
 {
@@ -97,18 +129,7 @@ int code_load(skel_plan_t *plan, const skelmsg_config_t *cfg, const char *const 
             if (plan->processes[j].id == src->id) p = &plan->processes[j];
         if (p == NULL) continue;
         char path[4096];
-        if (clock_simulated())
-            return code_fail(reason, len, "process", src->name,
-                             "runs real code, which a simulation cannot time: run it on DPUs");
-        if (ndirs == 0)
-            return code_fail(reason, len, "library", src->library,
-                             "cannot be loaded: this DPU was started without --lib-dir");
-        if (code_find(src->library, dirs, ndirs, path, sizeof path) != 0) {
-            char why[200];
-            snprintf(why, sizeof why, "lib%.60s.so is not in this DPU's --lib-dir (%.80s%s)", src->library,
-                     dirs[0], ndirs > 1 ? ", ..." : "");
-            return code_fail(reason, len, "library", src->library, why);
-        }
+        if (code_locate(src, dirs, ndirs, path, sizeof path, reason, len) != 0) return -1;
         p->code = calloc(1, sizeof *p->code);
         if (p->code == NULL) return code_fail(reason, len, "process", src->name, "out of memory");
         if (code_open(p->code, src, path, reason, len) != 0) return -1;

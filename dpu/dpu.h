@@ -816,6 +816,9 @@ int report_publish(skel_server_t *s, const skel_plan_t *plan, skel_history_t *hi
  * config apply time): -1 with REASON when a library or symbol is missing or its ABI differs. */
 int code_load(skel_plan_t *plan, const skelmsg_config_t *cfg, const char *const *dirs, int ndirs,
               char *reason, size_t len);
+/* At staging: whether every library CFG names for DPU is in DIRS (-1 with REASON when not). */
+int code_check(const skelmsg_config_t *cfg, int16_t dpu, const char *const *dirs, int ndirs, char *reason,
+               size_t len);
 int code_begin(skel_plan_t *plan, char *reason, size_t len); /* every init, before a run */
 void code_end(skel_plan_t *plan);                  /* every fini owed, after a run */
 int64_t code_step(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec, int64_t k);

@@ -354,7 +354,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     options = RunOptions(spawn=args.spawn, cycles=args.cycles, duration_s=args.duration, out=args.out,
                          as_json=args.json, compare_paper=args.compare_paper, all_tables=args.all_tables,
-                         pushed_generation=pushed_generation, wait_dpus_s=args.wait_dpus, dpu_args=_lib_dirs(args),
+                         pushed_generation=pushed_generation, wait_dpus_s=args.wait_dpus,
+                         dpu_args=_lib_dirs(args),
                          logger=args.logger, force=args.force, key=args.key, key_file=args.key_file)
     return run(system, options, console=output_console())
 
@@ -367,8 +368,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     system = _load(args)
     if coded := next((p for p in system.processes if p.code), None):
-        print(f"skel simulate: process {coded.name} runs real code (compute: library {coded.code.library}), "
-              "which virtual time cannot time: run it on DPUs (skel run --spawn --lib-dir DIR)", file=sys.stderr)
+        print(f"skel simulate: process {coded.name} runs real code (compute: library "
+              f"{coded.code.library}), which virtual time cannot time: run it on DPUs "
+              "(skel run --spawn --lib-dir DIR)", file=sys.stderr)
         return EXIT_BAD_INPUT
     pushes = []
     for given in args.push:

@@ -195,7 +195,8 @@ def bad_exit(daemon: Daemon) -> str | None:
 
 
 # --- skel up / skel down -------------------------------------------------------------
-def up(dpu_ids: list[int], url: str, key_file: Path | None = None, extra: list[str] | None = None) -> list[int]:
+def up(dpu_ids: list[int], url: str, key_file: Path | None = None,
+       extra: list[str] | None = None) -> list[int]:
     """Start detached DPUs for `dpu_ids` unless already up (with `extra` arguments, e.g. --lib-dir);
     return the ids started."""
     state = _read_state(url)
