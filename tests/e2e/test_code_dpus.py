@@ -1,0 +1,130 @@
+"""Real code in a process (dpu/code.c, include/skel_step.h), on real sanitizer DPUs over ttl=0
+multicast: examples/code/sum.yaml's summer sums the bytes its writer's real code sent, and what
+its readers receive is exactly that sum, cycle by cycle; a library outside a DPU's --lib-dir, a
+path, or a config naming a library from a host without the DPUs' key is refused."""
+
+from __future__ import annotations
+
+import json
+import struct
+import threading
+from pathlib import Path
+
+import lcm
+import pytest
+from conftest import REPO, DpuFarm, fresh_url, skel
+
+import skelmsg
+from skeleton.analysis.read.seal import load_key
+from skeleton.host.live.control import Control
+from skeleton.host.live.wire import config_message
+from skeleton.host.sysfile.system import load, with_url
+
+SUM = REPO / "examples" / "code" / "sum.yaml"
+LIBS = REPO / "build" / "examples"
+CYCLES = 150  # of 10 ms: 1.5 s
+
+
+class Heard:
+    """Every buffer_t of CHANNELS on URL, decoded, while it runs."""
+
+    def __init__(self, url: str, channels: list[str]) -> None:
+        self.bus = lcm.LCM(url)
+        self.messages: dict[str, list[skelmsg.buffer_t]] = {c: [] for c in channels}
+        for channel in channels:
+            self.bus.subscribe(channel, self._heard)
+        self.done = threading.Event()
+        self.thread = threading.Thread(target=self._loop, daemon=True)
+        self.thread.start()
+
+    def _heard(self, channel: str, data: bytes) -> None:
+        self.messages[channel].append(skelmsg.buffer_t.decode(data))
+
+    def _loop(self) -> None:
+        while not self.done.is_set():
+            self.bus.handle_timeout(50)
+
+    def stop(self) -> None:
+        self.done.set()
+        self.thread.join(5)
+
+
+def test_the_reader_receives_the_sum_of_the_bytes_the_writer_sent(tmp_path: Path, url: str,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("SKEL_DPU", str(REPO / "build" / "asan" / "skel-dpu"))
+    system = with_url(load(SUM), url)
+    samples, total = system.buffer("samples"), system.buffer("total")
+    # Both writers' URLs: one lcm_t per URL, as a reader DPU has.
+    heard = [Heard(system.buffer_url("samples"), [samples.channel]),
+             Heard(system.buffer_url("total"), [total.channel])]
+    out = tmp_path / "run"
+    run = skel("run", str(SUM), "--spawn", "--lib-dir", str(LIBS), "--url", url, "--cycles", str(CYCLES),
+               "--out", str(out), "--json")
+    for h in heard:
+        h.stop()
+    assert run.returncode == 0, run.stdout + run.stderr
+    sent = {m.seq: m.payload for m in heard[0].messages[samples.channel]}
+    sums = heard[1].messages[total.channel]
+    assert len(sent) >= 0.9 * CYCLES and len(sums) >= 0.9 * CYCLES, (len(sent), len(sums))
+    checked = mismatched = 0
+    used = []
+    for m in sums:
+        assert m.nbytes == 16, m.nbytes  # the step said 16 of its 16 bytes
+        seq, value = struct.unpack("<qQ", bytes(m.payload))
+        if seq < 0:
+            continue  # nothing received yet: the sum of nothing
+        used.append(seq)
+        # sum_source's bytes at cycle k: (7k + 3i) mod 256, whatever the network did
+        assert bytes(sent.get(seq, b"")) in (b"", bytes((7 * seq + 3 * i) & 0xFF for i in range(64)))
+        checked += 1
+        mismatched += value != sum((7 * seq + 3 * i) & 0xFF for i in range(64))
+    assert mismatched == 0 and checked >= 0.9 * CYCLES, (mismatched, checked)
+    assert used == sorted(used) and len(set(used)) >= 0.9 * CYCLES  # a new input summed every cycle
+    report = json.loads((out / "report.json").read_text())
+    by_name = {p["name"]: p for p in report["processes"]}
+    assert by_name["summer"]["cycles"] > 0 and by_name["logger"]["cycles"] > 0
+    assert not [f for f in report["faults"] if f["kind"] == "code"]
+
+
+def test_a_library_outside_lib_dir_a_path_or_an_unsigned_config_is_refused(tmp_path: Path, url: str,
+                                                                            dpus: DpuFarm) -> None:
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    dpus.start(1, 2, extra=["--lib-dir", str(empty)])
+    system = with_url(load(SUM), url)
+    control = Control(url)
+    try:
+        assert control.wait_heard([1, 2], 10) == []
+        result = control.push(config_message(system, 1, 0, committed=False), [1, 2])
+        assert not result.committed
+        for dpu in (1, 2):
+            assert result.rejected[dpu] == (f"generation 1 rejected: library sum: libsum.so is not in this "
+                                            f"DPU's --lib-dir ({empty})"), result.rejected
+        # A config pushed by hand around `skel check`: the DPU itself refuses a path.
+        config = config_message(system, 2, 0, committed=False)
+        config.processes[1].library = "../build/examples/sum"
+        result = control.push(config, [1, 2])
+        assert 1 not in result.rejected  # DPU 1 runs no process named by a path
+        assert result.rejected[2] == ('generation 2 rejected: process 2: library "../build/examples/sum" is '
+                                      "a path or not a name: name a library in the DPU's --lib-dir")
+    finally:
+        control.close()
+    # With a key, the DPUs take a config naming a library only from the keyed host tool.
+    keyed_url = fresh_url()
+    key = tmp_path / "key"
+    assert skel("keygen", str(key)).returncode == 0
+    keyed = DpuFarm(keyed_url, tmp_path / "dpu-logs-keyed")
+    keyed.start(1, 2, extra=["--lib-dir", str(LIBS), "--key", str(key)])
+    system = with_url(load(SUM), keyed_url)
+    bare, genuine = Control(keyed_url), Control(keyed_url, load_key(key))
+    try:
+        assert genuine.wait_heard([1, 2], 10) == []
+        refused = bare.push(config_message(system, 1, 0, committed=False), [1, 2], timeout_s=1.0)
+        assert sorted(refused.silent) == [1, 2] and not refused.committed
+        assert genuine.wait_for(lambda: all(genuine.dpus[d].status.rejected_unsigned > 0 for d in (1, 2)), 3)
+        accepted = genuine.push(config_message(system, 2, 0, committed=False), [1, 2])
+        assert accepted.committed and sorted(accepted.applied) == [1, 2], accepted
+    finally:
+        bare.close()
+        genuine.close()
+        keyed.stop_all()
