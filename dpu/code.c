@@ -7,12 +7,65 @@
  * thread (config.c has refused a path); a cycle only fills the step's views and calls it. A crash inside the
  * step is a crash of the DPU: nothing here isolates it. */
 #include <dlfcn.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include "dpu.h"
+
+/* A crash in a step kills the DPU; its log says whose step it was. The name of the process
+ * whose step runs (NULL: none), and the handlers a run's code_begin replaced. */
+static const char *volatile code_running;
+static const int code_signals[] = { SIGSEGV, SIGBUS, SIGFPE, SIGILL, SIGABRT };
+#define CODE_NSIGNALS ((int)(sizeof code_signals / sizeof code_signals[0]))
+static struct sigaction code_saved[CODE_NSIGNALS];
+static int code_watching;
+
+static void code_put(const char *text)
+{
+    ssize_t n = write(STDERR_FILENO, text, strlen(text)); /* async-signal-safe; nothing to do on failure */
+    (void)n;
+}
+
+/* Says whose step crashed, puts the previous handler back and returns: the faulting
+ * instruction runs again and the previous handler (the default: a core dump, or a
+ * sanitizer's report) takes it. */
+static void code_crashed(int sig)
+{
+    const char *name = code_running;
+    if (name != NULL) {
+        code_put("skel-dpu: process ");
+        code_put(name);
+        code_put(" crashed in its real code's step (");
+        code_put(sig == SIGSEGV ? "SIGSEGV" : sig == SIGBUS ? "SIGBUS" : sig == SIGFPE ? "SIGFPE"
+                 : sig == SIGILL ? "SIGILL" : "SIGABRT");
+        code_put("): this DPU is lost\n");
+    }
+    for (int i = 0; i < CODE_NSIGNALS; i++)
+        if (code_signals[i] == sig) (void)sigaction(sig, &code_saved[i], NULL);
+    if (sig == SIGABRT) (void)raise(sig); /* abort() raised it: no instruction to run again */
+}
+
+static void code_watch(int on)
+{
+    if (on == code_watching) return;
+    for (int i = 0; i < CODE_NSIGNALS; i++) {
+        if (on) {
+            struct sigaction sa;
+            memset(&sa, 0, sizeof sa);
+            sa.sa_handler = code_crashed;
+            sa.sa_flags = SA_NODEFER | SA_RESETHAND;
+            if (sigemptyset(&sa.sa_mask) != 0 || sigaction(code_signals[i], &sa, &code_saved[i]) != 0)
+                log_line("warning: cannot watch signal %d: a crash in real code is not named", code_signals[i]);
+        } else if (sigaction(code_signals[i], &code_saved[i], NULL) != 0) {
+            log_line("warning: cannot restore the handler of signal %d", code_signals[i]);
+        }
+    }
+    code_watching = on;
+}
 
 static int code_fail(char *reason, size_t len, const char *what, const char *name, const char *detail)
 {
@@ -140,6 +193,9 @@ int code_load(skel_plan_t *plan, const skelmsg_config_t *cfg, const char *const 
 
 int code_begin(skel_plan_t *plan, char *reason, size_t len)
 {
+    int any = 0;
+    for (int i = 0; i < plan->nprocesses; i++) any |= plan->processes[i].code != NULL;
+    if (any) code_watch(1);
     for (int i = 0; i < plan->nprocesses; i++) {
         skel_process_t *p = &plan->processes[i];
         skel_code_t *code = p->code;
@@ -148,7 +204,10 @@ int code_begin(skel_plan_t *plan, char *reason, size_t len)
         code->state = NULL;
         skel_step_info_t info = { p->id, code->name, (int32_t)(p->period_ns / SKEL_NS_PER_US), p->ninputs,
                                   p->noutputs };
-        if (code->init != NULL && code->init(&code->state, &info) != 0) {
+        code_running = code->name;
+        int failed = code->init != NULL && code->init(&code->state, &info) != 0;
+        code_running = NULL;
+        if (failed) {
             snprintf(reason, len, "process %s: its init returned an error", code->name);
             code_end(plan);
             return -1;
@@ -163,10 +222,13 @@ void code_end(skel_plan_t *plan)
     for (int i = 0; i < plan->nprocesses; i++) {
         skel_code_t *code = plan->processes[i].code;
         if (code == NULL || !code->started) continue;
+        code_running = code->name;
         if (code->fini != NULL) code->fini(code->state);
+        code_running = NULL;
         code->started = 0;
         code->state = NULL;
     }
+    code_watch(0);
 }
 
 /* Cycle K's call of P's step with the inputs REC saw; returns the wall time it took.
@@ -183,9 +245,11 @@ int64_t code_step(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec, i
     }
     for (int q = 0; q < p->noutputs; q++) code->out[q].nbytes = code->out[q].capacity;
     skel_step_t step = { k, p->ninputs, code->in, p->noutputs, code->out, code->state };
+    code_running = code->name;
     int64_t t0 = clock_mono_ns();
     int rc = code->step(&step);
     int64_t took = clock_mono_ns() - t0;
+    code_running = NULL;
     code->failed = rc != 0;
     for (int q = 0; q < p->noutputs; q++)
         if (code->out[q].nbytes < 0 || code->out[q].nbytes > code->out[q].capacity) code->failed = 1;

@@ -499,6 +499,10 @@ def dpu_lost_faults(system: System, beats: Heartbeats, run_id: int, origin: Mapp
             detail = "no timing records and no heartbeat in this run"
         else:
             continue
+        # A crash inside real code is its DPU's loss (dpu/code.c isolates nothing): name the suspects.
+        coded = [p.name for p in system.processes if p.dpu == dpu and p.code is not None]
+        if coded:
+            detail += f"; it runs the real code of {', '.join(coded)}: a crash there is its DPU's loss"
         faults.append(Fault(kind="dpu_lost", dpu=dpu, detail=detail, at_s=at_s))
     return faults
 

@@ -1,12 +1,15 @@
 """Real code in a process (dpu/code.c, include/skel_step.h), on real sanitizer DPUs over ttl=0
 multicast: examples/code/sum.yaml's summer sums the bytes its writer's real code sent, and what
 its readers receive is exactly that sum, cycle by cycle; a library outside a DPU's --lib-dir, a
-path, or a config naming a library from a host without the DPUs' key is refused."""
+path, or a config naming a library from a host without the DPUs' key is refused; a step that
+crashes loses its DPU, named."""
 
 from __future__ import annotations
 
 import json
+import re
 import struct
+import subprocess
 import threading
 from pathlib import Path
 
@@ -128,3 +131,41 @@ def test_a_library_outside_lib_dir_a_path_or_an_unsigned_config_is_refused(tmp_p
         bare.close()
         genuine.close()
         keyed.stop_all()
+
+
+def test_a_step_that_crashes_loses_its_dpu_named_and_the_log_is_kept(tmp_path: Path, url: str,
+                                                                     tmp_path_factory: pytest.TempPathFactory,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """A segmentation fault in summer's step at cycle 100 kills DPU 2 (nothing isolates it): the DPU's
+    log names the process, the run reports DPU 2 lost, naming its real code, keeps the log and exits 1.
+    The shipped daemon, not the sanitizer build: a crash is what the test asks for."""
+    libs = tmp_path / "libs"
+    libs.mkdir()
+    built = subprocess.run(["cc", "-std=c11", "-Wall", "-Wextra", "-Werror", "-O1", "-fPIC", "-shared",
+                            f"-I{REPO / 'include'}", "-o", str(libs / "libcrash.so"),
+                            str(REPO / "tests" / "e2e" / "crash_step.c")], capture_output=True, text=True)
+    assert built.returncode == 0, built.stderr
+    path = tmp_path / "crash.yaml"
+    path.write_text(SUM.read_text().replace("{library: sum, function: sum_bytes}",
+                                            "{library: crash, function: crash_at_100}"))
+    monkeypatch.setenv("SKEL_DPU", str(REPO / "build" / "skel-dpu"))
+    # Its logs outside tmp_path: a DPU killed by a signal is what the clean-exit check flags.
+    farm = DpuFarm(url, tmp_path_factory.mktemp("crash-logs"))
+    farm.start(1, extra=["--lib-dir", str(LIBS)])
+    farm.start(2, extra=["--lib-dir", str(libs)])
+    out = tmp_path / "run"
+    try:
+        run = skel("run", str(path), "--url", url, "--cycles", "300", "--out", str(out))
+    finally:
+        farm.stop_all()
+    assert run.returncode == 1, run.stdout + run.stderr
+    crashed = "skel-dpu: process summer crashed in its real code's step (SIGSEGV): this DPU is lost"
+    assert crashed in farm.log(2), farm.log(2)
+    assert re.search(r"dpu_lost: DPU 2 .*it runs the real code of summer: a crash there is its DPU's loss",
+                     run.stdout), run.stdout
+    report = json.loads((out / "report.json").read_text())
+    lost = [f for f in report["faults"] if f["kind"] == "dpu_lost"]
+    assert [f["dpu"] for f in lost] == [2] and "summer" in lost[0]["detail"], report["faults"]
+    source = next(p for p in report["processes"] if p["name"] == "source")
+    assert source["cycles"] >= 250  # DPU 1 ran on to the end, and its records are in the kept log
+    assert (out / "run.lcm").stat().st_size > 0
