@@ -69,7 +69,7 @@ static void code_watch(int on)
 
 static int code_fail(char *reason, size_t len, const char *what, const char *name, const char *detail)
 {
-    snprintf(reason, len, "%s %.60s: %.150s", what, name, detail);
+    snprintf(reason, len, "%s %.60s: %.180s", what, name, detail);
     return -1;
 }
 
@@ -150,8 +150,8 @@ static int code_locate(const skelmsg_process_t *src, const char *const *dirs, in
         return code_fail(reason, len, "library", src->library,
                          "cannot be loaded: this DPU was started without --lib-dir");
     if (code_find(src->library, dirs, ndirs, path, path_len) != 0) {
-        char why[200];
-        snprintf(why, sizeof why, "lib%.60s.so is not in this DPU's --lib-dir (%.80s%s)", src->library,
+        char why[256];
+        snprintf(why, sizeof why, "lib%.60s.so is not in this DPU's --lib-dir (%.140s%s)", src->library,
                  dirs[0], ndirs > 1 ? ", ..." : "");
         return code_fail(reason, len, "library", src->library, why);
     }
