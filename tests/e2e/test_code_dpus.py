@@ -160,8 +160,9 @@ def test_a_step_that_crashes_loses_its_dpu_named_and_the_log_is_kept(tmp_path: P
     assert run.returncode == 1, run.stdout + run.stderr
     crashed = "skel-dpu: process summer crashed in its real code's step (SIGSEGV): this DPU is lost"
     assert crashed in farm.log(2), farm.log(2)
+    said = " ".join(run.stdout.split())  # as one line, however the terminal wrapped it
     assert re.search(r"dpu_lost: DPU 2 .*it runs the real code of summer: a crash there is its DPU's loss",
-                     run.stdout), run.stdout
+                     said), run.stdout
     report = json.loads((out / "report.json").read_text())
     lost = [f for f in report["faults"] if f["kind"] == "dpu_lost"]
     assert [f["dpu"] for f in lost] == [2] and "summer" in lost[0]["detail"], report["faults"]
