@@ -2,7 +2,7 @@
 multicast: examples/code/sum.yaml's summer sums the bytes its writer's real code sent, and what
 its readers receive is exactly that sum, cycle by cycle; a library outside a DPU's --lib-dir, a
 path, or a config naming a library from a host without the DPUs' key is refused; a step that
-crashes loses its DPU, named."""
+overruns tenfold is locked out as a skeleton would be; a step that crashes loses its DPU, named."""
 
 from __future__ import annotations
 
@@ -132,21 +132,51 @@ def test_a_library_outside_lib_dir_a_path_or_an_unsigned_config_is_refused(tmp_p
         keyed.stop_all()
 
 
+def _faulty_library(tmp_path: Path) -> Path:
+    """tests/e2e/crash_step.c built as a user builds theirs, into a --lib-dir of its own."""
+    libs = tmp_path / "libs"
+    libs.mkdir()
+    built = subprocess.run(["cc", "-std=c11", "-D_GNU_SOURCE", "-Wall", "-Wextra", "-Werror", "-O1", "-fPIC",
+                            "-shared", f"-I{REPO / 'include'}", "-o", str(libs / "libcrash.so"),
+                            str(REPO / "tests" / "e2e" / "crash_step.c")], capture_output=True, text=True)
+    assert built.returncode == 0, built.stderr
+    return libs
+
+
+def _with_summer(tmp_path: Path, function: str) -> Path:
+    path = tmp_path / f"{function}.yaml"
+    path.write_text(SUM.read_text().replace("{library: sum, function: sum_bytes}",
+                                            f"{{library: crash, function: {function}}}"))
+    return path
+
+
+def test_a_step_that_overruns_tenfold_is_locked_out_as_a_skeleton_would_be(tmp_path: Path, url: str,
+                                                                           dpus: DpuFarm) -> None:
+    libs = _faulty_library(tmp_path)
+    dpus.start(1, extra=["--lib-dir", str(LIBS)])
+    dpus.start(2, extra=["--lib-dir", str(libs)])
+    out = tmp_path / "run"
+    run = skel("run", str(_with_summer(tmp_path, "slow_from_50")), "--url", url, "--cycles", "150",
+               "--out", str(out))
+    assert run.returncode == 3, run.stdout + run.stderr  # a fault of the design: the code is too slow
+    report = json.loads((out / "report.json").read_text())
+    locked = [f for f in report["faults"] if f["kind"] == "lockout"]
+    # summer first; logger, after it in DPU 2's frame, not run in time: the DPU is behind
+    assert locked[0]["process"] == "summer", locked
+    assert {f["process"] for f in locked} <= {"summer", "logger"}, locked
+    summer = next(p for p in report["processes"] if p["name"] == "summer")
+    # its compute is the real call's time: microseconds, then the 100 ms its step spins
+    assert summer["compute_us"]["p50"] < 1000 and summer["compute_us"]["max"] >= 100_000, summer["compute_us"]
+
+
 def test_a_step_that_crashes_loses_its_dpu_named_and_the_log_is_kept(tmp_path: Path, url: str,
                                                                      tmp_path_factory: pytest.TempPathFactory,
                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     """A segmentation fault in summer's step at cycle 100 kills DPU 2 (nothing isolates it): the DPU's
     log names the process, the run reports DPU 2 lost, naming its real code, keeps the log and exits 1.
     The shipped daemon, not the sanitizer build: a crash is what the test asks for."""
-    libs = tmp_path / "libs"
-    libs.mkdir()
-    built = subprocess.run(["cc", "-std=c11", "-Wall", "-Wextra", "-Werror", "-O1", "-fPIC", "-shared",
-                            f"-I{REPO / 'include'}", "-o", str(libs / "libcrash.so"),
-                            str(REPO / "tests" / "e2e" / "crash_step.c")], capture_output=True, text=True)
-    assert built.returncode == 0, built.stderr
-    path = tmp_path / "crash.yaml"
-    path.write_text(SUM.read_text().replace("{library: sum, function: sum_bytes}",
-                                            "{library: crash, function: crash_at_100}"))
+    libs = _faulty_library(tmp_path)
+    path = _with_summer(tmp_path, "crash_at_100")
     monkeypatch.setenv("SKEL_DPU", str(REPO / "build" / "skel-dpu"))
     # Its logs outside tmp_path: a DPU killed by a signal is what the clean-exit check flags.
     farm = DpuFarm(url, tmp_path_factory.mktemp("crash-logs"))
