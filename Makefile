@@ -15,7 +15,7 @@ LCMGEN     = $(LCM_PREFIX)/bin/lcm-gen
 
 LCMTYPES := $(wildcard lcmtypes/*.lcm)
 DPU_SRC  := $(wildcard dpu/*.c)
-DPU_HDR  := $(wildcard dpu/*.h)
+DPU_HDR  := $(wildcard dpu/*.h) include/skel_step.h
 CONTRACT := lcmtypes/contract.txt
 GEN_C    := $(patsubst lcmtypes/%.lcm,$(GEN)/c/skelmsg_%.c,$(LCMTYPES)) $(GEN)/c/skelmsg_check.c
 GEN_H    := $(GEN)/c/skelmsg_contract.h
@@ -29,8 +29,8 @@ say  = $(if $(Q),@echo "  $(1)",@:)
 CC      ?= gcc
 CFLAGS  ?= -O2 -g
 WARN    := -std=c11 -D_GNU_SOURCE -Wall -Wextra -Werror
-INC      = -I$(GEN)/c -Idpu -I$(LCM_PREFIX)/include
-LIBS     = -L$(LCM_PREFIX)/lib -Wl,-rpath,$(LCM_PREFIX)/lib -llcm -lsodium -lpthread -lm
+INC      = -I$(GEN)/c -Idpu -Iinclude -I$(LCM_PREFIX)/include
+LIBS     = -L$(LCM_PREFIX)/lib -Wl,-rpath,$(LCM_PREFIX)/lib -llcm -lsodium -lpthread -lm -ldl
 # lcm_coretypes.h's __int8_t_decode_array does memcpy(NULL, src, 0) for every empty int8_t
 # array (lcm_malloc(0) is NULL), e.g. process_t.required of a process without inputs:
 # harmless, but UBSan's nonnull-attribute check would abort every config decode.
@@ -40,7 +40,7 @@ C_TESTS := $(patsubst tests/c/%.c,$(BUILD)/asan/%,$(wildcard tests/c/test_*.c))
 
 .PHONY: all demo test test-c test-py test-tools test-fuzz fuzz fuzz-tools lint docs bench soak spy clean distclean
 
-all: $(BUILD)/skel-dpu
+all: $(BUILD)/skel-dpu $(BUILD)/examples/libsum.so
 
 # --- set-up --------------------------------------------------------------------
 # Debian splits venv support and liblcm needs glib: install them when we may (root, CI),
@@ -137,6 +137,15 @@ $(BUILD)/asan/test_%: tests/c/test_%.c tests/c/check.h $(ASAN_OBJS)
 	$(call say,CC    $@)
 	$(Q)$(CC) $(WARN) -O1 -g $(SAN) $(INC) -Itests/c -o $@ $< $(ASAN_OBJS) $(LIBS)
 
+# The example of real code (examples/code/sum.c), built as anyone builds theirs: the header alone.
+$(BUILD)/examples/libsum.so: examples/code/sum.c include/skel_step.h
+	@mkdir -p $(@D)
+	$(call say,CC    $@)
+	$(Q)$(CC) $(WARN) $(CFLAGS) -fPIC -shared -Iinclude -o $@ $<
+
+# test_code loads the example library.
+$(BUILD)/asan/test_code: $(BUILD)/examples/libsum.so
+
 # Hostile traffic for the flood test and `make bench` (tests/flood/flood.c).
 $(BUILD)/flood: tests/flood/flood.c $(GEN_C) | $(STAMP)
 	$(call say,CC    $@)
@@ -157,7 +166,7 @@ test: test-c test-fuzz test-py
 test-c: $(C_TESTS)
 	@set -e; for t in $(C_TESTS); do echo "== $$t"; $$t; done
 
-test-py: $(BUILD)/skel-dpu $(BUILD)/asan/skel-dpu $(BUILD)/flood $(BUILD)/probe $(STAMP) test-tools
+test-py: $(BUILD)/skel-dpu $(BUILD)/asan/skel-dpu $(BUILD)/examples/libsum.so $(BUILD)/flood $(BUILD)/probe $(STAMP) test-tools
 	$(VENV)/bin/pytest -q -rfEs --durations=15 $(PYTEST_ARGS)
 
 # The multi-host tests (network namespaces, root only) run ip, and nft to lose packets; the

@@ -8,6 +8,8 @@
  * cycle.c); a committed re-send during our own run waits for its end,
  * because only a COMMIT names the instant at which every DPU switches. */
 
+#include <stdio.h>
+
 #include "dpu.h"
 
 /* Takes the staged config and builds its plan with its links open; NULL (the
@@ -23,6 +25,13 @@ static skel_plan_t *apply_build(skel_control_t *c)
     pthread_mutex_unlock(&s->lock);
     if (cfg == NULL) return NULL;
     skel_plan_t *plan = plan_build(cfg, index, reason, sizeof reason);
+    if (plan != NULL && code_load(plan, cfg, s->lib_dirs, s->nlib_dirs, reason, sizeof reason) != 0) {
+        char line[SKEL_REASON_LEN];
+        snprintf(line, sizeof line, "generation %lld rejected: %.200s", (long long)cfg->generation, reason);
+        snprintf(reason, sizeof reason, "%s", line);
+        plan_free(plan);
+        plan = NULL;
+    }
     /* LCM's receive threads, started by plan_open_links, inherit our name and policy. A
      * buffer a process waits on must not queue behind every ordinary thread of a busy
      * machine: they take the executive's own SCHED_FIFO priority. (One below, they queued
@@ -93,9 +102,18 @@ static int64_t apply_at_mono(int64_t at_utc_ns)
  * executive switches at a boundary as the cyclic one does (swap.c), both where it
  * runs the schedule itself (SLEEP) and on kernel threads; not from one executive,
  * or one of those two ways, to the other. */
+static int apply_runs_code(const skel_plan_t *plan)
+{
+    for (int i = 0; i < plan->nprocesses; i++)
+        if (plan->processes[i].code != NULL) return 1;
+    return 0;
+}
+
 static const char *apply_live_refused(const skel_plan_t *old, const skel_plan_t *next)
 {
     if (old == NULL) return NULL;
+    if (apply_runs_code(old) || apply_runs_code(next))
+        return "a live switch of a DPU running real code is not built (its init and fini): push between runs";
     if (old->tasking != next->tasking)
         return "a live switch between the cyclic and the tasking executive is not built: push between runs";
     if (next->tasking && (old->compute == SKELMSG_DPU_T_COMPUTE_SLEEP) != (next->compute == SKELMSG_DPU_T_COMPUTE_SLEEP))

@@ -64,7 +64,10 @@ static int64_t buffers_delay(skel_slot_t *slot)
 }
 
 /* A version the reader may see from AT on. */
-static void buffers_take(skel_slot_t *slot, int64_t seq, int64_t send_ns, int64_t at_ns)
+/* PAYLOAD (NBYTES of it) is kept when real code here reads the slot (code.c); a held
+ * version has none, and real code is refused an input whose link holds versions (config.c). */
+static void buffers_take(skel_slot_t *slot, int64_t seq, int64_t send_ns, int64_t at_ns,
+                         const uint8_t *payload, int32_t nbytes)
 {
     slot->received++;
     /* A late, reordered message still counts as received but never replaces newer data. */
@@ -72,6 +75,11 @@ static void buffers_take(skel_slot_t *slot, int64_t seq, int64_t send_ns, int64_
         slot->newest_seq = seq;
         slot->newest_send_ns = send_ns;
         slot->newest_recv_ns = at_ns;
+        /* a message longer than the buffer is cut */
+        if (slot->bytes != NULL && payload != NULL) {
+            slot->nbytes = nbytes < 0 ? 0 : nbytes > slot->cap ? slot->cap : nbytes;
+            memcpy(slot->bytes, payload, (size_t)slot->nbytes);
+        }
     }
 }
 
@@ -79,7 +87,7 @@ void buffers_slot_advance(skel_slot_t *slot, int64_t now_ns)
 {
     while (slot->pend_count > 0 && slot->pending[slot->pend_head].due_ns <= now_ns) {
         const skel_pending_t *v = &slot->pending[slot->pend_head];
-        buffers_take(slot, v->seq, v->send_ns, v->due_ns);
+        buffers_take(slot, v->seq, v->send_ns, v->due_ns, NULL, 0);
         slot->pend_head = (slot->pend_head + 1) % slot->pend_cap;
         slot->pend_count--;
     }
@@ -96,7 +104,7 @@ void buffers_slot_carry(skel_slot_t *slot, const skel_slot_t *old)
         const skel_pending_t *v = &old->pending[(old->pend_head + n) % old->pend_cap];
         if (v->seq > slot->dup_upto) slot->dup_upto = v->seq;
         if (slot->pend_cap == 0) /* the new plan's link delays nothing: seen at once, stamped as due */
-            buffers_take(slot, v->seq, v->send_ns, v->due_ns);
+            buffers_take(slot, v->seq, v->send_ns, v->due_ns, NULL, 0);
         else if (slot->pend_count < slot->pend_cap)
             slot->pending[(slot->pend_head + slot->pend_count++) % slot->pend_cap] = *v;
         else
@@ -120,14 +128,15 @@ int64_t buffers_advance(skel_plan_t *plan, int64_t now_mono_ns)
 /* Through the link's emulated transport: lost, held until due, or seen at once. Versions
  * leave in the order they came (a link delivers in order): one due before an earlier
  * one waits for it. A full ring drops the version, counted. */
-static void buffers_transport(skel_slot_t *slot, const wire_buffer_hdr_t *hdr, int64_t recv_ns)
+static void buffers_transport(skel_slot_t *slot, const wire_buffer_hdr_t *hdr, const uint8_t *payload,
+                              int64_t recv_ns)
 {
     if (buffers_lost(slot)) {
         slot->lost++;
         return;
     }
     if (slot->pending == NULL) { /* loss only */
-        buffers_take(slot, hdr->seq, hdr->send_ns, recv_ns);
+        buffers_take(slot, hdr->seq, hdr->send_ns, recv_ns, payload, hdr->nbytes);
         return;
     }
     /* From the send stamp, but no later than the arrival: a stamp from the future (another
@@ -137,7 +146,7 @@ static void buffers_transport(skel_slot_t *slot, const wire_buffer_hdr_t *hdr, i
     if (due < slot->last_due_ns) due = slot->last_due_ns;
     if (due <= recv_ns && slot->pend_count == 0) {
         slot->last_due_ns = recv_ns;
-        buffers_take(slot, hdr->seq, hdr->send_ns, recv_ns);
+        buffers_take(slot, hdr->seq, hdr->send_ns, recv_ns, payload, hdr->nbytes);
         return;
     }
     if (slot->pend_count == slot->pend_cap) {
@@ -153,7 +162,7 @@ static void buffers_transport(skel_slot_t *slot, const wire_buffer_hdr_t *hdr, i
  * misconfigured (BUFFERS_MISMATCH, counted as rejected); one from another run
  * is a leftover or a neighbour's test (BUFFERS_FOREIGN_RUN, ignored quietly). */
 int buffers_slot_receive(skel_slot_t *slot, int64_t run_id, const wire_buffer_hdr_t *hdr,
-                         int64_t recv_ns)
+                         const uint8_t *payload, int64_t recv_ns)
 {
     if (hdr->buffer != slot->buffer || hdr->writer != slot->writer) return BUFFERS_MISMATCH;
     if (hdr->run_id != run_id) {
@@ -163,8 +172,8 @@ int buffers_slot_receive(skel_slot_t *slot, int64_t run_id, const wire_buffer_hd
     /* After a live switch the new plan's lcm_t holds copies of what the old one
      * delivered already: those are not received twice. */
     if (hdr->seq <= slot->dup_upto) return BUFFERS_DUPLICATE;
-    if (buffers_emulated(&slot->tr)) buffers_transport(slot, hdr, recv_ns);
-    else buffers_take(slot, hdr->seq, hdr->send_ns, recv_ns);
+    if (buffers_emulated(&slot->tr)) buffers_transport(slot, hdr, payload, recv_ns);
+    else buffers_take(slot, hdr->seq, hdr->send_ns, recv_ns, payload, hdr->nbytes);
     return BUFFERS_ACCEPTED;
 }
 
@@ -211,10 +220,11 @@ void buffers_input_commit(skel_input_t *in, const skel_slot_t *slot, const skel_
     in->n_dropped += rec->dropped;
 }
 
-/* The generated encoder copies the dummy payload each cycle: moving the bytes
- * is the communication being emulated. OUT->enc was sized at config time. */
+/* The generated encoder copies the payload each cycle (the dummy one, or the NBYTES real
+ * code wrote, at most out->bytes): moving the bytes is the communication being emulated.
+ * OUT->enc was sized at config time. */
 int buffers_output_encode(skel_output_t *out, int64_t run_id, int16_t writer, int64_t seq,
-                          int64_t send_ns, const uint8_t *dummy)
+                          int64_t send_ns, const uint8_t *payload, int32_t nbytes)
 {
     skelmsg_buffer_t msg;
     memset(&msg, 0, sizeof msg);
@@ -223,7 +233,7 @@ int buffers_output_encode(skel_output_t *out, int64_t run_id, int16_t writer, in
     msg.buffer = out->buffer;
     msg.seq = seq;
     msg.send_ns = send_ns;
-    msg.nbytes = out->bytes;
-    msg.payload = (uint8_t *)dummy;
+    msg.nbytes = nbytes;
+    msg.payload = (uint8_t *)payload;
     return skelmsg_buffer_t_encode(out->enc, 0, out->enc_len, &msg);
 }

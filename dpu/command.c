@@ -84,7 +84,8 @@ void command_handle_config(skel_control_t *c, const void *data, int len)
         wire_free_config(cfg);
         return;
     }
-    if (config_validate(cfg, self.dpu_index, reason, sizeof reason) != 0) {
+    if (config_validate(cfg, self.dpu_index, reason, sizeof reason) != 0 ||
+        code_check(cfg, self.dpu_id, s->lib_dirs, s->nlib_dirs, reason, sizeof reason) != 0) {
         char line[SKEL_REASON_LEN];
         snprintf(line, sizeof line, "generation %lld rejected: %.200s", (long long)cfg->generation,
                  reason);

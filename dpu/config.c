@@ -3,6 +3,7 @@
  * for --id auto) and validates our own part against the daemon's fixed limits.
  * A config that fails gets one clear line saying what, where and why, and the
  * old config stays in force. Nothing here allocates or touches the network. */
+#include <ctype.h>
 #include <math.h>
 #include <sched.h>
 #include <stdarg.h>
@@ -274,6 +275,37 @@ static int config_check_events(const skelmsg_config_t *cfg, const skelmsg_dpu_t 
     return 0;
 }
 
+/* Real code is named, never given as a path (code.c looks it up in --lib-dir only), and runs
+ * on the cyclic executive, whose compute step calls it. It reads the bytes a slot keeps as a
+ * message comes, which a link that holds versions back (latency, jitter) does not keep yet. */
+static int config_check_code(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d, const skelmsg_process_t *p,
+                             char *reason, size_t len)
+{
+    size_t n = strlen(p->library);
+    if (n == 0 && p->function[0] == '\0') return 0;
+    if (n == 0 || p->function[0] == '\0')
+        return config_fail(reason, len, "process %d: real code needs both a library and a function", p->id);
+    if (n > SKEL_MAX_NAME || strlen(p->function) > SKEL_MAX_NAME)
+        return config_fail(reason, len, "process %d: library or function name longer than %d", p->id,
+                           SKEL_MAX_NAME);
+    for (size_t i = 0; i < n; i++) {
+        char ch = p->library[i];
+        if (!isalnum((unsigned char)ch) && ch != '_' && ch != '-' && !(ch == '.' && i > 0))
+            return config_fail(reason, len, "process %d: library \"%.60s\" is a path or not a name: "
+                               "name a library in the DPU's --lib-dir", p->id, p->library);
+    }
+    if (d->executive != SKELMSG_DPU_T_EXECUTIVE_CYCLIC)
+        return config_fail(reason, len, "process %d: real code runs on the cyclic executive only", p->id);
+    for (int i = 0; i < p->ninputs; i++) {
+        const skelmsg_buffer_desc_t *b = config_buffer(cfg, p->inputs[i]);
+        const skelmsg_link_t *l = b != NULL ? config_link(cfg, b->link) : NULL;
+        if (l != NULL && (l->latency_us > 0 || l->jitter_us > 0))
+            return config_fail(reason, len, "process %d: real code cannot read buffer %d through link %d's "
+                               "emulated latency yet", p->id, b->id, l->id);
+    }
+    return 0;
+}
+
 static int config_check_process(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d,
                                 int64_t minor_us, const skelmsg_process_t *p, char *reason,
                                 size_t len)
@@ -290,6 +322,7 @@ static int config_check_process(const skelmsg_config_t *cfg, const skelmsg_dpu_t
     if (p->ready_us < 0)
         return config_fail(reason, len, "process %d: ready_us %d < 0", p->id, p->ready_us);
     if (config_check_quantiles(p, reason, len) != 0) return -1;
+    if (config_check_code(cfg, d, p, reason, len) != 0) return -1;
     if (tasking ? p->priority < 1 || p->priority > SKEL_MAX_PRIORITY : p->priority != 0)
         return config_fail(reason, len, "process %d: priority %d (the tasking executive's: 1..%d; "
                            "the cyclic one's: 0)", p->id, p->priority, SKEL_MAX_PRIORITY);

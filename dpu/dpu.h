@@ -17,6 +17,7 @@
 
 #include <lcm/lcm.h>
 
+#include "skel_step.h"
 #include "skelmsg_buffer_t.h"
 #include "skelmsg_command_t.h"
 #include "skelmsg_config_t.h"
@@ -40,6 +41,7 @@
 #define SKEL_HISTORY_BATCHES 4096               /* ... at most this many */
 #define SKEL_STATUS_NS       (SKEL_STATUS_PERIOD_MS * 1000 * 1000LL)
 #define SKEL_REASON_LEN      256
+#define SKEL_MAX_LIB_DIRS    8   /* --lib-dir given at most this often */
 #define SKEL_RT_PRIORITY     10                 /* SCHED_FIFO of SLEEP-mode cycles, by default */
 #define SKEL_STALL_NS        (50 * 1000LL)      /* a wake-up this late, a gap this long: not running */
 #define SKEL_DRIFT_PCT       2.0                /* WORK calibration further off than this: said */
@@ -184,6 +186,10 @@ typedef struct skel_slot {
     int8_t bad;                /* Gilbert-Elliott: in the bad state */
     uint64_t state[4];         /* its draws, seeded by the run's seed, this DPU and the buffer */
     int64_t lost, overflow;    /* versions the emulation lost; versions a full ring dropped */
+    /* The newest message's payload, kept only when real code here reads it (code.c): cap 0
+     * for a skeleton's slot, whose bytes nothing reads. */
+    uint8_t *bytes;
+    int32_t cap, nbytes;
 } skel_slot_t;
 
 /* One input of one process: what it last used, and its measured-window sums. */
@@ -223,8 +229,9 @@ enum { BUFFERS_ACCEPTED = 0, BUFFERS_FOREIGN_RUN = 1, BUFFERS_DUPLICATE = 2, BUF
 #define SKEL_SEQ_JOINED INT64_MIN
 
 void buffers_slot_reset(skel_slot_t *slot);
+/* PAYLOAD: the message's hdr->nbytes bytes, kept when SLOT keeps bytes (NULL: none sent). */
 int buffers_slot_receive(skel_slot_t *slot, int64_t run_id, const wire_buffer_hdr_t *hdr,
-                         int64_t recv_ns);
+                         const uint8_t *payload, int64_t recv_ns);
 void buffers_slot_seed(skel_slot_t *slot, int64_t seed, int16_t dpu);
 /* A live switch: what OLD's emulated link still holds comes as it would have (its draws go on). */
 void buffers_slot_carry(skel_slot_t *slot, const skel_slot_t *old);
@@ -238,7 +245,7 @@ void buffers_input_peek(const skel_input_t *in, const skel_slot_t *slot, skel_in
 void buffers_input_commit(skel_input_t *in, const skel_slot_t *slot, const skel_in_rec_t *rec,
                           int measured);
 int buffers_output_encode(skel_output_t *out, int64_t run_id, int16_t writer, int64_t seq,
-                          int64_t send_ns, const uint8_t *dummy);
+                          int64_t send_ns, const uint8_t *payload, int32_t nbytes);
 
 /* ---- compute (compute.c): the emulated computation ----------------------------- */
 typedef struct {
@@ -433,6 +440,22 @@ typedef struct {
     skel_rec_t rec;            /* the job's record, sent at its completion */
 } skel_job_t;
 
+/* ---- code (code.c): real application code in place of the emulated computation -- */
+typedef struct {
+    void *handle;              /* dlopen's, at config apply time (control thread) */
+    skel_step_fn step;
+    skel_step_init_fn init;    /* NULL: the library has none */
+    skel_step_fini_fn fini;
+    void *state;
+    int started;               /* init ran for the current run: fini is owed */
+    char name[SKEL_MAX_NAME + 1];
+    skel_step_input_t in[SKEL_MAX_IO];
+    skel_step_output_t out[SKEL_MAX_IO];
+    uint8_t *out_bytes;        /* every output's bytes, one allocation */
+    int failed;                /* this cycle's step failed: its outputs are not published */
+    int64_t faults;            /* steps that failed this run */
+} skel_code_t;
+
 typedef struct {
     int16_t id;
     int16_t order;
@@ -463,6 +486,7 @@ typedef struct {
     skel_process_sums_t sums;
     skel_job_t job;            /* the tasking executive's */
     skel_queue_t queue;        /* an event process's */
+    skel_code_t *code;         /* real code (code.c), NULL: a skeleton */
 } skel_process_t;
 
 typedef struct {
@@ -595,6 +619,8 @@ typedef struct skel_server {
     int id_arg;                /* -1: --id auto */
     const char *url;
     const char *key_path;      /* NULL: no key, control unauthenticated */
+    const char *lib_dirs[SKEL_MAX_LIB_DIRS]; /* --lib-dir: the only places real code loads from */
+    int nlib_dirs;
     int64_t clock_offset_ns;
     int verbose;
     char hostname[256];
@@ -819,6 +845,19 @@ int owner_refuses(skel_control_t *c, int64_t session, int8_t force, const char *
 int report_status_publish(skel_control_t *c);
 void report_reject(skel_control_t *c, int64_t generation, const char *reason, int fault);
 int report_publish(skel_server_t *s, const skel_plan_t *plan, skel_history_t *history);
+
+/* ---- code (code.c) ------------------------------------------------------------ */
+/* Loads the real code CFG names for PLAN's processes from DIRS only (control thread, at
+ * config apply time): -1 with REASON when a library or symbol is missing or its ABI differs. */
+int code_load(skel_plan_t *plan, const skelmsg_config_t *cfg, const char *const *dirs, int ndirs,
+              char *reason, size_t len);
+/* At staging: whether every library CFG names for DPU is in DIRS (-1 with REASON when not). */
+int code_check(const skelmsg_config_t *cfg, int16_t dpu, const char *const *dirs, int ndirs, char *reason,
+               size_t len);
+int code_begin(skel_plan_t *plan, char *reason, size_t len); /* every init, before a run */
+void code_end(skel_plan_t *plan);                  /* every fini owed, after a run */
+int64_t code_step(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec, int64_t k);
+void code_free(skel_process_t *p);
 
 /* ---- sim (sim.c): every DPU of a system on virtual time, one process ------------ */
 int sim_main(const char *input, const char *output, const char *url); /* an exit code */

@@ -53,6 +53,14 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
     int64_t t0 = run->start_mono_ns;
     plan->run_t0_ns = plan->epoch_t0_ns = t0;
     cycle_open_window(plan, t0);
+    /* Real code's init runs in the thread that calls its step, before the first release. */
+    char why[SKEL_REASON_LEN];
+    if (code_begin(plan, why, sizeof why) != 0) {
+        log_line("DPU %d: run %lld not run: %s", plan->dpu, (long long)run->run_id, why);
+        server_fault(s, SKELMSG_STATUS_T_FAULT_CODE);
+        (void)cycle_schedule(s, plan, 0);
+        return;
+    }
     char klass[96] = "SCHED_OTHER";
     if (fifo > 0) snprintf(klass, sizeof klass, "SCHED_FIFO %d", fifo);
     /* The tasking executive outside SLEEP: a thread per process, made before t0
@@ -68,6 +76,7 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
     while ((rc = cycle_wait(&x, t0)) == 2) cycle_poll_switch(&x);
     if (rc != 0) { /* stopped before its first release */
         if (th != NULL) threads_end(th);
+        code_end(plan);
         plan->running = 0;
         (void)cycle_schedule(s, plan, 0);
         return;
@@ -85,6 +94,7 @@ void executive_run(skel_server_t *s, skel_plan_t *plan, const skel_run_t *run)
     if (x.announce) cycle_announce(&x);
     atomic_store(&s->behind_ns, 0);
     executive_check_work(s, x.plan, 0);
+    code_end(x.plan); /* a live switch of a DPU running real code is refused (apply.c) */
     x.plan->running = 0;
     (void)cycle_schedule(s, x.plan, 0);
 }

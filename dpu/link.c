@@ -161,7 +161,9 @@ void link_receive(skel_slot_t *slot, const lcm_recv_buf_t *rbuf)
         return;
     }
     if (!plan->running) return; /* between runs: drained only to keep queues short */
-    if (buffers_slot_receive(slot, plan->run_id, &hdr, link_arrival_ns(&plan->links[slot->link], rbuf) +
+    /* The payload follows the fixed header (wire_buffer_header checked its length). */
+    const uint8_t *payload = (const uint8_t *)rbuf->data + SKEL_BUFFER_HEADER_BYTES;
+    if (buffers_slot_receive(slot, plan->run_id, &hdr, payload, link_arrival_ns(&plan->links[slot->link], rbuf) +
                                                      plan->clock_offset_ns) ==
         BUFFERS_MISMATCH)
         atomic_fetch_add(plan->rejected, 1);

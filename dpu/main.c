@@ -7,6 +7,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "dpu.h"
@@ -15,7 +16,7 @@ static void usage(void)
 {
     fprintf(stderr,
             "usage: skel-dpu --id N|auto [--url URL] [--clock-offset-ns N] [--spin-us N]\n"
-            "                [--rt-priority N] [--key FILE] [--verbose]\n"
+            "                [--rt-priority N] [--key FILE] [--lib-dir DIR]... [--verbose]\n"
             "       skel-dpu --simulate INPUT.lcm OUTPUT.lcm [--url URL]\n"
             "  --id N|auto          this DPU's id in the config; auto: the DPU whose host is this\n"
             "                       machine's host name\n"
@@ -27,6 +28,9 @@ static void usage(void)
             "                       default: 10 in compute mode SLEEP where permitted\n"
             "  --key FILE           sign and check control with this key (`skel keygen`);\n"
             "                       default: $%s when set, else none (unauthenticated)\n"
+            "  --lib-dir DIR        real code (a process's compute: {library: NAME}) loads\n"
+            "                       DIR/libNAME.so from these directories only (repeatable);\n"
+            "                       none: a config naming a library is refused\n"
             "  --simulate           run every DPU of INPUT's system on virtual time: INPUT holds\n"
             "                       the host's configs and commands (`skel simulate` writes it),\n"
             "                       OUTPUT the log a run's logger would have written\n",
@@ -64,6 +68,14 @@ static int parse_args(skel_server_t *s, int argc, char **argv)
             have_id = 1;
         } else if (strcmp(a, "--url") == 0) s->url = next;
         else if (strcmp(a, "--key") == 0) s->key_path = next;
+        else if (strcmp(a, "--lib-dir") == 0 && s->nlib_dirs < SKEL_MAX_LIB_DIRS) {
+            struct stat st;
+            if (stat(next, &st) != 0 || !S_ISDIR(st.st_mode)) {
+                fprintf(stderr, "skel-dpu: --lib-dir %s is not a directory\n", next);
+                return -1;
+            }
+            s->lib_dirs[s->nlib_dirs++] = next;
+        }
         else if (strcmp(a, "--clock-offset-ns") == 0 && parse_i64(next, &v) == 0) s->clock_offset_ns = v;
         else if (strcmp(a, "--spin-us") == 0 && parse_i64(next, &v) == 0 && v >= 0 && v < 1000000)
             s->compute.spin_ns = v * SKEL_NS_PER_US;

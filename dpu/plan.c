@@ -344,7 +344,9 @@ void plan_free(skel_plan_t *plan)
     for (int s = 0; plan->slots != NULL && s < plan->nslots; s++) {
         free(plan->slots[s].channel);
         free(plan->slots[s].pending);
+        free(plan->slots[s].bytes);
     }
+    for (int i = 0; plan->processes != NULL && i < plan->nprocesses; i++) code_free(&plan->processes[i]);
     /* nprocesses counts a process before its outputs are allocated (plan_add_processes),
      * so a plan that failed half-way is freed whole; the rest of the table is zeros. */
     for (int i = 0; plan->processes != NULL && i < plan->nprocesses; i++)

@@ -345,14 +345,16 @@ void process_write_outputs(skel_exec_t *x, skel_process_t *p, int64_t k)
     for (int q = 0; q < p->noutputs; q++) {
         skel_output_t *out = &p->outputs[q];
         int64_t send_ns = server_now(x->s);
-        int len = buffers_output_encode(out, plan->run_id, p->id, k, send_ns, plan->dummy);
+        const uint8_t *payload = p->code != NULL ? p->code->out[q].bytes : plan->dummy;
+        int32_t nbytes = p->code != NULL ? p->code->out[q].nbytes : out->bytes;
+        int len = buffers_output_encode(out, plan->run_id, p->id, k, send_ns, payload, nbytes);
         int rc = len < 0 ? -1 : 0;
         if (rc == 0 && out->link >= 0)
             rc = clock_publish(plan->links[out->link].lcm, out->channel, out->enc, (unsigned)len);
         else if (rc == 0 && out->local_slot >= 0) {
             /* Local memory: the readers' slot is written directly, as common memory was. */
-            wire_buffer_hdr_t hdr = { plan->run_id, p->id, out->buffer, k, send_ns, out->bytes };
-            rc = buffers_slot_receive(&plan->slots[out->local_slot], plan->run_id, &hdr,
+            wire_buffer_hdr_t hdr = { plan->run_id, p->id, out->buffer, k, send_ns, nbytes };
+            rc = buffers_slot_receive(&plan->slots[out->local_slot], plan->run_id, &hdr, payload,
                                       server_now(x->s));
         }
         if (rc != 0 && plan->publish_errors++ == 0)
@@ -468,8 +470,14 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
         t_blocked = now;
     }
     process_commit(plan, p, rec, measured);
-    rec->asked_ns = draw_ns(&p->draw, p->compute_ns);
-    rec->compute_ns = process_compute(x, p, k, release, rec, t_blocked);
+    if (p->code != NULL) {
+        /* Real code: its compute is the call's wall time, asked of nobody. */
+        rec->compute_ns = rec->asked_ns = code_step(plan, p, rec, k);
+        if (p->code->failed) server_fault(x->s, SKELMSG_STATUS_T_FAULT_CODE);
+    } else {
+        rec->asked_ns = draw_ns(&p->draw, p->compute_ns);
+        rec->compute_ns = process_compute(x, p, k, release, rec, t_blocked);
+    }
     /* A computation sleeps (a voluntary switch), or charges only the stalls that carried
      * it past its time: what it lost and still ended on time must not be billed to the
      * next long step. Its steps are judged from a fresh mark. */
@@ -479,7 +487,7 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
      * (its stall), so that the record's parts add up to where its work ended. */
     if (t_out - t_blocked > rec->compute_ns) rec->preempted_ns += t_out - t_blocked - rec->compute_ns;
     int64_t kept_out = 0;
-    if (p->noutputs > 0 || p->nemits > 0) {
+    if ((p->noutputs > 0 || p->nemits > 0) && (p->code == NULL || !p->code->failed)) {
         if (x->mark_stale) process_remark(x, t_out);
         process_write_outputs(x, p, k);
         kept_out = process_kept(x, rec, t_out, clock_mono_ns());

@@ -101,6 +101,7 @@ static void report_fill_process(skelmsg_process_report_t *r, const skel_process_
     r->max_latency_ns = p->sums.max_latency_ns;
     r->releases_skipped = p->sums.releases_skipped;
     r->events_dropped = p->sums.events_dropped;
+    r->code_faults = p->code != NULL ? p->code->faults : 0;
     r->locked_out = p->locked_out;
     r->ninputs = (int16_t)p->ninputs;
     for (int q = 0; q < p->ninputs; q++) {

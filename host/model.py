@@ -135,6 +135,13 @@ class Charge:
 
 
 @dataclass(frozen=True)
+class Code:
+    """Real code a process runs in place of its emulated computation (include/skel_step.h)."""
+    library: str            # NAME: libNAME.so in each DPU's --lib-dir
+    function: str
+
+
+@dataclass(frozen=True)
 class Process:
     id: int
     name: str
@@ -152,6 +159,8 @@ class Process:
     queue: int = 0          # ... and how many may wait for it (1..MAX_QUEUE)
     emits: tuple[str, ...] = ()  # events it fires at the end of each cycle
     charge: Charge = Charge()   # its links' costs per cycle (charges())
+    code: Code | None = None     # real code in place of the emulated computation; compute_us stays the
+                                 # prediction's assumption
 
     @property
     def worst_compute_us(self) -> float:
@@ -491,7 +500,8 @@ def from_config(msg: skelmsg.config_t) -> System:
                 required=tuple(b for b, wait in zip(p.inputs, p.required, strict=True) if wait),
                 outputs=tuple(p.outputs),
                 varying=Varying(FROM_CONFIG, tuple(p.quantiles_us), given={}) if p.quantiles_us else None,
-                priority=p.priority, event=p.event, queue=p.queue, emits=tuple(p.emits))
+                priority=p.priority, event=p.event, queue=p.queue, emits=tuple(p.emits),
+                code=Code(p.library, p.function) if p.library else None)
         for p in msg.processes)
     dpus = tuple(Dpu(d.id, d.host, None if d.cpu < 0 else d.cpu, _named(COMPUTE, d.compute),
                      _named(EXECUTIVE, d.executive), d.speed, d.minor_cycle_us, tuple(d.links))

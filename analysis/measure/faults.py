@@ -45,7 +45,8 @@ FATAL_KINDS = ("lockout", "jam", "behind", "skipping")
 
 @dataclass
 class Fault:
-    kind: str  # "lockout" | "jam" | "behind" | "skipping" | "stall" | "overrun" | "dpu_lost" | "delivery"
+    # "lockout" | "jam" | "behind" | "skipping" | "stall" | "overrun" | "dpu_lost" | "delivery" | "code"
+    kind: str
     process: str | None = None
     dpu: int | None = None
     buffer: str | None = None
@@ -401,6 +402,21 @@ LOG_SILENT_US = 400_000
 _IN_RUN = (skelmsg.status_t.STATE_ARMED, skelmsg.status_t.STATE_RUNNING)
 
 
+def code_faults(system: System, reports: Iterable[Any]) -> list[Fault]:
+    """A process whose real code failed steps (report_t's code_faults: it returned an error, or
+    said it wrote more than an output holds): those cycles sent none of its outputs."""
+    out = []
+    for report in reports:
+        for p in report.processes:
+            if p.code_faults > 0:
+                name = system.process(p.process).name
+                detail = (f"its step failed in {p.code_faults} cycle(s) (an error returned, or an output "
+                          "longer than declared): those cycles sent no output")
+                out.append(Fault(kind="code", process=name, dpu=report.dpu, count=p.code_faults, fatal=True,
+                                 detail=detail))
+    return out
+
+
 def dpu_lost_faults(system: System, beats: Heartbeats, run_id: int, origin: Mapping[int, int],
                     reported: Collection[int] = ()) -> list[Fault]:
     """A DPU is lost when its heartbeats stopped during the run: a silence of more than
@@ -483,6 +499,10 @@ def dpu_lost_faults(system: System, beats: Heartbeats, run_id: int, origin: Mapp
             detail = "no timing records and no heartbeat in this run"
         else:
             continue
+        # A crash inside real code is its DPU's loss (dpu/code.c isolates nothing): name the suspects.
+        coded = [p.name for p in system.processes if p.dpu == dpu and p.code is not None]
+        if coded:
+            detail += f"; it runs the real code of {', '.join(coded)}: a crash there is its DPU's loss"
         faults.append(Fault(kind="dpu_lost", dpu=dpu, detail=detail, at_s=at_s))
     return faults
 

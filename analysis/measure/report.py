@@ -20,6 +20,7 @@ from .chains import ChainMetrics
 from .faults import (
     Fault,
     Heartbeats,
+    code_faults,
     dpu_lost_faults,
     first_release_ns,
     heartbeats_from_status,
@@ -269,7 +270,7 @@ def finish_report(
         ),
         dpus=last.dpus,
         processes=last.processes,
-        faults=last.faults,
+        faults=[*last.faults, *code_faults(system, mine)],
         compute_modes=modes,
         work_drift_pct={r.dpu: r.work_drift_pct for r in mine if r.compute == skelmsg.dpu_t.COMPUTE_WORK},
         cross_check=_cross_check(window_parts, mine),

@@ -69,6 +69,17 @@ def _run_args(parser: argparse.ArgumentParser, default_out: str) -> None:
                         help="print the system file's reference values (the paper's Table 1) beside ours")
 
 
+def _lib_dir_arg(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--lib-dir", type=Path, action="append", default=[], metavar="DIR",
+                        help="the started DPUs load real code (compute: {library: NAME}) from DIR only "
+                             "(repeatable)")
+
+
+def _lib_dirs(args: argparse.Namespace) -> list[str]:
+    """skel-dpu's --lib-dir arguments, each directory absolute."""
+    return [a for d in args.lib_dir for a in ("--lib-dir", str(d.resolve()))]
+
+
 CONTROL_URL_HELP = f"the control URL the DPUs listen on (default {DEFAULT_URL})"
 
 
@@ -83,6 +94,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("up", help="start the local skel-dpu daemons of a system and leave them running")
     _system_args(p)
+    _lib_dir_arg(p)
 
     p = sub.add_parser("down", help="stop the daemons `skel up` started")
     p.add_argument("--url", help="only those on this LCM URL")
@@ -98,6 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="push, run at one shared instant, record, and print one screen of it")
     _system_args(p, optional=True)
     p.add_argument("--spawn", action="store_true", help="start local DPUs for this run and stop them after")
+    _lib_dir_arg(p)
     _run_args(p, "runs/<system>-<time>/")
     p.add_argument("--wait-dpus", type=float, default=5.0, metavar="S",
                    help="wait up to S seconds for every DPU's first heartbeat (default 5)")
@@ -256,7 +269,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     system = _load(args)
     url = control_url(system)
     local = [d.id for d in system.dpus if spawn.is_local(d.host)]
-    started = spawn.up(local, url, args.key_file)
+    started = spawn.up(local, url, args.key_file, _lib_dirs(args))
     print(f"DPUs up on {url}: started {started or 'none'}, already running "
           f"{sorted(set(local) - set(started)) or 'none'}")
     return 0
@@ -335,9 +348,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.wait_dpus < 0:
         print(f"skel run: --wait-dpus {args.wait_dpus:g}: must be >= 0", file=sys.stderr)
         return EXIT_BAD_INPUT
+    if args.lib_dir and not args.spawn:
+        print("skel run: --lib-dir is for the DPUs --spawn starts: give it to skel-dpu (or skel up) instead",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
     options = RunOptions(spawn=args.spawn, cycles=args.cycles, duration_s=args.duration, out=args.out,
                          as_json=args.json, compare_paper=args.compare_paper, all_tables=args.all_tables,
                          pushed_generation=pushed_generation, wait_dpus_s=args.wait_dpus,
+                         dpu_args=_lib_dirs(args),
                          logger=args.logger, force=args.force, key=args.key, key_file=args.key_file)
     return run(system, options, console=output_console())
 
@@ -349,6 +367,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from ..live.simulate import Push, simulate
 
     system = _load(args)
+    if coded := next((p for p in system.processes if p.code), None):
+        print(f"skel simulate: process {coded.name} runs real code (compute: library "
+              f"{coded.code.library}), which virtual time cannot time: run it on DPUs "
+              "(skel run --spawn --lib-dir DIR)", file=sys.stderr)
+        return EXIT_BAD_INPUT
     pushes = []
     for given in args.push:
         at, _, name = given.partition(":")

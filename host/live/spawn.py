@@ -195,15 +195,17 @@ def bad_exit(daemon: Daemon) -> str | None:
 
 
 # --- skel up / skel down -------------------------------------------------------------
-def up(dpu_ids: list[int], url: str, key_file: Path | None = None) -> list[int]:
-    """Start detached DPUs for `dpu_ids` unless already up; return the ids started."""
+def up(dpu_ids: list[int], url: str, key_file: Path | None = None,
+       extra: list[str] | None = None) -> list[int]:
+    """Start detached DPUs for `dpu_ids` unless already up (with `extra` arguments, e.g. --lib-dir);
+    return the ids started."""
     state = _read_state(url)
     running = {int(k): v for k, v in state.items() if _is_dpu_pid(v)}
     started = []
     for dpu_id in dpu_ids:
         if dpu_id in running:
             continue
-        daemon = start_dpu(dpu_id, url, state_dir() / "logs", detach=True, key_file=key_file)
+        daemon = start_dpu(dpu_id, url, state_dir() / "logs", extra, detach=True, key_file=key_file)
         running[dpu_id] = daemon.process.pid
         started.append(dpu_id)
     _state_file(url).write_text(json.dumps({"url": url, "dpus": running}))

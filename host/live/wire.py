@@ -73,6 +73,7 @@ def config_message(system: System, generation: int, run_id: int, committed: bool
         proc.nquantiles = len(proc.quantiles_us)
         proc.event, proc.queue = p.event, p.queue
         proc.emits, proc.nemits = list(p.emits), len(p.emits)
+        proc.library, proc.function = (p.code.library, p.code.function) if p.code else ("", "")
         msg.processes.append(proc)
     msg.nprocesses = len(msg.processes)
     msg.chains = []
@@ -137,6 +138,7 @@ def dump_yaml(system: System) -> str:
                     for b in system.buffers],
         "processes": [{"id": p.id, "name": p.name, "dpu": p.dpu, "order": p.order, "period_us": p.period_us,
                        "compute_us": p.varying.given if p.varying else p.compute_us,
+                       **({"compute": dataclasses.asdict(p.code)} if p.code else {}),
                        "sync": p.sync, **({"priority": p.priority} if p.priority else {}),
                        "inputs": [names[b] for b in p.inputs],
                        **({"required": [names[b] for b in p.required]} if p.sync == "data" else {}),

@@ -18,7 +18,7 @@ from typing import Any
 from skeleton.analysis.errors import EXIT_BAD_INPUT, SkelError
 from skelmsg import contract
 
-from ..model import Buffer, Chain, Dpu, Event, Link, LossBurst, Process, Varying, charges, control_link
+from ..model import Buffer, Chain, Code, Dpu, Event, Link, LossBurst, Process, Varying, charges, control_link
 from .compute import ComputeError, varying
 from .link import parse_url, port_clash, record_url, writer_ports
 from .schema import (
@@ -79,11 +79,25 @@ def resolve(spec: SystemSpec, base: Path) -> Resolved:
     processes = charges(links, dpus, buffers, tuple(
         Process(p.id, p.name, p.dpu, order[p.id], p.period_us, _compute_us(p, varying), p.sync,
                 ports[p.id][0], ports[p.id][2], ports[p.id][1], varying.get(p.id), priority[p.id],
-                p.event or "", (p.queue or 1) if p.sync == "event" else 0, tuple(p.emits))
+                p.event or "", (p.queue or 1) if p.sync == "event" else 0, tuple(p.emits),
+                code=Code(p.compute.library, p.compute.function) if p.compute else None)
         for p in spec.processes))
     _charged_tasking(spec, processes)
+    _code_reads_what_comes(links, buffers, processes)
     return Resolved(links=links, dpus=dpus, buffers=buffers, processes=processes, chains=chains,
                     events=events)
+
+
+def _code_reads_what_comes(links: tuple[Link, ...], buffers: tuple[Buffer, ...],
+                           processes: tuple[Process, ...]) -> None:
+    """Real code reads the bytes a DPU keeps as a message comes; a link that holds versions back
+    (latency, jitter) does not keep their bytes yet (dpu/config.c refuses it too)."""
+    link, buffer = {k.id: k for k in links}, {b.id: b for b in buffers}
+    for p in processes:
+        for b in (buffer[i] for i in (p.inputs if p.code is not None else ())):
+            if link[b.link].latency_us or link[b.link].jitter_us:
+                raise Invalid(f"processes.{p.name}.compute", f"real code cannot read {b.name} through link "
+                              f"{link[b.link].name}'s emulated latency yet")
 
 
 def _charged_tasking(spec: SystemSpec, processes: tuple[Process, ...]) -> None:
@@ -367,6 +381,9 @@ def _priorities(spec: SystemSpec, order: dict[int, int]) -> dict[int, int]:
     for d in spec.dpus:
         mine = [p for p in spec.processes if p.dpu == d.id]
         given = [p for p in mine if p.priority is not None]
+        if d.executive != "cyclic" and (coded := next((p for p in mine if p.compute), None)):
+            raise Invalid(f"processes.{coded.name}.compute", f"DPU {d.id} runs executive: {d.executive}; "
+                          "real code runs on the cyclic executive only")
         if d.executive == "cyclic":
             if given:
                 raise Invalid(f"processes.{given[0].name}.priority", f"DPU {d.id} runs the cyclic executive, "

@@ -411,6 +411,24 @@ Compute = Annotated[
 ]
 
 
+def _library(v: str) -> str:
+    """a library's name NAME (libNAME.so in a DPU's --lib-dir), never a path"""
+    if "/" in v or v.startswith(".") or v.endswith(".so"):
+        raise ValueError(f"must name a library (NAME for libNAME.so in the DPU's --lib-dir), not a path: "
+                         f"got {show(v)}")
+    return _name(v)
+
+
+class CodeSpec(_Spec):
+    """Real code in place of the emulated computation: a step function in a shared library built against
+    include/skel_step.h, which each DPU loads only from its own `--lib-dir`."""
+    library: Annotated[str, AfterValidator(_library)]
+    """The library's name: `sum` loads `libsum.so` from the DPU's `--lib-dir`, never a path."""
+    function: Name
+    """The step function, called once per cycle (its optional `FUNCTION_init` and `FUNCTION_fini` around
+    each run)."""
+
+
 class ProcessSpec(_Spec):
     id: Id
     """The process's id, unique in the system."""
@@ -424,6 +442,9 @@ class ProcessSpec(_Spec):
     compute_us: Compute
     """The emulated computation per cycle, in us (0: a relay that only communicates), or how it varies: a
     distribution or measured samples."""
+    compute: CodeSpec | None = None
+    """Real code that runs in place of the emulated computation (`{library: NAME, function: SYMBOL}`), on
+    the cyclic executive; `compute_us` stays the prediction's assumption."""
     sync: Literal["periodic", "data", "event"] = "periodic"
     """What starts a cycle: `periodic` (every period), `data` (released every period, then waits for new
     data on its `required` inputs), `event` (one cycle per event it awaits)."""

@@ -64,7 +64,7 @@ int main(void)
     subprocess.run(["make", "--no-print-directory", "-s", "build/gen/c/skelmsg_contract.h"], cwd=REPO,
                    check=True, capture_output=True)
     built = subprocess.run(["cc", "-std=c11", "-D_GNU_SOURCE", "-Wall", "-Wextra", "-Werror",
-                            f"-I{REPO / 'build' / 'gen' / 'c'}", f"-I{REPO / 'dpu'}",
+                            f"-I{REPO / 'build' / 'gen' / 'c'}", f"-I{REPO / 'dpu'}", f"-I{REPO / 'include'}",
                             f"-I{LCM_PREFIX / 'include'}", "-o", str(binary), str(program)],
                            capture_output=True, text=True)
     assert built.returncode == 0, built.stderr

@@ -31,6 +31,8 @@ static void fixture_process(fixture_t *f, int i, int16_t id, int16_t dpu, int16_
     p->id = id;
     p->name = (char *)"p";
     p->event = (char *)"";
+    p->library = (char *)"";
+    p->function = (char *)"";
     p->dpu = dpu;
     p->order = order;
     p->period_us = period_us;

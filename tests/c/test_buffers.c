@@ -23,7 +23,7 @@ static void rig_init(rig_t *r)
 static int rig_write(rig_t *r, int64_t seq)
 {
     wire_buffer_hdr_t h = { r->run_id, 9, 3, seq, 1000 + seq, 16 };
-    return buffers_slot_receive(&r->slot, r->run_id, &h, 2000 + seq);
+    return buffers_slot_receive(&r->slot, r->run_id, &h, NULL, 2000 + seq);
 }
 
 static skel_in_rec_t rig_read(rig_t *r, int measured)
@@ -100,7 +100,7 @@ static void test_sequence_at_int64_max(void)
     rig_t r;
     rig_init(&r);
     wire_buffer_hdr_t h = { r.run_id, 9, 3, INT64_MAX, 1000, 16 };
-    CHECK_EQ(buffers_slot_receive(&r.slot, r.run_id, &h, 2000), BUFFERS_ACCEPTED);
+    CHECK_EQ(buffers_slot_receive(&r.slot, r.run_id, &h, NULL, 2000), BUFFERS_ACCEPTED);
     skel_in_rec_t rec = rig_read(&r, 1);
     CHECK_EQ(rec.new_data, 1);
     CHECK_EQ(rec.dropped, INT32_MAX);
@@ -112,14 +112,14 @@ static void test_foreign_and_mismatch(void)
     rig_t r;
     rig_init(&r);
     wire_buffer_hdr_t h = { 41, 9, 3, 5, 0, 16 };
-    CHECK_EQ(buffers_slot_receive(&r.slot, r.run_id, &h, 0), BUFFERS_FOREIGN_RUN);
+    CHECK_EQ(buffers_slot_receive(&r.slot, r.run_id, &h, NULL, 0), BUFFERS_FOREIGN_RUN);
     CHECK_EQ(r.slot.foreign, 1);
     h.run_id = 42;
     h.writer = 8;
-    CHECK_EQ(buffers_slot_receive(&r.slot, r.run_id, &h, 0), BUFFERS_MISMATCH);
+    CHECK_EQ(buffers_slot_receive(&r.slot, r.run_id, &h, NULL, 0), BUFFERS_MISMATCH);
     h.writer = 9;
     h.buffer = 4;
-    CHECK_EQ(buffers_slot_receive(&r.slot, r.run_id, &h, 0), BUFFERS_MISMATCH);
+    CHECK_EQ(buffers_slot_receive(&r.slot, r.run_id, &h, NULL, 0), BUFFERS_MISMATCH);
     CHECK_EQ(r.slot.newest_seq, -1);
     CHECK_EQ(r.slot.received, 0);
 }
@@ -148,7 +148,7 @@ static void test_output_encode(void)
     out.enc_len = wire_buffer_encoded_size(64);
     uint8_t enc[200];
     out.enc = enc;
-    int len = buffers_output_encode(&out, 5, 2, 11, 123456, dummy);
+    int len = buffers_output_encode(&out, 5, 2, 11, 123456, dummy, 64);
     CHECK_EQ(len, out.enc_len);
     wire_buffer_hdr_t h;
     CHECK_EQ(wire_buffer_header(enc, len, &h), 0);
@@ -164,7 +164,7 @@ static void test_output_encode(void)
 static int rig_send(rig_t *r, int64_t seq, int64_t send_ns, int64_t recv_ns)
 {
     wire_buffer_hdr_t h = { r->run_id, 9, 3, seq, send_ns, 16 };
-    return buffers_slot_receive(&r->slot, r->run_id, &h, recv_ns);
+    return buffers_slot_receive(&r->slot, r->run_id, &h, NULL, recv_ns);
 }
 
 /* A link's emulated latency: held until the send stamp plus the latency, in order, and a
@@ -261,8 +261,40 @@ static void test_emulated_loss(void)
     CHECK_EQ(rig_read(&r, 1).seq, 19);
 }
 
+/* A slot real code reads keeps the newest message's bytes (cut to the buffer's size); a
+ * late, older message does not replace them. Real code may send fewer bytes than declared. */
+static void test_slot_bytes(void)
+{
+    uint8_t kept[8], a[8] = { 1, 2, 3, 4, 5, 6, 7, 8 }, b[10] = { 9, 9, 9, 9, 9, 9, 9, 9, 9, 9 };
+    skel_slot_t slot = { .buffer = 3, .writer = 4, .bytes = kept, .cap = 8 };
+    buffers_slot_reset(&slot);
+    wire_buffer_hdr_t h = { 1, 4, 3, 5, 0, 8 };
+    CHECK_EQ(buffers_slot_receive(&slot, 1, &h, a, 0), BUFFERS_ACCEPTED);
+    CHECK_EQ(slot.nbytes, 8);
+    CHECK_EQ(memcmp(kept, a, 8), 0);
+    h.seq = 4;
+    CHECK_EQ(buffers_slot_receive(&slot, 1, &h, b, 0), BUFFERS_ACCEPTED);
+    CHECK_EQ(memcmp(kept, a, 8), 0);
+    h.seq = 6;
+    h.nbytes = 10;
+    CHECK_EQ(buffers_slot_receive(&slot, 1, &h, b, 0), BUFFERS_ACCEPTED);
+    CHECK_EQ(slot.nbytes, 8);
+    CHECK_EQ(kept[7], 9);
+
+    skel_output_t out = { .buffer = 7, .bytes = 64 };
+    out.enc_len = wire_buffer_encoded_size(64);
+    uint8_t enc[200];
+    out.enc = enc;
+    int len = buffers_output_encode(&out, 5, 2, 11, 123456, a, 8);
+    CHECK_EQ(len, wire_buffer_encoded_size(8));
+    CHECK_EQ(wire_buffer_header(enc, len, &h), 0);
+    CHECK_EQ(h.nbytes, 8);
+    CHECK_EQ(memcmp(enc + SKEL_BUFFER_HEADER_BYTES, a, 8), 0);
+}
+
 int main(void)
 {
+    test_slot_bytes();
     test_stale_half();
     test_drop_half();
     test_loss_and_order();

@@ -147,7 +147,7 @@ static void test_carry(void)
     CHECK_EQ(b2->newest_send_ns, 777);
     CHECK_EQ(b2->dup_upto, 40);
     wire_buffer_hdr_t h = { 9, 3, 2, 40, 0, 2000 };
-    CHECK_EQ(buffers_slot_receive(b2, 9, &h, 1), BUFFERS_DUPLICATE);
+    CHECK_EQ(buffers_slot_receive(b2, 9, &h, NULL, 1), BUFFERS_DUPLICATE);
     CHECK_EQ(b2->received, 41);
     /* Buffer 3 changed writer (p5 -> p6): nothing of p5's stream carries over. */
     CHECK_EQ(b3->newest_seq, -1);
@@ -177,7 +177,7 @@ static void test_carry(void)
     CHECK_EQ(rec.received, 0);
     buffers_input_commit(j2, b2, &rec, 1);
     h.seq = 44;
-    CHECK_EQ(buffers_slot_receive(b2, 9, &h, 2), BUFFERS_ACCEPTED);
+    CHECK_EQ(buffers_slot_receive(b2, 9, &h, NULL, 2), BUFFERS_ACCEPTED);
     buffers_input_peek(j2, b2, &rec);
     CHECK_EQ(rec.dropped, 3); /* from now on, gaps count */
     /* The new grid starts at the boundary with every process due. */

@@ -122,3 +122,15 @@ def test_exit_codes_are_defined_in_one_module() -> None:
     assert not elsewhere, elsewhere
     assert (errors.EXIT_OK, errors.EXIT_FAILED, errors.EXIT_BAD_INPUT, errors.EXIT_FATAL_FLAW,
             errors.EXIT_INTERRUPTED) == (0, 1, 2, 3, 130)
+
+
+@pytest.mark.parametrize(("args", "said"), [
+    (["simulate", str(EXAMPLES / "code" / "sum.yaml")],
+     "skel simulate: process source runs real code (compute: library sum), which virtual time cannot time: "
+     "run it on DPUs (skel run --spawn --lib-dir DIR)"),
+    (["run", str(EXAMPLES / "code" / "sum.yaml"), "--lib-dir", "build/examples"],
+     "skel run: --lib-dir is for the DPUs --spawn starts: give it to skel-dpu (or skel up) instead"),
+])
+def test_real_code_where_it_cannot_run_is_one_line_and_exit_2(args: list[str], said: str) -> None:
+    done = skel(*args)
+    assert done.returncode == 2 and done.stderr == said + "\n", done.stdout + done.stderr

@@ -16,6 +16,7 @@ from skeleton.analysis.measure.faults import (
     Fault,
     behind_faults,
     behind_runs,
+    code_faults,
     dpu_lost_faults,
     first_release_ns,
     heartbeats_from_status,
@@ -38,7 +39,7 @@ from skeleton.analysis.measure.metrics import (
 from skeleton.analysis.measure.tally import GenerationTally
 from skeleton.analysis.measure.windows import Generation, run_stalls
 from skeleton.analysis.read.records import RECORD_DTYPE, RunRecords, decode_run, lost_batches
-from skeleton.host.model import Process, System, from_config
+from skeleton.host.model import Code, Process, System, from_config
 
 
 def _lost(system: System, records: np.ndarray, *args: Any, **kwargs: Any) -> list[Fault]:
@@ -415,6 +416,26 @@ def test_dpu_lost_when_its_heartbeats_stop_not_when_its_timing_does() -> None:
     no_times = heartbeats_from_status([(None, _status(1, state=3)), (None, _status(3, state=3))])
     assert [f.dpu for f in _lost(system, _spans({1: [0, 9]}), no_times, RUN_ID)] == [2, 4]
 
+
+
+def test_a_lost_dpu_names_the_real_code_it_ran_and_failed_steps_are_a_code_fault() -> None:
+    """A crash in real code kills its DPU (dpu/code.c isolates nothing): the loss names the code's
+    process. A step that failed (report_t's code_faults) is a fault of its process."""
+    plain = _one_process_per_dpu((1, 2))
+    system = dataclasses.replace(plain, processes=(
+        plain.processes[0], dataclasses.replace(plain.processes[1], code=Code("sum", "sum_bytes"))))
+    records = _spans({1: [0, 4000], 2: [0, 1500]})
+    beats = _beats(1, 0, 4) + _beats(2, 0, 1.4)
+    faults = _lost(system, records, heartbeats_from_status(beats), RUN_ID, reported={1})
+    assert [f.dpu for f in faults] == [2]
+    assert faults[0].detail.endswith("; it runs the real code of P2: a crash there is its DPU's loss")
+    report = skelmsg.report_t()
+    report.dpu = 2
+    report.processes = [skelmsg.process_report_t(), skelmsg.process_report_t()]
+    report.processes[0].process, report.processes[1].process = 1, 2
+    report.processes[1].code_faults = 3
+    found = code_faults(system, [report])
+    assert [(f.kind, f.process, f.dpu, f.count, f.fatal) for f in found] == [("code", "P2", 2, 3, True)]
 
 
 def test_dpu_lost_shortly_before_the_runs_end_when_it_sent_no_report() -> None:

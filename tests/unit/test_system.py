@@ -12,7 +12,7 @@ import yaml
 
 import skelmsg
 from skeleton.host.live.wire import config_message, dump_yaml
-from skeleton.host.model import System
+from skeleton.host.model import Code, System, from_config
 from skeleton.host.sysfile.system import SystemFileError, load, with_url
 from skelmsg.contract import DEFAULT_URL
 
@@ -286,6 +286,21 @@ ERRORS: list[tuple[str, Callable[[Doc], None], str]] = [
                                          _set("dpus.2.executive", "threads")),
      "dpus.2.executive: the tasking executive charges no link costs yet (process b would pay its links' "
      "per_message_us, per_byte_ns, push_byte_ns or remote_read_us): use `cyclic`, or links without costs"),
+    ("code library a path", _set("processes.b.compute", {"library": "../lib/sum", "function": "sum_bytes"}),
+     "processes.b.compute.library: must name a library (NAME for libNAME.so in the DPU's --lib-dir), not a "
+     "path: got '../lib/sum'"),
+    ("code library a file", _set("processes.b.compute", {"library": "libsum.so", "function": "sum_bytes"}),
+     "processes.b.compute.library: must name a library (NAME for libNAME.so in the DPU's --lib-dir), not a "
+     "path: got 'libsum.so'"),
+    ("code without function", _set("processes.b.compute", {"library": "sum"}),
+     "processes.b.compute.function: required key is missing"),
+    ("code reading through an emulated latency",
+     _both(_set("links", [{**BUS, "latency_us": 2000}]),
+           _set("processes.b.compute", {"library": "sum", "function": "sum_bytes"})),
+     "processes.b.compute: real code cannot read a_out through link bus's emulated latency yet"),
+    ("code on threads", _both(_set("dpus.2.executive", "threads"),
+                              _set("processes.b.compute", {"library": "sum", "function": "sum_bytes"})),
+     "processes.b.compute: DPU 2 runs executive: threads; real code runs on the cyclic executive only"),
 ]
 
 
@@ -294,6 +309,22 @@ def test_validation_error(tmp_path: Path, edit: Callable[[Doc], None], expected:
     doc = base()
     edit(doc)
     assert error_of(tmp_path, doc) == expected
+
+
+def test_real_code_is_carried_beside_the_declared_compute(tmp_path: Path) -> None:
+    """compute: names real code; compute_us stays the schedule's and the prediction's figure; the
+    config carries both, and the dumped file reads back the same."""
+    doc = base()
+    proc(doc, "b")["compute"] = {"library": "sum", "function": "sum_bytes"}
+    system = load(write(tmp_path, doc))
+    b = system.process("b")
+    assert b.code == Code("sum", "sum_bytes") and b.compute_us == 1000
+    assert system.process("a").code is None
+    sent = config_message(system, generation=1, run_id=0, committed=False)
+    assert [(p.library, p.function) for p in sent.processes] == [("", ""), ("sum", "sum_bytes"), ("", "")]
+    assert from_config(sent).process("b").code == b.code
+    again = load(write(tmp_path, dump_yaml(system)))
+    assert again.process("b").code == b.code
 
 
 def test_base_is_valid(tmp_path: Path) -> None:
@@ -383,8 +414,8 @@ def test_override_empty_value_restores_default(tmp_path: Path) -> None:
     ("dpu.9.compute=wall", "-s dpu.9.compute=wall: no DPU with id 9"),
     ("buffer.x.bytes=1", "-s buffer.x.bytes=1: no buffer named 'x'"),
     ("link.can.url=local", "-s link.can.url=local: no link named 'can'"),
-    ("process.a.compute=1",
-     "-s process.a.compute=1: a process has no field 'compute'; did you mean 'compute_us'?"),
+    ("process.a.compute_ms=1",
+     "-s process.a.compute_ms=1: a process has no field 'compute_ms'; did you mean 'compute_us'?"),
     ("run.cycle=1", "-s run.cycle=1: run has no field 'cycle'; did you mean 'cycles'?"),
     ("dpu.1.xyz=1", "-s dpu.1.xyz=1: a DPU has no field 'xyz'; fields: compute, cpu, executive, host, id, "
                     "links, minor_cycle_us, speed"),
