@@ -52,6 +52,9 @@ class Heard:
         self.thread.join(5)
 
 
+# timing: how many cycles find a new input, and how many messages a listener hears, are the
+# platform's (the CI run of 544eccd: 18 stalls of 2-12 ms in its 1.5 s); the sums are exact.
+@pytest.mark.timing
 def test_the_reader_receives_the_sum_of_the_bytes_the_writer_sent(tmp_path: Path, url: str,
                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("SKEL_DPU", str(REPO / "build" / "asan" / "skel-dpu"))
