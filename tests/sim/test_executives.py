@@ -11,9 +11,10 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 from conftest import REPO, skel
-from e2e.test_event import BURSTS, CHAIN
+from e2e.test_event import BURSTS, CHAIN, _events
 from unit.test_schedule import MS, _system
 
 import skeleton
@@ -98,6 +99,14 @@ def test_servo_at_2_5_ms_locks_each_dpu_out_at_the_instant_the_prediction_gives(
     assert first == predicted
     # run.stop_on: the simulation stopped where `skel run` stops, one lockout window later
     assert report["stopped"] is not None, report["stopped"]
+    # ... and the paper's pipeline jam: the Jacobian transpose (DPU 3) needs new joint_state
+    # every cycle, and its writer, the joint sensors on overloaded DPU 2, is locked out too
+    jams = [f for f in report["faults"] if f["kind"] == "jam"]
+    assert [(j["chain"], j["buffer"], j["root_dpu"]) for j in jams] == [
+        (["jacobian_transpose", "joint_sensors"], "joint_state", 2)], jams
+    assert jams[0]["detail"].startswith("DPU 2 overloaded"), jams[0]
+    # an overloaded DPU's time is its processes': none of it overhead
+    assert {d["id"]: d["overhead_pct"] for d in report["dpus"]} == {1: 0.0, 2: 0.0, 3: 0.0, 4: None}
 
 
 def test_the_same_file_and_seed_give_the_same_log_and_report_byte_for_byte(tmp_path: Path) -> None:
@@ -172,6 +181,22 @@ def test_an_emitted_event_releases_its_reaction_at_once_above_the_servo_loop(tmp
     assert sorted(react.event_ns) == ends[:len(react)] and len(ends) - len(react) <= 1
     assert (react.start_ns == react.event_ns).all() and react.event_dropped.sum() == 0
     assert cycles[cycles.process_name == "servo"].preemptions.max() >= 1
+
+
+def test_a_seed_draws_the_same_instants_and_another_seed_others(tmp_path: Path) -> None:
+    """A generator's instants come from the run's seed alone (the real run draws the
+    simulation's: tests/e2e/test_event.py)."""
+    def pulses(seed: int, tag: str) -> list[int]:
+        path = tmp_path / f"{tag}.yaml"
+        path.write_text(CHAIN.replace("SEED", str(seed)).replace("COMPUTE", "sleep"))
+        simulate(tmp_path / tag, str(path))
+        return [e.sent_ns for e in _events(tmp_path / tag, "pulse")]
+
+    first, again, other = pulses(7, "a"), pulses(7, "b"), pulses(8, "c")
+    assert len(first) > 300 and first == again
+    gaps, others = np.diff(first), np.diff(other)
+    n = min(len(gaps), len(others))
+    assert (gaps[:n] != others[:n]).mean() > 0.9
 
 
 def test_no_simulated_response_exceeds_its_predicted_worst(tmp_path: Path) -> None:

@@ -79,7 +79,9 @@ def _attempt(root: Path, stolen_ns: int, probe: Lateness | None) -> steal.Attemp
 def fresh(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(steal, "_reattempted", [])
     monkeypatch.setattr(steal, "_reattempted_tests", set())
+    monkeypatch.setattr(steal, "_reattempted_on_valid", set())
     monkeypatch.setattr(steal, "_evidenced", {})
+    monkeypatch.setattr(steal, "_reattempt_s", 0.0)
 
 
 def test_what_a_dpu_logs_of_its_own_stalls_and_speed_buys_no_attempt(
@@ -127,11 +129,17 @@ def test_an_attempt_whose_dpu_wrote_a_sanitizer_report_is_never_run_again(
     assert not steal.platform_took_the_cpus(AssertionError("late"))   # ours, whatever was stolen
 
 
-def _finish(monkeypatch: pytest.MonkeyPatch, evidence: Path, reattempted: int, inconclusive: int) -> int:
+def _finish(monkeypatch: pytest.MonkeyPatch, evidence: Path, reattempted: int, inconclusive: int,
+            voided: int = 0) -> int:
+    """The session's end after REATTEMPTED tests needed another attempt on valid evidence and
+    VOIDED more after failed attempts the platform voided."""
     monkeypatch.setattr(steal, "EVIDENCE_FILE", evidence)
-    monkeypatch.setattr(steal, "_reattempted_tests", {f"t::{i}" for i in range(reattempted)})
+    valid = {f"t::{i}" for i in range(reattempted)}
+    monkeypatch.setattr(steal, "_reattempted_tests", valid | {f"t::v{i}" for i in range(voided)})
+    monkeypatch.setattr(steal, "_reattempted_on_valid", valid)
     monkeypatch.setattr(steal, "_inconclusive", [f"t::{i}: inconclusive" for i in range(inconclusive)])
     monkeypatch.setattr(steal, "_verdict", [])
+    monkeypatch.setattr(steal, "_reattempt_s", 0.0)
     session = SimpleNamespace(exitstatus=0, config=SimpleNamespace(option=SimpleNamespace(collectonly=False)))
     steal.pytest_sessionfinish(session, 0)  # type: ignore[arg-type]
     return int(session.exitstatus)
@@ -140,18 +148,43 @@ def _finish(monkeypatch: pytest.MonkeyPatch, evidence: Path, reattempted: int, i
 def test_a_run_says_how_many_tests_needed_another_attempt_and_fails_past_the_limit(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     evidence = tmp_path / "evidence.json"
-    assert _finish(monkeypatch, evidence, steal.MAX_REATTEMPTED, 0) == 0
-    assert steal._verdict == [f"timing evidence: {steal.MAX_REATTEMPTED} test(s) needed another attempt "
-                              f"(at most {steal.MAX_REATTEMPTED}), 0 inconclusive (the run before: 0)"]
+    assert _finish(monkeypatch, evidence, steal.MAX_REATTEMPTED, 0, voided=2) == 0
+    assert steal._verdict == [
+        f"timing evidence: {steal.MAX_REATTEMPTED + 2} test(s) needed another attempt, "
+        f"{steal.MAX_REATTEMPTED} of them after a failed attempt the platform did not void (at most "
+        f"{steal.MAX_REATTEMPTED}; 2 after one it voided), 0 inconclusive (the run before: 0); "
+        f"attempts again took 0 s (at most {steal.REATTEMPT_BUDGET_S:.0f})"]
     assert _finish(monkeypatch, evidence, steal.MAX_REATTEMPTED + 1, 0) == 1
     assert steal._verdict[-1].startswith(f"FAILED: more than {steal.MAX_REATTEMPTED} tests needed another")
+    # attempts the platform voided say nothing either way: any number of them
+    assert _finish(monkeypatch, evidence, 0, 0, voided=3 * steal.MAX_REATTEMPTED) == 0
+
+
+def test_a_failed_attempt_the_platform_voided_does_not_count_towards_the_limit(
+        tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch, fresh: None) -> None:
+    root = tmp_path_factory.mktemp("attempt")
+    monkeypatch.setattr(steal, "_current", _attempt(root, 0, Lateness(30.0, steal.INCONCLUSIVE_SHARE)))
+    assert steal.platform_took_the_cpus(AssertionError("late"))
+    assert steal._reattempted_tests == {"t::x"} and steal._reattempted_on_valid == set()
+    monkeypatch.setattr(steal, "_current", _attempt(root, 0, Lateness(12.0, STEAL_SHARE)))
+    assert steal.platform_took_the_cpus(AssertionError("late"))
+    assert steal._reattempted_on_valid == {"t::x"}
+
+
+def test_no_attempt_again_once_the_sessions_attempts_again_took_their_budget(
+        tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch, fresh: None) -> None:
+    root = tmp_path_factory.mktemp("attempt")
+    monkeypatch.setattr(steal, "_current", _attempt(root, 10 ** 10, Lateness(500.0, 0.5)))
+    monkeypatch.setattr(steal, "_reattempt_s", steal.REATTEMPT_BUDGET_S)
+    assert not steal.platform_took_the_cpus(AssertionError("late"))
 
 
 def test_a_test_inconclusive_in_two_runs_in_a_row_fails_the_second(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     evidence = tmp_path / "evidence.json"
     assert _finish(monkeypatch, evidence, 0, 1) == 0      # once: reported, kept in the file
-    assert json.loads(evidence.read_text()) == {"inconclusive": 1, "reattempted": 0}
+    assert json.loads(evidence.read_text()) == {"inconclusive": 1, "reattempted": 0,
+                                                "reattempted_on_valid_evidence": 0}
     assert _finish(monkeypatch, evidence, 0, 1) == 1      # again in the next run: a failure
     assert _finish(monkeypatch, evidence, 0, 0) == 0
     assert _finish(monkeypatch, evidence, 0, 1) == 0      # after a conclusive run: once again
