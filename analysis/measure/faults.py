@@ -356,17 +356,39 @@ def jam_faults(lockouts: dict[int, Lockout], system: System, origin: Mapping[int
 SKIPPING_MIN_PCT = 10.0
 
 
-def skipping_faults(processes: list[ProcessMetrics], system: System) -> list[Fault]:
+def skipping_faults(processes: list[ProcessMetrics], system: System,
+                    stall_ms: Mapping[int, float] | None = None) -> list[Fault]:
+    """A process that skips SKIPPING_MIN_PCT of its releases or more. On a DPU that is not
+    overloaded, the platform explains it when its own DPU, or the DPU of a writer it waits for,
+    was kept from running (`stall_ms`, per DPU in the window) for half the time of the
+    releases it skipped or more, as a lockout's writer's stalls explain it (stalled_writers):
+    a SERVO run on a CPU the test's browser shared (DPU 3 stalled 1.4 s of 5.5, its writer's
+    1.1 s) skipped 29 % of the Jacobian transpose's releases and read as the design's flaw."""
+    stall_ms = stall_ms or {}
     faults = []
     for p in processes:
         released = p.cycles + p.releases_skipped
         if not released or 100.0 * p.releases_skipped < SKIPPING_MIN_PCT * released:
             continue
         load = static_load_pct(system, p.dpu)
-        cause = (f"DPU {p.dpu} overloaded (static load {load:.1f} %)" if load > 100.0
-                 else f"DPU {p.dpu} keeps falling a period behind")
+        fatal = True
+        if load > 100.0:
+            cause = f"DPU {p.dpu} overloaded (static load {load:.1f} %)"
+        else:
+            cause = f"DPU {p.dpu} keeps falling a period behind"
+            proc = system.find_process(p.id)
+            waits = (proc.required or proc.inputs) if proc else ()
+            writers = [w for b in waits if (w := _writer(system, b)) is not None]
+            dpus = sorted({p.dpu, *(w.dpu for w in writers)})
+            most = max(dpus, key=lambda d: stall_ms.get(d, 0.0))
+            skipped_ms = p.releases_skipped * (proc.period_us if proc else 0) / 1000
+            if proc is not None and 2 * stall_ms.get(most, 0.0) >= skipped_ms:
+                fatal = False
+                cause += (f": DPU {most} was kept from running for {stall_ms[most]:.0f} ms meanwhile "
+                          "(stalls: the platform, not the design)")
         faults.append(Fault(
             kind="skipping", process=p.name, dpu=p.dpu, count=p.releases_skipped, static_load_pct=load,
+            fatal=fatal,
             detail=f"{p.name} skipped {p.releases_skipped} of {released} releases "
                    f"({100.0 * p.releases_skipped / released:.0f} %): it does not run at its rate; {cause}"))
     return faults

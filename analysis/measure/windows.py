@@ -235,11 +235,12 @@ def finish_window(
     buffers, chains = map_threads(lambda table: table(), [
         lambda: buffer_metrics(BufferParts.join(p.buffers for p in parts), system, skips, counted),
         lambda: chain_metrics(chain_rows, system, clock)], table_bytes(chain_rows.records, chain_rows.inputs))
+    dpus = _rows(parts, system.dpus, lambda d: d.id, lambda part: part.dpu_rows)
     return WindowReport(
         generation=generation.number,
         start_ns=min((s.start_ns for s in spans), default=None),
         end_ns=max((s.end_ns for s in spans), default=None),
-        dpus=_rows(parts, system.dpus, lambda d: d.id, lambda part: part.dpu_rows),
+        dpus=dpus,
         processes=processes,
         buffers=buffers,
         chains=chains,
@@ -248,7 +249,7 @@ def finish_window(
             + lockout_faults(locks, system, origin, platform)
             + jam_faults(locks, system, origin, platform)
             + behind_faults(behind, system, mine, clock)
-            + skipping_faults(processes, system)
+            + skipping_faults(processes, system, {d.id: d.stall_ms for d in dpus})
             + stall_faults(np.concatenate([p.stalls for p in parts]), system, origin)
             + overrun_faults(processes)
             + list(lost)

@@ -23,10 +23,13 @@ from skeleton.analysis.measure.faults import (
     jam_faults,
     lockout_faults,
     lockouts_from_status,
+    skipping_faults,
     stall_events,
     stall_faults,
 )
 from skeleton.analysis.measure.metrics import (
+    LatencyUs,
+    ProcessMetrics,
     dpu_metrics,
     first_of_frame,
     first_of_frame_at,
@@ -574,3 +577,25 @@ def test_the_first_of_a_frame_found_among_its_frames_only_is_the_one_found_among
     records["start_ns"] = rng.integers(0, 5, n)  # many ties
     rows = np.sort(rng.choice(n, int(rng.integers(0, 40)), replace=False))
     assert np.array_equal(first_of_frame_at(records, rows), first_of_frame(records)[rows])
+
+
+def test_skipping_the_stalls_of_its_dpu_or_its_writers_explain_is_the_platforms() -> None:
+    """SERVO's Jacobian transpose (DPU 3, 5 ms) reads joint_state from DPU 2: 316 releases
+    skipped are 1580 ms; a stall of half that on DPU 2 or 3 explains them, less does not."""
+    from conftest import REPO
+
+    from skeleton.host.sysfile.system import load
+
+    system = load(REPO / "examples" / "servo.yaml")
+    proc = next(p for p in system.processes if p.name == "jacobian_transpose")
+    skipping = ProcessMetrics(proc.id, proc.name, proc.dpu, proc.period_us, 784, 0, 0, LatencyUs(0, 0, 0),
+                              None, None, 0, 0, releases_skipped=316)
+
+    def fatal(stalls: dict[int, float]) -> list[bool | None]:
+        return [f.fatal for f in skipping_faults([skipping], system, stalls)]
+
+    assert fatal({}) == [True]
+    assert fatal({3: 789.0, 1: 5000.0}) == [True]      # DPU 1 writes nothing it reads
+    assert fatal({2: 790.0}) == [False]                  # its writer's DPU
+    (fault,) = skipping_faults([skipping], system, {3: 1401.7, 2: 1135.7})
+    assert "DPU 3 was kept from running for 1402 ms meanwhile (stalls: the platform" in fault.detail
