@@ -378,11 +378,9 @@ def skipping_faults(processes: list[ProcessMetrics], system: System,
             cause = f"DPU {p.dpu} keeps falling a period behind"
             proc = system.find_process(p.id)
             waits = (proc.required or proc.inputs) if proc else ()
-            writers = [w for b in waits if (w := _writer(system, b)) is not None]
-            dpus = sorted({p.dpu, *(w.dpu for w in writers)})
-            most = max(dpus, key=lambda d: stall_ms.get(d, 0.0))
-            skipped_ms = p.releases_skipped * (proc.period_us if proc else 0) / 1000
-            if proc is not None and 2 * stall_ms.get(most, 0.0) >= skipped_ms:
+            dpus = {p.dpu, *(w.dpu for b in waits if (w := _writer(system, b)) is not None)}
+            most = max(sorted(dpus), key=lambda d: stall_ms.get(d, 0.0))
+            if 2 * stall_ms.get(most, 0.0) >= p.releases_skipped * p.period_us / 1000:
                 fatal = False
                 cause += (f": DPU {most} was kept from running for {stall_ms[most]:.0f} ms meanwhile "
                           "(stalls: the platform, not the design)")
