@@ -209,6 +209,60 @@ def stalled_writers(lockouts: Mapping[int, Lockout], records: np.ndarray, system
     return out
 
 
+def stall_backlog_ns(at_ns: np.ndarray, stall_ns: np.ndarray, until_ns: int, load_pct: float) -> int:
+    """The stalls a DPU had not made up by `until_ns`: each stall (`stall_ns`, at `at_ns`, in time
+    order) adds to a backlog that its spare time, 100 - `load_pct` % of each ns, pays off."""
+    spare = max(0.0, 1.0 - load_pct / 100.0)
+    backlog, last = 0.0, None
+    for at, stall in zip(at_ns.tolist(), stall_ns.tolist(), strict=True):
+        if at > until_ns:
+            break
+        if last is not None:
+            backlog = max(0.0, backlog - spare * (at - last))
+        backlog, last = backlog + stall, at
+    if last is not None:
+        backlog = max(0.0, backlog - spare * (until_ns - last))
+    return int(backlog)
+
+
+def stalled_dpus(lockouts: Mapping[int, Lockout], stalls: np.ndarray, system: System) -> dict[int, str]:
+    """Per locked-out process its DPU could not run (not waiting for data), why the platform
+    explains it, when it does: on a DPU that is not overloaded, the stalls it had not made up by
+    the locked cycle's limit (stall_backlog_ns, from `stalls`: the run's records with a stall)
+    hold the process off for half the lockout window or more. On the cyclic executive that is
+    the backlog itself (each frame starts that late). On the tasking executive a process runs
+    only in the time its priority's and the higher ones' load leave spare, so it waits the
+    backlog over that spare share; every thread that ran or was ready records a stop of its DPU,
+    so the longest-stalled thread's backlog is taken. SERVO's 96.5 %-loaded DPU 4 (tasking)
+    makes up 3.5 % of its time: 20 ms of stalls held jacobian_update off for 330 ms, and a CI
+    run's lockout of it read as the design's flaw."""
+    out = {}
+    for proc, lock in lockouts.items():
+        p = system.find_process(proc)
+        if (p is None or lock.buffer is not None or lock.behind is not None or not lock.known_wait
+                or lock.release_ns is None):
+            continue
+        load = static_load_pct(system, p.dpu)
+        if load > 100.0:
+            continue
+        tasking = next((d.executive == "threads" for d in system.dpus if d.id == p.dpu), False)
+        window = int(system.run.lockout_cycles) * p.period_us * 1000
+        mine = stalls[stalls["dpu"] == p.dpu]
+        mine = mine[np.argsort(mine["release_ns"], kind="stable")]
+        series = ([mine[mine["process"] == q] for q in np.unique(mine["process"]).tolist()] if tasking
+                  else [mine])
+        limit = lock.release_ns + window
+        backlog = max((stall_backlog_ns(s["release_ns"], s["stall_ns"], limit, load) for s in series),
+                      default=0)
+        level = static_load_pct(system, p.dpu, p.priority) if tasking else 0.0
+        held = backlog / max(1.0 - level / 100.0, 1e-3)
+        if 2 * held >= window:
+            out[proc] = (f"its DPU {p.dpu} had {backlog / 1e6:.1f} ms of stalls still to make up by then, "
+                         f"which hold it off {held / 1e6:.0f} ms (static load {load:.1f} %; stalls: the "
+                         "platform, not the design)")
+    return out
+
+
 def lockout_faults(lockouts: dict[int, Lockout], system: System, origin: Mapping[int, int] | None = None,
                    explained: Mapping[int, str] | None = None) -> list[Fault]:
     """One fault per locked-out process, naming its cycle and, with `origin`
@@ -294,7 +348,8 @@ def jam_faults(lockouts: dict[int, Lockout], system: System, origin: Mapping[int
     DPU is overloaded), a writer that is not locked out, or a circular wait. It names
     the head's cycle, and its at_s is when that cycle's limit passed (lockout_at_s). A
     writer not locked out whose reader's lockout the platform `explained` (stalled_writers)
-    is the platform's jam, not the design's."""
+    is the platform's jam, not the design's, and so is one whose root its own DPU's stalls locked
+    out (stalled_dpus)."""
     explained = explained or {}
     holders = {p: _holder(p, lockouts, system) for p in lockouts}
 
@@ -331,7 +386,8 @@ def jam_faults(lockouts: dict[int, Lockout], system: System, origin: Mapping[int
             root_dpu = _dpu(system, root)
             load = static_load_pct(system, -1 if root_dpu is None else root_dpu)
             who = _pname(system, root, None)
-            cause = f"DPU {root_dpu} overloaded (static load {load:.1f} %): {who} can't run"
+            cause = (f"{who} is locked out: {explained[root]}" if root in explained
+                     else f"DPU {root_dpu} overloaded (static load {load:.1f} %): {who} can't run")
         hold = holders[head]
         where = _where(head, Lockout(head, hold.buffer, lockouts[head].cycle), system)
         where["writer"] = _pname(system, hold.process)
@@ -344,7 +400,7 @@ def jam_faults(lockouts: dict[int, Lockout], system: System, origin: Mapping[int
                 static_load_pct=load,
                 root_dpu=_dpu(system, root),
                 at_s=lockout_at_s(lockouts[head], system, _dpu(system, head), origin or {}),
-                fatal=not (w is not None and w not in chain and root in explained),
+                fatal=not (root in explained and (w is None or w not in chain)),
             )
         )
     return faults

@@ -209,12 +209,14 @@ def cycle_end_ns(records: np.ndarray) -> np.ndarray:
     )
 
 
-def static_load_pct(system: System, dpu_id: int) -> float:
-    """Configured load of a DPU: 100 * sum(compute_us / period_us) of its processes.
+def static_load_pct(system: System, dpu_id: int, priority: int = 0) -> float:
+    """Configured load of a DPU: 100 * sum(compute_us / period_us) of its processes (with
+    `priority`: of those at that priority and above, on the tasking executive).
 
     Compute is divided by the DPU's speed factor, as the emulation divides it."""
     speed = next((d.speed for d in system.dpus if d.id == dpu_id), 1.0) or 1.0
-    load = sum(p.compute_us / p.period_us for p in system.processes if p.dpu == dpu_id and p.period_us > 0)
+    load = sum(p.compute_us / p.period_us for p in system.processes
+               if p.dpu == dpu_id and p.period_us > 0 and p.priority >= priority)
     return 100.0 * load / speed
 
 

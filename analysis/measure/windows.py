@@ -42,6 +42,7 @@ from .faults import (
     skipping_faults,
     stall_events,
     stall_faults,
+    stalled_dpus,
     stalled_writers,
 )
 from .latency import NO_OFFSETS, BufferMetrics, BufferParts, ClockOffsets, buffer_metrics, buffer_parts
@@ -221,8 +222,8 @@ def finish_window(
     # What the timing records flagged and no status_t said (lockouts_from_records' rule).
     locks = {**lockouts, **{proc: lock for proc, lock in sorted(flagged.items()) if proc not in lockouts}}
     delivered, locks = delivery_faults(system, Deliveries.join(p.deliveries for p in parts), locks)
-    # what the writers' stalls explain: the whole run's records hold a writer's DPU's cycles
-    platform = stalled_writers(locks, stalls, system, clock)
+    # what the stalls explain, the writers' or the DPU's own: the whole run's records hold them
+    platform = {**stalled_writers(locks, stalls, system, clock), **stalled_dpus(locks, stalls, system)}
     mine = stalls[stalls["generation"] == generation.number]
     behind = sorted((b for part in parts for b in part.behind), key=lambda b: b.dpu)
     spans = [part.span for part in parts if part.span.start_ns is not None]

@@ -52,8 +52,8 @@ class Heard:
         self.thread.join(5)
 
 
-# timing: how many cycles find a new input, and how many messages a listener hears, are the
-# platform's (the CI run of 544eccd: 18 stalls of 2-12 ms in its 1.5 s); the sums are exact.
+# timing: how many cycles complete, and how many messages a listener hears, are the platform's
+# (the CI run of 544eccd: 18 stalls of 2-12 ms in its 1.5 s); the sums and their order are exact.
 @pytest.mark.timing
 def test_the_reader_receives_the_sum_of_the_bytes_the_writer_sent(tmp_path: Path, url: str,
                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
@@ -85,7 +85,11 @@ def test_the_reader_receives_the_sum_of_the_bytes_the_writer_sent(tmp_path: Path
         checked += 1
         mismatched += value != sum((7 * seq + 3 * i) & 0xFF for i in range(64))
     assert mismatched == 0 and checked >= 0.9 * CYCLES, (mismatched, checked)
-    assert used == sorted(used) and len(set(used)) >= 0.9 * CYCLES  # a new input summed every cycle
+    # summer is sync: data: each sum is of a new cycle's samples, never of the same one twice
+    # (it read whichever came last before, and under stalls summed a cycle twice: 17 of 150 on
+    # the CI run of ba363d9)
+    assert all(a < b for a, b in zip(used, used[1:])), used
+    assert len(used) >= 0.9 * CYCLES, len(used)
     report = json.loads((out / "report.json").read_text())
     by_name = {p["name"]: p for p in report["processes"]}
     assert by_name["summer"]["cycles"] > 0 and by_name["logger"]["cycles"] > 0

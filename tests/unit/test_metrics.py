@@ -11,6 +11,7 @@ import pytest
 from analysis_synth import MS, RUN_ID, US, Rec, batches, small_config, small_run, status
 
 import skelmsg
+from skeleton.analysis.measure import faults as faults_module
 from skeleton.analysis.measure import metrics
 from skeleton.analysis.measure.faults import (
     Fault,
@@ -599,3 +600,46 @@ def test_skipping_the_stalls_of_its_dpu_or_its_writers_explain_is_the_platforms(
     assert fatal({2: 790.0}) == [False]                  # its writer's DPU
     (fault,) = skipping_faults([skipping], system, {3: 1401.7, 2: 1135.7})
     assert "DPU 3 was kept from running for 1402 ms meanwhile (stalls: the platform" in fault.detail
+
+
+def test_the_stall_backlog_is_what_the_spare_time_has_not_paid_off() -> None:
+    """At 90 % load a DPU pays off 0.1 ns a ns: 10 ms of stalls at 0 owe 5 ms at 50 ms, none
+    at 100 ms; a second stall adds to what is still owed; a stall after the limit is not counted."""
+    at, stall = np.array([0, 50 * MS, 200 * MS]), np.array([10 * MS, 4 * MS, 99 * MS])
+    assert faults_module.stall_backlog_ns(at[:1], stall[:1], 50 * MS, 90.0) == 5 * MS
+    assert faults_module.stall_backlog_ns(at[:1], stall[:1], 100 * MS, 90.0) == 0
+    assert faults_module.stall_backlog_ns(at, stall, 60 * MS, 90.0) == 8 * MS
+    assert faults_module.stall_backlog_ns(at[:0], stall[:0], 60 * MS, 90.0) == 0
+
+
+def test_a_lockout_the_stalls_its_dpu_had_not_made_up_explain_is_the_platforms() -> None:
+    """SERVO on the tasking executive: jacobian_update (DPU 4, 96.5 %, lowest priority, 23.8 ms,
+    lockout window 238 ms) runs in the 3.5 % the others leave spare: 20 ms of stalls 10 ms before
+    its release still owe 11.3 ms at its limit, which hold it off 323 ms; 3 ms of them owe none.
+    On the cyclic executive what is owed is how late each frame starts: 11.3 ms, under half the
+    window."""
+    from conftest import REPO
+
+    from skeleton.analysis.measure.faults import Lockout, stalled_dpus
+    from skeleton.host.sysfile.system import load
+
+    def explained(name: str, stalls_ms: list[float]) -> dict[int, str]:
+        system = load(REPO / "examples" / name)
+        proc = next(p for p in system.processes if p.name == "jacobian_update")
+        release = 1000 * MS
+        records = np.zeros(len(stalls_ms) + 1, dtype=RECORD_DTYPE)
+        records["dpu"] = proc.dpu
+        records["process"][:-1] = next(p.id for p in system.processes if p.name == "dynamics")
+        records["process"][-1] = proc.id
+        records["release_ns"][:-1] = release - 10 * MS
+        records["stall_ns"][:-1] = [int(ms * MS) for ms in stalls_ms]
+        records["release_ns"][-1], records["stall_ns"][-1] = release, 0
+        lock = Lockout(proc.id, None, 10, release_ns=release)
+        return stalled_dpus({proc.id: lock}, records, system)
+
+    (why,) = explained("servo-tasking.yaml", [12.0, 8.0]).values()
+    assert "had 11.3 ms of stalls still to make up by then, which hold it off 323 ms" in why
+    assert "static load 96.5 %" in why
+    assert explained("servo-tasking.yaml", [3.0]) == {}
+    assert explained("servo.yaml", [12.0, 8.0]) == {}
+    assert explained("servo.yaml", [120.0, 60.0]) != {}    # half the window still owed at its limit
