@@ -40,7 +40,7 @@ C_TESTS := $(patsubst tests/c/%.c,$(BUILD)/asan/%,$(wildcard tests/c/test_*.c))
 
 .PHONY: all demo test test-c test-py test-tools test-fuzz fuzz fuzz-tools lint docs bench soak spy clean distclean
 
-all: $(BUILD)/skel-dpu $(BUILD)/examples/libsum.so
+all: $(BUILD)/skel-dpu $(BUILD)/examples/libsum.so $(BUILD)/examples/libarm.so
 
 # --- set-up --------------------------------------------------------------------
 # Debian splits venv support and liblcm needs glib: install them when we may (root, CI),
@@ -143,6 +143,12 @@ $(BUILD)/examples/libsum.so: examples/code/sum.c include/skel_step.h
 	$(call say,CC    $@)
 	$(Q)$(CC) $(WARN) $(CFLAGS) -fPIC -shared -Iinclude -o $@ $<
 
+# SERVO's kinematics as real code (examples/code/arm.c, examples/servo-code.yaml).
+$(BUILD)/examples/libarm.so: examples/code/arm.c include/skel_step.h
+	@mkdir -p $(@D)
+	$(call say,CC    $@)
+	$(Q)$(CC) $(WARN) $(CFLAGS) -fPIC -shared -Iinclude -o $@ $< -lm
+
 # test_code loads the example library.
 $(BUILD)/asan/test_code: $(BUILD)/examples/libsum.so
 
@@ -166,7 +172,7 @@ test: test-c test-fuzz test-py
 test-c: $(C_TESTS)
 	@set -e; for t in $(C_TESTS); do echo "== $$t"; $$t; done
 
-test-py: $(BUILD)/skel-dpu $(BUILD)/asan/skel-dpu $(BUILD)/examples/libsum.so $(BUILD)/flood $(BUILD)/probe $(STAMP) test-tools
+test-py: $(BUILD)/skel-dpu $(BUILD)/asan/skel-dpu $(BUILD)/examples/libsum.so $(BUILD)/examples/libarm.so $(BUILD)/flood $(BUILD)/probe $(STAMP) test-tools
 	$(VENV)/bin/pytest -q -rfEs --durations=15 $(PYTEST_ARGS)
 
 # The multi-host tests (network namespaces, root only) run ip, and nft to lose packets; the

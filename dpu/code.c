@@ -112,20 +112,48 @@ static int code_open(skel_code_t *code, const skelmsg_process_t *src, const char
     return 0;
 }
 
+/* The guard bytes before and after each output: what a step wrote there, it wrote past
+ * the output (a byte may happen to be written with the guard's own value, so a write is
+ * caught unless every byte it touched kept it). */
+static uint8_t code_guard_byte(size_t i) { return (uint8_t)(0x5A ^ (i * 37)); }
+
+static void code_guard_fill(uint8_t *at)
+{
+    for (size_t i = 0; i < SKEL_CODE_GUARD; i++) at[i] = code_guard_byte(i);
+}
+
+/* Did the step write into a guard? Each guard is restored for the next cycle. */
+static int code_guards_broken(skel_code_t *code, int noutputs)
+{
+    int broken = 0;
+    for (int q = 0; q <= noutputs; q++) {
+        uint8_t *g = code->guards[q];
+        for (size_t i = 0; i < SKEL_CODE_GUARD; i++) broken |= g[i] != code_guard_byte(i);
+        if (broken) code_guard_fill(g);
+    }
+    return broken;
+}
+
 /* The step's views of P's inputs and outputs: outputs over one allocation of their
- * declared sizes, inputs over their slots, which keep the bytes from now on. */
+ * declared sizes, a guard before, between and after them (code_guards_broken), inputs
+ * over their slots, which keep the bytes from now on. */
 static int code_views(skel_plan_t *plan, skel_process_t *p, const skelmsg_config_t *cfg)
 {
     skel_code_t *code = p->code;
-    size_t total = 1;
-    for (int q = 0; q < p->noutputs; q++) total += (size_t)p->outputs[q].bytes;
+    size_t total = SKEL_CODE_GUARD;
+    for (int q = 0; q < p->noutputs; q++) total += (size_t)p->outputs[q].bytes + SKEL_CODE_GUARD;
     code->out_bytes = calloc(1, total);
     if (code->out_bytes == NULL) return -1;
-    size_t at = 0;
+    code->guards[0] = code->out_bytes;
+    code_guard_fill(code->guards[0]);
+    size_t at = SKEL_CODE_GUARD;
     for (int q = 0; q < p->noutputs; q++) {
         code->out[q] = (skel_step_output_t){ p->outputs[q].buffer, p->outputs[q].bytes, p->outputs[q].bytes,
                                              code->out_bytes + at };
         at += (size_t)p->outputs[q].bytes;
+        code->guards[q + 1] = code->out_bytes + at;
+        code_guard_fill(code->guards[q + 1]);
+        at += SKEL_CODE_GUARD;
     }
     for (int q = 0; q < p->ninputs; q++) {
         skel_slot_t *slot = &plan->slots[p->inputs[q].slot];
@@ -250,12 +278,17 @@ int64_t code_step(skel_plan_t *plan, skel_process_t *p, const skel_rec_t *rec, i
     int rc = code->step(&step);
     int64_t took = clock_mono_ns() - t0;
     code_running = NULL;
-    code->failed = rc != 0;
+    int overlong = 0;
     for (int q = 0; q < p->noutputs; q++)
-        if (code->out[q].nbytes < 0 || code->out[q].nbytes > code->out[q].capacity) code->failed = 1;
+        overlong |= code->out[q].nbytes < 0 || code->out[q].nbytes > code->out[q].capacity;
+    int past = code_guards_broken(code, p->noutputs);
+    code->failed = rc != 0 || overlong || past;
     if (code->failed && code->faults++ == 0)
         log_line("DPU %d: process %s: its step failed at cycle %lld (%s): that cycle's outputs are not sent",
-                 plan->dpu, code->name, (long long)k, rc != 0 ? "it returned an error" : "an output longer than declared");
+                 plan->dpu, code->name, (long long)k,
+                 rc != 0 ? "it returned an error"
+                 : past  ? "it wrote past an output's declared bytes"
+                         : "an output longer than declared");
     return took;
 }
 

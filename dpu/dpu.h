@@ -441,6 +441,7 @@ typedef struct {
 } skel_job_t;
 
 /* ---- code (code.c): real application code in place of the emulated computation -- */
+#define SKEL_CODE_GUARD 64     /* bytes before and after each output a step's stray write lands in */
 typedef struct {
     void *handle;              /* dlopen's, at config apply time (control thread) */
     skel_step_fn step;
@@ -451,7 +452,8 @@ typedef struct {
     char name[SKEL_MAX_NAME + 1];
     skel_step_input_t in[SKEL_MAX_IO];
     skel_step_output_t out[SKEL_MAX_IO];
-    uint8_t *out_bytes;        /* every output's bytes, one allocation */
+    uint8_t *out_bytes;        /* every output's bytes, one allocation, guards between */
+    uint8_t *guards[SKEL_MAX_IO + 1]; /* before the first output, after each (code.c) */
     int failed;                /* this cycle's step failed: its outputs are not published */
     int64_t faults;            /* steps that failed this run */
 } skel_code_t;

@@ -479,15 +479,17 @@ _IN_RUN = (skelmsg.status_t.STATE_ARMED, skelmsg.status_t.STATE_RUNNING)
 
 
 def code_faults(system: System, reports: Iterable[Any]) -> list[Fault]:
-    """A process whose real code failed steps (report_t's code_faults: it returned an error, or
-    said it wrote more than an output holds): those cycles sent none of its outputs."""
+    """A process whose real code failed steps (report_t's code_faults: it returned an error, said
+    it wrote more than an output holds, or wrote past an output): those cycles sent none of its
+    outputs."""
     out = []
     for report in reports:
         for p in report.processes:
             if p.code_faults > 0:
                 name = system.process(p.process).name
-                detail = (f"its step failed in {p.code_faults} cycle(s) (an error returned, or an output "
-                          "longer than declared): those cycles sent no output")
+                detail = (f"its step failed in {p.code_faults} cycle(s) (an error returned, an output "
+                          "longer than declared, or bytes written past an output): those cycles sent no "
+                          "output")
                 out.append(Fault(kind="code", process=name, dpu=report.dpu, count=p.code_faults, fatal=True,
                                  detail=detail))
     return out

@@ -42,6 +42,8 @@ PLATFORM = "the platform's own cost (communication, wake-up, interference)"
 # A simulated run has no platform: what it puts outside the prediction is the prediction's own.
 SIMPLIFIED = "the prediction's own simplifications (a simulated run has no platform)"
 WORST = "the predicted worst"
+# A process running real code computes what its code takes, not the compute_us the prediction assumes.
+REAL_CODE = "the real code's own compute times, not the compute_us the prediction assumes"
 # The prediction counts a link's emulated loss, not what it does to a data reader's wait.
 LOSSES = "or the links' emulated losses (a data reader waits on for the buffer after a lost one)"
 

@@ -36,7 +36,7 @@ from ..read.seal import KeyFileError, authenticate
 from .columns import Table, faults_table, process_names, receptions_table, report_tables, timing_table
 from .faults import HEARTBEAT_FIELDS, Heartbeats, heartbeats
 from .latency import ClockOffsets
-from .predicted import PLATFORM, SIMPLIFIED, Predictor, beside
+from .predicted import PLATFORM, REAL_CODE, SIMPLIFIED, Predictor, beside
 from .report import RunPart, RunReport, finish_report, holds_its_processes, report_generations, run_part
 from .simulated import simulation_beside
 from .windows import Generation, window_records
@@ -153,6 +153,9 @@ class RunAnalysis:
                                rep.chains, rep.faults, rep.buffers)
         if rep.simulated and rep.predicted.cause.startswith(PLATFORM):
             rep.predicted.cause = SIMPLIFIED + rep.predicted.cause[len(PLATFORM):]
+        coded = [p.name for p in system.processes if p.code is not None]
+        if coded:  # the prediction assumes their compute_us; the run measured their code
+            rep.predicted.cause += f"; {REAL_CODE} ({', '.join(coded)})"
         return None
 
     def add_simulation(self, simulated: RunReport, where: str) -> None:

@@ -143,7 +143,8 @@ def platform_summary(simulation: Simulation) -> list[str]:
             continue
         others = ", ".join(f"{kind} {signed(points, 1)}" for kind, points in d.costs.items()
                            if kind != d.named)
-        lines.append(f"DPU {d.id}: {d.named} {signed(d.cost_points, 1)} points ({others})")
+        lines.append(f"DPU {d.id}: {d.named} {signed(d.cost_points, 1)} points"
+                     + (f" ({others})" if others else ""))
     return lines
 
 

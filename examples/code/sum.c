@@ -63,3 +63,15 @@ int sum_overlong(skel_step_t *step)
     if (step->noutputs > 0) step->outputs[0].nbytes = step->outputs[0].capacity + 1;
     return 0;
 }
+
+/* A faulty step for the tests: it writes 8 bytes past its output's end, and says it wrote the
+ * output's size. */
+int sum_past_end(skel_step_t *step)
+{
+    if (step->noutputs > 0) {
+        skel_step_output_t *out = &step->outputs[0];
+        for (int32_t i = 0; i < out->capacity + 8; i++) out->bytes[i] = 0xEE;
+        out->nbytes = out->capacity;
+    }
+    return 0;
+}

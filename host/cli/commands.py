@@ -36,7 +36,7 @@ from ..live.wire import config_message
 from ..sysfile.system import SystemFileError, load, with_url
 from ..theory.predict import deadlocks
 
-UNKEYED = ("check", "keygen")  # commands that neither talk to DPUs nor read a run
+UNKEYED = ("check", "keygen", "calibrate")  # commands that neither talk to DPUs nor judge a run's seal
 LISTEN_LIMIT_S = 5.0  # `skel status`/`skel clock` listen at most this long by default
 
 # Set once the command has returned: a signal that arrives while the interpreter shuts
@@ -184,6 +184,9 @@ def build_parser() -> argparse.ArgumentParser:
     _system_args(add_margin(sub))
     from .allocate_cmd import add_parser  # ortools loads only for `skel allocate`
     _system_args(add_parser(sub))
+    from .calibrate_cmd import add_parser as add_calibrate
+
+    add_calibrate(sub)
 
     p = sub.add_parser("console", help="serve the operator's web page: the system drawn, edits predicted, "
                                        "pushed and run, runs compared (prints its URL with a token)")
@@ -556,6 +559,12 @@ def cmd_allocate(args: argparse.Namespace) -> int:
     return allocate_command(args)
 
 
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from .calibrate_cmd import calibrate_command
+
+    return calibrate_command(args)
+
+
 def cmd_console(args: argparse.Namespace) -> int:
     from ..console.serve import console_command  # starlette and uvicorn load only for the console
 
@@ -607,5 +616,5 @@ COMMANDS = {"check": cmd_check, "up": cmd_up, "down": cmd_down, "push": cmd_push
             "status": cmd_status, "clock": cmd_clock, "report": cmd_report, "diff": cmd_diff,
             "export": cmd_export, "watch": cmd_watch, "doctor": cmd_doctor, "event": cmd_event,
             "allocate": cmd_allocate, "margin": cmd_margin, "keygen": cmd_keygen,
-            "console": cmd_console}
+            "console": cmd_console, "calibrate": cmd_calibrate}
 

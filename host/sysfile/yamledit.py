@@ -32,6 +32,22 @@ def set_key(text: str, mapping: yaml.MappingNode, key: str, new: str) -> Edit:
     return at, at, f"\n{' ' * mapping.value[0][0].start_mark.column}{key}: {new}"
 
 
+def remove_key(text: str, mapping: yaml.MappingNode, key: str) -> Edit | None:
+    """Take KEY and its value out of the mapping, with what joined it to its neighbours (a flow
+    mapping's comma, a block mapping's line); None when the mapping has no KEY."""
+    pairs = mapping.value
+    at = next((i for i, (k, _) in enumerate(pairs) if k.value == key), None)
+    if at is None:
+        return None
+    name, found = pairs[at]
+    if at == 0:
+        end = pairs[1][0].start_mark.index if len(pairs) > 1 else _end(text, found)
+        return name.start_mark.index, end, ""
+    if mapping.flow_style:
+        return _end(text, pairs[at - 1][1]), _end(text, found), ""
+    return text.rfind("\n", 0, name.start_mark.index), _line_end(text, _end(text, found)), ""
+
+
 def append_item(text: str, sequence: yaml.SequenceNode, item: str) -> Edit:
     """Add ITEM (flow YAML, one line) after the sequence's last item."""
     last = sequence.value[-1]
@@ -79,6 +95,12 @@ def with_overrides(text: str, overrides: list[str]) -> str:
         holder, key = node
         text = apply(text, [set_key(text, holder, key, raw.strip())])
     return text
+
+
+def process_item(top: yaml.MappingNode, name: str) -> yaml.MappingNode | None:
+    """The mapping of the process named NAME (or of id NAME), when the file spells one out."""
+    found = _holder(top, ["process", name, "name"])
+    return found[0] if found is not None else None
 
 
 def _holder(top: yaml.MappingNode, parts: list[str]) -> tuple[yaml.MappingNode, str] | None:

@@ -114,20 +114,26 @@ static void test_step(void)
     CHECK_EQ(p->code->started, 0);
     plan_free(plan);
 
-    fixture_code(&f, "sum_overlong");
-    plan = plan_build(&f.cfg, 1, reason, sizeof reason);
-    CHECK(plan != NULL);
-    if (plan == NULL) return;
-    CHECK_EQ(code_load(plan, &f.cfg, examples, 1, reason, sizeof reason), 0);
-    p = &plan->processes[plan_process_index(plan, 2)];
-    plan_reset_run(plan, 9);
-    CHECK_EQ(code_begin(plan, reason, sizeof reason), 0);
-    (void)step_once(plan, p, 1, payload);
-    (void)step_once(plan, p, 2, payload);
-    CHECK_EQ(p->code->failed, 1);
-    CHECK_EQ(p->code->faults, 2);
-    code_end(plan);
-    plan_free(plan);
+    /* A step that says it wrote more than its output holds, and one that writes past its
+     * output's end (into the guard after it) saying it did not: each cycle of either fails,
+     * the guard restored in between (the second cycle is caught too). */
+    const char *faulty[] = { "sum_overlong", "sum_past_end" };
+    for (size_t i = 0; i < sizeof faulty / sizeof *faulty; i++) {
+        fixture_code(&f, faulty[i]);
+        plan = plan_build(&f.cfg, 1, reason, sizeof reason);
+        CHECK(plan != NULL);
+        if (plan == NULL) return;
+        CHECK_EQ(code_load(plan, &f.cfg, examples, 1, reason, sizeof reason), 0);
+        p = &plan->processes[plan_process_index(plan, 2)];
+        plan_reset_run(plan, 9);
+        CHECK_EQ(code_begin(plan, reason, sizeof reason), 0);
+        (void)step_once(plan, p, 1, payload);
+        (void)step_once(plan, p, 2, payload);
+        CHECK_EQ(p->code->failed, 1);
+        CHECK_EQ(p->code->faults, 2);
+        code_end(plan);
+        plan_free(plan);
+    }
 }
 
 int main(void)
