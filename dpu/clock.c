@@ -141,6 +141,11 @@ int clock_handle(lcm_t *lcm)
     return clock_world != NULL ? clock_world->handle(clock_world->ctx, lcm) : lcm_handle_timeout(lcm, 0);
 }
 
+void clock_poke(void)
+{
+    clock_world->poke(clock_world->ctx);
+}
+
 int clock_wait(lcm_t *const *lcms, int n, int64_t timeout_ns)
 {
     return clock_world->wait(clock_world->ctx, lcms, n, timeout_ns);

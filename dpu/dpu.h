@@ -115,10 +115,12 @@ typedef struct {
     int (*wait)(void *ctx, lcm_t *const *lcms, int n, int64_t timeout_ns);
     int (*spawn)(void *ctx, int *fiber, void *(*fn)(void *), void *arg);
     int (*join)(void *ctx, int fiber);
+    void (*poke)(void *ctx);   /* the current DPU's waiting fibers wake now (server_wake's eventfd) */
 } clock_world_t;
 
 void clock_simulate(const clock_world_t *world); /* before anything runs; NULL: the machine */
 int clock_simulated(void);
+void clock_poke(void); /* simulated: the current DPU's waits wake now, as server_wake's eventfd does */
 
 /* ---- wire (wire.c): every received message is checked before it is decoded ---- */
 typedef struct {

@@ -461,6 +461,19 @@ static int sim_wait(void *ctx, lcm_t *const *lcms, int n, int64_t timeout_ns)
     return f->woke_by_message;
 }
 
+/* What a write to a DPU's wake eventfd does on the machine: the fibers of the DPU whose
+ * control is at work wake from their waits now, and find what changed (a COMMIT's switch). */
+static void sim_poke(void *ctx)
+{
+    sim_t *sim = ctx;
+    for (int f = 0; f < sim->nfibers; f++) {
+        sim_fiber_t *fb = &sim->fibers[f];
+        if (fb->state != FIBER_WAITING || fb->dpu != sim->cur_dpu) continue;
+        fb->state = FIBER_ASLEEP;
+        sim_wake(sim, f, sim->now);
+    }
+}
+
 static int sim_spawn(void *ctx, int *fiber, void *(*fn)(void *), void *arg)
 {
     sim_t *sim = ctx;
@@ -663,7 +676,7 @@ int sim_main(const char *input, const char *output, const char *url)
     static const clock_world_t world = { .now = sim_now, .nap = sim_nap, .open = sim_open,
                                          .close = sim_close, .subscribe = sim_subscribe,
                                          .publish = sim_publish, .handle = sim_handle, .wait = sim_wait,
-                                         .spawn = sim_spawn, .join = sim_join };
+                                         .spawn = sim_spawn, .join = sim_join, .poke = sim_poke };
     clock_world_t w = world;
     w.ctx = &sim;
     w.utc_offset_ns = sim.utc_offset_ns;
