@@ -153,9 +153,11 @@ class RunAnalysis:
                                rep.chains, rep.faults, rep.buffers)
         if rep.simulated and rep.predicted.cause.startswith(PLATFORM):
             rep.predicted.cause = SIMPLIFIED + rep.predicted.cause[len(PLATFORM):]
-        coded = [p.name for p in system.processes if p.code is not None]
+        measured = {p.name: p.compute_mean_us for p in rep.processes}
+        coded = [f"{p.name}: {_us(measured.get(p.name))} a call, {p.compute_us:g} µs assumed"
+                 for p in system.processes if p.code is not None]
         if coded:  # the prediction assumes their compute_us; the run measured their code
-            rep.predicted.cause += f"; {REAL_CODE} ({', '.join(coded)})"
+            rep.predicted.cause += f"; {REAL_CODE} ({'; '.join(coded)})"
         return None
 
     def add_simulation(self, simulated: RunReport, where: str) -> None:
@@ -351,3 +353,7 @@ def _offsets_from_batches(log: Log, run: RunRecords, dpus: set[int], heads: Head
         if bounds:
             out[dpu] = min(bounds)
     return out
+
+
+def _us(value: float | None) -> str:
+    return "not measured" if value is None else f"{value:.1f} µs"

@@ -246,7 +246,9 @@ class RunFollower:
         self.platform_lines = 0          # stalls and platform lateness heard (LIVE_PLATFORM_LINES said)
 
     def poll(self, dpu_ids: list[int], running: bool = True) -> None:
-        for fault in self.control.new_faults(running):
+        # A stall first: the DPUs behind their schedule a search finds with it are its consequence,
+        # and the few platform lines said live must name the cause.
+        for fault in sorted(self.control.new_faults(running), key=lambda f: f.kind != "stall"):
             if fault.kind not in LIVE_KINDS:
                 continue
             if fault.kind in self.system.run.stop_on:

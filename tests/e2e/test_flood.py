@@ -16,6 +16,8 @@ from pathlib import Path
 import pytest
 from conftest import REPO
 
+from skeleton.host.sysfile.system import load
+
 sys.path.insert(0, str(REPO / "bench"))
 from flood import FLOOD, flood_servo
 
@@ -24,6 +26,17 @@ pytestmark = pytest.mark.timing  # judges the DPUs' timing: tests/steal.py
 FLOOD_RATE = int(os.environ.get("SKEL_FLOOD_RATE", "2000"))
 SECONDS = 10
 COMPUTE_POINTS = 2.0  # % compute per DPU within this of the clean run
+
+
+_SERVO = load(REPO / "examples" / "servo.yaml")
+# what each process waits for (its required inputs, else all), and on which DPU each buffer's writer runs
+READS = {p.name: [_SERVO.buffer(b).name for b in (p.required or p.inputs)] for p in _SERVO.processes}
+WRITER_DPU = {b.name: _SERVO.find_process(b.writer).dpu for b in _SERVO.buffers}
+
+
+def _stall_ms(report: dict, dpus: set[int]) -> float:
+    """The most time any of `dpus` was kept from running in a run (the report's stall_ms)."""
+    return max(d["stall_ms"] for d in report["dpus"] if d["id"] in dpus)
 
 
 @pytest.mark.skipif(not FLOOD.exists(), reason="build/flood missing: run `make test` (it builds it)")
@@ -47,4 +60,11 @@ def test_servo_survives_a_flood_and_counts_every_hostile_message(tmp_path: Path,
         c = before[p["name"]]
         releases = c["cycles"] + c["releases_skipped"]
         assert abs(p["cycles"] + p["releases_skipped"] - releases) <= max(2, releases // 100), (p, c)
-        assert p["releases_skipped"] <= c["releases_skipped"] + max(2, releases // 100), (p, c)
+        # More skipped than in the clean run only as far as its DPU, or a writer's it waits on, lost
+        # more time to stalls (the analysis's own rule for skipping: faults.skipping_faults): on a
+        # CI at 3 % steal the flooded run's DPU 3 was kept from running 4666 ms of 15.5 s and
+        # jacobian_transpose skipped 339 releases, against 265 in the clean run.
+        waits = {p["dpu"], *(WRITER_DPU[b] for b in READS.get(p["name"], ()))}
+        extra_stall_ms = max(0.0, _stall_ms(flooded, waits) - _stall_ms(clean, waits))
+        explained = extra_stall_ms * 1000 / p["period_us"]
+        assert p["releases_skipped"] <= c["releases_skipped"] + explained + max(2, releases // 100), (p, c)
