@@ -18,7 +18,7 @@ from typing import Any
 
 import lcm
 import pytest
-from conftest import ASAN_DPU, EXAMPLES, REPO, SANITIZER_ERROR
+from conftest import ASAN_DPU, EXAMPLES, REPO, SANITIZER_ERROR, released_compute_pct
 
 from netns import Hosts, hosts_fixture
 from skeleton.host.live.spawn import LOGGED_CHANNELS
@@ -119,19 +119,6 @@ def by_dpu(report: dict[str, Any]) -> dict[int, dict[str, Any]]:
 def design_flaws(report: dict[str, Any]) -> list[dict[str, Any]]:
     """Lockouts, jams and lost DPUs: what a clean run must not have."""
     return [f for f in report["faults"] if f["kind"] in ("lockout", "jam", "dpu_lost")]
-
-
-def released_compute_pct(report: dict[str, Any], dpu_id: int) -> float:
-    """A DPU's % compute unstalled, with what its processes' skipped releases would have computed
-    added back. Each run's stalls are its own draw of the platform, and a data reader whose writer
-    the platform stalled skips releases (SERVO's prediction skips none): a CI's one-machine run had
-    jacobian_transpose skip 44 of 580 while DPU 1 ran 149 ms behind (81.8 % unstalled; 86.05 with
-    them added back), the lab run 9 (85.2; 86.07)."""
-    dpu = next(d for d in report["dpus"] if d["id"] == dpu_id)
-    skipped = sum(100.0 * p["releases_skipped"] * p["compute_mean_us"]
-                  / ((p["cycles"] + p["releases_skipped"]) * p["period_us"])
-                  for p in report["processes"] if p["dpu"] == dpu_id and p["cycles"])
-    return dpu["compute_unstalled_pct"] + skipped
 
 
 def clean_exit(done: subprocess.CompletedProcess[str], report: dict[str, Any]) -> None:
