@@ -17,10 +17,10 @@ from skeleton.analysis.read.messages import open_run_log, run_log_path
 from skeleton.analysis.read.records import load_records
 from skeleton.analysis.views.console import output_console
 from skeleton.analysis.views.tables import make_table
-from skelmsg import contract
 
 from ..model import System
 from ..sysfile import yamledit
+from ..sysfile.compute import table_of_samples
 from ..sysfile.system import load, loads
 
 
@@ -49,12 +49,9 @@ def measured_compute_us(records: np.ndarray, system: System) -> dict[int, np.nda
 
 
 def _samples_text(compute_us: np.ndarray) -> str:
-    """A samples file: the compute times, or their quantile table when there are more than the
-    DPU's table holds (the same table the file's loader makes of them all)."""
-    values = np.sort(compute_us)
-    if len(values) > contract.QUANTILES:
-        values = np.quantile(values, np.linspace(0.0, 1.0, contract.QUANTILES))
-    return "compute_us\n" + "".join(f"{v:.3f}\n" for v in values)
+    """A samples file: the table the file's loader makes of these times (compute.table_of_samples),
+    so what the DPUs draw from is the same whether the file holds them all or the table."""
+    return "compute_us\n" + "".join(f"{v:.3f}\n" for v in table_of_samples(compute_us.tolist()))
 
 
 def calibrate_command(args: argparse.Namespace) -> int:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from statistics import NormalDist
 
@@ -43,7 +43,7 @@ def varying(spec: ComputeSpec, base: Path) -> Varying:
     """The table of a distribution, or of the samples file `spec.samples` (relative to `base`)."""
     given = spec.model_dump(exclude_none=True)
     if spec.samples is not None:
-        return Varying("samples", _table_of_samples(_read_samples(base / spec.samples, spec.samples)), given)
+        return Varying("samples", table_of_samples(_read_samples(base / spec.samples, spec.samples)), given)
     assert spec.dist is not None and spec.max is not None  # the schema's rules
     low, high = spec.min or 0.0, spec.max
     if spec.dist == "uniform":
@@ -101,7 +101,9 @@ def _read_samples(path: Path, given: str) -> list[float]:
     return values
 
 
-def _table_of_samples(values: list[float]) -> tuple[float, ...]:
+def table_of_samples(values: Sequence[float]) -> tuple[float, ...]:
+    """The quantile table of measured compute times (us): all of them, in order, or QUANTILES of
+    their quantiles when there are more."""
     ordered = np.sort(np.asarray(values, dtype=float))
     if len(ordered) == 1:
         ordered = np.repeat(ordered, 2)
