@@ -157,7 +157,7 @@ def run_part(run: RunRecords, generations: Sequence[Generation], dpus: set[int],
              clock: ClockOffsets = NO_OFFSETS) -> RunPart:
     """The RunPart of `run` (the records of the DPUs `dpus`) for the windows of `generations`
     (report_generations)."""
-    origin = first_release_ns(run.records)
+    origin = first_release_ns(run.records) if run.origin_ns is None else run.origin_ns
     windows: list[WindowPart] = []
     earlier: dict[int, int] = {}  # when each DPU's work of the windows before ended
     for generation in generations:

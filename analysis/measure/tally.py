@@ -11,7 +11,9 @@ decoded and tallied: sums, counts and extremes are added, and each process's rel
 latencies are merged into a sorted array. What a refresh still does over the whole run is
 memory-speed work: that merge copies each process's array, and the percentiles are read
 from it. Only when a DPU's measurement window moves (a batch older than any heard before
-arrives late) is the generation tallied again from all its records.
+arrives late) is the generation tallied again from all its records; once a live view's
+store has forgotten the oldest (host/live/recordstore.py), the window stays where it is and
+such a batch counts as before it.
 """
 
 from __future__ import annotations
@@ -139,13 +141,15 @@ class GenerationTally:
         self._process = {p.id: p for p in self.processes}
         self.window_starts: dict[int, int] = {}
 
-    def add(self, records: np.ndarray) -> bool:
+    def add(self, records: np.ndarray, move: bool = True) -> bool:
         """Tally a chunk of this generation's records; False (nothing tallied) when the chunk
-        would open a DPU's measurement window earlier than the records tallied so far."""
+        would open a DPU's measurement window earlier than the records tallied so far. With
+        `move` false (the records before were forgotten: the tables cannot begin again), the
+        windows stay, and what ran before them counts as before."""
         if len(records) == 0:
             return True
         starts = window_start_ns(records, self.system)
-        if any(d in self.window_starts and s < self.window_starts[d] for d, s in starts.items()):
+        if move and any(d in self.window_starts and s < self.window_starts[d] for d, s in starts.items()):
             return False
         for dpu, start in starts.items():
             self.window_starts.setdefault(dpu, start)
@@ -180,31 +184,32 @@ class RunTally:
     def __init__(self, run_id: int) -> None:
         self.run_id = run_id
         self.tables: GenerationTally | None = None
-        self.seen = 0  # records of the run tallied (or passed over: another generation's)
+        self.seen = 0  # records of the run heard and tallied (or passed over: another generation's)
 
     def update(self, run: RunRecords, configs: dict[int, skelmsg.config_t]) -> GenerationTally | None:
-        """Tally the records of `run` past those seen before (`run` only ever grows; `configs`:
-        the decoded config_t by generation, as heard)."""
+        """Tally the records of `run` past those seen before (`run` only ever grows, though its
+        oldest may be forgotten: run.first; `configs`: the decoded config_t by generation, as
+        heard)."""
         newest = max((g for g in run.generations if g in configs), default=None)
         if newest is None:
             return None
         if self.tables is None or self.tables.generation != newest:
             self.tables, self.seen = GenerationTally(Generation.of(configs[newest])), 0
-        fresh = run.records[self.seen :]
-        self.seen = len(run.records)
+        fresh = run.records[max(0, self.seen - run.first) :]
+        self.seen = run.first + len(run.records)
         # The windows of the report are the generations with a config: so are the earlier ones.
         earlier = [g for g in configs if g < newest]
-        if not _tally(self.tables, fresh, earlier):
+        if not _tally(self.tables, fresh, earlier, move=not run.first):
             self.tables = GenerationTally(Generation(newest, self.tables.system))
             _tally(self.tables, run.records, earlier)
         return self.tables
 
 
-def _tally(tables: GenerationTally, records: np.ndarray, earlier: list[int]) -> bool:
+def _tally(tables: GenerationTally, records: np.ndarray, earlier: list[int], move: bool = True) -> bool:
     """GenerationTally.add of the records of its generation, having seen those of `earlier`."""
     if earlier:
         tables.add_earlier(records[np.isin(records["generation"], earlier)])
-    return tables.add(_of(records, tables.generation))
+    return tables.add(_of(records, tables.generation), move)
 
 
 def _of(records: np.ndarray, generation: int) -> np.ndarray:

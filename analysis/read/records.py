@@ -66,7 +66,7 @@ INPUT_DTYPE = np.dtype(
 
 @dataclass
 class RunRecords:
-    """Every timing record of one run."""
+    """Every timing record of one run; of a live view that forgets, its newest (`first`)."""
 
     run_id: int
     records: ColumnTable  # fields of RECORD_DTYPE, in arrival order
@@ -77,6 +77,11 @@ class RunRecords:
     malformed: int = 0  # timing messages that failed to decode (counted, skipped)
     duplicates: int = 0  # batches seen twice (same dpu, batch_seq)
     impossible: int = 0  # records with times no cycle of the log can have (counted, left out)
+    # A live view's store forgets its oldest records (host/live/recordstore.py): these are
+    # from the `first`-th record heard on, and `origin_ns` is each DPU's first release of all
+    # heard (a fault's at_s counts from it); None: the records' own.
+    first: int = 0
+    origin_ns: dict[int, int] | None = None
 
 
 Heads = tuple[np.ndarray, np.ndarray]  # (decoded ok, the scalars in front of the arrays) per batch
@@ -396,19 +401,37 @@ def _inputs(cols: dict[str, np.ndarray], table: np.ndarray) -> ColumnTable:
     return ColumnTable.of(out, INPUT_DTYPE, derive=derive)
 
 
+SeqRanges = dict[int, list[tuple[int, int]]]  # DPU -> its batch_seqs heard, as sorted inclusive runs
+
+
+def seq_ranges(dpu: np.ndarray, batch_seq: np.ndarray) -> SeqRanges:
+    """Each DPU's batch_seqs (any order, repeats allowed) as sorted runs of consecutive ones."""
+    out: SeqRanges = {}
+    for d in np.unique(dpu).tolist():
+        seqs = np.unique(batch_seq[dpu == d])
+        breaks = np.flatnonzero(np.diff(seqs) > 1)
+        firsts, lasts = np.r_[seqs[:1], seqs[breaks + 1]], np.r_[seqs[breaks], seqs[-1:]]
+        out[int(d)] = list(zip(firsts.tolist(), lasts.tolist(), strict=True))
+    return out
+
+
 def lost_batches(
     dpu: np.ndarray, batch_seq: np.ndarray, expected: dict[int, int] | None = None
 ) -> list[dict[str, int]]:
     """Gaps in each DPU's batch_seq (which runs from 0): [{dpu, from_seq, to_seq}], inclusive."""
+    return lost_in_ranges(seq_ranges(dpu, batch_seq), expected)
+
+
+def lost_in_ranges(ranges: SeqRanges, expected: dict[int, int] | None = None) -> list[dict[str, int]]:
+    """lost_batches of the batch_seqs heard as `ranges`; `expected`: DPU -> the batches it
+    published, by its own count (its report_t), for those lost at the end."""
     lost: list[dict[str, int]] = []
-    dpus = set(np.unique(dpu).tolist()) | set((expected or {}).keys())
-    for d in sorted(dpus):
-        seqs = np.unique(batch_seq[dpu == d])
-        before = np.r_[-1, seqs[:-1]]  # the sequence heard before each (-1: none)
-        gaps = np.flatnonzero(seqs > before + 1)
-        lost += [{"dpu": d, "from_seq": b + 1, "to_seq": s - 1}
-                 for b, s in zip(before[gaps].tolist(), seqs[gaps].tolist(), strict=True)]
-        previous = int(seqs[-1]) if len(seqs) else -1
+    for d in sorted(set(ranges) | set((expected or {}).keys())):
+        previous = -1
+        for first, last in ranges.get(d, []):
+            if first > previous + 1:
+                lost.append({"dpu": d, "from_seq": previous + 1, "to_seq": first - 1})
+            previous = last
         published = (expected or {}).get(d)
         if published is not None and published - 1 > previous:
             lost.append({"dpu": d, "from_seq": previous + 1, "to_seq": published - 1})

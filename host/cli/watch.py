@@ -119,6 +119,10 @@ class Heard:
                 configs = dict(self.listener.configs)
             self.tables = self._tally.update(run, configs) or self.tables
             self.lost_batches = sum(b["to_seq"] - b["from_seq"] + 1 for b in run.lost_batches)
+        store = self.listener.store
+        if store is not None and store.run_id == run.run_id:
+            store.tallied = self._tally.seen
+            self.listener.forget()
         # DPUs lost and lockouts heartbeats name: at once, not at the next search
         self.listener.announce(None, self._running(), self.listener.heard_lockouts())
         return self.tables
@@ -137,7 +141,7 @@ class Heard:
         report = self.listener.report_of(run)
         if report is None or run is None:
             return None
-        self._covered = (run.run_id, len(run.records))
+        self._covered = (run.run_id, run.first + len(run.records))
         self.listener.announce(report, running=self._running())
         return report
 

@@ -81,6 +81,8 @@ def render(heard: Heard, url: str) -> Group:
                     f"{heard.lost_batches} batches lost")
         if heard.store.n_records > heard.covered:
             head.append(f" · faults searched in the first {heard.covered}", style="yellow")
+        if heard.store.unread:  # the search fell behind the records by more than the store holds
+            head.append(f" · {heard.store.unread} records forgotten unsearched", style="yellow")
     else:
         head.append(" · waiting for its config_t")
     parts: list[Any] = [head]

@@ -89,6 +89,7 @@ def live_view(heard: Heard, url: str) -> dict[str, Any]:
         "system": tables.system.name, "generation": tables.generation,
         "elapsed_s": round(tables.elapsed_ms / 1000, 1), "lost_batches": heard.lost_batches,
         "records": heard.store.n_records if heard.store else 0,
+        "unsearched": heard.store.unread if heard.store else 0,
         "dpus": [_dpu_row(d) for d in tables.dpus],
         "processes": [{"name": p.name, "dpu": p.dpu, "cycles": p.cycles, "overruns": p.overruns,
                        "latency_p50_us": _pct(p.latency_us.p50), "latency_p99_us": _pct(p.latency_us.p99),

@@ -52,7 +52,7 @@ from skelmsg.contract import (
 )
 
 from ..model import from_config
-from .recordstore import RecordStore
+from .recordstore import KEEP_RECORDS, RecordStore
 
 KEY_PROBLEMS = {  # what a refused status says about its DPU's key
     Verdict.SIGNED: "it signs its messages: it has a key and this host none (--key FILE or $" + KEY_ENV + ")",
@@ -84,9 +84,12 @@ REPORTS_KEPT = 1024          # report_t kept, newest first out: a flood of them 
 PROCESSES_KEPT = 4096        # daemons (host, pid) remembered for `skel status`, likewise
 STATUSES_BEFORE_RUN = 1024   # statuses kept before a run is followed (its lockouts may come first)
 STARTS_KEPT = 64             # the runs whose START was heard, newest kept
-# The faults of the records heard are found by the report's code over all of them: it runs
-# again once this many times its last cost has passed (a long run's cost grows), so it takes
-# a bounded share of a core; a new lockout in a heartbeat makes it run at once.
+# A followed run's statuses are kept from this long before its oldest record held on
+# (a heartbeat's gap before a record is what says a DPU was lost).
+STATUSES_KEEP_NS = 10 * 10**9
+# The faults of the records heard are found by the report's code over those the store holds
+# (the newest: recordstore.py): it runs again once this many times its last cost has passed,
+# so it takes a bounded share of a core; a new lockout in a heartbeat makes it run at once.
 FAULTS_COST_FACTOR = 5.0
 T = TypeVar("T")
 _TIMING_FP = skelmsg.timing_t._get_packed_fingerprint()
@@ -152,6 +155,7 @@ class Listener:
         self.malformed: dict[str, int] = {}   # channel -> messages refused (undecodable or implausible)
         # The followed run.
         self.store: RecordStore | None = None
+        self.keep_records = KEEP_RECORDS     # what its store holds at least (recordstore.py)
         self.statuses: list[Any] = []        # of the followed run (before one is: the latest few)
         self.pending: list[bytes] = []       # its timing batches not decoded yet
         self.generations: set[int] = set()   # of its timing batches, from their headers
@@ -346,7 +350,7 @@ class Listener:
             self._follow(run_id)
 
     def _follow(self, run_id: int) -> None:
-        self.store = RecordStore(run_id)
+        self.store = RecordStore(run_id, self.keep_records)
         self.pending, self.faults, self.found, self.next_run = [], [], [], None
         self.generations = set()
         self.statuses = [s for s in self.statuses if s.run_id == run_id]
@@ -405,7 +409,34 @@ class Listener:
         config = configs.get(max(run.generations))
         if config is None:
             return None
-        return build_report(config, run, statuses, reports, None, self.skipped(run), configs)
+        report = build_report(config, run, statuses, reports, None, self.skipped(run), configs)
+        store = self.store
+        if store is not None and store.run_id == run.run_id:
+            store.searched = max(store.searched, run.first + len(run.records))
+            self.forget()
+        return report
+
+    def forget(self) -> None:
+        """Let the followed run's store forget the records its readers are done with
+        (recordstore.py), and the statuses heard before its oldest record held, but the first
+        to name each lockout (the report's lockouts come from those): a long run stays bounded."""
+        store = self.store
+        if store is None:
+            return
+        first = store.first
+        store.forget()
+        if store.first == first or store.held_from_ns is None:
+            return
+        since = store.held_from_ns - STATUSES_KEEP_NS
+        with self.lock:
+            named: set[tuple[int, int]] = set()
+            kept = []
+            for status in self.statuses:
+                names = {(status.dpu, lock.process) for lock in status.lockouts} - named
+                named |= names
+                if names or status.utc_ns >= since:
+                    kept.append(status)
+            self.statuses = kept
 
     def skipped(self, run: RunRecords) -> dict[str, int]:
         """What was skipped as malformed (by channel, and `run`'s records with impossible

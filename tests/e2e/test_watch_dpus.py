@@ -17,6 +17,8 @@ from unit.test_watch import _same_tables
 
 from skeleton.analysis.measure.run import load_run
 from skeleton.analysis.measure.tally import RunTally
+from skeleton.analysis.read.logreader import read_log
+from skeleton.host.cli.watch import Heard
 from skeleton.host.sysfile.link import record_url
 
 ENV = {**os.environ, "COLUMNS": "160"}
@@ -152,3 +154,19 @@ def test_a_real_runs_tables_tallied_as_heard_equal_skel_reports(tmp_path: Path) 
     tables = tally.update(run.recorded, configs)
     assert tables is not None and sum(p.cycles for p in tables.processes) > 1000
     _same_tables(tables, run.report)
+    # Heard as a live view does, by a store that keeps only its newest 256 records: bounded,
+    # and the tables still the whole run's.
+    heard = Heard(keep_events=False)
+    heard.listener.keep_records = 256
+    events = read_log(tmp_path / "run.lcm").events
+    most = 0
+    for at in range(0, len(events), 40):
+        for event in events[at : at + 40]:
+            heard.handle(event.channel, event.data)
+        heard.refresh()
+        heard.find_faults()
+        most = max(most, heard.store.n_held if heard.store else 0)
+    assert heard.store is not None and heard.tables is not None
+    assert heard.store.first > 0 and heard.store.unread == 0, (heard.store.first, heard.store.unread)
+    assert most < 2 * 256, most
+    _same_tables(heard.tables, run.report)

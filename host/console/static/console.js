@@ -359,7 +359,8 @@ function showLive(view) {
   const head = view.error ? view.error : !view.listening ? `subscribing to ${view.url}…` :
     view.run_id === null ? `waiting for a run on ${view.url}` :
     `run ${view.run_id}` + (view.system ? ` of ${view.system} · generation ${view.generation}` : "") +
-    ` · ${fmt(view.elapsed_s)} s measured (warm-up excluded) · ${view.records ?? 0} records`;
+    ` · ${fmt(view.elapsed_s)} s measured (warm-up excluded) · ${view.records ?? 0} records` +
+    (view.unsearched ? ` · ${view.unsearched} forgotten before the search for faults read them` : "");
   $("live-head").textContent = head;
   showProgress(view.run_id === null ? null : view.progress);
   document.querySelectorAll("#prediction tr[data-dpu]").forEach((tr) => {
