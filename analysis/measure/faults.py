@@ -156,6 +156,18 @@ def lockout_at_s(lock: Lockout, system: System, dpu: int | None, origin: Mapping
     return (limit_ns - origin[dpu]) / 1e9
 
 
+def stalls_explain(stalled: float, loss: float) -> bool:
+    """The platform's rule, for every fault it may explain: the time a DPU's thread was kept
+    from running (its stalls) explains a loss of time (a lockout's window, a DPU's lateness,
+    the releases a process skipped) when it accounts for half of it or more."""
+    return 2 * stalled >= loss
+
+
+def _tasking(system: System, dpu: int) -> bool:
+    """Whether `dpu` runs the tasking executive: each of its threads records a stop of the DPU."""
+    return any(d.id == dpu and d.executive == "threads" for d in system.dpus)
+
+
 def writer_stall(records: np.ndarray, system: System, clock: ClockOffsets, reader: Process,
                  buffers: Iterable[int], low_ns: int, high_ns: int) -> tuple[Process, int] | None:
     """(the writer, its DPU's stalls in ns) of the one of `buffers` (read by `reader`) whose
@@ -163,7 +175,6 @@ def writer_stall(records: np.ndarray, system: System, clock: ClockOffsets, reade
     `high_ns` on the reader's clock (its records' stalls, by their releases): None for none.
     A reader's own stalls are not counted against it; its writer's, on another DPU or host,
     starve it all the same."""
-    threads = {d.id for d in system.dpus if d.executive == "threads"}
     low, high = clock.to_host(reader.dpu, np.array([low_ns, high_ns], dtype=np.int64)).tolist()
     best = None
     for b in buffers:
@@ -177,7 +188,7 @@ def writer_stall(records: np.ndarray, system: System, clock: ClockOffsets, reade
         # The cyclic executive's one thread records each stall once; the threads executive's
         # every thread records the same stop of its DPU: its longest-stalled thread's count.
         stalled = (max((int(stall[process == q].sum()) for q in np.unique(process).tolist()), default=0)
-                   if w.dpu in threads else int(stall.sum()))
+                   if _tasking(system, w.dpu) else int(stall.sum()))
         if best is None or stalled > best[1]:
             best = (w, stalled)
     return best
@@ -204,7 +215,7 @@ def stalled_writers(lockouts: Mapping[int, Lockout], records: np.ndarray, system
         window = int(system.run.lockout_cycles) * p.period_us * 1000
         found = writer_stall(records, system, clock, p, [lock.buffer], lock.release_ns - w.period_us * 1000,
                              lock.release_ns + window)
-        if found is not None and 2 * found[1] >= window:
+        if found is not None and stalls_explain(found[1], window):
             out[proc] = _stall_words(*found)
     return out
 
@@ -245,7 +256,7 @@ def stalled_dpus(lockouts: Mapping[int, Lockout], stalls: np.ndarray, system: Sy
         load = static_load_pct(system, p.dpu)
         if load > 100.0:
             continue
-        tasking = next((d.executive == "threads" for d in system.dpus if d.id == p.dpu), False)
+        tasking = _tasking(system, p.dpu)
         window = int(system.run.lockout_cycles) * p.period_us * 1000
         mine = stalls[stalls["dpu"] == p.dpu]
         mine = mine[np.argsort(mine["release_ns"], kind="stable")]
@@ -256,7 +267,7 @@ def stalled_dpus(lockouts: Mapping[int, Lockout], stalls: np.ndarray, system: Sy
                       default=0)
         level = static_load_pct(system, p.dpu, p.priority) if tasking else 0.0
         held = backlog / max(1.0 - level / 100.0, 1e-3)
-        if 2 * held >= window:
+        if stalls_explain(held, window):
             out[proc] = (f"its DPU {p.dpu} had {backlog / 1e6:.1f} ms of stalls still to make up by then, "
                          f"which hold it off {held / 1e6:.0f} ms (static load {load:.1f} %; stalls: the "
                          "platform, not the design)")
@@ -436,7 +447,7 @@ def skipping_faults(processes: list[ProcessMetrics], system: System,
             waits = (proc.required or proc.inputs) if proc else ()
             dpus = {p.dpu, *(w.dpu for b in waits if (w := _writer(system, b)) is not None)}
             most = max(sorted(dpus), key=lambda d: stall_ms.get(d, 0.0))
-            if 2 * stall_ms.get(most, 0.0) >= p.releases_skipped * p.period_us / 1000:
+            if stalls_explain(stall_ms.get(most, 0.0), p.releases_skipped * p.period_us / 1000):
                 fatal = False
                 cause += (f": DPU {most} was kept from running for {stall_ms[most]:.0f} ms meanwhile "
                           "(stalls: the platform, not the design)")
@@ -807,7 +818,7 @@ def behind_faults(runs: Iterable[Behind], system: System, stalls: np.ndarray,
         reader = system.find_process(b.wait[0]) if b.wait is not None else None
         if b.wait is not None and reader is not None:
             found = writer_stall(stalls, system, clock, reader, reader.required, b.wait[1], b.wait[2])
-            if found is not None and 2 * found[1] >= b.worst_ns:
+            if found is not None and stalls_explain(found[1], b.worst_ns):
                 cause, fatal = f"{cause}: {_stall_words(*found)}", False
         faults.append(Fault(
             kind="behind", dpu=b.dpu, at_s=b.at_s, duration_ms=b.duration_s * 1e3, behind_ms=b.worst_ns / 1e6,
@@ -840,7 +851,7 @@ def _why_behind(mine: np.ndarray, system: System, dpu: int, since: int, start: i
     or more is the platform's doing."""
     way = mine[(mine["release_ns"] >= since) & (mine["release_ns"] <= t_worst)]
     stalled = int(way["stall_ns"].sum())
-    if stalled * 2 >= worst:
+    if stalls_explain(stalled, worst):
         return (f"its thread was kept from running for {stalled / 1e6:.1f} ms on the way "
                 "(stalls, other work on its CPU: the platform, not the design)", False)
     lead = mine[(mine["release_ns"] >= start - worst) & (mine["release_ns"] <= start)]

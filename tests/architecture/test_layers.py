@@ -211,10 +211,10 @@ def test_a_back_import_between_host_packages_is_reported(tmp_path: Path) -> None
 # without paying numpy's, pydantic's and rich's imports again each time (a fresh interpreter per
 # module took 21-54 s of CI).
 _FORK_SERVER = """
-import json, os, sys, traceback
+import collections, json, os, sys, traceback
 import lcm, numpy, pydantic, rich.console, yaml, skelmsg
 assert not [m for m in sys.modules if m == "skeleton" or m.startswith("skeleton.")]
-for module in json.loads(sys.stdin.read()):
+def start(module):
     r, w = os.pipe()
     pid = os.fork()
     if pid == 0:
@@ -226,10 +226,19 @@ for module in json.loads(sys.stdin.read()):
             os.write(w, traceback.format_exc().strip().splitlines()[-1].encode())
             os._exit(1)
     os.close(w)
+    return module, pid, r
+def finish(module, pid, r):
     with os.fdopen(r, "rb") as out:
         error = out.read().decode(errors="replace")
     _, status = os.waitpid(pid, 0)
     print(json.dumps([module, os.waitstatus_to_exitcode(status), error]), flush=True)
+running = collections.deque()  # two children at a time, one per core, answered in order
+for module in json.loads(sys.stdin.read()):
+    running.append(start(module))
+    if len(running) == 2:
+        finish(*running.popleft())
+while running:
+    finish(*running.popleft())
 """
 
 
