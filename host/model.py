@@ -19,6 +19,10 @@ from typing import Any
 from urllib.parse import urlsplit
 
 import skelmsg
+from skelmsg.contract import BUFFER_HEADER_BYTES
+
+LCM_HEADER_BYTES = 8
+UDP_IP_BYTES = 8 + 20
 
 
 @dataclass(frozen=True)
@@ -93,6 +97,13 @@ class Buffer:
     @property
     def channel(self) -> str:
         return f"SKEL_BUF_{self.name}"
+
+    @property
+    def wire_bytes(self) -> int:
+        """One message of it on an IP link: buffer_t's bytes before the payload (the contract's
+        BUFFER_HEADER_BYTES), the payload, LCM's short-message header (magic, sequence, the
+        channel name and its NUL), UDP and IPv4 headers."""
+        return BUFFER_HEADER_BYTES + self.bytes + LCM_HEADER_BYTES + len(self.channel) + 1 + UDP_IP_BYTES
 
 
 @dataclass(frozen=True)
@@ -479,8 +490,8 @@ def _named(names: dict[str, int], value: int) -> str:
 
 def _link(link: skelmsg.link_t) -> Link:
     burst = LossBurst(link.burst_enter_pct, link.burst_leave_pct, link.burst_loss_pct)
-    return Link(link.id, link.name, link.url or "local", None, latency_us=link.latency_us,
-                jitter_us=link.jitter_us,
+    return Link(link.id, link.name, link.url or "local", link.bandwidth_mbps or None,
+                latency_us=link.latency_us, jitter_us=link.jitter_us,
                 jitter="normal" if link.jitter == skelmsg.link_t.JITTER_NORMAL else "uniform",
                 loss_pct=link.loss_pct, burst=burst if link.burst_enter_pct > 0 else None,
                 per_message_us=link.per_message_us, per_byte_ns=link.per_byte_ns,
@@ -490,7 +501,7 @@ def _link(link: skelmsg.link_t) -> Link:
 def from_config(msg: skelmsg.config_t) -> System:
     """The System a config_t describes (host/live/wire.py writes one from a System): what a run's
     DPUs were sent, as the analysis reads it from the log. What the config does not carry keeps
-    its default: the run's length and stop_on, a link's bandwidth, a varying compute's kind (its
+    its default: the run's length and stop_on, a varying compute's kind (its
     quantile table is carried), the reference, the overrides; the path is the run's system.yaml."""
     links = tuple(_link(k) for k in msg.links)
     buffers = tuple(Buffer(b.id, b.name, b.bytes, b.link, b.writer) for b in msg.buffers)

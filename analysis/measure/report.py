@@ -27,6 +27,7 @@ from .faults import (
     lockouts_from_status,
 )
 from .latency import NO_OFFSETS, BufferMetrics, ClockOffsets, release_skips
+from .links import LinkMetrics
 from .metrics import DpuMetrics, ProcessMetrics
 from .predicted import Predicted
 from .simulated import Simulation
@@ -89,6 +90,7 @@ class RunReport:
     not_faithful: list[int] = field(default_factory=list)
     buffers: list[BufferMetrics] = field(default_factory=list)
     chains: list[ChainMetrics] = field(default_factory=list)
+    links: list[LinkMetrics] = field(default_factory=list)
     windows: list[WindowReport] = field(default_factory=list)
     clock_offsets: dict[int, int] = field(default_factory=dict)  # DPU -> last offset estimate (ns)
     # the prediction of the report generation's system file beside its figures: `skel run` and
@@ -277,6 +279,7 @@ def finish_report(
         not_faithful=sorted(r.dpu for r in mine if r.faults & skelmsg.status_t.FAULT_NOT_FAITHFUL),
         buffers=last.buffers,
         chains=last.chains,
+        links=last.links,
         windows=finished,
         clock_offsets=clock.latest(),
         stopped=stopped_early(commands, run_id),

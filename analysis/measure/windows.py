@@ -46,6 +46,7 @@ from .faults import (
     stalled_writers,
 )
 from .latency import NO_OFFSETS, BufferMetrics, BufferParts, ClockOffsets, buffer_metrics, buffer_parts
+from .links import LinkMetrics, link_metrics
 from .metrics import (
     DpuMetrics,
     ProcessMetrics,
@@ -85,6 +86,7 @@ class WindowReport:
     buffers: list[BufferMetrics] = field(default_factory=list)
     chains: list[ChainMetrics] = field(default_factory=list)
     faults: list[Fault] = field(default_factory=list)
+    links: list[LinkMetrics] = field(default_factory=list)
 
     @property
     def duration_ms(self) -> float | None:
@@ -245,6 +247,7 @@ def finish_window(
         processes=processes,
         buffers=buffers,
         chains=chains,
+        links=link_metrics(system, buffers, processes, dpus),
         faults=(
             delivered
             + lockout_faults(locks, system, origin, platform)

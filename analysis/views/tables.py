@@ -221,6 +221,24 @@ def buffer_table(report: RunReport, window: WindowReport | None = None) -> Table
     return make_table(title, columns, rows)
 
 
+def link_table(report: RunReport, window: WindowReport | None = None) -> Table:
+    """Per link: offered load against its bandwidth, loss and transport beside the model."""
+    rows = []
+    for k in (window or report).links:
+        use = num(k.utilization_pct) + (" saturated" if k.saturated else "") if k.bandwidth_mbps else "-"
+        rows.append([k.link, str(k.buffers), num(k.messages_per_s, 0), num(k.offered_mbps, 3),
+                     num(k.bandwidth_mbps, 3) if k.bandwidth_mbps else "-", use,
+                     f"{k.lost} ({num(k.lost_pct, 2)} %)", num(k.modelled_loss_pct, 2),
+                     num(k.modelled_delay_us), num(k.transport_p99_us), num(k.transport_max_us)])  # fmt: skip
+    columns = [("link", False), ("buf-\nfers", True), ("msgs/s", True), ("offered\nMbit/s", True),
+               ("band-\nwidth", True), ("% used", True), ("lost", True), ("model\nloss %", True),
+               ("model\ndelay", True), ("transp.\np99", True), ("transp.\nmax", True)]  # fmt: skip
+    title = ("per link: its writers' messages and their bytes on the wire, against its bandwidth; versions "
+             "its readers never received, beside the modelled loss; its buffers' transport in µs (the "
+             "largest p99 and max) beside the modelled mean delay")
+    return make_table(title, columns, rows)
+
+
 def chain_table(report: RunReport, window: WindowReport | None = None) -> Table:
     """Per chain: from the head's send to the start of the tail's computation."""
     rows = []
@@ -410,6 +428,8 @@ def print_report(
             console.print(input_table(report, window))
         if any(b.readers for b in part.buffers):
             console.print(buffer_table(report, window))
+        if part.links:
+            console.print(link_table(report, window))
         if part.chains:
             console.print(chain_table(report, window))
         if part.faults:

@@ -106,6 +106,7 @@ def _link(link: Link) -> skelmsg.link_t:
         msg.burst_loss_pct = link.burst.loss_pct
     msg.per_message_us, msg.per_byte_ns = link.per_message_us, link.per_byte_ns
     msg.push_byte_ns, msg.remote_read_us = link.push_byte_ns, link.remote_read_us
+    msg.bandwidth_mbps = link.bandwidth_mbps or 0.0
     return msg
 
 

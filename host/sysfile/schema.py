@@ -251,7 +251,8 @@ class LinkSpec(_Spec):
     is the control URL; each process writing to the link gets the next multicast group and port after
     it. `ttl=0` never leaves the machine, `ttl=1` for a lab."""
     bandwidth_mbps: Positive | None = None
-    """What the link carries, in Mbit/s: `skel check` warns when its buffers need more."""
+    """What the link carries, in Mbit/s: `skel check` warns when its buffers need more, and the report
+    says the link saturated when its writers offered more (no buffer is delayed by it)."""
     # The link's transport, emulated by the reading DPUs (dpu/buffers.c): one block, kept last.
     latency_us: Latency = 0
     """The link's one-way latency: a reader sees a buffer no earlier than its send time plus this (plus

@@ -30,7 +30,7 @@ from skeleton.analysis.errors import SkelError
 from ..model import Dpu, Process, System
 from ..sysfile import yamledit
 from ..sysfile.system import loads
-from .predict import Prediction, held_up, predict, same_cycle_waits, wire_bytes
+from .predict import Prediction, held_up, predict, same_cycle_waits
 
 PPM = 1_000_000
 MAX_CUTS = 200
@@ -56,7 +56,7 @@ def traffic_bytes_per_s(system: System) -> float:
     """Bytes/s of the buffers read on another DPU than their writer's, each writer once a
     period: the most it sends (a paced reader sends less, a process on host-sent events as
     often as the host sends, which no file says), so a bound, not the prediction's figure."""
-    return sum(1e6 / system.process(b.writer).period_us * wire_bytes(system, b.id) for b in system.buffers
+    return sum(1e6 / system.process(b.writer).period_us * b.wire_bytes for b in system.buffers
                if any(r.dpu != system.process(b.writer).dpu for r in system.readers(b.id)))
 
 
@@ -161,7 +161,7 @@ class _Model:
                     self.m.add(cross >= self._at(b.writer, d.id) - self._at(r.id, d.id))
             # once a period, the most a writer sends: the rate of one on host-sent events is unknown
             rate = 1e6 / self.system.process(b.writer).period_us
-            out.append(round(rate * wire_bytes(self.system, b.id)) * cross)
+            out.append(round(rate * b.wire_bytes) * cross)
         return sum(out)
 
     def latency(self) -> cp_model.LinearExprT:

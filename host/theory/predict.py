@@ -27,18 +27,10 @@ from collections.abc import Collection
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from skelmsg.contract import BUFFER_HEADER_BYTES
-
 from ..model import Dpu, ExpectedInput, Process, System
 from . import frames
 from .frames import Frame, Timing
 from .schedule import response_times, start_ranges
-
-# On the wire per buffer_t: its encoding's bytes before the payload (the contract's
-# BUFFER_HEADER_BYTES), LCM's short-message header (magic, sequence, channel name and its
-# NUL), UDP and IPv4 headers.
-LCM_HEADER_BYTES = 8
-UDP_IP_BYTES = 8 + 20
 
 
 @dataclass(frozen=True)
@@ -738,18 +730,13 @@ def _chains(system: System, by_name: dict[str, ProcessPrediction], rates: dict[i
     return tuple(out)
 
 
-def wire_bytes(system: System, buffer_id: int) -> int:
-    b = system.buffer(buffer_id)
-    return BUFFER_HEADER_BYTES + b.bytes + LCM_HEADER_BYTES + len(b.channel) + 1 + UDP_IP_BYTES
-
-
 def _links(system: System, rates: dict[int, float], unknown: set[int]) -> tuple[LinkPrediction, ...]:
     out = []
     for link in system.links:
         mine = [b for b in system.buffers if b.link == link.id]
         known = [b for b in mine if b.writer not in unknown]
         messages = sum(rates[b.writer] for b in known)
-        size = sum(rates[b.writer] * (b.bytes if link.local else wire_bytes(system, b.id)) for b in known)
+        size = sum(rates[b.writer] * (b.bytes if link.local else b.wire_bytes) for b in known)
         whole = len(known) == len(mine)
         out.append(LinkPrediction(link.name, link.local, messages if whole else None, size if whole else None,
                                   link.bandwidth_mbps, messages, size, link.delay_us, link.mean_loss_pct))

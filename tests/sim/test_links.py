@@ -15,6 +15,7 @@ from e2e.test_link_delay_dpus import TWO_LINKS
 from sim.test_executives import simulate
 
 import skeleton
+from skeleton.host.sysfile.system import load
 from skelmsg.contract import DEFAULT_URL
 
 # A writer on DPU 1, its reader on DPU 2, of one period: without a link model every version is
@@ -71,6 +72,23 @@ def test_a_latency_of_2_ms_adds_exactly_2_ms_to_every_buffers_transport_and_the_
     assert chain["network_us"]["predicted"] == chain["network_us"]["measured"] == 2000.0
     # the value is seen 2 ms after its send, then waits for the reader's next cycle
     assert chain["best_us"] == 2000.0
+    # the link's row: its writer's 200 messages a second of 64 bytes and the headers on the wire
+    (link,) = late["links"]
+    wire = 8 * 200 * load(_pair(tmp_path, "")).buffer("sample").wire_bytes / 1e6
+    assert (link["messages_per_s"], link["offered_mbps"], link["bandwidth_mbps"]) == (200.0, wire, None)
+    assert (link["modelled_delay_us"], link["transport_p99_us"], link["transport_max_us"]) == (2000.0,) * 3
+
+
+def test_a_link_offered_more_than_its_bandwidth_is_said_saturated(tmp_path: Path) -> None:
+    """The emulation does not queue buffers behind each other yet: the report says the link
+    carried four times what it could, as `skel check` predicted."""
+    path = _pair(tmp_path, "bandwidth_mbps: 0.05")
+    report = simulate(tmp_path / "run", str(path))
+    (link,) = report["links"]
+    assert link["saturated"] and link["utilization_pct"] == pytest.approx(100 * link["offered_mbps"] / 0.05)
+    assert link["utilization_pct"] > 400
+    check = skel("check", str(path))
+    assert "exceeds its bandwidth_mbps 0.05" in check.stdout + check.stderr
 
 
 def test_a_latency_longer_than_the_period_holds_several_versions_in_order(tmp_path: Path) -> None:
@@ -182,6 +200,9 @@ def test_a_loss_of_5_pct_loses_5_pct_of_10_000_buffers_the_same_twice_and_otherw
     assert _reader(a)["lost"] == _reader(b)["lost"]
     assert _reader(a)["lost"] != _reader(c)["lost"]
     assert a["predicted"]["inputs"][0]["lost_pct"]["predicted"] == 5.0
+    (link,) = a["links"]
+    assert link["lost"] == _reader(a)["lost"] and link["modelled_loss_pct"] == 5.0
+    assert link["lost_pct"] == pytest.approx(100 * link["lost"] / (_reader(a)["received"] + link["lost"]))
     # independent losses: a run of two or more is rare (5 % of the runs)
     runs = _bursts(tmp_path / "a")
     assert np.mean(runs) < 1.2
