@@ -4,6 +4,7 @@ Nothing here knows what a record is."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -37,6 +38,68 @@ def latency_us(samples_us: np.ndarray) -> LatencyUs:
     introselect of six positions) and max (best of 7); a report of 10^7 records asks six
     of these per process."""
     return _latency_of_sorted(np.sort(samples_us))
+
+
+class SortedSamples:
+    """Samples kept sorted as they come, in two runs: a large one and the newest few. New
+    samples go into the small run, which is merged into the large one once it holds an eighth
+    of it: a sample is copied about nine times in all by the merges, and an insertion copies at
+    most an eighth of what is held, where one sorted array copies all of it. latency_us reads
+    the percentiles from the two runs by binary search, to the bit what it reads from one sorted
+    array."""
+
+    def __init__(self, least: int = 4096) -> None:
+        self.least = least  # the small run merges past max(least, an eighth of the large one)
+        self.large = np.zeros(0, dtype=np.float64)
+        self.small = np.zeros(0, dtype=np.float64)
+
+    def __len__(self) -> int:
+        return len(self.large) + len(self.small)
+
+    def add(self, samples: np.ndarray) -> None:
+        new = np.sort(samples)
+        self.small = np.insert(self.small, np.searchsorted(self.small, new), new)
+        if len(self.small) > max(self.least, len(self.large) // 8):
+            self.large = np.sort(np.concatenate([self.large, self.small]), kind="stable")  # two runs: a merge
+            self.small = np.zeros(0, dtype=np.float64)
+
+    def latency_us(self) -> LatencyUs:
+        if np.isnan(self.large[-1:]).any() or np.isnan(self.small[-1:]).any():
+            return LatencyUs(float("nan"), float("nan"), float("nan"))
+        return _latency_of_sorted(_Union(self.large, self.small))
+
+
+class _Union:
+    """Two sorted runs read as one sorted array: its length, and its k-th elements."""
+
+    dtype = np.dtype(np.float64)
+
+    def __init__(self, a: np.ndarray, b: np.ndarray) -> None:
+        self.a, self.b = a, b
+
+    def __len__(self) -> int:
+        return len(self.a) + len(self.b)
+
+    def __getitem__(self, k: Any) -> Any:
+        if isinstance(k, np.ndarray):
+            return np.array([self._kth(int(i)) for i in k], dtype=self.dtype)
+        return self.dtype.type(self._kth(int(k)))
+
+    def _kth(self, k: int) -> float:
+        """The k-th smallest (from 0; -1: the largest): i of them from a, the rest from b."""
+        a, b = self.a, self.b
+        if k < 0:
+            k += len(a) + len(b)
+        low, high = max(0, k + 1 - len(b)), min(k + 1, len(a))
+        # the fewest i with a[i] >= b[k - i]: a[:i] and b[:k + 1 - i] are then the k + 1 smallest
+        while low < high:
+            i = (low + high) // 2
+            if a[i] < b[k - i]:
+                low = i + 1
+            else:
+                high = i
+        i, j = low, k + 1 - low
+        return float(max(a[i - 1] if i else -np.inf, b[j - 1] if j else -np.inf))
 
 
 def distribution(samples_us: np.ndarray, bins: int = HISTOGRAM_BINS) -> tuple[LatencyUs, Histogram]:

@@ -8,10 +8,11 @@ tally's sums are exact where the report's numpy sums wrap).
 `skel watch` refreshes every 0.4 s: rebuilding the report from every record heard costs
 seconds at 10^6 records. Here only the records that came since the last refresh are
 decoded and tallied: sums, counts and extremes are added, and each process's release
-latencies are merged into a sorted array. What a refresh still does over the whole run is
-memory-speed work: that merge copies each process's array, and the percentiles are read
-from it. Only when a DPU's measurement window moves (a batch older than any heard before
-arrives late) is the generation tallied again from all its records; once a live view's
+latencies go into its stats.SortedSamples (two sorted runs, the percentiles read by binary
+search: 0.12 ms a refresh for an hour of a 200 Hz process, where one sorted array copied
+and read whole took 5.5 ms); what grows is those latencies' memory, 8 bytes a cycle. Only when a DPU's
+measurement window moves (a batch older than any heard before arrives late) is the
+generation tallied again from all its records; once a live view's
 store has forgotten the oldest (host/live/recordstore.py), the window stays where it is and
 such a batch counts as before it.
 """
@@ -40,7 +41,7 @@ from .metrics import (
     window_start_ns,
     work_end_ns,
 )
-from .stats import LatencyUs, group_slices, latency_us
+from .stats import LatencyUs, SortedSamples, group_slices
 from .windows import Generation
 
 
@@ -107,11 +108,11 @@ class ProcessTally:
     overruns: int = 0
     late: int = 0
     too_late: int = 0
-    latencies_us: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.float64))  # sorted
+    latencies_us: SortedSamples = field(default_factory=SortedSamples)
 
     @property
     def latency_us(self) -> LatencyUs:
-        return latency_us(self.latencies_us)
+        return self.latencies_us.latency_us()
 
     def add(self, mine: np.ndarray) -> None:
         done = mine[completed(mine)]
@@ -122,8 +123,7 @@ class ProcessTally:
         lateness = lateness_us(done)
         self.late += int(np.count_nonzero(lateness > self.late_limits_us[0]))
         self.too_late += int(np.count_nonzero(lateness > self.late_limits_us[1]))
-        new = np.sort(release_latency_us(done))
-        self.latencies_us = np.insert(self.latencies_us, np.searchsorted(self.latencies_us, new), new)
+        self.latencies_us.add(release_latency_us(done))
 
 
 class GenerationTally:

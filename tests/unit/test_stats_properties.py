@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from skeleton.analysis.measure.stats import HISTOGRAM_BINS, distribution, latency_us
+from skeleton.analysis.measure.stats import HISTOGRAM_BINS, SortedSamples, distribution, latency_us
 
 # What the report holds: integer ns, in µs (ns / 1000), and integer samples as they are.
 NS = hnp.arrays(np.int64, st.integers(1, 400), elements=st.integers(-(2**53), 2**53))
@@ -43,6 +43,23 @@ def test_a_nan_sample_makes_every_percentile_nan_as_numpy_does(samples: np.ndarr
     got = latency_us(samples)
     assert all(math.isnan(v) for v in (got.p50, got.p99, got.max))
     assert all(math.isnan(v) for v in _percentile(samples))
+
+
+@given(st.lists(FLOATS, min_size=1, max_size=30), st.integers(0, 2), st.integers(1, 64))
+def test_samples_added_chunk_by_chunk_give_numpys_percentiles(chunks: list[np.ndarray], nans: int,
+                                                              least: int) -> None:
+    """The live tables' SortedSamples (two sorted runs, read by binary search): any chunks, the
+    percentiles of all of them, to the bit, whenever the small run merges (`least`, 4096 live);
+    a NaN anywhere makes every figure NaN."""
+    chunks = [c + 0.0 for c in chunks] + [np.full(1, np.nan)] * nans
+    kept = SortedSamples(least)
+    for chunk in chunks:
+        kept.add(chunk)
+    got = kept.latency_us()
+    if nans:
+        assert all(math.isnan(v) for v in (got.p50, got.p99, got.max))
+    else:
+        assert repr((got.p50, got.p99, got.max)) == repr(_percentile(np.concatenate(chunks)))
 
 
 def test_no_samples_no_percentiles() -> None:
