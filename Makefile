@@ -186,7 +186,7 @@ test-tools:
 # with coverage (fuzzer-no-link) and linked into each harness (tests/fuzz/fuzz_<name>.c).
 FUZZ_CC            ?= clang
 FUZZ_SECONDS       ?= 600
-FUZZ_SMOKE_SECONDS ?= 20
+FUZZ_SMOKE_SECONDS ?= 12
 FUZZ_HARNESSES     := buffer event config command seal
 FUZZ_DIR           := $(BUILD)/fuzz
 FUZZ_BINS          := $(patsubst %,$(FUZZ_DIR)/fuzz_%,$(FUZZ_HARNESSES))
@@ -235,7 +235,7 @@ define fuzz_one
 	    $$( [ -d tests/fuzz/regressions/$$h ] && echo tests/fuzz/regressions/$$h )
 endef
 
-# The smoke, part of `make test`: every harness for FUZZ_SMOKE_SECONDS (default 20), two at a
+# The smoke, part of `make test`: every harness for FUZZ_SMOKE_SECONDS (default 12), two at a
 # time on two cores (one at a time took 100 s of CI), each one's output kept together.
 test-fuzz: $(FUZZ_BINS)
 	@$(MAKE) --no-print-directory -j2 -Otarget $(FUZZ_HARNESSES:%=fuzz-smoke-%)

@@ -464,6 +464,9 @@ def test_the_analysis_gives_back_the_pages_of_the_log_it_read(
     first (the walk reads them all), so without the giving back they would all count."""
     # Chunks of 1 MiB: a boundary's page read again maps the 64 KiB around it (fault-around)
     monkeypatch.setattr(flatdecode, "CHUNK_BYTES", 1 << 20)
+    # The scan in 64 KiB steps, not walk_mode's 61 bytes: 150,000 steps over this log took 25 s of
+    # CI for what test_sync_word_scan_finds_every_one_across_chunk_ends checks on a small one.
+    monkeypatch.setattr(logreader, "SYNC_CHUNK_BYTES", 1 << 16)
     dpu1, dpu2 = small_run(cycles=20000)
     events = [(CONFIG_CHANNEL, small_config())] + [(TIMING_CHANNEL, t) for t in
                                                     batches(1, dpu1, 20) + batches(2, dpu2, 20)]  # fmt: skip
