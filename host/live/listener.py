@@ -156,6 +156,7 @@ class Listener:
         # The followed run.
         self.store: RecordStore | None = None
         self.keep_records = KEEP_RECORDS     # what its store holds at least (recordstore.py)
+        self._statuses_trimmed_at = 0
         self.statuses: list[Any] = []        # of the followed run (before one is: the latest few)
         self.pending: list[bytes] = []       # its timing batches not decoded yet
         self.generations: set[int] = set()   # of its timing batches, from their headers
@@ -351,6 +352,7 @@ class Listener:
 
     def _follow(self, run_id: int) -> None:
         self.store = RecordStore(run_id, self.keep_records)
+        self._statuses_trimmed_at = 0  # the store's `first` when the statuses were last trimmed
         self.pending, self.faults, self.found, self.next_run = [], [], [], None
         self.generations = set()
         self.statuses = [s for s in self.statuses if s.run_id == run_id]
@@ -423,10 +425,11 @@ class Listener:
         store = self.store
         if store is None:
             return
-        first = store.first
         store.forget()
-        if store.first == first or store.held_from_ns is None:
+        # (also after the store forgot on its own, its readers too far behind: RecordStore.add)
+        if store.first == self._statuses_trimmed_at or store.held_from_ns is None:
             return
+        self._statuses_trimmed_at = store.first
         since = store.held_from_ns - STATUSES_KEEP_NS
         with self.lock:
             named: set[tuple[int, int]] = set()

@@ -5,7 +5,8 @@ reads every record."""
 from __future__ import annotations
 
 import numpy as np
-from analysis_synth import MS, RUN_ID, Rec, batches, small_config, small_run
+import pytest
+from analysis_synth import MS, RUN_ID, Rec, batches, small_config, small_run, status
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -13,9 +14,10 @@ import skelmsg
 from skeleton.analysis.measure.report import build_report
 from skeleton.analysis.read.records import decode_run, lost_batches, seq_ranges
 from skeleton.host.cli.watch import Heard
+from skeleton.host.live import listener as listener_module
 from skeleton.host.live.listener import fault_key
 from skeleton.host.live.recordstore import HARD_FACTOR, RecordStore, _heard_first
-from skelmsg.contract import CONFIG_CHANNEL, TIMING_CHANNEL
+from skelmsg.contract import CONFIG_CHANNEL, STATUS_CHANNEL, TIMING_CHANNEL
 
 from .test_watch import _same_tables
 
@@ -108,3 +110,29 @@ def test_batches_heard_as_runs_are_the_logs_batches(heard: list[tuple[int, int]]
     store = RecordStore(RUN_ID)
     store.seqs = runs
     assert lost_batches(dpus, seqs, {2: 45}) == store.run({2: 45}).lost_batches
+
+
+def test_the_statuses_are_forgotten_with_the_records_but_the_first_to_name_a_lockout(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(listener_module, "STATUSES_KEEP_NS", 500 * MS)
+    config = small_config()
+    messages = _long_run(cycles=400)
+    heard = Heard(keep_events=False)
+    heard.listener.keep_records = KEEP
+    heard.handle(CONFIG_CHANNEL, config.encode())
+    for at in range(0, len(messages), 3):
+        for data in messages[at : at + 3]:
+            heard.handle(TIMING_CHANNEL, data)
+            beat = status(2, [(2, 1, 7)] if at == 30 else [])
+            beat.utc_ns = int(decode_run([data], RUN_ID).records["release_ns"].max())
+            heard.handle(STATUS_CHANNEL, beat.encode())
+        heard.refresh()
+        heard.find_faults()
+    store = heard.store
+    assert store is not None and store.held_from_ns is not None and store.first > 0
+    statuses = heard.listener.statuses
+    named = [s for s in statuses if s.lockouts]
+    assert len(named) == 1 and named[0].utc_ns < store.held_from_ns - 500 * MS
+    assert all(s.utc_ns >= store.held_from_ns - 500 * MS for s in statuses if not s.lockouts)
+    assert len(statuses) < len(messages) // 4
+    assert any(f.kind == "lockout" and f.process == "C" for f in heard.listener.found)
