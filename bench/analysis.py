@@ -28,7 +28,9 @@ decoded and tallied, the view drawn, while the search for faults (the whole repo
 watch._FaultFinder) runs in its own thread beside it as it does live.
 Goal: a refresh within REFRESH_S / 2, so the view redraws every REFRESH_S with half of
 it left to hear the messages. Beside it, the whole report of those records: what a
-refresh cost before the tables were tallied.
+refresh cost before the tables were tallied. And the view's memory: its store holds
+under twice its KEEP_RECORDS of the run's records, none forgotten before the search for
+faults read them (host/live/recordstore.py).
 """
 
 from __future__ import annotations
@@ -225,8 +227,15 @@ def _watch(held: int, path: Path) -> list[str]:
     finder.check()
     worst = max(costs)
     ok = worst <= REFRESH_S / 2
+    store = heard.store
+    assert store is not None
+    kept_ok = store.n_held < 2 * store.keep and store.unread == 0
+    kept_mb = sum(a.nbytes for a in (*store.records.values(), *store.inputs.values())) / 1e6
     return [
-        f"skel watch refresh at {held / 1e6:.1f} M records {worst * 1e3:.0f} ms: {'PASS' if ok else 'FAIL'}",
+        f"skel watch refresh at {held / 1e6:.1f} M records {worst * 1e3:.0f} ms: {'PASS' if ok else 'FAIL'}; "
+        f"records held {store.n_held:,} of {store.n_records:,} heard: {'PASS' if kept_ok else 'FAIL'}",
+        f"  skel watch's store holds its newest {store.keep:,} to {2 * store.keep:,} records (goal), "
+        f"{kept_mb:.0f} MB of arrays; {store.unread} forgotten before the search read them (goal: 0)",
         f"  skel watch at {held:,} records: {WATCH_REFRESHES} refreshes of {REFRESH_S} s of the run "
         f"({min(heard_records):,}-{max(heard_records):,} new records each) took {min(costs) * 1e3:.0f}-"
         f"{worst * 1e3:.0f} ms (median {statistics.median(costs) * 1e3:.0f} ms) beside the search for "
