@@ -102,6 +102,13 @@ def stolen_ns() -> int:
     return int(cpu[8]) * _TICK_NS if len(cpu) > 8 else 0
 
 
+def stolen_per_cpu_ns() -> tuple[int, ...]:
+    """stolen_ns of each CPU apart (/proc/stat's cpuN lines)."""
+    rows = [line.split() for line in Path("/proc/stat").read_text().splitlines()
+            if line.startswith("cpu") and line[3:4].isdigit()]
+    return tuple(int(row[8]) * _TICK_NS if len(row) > 8 else 0 for row in rows)
+
+
 class _Sampler(threading.Thread):
     """The steal counter every SAMPLE_S, so the gate knows the last seconds without waiting."""
 
@@ -217,12 +224,22 @@ class Attempt:
     root: Path | None = None  # the test's tmp_path, where its DPUs' logs go
     probe: Probe | None = None
     reported: bool = False
+    stolen_at_start_per_cpu: tuple[int, ...] = ()
 
     def stolen_share(self) -> tuple[float, float]:
-        """(ms stolen, its share of the CPUs' time) since the attempt began."""
+        """(ms stolen, its share of the CPUs' time) since the attempt began: the share of the CPU
+        that lost the most, when each CPU's was read at the start. A DPU is pinned to one CPU and
+        stalls with it: on CI of 0af481d the console's run-push test had DPUs 1-3 kept from
+        running 14 % of its last attempt, together, while the machine's steal (both CPUs summed)
+        and the probe (free to wake on the other CPU) said under 5 %."""
+        elapsed_ns = max(time.monotonic() - self.started_s, 1e-3) * 1e9
         stolen = stolen_ns() - self.stolen_at_start_ns
-        capacity = max(time.monotonic() - self.started_s, 1e-3) * 1e9 * _CPUS
-        return stolen / 1e6, stolen / capacity
+        share = stolen / (elapsed_ns * _CPUS)
+        now = stolen_per_cpu_ns()
+        if self.stolen_at_start_per_cpu and len(now) == len(self.stolen_at_start_per_cpu):
+            share = max(share, *((b - a) / elapsed_ns for a, b in zip(self.stolen_at_start_per_cpu, now,
+                                                                       strict=True)))
+        return stolen / 1e6, share
 
     def probe_lateness(self) -> Lateness | None:
         return self.probe.lateness() if self.probe is not None else None
@@ -331,7 +348,8 @@ def _steal_watch(request: pytest.FixtureRequest) -> Iterator[None]:
         if _probe_dir is not None and PROBE.exists():
             _attempts += 1
             probe = Probe(_probe_dir / f"{_attempts}.txt")
-    _current = Attempt(request.node.nodeid, time.monotonic(), stolen_ns(), root, probe)
+    _current = Attempt(request.node.nodeid, time.monotonic(), stolen_ns(), root, probe,
+                       stolen_at_start_per_cpu=stolen_per_cpu_ns())
     yield
     if probe is not None:
         probe.stop()

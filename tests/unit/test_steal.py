@@ -188,3 +188,15 @@ def test_a_test_inconclusive_in_two_runs_in_a_row_fails_the_second(
     assert _finish(monkeypatch, evidence, 0, 1) == 1      # again in the next run: a failure
     assert _finish(monkeypatch, evidence, 0, 0) == 0
     assert _finish(monkeypatch, evidence, 0, 1) == 0      # after a conclusive run: once again
+
+
+def test_the_cpu_that_lost_the_most_is_the_attempts_evidence(monkeypatch: pytest.MonkeyPatch) -> None:
+    """60 ms stolen in a second, all of it from one of two CPUs: 3 % of the machine's time, 6 % of
+    the time of the CPU its DPUs were pinned to, which voids the attempt."""
+    now = (10**12, 10**12)
+    monkeypatch.setattr(steal, "stolen_per_cpu_ns", lambda: now)
+    monkeypatch.setattr(steal, "_CPUS", 2)
+    attempt = steal.Attempt("t::x", time.monotonic() - 1.0, steal.stolen_ns() - 60_000_000, None, None,
+                            stolen_at_start_per_cpu=(now[0] - 60_000_000, now[1]))
+    ms, share = attempt.stolen_share()
+    assert round(ms) == 60 and 0.055 < share <= 0.06 and steal.no_evidence(share, None)
