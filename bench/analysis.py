@@ -27,8 +27,8 @@ those last refreshes is timed: the timing batches heard during REFRESH_S of the 
 decoded and tallied, the view drawn, while the search for faults (the whole report,
 watch._FaultFinder) runs in its own thread beside it as it does live.
 Goal: a refresh within REFRESH_S / 2, so the view redraws every REFRESH_S with half of
-it left to hear the messages. Beside it, the whole report of those records: what a
-refresh cost before the tables were tallied. And the view's memory: its store holds
+it left to hear the messages. Beside it, a search for faults over the records held (the
+report of them, which a refresh once was). And the view's memory: its store holds
 under twice its KEEP_RECORDS of the run's records, none forgotten before the search for
 faults read them (host/live/recordstore.py).
 """
@@ -203,6 +203,10 @@ def _watch(held: int, path: Path) -> list[str]:
     while at < len(events) and events[at].utime_us <= first_timed:
         heard.handle(events[at].channel, events[at].data)
         at += 1
+        if at % 2000 == 0:  # as live: refreshed, and searched before the store must forget unread
+            heard.refresh()
+            if heard.store is not None and heard.store.n_records - heard.covered > heard.store.keep // 2:
+                heard.find_faults()
     heard.refresh()
     start = time.monotonic()
     heard.find_faults()
@@ -231,13 +235,16 @@ def _watch(held: int, path: Path) -> list[str]:
     assert store is not None
     kept_ok = store.n_held < 2 * store.keep and store.unread == 0
     kept_mb = sum(a.nbytes for a in (*store.records.values(), *store.inputs.values())) / 1e6
+    tables = heard.tables
+    latencies_mb = sum(len(p.latencies_us) for p in tables.processes) * 8 / 1e6 if tables else 0.0
     return [
         f"skel watch refresh at {held / 1e6:.1f} M records {worst * 1e3:.0f} ms: {'PASS' if ok else 'FAIL'}; "
         f"records held {store.n_held:,} of {store.n_records:,} heard: {'PASS' if kept_ok else 'FAIL'}",
         f"  skel watch's store holds its newest {store.keep:,} to {2 * store.keep:,} records (goal), "
-        f"{kept_mb:.0f} MB of arrays; {store.unread} forgotten before the search read them (goal: 0)",
+        f"{kept_mb:.0f} MB of arrays; {store.unread} forgotten before the search read them (goal: 0); "
+        f"the tables' release latencies {latencies_mb:.0f} MB (8 bytes a cycle)",
         f"  skel watch at {held:,} records: {WATCH_REFRESHES} refreshes of {REFRESH_S} s of the run "
         f"({min(heard_records):,}-{max(heard_records):,} new records each) took {min(costs) * 1e3:.0f}-"
         f"{worst * 1e3:.0f} ms (median {statistics.median(costs) * 1e3:.0f} ms) beside the search for "
-        f"faults; the whole report of the records before them (what a refresh cost before): {whole_s:.2f} s",
+        f"faults; a search for faults over the records held (the report of them): {whole_s:.2f} s",
     ]

@@ -190,14 +190,16 @@ def _heard_first(runs: list[tuple[int, int]], seq: int) -> bool:
 
 
 def _kept(columns: dict[str, np.ndarray], drop: int, used: int) -> tuple[dict[str, np.ndarray], int]:
-    """Rows drop..used of `columns` in new arrays of the same capacity: views taken before
-    keep the old ones."""
+    """Rows drop..used of `columns` in new arrays of twice their number (room to grow to the
+    next forgetting without a copy, and no more: a burst that grew the old ones is let go);
+    views taken before keep the old ones."""
+    rows = used - drop
     out = {}
     for name, array in columns.items():
-        kept = np.empty_like(array)
-        kept[: used - drop] = array[drop:used]
+        kept = np.empty(max(2 * rows, 4096), dtype=array.dtype)
+        kept[:rows] = array[drop:used]
         out[name] = kept
-    return out, used - drop
+    return out, rows
 
 
 def _append(
