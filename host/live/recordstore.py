@@ -34,7 +34,7 @@ from skeleton.analysis.read.records import (
     usual_sizes,
 )
 
-KEEP_RECORDS = 1 << 17  # 21 MB of records: 73 s of SERVO
+KEEP_RECORDS = 1 << 17  # 73 s of SERVO; ~70 MB of arrays with their inputs and room to grow
 HARD_FACTOR = 4
 
 
