@@ -54,8 +54,8 @@ def link_metrics(system: System, buffers: Sequence[BufferMetrics], processes: Se
                 rates[b.id] = cycles.get(writer.id, 0) / elapsed_s[writer.dpu]
         whole = len(rates) == len(mine)
         messages = sum(rates.values()) if whole else None
-        offered = (sum(r * 8 * (b.bytes if link.local else b.wire_bytes) for b in mine
-                       if (r := rates.get(b.id)) is not None) / 1e6 if whole else None)
+        offered = (sum(rates[b.id] * 8 * (b.bytes if link.local else b.wire_bytes) for b in mine) / 1e6
+                   if whole else None)
         utilization = (100 * offered / link.bandwidth_mbps
                        if offered is not None and link.bandwidth_mbps else None)
         read = [measured[b.id] for b in mine if b.id in measured]
