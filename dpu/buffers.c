@@ -32,9 +32,30 @@ void buffers_slot_seed(skel_slot_t *slot, int64_t seed, int16_t dpu)
     draw_seed_state(slot->state, (int64_t)mine, (uint16_t)slot->buffer);
 }
 
-int buffers_emulated(const skel_transport_t *tr)
+static int buffers_emulated(const skel_slot_t *slot)
 {
-    return tr->latency_ns > 0 || tr->jitter_ns > 0 || tr->loss > 0 || tr->enter > 0;
+    const skel_transport_t *tr = &slot->tr;
+    return tr->latency_ns > 0 || tr->jitter_ns > 0 || tr->loss > 0 || tr->enter > 0 || slot->bus != NULL;
+}
+
+void buffers_bus_reset(skel_bus_t *bus)
+{
+    bus->free_ns = INT64_MIN;
+    bus->dropped = 0;
+}
+
+/* A message's turn on its link's transmitter, from *AT on: *AT becomes the instant its last
+ * byte is sent. 0 when it would wait longer than the queue holds: dropped, for every reader
+ * here. */
+static int buffers_bus_send(skel_bus_t *bus, int64_t *at, int32_t bytes)
+{
+    int64_t start = *at > bus->free_ns ? *at : bus->free_ns;
+    if (start - *at > bus->queue_ns) {
+        bus->dropped++;
+        return 0;
+    }
+    bus->free_ns = *at = start + (int64_t)((double)bytes * bus->ns_per_byte + 0.5);
+    return 1;
 }
 
 /* Gilbert-Elliott: the state moves first, then the version is lost with its state's loss. */
@@ -125,12 +146,21 @@ int64_t buffers_advance(skel_plan_t *plan, int64_t now_mono_ns)
     return next;
 }
 
-/* Through the link's emulated transport: lost, held until due, or seen at once. Versions
- * leave in the order they came (a link delivers in order): one due before an earlier
- * one waits for it. A full ring drops the version, counted. */
+/* Through the link's emulated transport: its turn on the bus (which a version lost on the
+ * way takes too), lost, held until due, or seen at once. Versions leave in the order they
+ * came (a link delivers in order): one due before an earlier one waits for it. A full ring
+ * drops the version, counted. */
 static void buffers_transport(skel_slot_t *slot, const wire_buffer_hdr_t *hdr, const uint8_t *payload,
                               int64_t recv_ns)
 {
+    /* From the send stamp, but no later than the arrival: a stamp from the future (another
+     * clock, a damaged message) can hold nothing longer than the delay, nor overflow. */
+    int64_t from = slot->tr.from_send && hdr->send_ns < recv_ns ? hdr->send_ns : recv_ns;
+    if (slot->bus != NULL) {
+        int sent = buffers_bus_send(slot->bus, &from, slot->wire_extra + (hdr->nbytes > 0 ? hdr->nbytes : 0));
+        if (!sent && !slot->unread) slot->lost++;
+        if (!sent || slot->unread) return;
+    }
     if (buffers_lost(slot)) {
         slot->lost++;
         return;
@@ -139,9 +169,6 @@ static void buffers_transport(skel_slot_t *slot, const wire_buffer_hdr_t *hdr, c
         buffers_take(slot, hdr->seq, hdr->send_ns, recv_ns, payload, hdr->nbytes);
         return;
     }
-    /* From the send stamp, but no later than the arrival: a stamp from the future (another
-     * clock, a damaged message) can hold nothing longer than the delay, nor overflow. */
-    int64_t from = slot->tr.from_send && hdr->send_ns < recv_ns ? hdr->send_ns : recv_ns;
     int64_t due = from + buffers_delay(slot);
     if (due < slot->last_due_ns) due = slot->last_due_ns;
     if (due <= recv_ns && slot->pend_count == 0) {
@@ -172,7 +199,7 @@ int buffers_slot_receive(skel_slot_t *slot, int64_t run_id, const wire_buffer_hd
     /* After a live switch the new plan's lcm_t holds copies of what the old one
      * delivered already: those are not received twice. */
     if (hdr->seq <= slot->dup_upto) return BUFFERS_DUPLICATE;
-    if (buffers_emulated(&slot->tr)) buffers_transport(slot, hdr, payload, recv_ns);
+    if (buffers_emulated(slot)) buffers_transport(slot, hdr, payload, recv_ns);
     else buffers_take(slot, hdr->seq, hdr->send_ns, recv_ns, payload, hdr->nbytes);
     return BUFFERS_ACCEPTED;
 }

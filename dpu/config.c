@@ -116,6 +116,12 @@ static int config_check_transport(const skelmsg_link_t *l, char *reason, size_t 
     if (!config_pct(l->loss_pct) || !config_pct(l->burst_enter_pct) || !config_pct(l->burst_leave_pct) ||
         !config_pct(l->burst_loss_pct))
         return config_fail(reason, len, "link %d: a loss or burst percentage is outside 0..100", l->id);
+    if (!(l->bandwidth_mbps == 0 ||
+          (l->bandwidth_mbps >= SKEL_MIN_BANDWIDTH_MBPS && l->bandwidth_mbps <= SKEL_MAX_BANDWIDTH_MBPS)) ||
+        (l->bandwidth_mbps > 0 && l->queue_us <= 0) || l->queue_us < 0)
+        return config_fail(reason, len, "link %d: bandwidth_mbps %g outside %g..%g, or queue_us %d not "
+                           "positive with it", l->id, l->bandwidth_mbps, SKEL_MIN_BANDWIDTH_MBPS,
+                           SKEL_MAX_BANDWIDTH_MBPS, l->queue_us);
     return 0;
 }
 
@@ -299,9 +305,9 @@ static int config_check_code(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d
     for (int i = 0; i < p->ninputs; i++) {
         const skelmsg_buffer_desc_t *b = config_buffer(cfg, p->inputs[i]);
         const skelmsg_link_t *l = b != NULL ? config_link(cfg, b->link) : NULL;
-        if (l != NULL && (l->latency_us > 0 || l->jitter_us > 0))
+        if (l != NULL && (l->latency_us > 0 || l->jitter_us > 0 || l->bandwidth_mbps > 0))
             return config_fail(reason, len, "process %d: real code cannot read buffer %d through link %d's "
-                               "emulated latency yet", p->id, b->id, l->id);
+                               "emulated latency or bandwidth yet", p->id, b->id, l->id);
     }
     return 0;
 }
@@ -399,8 +405,33 @@ static int config_check_ids(const skelmsg_config_t *cfg, char *reason, size_t le
     return 0;
 }
 
-/* Distinct buffer URLs we need, and the control URL when our processes await or emit
- * events (event_open adds it as a link), stay within SKEL_MAX_LINKS; buffers we read
+/* Whether a process of DPU reads a buffer on link LINK (its bus is emulated here: buffers.c). */
+static int config_reads_link(const skelmsg_config_t *cfg, int16_t dpu, int16_t link)
+{
+    for (int i = 0; i < cfg->nprocesses; i++)
+        for (int q = 0; cfg->processes[i].dpu == dpu && q < cfg->processes[i].ninputs; q++) {
+            const skelmsg_buffer_desc_t *b = config_buffer(cfg, cfg->processes[i].inputs[q]);
+            if (b != NULL && b->link == link) return 1;
+        }
+    return 0;
+}
+
+/* Whether DPU opens buffer B's URL: a process of its reads or writes B, or B is on a
+ * bandwidth-limited link that it reads, whose every message it hears for the bus. */
+static int config_opens(const skelmsg_config_t *cfg, int16_t dpu, const skelmsg_buffer_desc_t *b)
+{
+    for (int i = 0; i < cfg->nprocesses; i++) {
+        const skelmsg_process_t *p = &cfg->processes[i];
+        if (p->dpu != dpu) continue;
+        for (int q = 0; q < p->ninputs + p->noutputs; q++)
+            if ((q < p->ninputs ? p->inputs[q] : p->outputs[q - p->ninputs]) == b->id) return 1;
+    }
+    const skelmsg_link_t *l = config_link(cfg, b->link);
+    return l != NULL && l->bandwidth_mbps > 0 && config_reads_link(cfg, dpu, b->link);
+}
+
+/* Distinct buffer URLs we open, and the control URL when our processes await or emit
+ * events (event_open adds it as a link), stay within SKEL_MAX_LINKS; buffers we open
  * must not share a channel on one URL (a reader could not tell them apart). */
 static int config_check_links(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d, char *reason,
                               size_t len)
@@ -412,27 +443,28 @@ static int config_check_links(const skelmsg_config_t *cfg, const skelmsg_dpu_t *
         if (p->dpu == d->id && (p->sync == SKELMSG_PROCESS_T_SYNC_EVENT || p->nemits > 0))
             urls[nurls++] = ""; /* the control URL: no buffer URL is empty */
     }
-    for (int i = 0; i < cfg->nprocesses; i++) {
-        const skelmsg_process_t *p = &cfg->processes[i];
-        if (p->dpu != d->id) continue;
-        for (int q = 0; q < p->ninputs + p->noutputs; q++) {
-            int16_t id = q < p->ninputs ? p->inputs[q] : p->outputs[q - p->ninputs];
-            const skelmsg_buffer_desc_t *b = config_buffer(cfg, id);
-            const char *url = b->url;
-            if (url[0] == '\0') continue;
-            int u = 0;
-            while (u < nurls && strcmp(urls[u], url) != 0) u++;
-            if (u == nurls && nurls == SKEL_MAX_LINKS)
-                return config_fail(reason, len, "DPU %d: more than %d links (a group and port per writer "
-                                   "it reads or is, and the control URL for events)", d->id, SKEL_MAX_LINKS);
-            if (u == nurls) urls[nurls++] = url;
-            for (int j = 0; j < cfg->nbuffers; j++) {
-                const skelmsg_buffer_desc_t *o = &cfg->buffers[j];
-                if (o->id != b->id && strcmp(o->url, url) == 0 &&
-                    strcmp(o->channel, b->channel) == 0)
-                    return config_fail(reason, len, "buffers %d and %d share channel '%s' on %s",
-                                       b->id, o->id, b->channel, url);
-            }
+    int buses = 0;
+    for (int i = 0; i < cfg->nlinks; i++)
+        buses += cfg->links[i].bandwidth_mbps > 0 && config_reads_link(cfg, d->id, cfg->links[i].id);
+    if (buses > SKEL_MAX_LINKS)
+        return config_fail(reason, len, "DPU %d: reads more than %d bandwidth-limited links", d->id,
+                           SKEL_MAX_LINKS);
+    for (int i = 0; i < cfg->nbuffers; i++) {
+        const skelmsg_buffer_desc_t *b = &cfg->buffers[i];
+        const char *url = b->url;
+        if (url[0] == '\0' || !config_opens(cfg, d->id, b)) continue;
+        int u = 0;
+        while (u < nurls && strcmp(urls[u], url) != 0) u++;
+        if (u == nurls && nurls == SKEL_MAX_LINKS)
+            return config_fail(reason, len, "DPU %d: more than %d links (a group and port per writer "
+                               "it reads or is, every writer on a bandwidth-limited link it reads, and "
+                               "the control URL for events)", d->id, SKEL_MAX_LINKS);
+        if (u == nurls) urls[nurls++] = url;
+        for (int j = 0; j < cfg->nbuffers; j++) {
+            const skelmsg_buffer_desc_t *o = &cfg->buffers[j];
+            if (o->id != b->id && strcmp(o->url, url) == 0 && strcmp(o->channel, b->channel) == 0)
+                return config_fail(reason, len, "buffers %d and %d share channel '%s' on %s",
+                                   b->id, o->id, b->channel, url);
         }
     }
     return 0;

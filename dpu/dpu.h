@@ -166,8 +166,21 @@ typedef struct {
     double loss, enter, leave, burst_loss; /* probabilities per version (Gilbert-Elliott) */
 } skel_transport_t;
 
-/* One buffer this DPU reads (shared by all its readers on this DPU). Written by
- * the link handler or by a local writer; read by process cycles; one thread. */
+/* A bandwidth-limited link as one reading DPU emulates it: one transmitter that every
+ * message on the link queues for, in the order they come (buffers.c). Each reading DPU
+ * keeps its own, from the same messages: on virtual time they agree exactly. */
+typedef struct {
+    int16_t link;              /* link_t.id */
+    double ns_per_byte;        /* 8000 / bandwidth_mbps */
+    int64_t queue_ns;          /* a message that would wait longer is dropped (tail drop) */
+    int64_t free_ns;           /* the transmitter is busy until then */
+    int64_t dropped;           /* messages the full queue dropped in this run */
+} skel_bus_t;
+
+/* One buffer this DPU reads (shared by all its readers on this DPU), or, on a bandwidth-
+ * limited link, one it only hears so that its messages take their turn on the bus
+ * (unread). Written by the link handler or by a local writer; read by process cycles;
+ * one thread. */
 typedef struct skel_slot {
     int16_t buffer;
     int16_t writer;
@@ -182,6 +195,9 @@ typedef struct skel_slot {
     struct skel_plan *plan;
     /* The link's emulated transport (buffers.c): NULL pending when it has no latency. */
     skel_transport_t tr;
+    skel_bus_t *bus;           /* its link's transmitter (plan->buses), NULL: no bandwidth given */
+    int32_t wire_extra;        /* a message's bytes on the bus besides its payload */
+    int8_t unread;             /* heard for the bus only: no process here reads it */
     skel_pending_t *pending;   /* a ring of pend_cap, sized at config time */
     int pend_cap, pend_head, pend_count;
     int64_t last_due_ns;       /* versions are delivered in order: none due before this */
@@ -241,7 +257,7 @@ void buffers_slot_carry(skel_slot_t *slot, const skel_slot_t *old);
 void buffers_slot_advance(skel_slot_t *slot, int64_t now_ns);
 /* Every slot's versions due by NOW (monotonic): the next instant one is (INT64_MAX: none). */
 int64_t buffers_advance(struct skel_plan *plan, int64_t now_mono_ns);
-int buffers_emulated(const skel_transport_t *tr);
+void buffers_bus_reset(skel_bus_t *bus);
 void buffers_input_reset(skel_input_t *in);
 void buffers_input_peek(const skel_input_t *in, const skel_slot_t *slot, skel_in_rec_t *rec);
 void buffers_input_commit(skel_input_t *in, const skel_slot_t *slot, const skel_in_rec_t *rec,
@@ -521,6 +537,8 @@ typedef struct skel_plan {
     skel_slot_t *slots;
     int nlinks;
     skel_link_t links[SKEL_MAX_LINKS];
+    int nbuses;
+    skel_bus_t buses[SKEL_MAX_LINKS];
     uint8_t *dummy;             /* the payload every output sends */
     /* run context read by the link handler (executive thread only) */
     int64_t run_id;

@@ -39,6 +39,20 @@ static const char *plan_host(const skelmsg_config_t *cfg, int16_t id)
     return "";
 }
 
+/* Link L's transmitter as this DPU emulates it: one per link, shared by its slots. */
+static skel_bus_t *plan_bus(skel_plan_t *plan, const skelmsg_link_t *l)
+{
+    for (int i = 0; i < plan->nbuses; i++)
+        if (plan->buses[i].link == l->id) return &plan->buses[i];
+    if (plan->nbuses == SKEL_MAX_LINKS) return NULL; /* config.c refuses more */
+    skel_bus_t *bus = &plan->buses[plan->nbuses++];
+    bus->link = l->id;
+    bus->ns_per_byte = 8000.0 / l->bandwidth_mbps;
+    bus->queue_ns = (int64_t)l->queue_us * SKEL_NS_PER_US;
+    buffers_bus_reset(bus);
+    return bus;
+}
+
 /* The emulated transport of buffer B's link as this DPU reads it, and its ring of held
  * versions: as many as the writer can send within the longest delay, and a few for a burst
  * of late cycles (a full ring drops and counts). A writer on another host stamps its send
@@ -60,8 +74,15 @@ static int plan_transport(skel_plan_t *plan, const skelmsg_config_t *cfg, const 
         if (cfg->processes[i].id == b->writer) w = &cfg->processes[i];
     tr->from_send = clock_simulated() ||
                     (w != NULL && strcmp(plan_host(cfg, w->dpu), plan_host(cfg, plan->dpu)) == 0);
-    if (tr->latency_ns == 0 && tr->jitter_ns == 0) return 0;
+    if (l->bandwidth_mbps > 0) {
+        if ((slot->bus = plan_bus(plan, l)) == NULL) return -1;
+        slot->wire_extra = b->url[0] == '\0' ? 0 : SKEL_BUFFER_HEADER_BYTES + SKEL_WIRE_LCM_HEADER_BYTES +
+                           (int32_t)strlen(b->channel) + 1 + SKEL_WIRE_UDP_IP_BYTES;
+    }
+    if (slot->unread || (tr->latency_ns == 0 && tr->jitter_ns == 0 && slot->bus == NULL)) return 0;
     int64_t most = tr->latency_ns + (tr->jitter == SKELMSG_LINK_T_JITTER_NORMAL ? 3 : 1) * tr->jitter_ns;
+    if (slot->bus != NULL) /* a full queue, then its own bytes */
+        most += slot->bus->queue_ns + (int64_t)((double)(slot->wire_extra + b->bytes) * slot->bus->ns_per_byte);
     int64_t period = w != NULL && w->period_us > 0 ? (int64_t)w->period_us * SKEL_NS_PER_US : SKEL_MIN_PERIOD_US * SKEL_NS_PER_US;
     int64_t cap = most / period + 8;
     slot->pend_cap = (int)(cap > PLAN_MAX_HELD ? PLAN_MAX_HELD : cap);
@@ -69,13 +90,15 @@ static int plan_transport(skel_plan_t *plan, const skelmsg_config_t *cfg, const 
     return slot->pending == NULL ? -1 : 0;
 }
 
-static int plan_slot_index(skel_plan_t *plan, const skelmsg_config_t *cfg, int16_t id)
+static int plan_slot_index(skel_plan_t *plan, const skelmsg_config_t *cfg, int16_t id, int unread)
 {
     for (int i = 0; i < plan->nslots; i++)
         if (plan->slots[i].buffer == id) return i;
+    if (plan->nslots >= SKEL_MAX_SLOTS) return -1;
     const skelmsg_buffer_desc_t *b = config_buffer(cfg, id);
     skel_slot_t *slot = &plan->slots[plan->nslots];
     slot->buffer = id;
+    slot->unread = (int8_t)unread;
     slot->writer = b->writer;
     slot->link = plan_link_index(plan, b->url);
     slot->channel = strdup(b->channel);
@@ -151,7 +174,7 @@ static int plan_add_processes(skel_plan_t *plan, const skelmsg_config_t *cfg, in
             skel_input_t *in = &p->inputs[q];
             in->buffer = src->inputs[q];
             in->required = src->required[q];
-            in->slot = plan_slot_index(plan, cfg, src->inputs[q]);
+            in->slot = plan_slot_index(plan, cfg, src->inputs[q], 0);
             if (in->slot < 0) return -1;
             buffers_input_reset(in);
         }
@@ -160,6 +183,11 @@ static int plan_add_processes(skel_plan_t *plan, const skelmsg_config_t *cfg, in
             if (plan_add_output(plan, cfg, &p->outputs[q], src->outputs[q]) != 0) return -1;
         if (event_add_process(plan, p, src) != 0) return -1;
     }
+    /* Every other message on a link whose bus a reader here emulates takes its turn too. */
+    for (int i = 0; i < cfg->nbuffers; i++)
+        for (int k = 0; k < plan->nbuses; k++)
+            if (cfg->buffers[i].link == plan->buses[k].link && plan_slot_index(plan, cfg, cfg->buffers[i].id, 1) < 0)
+                return -1;
     for (int i = 0; i < plan->nprocesses; i++)
         for (int q = 0; q < plan->processes[i].noutputs; q++) {
             skel_output_t *out = &plan->processes[i].outputs[q];
@@ -368,6 +396,7 @@ void plan_reset_run(skel_plan_t *plan, int64_t run_id)
         buffers_slot_reset(&plan->slots[s]);
         buffers_slot_seed(&plan->slots[s], plan->seed, plan->dpu);
     }
+    for (int k = 0; k < plan->nbuses; k++) buffers_bus_reset(&plan->buses[k]);
     for (int i = 0; i < plan->nprocesses; i++) {
         skel_process_t *p = &plan->processes[i];
         for (int q = 0; q < p->ninputs; q++) buffers_input_reset(&p->inputs[q]);

@@ -172,6 +172,10 @@ int report_publish(skel_server_t *s, const skel_plan_t *plan, skel_history_t *hi
             log_line("DPU %d: buffer %d: the link's emulation lost %lld versions, its full ring of held "
                      "versions %lld", plan->dpu, plan->slots[i].buffer, (long long)plan->slots[i].lost,
                      (long long)plan->slots[i].overflow);
+    for (int k = 0; k < plan->nbuses; k++)
+        if (plan->buses[k].dropped > 0)
+            log_line("DPU %d: link %d: its emulated transmit queue (bandwidth) dropped %lld messages",
+                     plan->dpu, plan->buses[k].link, (long long)plan->buses[k].dropped);
     int rc = history_publish_report(history, s->rec, &r);
     free(procs);
     free(ins);

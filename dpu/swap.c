@@ -76,6 +76,13 @@ static const skel_slot_t *swap_old_slot(const skel_plan_t *old, const skel_slot_
 
 static void swap_carry_slots(skel_plan_t *next, const skel_plan_t *old)
 {
+    /* A link's transmitter stays as busy across a switch as it was, with its count. */
+    for (int k = 0; k < next->nbuses; k++)
+        for (int j = 0; j < old->nbuses; j++)
+            if (old->buses[j].link == next->buses[k].link) {
+                next->buses[k].free_ns = old->buses[j].free_ns;
+                next->buses[k].dropped = old->buses[j].dropped;
+            }
     for (int i = 0; i < next->nslots; i++) {
         skel_slot_t *slot = &next->slots[i];
         const skel_slot_t *o = swap_old_slot(old, slot);

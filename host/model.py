@@ -19,10 +19,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 import skelmsg
-from skelmsg.contract import BUFFER_HEADER_BYTES
-
-LCM_HEADER_BYTES = 8
-UDP_IP_BYTES = 8 + 20
+from skelmsg.contract import BUFFER_HEADER_BYTES, WIRE_LCM_HEADER_BYTES, WIRE_UDP_IP_BYTES
 
 
 @dataclass(frozen=True)
@@ -42,10 +39,25 @@ class Link:
     per_byte_ns: float = 0.0
     push_byte_ns: float = 0.0
     remote_read_us: float = 0.0
+    # with bandwidth_mbps: the longest a message waits for the transmitter before it is dropped
+    queue_us: int = 0
 
     @property
     def local(self) -> bool:
         return self.url == "local"
+
+    @property
+    def holds(self) -> bool:
+        """Whether its reading DPUs hold versions back (latency, jitter, or a turn on the bus)."""
+        return bool(self.latency_us or self.jitter_us or self.bandwidth_mbps)
+
+    def message_bytes(self, buffer: Buffer) -> int:
+        """One message of BUFFER as this link carries it: the payload in memory, else on the wire."""
+        return buffer.bytes if self.local else buffer.wire_bytes
+
+    def wire_us(self, buffer: Buffer) -> float:
+        """The time one message of BUFFER takes on the link's transmitter (0: no bandwidth given)."""
+        return 8 * self.message_bytes(buffer) / self.bandwidth_mbps if self.bandwidth_mbps else 0.0
 
     @property
     def costs(self) -> bool:
@@ -103,7 +115,8 @@ class Buffer:
         """One message of it on an IP link: buffer_t's bytes before the payload (the contract's
         BUFFER_HEADER_BYTES), the payload, LCM's short-message header (magic, sequence, the
         channel name and its NUL), UDP and IPv4 headers."""
-        return BUFFER_HEADER_BYTES + self.bytes + LCM_HEADER_BYTES + len(self.channel) + 1 + UDP_IP_BYTES
+        return (BUFFER_HEADER_BYTES + self.bytes + WIRE_LCM_HEADER_BYTES + len(self.channel) + 1
+                + WIRE_UDP_IP_BYTES)
 
 
 @dataclass(frozen=True)
@@ -243,6 +256,56 @@ class Reference:
     dpus: dict[int, ReferenceDpu] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class Bus:
+    """A bandwidth-limited link's transmitter as its reading DPUs emulate it (dpu/buffers.c):
+    every message on the link takes its bytes' time on the wire (Link.wire_us), one after
+    another in the order sent, and one that would wait longer than the link's queue_us is
+    dropped. The figures take each writer at its most, one message a period."""
+
+    utilization: float                  # of the bandwidth (1: all of it)
+    waits_us: dict[int, float] = field(compare=False)  # per buffer: the longest a message waits
+    # the long-run share of the offered bytes the full queue drops (over 1: 1 - 1/U); of the
+    # messages, more of the small or of the large, as they come
+    dropped_pct: float = 0.0
+
+    @property
+    def saturated(self) -> bool:
+        return self.utilization > 1
+
+    @property
+    def most_wait_us(self) -> float:
+        return max(self.waits_us.values(), default=0.0)
+
+
+BUSY_PERIOD_STEPS = 100_000  # arrivals looked at in a busy period: beyond, the queue's bound is taken
+
+
+def bus_of(link: Link, flows: Sequence[tuple[int, float, float]]) -> Bus:
+    """LINK's transmitter for FLOWS, each (buffer id, its writer's period, its wire time) in us.
+    At or over all of the bandwidth, the queue fills: a message waits its whole queue_us. Under
+    it, a FIFO queue is longest when every writer sends at once: a message of buffer j sent at
+    k periods of its after that instant, behind every other sent by then (those at the same
+    instant first), waits the work sent until then less the time gone, within the synchronous
+    busy period (the least w with w = sum of ceil(w / T) * C)."""
+    utilization = sum(c / t for _, t, c in flows)
+    if utilization >= 1 - 1e-12:
+        return Bus(utilization, {b: float(link.queue_us) for b, _, _ in flows},
+                   100 * max(0.0, 1 - 1 / utilization))
+    busy, work = 0.0, sum(c for _, _, c in flows)
+    while work - busy > 1e-9:
+        busy, work = work, sum(math.ceil(work / t - 1e-12) * c for _, t, c in flows)
+    waits: dict[int, float] = {}
+    for b, period, own in flows:
+        most, k = 0.0, 0
+        while k * period < busy and k < BUSY_PERIOD_STEPS:
+            at = k * period
+            sent = sum((math.floor(at / t + 1e-12) + 1) * c for _, t, c in flows)
+            most, k = max(most, sent - at - own), k + 1
+        waits[b] = min(float(link.queue_us), most if k < BUSY_PERIOD_STEPS else busy)
+    return Bus(utilization, waits)
+
+
 def control_link(links: Sequence[Link]) -> Link | None:
     """The first udpm link: its URL is the control URL (None: every link is local)."""
     return next((link for link in links if not link.local), None)
@@ -313,6 +376,35 @@ class System:
     def buffer_url(self, key: int | str) -> str:
         """The URL a buffer travels on: its writer's group and port on its link; "" on a local link."""
         return self.buffer_urls[self.buffer(key).id]
+
+    @functools.cached_property
+    def buses(self) -> dict[int, Bus]:
+        """Each bandwidth-limited link's transmitter, by link id."""
+        return {k.id: bus_of(k, [(b.id, self.process(b.writer).period_us, k.wire_us(b))
+                                 for b in self.buffers if b.link == k.id and self.find_process(b.writer)])
+                for k in self.links if k.bandwidth_mbps}
+
+    def transport_us(self, buffer_id: int) -> tuple[float, float, float]:
+        """The least, mean and most delay a buffer's link emulates: its latency and jitter
+        (Link.delay_us), and on a bandwidth-limited link its own time on the wire, plus at most
+        its longest wait for the transmitter (on average, the whole queue when saturated)."""
+        b = self.buffer(buffer_id)
+        link = self.link(b.link)
+        least, mean, most = link.delay_us
+        bus = self.buses.get(link.id)
+        if bus is None:
+            return least, mean, most
+        wire, wait = link.wire_us(b), bus.waits_us.get(b.id, 0.0)
+        return least + wire, mean + wire + (wait if bus.saturated else 0.0), most + wire + wait
+
+    def lost_pct(self, link_id: int) -> float:
+        """The long-run share of a link's messages a reading DPU never sees: the link's loss, and
+        what a saturated link's full queue drops before it (Bus.dropped_pct: of the bytes)."""
+        link = self.link(link_id)
+        bus = self.buses.get(link.id)
+        if bus is None or not bus.dropped_pct:
+            return link.mean_loss_pct
+        return 100 * (1 - (1 - bus.dropped_pct / 100) * (1 - link.mean_loss_pct / 100))
 
     @property
     def default_link(self) -> Link:
@@ -495,7 +587,7 @@ def _link(link: skelmsg.link_t) -> Link:
                 jitter="normal" if link.jitter == skelmsg.link_t.JITTER_NORMAL else "uniform",
                 loss_pct=link.loss_pct, burst=burst if link.burst_enter_pct > 0 else None,
                 per_message_us=link.per_message_us, per_byte_ns=link.per_byte_ns,
-                push_byte_ns=link.push_byte_ns, remote_read_us=link.remote_read_us)
+                push_byte_ns=link.push_byte_ns, remote_read_us=link.remote_read_us, queue_us=link.queue_us)
 
 
 def from_config(msg: skelmsg.config_t) -> System:

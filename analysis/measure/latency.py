@@ -27,6 +27,8 @@ Loss at one reader, over the measured window (completed cycles):
 - superseded = received - new: received but never used (overwritten by a newer one
   before the reader's next cycle, or arriving late and out of order).
 - lost = max(0, dropped - unpublished - superseded): sequences sent and never received.
+  A reader that ran and never received one (no gap to count) lost every sequence published
+  (a full bus queue can starve a buffer whole).
 A buffer's `published` is the number of its writer's completed measured cycles (a
 cycle k publishes sequence k on every output).
 
@@ -266,6 +268,9 @@ def buffer_metrics(parts: BufferParts, system: System, skips: np.ndarray,
             new, dropped, received = (counts.new, counts.dropped, counts.received) if counts else (0, 0, 0)
             superseded = max(0, received - new)
             unpublished = sum(unpublished_in_gaps(m.gaps, skipped) for m in mine)
+            lost = max(0, dropped - unpublished - superseded)
+            if counts is not None and counts.stale > 0 and new == received == 0:
+                lost = parts.published.get(int(buf.writer), 0)
             latency, latency_histogram = distribution(lat_us)
             reader_metrics.append(
                 ReaderMetrics(
@@ -277,7 +282,7 @@ def buffer_metrics(parts: BufferParts, system: System, skips: np.ndarray,
                     received=received,
                     unpublished=unpublished,
                     superseded=superseded,
-                    lost=max(0, dropped - unpublished - superseded),
+                    lost=lost,
                     histogram=latency_histogram,
                 )
             )

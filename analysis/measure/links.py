@@ -2,10 +2,11 @@
 bandwidth, what its readers lost and how long its buffers took, beside what the file models.
 
 Offered is measured: each writer's completed cycles in the window publish each of its
-buffers once, over the time its DPU measured, in bytes on the wire (Buffer.wire_bytes, the
-prediction's own count; a `local` link's, the payload). The emulated transport does not
-queue buffers behind each other yet: a link over its bandwidth is said saturated, and its
-buffers are not delayed by it.
+buffers once, over the time its DPU measured, in bytes on the wire (Link.message_bytes, the
+prediction's own count; a `local` link's, the payload). On a bandwidth-limited link the
+readers' DPUs queue every message for one emulated transmitter (model.Bus): its wait shows in
+the transport beyond the latency and the buffer's own time on the wire, beside the model's
+longest wait; a saturated link's full queue drops, counted as lost.
 """
 
 from __future__ import annotations
@@ -30,10 +31,13 @@ class LinkMetrics:
     saturated: bool  # offered more than the bandwidth
     lost: int  # versions its readers never received (over every reader)
     lost_pct: float | None  # of those they received or lost
-    modelled_loss_pct: float  # the long-run loss its emulation draws
-    modelled_delay_us: float  # the mean delay its emulation adds
+    lost_bytes_pct: float | None  # the same, weighed by each message's bytes on the link
+    modelled_loss_pct: float  # the long-run loss its emulation draws, and its full queue drops (model.Bus)
+    modelled_delay_us: float  # the mean latency its emulation adds
     transport_p99_us: float | None  # the largest p99 of its buffers' transport (send to seen)
     transport_max_us: float | None
+    modelled_queue_us: float  # bandwidth-limited: the longest a message waits for the transmitter
+    queue_p99_us: float | None  # the largest p99 of its buffers' transport less latency and own wire time
 
 
 def link_metrics(system: System, buffers: Sequence[BufferMetrics], processes: Sequence[ProcessMetrics],
@@ -54,20 +58,28 @@ def link_metrics(system: System, buffers: Sequence[BufferMetrics], processes: Se
                 rates[b.id] = cycles.get(writer.id, 0) / elapsed_s[writer.dpu]
         whole = len(rates) == len(mine)
         messages = sum(rates.values()) if whole else None
-        offered = (sum(rates[b.id] * 8 * (b.bytes if link.local else b.wire_bytes) for b in mine) / 1e6
-                   if whole else None)
+        offered = sum(rates[b.id] * 8 * link.message_bytes(b) for b in mine) / 1e6 if whole else None
         utilization = (100 * offered / link.bandwidth_mbps
                        if offered is not None and link.bandwidth_mbps else None)
         read = [measured[b.id] for b in mine if b.id in measured]
         lost = sum(b.lost for b in read)
         reached = sum(r.received + r.lost for b in read for r in b.readers)
+        size = {b.buffer_id: link.message_bytes(system.buffer(b.buffer_id)) for b in read}
+        bytes_reached = sum(size[b.buffer_id] * (r.received + r.lost) for b in read for r in b.readers)
+        bytes_lost = sum(size[b.buffer_id] * b.lost for b in read)
         p99 = [b.latency_us.p99 for b in read if b.latency_us.p99 is not None]
         most = [b.latency_us.max for b in read if b.latency_us.max is not None]
+        bus = system.buses.get(link.id)
+        queued = [b.latency_us.p99 - link.delay_us[1] - link.wire_us(system.buffer(b.buffer_id))
+                  for b in read if bus is not None and b.latency_us.p99 is not None]
         out.append(LinkMetrics(
             link=link.name, buffers=len(mine), messages_per_s=messages, offered_mbps=offered,
             bandwidth_mbps=link.bandwidth_mbps, utilization_pct=utilization,
             saturated=utilization is not None and utilization > 100,
             lost=lost, lost_pct=100 * lost / reached if reached else None,
-            modelled_loss_pct=link.mean_loss_pct, modelled_delay_us=link.delay_us[1],
-            transport_p99_us=max(p99, default=None), transport_max_us=max(most, default=None)))
+            lost_bytes_pct=100 * bytes_lost / bytes_reached if bytes_reached else None,
+            modelled_loss_pct=system.lost_pct(link.id), modelled_delay_us=link.delay_us[1],
+            transport_p99_us=max(p99, default=None), transport_max_us=max(most, default=None),
+            modelled_queue_us=bus.most_wait_us if bus is not None else 0.0,
+            queue_p99_us=max(queued, default=None)))
     return out

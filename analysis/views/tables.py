@@ -229,13 +229,16 @@ def link_table(report: RunReport, window: WindowReport | None = None) -> Table:
         rows.append([k.link, str(k.buffers), num(k.messages_per_s, 0), num(k.offered_mbps, 3),
                      num(k.bandwidth_mbps, 3) if k.bandwidth_mbps else "-", use,
                      f"{k.lost} ({num(k.lost_pct, 2)} %)", num(k.modelled_loss_pct, 2),
-                     num(k.modelled_delay_us), num(k.transport_p99_us), num(k.transport_max_us)])  # fmt: skip
+                     num(k.modelled_delay_us), num(k.transport_p99_us), num(k.transport_max_us),
+                     num(k.modelled_queue_us) if k.bandwidth_mbps else "-", num(k.queue_p99_us)])  # fmt: skip
     columns = [("link", False), ("buf-\nfers", True), ("msgs/s", True), ("offered\nMbit/s", True),
                ("band-\nwidth", True), ("% used", True), ("lost", True), ("model\nloss %", True),
-               ("model\ndelay", True), ("transp.\np99", True), ("transp.\nmax", True)]  # fmt: skip
+               ("model\ndelay", True), ("transp.\np99", True), ("transp.\nmax", True),
+               ("model\nqueue", True), ("queue\np99", True)]  # fmt: skip
     title = ("per link: its writers' messages and their bytes on the wire, against its bandwidth; versions "
-             "its readers never received, beside the modelled loss; its buffers' transport in µs (the "
-             "largest p99 and max) beside the modelled mean delay")
+             "its readers never received, beside the modelled loss and drops; its buffers' transport in µs "
+             "(the largest p99 and max) beside the modelled mean delay; the wait for its transmitter (the "
+             "transport less latency and wire time, largest p99) beside the model's longest")
     return make_table(title, columns, rows)
 
 

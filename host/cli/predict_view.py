@@ -73,8 +73,10 @@ def print_prediction(console: Console, pred: Prediction) -> None:
         for c in pred.chains:
             chains.add_row(" -> ".join(c.processes), _ms(c.best_us), _ms(c.worst_us))
         console.print(chains)
-    emulated = any(link.delay_us[2] or link.lost_pct for link in pred.links)
-    links = _table("link", "messages/s", "Mbit/s", *(("emulated delay ms", "lost %") if emulated else ()))
+    emulated = any(link.delay_us[2] or link.lost_pct or link.queue_us for link in pred.links)
+    queued = any(link.queue_us for link in pred.links)
+    links = _table("link", "messages/s", "Mbit/s", *(("emulated delay ms", "lost %") if emulated else ()),
+                   *(("queue ms, most",) if queued else ()))
     for link in pred.links:
         rate = _known(None if link.bytes_per_s is None else 8 * link.bytes_per_s / 1e6, ".3g")
         if link.bytes_per_s is None and link.over:  # its known part alone is too much
@@ -84,7 +86,8 @@ def print_prediction(console: Console, pred: Prediction) -> None:
         delay = f"{mean / 1000:g}" + (f" ({least / 1000:g}..{most / 1000:g})" if least != most else "")
         links.add_row(link.name + (" (local)" if link.local else ""), _known(link.messages_per_s, ".0f"),
                       f"[red]{rate}[/]" if link.over else rate,
-                      *((delay, f"{link.lost_pct:.3g}") if emulated else ()))
+                      *((delay, f"{link.lost_pct:.3g}") if emulated else ()),
+                      *((f"{link.queue_us / 1000:.3g}",) if queued else ()))
     console.print(links)
 
 

@@ -106,13 +106,15 @@ def _link(link: Link) -> skelmsg.link_t:
         msg.burst_loss_pct = link.burst.loss_pct
     msg.per_message_us, msg.per_byte_ns = link.per_message_us, link.per_byte_ns
     msg.push_byte_ns, msg.remote_read_us = link.push_byte_ns, link.remote_read_us
-    msg.bandwidth_mbps = link.bandwidth_mbps or 0.0
+    msg.bandwidth_mbps, msg.queue_us = link.bandwidth_mbps or 0.0, link.queue_us
     return msg
 
 
 def _transport(link: Link) -> dict[str, Any]:
     """A link's emulated transport and its costs as the file gives them: only what differs from none."""
     out: dict[str, Any] = {}
+    if link.bandwidth_mbps:
+        out |= {"bandwidth_mbps": link.bandwidth_mbps, "queue_us": link.queue_us}
     if link.latency_us or link.jitter_us:
         out |= {"latency_us": link.latency_us, "jitter_us": link.jitter_us, "jitter": link.jitter}
     if link.loss_pct:

@@ -25,6 +25,7 @@ from .schema import (
     ABSURD_COMPUTE_PERIODS,
     COSTS,
     DEFAULT_LINK,
+    QUEUE_US,
     BufferSpec,
     ComputeSpec,
     LinkSpec,
@@ -91,13 +92,13 @@ def resolve(spec: SystemSpec, base: Path) -> Resolved:
 def _code_reads_what_comes(links: tuple[Link, ...], buffers: tuple[Buffer, ...],
                            processes: tuple[Process, ...]) -> None:
     """Real code reads the bytes a DPU keeps as a message comes; a link that holds versions back
-    (latency, jitter) does not keep their bytes yet (dpu/config.c refuses it too)."""
+    (latency, jitter, bandwidth) does not keep their bytes yet (dpu/config.c refuses it too)."""
     link, buffer = {k.id: k for k in links}, {b.id: b for b in buffers}
     for p in processes:
         for b in (buffer[i] for i in (p.inputs if p.code is not None else ())):
-            if link[b.link].latency_us or link[b.link].jitter_us:
+            if link[b.link].holds:
                 raise Invalid(f"processes.{p.name}.compute", f"real code cannot read {b.name} through link "
-                              f"{link[b.link].name}'s emulated latency yet")
+                              f"{link[b.link].name}'s emulated latency or bandwidth yet")
 
 
 def _charged_tasking(spec: SystemSpec, processes: tuple[Process, ...]) -> None:
@@ -130,7 +131,8 @@ def _links(specs: list[LinkSpec] | None) -> tuple[Link, ...]:
     return tuple(Link(i + 1, s.name, s.url, s.figure("bandwidth_mbps"), s.latency_us, s.jitter_us, s.jitter,
                       s.loss_pct, None if (b := s.loss_burst) is None else LossBurst(b.enter_pct, b.leave_pct,
                                                                                      b.loss_pct),
-                      **{cost: s.figure(cost) or 0.0 for cost in COSTS})
+                      **{cost: s.figure(cost) or 0.0 for cost in COSTS},
+                      queue_us=(s.queue_us or QUEUE_US) if s.figure("bandwidth_mbps") else 0)
                  for i, s in enumerate(specs))
 
 

@@ -187,6 +187,7 @@ class _Spec(BaseModel):
 
 Percent = Annotated[float, _within(0, 100)]
 Latency = Annotated[int, _between(0, contract.MAX_PERIOD_US, " us")]
+Bandwidth = Annotated[float, _within(contract.MIN_BANDWIDTH_MBPS, contract.MAX_BANDWIDTH_MBPS)]
 
 
 class LossBurstSpec(_Spec):
@@ -210,6 +211,7 @@ def _cost(v: float) -> float:
 
 NotNegative = Annotated[float, AfterValidator(_cost)]
 COSTS = ("per_message_us", "per_byte_ns", "push_byte_ns", "remote_read_us")   # a link's CPU costs
+QUEUE_US = 100_000   # a bandwidth-limited link's transmit queue when the file gives none: 100 ms
 
 
 @dataclass(frozen=True)
@@ -250,9 +252,15 @@ class LinkSpec(_Spec):
     """`local` (in-process memory: writer and readers on one DPU) or an `udpm://` URL. The first link's URL
     is the control URL; each process writing to the link gets the next multicast group and port after
     it. `ttl=0` never leaves the machine, `ttl=1` for a lab."""
-    bandwidth_mbps: Positive | None = None
-    """What the link carries, in Mbit/s: `skel check` warns when its buffers need more, and the report
-    says the link saturated when its writers offered more (no buffer is delayed by it)."""
+    bandwidth_mbps: Bandwidth | None = None
+    """What the link carries, in Mbit/s. Each reading DPU emulates one transmitter for the link: every
+    message on it takes its bytes on the wire (payload and headers) at this rate, one after another in
+    the order sent, before the latency below. `skel check` warns when its buffers need more, and the
+    report says the link saturated when its writers offered more."""
+    queue_us: Latency | None = None
+    """With `bandwidth_mbps`: the longest a message waits for the transmitter. One that would wait
+    longer is dropped, as a full transmit queue drops it, and counted as lost. Default 100000 (100 ms):
+    set your controller's or network stack's."""
     # The link's transport, emulated by the reading DPUs (dpu/buffers.c): one block, kept last.
     latency_us: Latency = 0
     """The link's one-way latency: a reader sees a buffer no earlier than its send time plus this (plus
@@ -282,6 +290,15 @@ class LinkSpec(_Spec):
     remote_read_us: NotNegative | None = None
     """CPU cost, in us, of a process every cycle it runs, per input written on another DPU (the
     handshake over the bus), in comm_in, new data or not. Default 0."""
+
+    @model_validator(mode="after")
+    def _queue(self) -> LinkSpec:
+        if self.queue_us is not None and self.figure("bandwidth_mbps") is None:
+            raise ValueError("queue_us is the transmit queue of a bandwidth-limited link: "
+                             "give bandwidth_mbps too")
+        if self.queue_us == 0:
+            raise ValueError("queue_us must be at least 1 us: a queue of 0 would drop every message")
+        return self
 
     @model_validator(mode="after")
     def _costs(self) -> LinkSpec:

@@ -108,7 +108,8 @@ class LinkPrediction:
     known_messages_per_s: float     # of its writers of known rate: all of it when none is unknown
     known_bytes_per_s: float
     delay_us: tuple[float, float, float] = (0.0, 0.0, 0.0)  # its emulated delay: least, mean, most
-    lost_pct: float = 0.0           # the long-run share of buffers its emulation loses
+    lost_pct: float = 0.0           # the long-run share of buffers its emulation loses, or its full queue
+    queue_us: float = 0.0           # the longest a message waits for its transmitter (model.Bus)
 
     @property
     def over(self) -> bool:
@@ -317,7 +318,7 @@ def _data_at(system: System, timing: dict[int, Timing], w: Process, buffer: int 
     it falls ever further behind), at its shortest and longest draws, and on BUFFER's link its
     least and most emulated delay. Its publishing and the real transport are the platform's."""
     t = timing[w.id]
-    least, _, most = (0.0, 0.0, 0.0) if buffer is None else system.link(system.buffer(buffer).link).delay_us
+    least, _, most = (0.0, 0.0, 0.0) if buffer is None else system.transport_us(buffer)
     return (t.start_min_us + frames.best_us(w, system.dpu(w.dpu)) + least,
             t.response_us + most if t.response_us is not None else math.inf)
 
@@ -484,7 +485,7 @@ def same_cycle_waits(system: System,
             if w.period_us != p.period_us or w.sync == "event":
                 continue
             # a link's emulated delay keeps the reader waiting after its writer ends, on one DPU too
-            delayed = system.link(system.buffer(b).link).delay_us[2] > 0
+            delayed = system.transport_us(b)[2] > 0
             cyclic = system.dpu(p.dpu).executive != "threads"
             if w.dpu == p.dpu and not delayed and (cyclic or (w.priority > p.priority and w.id not in out)):
                 continue
@@ -688,9 +689,8 @@ def _inputs(system: System, rates: dict[int, float], unknown: set[int],
             dropped = max(0.0, least - 1) if max(0.0, least - 1) == max(0.0, most - 1) else None
             if w.id in paced and new is not None and p.id not in unknown and rates[p.id] > 0:
                 dropped = 1e6 / w.period_us / rates[p.id] - new
-            link = system.link(b.link)
-            out.append(ExpectedInput(p.name, b.name, w.name, new, stale, dropped, link.delay_us[1],
-                                     link.mean_loss_pct))
+            out.append(ExpectedInput(p.name, b.name, w.name, new, stale, dropped,
+                                     system.transport_us(b.id)[1], system.lost_pct(b.link)))
     return tuple(out)
 
 
@@ -711,7 +711,7 @@ def _chains(system: System, by_name: dict[str, ProcessPrediction], rates: dict[i
             at = by_name[p.name]
             buffer = next(b for b in p.inputs if b in before.outputs)
             # its link's emulated delay: the value is seen that much later, then waits for the read
-            least, mean, most = system.link(system.buffer(buffer).link).delay_us
+            least, mean, most = system.transport_us(buffer)
             best, network = best + least, network + mean
             fastest = nominal_rate_hz(system, before) if before.id in unknown else rates[before.id]
             data_paced = buffer in p.required and fastest <= 1e6 / p.period_us * (1 + 1e-9)
@@ -736,10 +736,13 @@ def _links(system: System, rates: dict[int, float], unknown: set[int]) -> tuple[
         mine = [b for b in system.buffers if b.link == link.id]
         known = [b for b in mine if b.writer not in unknown]
         messages = sum(rates[b.writer] for b in known)
-        size = sum(rates[b.writer] * (b.bytes if link.local else b.wire_bytes) for b in known)
+        size = sum(rates[b.writer] * link.message_bytes(b) for b in known)
         whole = len(known) == len(mine)
+        bus = system.buses.get(link.id)
         out.append(LinkPrediction(link.name, link.local, messages if whole else None, size if whole else None,
-                                  link.bandwidth_mbps, messages, size, link.delay_us, link.mean_loss_pct))
+                                  link.bandwidth_mbps, messages, size, link.delay_us,
+                                  system.lost_pct(link.id),
+                                  bus.most_wait_us if bus is not None else 0.0))
     return tuple(out)
 
 
@@ -828,4 +831,12 @@ def _warnings(system: System, pred: Prediction, waits: dict[int, list[tuple[int,
             out.append(f"link {link.name}: {least}{8 * link.known_bytes_per_s / 1e6:.3g} Mbit/s of buffers "
                        f"({link.known_messages_per_s:.0f} messages/s{tail}) exceeds its bandwidth_mbps "
                        f"{link.bandwidth_mbps:g}")
+    for k in system.links:
+        bus = system.buses.get(k.id)
+        if bus is not None and bus.saturated:
+            out.append(f"link {k.name}: its transmit queue fills: each message waits about queue_us "
+                       f"({k.queue_us / 1000:g} ms), and {bus.dropped_pct:.3g} % are dropped")
+        elif bus is not None and bus.most_wait_us >= k.queue_us:
+            out.append(f"link {k.name}: when its writers send at once, a message waits its whole queue_us "
+                       f"({k.queue_us / 1000:g} ms): some may be dropped")
     return out

@@ -216,6 +216,56 @@ static void test_held_until_due_in_order(void)
     CHECK_EQ(r.slot.overflow, 0);
 }
 
+/* A bandwidth-limited link: one transmitter for every buffer on it. A message takes its
+ * bytes' time after the previous one's last byte, read here or not (unread: heard for the bus
+ * only), and before the latency; one that would wait longer than the queue is dropped, for
+ * the readers here counted as lost. */
+static void test_bus_queues_every_buffer_of_the_link(void)
+{
+    rig_t r, other;
+    rig_init(&r);
+    rig_init(&other);
+    skel_bus_t bus = { .link = 1, .ns_per_byte = 10.0, .queue_ns = 500 };
+    buffers_bus_reset(&bus);
+    skel_pending_t ring[8];
+    r.slot.pending = ring;
+    r.slot.pend_cap = 8;
+    r.slot.bus = &bus;
+    r.slot.wire_extra = 4; /* 16 payload + 4: 200 ns a message */
+    r.slot.tr.latency_ns = 1000;
+    r.slot.tr.from_send = 1;
+    other.slot.bus = &bus;
+    other.slot.unread = 1;
+    other.slot.wire_extra = 4;
+    other.slot.tr.from_send = 1;
+    buffers_slot_seed(&r.slot, 1, 2);
+    /* the other buffer's message first: ours waits for its 200 ns, then takes its own */
+    CHECK_EQ(rig_send(&other, 0, 100, 110), BUFFERS_ACCEPTED);
+    CHECK_EQ(bus.free_ns, 300);
+    CHECK_EQ(other.slot.received, 0); /* heard, not kept */
+    CHECK_EQ(rig_send(&r, 0, 100, 120), BUFFERS_ACCEPTED);
+    CHECK_EQ(bus.free_ns, 500);
+    buffers_slot_advance(&r.slot, 1499);
+    CHECK_EQ(rig_read(&r, 1).new_data, 0);
+    buffers_slot_advance(&r.slot, 1500); /* 500 on the bus, then the latency */
+    CHECK_EQ(rig_read(&r, 1).recv_ns, 1500);
+    /* an idle bus: its own time only */
+    CHECK_EQ(rig_send(&r, 1, 2000, 2001), BUFFERS_ACCEPTED);
+    CHECK_EQ(bus.free_ns, 2200);
+    /* a burst: the queue holds 500 ns of waiting, the next is dropped, for this reader lost */
+    for (int64_t k = 1; k <= 3; k++) CHECK_EQ(rig_send(&other, k, 2200, 2201), BUFFERS_ACCEPTED);
+    CHECK_EQ(bus.free_ns, 2800); /* waits 0, 200 and 400 */
+    CHECK_EQ(rig_send(&r, 2, 2200, 2202), BUFFERS_ACCEPTED);
+    CHECK_EQ(bus.dropped, 1);
+    CHECK_EQ(r.slot.lost, 1);
+    CHECK_EQ(bus.free_ns, 2800);
+    CHECK_EQ(rig_send(&other, 4, 2200, 2203), BUFFERS_ACCEPTED); /* the unread one counts no loss */
+    CHECK_EQ(bus.dropped, 2);
+    CHECK_EQ(other.slot.lost, 0);
+    buffers_bus_reset(&bus);
+    CHECK_EQ(bus.dropped, 0);
+}
+
 /* A live switch carries what is held: into the new ring, or seen at once when the new link delays nothing. */
 static void test_carry_held(void)
 {
@@ -305,5 +355,6 @@ int main(void)
     test_held_until_due_in_order();
     test_emulated_loss();
     test_carry_held();
+    test_bus_queues_every_buffer_of_the_link();
     return CHECK_DONE();
 }

@@ -10,7 +10,7 @@ import pytest
 from conftest import REPO
 
 from skeleton.host.live.wire import config_message
-from skeleton.host.model import FROM_CONFIG, RunRules, System, from_config
+from skeleton.host.model import FROM_CONFIG, Link, RunRules, System, bus_of, from_config
 from skeleton.host.sysfile.system import load
 from skelmsg.contract import DEFAULT_URL
 
@@ -21,7 +21,6 @@ def _as_sent(system: System) -> System:
     """What of SYSTEM a config carries (from_config's docstring): the rest at its default."""
     return dataclasses.replace(
         system, path=Path("system.yaml"), reference=None, overrides=(),
-        links=tuple(dataclasses.replace(link, bandwidth_mbps=None) for link in system.links),
         processes=tuple(dataclasses.replace(p, varying=dataclasses.replace(p.varying, kind=FROM_CONFIG))
                         if p.varying else p for p in system.processes),
         run=RunRules(**{**dataclasses.asdict(system.run), "cycles": None, "duration_s": None,
@@ -78,3 +77,30 @@ processes:
     assert system.process("slow").charge.in_us == pytest.approx(7)
     back = from_config(config_message(system, generation=1, run_id=0, committed=False))
     assert [p.charge for p in back.processes] == [p.charge for p in system.processes]
+
+
+BUS = Link(1, "bus", DEFAULT_URL, bandwidth_mbps=1.0, queue_us=100_000)
+
+
+@pytest.mark.parametrize(("flows", "waits"), [
+    # (buffer, period, wire time) in us: the synchronous busy period is the flows' own wire times
+    ([(1, 1000, 300), (2, 2000, 500)], {1: 500, 2: 300}),
+    # at 90 %, the busy period (270 us) spans three of A's messages: its first waits longest
+    ([(1, 100, 50), (2, 300, 120)], {1: 120, 2: 50}),
+    # one writer alone never waits
+    ([(1, 100, 99)], {1: 0}),
+])
+def test_a_links_transmitter_is_longest_behind_every_writer_sending_at_once(flows, waits) -> None:  # type: ignore[no-untyped-def]
+    bus = bus_of(BUS, flows)
+    assert bus.waits_us == pytest.approx(waits)
+    assert not bus.saturated and bus.dropped_pct == 0
+
+
+def test_a_saturated_links_queue_fills_and_drops_what_is_over_its_bandwidth() -> None:
+    bus = bus_of(dataclasses.replace(BUS, queue_us=2000), [(1, 1000, 600), (2, 1000, 900)])
+    assert bus.saturated and bus.utilization == pytest.approx(1.5)
+    assert bus.waits_us == {1: 2000.0, 2: 2000.0}
+    assert bus.dropped_pct == pytest.approx(100 / 3)  # a third of what is offered: 1 - 1 / 1.5
+    # a queue shorter than the burst: its whole length is the wait (and some may be dropped)
+    assert bus_of(dataclasses.replace(BUS, queue_us=100), [(1, 1000, 300), (2, 2000, 500)]).waits_us == {
+        1: 100.0, 2: 100.0}

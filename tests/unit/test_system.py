@@ -297,7 +297,7 @@ ERRORS: list[tuple[str, Callable[[Doc], None], str]] = [
     ("code reading through an emulated latency",
      _both(_set("links", [{**BUS, "latency_us": 2000}]),
            _set("processes.b.compute", {"library": "sum", "function": "sum_bytes"})),
-     "processes.b.compute: real code cannot read a_out through link bus's emulated latency yet"),
+     "processes.b.compute: real code cannot read a_out through link bus's emulated latency or bandwidth yet"),
     ("code on threads", _both(_set("dpus.2.executive", "threads"),
                               _set("processes.b.compute", {"library": "sum", "function": "sum_bytes"})),
      "processes.b.compute: DPU 2 runs executive: threads; real code runs on the cyclic executive only"),
