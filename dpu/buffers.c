@@ -9,6 +9,8 @@
 
 #include "dpu.h"
 
+#define BUFFERS_STAMP_PAST_NS (10 * SKEL_NS_PER_S) /* a send stamp older than its arrival by more is damaged */
+
 void buffers_slot_reset(skel_slot_t *slot)
 {
     slot->newest_seq = -1;
@@ -21,6 +23,7 @@ void buffers_slot_reset(skel_slot_t *slot)
     slot->last_due_ns = INT64_MIN;
     slot->bad = 0;
     slot->lost = slot->overflow = 0;
+    slot->heard_seq = -1;
 }
 
 /* Each reading DPU draws its own losses and delays (a link loses a version for one reader,
@@ -42,6 +45,7 @@ void buffers_bus_reset(skel_bus_t *bus)
 {
     bus->free_ns = INT64_MIN;
     bus->dropped = 0;
+    bus->nheard = 0;
 }
 
 /* A message's turn on its link's transmitter, from *AT on: *AT becomes the instant its last
@@ -135,6 +139,7 @@ void buffers_slot_carry(skel_slot_t *slot, const skel_slot_t *old)
 
 int64_t buffers_advance(skel_plan_t *plan, int64_t now_mono_ns)
 {
+    buffers_flush(plan);
     int64_t next = INT64_MAX;
     for (int i = 0; i < plan->nslots; i++) {
         skel_slot_t *slot = &plan->slots[i];
@@ -146,43 +151,83 @@ int64_t buffers_advance(skel_plan_t *plan, int64_t now_mono_ns)
     return next;
 }
 
-/* Through the link's emulated transport: its turn on the bus (which a version lost on the
- * way takes too), lost, held until due, or seen at once. Versions leave in the order they
- * came (a link delivers in order): one due before an earlier one waits for it. A full ring
- * drops the version, counted. */
-static void buffers_transport(skel_slot_t *slot, const wire_buffer_hdr_t *hdr, const uint8_t *payload,
-                              int64_t recv_ns)
+/* After the bus, if any: lost, held until due from FROM, or seen at once. Versions leave in
+ * the order they came (a link delivers in order): one due before an earlier one waits for
+ * it. A full ring drops the version, counted. */
+static void buffers_deliver(skel_slot_t *slot, int64_t seq, int64_t send_ns, int64_t from, int64_t recv_ns,
+                            const uint8_t *payload, int32_t nbytes)
 {
-    /* From the send stamp, but no later than the arrival: a stamp from the future (another
-     * clock, a damaged message) can hold nothing longer than the delay, nor overflow. */
-    int64_t from = slot->tr.from_send && hdr->send_ns < recv_ns ? hdr->send_ns : recv_ns;
-    if (slot->bus != NULL) {
-        int sent = buffers_bus_send(slot->bus, &from, slot->wire_extra + (hdr->nbytes > 0 ? hdr->nbytes : 0));
-        if (!sent && !slot->unread) slot->lost++;
-        if (!sent || slot->unread) return;
-    }
     if (buffers_lost(slot)) {
         slot->lost++;
         return;
     }
     if (slot->pending == NULL) { /* loss only */
-        buffers_take(slot, hdr->seq, hdr->send_ns, recv_ns, payload, hdr->nbytes);
+        buffers_take(slot, seq, send_ns, recv_ns, payload, nbytes);
         return;
     }
     int64_t due = from + buffers_delay(slot);
     if (due < slot->last_due_ns) due = slot->last_due_ns;
     if (due <= recv_ns && slot->pend_count == 0) {
         slot->last_due_ns = recv_ns;
-        buffers_take(slot, hdr->seq, hdr->send_ns, recv_ns, payload, hdr->nbytes);
+        buffers_take(slot, seq, send_ns, recv_ns, payload, nbytes);
         return;
     }
     if (slot->pend_count == slot->pend_cap) {
         slot->overflow++;
         return;
     }
-    slot->pending[(slot->pend_head + slot->pend_count++) % slot->pend_cap] =
-        (skel_pending_t){ hdr->seq, hdr->send_ns, due };
+    slot->pending[(slot->pend_head + slot->pend_count++) % slot->pend_cap] = (skel_pending_t){ seq, send_ns, due };
     slot->last_due_ns = due;
+}
+
+/* The messages a bus heard since its last flush through its transmitter, in the order of
+ * their send stamps (then of buffer id: every reading DPU the same), each then delivered to
+ * its slot. Insertion sort, in place: each writer's messages come in order already, and
+ * nothing is allocated. */
+static void buffers_bus_flush(skel_bus_t *bus)
+{
+    for (int i = 1; i < bus->nheard; i++) {
+        skel_heard_t h = bus->heard[i];
+        int j = i;
+        for (; j > 0 && (bus->heard[j - 1].from_ns > h.from_ns ||
+                         (bus->heard[j - 1].from_ns == h.from_ns && bus->heard[j - 1].slot->buffer > h.slot->buffer));
+             j--)
+            bus->heard[j] = bus->heard[j - 1];
+        bus->heard[j] = h;
+    }
+    for (int i = 0; i < bus->nheard; i++) {
+        skel_heard_t *h = &bus->heard[i];
+        int sent = buffers_bus_send(bus, &h->from_ns, h->bytes);
+        if (!sent && !h->slot->unread) h->slot->lost++;
+        if (sent && !h->slot->unread) buffers_deliver(h->slot, h->seq, h->send_ns, h->from_ns, h->recv_ns, NULL, 0);
+    }
+    bus->nheard = 0;
+}
+
+void buffers_flush(const skel_plan_t *plan)
+{
+    for (int k = 0; k < plan->nbuses; k++)
+        if (plan->buses[k].nheard > 0) buffers_bus_flush(&plan->buses[k]);
+}
+
+/* Through the link's emulated transport: on a bandwidth-limited link, heard for its bus (whose
+ * turn a version lost on the way takes too); then delivered. */
+static void buffers_transport(skel_slot_t *slot, const wire_buffer_hdr_t *hdr, const uint8_t *payload,
+                              int64_t recv_ns)
+{
+    /* From the send stamp, but no later than the arrival, nor long before it: a stamp from
+     * another clock or a damaged message can hold nothing longer than the delay, nor overflow. */
+    int64_t from = slot->tr.from_send && hdr->send_ns < recv_ns && hdr->send_ns > recv_ns - BUFFERS_STAMP_PAST_NS
+                   ? hdr->send_ns : recv_ns;
+    if (slot->bus == NULL) {
+        buffers_deliver(slot, hdr->seq, hdr->send_ns, from, recv_ns, payload, hdr->nbytes);
+        return;
+    }
+    skel_bus_t *bus = slot->bus;
+    if (bus->nheard == SKEL_BUS_HEARD) buffers_bus_flush(bus);
+    bus->heard[bus->nheard++] = (skel_heard_t){ slot, hdr->seq, hdr->send_ns, from, recv_ns,
+                                                slot->wire_extra + (hdr->nbytes > 0 ? hdr->nbytes : 0) };
+    if (hdr->seq > slot->heard_seq) slot->heard_seq = hdr->seq;
 }
 
 /* A message whose buffer id or writer is not this channel's is malformed or

@@ -116,6 +116,9 @@ static int config_check_transport(const skelmsg_link_t *l, char *reason, size_t 
     if (!config_pct(l->loss_pct) || !config_pct(l->burst_enter_pct) || !config_pct(l->burst_leave_pct) ||
         !config_pct(l->burst_loss_pct))
         return config_fail(reason, len, "link %d: a loss or burst percentage is outside 0..100", l->id);
+    if (l->url[0] == '\0' && l->bandwidth_mbps != 0)
+        return config_fail(reason, len, "link %d: a local link is memory inside one DPU: it has no "
+                           "bandwidth to share", l->id);
     if (!(l->bandwidth_mbps == 0 ||
           (l->bandwidth_mbps >= SKEL_MIN_BANDWIDTH_MBPS && l->bandwidth_mbps <= SKEL_MAX_BANDWIDTH_MBPS)) ||
         (l->bandwidth_mbps > 0 && l->queue_us <= 0) || l->queue_us < 0)

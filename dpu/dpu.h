@@ -32,6 +32,7 @@
  * SKEL_MAX_IO, ...) come from lcmtypes/contract.txt, shared with the host and the
  * analysis; a config beyond a limit is rejected with a reason, never truncated.
  * Below: what only this daemon decides. -------------------------------------------- */
+#define SKEL_BUS_HEARD       4096 /* messages a bus sorts at once: more are taken in two batches */
 #define SKEL_MAX_SLOTS       (SKEL_MAX_PROCESSES * SKEL_MAX_IO)
 #define SKEL_MAX_LOCKOUTS    SKEL_MAX_PROCESSES /* once per process per run */
 #define SKEL_RING_RECORDS    8192               /* timing records in flight */
@@ -166,15 +167,26 @@ typedef struct {
     double loss, enter, leave, burst_loss; /* probabilities per version (Gilbert-Elliott) */
 } skel_transport_t;
 
+/* A message on a bandwidth-limited link, heard and not yet through its transmitter. */
+typedef struct {
+    struct skel_slot *slot;
+    int64_t seq, send_ns, from_ns, recv_ns;
+    int32_t bytes;             /* on the wire */
+} skel_heard_t;
+
 /* A bandwidth-limited link as one reading DPU emulates it: one transmitter that every
- * message on the link queues for, in the order they come (buffers.c). Each reading DPU
- * keeps its own, from the same messages: on virtual time they agree exactly. */
+ * message on the link queues for, in the order of their send stamps (buffers.c): what the
+ * DPU heard since it last read its inputs is sorted first, since its sockets are read one
+ * after the other. Each reading DPU keeps its own, from the same messages: on virtual time
+ * they agree exactly. */
 typedef struct {
     int16_t link;              /* link_t.id */
     double ns_per_byte;        /* 8000 / bandwidth_mbps */
     int64_t queue_ns;          /* a message that would wait longer is dropped (tail drop) */
     int64_t free_ns;           /* the transmitter is busy until then */
     int64_t dropped;           /* messages the full queue dropped in this run */
+    skel_heard_t *heard;       /* heard since the last flush, SKEL_BUS_HEARD of them at most */
+    int nheard;
 } skel_bus_t;
 
 /* One buffer this DPU reads (shared by all its readers on this DPU), or, on a bandwidth-
@@ -198,6 +210,7 @@ typedef struct skel_slot {
     skel_bus_t *bus;           /* its link's transmitter (plan->buses), NULL: no bandwidth given */
     int32_t wire_extra;        /* a message's bytes on the bus besides its payload */
     int8_t unread;             /* heard for the bus only: no process here reads it */
+    int64_t heard_seq;         /* the newest sequence that reached its bus, -1: none (live switch) */
     skel_pending_t *pending;   /* a ring of pend_cap, sized at config time */
     int pend_cap, pend_head, pend_count;
     int64_t last_due_ns;       /* versions are delivered in order: none due before this */
@@ -258,6 +271,7 @@ void buffers_slot_advance(skel_slot_t *slot, int64_t now_ns);
 /* Every slot's versions due by NOW (monotonic): the next instant one is (INT64_MAX: none). */
 int64_t buffers_advance(struct skel_plan *plan, int64_t now_mono_ns);
 void buffers_bus_reset(skel_bus_t *bus);
+void buffers_flush(const struct skel_plan *plan);
 void buffers_input_reset(skel_input_t *in);
 void buffers_input_peek(const skel_input_t *in, const skel_slot_t *slot, skel_in_rec_t *rec);
 void buffers_input_commit(skel_input_t *in, const skel_slot_t *slot, const skel_in_rec_t *rec,
@@ -538,7 +552,7 @@ typedef struct skel_plan {
     int nlinks;
     skel_link_t links[SKEL_MAX_LINKS];
     int nbuses;
-    skel_bus_t buses[SKEL_MAX_LINKS];
+    skel_bus_t *buses;          /* SKEL_MAX_LINKS of them, nbuses used */
     uint8_t *dummy;             /* the payload every output sends */
     /* run context read by the link handler (executive thread only) */
     int64_t run_id;

@@ -45,7 +45,9 @@ static skel_bus_t *plan_bus(skel_plan_t *plan, const skelmsg_link_t *l)
     for (int i = 0; i < plan->nbuses; i++)
         if (plan->buses[i].link == l->id) return &plan->buses[i];
     if (plan->nbuses == SKEL_MAX_LINKS) return NULL; /* config.c refuses more */
-    skel_bus_t *bus = &plan->buses[plan->nbuses++];
+    skel_bus_t *bus = &plan->buses[plan->nbuses];
+    if ((bus->heard = calloc(SKEL_BUS_HEARD, sizeof *bus->heard)) == NULL) return NULL;
+    plan->nbuses++;
     bus->link = l->id;
     bus->ns_per_byte = 8000.0 / l->bandwidth_mbps;
     bus->queue_ns = (int64_t)l->queue_us * SKEL_NS_PER_US;
@@ -54,8 +56,8 @@ static skel_bus_t *plan_bus(skel_plan_t *plan, const skelmsg_link_t *l)
 }
 
 /* The emulated transport of buffer B's link as this DPU reads it, and its ring of held
- * versions: as many as the writer can send within the longest delay, and a few for a burst
- * of late cycles (a full ring drops and counts). A writer on another host stamps its send
+ * versions: as many as the writer can send within the longest delay and a reader's period
+ * here, and a few for a burst of late cycles (a full ring drops and counts). A writer on another host stamps its send
  * time on its own clock, so its delay starts at the arrival there (the real network's adds). */
 static int plan_transport(skel_plan_t *plan, const skelmsg_config_t *cfg, const skelmsg_buffer_desc_t *b,
                           skel_slot_t *slot)
@@ -76,15 +78,21 @@ static int plan_transport(skel_plan_t *plan, const skelmsg_config_t *cfg, const 
                     (w != NULL && strcmp(plan_host(cfg, w->dpu), plan_host(cfg, plan->dpu)) == 0);
     if (l->bandwidth_mbps > 0) {
         if ((slot->bus = plan_bus(plan, l)) == NULL) return -1;
-        slot->wire_extra = b->url[0] == '\0' ? 0 : SKEL_BUFFER_HEADER_BYTES + SKEL_WIRE_LCM_HEADER_BYTES +
+        /* an udpm link (config.c refuses a local link's bandwidth) */
+        slot->wire_extra = SKEL_BUFFER_HEADER_BYTES + SKEL_WIRE_LCM_HEADER_BYTES +
                            (int32_t)strlen(b->channel) + 1 + SKEL_WIRE_UDP_IP_BYTES;
     }
     if (slot->unread || (tr->latency_ns == 0 && tr->jitter_ns == 0 && slot->bus == NULL)) return 0;
-    int64_t most = tr->latency_ns + (tr->jitter == SKELMSG_LINK_T_JITTER_NORMAL ? 3 : 1) * tr->jitter_ns;
+    int64_t most = tr->latency_ns + (tr->jitter == SKELMSG_LINK_T_JITTER_NORMAL ? 3 : 1) * tr->jitter_ns, gap = 0;
     if (slot->bus != NULL) /* a full queue, then its own bytes */
         most += slot->bus->queue_ns + (int64_t)((double)(slot->wire_extra + b->bytes) * slot->bus->ns_per_byte);
+    /* ... and what comes between two reads here, which take what is due: a reader's period */
+    for (int i = 0; i < cfg->nprocesses; i++)
+        for (int q = 0; cfg->processes[i].dpu == plan->dpu && q < cfg->processes[i].ninputs; q++)
+            if (cfg->processes[i].inputs[q] == b->id && cfg->processes[i].period_us > gap)
+                gap = cfg->processes[i].period_us;
     int64_t period = w != NULL && w->period_us > 0 ? (int64_t)w->period_us * SKEL_NS_PER_US : SKEL_MIN_PERIOD_US * SKEL_NS_PER_US;
-    int64_t cap = most / period + 8;
+    int64_t cap = (most + gap * SKEL_NS_PER_US) / period + 8;
     slot->pend_cap = (int)(cap > PLAN_MAX_HELD ? PLAN_MAX_HELD : cap);
     slot->pending = calloc((size_t)slot->pend_cap, sizeof *slot->pending);
     return slot->pending == NULL ? -1 : 0;
@@ -311,7 +319,8 @@ skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason
     plan->seed = cfg->seed;
     plan->processes = calloc(SKEL_MAX_PROCESSES, sizeof *plan->processes);
     plan->slots = calloc(SKEL_MAX_SLOTS, sizeof *plan->slots);
-    if (plan->processes == NULL || plan->slots == NULL) goto oom;
+    plan->buses = calloc(SKEL_MAX_LINKS, sizeof *plan->buses);
+    if (plan->processes == NULL || plan->slots == NULL || plan->buses == NULL) goto oom;
     plan->event_link = -1;
     if (plan_add_processes(plan, cfg, d->id) != 0) goto oom;
     if (plan_charges(plan, cfg, reason, len) != 0) {
@@ -382,6 +391,8 @@ void plan_free(skel_plan_t *plan)
             free(plan->processes[i].outputs[q].channel);
             free(plan->processes[i].outputs[q].enc);
         }
+    for (int k = 0; plan->buses != NULL && k < plan->nbuses; k++) free(plan->buses[k].heard);
+    free(plan->buses);
     free(plan->processes);
     free(plan->slots);
     free(plan->dummy);

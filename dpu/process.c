@@ -106,6 +106,7 @@ static int64_t process_held_up(skel_exec_t *x, const skel_process_t *p, int64_t 
 void process_peek_inputs(const skel_plan_t *plan, const skel_process_t *p, skel_rec_t *rec)
 {
     rec->ninputs = (int8_t)p->ninputs;
+    buffers_flush(plan); /* what a bus heard, through its transmitter */
     /* What an emulated link held back and is due by now is the reader's from now on. */
     int64_t now = INT64_MIN;
     for (int q = 0; q < p->ninputs; q++) {

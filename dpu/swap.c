@@ -76,6 +76,7 @@ static const skel_slot_t *swap_old_slot(const skel_plan_t *old, const skel_slot_
 
 static void swap_carry_slots(skel_plan_t *next, const skel_plan_t *old)
 {
+    buffers_flush(old); /* what its buses heard is the old slots' before they are carried */
     /* A link's transmitter stays as busy across a switch as it was, with its count. */
     for (int k = 0; k < next->nbuses; k++)
         for (int j = 0; j < old->nbuses; j++)
@@ -93,7 +94,8 @@ static void swap_carry_slots(skel_plan_t *next, const skel_plan_t *old)
         slot->newest_recv_ns = o->newest_recv_ns;
         slot->received = o->received;
         slot->foreign = o->foreign;
-        slot->dup_upto = o->newest_seq;
+        /* what reached the old plan's bus is not heard again, dropped there or not */
+        slot->dup_upto = o->heard_seq > o->newest_seq ? o->heard_seq : o->newest_seq;
         buffers_slot_carry(slot, o);
     }
 }

@@ -52,7 +52,8 @@ class Link:
         return bool(self.latency_us or self.jitter_us or self.bandwidth_mbps)
 
     def message_bytes(self, buffer: Buffer) -> int:
-        """One message of BUFFER as this link carries it: the payload in memory, else on the wire."""
+        """One message of BUFFER as this link carries it: the payload in memory (a `local` link,
+        which has no bandwidth), else on the wire."""
         return buffer.bytes if self.local else buffer.wire_bytes
 
     def wire_us(self, buffer: Buffer) -> float:
@@ -278,32 +279,20 @@ class Bus:
         return max(self.waits_us.values(), default=0.0)
 
 
-BUSY_PERIOD_STEPS = 100_000  # arrivals looked at in a busy period: beyond, the queue's bound is taken
-
-
 def bus_of(link: Link, flows: Sequence[tuple[int, float, float]]) -> Bus:
     """LINK's transmitter for FLOWS, each (buffer id, its writer's period, its wire time) in us.
     At or over all of the bandwidth, the queue fills: a message waits its whole queue_us. Under
-    it, a FIFO queue is longest when every writer sends at once: a message of buffer j sent at
-    k periods of its after that instant, behind every other sent by then (those at the same
-    instant first), waits the work sent until then less the time gone, within the synchronous
-    busy period (the least w with w = sum of ceil(w / T) * C)."""
+    it, a FIFO queue is longest when every writer sends at once, and a message waits longest
+    behind all the others sent then: the work sent by any instant after is less than the time
+    gone by it (U < 1), so the queue never grows past that. Each writer sends once a period, a
+    period apart: one whose sends come closer (its response varies) can make a message wait
+    longer than this."""
     utilization = sum(c / t for _, t, c in flows)
     if utilization >= 1 - 1e-12:
         return Bus(utilization, {b: float(link.queue_us) for b, _, _ in flows},
                    100 * max(0.0, 1 - 1 / utilization))
-    busy, work = 0.0, sum(c for _, _, c in flows)
-    while work - busy > 1e-9:
-        busy, work = work, sum(math.ceil(work / t - 1e-12) * c for _, t, c in flows)
-    waits: dict[int, float] = {}
-    for b, period, own in flows:
-        most, k = 0.0, 0
-        while k * period < busy and k < BUSY_PERIOD_STEPS:
-            at = k * period
-            sent = sum((math.floor(at / t + 1e-12) + 1) * c for _, t, c in flows)
-            most, k = max(most, sent - at - own), k + 1
-        waits[b] = min(float(link.queue_us), most if k < BUSY_PERIOD_STEPS else busy)
-    return Bus(utilization, waits)
+    together = sum(c for _, _, c in flows)
+    return Bus(utilization, {b: min(float(link.queue_us), together - own) for b, _, own in flows})
 
 
 def control_link(links: Sequence[Link]) -> Link | None:

@@ -306,6 +306,9 @@ class LinkSpec(_Spec):
         if self.url == "local" and (self.preset or any(getattr(self, f) for f in COSTS)):
             raise ValueError("a `local` link is memory inside one DPU and charges no cost: "
                              "give the cost to an udpm:// link")
+        if self.url == "local" and self.bandwidth_mbps is not None:
+            raise ValueError("a `local` link is memory inside one DPU: it has no bandwidth to share; "
+                             "give bandwidth_mbps to an udpm:// link")
         return self
 
     def figure(self, name: str) -> float | None:

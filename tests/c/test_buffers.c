@@ -218,15 +218,19 @@ static void test_held_until_due_in_order(void)
 
 /* A bandwidth-limited link: one transmitter for every buffer on it. A message takes its
  * bytes' time after the previous one's last byte, read here or not (unread: heard for the bus
- * only), and before the latency; one that would wait longer than the queue is dropped, for
- * the readers here counted as lost. */
+ * only), in the order of their send stamps whatever the order the sockets were read in, and
+ * before the latency; one that would wait longer than the queue is dropped, for the readers
+ * here counted as lost. */
 static void test_bus_queues_every_buffer_of_the_link(void)
 {
     rig_t r, other;
     rig_init(&r);
     rig_init(&other);
-    skel_bus_t bus = { .link = 1, .ns_per_byte = 10.0, .queue_ns = 500 };
+    other.slot.buffer = 4;
+    skel_heard_t heard[SKEL_BUS_HEARD];
+    skel_bus_t bus = { .link = 1, .ns_per_byte = 10.0, .queue_ns = 500, .heard = heard };
     buffers_bus_reset(&bus);
+    skel_plan_t plan = { .nbuses = 1, .buses = &bus };
     skel_pending_t ring[8];
     r.slot.pending = ring;
     r.slot.pend_cap = 8;
@@ -239,29 +243,49 @@ static void test_bus_queues_every_buffer_of_the_link(void)
     other.slot.wire_extra = 4;
     other.slot.tr.from_send = 1;
     buffers_slot_seed(&r.slot, 1, 2);
-    /* the other buffer's message first: ours waits for its 200 ns, then takes its own */
-    CHECK_EQ(rig_send(&other, 0, 100, 110), BUFFERS_ACCEPTED);
-    CHECK_EQ(bus.free_ns, 300);
-    CHECK_EQ(other.slot.received, 0); /* heard, not kept */
-    CHECK_EQ(rig_send(&r, 0, 100, 120), BUFFERS_ACCEPTED);
+    /* our socket read first, the other's after: the other's message was sent first, so ours
+     * waits for its 200 ns, then takes its own */
+    wire_buffer_hdr_t h = { r.run_id, 9, 4, 0, 100, 16 };
+    CHECK_EQ(rig_send(&r, 0, 150, 160), BUFFERS_ACCEPTED);
+    CHECK_EQ(buffers_slot_receive(&other.slot, other.run_id, &h, NULL, 110), BUFFERS_ACCEPTED);
+    CHECK_EQ(bus.nheard, 2);
+    buffers_flush(&plan);
+    CHECK_EQ(bus.nheard, 0);
     CHECK_EQ(bus.free_ns, 500);
+    CHECK_EQ(other.slot.received, 0); /* heard, not kept */
+    CHECK_EQ(other.slot.heard_seq, 0);
     buffers_slot_advance(&r.slot, 1499);
     CHECK_EQ(rig_read(&r, 1).new_data, 0);
     buffers_slot_advance(&r.slot, 1500); /* 500 on the bus, then the latency */
     CHECK_EQ(rig_read(&r, 1).recv_ns, 1500);
     /* an idle bus: its own time only */
     CHECK_EQ(rig_send(&r, 1, 2000, 2001), BUFFERS_ACCEPTED);
+    buffers_flush(&plan);
     CHECK_EQ(bus.free_ns, 2200);
     /* a burst: the queue holds 500 ns of waiting, the next is dropped, for this reader lost */
-    for (int64_t k = 1; k <= 3; k++) CHECK_EQ(rig_send(&other, k, 2200, 2201), BUFFERS_ACCEPTED);
-    CHECK_EQ(bus.free_ns, 2800); /* waits 0, 200 and 400 */
-    CHECK_EQ(rig_send(&r, 2, 2200, 2202), BUFFERS_ACCEPTED);
-    CHECK_EQ(bus.dropped, 1);
-    CHECK_EQ(r.slot.lost, 1);
-    CHECK_EQ(bus.free_ns, 2800);
-    CHECK_EQ(rig_send(&other, 4, 2200, 2203), BUFFERS_ACCEPTED); /* the unread one counts no loss */
+    for (int64_t k = 1; k <= 3; k++) {
+        h.seq = k;
+        h.send_ns = 2200;
+        CHECK_EQ(buffers_slot_receive(&other.slot, other.run_id, &h, NULL, 2201), BUFFERS_ACCEPTED);
+    }
+    CHECK_EQ(rig_send(&r, 2, 2200, 2202), BUFFERS_ACCEPTED); /* at the same instant: by buffer id, ours first */
+    h.seq = 4;
+    CHECK_EQ(buffers_slot_receive(&other.slot, other.run_id, &h, NULL, 2203), BUFFERS_ACCEPTED);
+    buffers_flush(&plan);
+    CHECK_EQ(bus.free_ns, 2800); /* ours, then two of the other's (waits 0, 200, 400); two waited 600 */
     CHECK_EQ(bus.dropped, 2);
-    CHECK_EQ(other.slot.lost, 0);
+    CHECK_EQ(r.slot.lost, 0);
+    CHECK_EQ(other.slot.lost, 0); /* the unread one counts no loss */
+    CHECK_EQ(other.slot.heard_seq, 4);
+    /* now ours finds the queue full: it would wait 550 */
+    CHECK_EQ(rig_send(&r, 3, 2250, 2251), BUFFERS_ACCEPTED);
+    buffers_flush(&plan);
+    CHECK_EQ(bus.dropped, 3);
+    CHECK_EQ(r.slot.lost, 1);
+    /* a stamp from long before its arrival starts at the arrival, whatever the bus's time */
+    CHECK_EQ(rig_send(&r, 4, INT64_MIN + 1, 100 * SKEL_NS_PER_S), BUFFERS_ACCEPTED);
+    buffers_flush(&plan);
+    CHECK_EQ(bus.free_ns, 100 * SKEL_NS_PER_S + 200);
     buffers_bus_reset(&bus);
     CHECK_EQ(bus.dropped, 0);
 }

@@ -92,16 +92,17 @@ buffers:
 processes:
   - {{id: 1, name: lidar, dpu: 1, period_us: {period}, compute_us: 100, outputs: [scan]}}
   - {{id: 2, name: odometry, dpu: 2, period_us: {period}, compute_us: 100, outputs: [pose]}}
-  - {{id: 3, name: control, dpu: 3, period_us: {period}, compute_us: 100, inputs: [scan, pose]}}
+  - {{id: 3, name: control, dpu: 3, period_us: {reader}, compute_us: 100, inputs: [scan, pose]}}
 run: {{duration_s: {duration}, warmup_cycles: 10}}
 """
 
 
 def _shared(tmp_path: Path, bandwidth: float, scan: int = 1000, period: int = 5000, queue: str = "",
-            duration: float = 1.0) -> Path:
+            duration: float = 1.0, reader: int | None = None) -> Path:
     path = tmp_path / f"shared-{len(list(tmp_path.glob('shared-*.yaml')))}.yaml"
     path.write_text(SHARED.format(url=DEFAULT_URL, bandwidth=bandwidth, scan=scan, period=period,
-                                  queue=queue and f", queue_us: {queue}", duration=duration))
+                                  queue=queue and f", queue_us: {queue}", duration=duration,
+                                  reader=reader or period))
     return path
 
 
@@ -113,8 +114,13 @@ def _transports_by_buffer(out: Path) -> dict[int, set[float]]:
     return {int(b): set(transport[buffer == b]) for b in np.unique(buffer)}
 
 
-def test_two_writers_sending_at_once_on_a_bus_queue_one_behind_the_other_as_predicted(tmp_path: Path) -> None:
-    path = _shared(tmp_path, bandwidth=10)
+@pytest.mark.parametrize("reader", [5000, 50_000])
+def test_two_writers_sending_at_once_on_a_bus_queue_one_behind_the_other_as_predicted(
+        tmp_path: Path, reader: int) -> None:
+    """A reader of ten times the period reads ten messages of each writer at once, one socket after
+    the other: the transmitter still takes them in the order they were sent (a 2 ms queue would
+    drop most of the second socket's otherwise)."""
+    path = _shared(tmp_path, bandwidth=10, queue="2000", reader=reader)
     system = load(path)
     bus = system.link("bus")
     wire = {b.id: bus.wire_us(b) for b in system.buffers}  # 8 bits a byte at 10 Mbit/s

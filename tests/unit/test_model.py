@@ -85,7 +85,7 @@ BUS = Link(1, "bus", DEFAULT_URL, bandwidth_mbps=1.0, queue_us=100_000)
 @pytest.mark.parametrize(("flows", "waits"), [
     # (buffer, period, wire time) in us: the synchronous busy period is the flows' own wire times
     ([(1, 1000, 300), (2, 2000, 500)], {1: 500, 2: 300}),
-    # at 90 %, the busy period (270 us) spans three of A's messages: its first waits longest
+    # at 90 %, the later messages find the queue shorter: the first instant is the longest
     ([(1, 100, 50), (2, 300, 120)], {1: 120, 2: 50}),
     # one writer alone never waits
     ([(1, 100, 99)], {1: 0}),
