@@ -251,7 +251,12 @@ def test_a_process_of_zero_compute_only_communicates(tmp_path: Path, url: str) -
     relay, user = _process(report, "relay"), _process(report, "user")
     assert relay["cycles"] > 200 and relay["compute_mean_us"] == 0.0, relay
     assert relay["inputs"][0]["new"] == relay["cycles"], relay  # it ran on each new sample
-    assert user["inputs"][0]["new"] > 0.9 * user["cycles"], user  # and passed it on
+    # and passed each one on: the user received them all, bar the last one, which its last
+    # cycle may start before. How many its cycles found new is a race on this machine (its
+    # DPU's loopback delivery against the user's start in the same frame), not the relay's.
+    received = user["inputs"][0]["received"]
+    assert relay["cycles"] - 1 <= received <= relay["cycles"], (relay, user)
+    assert next(b for b in report["buffers"] if b["buffer"] == "relayed")["lost"] == 0, report["buffers"]
 
 
 ORPHAN_SYSTEM = """\

@@ -39,12 +39,12 @@ buffers:
   - {{id: 4, name: scan, bytes: 1000, link: can}}
   - {{id: 5, name: pose, bytes: 200, link: can}}
 processes:
-  - {{id: 1, name: beacon, dpu: 1, period_us: 1000, compute_us: 50, outputs: [echo, ping, sample]}}
+  - {{id: 1, name: beacon, dpu: 1, period_us: 500, compute_us: 50, outputs: [echo, ping, sample]}}
   - {{id: 2, name: lidar, dpu: 1, period_us: {SLOW_US}, compute_us: 100, outputs: [scan]}}
   - {{id: 3, name: odometry, dpu: 2, period_us: {SLOW_US}, compute_us: 100, outputs: [pose]}}
-  - {{id: 4, name: control, dpu: 3, period_us: 1000, compute_us: 50, inputs: [echo, ping, sample]}}
+  - {{id: 4, name: control, dpu: 3, period_us: 500, compute_us: 50, inputs: [echo, ping, sample]}}
   - {{id: 5, name: planner, dpu: 3, period_us: {SLOW_US}, compute_us: 100, inputs: [scan, pose]}}
-run: {{duration_s: 10.5, warmup_cycles: 100, lockout_cycles: 50}}
+run: {{duration_s: 5.5, warmup_cycles: 100, lockout_cycles: 50}}
 """
 
 
