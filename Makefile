@@ -191,7 +191,7 @@ FUZZ_HARNESSES     := buffer event config command seal
 FUZZ_DIR           := $(BUILD)/fuzz
 FUZZ_BINS          := $(patsubst %,$(FUZZ_DIR)/fuzz_%,$(FUZZ_HARNESSES))
 # nonnull-attribute: lcm_coretypes.h's memcpy(NULL, src, 0), as for SAN above.
-FUZZ_SAN    := -fsanitize=address,undefined -fno-sanitize=nonnull-attribute -fno-sanitize-recover=all \
+FUZZ_SAN    := -DFUZZING_BUILD_MODE_UNSAFE_FOR_PRODUCTION -fsanitize=address,undefined -fno-sanitize=nonnull-attribute -fno-sanitize-recover=all \
                -fno-omit-frame-pointer
 FUZZ_OBJS    = $(patsubst %.c,$(FUZZ_DIR)/obj/%.o,$(DPU_LIB))
 .PRECIOUS: $(FUZZ_DIR)/obj/%.o

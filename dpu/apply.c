@@ -9,6 +9,7 @@
  * because only a COMMIT names the instant at which every DPU switches. */
 
 #include <stdio.h>
+#include <string.h>
 
 #include "dpu.h"
 
@@ -65,6 +66,7 @@ static void apply_install(skel_control_t *c, skel_plan_t *plan)
     s->state = SKELMSG_STATUS_T_STATE_READY;
     pthread_mutex_unlock(&s->lock);
     plan_free(old); /* the executive drains links only under the lock: old is unused */
+    snprintf(c->network, sizeof c->network, "%s", plan->shape.text);
     log_line("DPU %d: applied generation %lld: %d processes, %d links, minor cycle %lld us",
              plan->dpu, (long long)plan->generation, plan->nprocesses, plan->nlinks,
              (long long)(plan->minor_ns / SKEL_NS_PER_US));
@@ -109,6 +111,13 @@ static int apply_runs_code(const skel_plan_t *plan)
     return 0;
 }
 
+static int apply_kernel_shapes(const skel_plan_t *plan)
+{
+    for (int i = 0; i < plan->shape.n; i++)
+        if (plan->shape.links[i].taken) return 1;
+    return 0;
+}
+
 static const char *apply_live_refused(const skel_plan_t *old, const skel_plan_t *next)
 {
     if (old == NULL) return NULL;
@@ -116,6 +125,9 @@ static const char *apply_live_refused(const skel_plan_t *old, const skel_plan_t 
         return "a live switch of a DPU running real code is not built (its init and fini): push between runs";
     if (old->tasking != next->tasking)
         return "a live switch between the cyclic and the tasking executive is not built: push between runs";
+    if (strcmp(old->shape.text, next->shape.text) != 0 && (apply_kernel_shapes(old) || apply_kernel_shapes(next)))
+        return "a live switch of a link's latency, jitter, loss or bandwidth under run.network: kernel is "
+               "not built (the host's tc holds the run's): push between runs, or run.network: emulated";
     if (next->tasking && (old->compute == SKELMSG_DPU_T_COMPUTE_SLEEP) != (next->compute == SKELMSG_DPU_T_COMPUTE_SLEEP))
         return "a live switch of the tasking executive between compute mode sleep (its own schedule) and "
                "cpu, wall or work (kernel threads) is not built: push between runs";
@@ -156,6 +168,7 @@ void apply_commit_live(skel_control_t *c, int64_t at_utc_ns)
      * and off the grid (a COMMIT 1 ms before the point, during a 3 ms computation: 1 ms late). */
     if (clock_simulated()) clock_poke();
     else server_wake(s->wake_fd);
+    snprintf(c->network, sizeof c->network, "%s", plan->shape.text);
     plan_free(retired);
     plan_free(replaced);
     log_line("DPU %d: generation %lld ready: switch in %.3f ms (run %lld)", plan->dpu,
@@ -182,6 +195,7 @@ void apply_install_next(skel_control_t *c)
     pthread_mutex_unlock(&s->lock);
     plan_free(retired);
     plan_free(old);
+    if (next != NULL) snprintf(c->network, sizeof c->network, "%s", next->shape.text);
     if (next != NULL)
         log_line("DPU %d: applied generation %lld at the end of run %lld", next->dpu,
                  (long long)next->generation, (long long)s->run_id);

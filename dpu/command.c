@@ -159,6 +159,17 @@ static void command_start(skel_control_t *c, const skelmsg_command_t *cmd)
         report_reject(c, -1, reason, 0);
         return;
     }
+    /* The links' network the kernel takes, applied now and undone at the run's end (the lock
+     * let go: the executive is idle, and only this thread arms a run). */
+    pthread_mutex_unlock(&s->lock);
+    if (shape_apply(&c->shaper, &s->plan->shape, reason, sizeof reason) != 0) {
+        report_reject(c, -1, reason, 0);
+        return;
+    }
+    if (pthread_mutex_lock(&s->lock) != 0) {
+        shape_remove(&c->shaper);
+        return;
+    }
     /* In the past (or 0): start now. Converted only when ahead, so no difference overflows. */
     int64_t start = cmd->at_utc_ns > now_utc ? clock_utc_to_mono(cmd->at_utc_ns, now_mono, now_utc) : now_mono;
     owner_take(s, cmd, clock_mono_to_utc(start, now_mono, now_utc));

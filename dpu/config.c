@@ -73,6 +73,14 @@ const skelmsg_link_t *config_link(const skelmsg_config_t *cfg, int16_t id)
     return NULL;
 }
 
+/* The host of DPU ID in CFG, "" when unknown. */
+const char *config_host(const skelmsg_config_t *cfg, int16_t id)
+{
+    for (int i = 0; i < cfg->ndpus; i++)
+        if (cfg->dpus[i].id == id) return cfg->dpus[i].host;
+    return "";
+}
+
 static int config_dpu_reaches(const skelmsg_dpu_t *d, int16_t link)
 {
     for (int i = 0; i < d->nlinks; i++)
@@ -408,8 +416,8 @@ static int config_check_ids(const skelmsg_config_t *cfg, char *reason, size_t le
     return 0;
 }
 
-/* Whether a process of DPU reads a buffer on link LINK (its bus is emulated here: buffers.c). */
-static int config_reads_link(const skelmsg_config_t *cfg, int16_t dpu, int16_t link)
+/* Whether a process of DPU reads a buffer on link LINK (its bus is emulated or shaped there). */
+int config_reads_link(const skelmsg_config_t *cfg, int16_t dpu, int16_t link)
 {
     for (int i = 0; i < cfg->nprocesses; i++)
         for (int q = 0; cfg->processes[i].dpu == dpu && q < cfg->processes[i].ninputs; q++) {
@@ -501,6 +509,8 @@ int config_validate(const skelmsg_config_t *cfg, int dpu_index, char *reason, si
         return config_fail(reason, len, "DPU %d: speed %g outside %g..%g", d->id, d->speed, SKEL_MIN_SPEED,
                            (double)SKEL_MAX_SPEED);
     if (config_check_cpu(d, reason, len) != 0) return -1;
+    if (cfg->network != SKELMSG_CONFIG_T_NETWORK_EMULATED && cfg->network != SKELMSG_CONFIG_T_NETWORK_KERNEL)
+        return config_fail(reason, len, "network %d is neither emulated (0) nor kernel (1)", cfg->network);
     if (cfg->warmup_cycles < 0)
         return config_fail(reason, len, "warmup_cycles %d < 0", cfg->warmup_cycles);
     if (config_check_ids(cfg, reason, len) != 0) return -1;

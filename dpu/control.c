@@ -83,6 +83,8 @@ static void control_finish_run(skel_control_t *c)
              s->dpu_id, (long long)s->run_id, (long long)atomic_load(&s->minor_cycles),
              (long long)atomic_load(&s->overruns), s->nlockouts,
              (long long)atomic_load(&s->ring.lost), (double)atomic_load(&s->longest_stall_ns) / 1e6);
+    /* Before the report: a host tool that has it finds the host as it was before the run. */
+    shape_remove(&c->shaper);
     if (report_publish(s, s->plan, &c->history) != 0) log_line("cannot publish the report of run %lld",
                                                   (long long)s->run_id);
     apply_install_next(c); /* a switch the run did not reach takes effect now */

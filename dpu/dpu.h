@@ -14,6 +14,7 @@
 #include <stdatomic.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <sys/types.h>
 
 #include <lcm/lcm.h>
 
@@ -48,7 +49,7 @@
 #define SKEL_DRIFT_PCT       2.0                /* WORK calibration further off than this: said */
 #define SKEL_SEEN_COMMANDS   64
 #define SKEL_OWNER_LEN       128                /* "HOST pid N" of a run's host tool */
-#define SKEL_STATUS_BYTES    4096               /* an encoded status_t: its strings and lockouts are bounded */
+#define SKEL_STATUS_BYTES    5120               /* an encoded status_t: its strings and lockouts are bounded */
 /* A received instant or duration further ahead than this is refused (START) or clamped
  * (COMMIT): any sum of instants and durations then stays far within an int64. */
 #define SKEL_FAR_NS          (10LL * 365 * 24 * 3600 * 1000000000LL)
@@ -385,6 +386,7 @@ typedef struct {
 int link_url(const skel_link_t *link, char *out, size_t len, int32_t *asked);
 int link_open(skel_link_t *link);
 int link_record_url(const char *control, char *out, size_t len);
+int link_group_port(const char *url, uint32_t *group, unsigned *port, int *ttl);
 void link_close(skel_link_t *link);
 void link_receive(skel_slot_t *slot, const lcm_recv_buf_t *rbuf); /* a buffer_t on SLOT's channel */
 int link_subscribe(skel_link_t *link, skel_slot_t *slot);
@@ -532,6 +534,43 @@ typedef struct {
     int64_t compute_ns, communicate_ns, wait_ns, stall_ns;
 } skel_dpu_sums_t;
 
+/* ---- shape (shape.c): a link's modelled network enforced by this host's kernel ------ */
+#define SHAPE_DELAY 1           /* latency and jitter: netem */
+#define SHAPE_LOSS 2            /* loss: netem, or nftables where netem is missing */
+#define SHAPE_RATE 4            /* bandwidth: tbf */
+#define SHAPE_MAX_GROUPS 8      /* a link's groups the kernel path takes */
+#define SHAPE_CMD_LEN 384
+#define SHAPE_SCRIPT_LEN 16384
+#define SHAPE_TEXT_LEN 1024     /* status_t.network */
+typedef struct {
+    skelmsg_link_t link;        /* its model (strings not owned) */
+    int8_t taken;               /* SHAPE_*: enforced by the kernel; the rest emulated */
+    int8_t netem_loss;          /* its loss by netem (else nftables) */
+    char dev[16];               /* where its groups arrive */
+    char name[16];              /* its ifb device and nft table */
+    int pref;                   /* its ingress filters' */
+    int frame;                  /* its largest message's bytes on an Ethernet (before IP fragments) */
+    int ngroups;
+    uint32_t groups[SHAPE_MAX_GROUPS];
+    unsigned ports[SHAPE_MAX_GROUPS];
+} skel_shape_link_t;
+
+typedef struct {
+    int n;
+    skel_shape_link_t links[SKEL_MAX_LINKS];
+    char text[SHAPE_TEXT_LEN];  /* each modelled property's path, per link */
+} skel_shape_t;
+
+typedef struct {
+    pid_t guard;                /* 0: nothing applied */
+    int fd;                     /* its pipe: closed, it undoes */
+} skel_shaper_t;
+
+void shape_plan(skel_shape_t *sh, const skelmsg_config_t *cfg, int16_t dpu);
+int shape_taken(const skel_shape_t *sh, int16_t link); /* SHAPE_* */
+int shape_apply(skel_shaper_t *sp, const skel_shape_t *sh, char *reason, size_t len);
+void shape_remove(skel_shaper_t *sp);
+
 typedef struct skel_plan {
     int64_t generation;
     int16_t dpu;
@@ -580,6 +619,7 @@ typedef struct skel_plan {
     int gen_started;
     atomic_int gen_stop;
     int64_t gen_end_ns;
+    skel_shape_t shape;         /* what the kernel takes of its links' model (shape.c) */
 } skel_plan_t;
 
 typedef struct {
@@ -595,6 +635,8 @@ int64_t config_minor_us(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d);
 int64_t config_common_us(const skelmsg_config_t *cfg);
 const skelmsg_buffer_desc_t *config_buffer(const skelmsg_config_t *cfg, int16_t id);
 const skelmsg_link_t *config_link(const skelmsg_config_t *cfg, int16_t id);
+const char *config_host(const skelmsg_config_t *cfg, int16_t id);
+int config_reads_link(const skelmsg_config_t *cfg, int16_t dpu, int16_t link);
 skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason, size_t len);
 int plan_open_links(skel_plan_t *plan, const char *control_url, const char *record_url,
                     atomic_int_fast64_t *rejected, char *reason, size_t len);
@@ -854,6 +896,8 @@ typedef struct {
     int nseen;
     int64_t ping_seq, ping_t1_ns, ping_t2_ns, ping_t3_ns; /* repeated by later statuses */
     int status_due;
+    skel_shaper_t shaper;      /* the run's network applied by the kernel */
+    char network[SHAPE_TEXT_LEN]; /* the newest plan's shape text (status_t.network) */
 } skel_control_t;
 
 int control_init(skel_control_t *c, skel_server_t *s);

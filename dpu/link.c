@@ -80,6 +80,16 @@ static int link_parse(const char **url, uint32_t *group, unsigned *port, const c
     return *port > 65535 || *group >> 28 != 0xE ? -1 : 0; /* a multicast group, 224.0.0.0/4 */
 }
 
+/* URL's group, port and ttl (LCM's default 0 when not given); -1: not a udpm:// URL. */
+int link_group_port(const char *url, uint32_t *group, unsigned *port, int *ttl)
+{
+    const char *rest;
+    if (link_parse(&url, group, port, &rest) != 0) return -1;
+    const char *at = strstr(rest, "ttl=");
+    *ttl = at != NULL && (at[-1] == '?' || at[-1] == '&') ? atoi(at + 4) : 0;
+    return 0;
+}
+
 /* The record URL of CONTROL (contract: RECORD_OFFSET): its group and port each that much
  * lower, its options kept; host/sysfile/link.py's record_url says the same. Another provider's
  * URL is its own record URL. -1: CONTROL is not udpm://A.B.C.D:PORT[?options], or OUT

@@ -31,14 +31,6 @@ int plan_process_index(const skel_plan_t *plan, int16_t id)
     return -1;
 }
 
-/* The host of DPU ID in CFG, "" when unknown. */
-static const char *plan_host(const skelmsg_config_t *cfg, int16_t id)
-{
-    for (int i = 0; i < cfg->ndpus; i++)
-        if (cfg->dpus[i].id == id) return cfg->dpus[i].host;
-    return "";
-}
-
 /* Link L's transmitter as this DPU emulates it: one per link, shared by its slots. */
 static skel_bus_t *plan_bus(skel_plan_t *plan, const skelmsg_link_t *l)
 {
@@ -64,19 +56,24 @@ static int plan_transport(skel_plan_t *plan, const skelmsg_config_t *cfg, const 
 {
     const skelmsg_link_t *l = config_link(cfg, b->link);
     skel_transport_t *tr = &slot->tr;
-    tr->latency_ns = (int64_t)l->latency_us * SKEL_NS_PER_US;
-    tr->jitter_ns = (int64_t)l->jitter_us * SKEL_NS_PER_US;
+    int kernel = shape_taken(&plan->shape, l->id); /* what the host's kernel does instead */
+    if (!(kernel & SHAPE_DELAY)) {
+        tr->latency_ns = (int64_t)l->latency_us * SKEL_NS_PER_US;
+        tr->jitter_ns = (int64_t)l->jitter_us * SKEL_NS_PER_US;
+    }
     tr->jitter = l->jitter;
-    tr->loss = l->loss_pct / 100;
-    tr->enter = l->burst_enter_pct / 100;
-    tr->leave = l->burst_leave_pct / 100;
-    tr->burst_loss = l->burst_loss_pct / 100;
+    if (!(kernel & SHAPE_LOSS)) {
+        tr->loss = l->loss_pct / 100;
+        tr->enter = l->burst_enter_pct / 100;
+        tr->leave = l->burst_leave_pct / 100;
+        tr->burst_loss = l->burst_loss_pct / 100;
+    }
     const skelmsg_process_t *w = NULL;
     for (int i = 0; i < cfg->nprocesses; i++)
         if (cfg->processes[i].id == b->writer) w = &cfg->processes[i];
     tr->from_send = clock_simulated() ||
-                    (w != NULL && strcmp(plan_host(cfg, w->dpu), plan_host(cfg, plan->dpu)) == 0);
-    if (l->bandwidth_mbps > 0) {
+                    (w != NULL && strcmp(config_host(cfg, w->dpu), config_host(cfg, plan->dpu)) == 0);
+    if (l->bandwidth_mbps > 0 && !(kernel & SHAPE_RATE)) {
         if ((slot->bus = plan_bus(plan, l)) == NULL) return -1;
         /* an udpm link (config.c refuses a local link's bandwidth) */
         slot->wire_extra = SKEL_BUFFER_HEADER_BYTES + SKEL_WIRE_LCM_HEADER_BYTES +
@@ -322,6 +319,7 @@ skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason
     plan->buses = calloc(SKEL_MAX_LINKS, sizeof *plan->buses);
     if (plan->processes == NULL || plan->slots == NULL || plan->buses == NULL) goto oom;
     plan->event_link = -1;
+    shape_plan(&plan->shape, cfg, d->id);
     if (plan_add_processes(plan, cfg, d->id) != 0) goto oom;
     if (plan_charges(plan, cfg, reason, len) != 0) {
         plan_free(plan);

@@ -68,6 +68,7 @@ int report_status_publish(skel_control_t *c)
     st.ping_t1_ns = c->ping_t1_ns;
     st.ping_t2_ns = c->ping_t2_ns;
     st.ping_t3_ns = c->ping_t3_ns;
+    st.network = c->network;
     c->last_status_ns = clock_mono_ns();
     c->status_due = 0;
     uint8_t enc[SKEL_STATUS_BYTES];

@@ -236,6 +236,7 @@ class RunRules:
     late_pct: int
     too_late_pct: int
     seed: int
+    network: str = "kernel"
 
 
 @dataclass(frozen=True)
@@ -552,6 +553,7 @@ def charges(links: Sequence[Link], dpus: Sequence[Dpu], buffers: Sequence[Buffer
 # --- the model on the wire: config_t's enums, and a System read back from a config_t -------------
 COMPUTE = {"sleep": skelmsg.dpu_t.COMPUTE_SLEEP, "wall": skelmsg.dpu_t.COMPUTE_WALL,
            "cpu": skelmsg.dpu_t.COMPUTE_CPU, "work": skelmsg.dpu_t.COMPUTE_WORK}
+NETWORK = {"emulated": skelmsg.config_t.NETWORK_EMULATED, "kernel": skelmsg.config_t.NETWORK_KERNEL}
 EXECUTIVE = {"cyclic": skelmsg.dpu_t.EXECUTIVE_CYCLIC, "threads": skelmsg.dpu_t.EXECUTIVE_THREADS}
 SYNC = {"periodic": skelmsg.process_t.SYNC_PERIODIC, "data": skelmsg.process_t.SYNC_DATA,
         "event": skelmsg.process_t.SYNC_EVENT}
@@ -606,7 +608,8 @@ def from_config(msg: skelmsg.config_t) -> System:
         processes=charges(links, dpus, buffers, processes),
         run=RunRules(cycles=None, duration_s=None, warmup_cycles=msg.warmup_cycles,
                      lockout_cycles=msg.lockout_cycles, stop_on=(), late_pct=msg.late_pct,
-                     too_late_pct=msg.too_late_pct, seed=msg.seed),
+                     too_late_pct=msg.too_late_pct, seed=msg.seed,
+                     network=_named(NETWORK, msg.network)),
         chains=tuple(Chain(c.name, tuple(c.processes)) for c in msg.chains),
         reference=None,
         events=tuple(Event(e.name, _named(EVENT_KIND, e.kind), e.dpu, e.period_us, e.jitter_us, e.rate_hz,

@@ -3,14 +3,16 @@
 Checks, in order: the URL itself, its ttl, the multicast route, the interface
 that route leaves by (UP, MULTICAST), strict reverse-path filtering, socket
 receive buffers, firewall rules that drop the port or multicast (best effort:
-nftables, iptables), and last a real self-test: one LCM message published and
-received on the URL within 1 s. Reading only, except the self-test's single
-datagram on the URL itself (ttl=0 keeps it on this host).
+nftables, iptables), a real self-test: one LCM message published and
+received on the URL within 1 s; then what a run's `run.network: kernel` can use
+here (netem or not) and what a DPU's run applies now (dpu/shape.c). Reading only,
+except the self-test's single datagram on the URL itself (ttl=0 keeps it on this host).
 """
 
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import os
 import re
@@ -20,6 +22,7 @@ import subprocess
 import sys
 from collections.abc import Sequence
 from dataclasses import asdict
+from pathlib import Path
 from typing import Literal, TextIO
 
 from rich.text import Text
@@ -34,6 +37,7 @@ from ..sysfile.link import LcmUrl, parse_url, record_url, rmem_max, sysctl
 MIN_RMEM_BYTES = 2 * 1024 * 1024
 GOOD_RMEM_BYTES = 8 * 1024 * 1024
 SELF_TEST_S = 1.0
+SHAPE_PREFIX = "skl"  # dpu/shape.c: the ifb device and nft table of a link the kernel shapes
 
 
 # --- small readers of the system's state ----------------------------------------------------
@@ -164,6 +168,8 @@ def firewall_findings_nft(ruleset: str, url: LcmUrl) -> list[Check]:
             found.append(Check("firewall", False, f"nft {table} {chain}: {m[1]} policy drop: LCM passes "
                                f"only if a rule accepts udp dport {url.port}",
                                f"nft insert rule {table} {chain} udp dport {url.port} accept", "warn"))
+        elif table.split(" ")[-1].startswith(SHAPE_PREFIX):
+            continue  # a run's modelled loss (dpu/shape.c): the network check names it
         elif re.search(r"\b(drop|reject)\b", line) and (handle := re.search(r"# handle (\d+)", line)):
             severity = _drops_lcm(line, url, dport)
             if severity:
@@ -262,6 +268,54 @@ def _route_checks(url: LcmUrl) -> list[Check]:
     return checks
 
 
+def netem_present() -> bool | None:
+    """Whether this kernel has netem (built in or a module); None when it cannot be told."""
+    release = os.uname().release
+    if list(Path(f"/lib/modules/{release}/kernel/net/sched").glob("sch_netem.ko*")):
+        return True
+    try:
+        with gzip.open("/proc/config.gz", "rt") as config:
+            return any(line.startswith("CONFIG_NET_SCH_NETEM=") for line in config)
+    except OSError:
+        return None
+
+
+def network_findings(netem: bool | None, shaped: dict[str, str], tables: list[str]) -> list[Check]:
+    """What a run's `run.network: kernel` can use here, and what it has applied now: SHAPED is each
+    skeleton ifb device -> its qdiscs, TABLES the skeleton nft tables."""
+    if netem is False:
+        can = ("no netem in this kernel: a link's bandwidth goes to tbf, its loss to nftables (without "
+               "bursts), its latency and jitter are emulated by the DPUs")
+    else:
+        can = f"netem {'here' if netem else 'not known'}: a link's latency, jitter and loss go to netem, " \
+              "its bandwidth to tbf"
+    checks = [Check("network", True, can)]
+    applied = [f"ifb {dev}: {q}" for dev, q in sorted(shaped.items())] + [f"nft table {t}" for t in tables]
+    if applied:
+        undo = "; ".join([f"ip link del {dev}" for dev in sorted(shaped)] +
+                         [f"nft delete table inet {t}" for t in tables])
+        checks.append(Check("network", False, f"applied now by a run's DPU (removed at its end): "
+                            f"{'; '.join(applied)}", f"only when no run is going on: {undo}",
+                            severity="warn"))
+    return checks
+
+
+def check_network() -> list[Check]:
+    shaped: dict[str, str] = {}
+    for link in _ip_json("link", "show", "type", "ifb") or []:
+        dev = str(link.get("ifname", ""))
+        if dev.startswith(SHAPE_PREFIX) and shutil.which("tc"):
+            done = subprocess.run(["tc", "qdisc", "show", "dev", dev], capture_output=True, text=True,
+                                  timeout=10)
+            shaped[dev] = " | ".join(line.strip() for line in done.stdout.splitlines())
+    tables: list[str] = []
+    if shutil.which("nft"):
+        done = subprocess.run(["nft", "list", "tables"], capture_output=True, text=True, timeout=10)
+        tables = [w[-1] for w in (line.split() for line in done.stdout.splitlines())
+                  if len(w) == 3 and w[-1].startswith(SHAPE_PREFIX)]
+    return network_findings(netem_present(), shaped, tables)
+
+
 def run_checks(url: str) -> list[Check]:
     try:
         parsed = parse_url(url)
@@ -307,7 +361,7 @@ def check_key(keyed: bool) -> Check:
 
 def doctor(url: str, out: TextIO = sys.stdout, as_json: bool = False, keyed: bool = False) -> int:
     """Print one line per check (with the fix command for each problem); 0 when LCM works, 1 when not."""
-    checks = [*run_checks(url), check_key(keyed)]
+    checks = [*run_checks(url), check_key(keyed), *check_network()]
     healthy = not any(not c.ok and c.severity == "fail" for c in checks)
     if as_json:
         doc = {"url": url, "ok": healthy, "checks": [{**asdict(c), "level": c.level} for c in checks]}

@@ -132,6 +132,7 @@ def run(system: System, options: RunOptions, console: Console | None = None) -> 
             if not pushed.ok:
                 _print_push_failure(console, pushed)
                 return EXIT_FAILED
+        _print_network(console, control, dpu_ids)
         if options.logger == "local":
             keeper = LoggerKeeper(control.listen_url, out / "run.lcm", logger_deadline_s, say=console.print)
             # Its file exists before it has joined the group: wait for the first heartbeat it records.
@@ -451,6 +452,15 @@ def _external_summary(console: Console, out: Path, run_id: int, dpu_ids: list[in
 
 def _pct(value: float | None) -> str:
     return "-" if value is None else f"{value:.1f}"
+
+
+def _print_network(console: Console, control: Control, dpu_ids: list[int]) -> None:
+    """Each reading DPU's links: which property its host's kernel enforces (tc, nft), which it
+    emulates, and why (status_t.network, in the run's log too)."""
+    for dpu_id, view in sorted(control.snapshot().items()):
+        if dpu_id in dpu_ids and view.status.network:
+            console.print(f"NET DPU {dpu_id}: {view.status.network}", highlight=False, markup=False,
+                          soft_wrap=True)
 
 
 def _print_push_failure(console: Console, pushed: PushResult) -> None:

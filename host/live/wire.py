@@ -18,7 +18,7 @@ import yaml
 
 import skelmsg
 
-from ..model import COMPUTE, EVENT_KIND, EXECUTIVE, SYNC, Event, Link, System
+from ..model import COMPUTE, EVENT_KIND, EXECUTIVE, NETWORK, SYNC, Event, Link, System
 from ..sysfile.schema import COSTS
 from ..theory.predict import planned_data_us
 
@@ -35,6 +35,7 @@ def config_message(system: System, generation: int, run_id: int, committed: bool
     msg.late_pct = system.run.late_pct
     msg.too_late_pct = system.run.too_late_pct
     msg.seed = system.run.seed
+    msg.network = NETWORK[system.run.network]
     msg.links = [_link(link) for link in system.links]
     msg.nlinks = len(msg.links)
     msg.dpus = []

@@ -553,6 +553,11 @@ class Run(_Spec):
     """... and above this % is too late (at least `late_pct`)."""
     seed: Annotated[int, _between(0, 2**63 - 1)] = 1
     """Every random draw of a run (varying compute, generated events): same seed, same draws."""
+    network: Literal["kernel", "emulated"] = "kernel"
+    """How the reading DPUs give links their latency, jitter, loss and bandwidth. `kernel`: with `tc` (an
+    ifb device, netem, tbf) and nftables on the reading host where it can (root, and a link whose writers
+    are all on other hosts), emulated by the DPU where it cannot; `emulated`: always by the DPU. Each
+    property's path is in the run's output and `skel status`."""
 
     @model_validator(mode="after")
     def _consistent(self) -> Run:

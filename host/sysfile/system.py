@@ -105,7 +105,7 @@ def _build(path: str | Path, doc: Any, overrides: tuple[str, ...], text: str | N
 def _run_rules(run: Run) -> RunRules:
     return RunRules(cycles=run.cycles, duration_s=run.duration_s, warmup_cycles=run.warmup_cycles,
                     lockout_cycles=run.lockout_cycles, stop_on=tuple(run.stop_on), late_pct=run.late_pct,
-                    too_late_pct=run.too_late_pct, seed=run.seed)
+                    too_late_pct=run.too_late_pct, seed=run.seed, network=run.network)
 
 
 def _reference(spec: ReferenceSpec | None) -> Reference | None:

@@ -393,12 +393,45 @@ static void test_record_url(void)
     CHECK_EQ(link_record_url("udpm://239.255.80.67:7667?ttl=0", url, 20), -1);
 }
 
+/* run.network: kernel takes a link only where the kernel can shape it: never one that stays
+ * on its host (ttl=0), nor one a writer on the reader's own host sends on; emulated, never. */
+static void test_shape_decisions(void)
+{
+    fixture_t f;
+    fixture_init(&f);
+    f.links[0].bandwidth_mbps = 1;
+    f.links[0].queue_us = 20000;
+    f.links[0].loss_pct = 5;
+    skel_shape_t sh;
+    shape_plan(&sh, &f.cfg, 2);
+    CHECK_EQ(sh.n, 1);
+    CHECK_EQ(shape_taken(&sh, 1), 0);
+    CHECK(strcmp(sh.text, "link net: bandwidth emulated, loss emulated: run.network: emulated") == 0);
+    f.cfg.network = SKELMSG_CONFIG_T_NETWORK_KERNEL;
+    shape_plan(&sh, &f.cfg, 2);
+    CHECK(strstr(sh.text, ": ttl=0: it never leaves a host") != NULL);
+    f.buffers[0].url = (char *)"udpm://239.255.76.67:7800?ttl=1";
+    f.buffers[1].url = (char *)"udpm://239.255.76.67:7801?ttl=1";
+    f.dpus[1].host = (char *)"alpha"; /* the writer of b2 (process 3) shares DPU 2's host */
+    shape_plan(&sh, &f.cfg, 2);
+    CHECK_EQ(shape_taken(&sh, 1), 0);
+    CHECK(strstr(sh.text, ": a writer on this host") != NULL);
+    shape_plan(&sh, &f.cfg, 1); /* DPU 1 reads b2 on it: its own decision */
+    CHECK_EQ(sh.n, 1);
+    f.links[0].bandwidth_mbps = 0;
+    f.links[0].loss_pct = 0;
+    shape_plan(&sh, &f.cfg, 2); /* nothing modelled: nothing to say */
+    CHECK_EQ(sh.n, 0);
+    CHECK_EQ(sh.text[0], '\0');
+}
+
 int main(void)
 {
     test_find_self();
     test_valid();
     test_rejections();
     test_plan();
+    test_shape_decisions();
     test_plan_charges();
     test_link_recv_buf_size();
     test_links_limit();

@@ -15,6 +15,7 @@ from skeleton.host.cli.doctor import (
     doctor,
     firewall_findings_iptables,
     firewall_findings_nft,
+    network_findings,
     parse_url,
 )
 from skelmsg.contract import DEFAULT_URL
@@ -109,3 +110,17 @@ def test_iptables_rules_that_drop_lcm_are_found_with_their_delete_command() -> N
 def test_check_level_names() -> None:
     assert Check("x", True, "").level == "OK"
     assert Check("x", False, "", severity="warn").level == "WARN"
+
+
+def test_a_runs_shaping_is_named_with_its_undo_and_is_no_firewall_finding() -> None:
+    ours = ("table inet skl0e5c6f8a {\n\tchain in {\n\t\tip daddr 239.255.76.73 udp dport 7667 "
+            "numgen random mod 1000000 < 50000 drop # handle 3\n\t}\n}\n")
+    shaped = NFT.replace("table inet filter {", ours + "table inet filter {")
+    assert firewall_findings_nft(shaped, LAB) == firewall_findings_nft(NFT, LAB)
+    can, applied = network_findings(False, {"skl7d3b26fe": "qdisc tbf 8001: root rate 1Mbit"},
+                                    ["skl0e5c6f8a"])
+    assert can.ok and "no netem" in can.detail and "emulated by the DPUs" in can.detail
+    assert applied.level == "WARN" and "qdisc tbf" in applied.detail
+    assert applied.fix == ("only when no run is going on: ip link del skl7d3b26fe; "
+                           "nft delete table inet skl0e5c6f8a")
+    assert [c.detail[:5] for c in network_findings(True, {}, [])] == ["netem"]

@@ -214,7 +214,8 @@ def test_statuses_bulk_decoded_give_what_the_generated_decoder_does(tmp_path: Pa
     endless = bytearray(sent[8])
     endless[10:14] = b"\xff" * 4  # the host's byte count: 2^32 - 1
     trailing = sent[9] + b"\x01\x02"  # bytes after the message: read by neither decoder
-    damaged = [sent[5][:-1], sent[6][:30], b"\x00" * 12, bytes(endless), bytes(negative), trailing]
+    # sent[5] cut into run_end_utc_ns: a cut only into the last string's nul is read by both
+    damaged = [sent[5][:-6], sent[6][:30], b"\x00" * 12, bytes(endless), bytes(negative), trailing]
     path = write_log(tmp_path / "s.lcm", [(STATUS_CHANNEL, m) for m in sent + damaged])
     fields = ("dpu", "pid", "run_id", "state", "mono_ns", "utc_ns", "nlockouts", "ping_seq", "run_end_utc_ns")
 
