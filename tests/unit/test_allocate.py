@@ -4,7 +4,6 @@ user's YAML kept, no-fit advice, and --verify with real DPUs (sanitizer build, s
 from __future__ import annotations
 
 import re
-import time
 from pathlib import Path
 
 import pytest
@@ -127,11 +126,11 @@ def test_bad_pin_is_one_line_exit_2() -> None:
                                         "of the DPUs allocated to (1, 2, 3, 4)")
 
 
-def test_40_processes_on_8_dpus_answer_within_30_s(tmp_path: Path) -> None:
+def test_40_processes_on_8_dpus_balance_better_than_round_robin(tmp_path: Path) -> None:
+    """The answer's quality in a short search (0.3 s of the solver found 55.9 % here); its
+    time, an answer within 30 s, is a goal of `make bench` (part allocate)."""
     path = tmp_path / "p40.yaml"
     path.write_text(random_pipeline(1))
-    start = time.monotonic()
-    found = allocate(load(path), 8, time_limit_s=20)
-    assert time.monotonic() - start < 30
+    found = allocate(load(path), 8, time_limit_s=2)
     assert found.prediction.schedulable
     assert found.prediction.worst_load_pct < 60  # round robin had 63 %; 55.3 % is the average
