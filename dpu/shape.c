@@ -119,9 +119,9 @@ static const char *shape_link_groups(skel_shape_link_t *k, const skelmsg_config_
                 link_group_port(cfg->buffers[j].url, &g2, &p2, &t2) == 0 && g2 == group)
                 return "its group is another link's too";
         }
-        /* its frame on an Ethernet: as plan.c's wire_extra, and the Ethernet header */
+        /* its IP packet, as plan.c's wire_extra counts it */
         int frame = b->bytes + SKEL_BUFFER_HEADER_BYTES + SKEL_WIRE_LCM_HEADER_BYTES + (int)strlen(b->channel) + 1 +
-                    SKEL_WIRE_UDP_IP_BYTES + 14;
+                    SKEL_WIRE_UDP_IP_BYTES;
         if (frame > k->frame) k->frame = frame;
         int seen = 0;
         for (int g = 0; g < k->ngroups; g++) seen |= k->groups[g] == group && k->ports[g] == port;
@@ -298,13 +298,15 @@ static void shape_commands(const skel_shape_link_t *k, char (*cmds)[SHAPE_CMD_LE
                 if (fscanf(f, "%d", &mtu) != 1 || mtu < 576) mtu = 1500;
                 fclose(f);
             }
-            /* Its queue: tbf takes a frame while the bytes queued, its own with them, fit the
-             * limit; the model, while the wait before it is at most queue_us. The two agree for
-             * the link's largest frame: what it sends in queue_us, and that frame. */
-            int frame = k->frame < mtu + 14 ? k->frame : mtu + 14;
-            snprintf(cmds[(*ncmds)++], SHAPE_CMD_LEN, "tc qdisc add dev %s %s tbf rate %.0fbit burst %d limit %.0f",
-                     k->name, parent, l->bandwidth_mbps * 1e6, mtu + 14,
-                     l->bandwidth_mbps * l->queue_us / 8 + frame);
+            /* A frame arrives on the ifb with its Ethernet header, which the model does not
+             * count: the size table takes it off, so tbf's bytes are the model's. Its queue: tbf
+             * takes a frame while the bytes queued, its own with them, fit the limit; the model,
+             * while the wait before it is at most queue_us. The two agree for the link's
+             * largest frame: what it sends in queue_us, and that frame. */
+            int frame = k->frame < mtu ? k->frame : mtu;
+            snprintf(cmds[(*ncmds)++], SHAPE_CMD_LEN,
+                     "tc qdisc add dev %s %s stab overhead -14 tbf rate %.0fbit burst %d limit %.0f", k->name,
+                     parent, l->bandwidth_mbps * 1e6, mtu, l->bandwidth_mbps * l->queue_us / 8 + frame);
         }
         if (!shape_ingress(k->dev))
             snprintf(cmds[(*ncmds)++], SHAPE_CMD_LEN, "tc qdisc add dev %s handle ffff: ingress", k->dev);
