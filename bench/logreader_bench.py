@@ -26,6 +26,7 @@ from skeleton.analysis.read.records import TIMING, load_records
 from skelmsg.contract import STATUS_CHANNEL, TIMING_CHANNEL
 
 RESULTS = Path(__file__).resolve().parent / "results" / "logreader.txt"
+SPEEDUP = 10.0  # at least this many times lcm.EventLog to the same columns
 BATCH = 64  # records per timing_t batch
 # Every per-record array of timing_t (whatever fields it gains).
 _T = skelmsg.timing_t
@@ -152,7 +153,8 @@ def measure(records: int = 500_000) -> list[str]:
             )
             if name == "timing":
                 headline = (
-                    f"log reader: {t_all / t_cols:.1f}x lcm.EventLog ({per_s['cols']:.1f} M records/s "
+                    f"log reader: {t_all / t_cols:.1f}x lcm.EventLog (goal {SPEEDUP:g}x): "
+                    f"{'PASS' if t_all / t_cols >= SPEEDUP else 'FAIL'} ({per_s['cols']:.1f} M records/s "
                     f"to the same numpy columns; {t_all / t_ours:.1f}x, {per_s['ours']:.1f} M records/s "
                     "to records.RunRecords)"
                 )
