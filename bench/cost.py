@@ -22,6 +22,7 @@ Each takes `run(text, name, seconds) -> (records, report)`: one real `skel run`.
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from collections.abc import Callable
 from typing import Any
@@ -193,6 +194,12 @@ def share_ratio(ours: float, theirs: float) -> float:
     return 1.0 if ours == 0 else math.inf
 
 
+def _up_to(rates: list[int]) -> str:
+    """The highest rate of the ladder at which, and at every rate below it, RATES hold."""
+    below = list(itertools.takewhile(lambda hz: hz in rates, RATE_LADDER_HZ))
+    return f"{below[-1] / 1000:g} kHz" if below else "none"
+
+
 def part_rate(run: Run, url: str, beside: Beside, cpu: int, priority: int) -> list[str]:
     """At each rate of RATE_LADDER_HZ, one DPU of RATE_PROCESSES processes of RATE_COMPUTE_US
     (on `cpu`) for RATE_LADDER_S with cyclictest at the same period and `priority` beside it
@@ -222,8 +229,7 @@ def part_rate(run: Run, url: str, beside: Beside, cpu: int, priority: int) -> li
                      f"{at['p99']:.0f} us; {said}")
     klass = f"SCHED_FIFO {priority}" if priority else "SCHED_OTHER"
     verdict = "PASS" if len(holds) == len(RATE_LADDER_HZ) else "FAIL"
-    best = f"{max(holds) / 1000:g} kHz" if holds else "none"
-    clean_best = f"{max(clean_rates) / 1000:g} kHz" if clean_rates else "none"
+    best, clean_best = _up_to(holds), _up_to(clean_rates)
     return [f"cycle rate against the platform: the DPU's overrun frames at most {RATE_RATIO:g}x cyclictest's "
             f"late wake-ups at every rate of {', '.join(f'{h / 1000:g}' for h in RATE_LADDER_HZ)} kHz: "
             f"{verdict}; the ratio holds up to {best}, clean (no overrun) up to {clean_best}",
