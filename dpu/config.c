@@ -73,6 +73,14 @@ const skelmsg_link_t *config_link(const skelmsg_config_t *cfg, int16_t id)
     return NULL;
 }
 
+/* Process ID of CFG, NULL when none. */
+const skelmsg_process_t *config_process(const skelmsg_config_t *cfg, int16_t id)
+{
+    for (int i = 0; i < cfg->nprocesses; i++)
+        if (cfg->processes[i].id == id) return &cfg->processes[i];
+    return NULL;
+}
+
 /* The host of DPU ID in CFG, "" when unknown. */
 const char *config_host(const skelmsg_config_t *cfg, int16_t id)
 {

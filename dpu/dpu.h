@@ -635,6 +635,7 @@ int64_t config_minor_us(const skelmsg_config_t *cfg, const skelmsg_dpu_t *d);
 int64_t config_common_us(const skelmsg_config_t *cfg);
 const skelmsg_buffer_desc_t *config_buffer(const skelmsg_config_t *cfg, int16_t id);
 const skelmsg_link_t *config_link(const skelmsg_config_t *cfg, int16_t id);
+const skelmsg_process_t *config_process(const skelmsg_config_t *cfg, int16_t id);
 const char *config_host(const skelmsg_config_t *cfg, int16_t id);
 int config_reads_link(const skelmsg_config_t *cfg, int16_t dpu, int16_t link);
 skel_plan_t *plan_build(const skelmsg_config_t *cfg, int dpu_index, char *reason, size_t len);

@@ -68,9 +68,7 @@ static int plan_transport(skel_plan_t *plan, const skelmsg_config_t *cfg, const 
         tr->leave = l->burst_leave_pct / 100;
         tr->burst_loss = l->burst_loss_pct / 100;
     }
-    const skelmsg_process_t *w = NULL;
-    for (int i = 0; i < cfg->nprocesses; i++)
-        if (cfg->processes[i].id == b->writer) w = &cfg->processes[i];
+    const skelmsg_process_t *w = config_process(cfg, b->writer);
     tr->from_send = clock_simulated() ||
                     (w != NULL && strcmp(config_host(cfg, w->dpu), config_host(cfg, plan->dpu)) == 0);
     if (l->bandwidth_mbps > 0 && !(kernel & SHAPE_RATE)) {
@@ -204,13 +202,6 @@ static int plan_add_processes(skel_plan_t *plan, const skelmsg_config_t *cfg, in
     return 0;
 }
 
-static const skelmsg_process_t *plan_config_process(const skelmsg_config_t *cfg, int16_t id)
-{
-    for (int i = 0; i < cfg->nprocesses; i++)
-        if (cfg->processes[i].id == id) return &cfg->processes[i];
-    return NULL;
-}
-
 /* The DPUs other than DPU where some process reads buffer B. */
 static int plan_other_readers(const skelmsg_config_t *cfg, int16_t b, int16_t dpu)
 {
@@ -259,7 +250,7 @@ static int plan_charges(skel_plan_t *plan, const skelmsg_config_t *cfg, char *re
             skel_input_t *inp = &p->inputs[q];
             const skelmsg_buffer_desc_t *b = config_buffer(cfg, inp->buffer);
             const skelmsg_link_t *l = config_link(cfg, b->link);
-            const skelmsg_process_t *w = plan_config_process(cfg, b->writer);
+            const skelmsg_process_t *w = config_process(cfg, b->writer);
             if (w == NULL || w->period_us <= 0) continue; /* config_validate refuses it */
             if (w->dpu != plan->dpu) in += l->remote_read_us * SKEL_NS_PER_US;
             double message = l->per_message_us * SKEL_NS_PER_US + l->per_byte_ns * b->bytes;

@@ -89,13 +89,6 @@ static int shape_dev(uint32_t group, char *dev, size_t len)
     return pclose(p) == 0 ? found : -1;
 }
 
-static const char *shape_writer_host(const skelmsg_config_t *cfg, int16_t writer)
-{
-    for (int i = 0; i < cfg->nprocesses; i++)
-        if (cfg->processes[i].id == writer) return config_host(cfg, cfg->processes[i].dpu);
-    return "";
-}
-
 /* Why link L cannot be shaped by the kernel for DPU (NULL: it can), its groups filled. */
 static const char *shape_link_groups(skel_shape_link_t *k, const skelmsg_config_t *cfg, int16_t dpu,
                                      const skelmsg_link_t *l)
@@ -109,7 +102,8 @@ static const char *shape_link_groups(skel_shape_link_t *k, const skelmsg_config_
         if (b->link != l->id) continue;
         if (link_group_port(b->url, &group, &port, &ttl) != 0) return "not a udpm:// link";
         if (ttl == 0) return "ttl=0: it never leaves a host";
-        if (own[0] == '\0' || strcmp(shape_writer_host(cfg, b->writer), own) == 0)
+        const skelmsg_process_t *w = config_process(cfg, b->writer);
+        if (own[0] == '\0' || strcmp(w != NULL ? config_host(cfg, w->dpu) : "", own) == 0)
             return "a writer on this host";
         for (int j = 0; j < cfg->nbuffers; j++) {
             uint32_t g2;
@@ -133,11 +127,12 @@ static const char *shape_link_groups(skel_shape_link_t *k, const skelmsg_config_
     return k->ngroups == 0 ? "no buffer on it" : NULL;
 }
 
-static void shape_say(skel_shape_t *sh, const char *fmt, const char *a, const char *b)
-{
-    size_t used = strlen(sh->text);
-    if (used + 1 < sizeof sh->text) snprintf(sh->text + used, sizeof sh->text - used, fmt, a, b);
-}
+/* Appends to the text of array BUF, as far as it holds. */
+#define SHAPE_ADD(buf, ...)                                                                       \
+    do {                                                                                          \
+        size_t u_ = strlen(buf);                                                                  \
+        if (u_ < sizeof(buf)) snprintf((buf) + u_, sizeof(buf) - u_, __VA_ARGS__);                \
+    } while (0)
 
 /* Link L's decision for DPU: each modelled property enforced by the kernel or emulated. */
 static void shape_link(skel_shape_t *sh, const skelmsg_config_t *cfg, int16_t dpu, const skelmsg_link_t *l)
@@ -165,24 +160,24 @@ static void shape_link(skel_shape_t *sh, const skelmsg_config_t *cfg, int16_t dp
     for (int g = 0; g < k->ngroups; g++) hash = (hash ^ k->groups[g]) * 16777619u;
     snprintf(k->name, sizeof k->name, "skl%08x", hash);
     k->pref = (int)(1000 + hash % 30000);
-    shape_say(sh, "%slink %s:", sh->text[0] ? "; " : "", l->name);
+    SHAPE_ADD(sh->text, "%slink %s:", sh->text[0] ? "; " : "", l->name);
     const char *sep = " ";
     if (rate) {
-        shape_say(sh, "%sbandwidth %s", sep, k->taken & SHAPE_RATE ? "tbf" : "emulated");
+        SHAPE_ADD(sh->text, "%sbandwidth %s", sep, k->taken & SHAPE_RATE ? "tbf" : "emulated");
         sep = ", ";
     }
     if (loss) {
-        shape_say(sh, "%sloss %s", sep, !(k->taken & SHAPE_LOSS) ? "emulated" : k->netem_loss ? "netem" : "nft");
+        SHAPE_ADD(sh->text, "%sloss %s", sep, !(k->taken & SHAPE_LOSS) ? "emulated" : k->netem_loss ? "netem" : "nft");
         sep = ", ";
     }
-    if (delay) shape_say(sh, "%slatency %s", sep, k->taken & SHAPE_DELAY ? "netem" : "emulated");
+    if (delay) SHAPE_ADD(sh->text, "%slatency %s", sep, k->taken & SHAPE_DELAY ? "netem" : "emulated");
     if (k->taken & (SHAPE_RATE | SHAPE_DELAY) || k->netem_loss)
-        shape_say(sh, " (ifb %s from %s)", k->name, k->dev);
+        SHAPE_ADD(sh->text, " (ifb %s from %s)", k->name, k->dev);
     else if (k->taken & SHAPE_LOSS)
-        shape_say(sh, " (nft table %s%s)", k->name, "");
-    if (why != NULL) shape_say(sh, ": %s%s", why, "");
+        SHAPE_ADD(sh->text, " (nft table %s)", k->name);
+    if (why != NULL) SHAPE_ADD(sh->text, ": %s", why);
     else if ((delay && !(k->taken & SHAPE_DELAY)) || (loss && !(k->taken & SHAPE_LOSS)))
-        shape_say(sh, ": %s%s", can & SHAPE_CAN_NETEM ? "" : "no netem in this kernel", "");
+        SHAPE_ADD(sh->text, ": %s", can & SHAPE_CAN_NETEM ? "" : "no netem in this kernel");
     sh->n++;
 }
 
@@ -249,12 +244,6 @@ static int shape_ingress(const char *dev)
     while (fgets(line, sizeof line, p) != NULL) found |= strncmp(line, "qdisc ingress", 13) == 0;
     return pclose(p) == 0 && found;
 }
-
-#define SHAPE_ADD(buf, ...)                                                                       \
-    do {                                                                                          \
-        size_t u_ = strlen(buf);                                                                  \
-        if (u_ < sizeof(buf)) snprintf((buf) + u_, sizeof(buf) - u_, __VA_ARGS__);                \
-    } while (0)
 
 /* The commands that apply K (one per line into DO) and those that undo it (into UNDO, for
  * sh). A device or table that exists already is another DPU's of this host: left to it. */
