@@ -32,12 +32,14 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
+import numpy as np
 import yaml
 
 from skelmsg.contract import DEFAULT_URL
@@ -45,6 +47,7 @@ from skelmsg.contract import DEFAULT_URL
 REPO = Path(__file__).resolve().parent.parent
 # LCM's own group and port (the default URL's), inside the test hosts.
 GROUP, CONTROL_PORT = urlsplit(DEFAULT_URL).hostname, urlsplit(DEFAULT_URL).port
+DEFAULT_SPIN_US = 150  # skel-dpu's --spin-us
 
 
 def system_yaml(hosts: int, dpus_per_host: int, processes: int = 2, hz: int = 100, seconds: float = 3.0,
@@ -55,7 +58,7 @@ def system_yaml(hosts: int, dpus_per_host: int, processes: int = 2, hz: int = 10
     period_us = 1_000_000 // hz
     pairs = processes // 2
     ndpus = hosts * dpus_per_host
-    compute_us = max(period_us // (5 * processes), 50)
+    compute_us = Size(hosts, dpus_per_host, processes, hz).compute_us
     doc: dict[str, Any] = {
         "system": f"scale-{hosts}x{dpus_per_host}x{processes}-{hz}hz",
         "links": [{"name": "bus", "url": f"udpm://{GROUP}:{CONTROL_PORT}?ttl=1"}],
@@ -118,13 +121,48 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+class CpuSampler:
+    """The DPUs' processes' CPU seconds, summed, sampled every SAMPLE_S in a thread of its own
+    with the host's monotonic clock, so that the CPU of any span of the run can be read from it
+    (`between`): not their start-up and waiting before the run, nor their idling after it."""
+
+    SAMPLE_S = 0.1  # 128 DPUs' stat files read in ~3 ms: 3 % of a CPU
+
+    def __init__(self, pids: list[int]) -> None:
+        self.pids = pids
+        self.samples: list[tuple[int, float]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._thread.start()
+
+    def _sample(self) -> None:
+        while not self._stop.is_set():
+            total = 0.0
+            for pid in self.pids:
+                try:
+                    total += cpu_seconds(pid)
+                except (FileNotFoundError, ProcessLookupError):  # it ended: its time is no longer there
+                    pass
+            self.samples.append((time.monotonic_ns(), total))
+            self._stop.wait(self.SAMPLE_S)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def between(self, start_ns: int, end_ns: int) -> float:
+        """CPU seconds from `start_ns` to `end_ns` (time.monotonic_ns), interpolated between samples."""
+        at = np.array([t for t, _ in self.samples], dtype=np.float64)
+        cpu = np.array([c for _, c in self.samples], dtype=np.float64)
+        return float(np.interp(end_ns, at, cpu) - np.interp(start_ns, at, cpu))
+
+
 def run_on_hosts(system_text: str, hosts: int, dpus_per_host: int, workdir: Path,
                  dpu_binary: Path = REPO / "build" / "skel-dpu",
                  dpu_args: tuple[str, ...] = (),
-                 snooping: bool = False) -> tuple[int, dict[str, Any], str, float]:
+                 snooping: bool = False) -> tuple[int, dict[str, Any], str, CpuSampler]:
     """Start the DPUs on namespace hosts, `skel run` from host 1; (exit code, report.json, output,
-    the DPUs' CPU seconds from their start to the run's end: its cycles, their communication
-    included, and what they cost idle before and after)."""
+    the DPUs' CPU time sampled through the run)."""
     sys.path.insert(0, str(REPO / "tests"))
     from netns import Hosts, cleanup_stale
 
@@ -144,14 +182,17 @@ def run_on_hosts(system_text: str, hosts: int, dpus_per_host: int, workdir: Path
             log = open(workdir / f"dpu{dpu['id']}.log", "wb")
             daemons.append(net.popen(dpu["host"], [str(dpu_binary), "--id", str(dpu["id"]), "--url", url,
                                                    *dpu_args], stdout=log, stderr=subprocess.STDOUT))
+        sampler = CpuSampler([d.pid for d in daemons])
         env = {**os.environ, "COLUMNS": "160", "SKEL_STATE_DIR": str(workdir / "state")}
-        done = net.run(net.names[0], [sys.executable, "-m", "skeleton.host.cli", "run", str(path),
-                                      "--out", str(workdir / "run")], capture_output=True, text=True,
-                       cwd=REPO, env=env, timeout=300)
-        cpu = sum(cpu_seconds(d.pid) for d in daemons if d.poll() is None)
+        try:
+            done = net.run(net.names[0], [sys.executable, "-m", "skeleton.host.cli", "run", str(path),
+                                          "--out", str(workdir / "run")], capture_output=True, text=True,
+                           cwd=REPO, env=env, timeout=300)
+        finally:
+            sampler.stop()
     report_path = workdir / "run" / "report.json"
     report = json.loads(report_path.read_text()) if report_path.exists() else {}
-    return done.returncode, report, done.stdout + done.stderr, cpu
+    return done.returncode, report, done.stdout + done.stderr, sampler
 
 
 @dataclass(frozen=True)
@@ -165,6 +206,11 @@ class Size:
     def dpus(self) -> int:
         return self.hosts * self.dpus_per_host
 
+    @property
+    def compute_us(self) -> int:
+        """Each process's compute (system_yaml's rule)."""
+        return max(1_000_000 // self.hz // (5 * self.processes), 50)
+
     def __str__(self) -> str:
         return (f"{self.hosts} x {self.dpus_per_host} x {self.processes} at {self.hz} Hz "
                 f"({self.dpus} DPUs, {self.dpus * self.processes} processes)")
@@ -172,7 +218,8 @@ class Size:
 
 @dataclass(frozen=True)
 class Outcome:
-    """One run of a size: `skel run`'s exit code, dropped and used sequences, the faults."""
+    """One run of a size: `skel run`'s exit code, dropped and used sequences, the faults, and
+    what its measured span cost the machine's CPUs."""
 
     size: Size
     code: int
@@ -180,8 +227,9 @@ class Outcome:
     total: int
     faults: tuple[str, ...]
     seconds: float
-    cycles: int = 0         # the process cycles the run recorded
-    cpu_s: float = 0.0      # what the DPUs' processes took of the CPUs meanwhile
+    cycles: int = 0         # the process cycles of the run's measured span
+    cpu_s: float = 0.0      # what the DPUs' processes took of the CPUs over that span
+    spin_us: int = DEFAULT_SPIN_US  # what of a process's `sleep` compute spins
 
     @property
     def cost_us(self) -> float:
@@ -189,9 +237,14 @@ class Outcome:
         return 1e6 * self.cpu_s / self.cycles if self.cycles else float("nan")
 
     @property
-    def capacity(self) -> float:
-        """Process cycles a second this machine's CPUs hold at that cost."""
-        return (os.cpu_count() or 1) * 1e6 / self.cost_us if self.cycles else float("nan")
+    def asked(self) -> int:
+        """Process cycles a second the size asks."""
+        return self.size.dpus * self.size.processes * self.size.hz
+
+    @property
+    def demand(self) -> float:
+        """CPUs the size asks at that cost: more than the machine's, and its cycles cannot all run."""
+        return self.cost_us * self.asked / 1e6
 
     @property
     def clean(self) -> bool:
@@ -199,11 +252,12 @@ class Outcome:
         return self.code == 0 and self.dropped == 0 and self.total > 0
 
     def __str__(self) -> str:
-        return (f"{self.size}: exit {self.code}, "
-                f"dropped {self.dropped}/{self.total} = {100 * self.dropped / max(self.total, 1):.3f} %, "
-                f"faults {', '.join(self.faults) or 'none'}, {self.seconds:.1f} s; "
-                f"{self.cost_us:.0f} us of CPU per process cycle: the machine holds {self.capacity:,.0f} "
-                f"process cycles/s, this size asks {self.size.dpus * self.size.processes * self.size.hz:,}")
+        faults = ", ".join(self.faults) or "none"
+        return (f"{self.size}{f', spin {self.spin_us} us' if self.spin_us != DEFAULT_SPIN_US else ''}: "
+                f"exit {self.code}, dropped {self.dropped}/{self.total} = "
+                f"{100 * self.dropped / max(self.total, 1):.3f} %, faults {faults}, {self.seconds:.1f} s; "
+                f"{self.cost_us:.0f} us of CPU per process cycle over the measured span: {self.asked:,} "
+                f"cycles/s ask {self.demand:.2f} of the {os.cpu_count()} CPUs")
 
 
 def measure(size: Size, seconds: float = 3.0, dpu: Path = REPO / "build" / "skel-dpu",
@@ -212,14 +266,17 @@ def measure(size: Size, seconds: float = 3.0, dpu: Path = REPO / "build" / "skel
     text = system_yaml(size.hosts, size.dpus_per_host, size.processes, size.hz, seconds)
     with tempfile.TemporaryDirectory(prefix="skel-scale-") as tmp:
         started = time.monotonic()
-        code, report, output, cpu = run_on_hosts(text, size.hosts, size.dpus_per_host, Path(tmp), dpu,
-                                                 dpu_args, snooping=snooping)
+        code, report, output, sampler = run_on_hosts(text, size.hosts, size.dpus_per_host, Path(tmp), dpu,
+                                                     dpu_args, snooping=snooping)
     if not report:
         raise RuntimeError(output)
     dropped, total = dropped_share(report)
     faults = tuple(sorted({f["kind"] for f in report["faults"]}))
     cycles = sum(int(p["cycles"]) for p in report["processes"])
-    return Outcome(size, code, dropped, total, faults, time.monotonic() - started, cycles, cpu)
+    spans = [(w["start_ns"], w["end_ns"]) for w in report["windows"] if w["start_ns"] is not None]
+    cpu = sampler.between(min(s for s, _ in spans), max(e for _, e in spans)) if spans else 0.0
+    spin = int(dpu_args[dpu_args.index("--spin-us") + 1]) if "--spin-us" in dpu_args else DEFAULT_SPIN_US
+    return Outcome(size, code, dropped, total, faults, time.monotonic() - started, cycles, cpu, spin)
 
 
 # The sweep's sizes, smallest first: 64, 128 and 256 processes (GOAL: issue 13's 64 DPUs and
@@ -246,16 +303,23 @@ def part_scale() -> list[str]:
     lines: list[str] = []
     try:
         outcomes = sweep(say=lines.append)
+        # The same size with nothing spinning: what the executive and its communication ask alone.
+        unspun = measure(GOAL, dpu_args=("--spin-us", "0"))
     except RuntimeError as error:  # a run without a report: its output says why
         return ["scale: a run ended without a report: FAIL", *lines, *str(error).splitlines()[-20:]]
     clean = [o.size for o in outcomes if o.clean]
     goal = next((o for o in outcomes if o.size == GOAL), None)
     verdict = "PASS" if goal is not None and goal.clean else "FAIL"
     head = f"scale: largest clean {clean[-1] if clean else 'none'}; goal {GOAL}: {verdict}"
+    if goal is not None:  # the arithmetic of the limit: what the goal's cycles ask of the CPUs
+        head += (f" (it asks {goal.demand:.2f} of the {os.cpu_count()} CPUs at {goal.cost_us:.0f} us a "
+                 "process cycle)")
     return [head, "# namespace hosts on one bridge (no snooping), default DPU options, 3 s runs; clean: "
             "exit 0, no buffer dropped, no lockout; the CPU per process cycle is the DPUs' processes' "
-            "user and system time over the cycles the run recorded (a `sleep` compute spins its last "
-            "150 us) (bench/scale.py)", *lines]
+            "user and system time over the run's measured span (sampled every 0.1 s) over its cycles, "
+            f"communication included; a `sleep` compute spins at most its last {DEFAULT_SPIN_US} us, "
+            "the time left when its sleep ends (bench/scale.py)",
+            *lines, f"  the goal's size again with no spin (--spin-us 0, not the goal's options): {unspun}"]
 
 
 def main(argv: list[str] | None = None) -> int:
