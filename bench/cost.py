@@ -14,7 +14,11 @@
     what the platform takes; a VM's hypervisor stops it for up to 50 ms at times). The
     highest rate where the ratio holds, and the highest run clean, are printed. An overrun no
     stall explains is printed with the longest stretch its frame lost at once
-    (frame_hiccups_ns): a platform's hiccup just under the stall threshold shows there.
+    (frame_hiccups_ns): a platform's hiccup just under the stall threshold shows there. Then
+    the bare frame (bench/frame.c: the same work after each wake-up, nothing else) on the
+    same CPU, with cyclictest beside it again: what any executive of that frame meets by the
+    same measure. A stall in the middle of a frame's work overruns it where cyclictest, whose
+    frame holds no work, wakes on time, so the bare frame's ratio is the measure's own floor.
 
 Each takes `run(text, name, seconds) -> (records, report)`: one real `skel run`.
 """
@@ -24,7 +28,9 @@ from __future__ import annotations
 import functools
 import itertools
 import math
+import subprocess
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -173,17 +179,33 @@ def cyclictest_result(counts: np.ndarray, worst: float) -> dict[str, float]:
     }
 
 
+def late_share(counts: np.ndarray, slack_us: float) -> float:
+    """The share of cyclictest's wake-ups (a histogram per whole µs) at least SLACK_US late,
+    rounded up to its whole µs."""
+    return int(counts[max(0, math.ceil(slack_us)):].sum()) / counts.sum()
+
+
 def machine_shares(records: np.ndarray, histogram: tuple[np.ndarray, float], minor_us: int) -> tuple[
         float, float, float]:
     """What the machine's own wake-ups leave a frame, against what the DPU's frames did: the share
     of cyclictest's wake-ups (at the same period beside the DPU) at least the frame's slack late
-    (the minor cycle less the frame's median work, rounded up to cyclictest's whole µs), the
-    share of the DPU's frames that overran, and that slack in µs."""
+    (the minor cycle less the frame's median work), the share of the DPU's frames that overran,
+    and that slack in µs."""
     work, overran = _frames(records)
-    counts = histogram[0]
     slack_us = minor_us - float(np.percentile(work, 50)) / 1000.0 if len(work) else float(minor_us)
-    late = int(counts[max(0, math.ceil(slack_us)):].sum())
-    return late / counts.sum(), float(overran.mean()) if len(work) else 0.0, slack_us
+    return late_share(histogram[0], slack_us), float(overran.mean()) if len(work) else 0.0, slack_us
+
+
+def bare_frame(exe: Path, minor_us: int, cpu: int, priority: int) -> tuple[int, int]:
+    """bench/frame.c (built as EXE) for RATE_LADDER_S: RATE_PROCESSES pieces of RATE_COMPUTE_US
+    a frame at MINOR_US on CPU, SCHED_FIFO PRIORITY; its frames and how many overran."""
+    argv = [str(exe), str(minor_us), str(RATE_COMPUTE_US), str(RATE_PROCESSES), f"{RATE_LADDER_S:g}",
+            str(cpu), str(priority)]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=RATE_LADDER_S + 30)
+    if done.returncode != 0:
+        raise SystemExit(f"bench: {exe.name} failed: {done.stderr.strip()}")
+    frames, overran = map(int, done.stdout.split())
+    return frames, overran
 
 
 def share_ratio(ours: float, theirs: float) -> float:
@@ -200,14 +222,16 @@ def _up_to(rates: list[int]) -> str:
     return f"{below[-1] / 1000:g} kHz" if below else "none"
 
 
-def part_rate(run: Run, url: str, beside: Beside, cpu: int, priority: int) -> list[str]:
+def part_rate(run: Run, url: str, beside: Beside, frame: Path, cpu: int, priority: int) -> list[str]:
     """At each rate of RATE_LADDER_HZ, one DPU of RATE_PROCESSES processes of RATE_COMPUTE_US
     (on `cpu`) for RATE_LADDER_S with cyclictest at the same period and `priority` beside it
     (`beside`: bench/run.py's with_cyclictest): the share of the DPU's frames that overran
     against the share of cyclictest's wake-ups later than the frame's slack. Goal: at most
     RATE_RATIO times cyclictest's at every rate: the executive adds nothing to what the
-    platform takes."""
-    lines, holds, clean_rates = [], [], []
+    platform takes. Right after, the bare frame (`frame`: bench/frame.c built) of the same
+    work on the same CPU in the same class, with cyclictest beside it again: what any
+    executive of that frame meets, against the same measure."""
+    lines, holds, clean_rates, bare_holds, bare_ratios = [], [], [], [], []
     for hz in RATE_LADDER_HZ:
         minor_us = round(1e6 / hz)
         text = system("rate", url, RATE_PROCESSES, minor_us, RATE_COMPUTE_US, cpu)
@@ -227,12 +251,32 @@ def part_rate(run: Run, url: str, beside: Beside, cpu: int, priority: int) -> li
         lines.append(f"{hz / 1000:g} kHz: frames overran {ours:.2%}, cyclictest later than the frame's "
                      f"slack ({slack_us:.0f} us) {theirs:.2%}: ratio {ratio:.2f}; cyclictest p99 "
                      f"{at['p99']:.0f} us; {said}")
+        (frames, overran), again = beside(functools.partial(bare_frame, frame, minor_us, cpu, priority),
+                                          RATE_LADDER_S, priority, minor_us)  # fmt: skip
+        if again is None:
+            continue
+        bare_slack = minor_us - RATE_PROCESSES * RATE_COMPUTE_US
+        bare, late = overran / frames, late_share(again[0], bare_slack)
+        bare_ratios.append(share_ratio(bare, late))
+        if bare_ratios[-1] <= RATE_RATIO:
+            bare_holds.append(hz)
+        lines.append(f"  the bare frame right after: overran {bare:.2%} ({overran} of {frames}), cyclictest "
+                     f"beside it later than its slack ({bare_slack} us) {late:.2%}: ratio "
+                     f"{bare_ratios[-1]:.2f}; the DPU's share over the bare frame's "
+                     f"{share_ratio(ours, bare):.2f}")
     klass = f"SCHED_FIFO {priority}" if priority else "SCHED_OTHER"
     verdict = "PASS" if len(holds) == len(RATE_LADDER_HZ) else "FAIL"
     best, clean_best = _up_to(holds), _up_to(clean_rates)
+    bare_said = (f"; the bare frame of the same work against the same measure: ratios "
+                 f"{', '.join(f'{r:.2f}' for r in bare_ratios)}, holds up to {_up_to(bare_holds)}"
+                 if bare_ratios else "")
     return [f"cycle rate against the platform: the DPU's overrun frames at most {RATE_RATIO:g}x cyclictest's "
             f"late wake-ups at every rate of {', '.join(f'{h / 1000:g}' for h in RATE_LADDER_HZ)} kHz: "
-            f"{verdict}; the ratio holds up to {best}, clean (no overrun) up to {clean_best}",
+            f"{verdict}; the ratio holds up to {best}, clean (no overrun) up to {clean_best}{bare_said}",
             f"# {RATE_PROCESSES} processes of {RATE_COMPUTE_US} us in one minor cycle, one DPU on CPU {cpu}, "
-            f"{RATE_LADDER_S:g} s a rate, cyclictest at the same period beside it on the other CPU ({klass})",
+            f"{RATE_LADDER_S:g} s a rate, cyclictest at the same period beside it on the other CPU "
+            f"({klass}); "
+            f"then the bare frame (bench/frame.c: {RATE_PROCESSES} x {RATE_COMPUTE_US} us busy on the wall "
+            "clock after each wake-up, nothing else) on the same CPU, class and period, cyclictest beside "
+            "it again",
             *lines]

@@ -43,3 +43,25 @@ def test_a_frame_s_hiccup_is_its_longest_stretch_lost_at_once() -> None:
     assert np.array_equal(ordered["minor"], np.repeat([0, 1, 2, 3], 3))
     assert first.tolist() == [True, False, False] * 4
     assert (hiccup // US).tolist() == [4] * 3 + [44] * 3 + [37] * 3 + [38] * 3
+
+
+def test_a_stall_touches_the_jobs_queued_behind_it_at_its_priority_and_below() -> None:
+    from run import stall_touched  # bench/run.py
+
+    ms = 1_000_000
+    # process, release, start, its computation (ms), its own stall (ms), the ideal start (ms)
+    jobs = [(1, 0, 0.0, 3.0, 1.0, 0.0),        # stalled 1 ms: ended at 3 ms instead of 2
+            (2, 0, 3.0, 1.0, 0.0, 2.0),        # queued behind it: touched
+            (3, 0, 4.0, 6.0, 0.0, 3.0),        # queued behind that one (due after the first): touched
+            (1, 5, 5.001, 1.0, 0.0, 5.0),      # preempts the stalled job below it: not touched
+            (2, 10, 10.002, 1.0, 0.0, 10.0),   # ran while the job below ended: not touched
+            (3, 25, 25.001, 1.0, 0.0, 25.0)]   # nothing stalled since: not touched
+    recs = np.zeros(len(jobs), dtype=RECORD_DTYPE)
+    recs["process"] = [j[0] for j in jobs]
+    recs["release_ns"] = [j[1] * ms for j in jobs]
+    recs["start_ns"] = [round(j[2] * ms) for j in jobs]
+    recs["compute_ns"] = [round(j[3] * ms) for j in jobs]
+    recs["stall_ns"] = [round(j[4] * ms) for j in jobs]
+    ideal = np.array([round(j[5] * ms) for j in jobs], dtype=np.int64)
+    touched = stall_touched(recs, ideal, [5000, 10000, 25000])
+    assert touched.tolist() == [True, True, True, False, False, False]
