@@ -25,3 +25,24 @@ def test_each_part_states_its_goal_its_verdict_and_the_machine_it_ran_on(tmp_pat
     last = done.stdout.rstrip().splitlines()[-1]
     assert re.fullmatch(r"logreader, allocate: \d+\.\d min \(the 15 min goal is for every part\)", last), last
     assert {p: p.read_bytes() for p in (REPO / "bench" / "results").iterdir()} == tree  # left alone
+
+
+def test_the_bare_frame_builds_and_counts_its_frames() -> None:
+    """bench/frame.c, the rate part's bare frame: built as make bench builds it, 0.1 s at 1 kHz
+    in SCHED_OTHER (priority 0) on CPU 0: every frame counted, and a frame asked for more work
+    than its period overruns every time."""
+    sys.path.insert(0, str(REPO / "bench"))
+    from run import build_c
+
+    exe = build_c("frame")
+
+    def frame(period_us: str, work_us: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([str(exe), period_us, work_us, "4", "0.1", "0", "0"], capture_output=True,
+                              text=True, timeout=30)  # fmt: skip
+
+    fits, over, bad = frame("1000", "10"), frame("1000", "300"), frame("0", "10")
+    assert fits.returncode == 0, fits.stderr
+    frames, overran = map(int, fits.stdout.split())
+    assert frames == 100 and 0 <= overran <= frames
+    assert over.returncode == 0 and over.stdout.split() == ["100", "100"], over.stderr
+    assert bad.returncode == 2 and bad.stderr.strip() == "frame: bad argument"
