@@ -19,6 +19,7 @@
     same CPU, with cyclictest beside it again: what any executive of that frame meets by the
     same measure. A stall in the middle of a frame's work overruns it where cyclictest, whose
     frame holds no work, wakes on time, so the bare frame's ratio is the measure's own floor.
+    Both print the share of frames that overran with no stall of their own CPU to explain it.
 
 Each takes `run(text, name, seconds) -> (records, report)`: one real `skel run`.
 """
@@ -146,14 +147,21 @@ def _clean(records: np.ndarray, report: dict[str, Any]) -> tuple[bool, str]:
     # 10 kHz frame of 45 us has 55 us of slack, so a stretch of 40-50 us lost at once in a
     # frame is an overrun no stall explains, where a frame's usual stretches are a few us.
     if overruns > stalled:
-        recs, first, hiccup = frame_hiccups_ns(records)
-        bare = ((recs["flags"] & FLAG_OVERRUN) != 0) & ~stall_explains(recs, first)
-        if bare.any():
-            worst, usual = hiccup[bare] / 1000, np.percentile(hiccup, 50) / 1000
-            said += (f"; the {len(np.unique(recs['minor'][bare]))} frame(s) with an overrun no stall "
-                     f"explains lost {worst.min():.0f}-{worst.max():.0f} us at once (a wake-up, a "
-                     f"computation or a gap; a median frame {usual:.1f} us)")
+        recs, unexplained, hiccup = unexplained_overruns(records)
+        if unexplained.any():
+            worst, usual = hiccup[unexplained] / 1000, np.percentile(hiccup, 50) / 1000
+            span = f"{worst.min():.0f}" + (f"-{worst.max():.0f}" if worst.max() - worst.min() >= 1 else "")
+            said += (f"; the {len(np.unique(recs['minor'][unexplained]))} frame(s) with an overrun no "
+                     f"stall explains lost {span} us at once (a wake-up, a computation or a gap; a median "
+                     f"frame {usual:.1f} us)")
     return overruns == stalled and lost == 0, said
+
+
+def unexplained_overruns(records: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One DPU's records in frame order, which overran with no stall to explain it, and each
+    one's frame's longest stretch lost at once (frame_hiccups_ns)."""
+    recs, first, hiccup = frame_hiccups_ns(records)
+    return recs, ((recs["flags"] & FLAG_OVERRUN) != 0) & ~stall_explains(recs, first), hiccup
 
 
 def _frames(records: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -196,16 +204,17 @@ def machine_shares(records: np.ndarray, histogram: tuple[np.ndarray, float], min
     return late_share(histogram[0], slack_us), float(overran.mean()) if len(work) else 0.0, slack_us
 
 
-def bare_frame(exe: Path, minor_us: int, cpu: int, priority: int) -> tuple[int, int]:
+def bare_frame(exe: Path, minor_us: int, cpu: int, priority: int) -> tuple[int, int, int]:
     """bench/frame.c (built as EXE) for RATE_LADDER_S: RATE_PROCESSES pieces of RATE_COMPUTE_US
-    a frame at MINOR_US on CPU, SCHED_FIFO PRIORITY; its frames and how many overran."""
+    a frame at MINOR_US on CPU, SCHED_FIFO PRIORITY; its frames, how many overran and how many
+    of those no stall explains."""
     argv = [str(exe), str(minor_us), str(RATE_COMPUTE_US), str(RATE_PROCESSES), f"{RATE_LADDER_S:g}",
             str(cpu), str(priority)]
     done = subprocess.run(argv, capture_output=True, text=True, timeout=RATE_LADDER_S + 30)
     if done.returncode != 0:
         raise SystemExit(f"bench: {exe.name} failed: {done.stderr.strip()}")
-    frames, overran = map(int, done.stdout.split())
-    return frames, overran
+    frames, overran, unexplained = map(int, done.stdout.split())
+    return frames, overran, unexplained
 
 
 def share_ratio(ours: float, theirs: float) -> float:
@@ -232,6 +241,7 @@ def part_rate(run: Run, url: str, beside: Beside, frame: Path, cpu: int, priorit
     work on the same CPU in the same class, with cyclictest beside it again: what any
     executive of that frame meets, against the same measure."""
     lines, holds, clean_rates, bare_holds, bare_ratios = [], [], [], [], []
+    alone_shares: list[tuple[float, float]] = []  # (the DPU's, the bare frame's) overruns no stall explains
     for hz in RATE_LADDER_HZ:
         minor_us = round(1e6 / hz)
         text = system("rate", url, RATE_PROCESSES, minor_us, RATE_COMPUTE_US, cpu)
@@ -251,8 +261,8 @@ def part_rate(run: Run, url: str, beside: Beside, frame: Path, cpu: int, priorit
         lines.append(f"{hz / 1000:g} kHz: frames overran {ours:.2%}, cyclictest later than the frame's "
                      f"slack ({slack_us:.0f} us) {theirs:.2%}: ratio {ratio:.2f}; cyclictest p99 "
                      f"{at['p99']:.0f} us; {said}")
-        (frames, overran), again = beside(functools.partial(bare_frame, frame, minor_us, cpu, priority),
-                                          RATE_LADDER_S, priority, minor_us)  # fmt: skip
+        work = functools.partial(bare_frame, frame, minor_us, cpu, priority)
+        (frames, overran, alone), again = beside(work, RATE_LADDER_S, priority, minor_us)
         if again is None:
             continue
         bare_slack = minor_us - RATE_PROCESSES * RATE_COMPUTE_US
@@ -260,15 +270,21 @@ def part_rate(run: Run, url: str, beside: Beside, frame: Path, cpu: int, priorit
         bare_ratios.append(share_ratio(bare, late))
         if bare_ratios[-1] <= RATE_RATIO:
             bare_holds.append(hz)
+        recs, unexplained, _ = unexplained_overruns(records)
+        ours_alone = len(np.unique(recs["minor"][unexplained])) / len(np.unique(recs["minor"]))
+        alone_shares.append((ours_alone, alone / frames))
         lines.append(f"  the bare frame right after: overran {bare:.2%} ({overran} of {frames}), cyclictest "
                      f"beside it later than its slack ({bare_slack} us) {late:.2%}: ratio "
                      f"{bare_ratios[-1]:.2f}; the DPU's share over the bare frame's "
-                     f"{share_ratio(ours, bare):.2f}")
+                     f"{share_ratio(ours, bare):.2f}; overruns no stall of their own CPU explains: the "
+                     f"DPU's {ours_alone:.2%} of frames, the bare frame's {alone / frames:.2%}")
     klass = f"SCHED_FIFO {priority}" if priority else "SCHED_OTHER"
     verdict = "PASS" if len(holds) == len(RATE_LADDER_HZ) else "FAIL"
     best, clean_best = _up_to(holds), _up_to(clean_rates)
     bare_said = (f"; the bare frame of the same work against the same measure: ratios "
-                 f"{', '.join(f'{r:.2f}' for r in bare_ratios)}, holds up to {_up_to(bare_holds)}"
+                 f"{', '.join(f'{r:.2f}' for r in bare_ratios)}, holds up to {_up_to(bare_holds)}; "
+                 f"overruns no stall of their own CPU explains at most {max(a for a, _ in alone_shares):.2%} "
+                 f"of the DPU's frames, {max(b for _, b in alone_shares):.2%} of the bare frame's"
                  if bare_ratios else "")
     return [f"cycle rate against the platform: the DPU's overrun frames at most {RATE_RATIO:g}x cyclictest's "
             f"late wake-ups at every rate of {', '.join(f'{h / 1000:g}' for h in RATE_LADDER_HZ)} kHz: "

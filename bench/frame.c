@@ -8,9 +8,14 @@
  * frame of that work (a wake-up late, a stall in the middle of it), which cyclictest, whose
  * frame holds no work, is not exposed to for the frame's length.
  *
+ * It sees its stalls as a DPU does (dpu/compute.c): a wake-up, or a gap between two looks at
+ * the clock that carried a piece past its end, of more than STALL_NS (the DPU's threshold) is
+ * time the thread was not running. An overrun is one a stall explains when the stalls since
+ * the frames were last on time add up to at least how late it ended.
+ *
  * SCHED_FIFO PRIORITY on CPU, memory locked, timer slack 1 ns: as skel-dpu runs its cycles.
  * The first WARMUP frames are not counted, as the rate part's runs skip theirs.
- * Prints "frames overran".
+ * Prints "frames overran unexplained" (unexplained: overruns no stall explains).
  *
  * usage: frame PERIOD_US WORK_US PIECES SECONDS CPU PRIORITY
  */
@@ -24,6 +29,7 @@
 #include <time.h>
 
 #define WARMUP 200
+#define STALL_NS 50000 /* SKEL_STALL_NS, dpu/dpu.h */
 
 static int64_t now_ns(void)
 {
@@ -62,8 +68,8 @@ int main(int argc, char **argv)
         perror("frame: timer slack");
         return 1;
     }
-    int64_t frames = (int64_t)(seconds * 1e9 / (double)period), overran = 0;
-    int64_t release = now_ns() + period;
+    int64_t frames = (int64_t)(seconds * 1e9 / (double)period), overran = 0, unexplained = 0, debt = 0;
+    int64_t release = now_ns() + period, last = 0;
     for (int64_t k = 0; k < WARMUP + frames; k++, release += period) {
         struct timespec wake = { release / 1000000000LL, release % 1000000000LL };
         int rc;
@@ -73,13 +79,24 @@ int main(int argc, char **argv)
                 return 1;
             }
         }
-        int64_t end = now_ns();
+        /* Behind, it runs on at once: late from the last frame's end, not from its release */
+        int64_t end = now_ns(), due = release > last ? release : last;
+        if (end - due > STALL_NS) debt += end - due;
         for (int i = 0; i < pieces; i++) {
-            int64_t until = end + work;
-            while ((end = now_ns()) < until) continue;
+            /* A gap that ends before the piece's end delays nothing; one that carries it past
+             * its end made it that much late (compute_spin_until) */
+            int64_t until = end + work, prev = end;
+            while ((end = now_ns()) < until) prev = end;
+            if (end - prev > STALL_NS) debt += end - until;
         }
-        if (k >= WARMUP && end > release + period) overran++;
+        int64_t late = end - (release + period);
+        last = end;
+        if (k >= WARMUP && late > 0) {
+            overran++;
+            if (debt < late) unexplained++;
+        }
+        if (late <= 0) debt = 0; /* on time again: the stalls are caught up */
     }
-    printf("%lld %lld\n", (long long)frames, (long long)overran);
+    printf("%lld %lld %lld\n", (long long)frames, (long long)overran, (long long)unexplained);
     return 0;
 }
