@@ -479,17 +479,18 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
         rec->asked_ns = draw_ns(&p->draw, p->compute_ns);
         rec->compute_ns = process_compute(x, p, k, release, rec, t_blocked);
     }
+    int64_t t_out = clock_mono_ns();
     /* A computation sleeps (a voluntary switch), or charges only the stalls that carried
      * it past its time: what it lost and still ended on time must not be billed to the
-     * next long step. Its steps are judged from a fresh mark. */
-    if (rec->asked_ns > 0) x->mark_stale = 1;
-    int64_t t_out = clock_mono_ns();
+     * next long step. What follows is judged from a mark at its end, taken even when no
+     * output follows: a DPU behind goes on to its next release without sleeping, and a
+     * stop there is judged from this mark (cyclic_behind), else not at all. */
+    if (rec->asked_ns > 0 || x->mark_stale) process_remark(x, t_out);
     /* What of the computation's wall time it did not compute: the platform's
      * (its stall), so that the record's parts add up to where its work ended. */
     if (t_out - t_blocked > rec->compute_ns) rec->preempted_ns += t_out - t_blocked - rec->compute_ns;
     int64_t kept_out = 0;
     if ((p->noutputs > 0 || p->nemits > 0) && (p->code == NULL || !p->code->failed)) {
-        if (x->mark_stale) process_remark(x, t_out);
         process_write_outputs(x, p, k);
         kept_out = process_kept(x, rec, t_out, clock_mono_ns());
         kept_out += process_charge(x, rec, p->charge_out_ns); /* the link's cost of publishing */

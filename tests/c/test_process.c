@@ -73,14 +73,16 @@ static void *hog(void *arg)
     return NULL;
 }
 
-/* A real-time thread on our CPU takes it for 8 ms while we run: that is a stall of
- * about 8 ms. Needs the right to real-time scheduling (root): said and left out when not. */
-static void test_a_thread_that_takes_the_cpu_is_a_stall(skel_exec_t *x)
+/* A SCHED_FIFO 10 thread on CPU 0 that spins 8 ms once `go` is posted, with this thread
+ * moved to CPU 0 below it, at SCHED_FIFO 5: above every ordinary process, so that on a busy
+ * machine a neighbour taking our CPU is no stall of the test's. 0 when started; needs the
+ * right to real-time scheduling (root): said, and -1, when not. */
+static int hog_start(pthread_t *t, const char *what)
 {
     cpu_set_t one;
     CPU_ZERO(&one);
     CPU_SET(0, &one);
-    if (pthread_setaffinity_np(pthread_self(), sizeof one, &one) != 0) return;
+    if (pthread_setaffinity_np(pthread_self(), sizeof one, &one) != 0) return -1;
     CHECK_EQ(sem_init(&go, 0, 0), 0);
     pthread_attr_t attr;
     struct sched_param prio = { .sched_priority = 10 };
@@ -89,16 +91,33 @@ static void test_a_thread_that_takes_the_cpu_is_a_stall(skel_exec_t *x)
     CHECK_EQ(pthread_attr_setschedpolicy(&attr, SCHED_FIFO), 0);
     CHECK_EQ(pthread_attr_setschedparam(&attr, &prio), 0);
     CHECK_EQ(pthread_attr_setaffinity_np(&attr, sizeof one, &one), 0);
-    pthread_t t;
-    if (pthread_create(&t, &attr, hog, NULL) != 0) {
-        fprintf(stderr, "test_process: no real-time thread here (not root?): the stall case not run\n");
-        pthread_attr_destroy(&attr);
-        return;
+    int rc = pthread_create(t, &attr, hog, NULL);
+    pthread_attr_destroy(&attr);
+    if (rc != 0) {
+        fprintf(stderr, "test_process: no real-time thread here (not root?): %s not run\n", what);
+        sem_destroy(&go);
+        return -1;
     }
-    /* Below the hog, above every ordinary process: on a busy machine a neighbour taking
-     * our CPU would be a stall too, and the steps after the hog's must have none. */
-    struct sched_param below = { .sched_priority = 5 }, none = { .sched_priority = 0 };
+    struct sched_param below = { .sched_priority = 5 };
     CHECK_EQ(pthread_setschedparam(pthread_self(), SCHED_FIFO, &below), 0);
+    return 0;
+}
+
+/* Back to an ordinary thread once the hog has spun. */
+static void hog_join(pthread_t t)
+{
+    struct sched_param none = { .sched_priority = 0 };
+    CHECK_EQ(pthread_setschedparam(pthread_self(), SCHED_OTHER, &none), 0);
+    CHECK_EQ(pthread_join(t, NULL), 0);
+    sem_destroy(&go);
+}
+
+/* A real-time thread on our CPU takes it for 8 ms while we run: that is a stall of
+ * about 8 ms. */
+static void test_a_thread_that_takes_the_cpu_is_a_stall(skel_exec_t *x)
+{
+    pthread_t t;
+    if (hog_start(&t, "the stall case") != 0) return;
     int64_t from = clock_mono_ns();
     process_remark(x, from);
     CHECK_EQ(sem_post(&go), 0);
@@ -113,10 +132,7 @@ static void test_a_thread_that_takes_the_cpu_is_a_stall(skel_exec_t *x)
     int64_t again = kept_ns(x, step);
     int64_t not_run = (clock_mono_ns() - step) - (clock_thread_cpu_ns() - step_cpu);
     CHECK(again <= not_run + 100000);
-    CHECK_EQ(pthread_setschedparam(pthread_self(), SCHED_OTHER, &none), 0);
-    CHECK_EQ(pthread_join(t, NULL), 0);
-    pthread_attr_destroy(&attr);
-    sem_destroy(&go);
+    hog_join(t);
 }
 
 /* When the DPU's notify_fd (the control thread's: a lockout wakes it) is written. */
@@ -133,19 +149,15 @@ static void *watch_notify(void *arg)
     return NULL;
 }
 
-/* A cycle of a 1 ms process computing 12 ms (sleep mode) with lockout_cycles 5 is still
- * computing at r_0 + 5 ms: it is locked out then, as cycle 0, not when it ends (12 ms)
- * or when cycle 1 starts; its computation is the 12 ms asked all the same. A cycle whose
- * computation ends inside its window is not locked out. */
-static void test_a_computation_past_its_window_locks_out_while_it_runs(void)
+/* A plan of N periodic 1 ms processes without inputs or outputs (their compute_ns the
+ * caller's) on one DPU of S in sleep mode, lockout_cycles 5, and its executive. */
+static skel_exec_t sleep_plan(skel_server_t *s, skel_plan_t *plan, skel_process_t *p, int n)
 {
-    static skel_server_t s; /* large: not on the stack */
-    CHECK_EQ(server_init(&s), 0);
-    s.compute.stall_ns = SKEL_STALL_NS;
-    s.compute.spin_ns = 150 * SKEL_NS_PER_US;
-    skel_process_t p[2];
-    memset(p, 0, sizeof p);
-    for (int i = 0; i < 2; i++) {
+    CHECK_EQ(server_init(s), 0);
+    s->compute.stall_ns = SKEL_STALL_NS;
+    s->compute.spin_ns = 150 * SKEL_NS_PER_US;
+    memset(p, 0, sizeof *p * (size_t)n);
+    for (int i = 0; i < n; i++) {
         p[i].id = (int16_t)(i + 1);
         p[i].sync = SKELMSG_PROCESS_T_SYNC_PERIODIC;
         p[i].period_ns = 1000000;
@@ -153,16 +165,27 @@ static void test_a_computation_past_its_window_locks_out_while_it_runs(void)
         p[i].queue.taken_ns = -1;
         p[i].job.lockout_k = -1;
     }
+    memset(plan, 0, sizeof *plan);
+    plan->dpu = 1;
+    plan->compute = SKELMSG_DPU_T_COMPUTE_SLEEP;
+    plan->lockout_cycles = 5;
+    plan->nprocesses = n;
+    plan->processes = p;
+    return (skel_exec_t){ .s = s, .plan = plan, .end_mono_ns = INT64_MAX, .mark_stale = 1 };
+}
+
+/* A cycle of a 1 ms process computing 12 ms (sleep mode) with lockout_cycles 5 is still
+ * computing at r_0 + 5 ms: it is locked out then, as cycle 0, not when it ends (12 ms)
+ * or when cycle 1 starts; its computation is the 12 ms asked all the same. A cycle whose
+ * computation ends inside its window is not locked out. */
+static void test_a_computation_past_its_window_locks_out_while_it_runs(void)
+{
+    static skel_server_t s; /* large: not on the stack */
+    skel_process_t p[2];
+    skel_plan_t plan;
+    skel_exec_t x = sleep_plan(&s, &plan, p, 2);
     p[0].compute_ns = 12000000;
     p[1].compute_ns = 2000000;
-    skel_plan_t plan;
-    memset(&plan, 0, sizeof plan);
-    plan.dpu = 1;
-    plan.compute = SKELMSG_DPU_T_COMPUTE_SLEEP;
-    plan.lockout_cycles = 5;
-    plan.nprocesses = 2;
-    plan.processes = p;
-    skel_exec_t x = { .s = &s, .plan = &plan, .end_mono_ns = INT64_MAX, .mark_stale = 1 };
 
     notified_t n = { s.notify_fd, -1 };
     pthread_t t;
@@ -191,6 +214,35 @@ static void test_a_computation_past_its_window_locks_out_while_it_runs(void)
     server_free(&s);
 }
 
+/* A DPU behind its schedule goes from a process's end straight to the next release,
+ * without sleeping: a stop of its thread there (8 ms of a real-time thread on its CPU)
+ * is found when the next minor starts (process_lost, cyclic_behind), after a process
+ * with outputs or without. Without outputs, nothing had marked the computation's end:
+ * the stop went uncharged, and a DPU 40 ms behind after one read as the design's (a
+ * fresh-clone CI run of e9dadcd, test_run_refills_what_a_stalled_logger_missed). */
+static void test_a_stop_after_a_process_without_outputs_is_a_stall(void)
+{
+    static skel_server_t s;
+    skel_process_t p[1];
+    skel_plan_t plan;
+    skel_exec_t x = sleep_plan(&s, &plan, p, 1);
+    p[0].compute_ns = 200000;
+    pthread_t t;
+    if (hog_start(&t, "the stop after a process without outputs") != 0) {
+        server_free(&s);
+        return;
+    }
+    skel_rec_t rec;
+    int64_t release = clock_mono_ns();
+    CHECK_EQ(process_cycle(&x, &p[0], 0, 0, release, release, &rec), PROCESS_DONE);
+    CHECK_EQ(sem_post(&go), 0); /* the hog takes our CPU for 8 ms, now */
+    int64_t now = clock_mono_ns();
+    int64_t lost = process_lost(&x, now, now - release);
+    CHECK(lost >= 6000000 && lost <= 13000000);
+    hog_join(t);
+    server_free(&s);
+}
+
 int main(void)
 {
     server.compute.stall_ns = SKEL_STALL_NS;
@@ -199,5 +251,6 @@ int main(void)
     test_a_short_step_is_not_judged(&x);
     test_a_thread_that_takes_the_cpu_is_a_stall(&x);
     test_a_computation_past_its_window_locks_out_while_it_runs();
+    test_a_stop_after_a_process_without_outputs_is_a_stall();
     return CHECK_DONE();
 }
