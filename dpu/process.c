@@ -494,6 +494,7 @@ int process_cycle(skel_exec_t *x, skel_process_t *p, int64_t k, int64_t minor, i
         process_write_outputs(x, p, k);
         kept_out = process_kept(x, rec, t_out, clock_mono_ns());
         kept_out += process_charge(x, rec, p->charge_out_ns); /* the link's cost of publishing */
+        if (x->mark_stale) process_remark(x, clock_mono_ns()); /* it may have slept: as a computation */
     }
     /* comm_out_ns runs from where publishing ended less its stall (in preempted_ns) */
     process_finish(x, p, rec, release, t_out + kept_out, measured);

@@ -9,8 +9,10 @@
 
 #include "check.h"
 #include "dpu.h"
+#include "fixture.h"
 
 static skel_server_t server;
+static char reason[SKEL_REASON_LEN];
 
 static void spin_until(int64_t end)
 {
@@ -214,32 +216,57 @@ static void test_a_computation_past_its_window_locks_out_while_it_runs(void)
     server_free(&s);
 }
 
+/* Process cycle 0 of P on X, then 8 ms of a real-time thread on our CPU right after it:
+ * what the executive, finding itself behind at its next release, charges (cyclic_behind).
+ * -1: no real-time thread here (said). */
+static int64_t stop_after(skel_exec_t *x, skel_process_t *p, const char *what)
+{
+    pthread_t t;
+    if (hog_start(&t, what) != 0) return -1;
+    skel_rec_t rec;
+    int64_t release = clock_mono_ns();
+    CHECK_EQ(process_cycle(x, p, 0, 0, release, release, &rec), PROCESS_DONE);
+    CHECK_EQ(sem_post(&go), 0); /* the hog takes our CPU for 8 ms, now */
+    int64_t now = clock_mono_ns();
+    int64_t lost = process_lost(x, now, now - release);
+    hog_join(t);
+    return lost;
+}
+
 /* A DPU behind its schedule goes from a process's end straight to the next release,
- * without sleeping: a stop of its thread there (8 ms of a real-time thread on its CPU)
- * is found when the next minor starts (process_lost, cyclic_behind), after a process
- * with outputs or without. Without outputs, nothing had marked the computation's end:
- * the stop went uncharged, and a DPU 40 ms behind after one read as the design's (a
+ * without sleeping: a stop of its thread there is found when the next minor starts,
+ * whatever the process ended with. After one without outputs nothing had marked the
+ * computation's end, nor after the emulated cost of publishing on a link (a sleep): the
+ * stop went uncharged, and a DPU 40 ms behind after one read as the design's (a
  * fresh-clone CI run of e9dadcd, test_run_refills_what_a_stalled_logger_missed). */
-static void test_a_stop_after_a_process_without_outputs_is_a_stall(void)
+static void test_a_stop_after_a_process_is_a_stall_whatever_it_ended_with(void)
 {
     static skel_server_t s;
     skel_process_t p[1];
     skel_plan_t plan;
     skel_exec_t x = sleep_plan(&s, &plan, p, 1);
     p[0].compute_ns = 200000;
-    pthread_t t;
-    if (hog_start(&t, "the stop after a process without outputs") != 0) {
-        server_free(&s);
-        return;
+    int64_t lost = stop_after(&x, &p[0], "the stop after a process without outputs");
+    CHECK(lost < 0 || (lost >= 6000000 && lost <= 13000000));
+
+    /* p1 of the fixture publishes b1 on DPU 1, its link's cost 10 us a message */
+    fixture_t f;
+    fixture_init(&f);
+    f.links[0].per_message_us = 10;
+    CHECK_EQ(config_validate(&f.cfg, 0, reason, sizeof reason), 0);
+    skel_plan_t *costed = plan_build(&f.cfg, 0, reason, sizeof reason);
+    CHECK(costed != NULL);
+    if (costed != NULL) {
+        for (int i = 0; i < costed->nlinks; i++) CHECK_EQ(link_open(&costed->links[i]), 0);
+        costed->compute = SKELMSG_DPU_T_COMPUTE_SLEEP;
+        skel_process_t *writer = &costed->processes[0];
+        CHECK(writer->id == 1 && writer->noutputs == 1 && writer->charge_out_ns >= 10000);
+        x = (skel_exec_t){ .s = &s, .plan = costed, .end_mono_ns = INT64_MAX, .mark_stale = 1 };
+        lost = stop_after(&x, writer, "the stop after a costed publish");
+        CHECK(lost < 0 || (lost >= 6000000 && lost <= 13000000));
+        for (int i = 0; i < costed->nlinks; i++) link_close(&costed->links[i]);
+        plan_free(costed);
     }
-    skel_rec_t rec;
-    int64_t release = clock_mono_ns();
-    CHECK_EQ(process_cycle(&x, &p[0], 0, 0, release, release, &rec), PROCESS_DONE);
-    CHECK_EQ(sem_post(&go), 0); /* the hog takes our CPU for 8 ms, now */
-    int64_t now = clock_mono_ns();
-    int64_t lost = process_lost(&x, now, now - release);
-    CHECK(lost >= 6000000 && lost <= 13000000);
-    hog_join(t);
     server_free(&s);
 }
 
@@ -251,6 +278,6 @@ int main(void)
     test_a_short_step_is_not_judged(&x);
     test_a_thread_that_takes_the_cpu_is_a_stall(&x);
     test_a_computation_past_its_window_locks_out_while_it_runs();
-    test_a_stop_after_a_process_without_outputs_is_a_stall();
+    test_a_stop_after_a_process_is_a_stall_whatever_it_ended_with();
     return CHECK_DONE();
 }
