@@ -70,8 +70,11 @@ def test_late_is_judged_against_the_schedule_not_the_frame(tmp_path: Path, url: 
         # make it late too, counted as lateness on DPU 3 (README: lateness unstalled).
         if name != "force_control":
             assert proc["late_unstalled"] <= proc["cycles"] // 20, proc
-    for dpu in report["dpus"]:  # the frame's own wake-up latency is its own measure
-        assert dpu["release_latency_us"]["p50"] < 1000, dpu
+    # The frame's own wake-up latency is its own measure: less the stalls its DPU had not
+    # caught up on, as the processes' lateness (DPU 4, 96.5 % loaded, is behind for seconds
+    # after a stall of the VM: 31 ms in one CI run, its frames then 1.8 ms late at p50).
+    for dpu in report["dpus"]:
+        assert dpu["release_latency_unstalled_us"]["p50"] < 1000, dpu
     assert "lateness" in run.stdout
 
 

@@ -34,6 +34,7 @@ from skeleton.analysis.measure.metrics import (
     dpu_metrics,
     first_of_frame,
     first_of_frame_at,
+    frame_release_latency_unstalled_ns,
     frames,
     process_metrics,
     static_load_pct,
@@ -128,6 +129,24 @@ def test_a_dpus_frames_are_the_same_whatever_order_its_records_come_in() -> None
     for recs in (mine, mine[rng.permutation(60)]):
         got = frames(recs)
         assert [g.tolist() for g in got] == [np.asarray(e).tolist() for e in expected]
+
+
+def test_a_frames_unstalled_wake_up_leaves_out_the_stalls_not_caught_up_on() -> None:
+    """Three 5 ms frames of two records each: the first on time; the second 30 ms late, 28 ms
+    of it stalls owed (debt_ns) at its first start; the third 2 ms early (a tasking job of the
+    last frame that ran long is no wake-up). Whatever order the records come in, each frame is
+    judged by the record that started first, and an early start stays."""
+    mine = np.zeros(6, dtype=RECORD_DTYPE)
+    mine["minor"] = [0, 0, 1, 1, 2, 2]
+    mine["release_ns"] = mine["minor"] * 5 * MS
+    mine["start_ns"] = [100 * US, 2 * MS, 35 * MS, 38 * MS, 8 * MS, 9 * MS]
+    mine["debt_ns"] = [0, 0, 28 * MS, 31 * MS, 0, 0]
+    expected = [100 * US, 2 * MS, -2 * MS]
+    assert frame_release_latency_unstalled_ns(mine).tolist() == expected
+    # a later record started first: its debt, not the one listed first
+    swapped = mine[[1, 0, 3, 2, 5, 4]]
+    assert frame_release_latency_unstalled_ns(swapped).tolist() == expected
+    assert frame_release_latency_unstalled_ns(mine[::-1]).tolist() == expected
 
 
 def test_unstalled_time_takes_out_only_the_stalls_that_lengthened_the_run() -> None:
