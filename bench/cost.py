@@ -134,7 +134,10 @@ def frame_hiccups_ns(records: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
     return recs, first, worst[frame]
 
 
-def _clean(records: np.ndarray, report: dict[str, Any]) -> tuple[bool, str]:
+def _clean(records: np.ndarray, report: dict[str, Any],
+           unexplained: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[bool, str]:
+    """Whether a rate's run was clean, and what it did (`unexplained`: unexplained_overruns of
+    its records)."""
     overruns = sum(p["overruns"] for p in report["processes"])
     stalled = sum(p["overruns_stalled"] for p in report["processes"])
     lost = sum(b["to_seq"] - b["from_seq"] + 1 for b in report["integrity"]["lost_batches"])
@@ -146,14 +149,13 @@ def _clean(records: np.ndarray, report: dict[str, Any]) -> tuple[bool, str]:
     # What the others lost: the stall threshold (SKEL_STALL_NS, dpu/dpu.h) is 50 us, and a
     # 10 kHz frame of 45 us has 55 us of slack, so a stretch of 40-50 us lost at once in a
     # frame is an overrun no stall explains, where a frame's usual stretches are a few us.
-    if overruns > stalled:
-        recs, unexplained, hiccup = unexplained_overruns(records)
-        if unexplained.any():
-            worst, usual = hiccup[unexplained] / 1000, np.percentile(hiccup, 50) / 1000
-            span = f"{worst.min():.0f}" + (f"-{worst.max():.0f}" if worst.max() - worst.min() >= 1 else "")
-            said += (f"; the {len(np.unique(recs['minor'][unexplained]))} frame(s) with an overrun no "
-                     f"stall explains lost {span} us at once (a wake-up, a computation or a gap; a median "
-                     f"frame {usual:.1f} us)")
+    recs, alone, hiccup = unexplained
+    if overruns > stalled and alone.any():
+        worst, usual = hiccup[alone] / 1000, np.percentile(hiccup, 50) / 1000
+        span = f"{worst.min():.0f}" + (f"-{worst.max():.0f}" if worst.max() - worst.min() >= 1 else "")
+        said += (f"; the {len(np.unique(recs['minor'][alone]))} frame(s) with an overrun no "
+                 f"stall explains lost {span} us at once (a wake-up, a computation or a gap; a median "
+                 f"frame {usual:.1f} us)")
     return overruns == stalled and lost == 0, said
 
 
@@ -247,7 +249,8 @@ def part_rate(run: Run, url: str, beside: Beside, frame: Path, cpu: int, priorit
         text = system("rate", url, RATE_PROCESSES, minor_us, RATE_COMPUTE_US, cpu)
         (records, report), histogram = beside(functools.partial(run, text, f"rate-{hz}", RATE_LADDER_S),
                                               RATE_LADDER_S, priority, minor_us)  # fmt: skip
-        clean, said = _clean(records, report)
+        recs, unexplained, hiccup = unexplained_overruns(records)
+        clean, said = _clean(records, report, (recs, unexplained, hiccup))
         if clean:
             clean_rates.append(hz)
         if histogram is None:
@@ -270,7 +273,6 @@ def part_rate(run: Run, url: str, beside: Beside, frame: Path, cpu: int, priorit
         bare_ratios.append(share_ratio(bare, late))
         if bare_ratios[-1] <= RATE_RATIO:
             bare_holds.append(hz)
-        recs, unexplained, _ = unexplained_overruns(records)
         ours_alone = len(np.unique(recs["minor"][unexplained])) / len(np.unique(recs["minor"]))
         alone_shares.append((ours_alone, alone / frames))
         lines.append(f"  the bare frame right after: overran {bare:.2%} ({overran} of {frames}), cyclictest "
