@@ -174,13 +174,12 @@ def cyclictest_start(binary: str, seconds: float, priority: int, cpu: int,
                      period_us: int = PERIOD_US) -> subprocess.Popen[str]:  # fmt: skip
     """cyclictest for SECONDS on CPU, in the background: clock_nanosleep on an absolute time
     (as skel-dpu waits; cyclictest 2.x has no -n, it is the default), -m (locked memory),
-    --default-system (no /dev/cpu_dma_latency tuning: skel-dpu does none), the same period,
-    a histogram for the percentiles."""
+    the same period, a histogram for the percentiles. Under SCHED_FIFO it holds
+    /dev/cpu_dma_latency at 0 (its default), as skel-dpu does for a run's real-time cycles;
+    under SCHED_OTHER neither does (--default-system)."""
     loops = int(seconds * 1e6 / period_us)
-    argv = [binary, "-m", "-q", "--default-system", "-i", str(period_us), "-l", str(loops), "-h", "5000",
-            "-a", str(cpu)]
-    if priority:
-        argv += ["-p", str(priority)]
+    argv = [binary, "-m", "-q", "-i", str(period_us), "-l", str(loops), "-h", "5000", "-a", str(cpu)]
+    argv += ["-p", str(priority)] if priority else ["--default-system"]
     with _timer_slack_1ns():
         return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 

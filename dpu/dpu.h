@@ -707,6 +707,8 @@ typedef struct skel_server {
     skel_compute_t compute;
     int rt_priority;           /* SCHED_FIFO priority of a run's cycles; 0 never, -1 default */
     int rt_warned;             /* executive thread only: SCHED_FIFO refused, said once */
+    int idle_held, idle_fd;    /* executive thread only: /dev/cpu_dma_latency held open at 0 */
+    int idle_warned;           /* ... refused, said once */
 
     lcm_t *ctl;                /* control thread's lcm_t on the control URL: it receives there */
     lcm_t *rec;                /* control thread's lcm_t on the record URL: it only sends there */

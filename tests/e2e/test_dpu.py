@@ -122,9 +122,16 @@ def _exec_sched(pid: int) -> tuple[int, int]:
     raise AssertionError(f"no skel-exec thread in process {pid}")
 
 
+def _holds_idle(pid: int) -> bool:
+    """Whether a DPU holds /dev/cpu_dma_latency open (its request that the CPUs stay out of
+    deep idle states)."""
+    return any(os.readlink(fd) == "/dev/cpu_dma_latency" for fd in Path(f"/proc/{pid}/fd").iterdir())
+
+
 def test_sleep_mode_cycles_run_sched_fifo_where_permitted(dpus: DpuFarm, url: str, tmp_path: Path) -> None:
     """`sleep` models a dedicated processor: its cycles run SCHED_FIFO (when the DPU may),
-    so a busy machine does not stretch them; `wall` spins, and stays SCHED_OTHER."""
+    so a busy machine does not stretch them, and keep the CPUs out of deep idle states for
+    the run; `wall` spins, and stays SCHED_OTHER."""
     system_file = tmp_path / "modes.yaml"
     system_file.write_text(MODES_SYSTEM)
     system = with_url(load(system_file, []), url)
@@ -141,14 +148,22 @@ def test_sleep_mode_cycles_run_sched_fifo_where_permitted(dpus: DpuFarm, url: st
         assert control.wait_for(lambda: all(control.dpus[i].status.state == skelmsg.status_t.STATE_RUNNING
                                             for i in (1, 2)), 3.0)
         during = {i: _exec_sched(pids[i]) for i in (1, 2)}
+        holding = {i: _holds_idle(pids[i]) for i in (1, 2)}
+        target = Path("/dev/cpu_dma_latency").read_bytes()[:4] if permitted else None
         assert control.wait_for(lambda: all((i, 77) in control.reports for i in (1, 2)), 5.0)
         time.sleep(0.2)
         after = {i: _exec_sched(pids[i])[0] for i in (1, 2)}
+        held_after = {i: _holds_idle(pids[i]) for i in (1, 2)}
     finally:
         control.close()
     assert during == ({1: (1, 10), 2: (0, 0)} if permitted else {1: (0, 0), 2: (0, 0)})
     assert after == {1: 0, 2: 0}
+    # Real-time cycles keep the CPUs out of deep idle states for the run (as cyclictest does),
+    # and only then: a wake-up from one lengthens every release.
+    assert holding == {1: permitted, 2: False}
+    assert held_after == {1: False, 2: False}
     if permitted:
+        assert target is not None and struct.unpack("i", target)[0] == 0  # the kernel's, while held
         assert "run 77 started (1 processes, SCHED_FIFO 10)" in dpus.log(1)
     else:
         assert "cannot run cycles under SCHED_FIFO" in dpus.log(1)
