@@ -174,12 +174,12 @@ def cyclictest_start(binary: str, seconds: float, priority: int, cpu: int,
                      period_us: int = PERIOD_US) -> subprocess.Popen[str]:  # fmt: skip
     """cyclictest for SECONDS on CPU, in the background: clock_nanosleep on an absolute time
     (as skel-dpu waits; cyclictest 2.x has no -n, it is the default), -m (locked memory),
-    the same period, a histogram for the percentiles. Under SCHED_FIFO it holds
-    /dev/cpu_dma_latency at 0 (its default), as skel-dpu does for a run's real-time cycles;
-    under SCHED_OTHER neither does (--default-system)."""
+    the same period, a histogram for the percentiles. It holds /dev/cpu_dma_latency at 0 (its
+    default), as skel-dpu does for a run."""
     loops = int(seconds * 1e6 / period_us)
     argv = [binary, "-m", "-q", "-i", str(period_us), "-l", str(loops), "-h", "5000", "-a", str(cpu)]
-    argv += ["-p", str(priority)] if priority else ["--default-system"]
+    if priority:
+        argv += ["-p", str(priority)]
     with _timer_slack_1ns():
         return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 

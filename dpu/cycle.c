@@ -36,10 +36,11 @@ int cycle_rt_priority(const skel_server_t *s, const skel_plan_t *plan)
     return plan->compute == SKELMSG_DPU_T_COMPUTE_SLEEP ? SKEL_RT_PRIORITY : 0;
 }
 
-/* Real-time cycles also keep the CPUs out of deep idle states, as cyclictest does by
- * default: a wake-up from one costs every release. On our VM (haltpoll) a sleeping
- * SCHED_FIFO thread woke 38.7-39.7 us late at the median at 1 kHz, 18.4-19.1 us with
- * the request held. The kernel keeps the request while the file is open. */
+/* A run, in every mode and executive, keeps the CPUs out of deep idle states, as
+ * cyclictest does by default: a wake-up from one costs every release. On our VM
+ * (haltpoll) a sleeping SCHED_FIFO thread woke 38.7-39.7 us late at the median at
+ * 1 kHz, 18.4-19.1 us with the request held. The kernel keeps the request while the
+ * file is open. */
 static void cycle_hold_idle(skel_server_t *s, int hold)
 {
     if (clock_simulated() || hold == s->idle_held) return;
@@ -75,7 +76,7 @@ int cycle_schedule(skel_server_t *s, const skel_plan_t *plan, int running)
                  "them (needs root or CAP_SYS_NICE; --rt-priority 0 silences this)",
                  plan->dpu, prio > 0 ? "SCHED_FIFO" : "SCHED_OTHER", strerror(rc));
     }
-    cycle_hold_idle(s, rc == 0 && prio > 0);
+    cycle_hold_idle(s, running);
     return rc == 0 ? prio : 0; /* the SCHED_FIFO priority in effect, 0: SCHED_OTHER */
 }
 
