@@ -127,15 +127,6 @@ static int64_t cyclic_switch_at(const skel_exec_t *x, int64_t j_prev, int64_t *j
     return swap_instant(x->plan, *j_sw);
 }
 
-/* The executive slept until UNTIL, so it was on time: the stalls it owed are
- * paid. A wake-up later than the stall threshold is a stall of its own. */
-static void cyclic_woke(skel_exec_t *x, int64_t until)
-{
-    int64_t late = clock_mono_ns() - until;
-    x->wake_stall_ns = late > x->s->compute.stall_ns ? late : 0;
-    x->stall_debt_ns = x->wake_stall_ns;
-}
-
 /* The executive found itself at release R already past: what of the time since its
  * last step the thread was kept from running (a stop of the process between two steps,
  * after the last one judged) is the stall of this minor's wake-up, at most its lateness.
@@ -184,7 +175,7 @@ void cyclic_run(skel_exec_t *x, const skel_run_t *run)
         int rc = cycle_wait(x, until);
         if (rc == 2) continue;
         if (rc != 0 || r >= run->end_mono_ns) break;
-        if (on_time) cyclic_woke(x, until);
+        if (on_time) process_woke(x, until);
         else cyclic_behind(x, r);
         atomic_store(&s->behind_ns, on_time ? 0 : clock_mono_ns() - r);
         if (x->announce) cycle_announce(x);

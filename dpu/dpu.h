@@ -809,6 +809,7 @@ void process_write_outputs(skel_exec_t *x, skel_process_t *p, int64_t k);
 void process_finish(skel_exec_t *x, skel_process_t *p, skel_rec_t *rec, int64_t release,
                     int64_t t_out, int measured);
 void process_remark(skel_exec_t *x, int64_t now);
+void process_woke(skel_exec_t *x, int64_t until);
 int64_t process_kept(skel_exec_t *x, skel_rec_t *rec, int64_t step_from, int64_t now);
 int64_t process_lost(skel_exec_t *x, int64_t now, int64_t most);
 

@@ -270,6 +270,45 @@ static void test_a_stop_after_a_process_is_a_stall_whatever_it_ended_with(void)
     server_free(&s);
 }
 
+/* On time at a release, the executive goes from its wake-up to its first process, and from
+ * one process's end to the next one's start, without waiting: a stop of its thread there is
+ * the next record's stall, and its lateness the stall's, not the design's (no lockout).
+ * Neither was charged: a DPU stopped right after waking on time ran 80 ms behind as the
+ * design's flaw (a fresh-clone CI run of 6395901). */
+static void test_a_stop_before_a_process_starts_is_its_stall(void)
+{
+    static skel_server_t s;
+    skel_process_t p[2];
+    skel_plan_t plan;
+    skel_exec_t x = sleep_plan(&s, &plan, p, 2);
+    p[0].compute_ns = p[1].compute_ns = 200000;
+    skel_rec_t rec;
+    pthread_t t;
+    if (hog_start(&t, "the stop after a wake-up") == 0) {
+        int64_t release = clock_mono_ns();
+        process_woke(&x, release);
+        CHECK_EQ(x.wake_stall_ns, 0);
+        CHECK_EQ(sem_post(&go), 0); /* the hog takes our CPU for 8 ms, now */
+        CHECK_EQ(process_cycle(&x, &p[0], 0, 0, release, release, &rec), PROCESS_DONE);
+        CHECK(rec.stall_ns >= 6000000 && rec.stall_ns <= 13000000);
+        CHECK_EQ(rec.debt_ns, rec.stall_ns);
+        CHECK(!(rec.flags & SKELMSG_TIMING_T_FLAG_LOCKOUT)); /* 8 ms late, 5 ms its lockout */
+        hog_join(t);
+    }
+    if (hog_start(&t, "the stop between two processes") == 0) {
+        int64_t release = clock_mono_ns();
+        process_woke(&x, release);
+        CHECK_EQ(process_cycle(&x, &p[0], 1, 1, release, release, &rec), PROCESS_DONE);
+        CHECK_EQ(rec.stall_ns, 0);
+        CHECK_EQ(sem_post(&go), 0);
+        CHECK_EQ(process_cycle(&x, &p[1], 1, 1, release, release, &rec), PROCESS_DONE);
+        CHECK(rec.stall_ns >= 6000000 && rec.stall_ns <= 13000000);
+        CHECK(!(rec.flags & SKELMSG_TIMING_T_FLAG_LOCKOUT));
+        hog_join(t);
+    }
+    server_free(&s);
+}
+
 int main(void)
 {
     server.compute.stall_ns = SKEL_STALL_NS;
@@ -279,5 +318,6 @@ int main(void)
     test_a_thread_that_takes_the_cpu_is_a_stall(&x);
     test_a_computation_past_its_window_locks_out_while_it_runs();
     test_a_stop_after_a_process_is_a_stall_whatever_it_ended_with();
+    test_a_stop_before_a_process_starts_is_its_stall();
     return CHECK_DONE();
 }
