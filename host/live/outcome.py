@@ -14,7 +14,7 @@ from pathlib import Path
 from rich.console import Console
 
 from skeleton.analysis.errors import EXIT_FAILED, EXIT_FATAL_FLAW, EXIT_OK
-from skeleton.analysis.measure.run import load_run
+from skeleton.analysis.measure.run import RunAnalysis, load_run
 from skeleton.analysis.read.messages import LogError
 from skeleton.analysis.views.summary import FAILED_KINDS, print_summary, rest_line
 from skeleton.analysis.views.tables import print_report
@@ -61,22 +61,20 @@ def fault_window_s(system: System) -> float:
 
 def report_run(console: Console, system: System, options: RunOptions, out: Path, run_id: int,
                lost: set[int], repaired: RepairResult, restarts: int = 0, problems: Sequence[str] = (),
-               simulated: Path | None = None) -> int:
+               simulated: RunAnalysis | None = None, analysis: RunAnalysis | None = None) -> int:
     """The tables, with what makes the run's log or the run itself incomplete said first;
-    `simulated`: a simulated run of the same system, laid beside this one."""
+    `simulated`: a simulated run of the same system, laid beside this one; `analysis`: the
+    run's log analysed already (a simulation's)."""
     for problem in problems:
         console.print(f"[bold red]INCOMPLETE[/] {problem}", soft_wrap=True)
     try:
-        run = load_run(out / "run.lcm", run_id=run_id, key=options.key)
+        run = analysis or load_run(out / "run.lcm", run_id=run_id, key=options.key)
     except LogError as error:
         console.print(f"[red]{out / 'run.lcm'}: {error}[/]")
         return EXIT_FAILED
     missing = run.add_prediction(predictor(system.path))
     if simulated is not None:
-        try:
-            run.add_simulation(load_run(simulated / "run.lcm").report, str(simulated))
-        except LogError as error:
-            missing = "\n".join(filter(None, [missing, f"no simulation beside it: {simulated}: {error}"]))
+        run.add_simulation(simulated.report, str(Path(simulated.path).parent))
     report = run.report
     (out / "report.json").write_text(json.dumps(report.to_json(), indent=2) + "\n")
     if options.as_json:

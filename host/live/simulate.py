@@ -33,7 +33,8 @@ from rich.console import Console
 
 import skelmsg
 from skeleton.analysis.errors import EXIT_FAILED, SkelError
-from skeleton.analysis.measure.run import load_run
+from skeleton.analysis.measure.report import RunReport
+from skeleton.analysis.measure.run import RunAnalysis, load_run
 from skeleton.analysis.read.messages import LogError
 from skeleton.analysis.views.summary import fault_line
 from skelmsg import contract
@@ -142,49 +143,53 @@ def run_simulation(system: System, out: Path, duration_ns: int, pushes: Sequence
     return Simulated(virtual_s=(START_LEAD_S * 1e9 + duration_ns) / 1e9, wall_s=wall_s)
 
 
-def beside_run(system: System, out: Path, duration_ns: int) -> tuple[Path | None, str | None]:
-    """The simulation `skel run` lays beside a measured run (in `out`/simulated), or why none."""
+def beside_run(system: System, out: Path, duration_ns: int) -> tuple[RunAnalysis | None, str | None]:
+    """The simulation `skel run` lays beside a measured run (in `out`/simulated), analysed, or
+    why none."""
     try:
-        simulate_into(system, out / "simulated", duration_ns)
+        return simulate_into(system, out / "simulated", duration_ns)[1], None
     except (SimulationError, SpawnError, OSError, LogError) as error:
         return None, f"no simulation beside the run: {error}"
-    return out / "simulated", None
 
 
-def _stop_after_ns(system: System, out: Path) -> int | None:
-    """Where `skel run` would have stopped this run (ns after its start), None: nowhere."""
+def _stop_after_ns(system: System, report: RunReport) -> int | None:
+    """Where `skel run` would have stopped the run of `report` (ns after its start), None:
+    nowhere."""
     if not system.run.stop_on:
         return None
-    first = min((f.at_s for f in load_run(out / "run.lcm").report.faults if f.kind in system.run.stop_on),
-                default=None)
+    first = min((f.at_s for f in report.faults if f.kind in system.run.stop_on), default=None)
     if first is None:
         return None
     return round((first + fault_window_s(system)) * 1e9)
 
 
-def simulate_into(system: System, out: Path, duration_ns: int, pushes: Sequence[Push] = ()) -> Simulated:
+def simulate_into(system: System, out: Path, duration_ns: int,
+                  pushes: Sequence[Push] = ()) -> tuple[Simulated, RunAnalysis]:
     """A simulated run of `system` in `out` (system.yaml, run.lcm, logs/), stopped where
-    `skel run` would stop it; raises SimulationError, OSError or LogError."""
+    `skel run` would stop it, and its log analysed once (every caller reads its report);
+    raises SimulationError, OSError or LogError."""
     out.mkdir(parents=True, exist_ok=True)
     (out / "system.yaml").write_text(system.source_text)
     for n, push in enumerate(sorted(pushes, key=lambda p: p.at_s)):  # as `skel run` keeps a push's file
         (out / f"system-g{SIM_GENERATION + 1 + n}.yaml").write_text(push.system.source_text)
     took = run_simulation(system, out, duration_ns, pushes)
-    stop = _stop_after_ns(system, out)
+    analysis = load_run(out / "run.lcm")
+    stop = _stop_after_ns(system, analysis.report)
     if stop is not None and stop < duration_ns:
         took = run_simulation(system, out, duration_ns, pushes, stop_at_ns=stop)
-    return took
+        analysis = load_run(out / "run.lcm")
+    return took, analysis
 
 
 def simulate(system: System, options: RunOptions, console: Console, pushes: Sequence[Push] = ()) -> int:
     out = options.out or Path("runs") / f"{system.name}-sim-{time.strftime('%Y%m%d-%H%M%S')}"
     duration_ns = system.run_duration_ns(options.cycles, options.duration_s)
     try:
-        took = simulate_into(system, out, duration_ns, pushes)
+        took, analysis = simulate_into(system, out, duration_ns, pushes)
     except (SimulationError, SpawnError, OSError, LogError) as error:
         console.print(f"[red]{error}[/]", soft_wrap=True)
         return EXIT_FAILED
-    code = report_run(console, system, options, out, SIM_RUN_ID, set(), RepairResult())
+    code = report_run(console, system, options, out, SIM_RUN_ID, set(), RepairResult(), analysis=analysis)
     if not options.as_json:
         console.print(f"simulated {took.virtual_s:.1f} s of system time in {took.wall_s:.2f} s "
                       f"({took.speed:.0f} times real time), on virtual time: no platform in it",
@@ -208,7 +213,7 @@ def simulated_flaws(system: System) -> list[str]:
                                                                 stop_on=()))
     slowest_ns = max(p.period_us for p in system.processes) * 1000
     with tempfile.TemporaryDirectory(prefix="skel-margin-") as tmp:
-        simulate_into(probe, Path(tmp), (PROBE_WARMUP_CYCLES + PROBE_CYCLES) * slowest_ns)
-        faults = load_run(Path(tmp) / "run.lcm").report.faults
+        _, analysis = simulate_into(probe, Path(tmp), (PROBE_WARMUP_CYCLES + PROBE_CYCLES) * slowest_ns)
+        faults = analysis.report.faults
     return [fault_line(f) for f in faults
             if (f.fatal or f.kind in ("overrun", "skipping")) and f.process not in paced]

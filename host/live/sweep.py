@@ -197,8 +197,8 @@ def _platform(system: System, scope: Scope, step: Step, window: WindowReport, ou
     """What the platform cost the flawed step's DPUs beyond a simulation of the same step."""
     at = out / f"simulated-g{step.generation}"
     try:
-        simulate_into(scaled(system, "compute", step.factor, scope), at, round(hold_s(system) * 4e9))
-        simulated = load_run(at / "run.lcm").report.dpus
+        simulated = simulate_into(scaled(system, "compute", step.factor, scope), at,
+                                  round(hold_s(system) * 4e9))[1].report.dpus
     except (SkelError, OSError) as error:
         return f"no simulation of the step: {error}"
     named = [f"DPU {c.id}: {c.named} {c.cost_points:+.1f} points" for c in
